@@ -1,0 +1,6 @@
+//! `render-worker`: owns simulation sessions and renders their frames on the GPU with wgpu.
+//!
+//! Every GPU result has a CPU reference in `sim-core` and is compared with it under a stated
+//! tolerance. On machines without a hardware GPU, Mesa's lavapipe (software Vulkan) is used.
+
+pub mod gpu;

@@ -1,0 +1,1 @@
+//! Integration tests of render-worker, one module per area.

@@ -1,0 +1,123 @@
+//! Regular voxel grids in a region's model frame: CT underlays, label volumes, concentration fields.
+//!
+//! Convention (voxel centres): voxel `(i, j, k)` is the cube of side `spacing_mm` centred at
+//! `origin_mm + (i, j, k) * spacing_mm`; the grid axes are the model frame's axes. The volume
+//! covered by the grid therefore spans `origin - spacing/2 .. origin + (dims - 1/2) * spacing`.
+//! Data are stored x-fastest: `index = i + nx * (j + ny * k)`.
+
+use serde::{Deserialize, Serialize};
+
+/// Geometry of an axis-aligned voxel grid.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct VolumeGrid {
+    /// Number of voxels along x, y, z.
+    pub dims: [usize; 3],
+    /// Voxel size along x, y, z in millimetres.
+    pub spacing_mm: [f64; 3],
+    /// Centre of voxel (0, 0, 0) in the model frame, millimetres.
+    pub origin_mm: [f64; 3],
+}
+
+impl VolumeGrid {
+    /// Total voxel count.
+    pub fn len(&self) -> usize {
+        self.dims[0] * self.dims[1] * self.dims[2]
+    }
+
+    /// True for a grid without voxels.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Linear index of voxel `(i, j, k)` (x fastest).
+    pub fn index(&self, i: usize, j: usize, k: usize) -> usize {
+        i + self.dims[0] * (j + self.dims[1] * k)
+    }
+
+    /// Voxel `(i, j, k)` of a linear index.
+    pub fn ijk(&self, index: usize) -> [usize; 3] {
+        let i = index % self.dims[0];
+        let j = (index / self.dims[0]) % self.dims[1];
+        let k = index / (self.dims[0] * self.dims[1]);
+        [i, j, k]
+    }
+
+    /// Centre of voxel `(i, j, k)` in millimetres.
+    pub fn voxel_center_mm(&self, i: usize, j: usize, k: usize) -> [f64; 3] {
+        [
+            self.origin_mm[0] + i as f64 * self.spacing_mm[0],
+            self.origin_mm[1] + j as f64 * self.spacing_mm[1],
+            self.origin_mm[2] + k as f64 * self.spacing_mm[2],
+        ]
+    }
+
+    /// Continuous voxel coordinates of a point (voxel centres at integers).
+    pub fn world_to_voxel(&self, p_mm: [f64; 3]) -> [f64; 3] {
+        [
+            (p_mm[0] - self.origin_mm[0]) / self.spacing_mm[0],
+            (p_mm[1] - self.origin_mm[1]) / self.spacing_mm[1],
+            (p_mm[2] - self.origin_mm[2]) / self.spacing_mm[2],
+        ]
+    }
+
+    /// The outer faces of the grid's voxels `(min, max)` in millimetres.
+    pub fn extent_mm(&self) -> ([f64; 3], [f64; 3]) {
+        let lo = std::array::from_fn(|a| self.origin_mm[a] - 0.5 * self.spacing_mm[a]);
+        let hi = std::array::from_fn(|a| self.origin_mm[a] + (self.dims[a] as f64 - 0.5) * self.spacing_mm[a]);
+        (lo, hi)
+    }
+
+    /// Volume of one voxel in mm^3.
+    pub fn voxel_volume_mm3(&self) -> f64 {
+        self.spacing_mm[0] * self.spacing_mm[1] * self.spacing_mm[2]
+    }
+}
+
+/// A grid plus one value per voxel.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Volume<T> {
+    /// Where the voxels are.
+    pub grid: VolumeGrid,
+    /// One value per voxel, x fastest.
+    pub data: Vec<T>,
+}
+
+impl<T: Clone> Volume<T> {
+    /// A volume filled with `value`.
+    pub fn filled(grid: VolumeGrid, value: T) -> Self {
+        Volume { grid, data: vec![value; grid.len()] }
+    }
+}
+
+impl<T: Copy> Volume<T> {
+    /// Value of voxel `(i, j, k)`.
+    pub fn get(&self, i: usize, j: usize, k: usize) -> T {
+        self.data[self.grid.index(i, j, k)]
+    }
+
+    /// Sets voxel `(i, j, k)`.
+    pub fn set(&mut self, i: usize, j: usize, k: usize, value: T) {
+        let idx = self.grid.index(i, j, k);
+        self.data[idx] = value;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn index_round_trip_and_voxel_centres() {
+        let g = VolumeGrid { dims: [4, 3, 2], spacing_mm: [0.5, 1.0, 2.0], origin_mm: [10.0, 20.0, 30.0] };
+        for idx in 0..g.len() {
+            let [i, j, k] = g.ijk(idx);
+            assert_eq!(g.index(i, j, k), idx);
+            let c = g.voxel_center_mm(i, j, k);
+            let v = g.world_to_voxel(c);
+            assert_eq!(v, [i as f64, j as f64, k as f64]);
+        }
+        let (lo, hi) = g.extent_mm();
+        assert_eq!(lo, [9.75, 19.5, 29.0]);
+        assert_eq!(hi, [11.75, 22.5, 33.0]);
+    }
+}
