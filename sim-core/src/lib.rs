@@ -15,4 +15,5 @@
 
 pub mod material;
 pub mod mesh;
+pub mod rubric;
 pub mod volume;

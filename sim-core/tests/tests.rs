@@ -1,1 +1,2 @@
 //! Integration tests of sim-core, one module per area.
+mod rubric;
