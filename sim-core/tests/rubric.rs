@@ -552,8 +552,8 @@ fn invalid_stations_are_rejected_with_the_rule_they_break() {
         ),
         (
             station_toml(0.5, &ok_crit).replace(
-                "name = \"t\"",
-                "name = \"t\"\n[[targets]]\nname = \"t\"\nposition_mm = [0.0, 0.0, 0.0]",
+                "position_mm = [1.0, 2.0, 3.0]",
+                "position_mm = [1.0, 2.0, 3.0]\n[[targets]]\nname = \"t\"\nposition_mm = [0.0, 0.0, 0.0]",
             ),
             "target name \"t\" is not unique",
         ),
