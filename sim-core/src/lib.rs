@@ -13,6 +13,7 @@
 //! assert!(cube.topology_report().is_closed_and_consistent());
 //! ```
 
+pub mod anatomy;
 pub mod material;
 pub mod mesh;
 pub mod rubric;

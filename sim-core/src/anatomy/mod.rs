@@ -1,0 +1,24 @@
+//! Anatomy assets: the on-disk region format, the meshing and labelling pipeline, real-CT
+//! (NIfTI / TotalSegmentator) import and the procedural lumbosacral phantom.
+//!
+//! Data flow: a CT volume in HU plus one occupancy mask per structure, all on one axis-aligned
+//! grid in the region's model frame, go into [`pipeline::build_region`], which returns a
+//! [`asset::RegionAsset`] (closed structure meshes, 8-bit CT underlay, label volume, provenance);
+//! [`asset::RegionAsset::write_to`] stores it atomically and [`asset::RegionAsset::load`] reads it
+//! back, verifying the SHA-256 of every file. The phantom ([`phantom`]) and real-CT import
+//! ([`nifti_import`], [`totalseg`]) are the two producers of those inputs.
+//!
+//! Architecture invariant: every mesh that leaves the pipeline is closed, consistently wound
+//! (outward), free of degenerate triangles and of positive volume; anything else is an error.
+
+pub mod asset;
+pub mod decimate;
+pub mod error;
+mod glb;
+pub mod labels;
+pub mod mesher;
+pub mod phantom;
+pub mod pipeline;
+pub mod smooth;
+
+pub use error::AnatomyError;
