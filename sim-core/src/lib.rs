@@ -14,6 +14,7 @@
 //! ```
 
 pub mod anatomy;
+pub mod fluoro;
 pub mod geom;
 pub mod material;
 pub mod mesh;
