@@ -223,22 +223,27 @@ mod tests {
     }
 
     #[test]
-    fn single_voxel_gives_closed_outward_octahedron_like_surface() {
-        let g = grid(3, 2.0);
+    fn small_block_gives_closed_outward_surface_centred_on_it() {
+        // A 2 x 2 x 2 block of voxels in a 4^3 grid: its centre is voxel coordinate 1.5.
+        let g = grid(4, 2.0);
         let mut v = vec![0.0f32; g.len()];
-        v[g.index(1, 1, 1)] = 1.0;
+        for k in 1..3 {
+            for j in 1..3 {
+                for i in 1..3 {
+                    v[g.index(i, j, k)] = 1.0;
+                }
+            }
+        }
         for u in [1, 2, 3] {
             let m = extract_isosurface(&ScalarField { grid: g, values: &v }, 0.5, u).unwrap();
             assert!(m.topology_report().is_closed_and_consistent(), "upsample {u}: {:?}", m.topology_report());
-            assert!(m.signed_volume_mm3() > 0.0);
-            // Symmetric about the voxel centre: the vertex centroid is the centre.
-            let c = m.vertices_mm.iter().fold([0.0; 3], |s, p| [s[0] + p[0], s[1] + p[1], s[2] + p[2]]);
-            let n = m.vertices_mm.len() as f64;
-            let centre = g.voxel_center_mm(1, 1, 1);
+            assert!(m.signed_volume_mm3() > 0.0, "upsample {u}: volume {}", m.signed_volume_mm3());
+            let (lo, hi) = m.bounding_box_mm().unwrap();
+            let centre = [1.0 + 1.5 * 2.0, -2.0 + 1.5 * 2.0, 3.0 + 1.5 * 2.0];
             for a in 0..3 {
-                // Kuhn tetrahedra are not mirror-symmetric, so the centroid may move by a small
-                // fraction of a voxel; a quarter-voxel shift (0.5 mm here) would fail this.
-                assert!((c[a] / n - centre[a]).abs() < 0.1 * 2.0, "upsample {u} axis {a}: {}", c[a] / n);
+                // The bounding box is symmetric about the block centre to rounding: a quarter-voxel
+                // shift (0.5 mm here) would move its midpoint by 0.5 mm.
+                assert!(((lo[a] + hi[a]) / 2.0 - centre[a]).abs() < 1e-6, "upsample {u} axis {a}: {lo:?} {hi:?}");
             }
         }
     }

@@ -17,8 +17,10 @@ pub mod error;
 mod glb;
 pub mod labels;
 pub mod mesher;
+pub mod nifti_import;
 pub mod phantom;
 pub mod pipeline;
 pub mod smooth;
+pub mod totalseg;
 
 pub use error::AnatomyError;
