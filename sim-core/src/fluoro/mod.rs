@@ -6,17 +6,21 @@
 //!    returns exact chord lengths per material, nested materials replacing each other by priority
 //!    (soft tissue inside bone counts as bone only; a needle is subtracted from whatever holds it).
 //! 3. [`contrast`] adds the stock-equivalent iodine column ray-marched through a concentration grid.
-//! 4. [`spectrum`] turns chords into transmission: a polychromatic sum over a SpekPy tube spectrum
+//! 4. [`attenuation`] turns chords into transmission: a polychromatic sum over a SpekPy tube spectrum
 //!    with NIST-derived attenuation, or the single 60 keV reference energy.
 //! 5. [`render`] normalises exposure, maps to 8-bit, adds seeded quantum noise and draws the
 //!    collimator shutters.
 //!
 //! The GPU renderer in `render-worker` reproduces steps 1 to 4 and is tested against this module.
 //! Units: millimetres for geometry, per-centimetre attenuation coefficients (as tabulated), and
-//! every chord is converted to centimetres exactly once, in [`spectrum`].
+//! every chord is converted to centimetres exactly once, in [`attenuation`].
 //!
 //! The model frame, the C-arm angles and the pixel convention are documented in [`geometry`].
 
+pub mod attenuation;
 pub mod geometry;
+pub mod spectrum;
 
+pub use attenuation::{BasisDepths, EnergyModel, FluoroMaterial, MaterialChords, SpectralModel};
 pub use geometry::{Collimation, DetectorFrame, GpuRayFrame, Projection, Ray};
+pub use spectrum::{AttenuationTables, Basis, Spectrum};
