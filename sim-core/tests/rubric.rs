@@ -670,6 +670,14 @@ fn every_station_file_loads_and_validates() {
             "{}",
             s.id
         );
+        // Frame convention (assets/stations/README.md): RAS, so left-sided targets lie at x < 0
+        // and every target here is posterior to the L4 body centre (y < 0).
+        for t in &s.targets {
+            assert!(t.position_mm[1] < 0.0, "{}: {} is not posterior", s.id, t.name);
+            if s.id.contains("left") && t.name.starts_with("left") {
+                assert!(t.position_mm[0] < 0.0, "{}: {} is not on the left (RAS)", s.id, t.name);
+            }
+        }
         // The same file parses identically through the string entry point.
         assert_eq!(&Station::from_toml_str(&f.text).unwrap(), s);
     }
