@@ -19,8 +19,10 @@
 
 pub mod attenuation;
 pub mod geometry;
+pub mod scene;
 pub mod spectrum;
 
 pub use attenuation::{BasisDepths, EnergyModel, FluoroMaterial, MaterialChords, SpectralModel};
 pub use geometry::{Collimation, DetectorFrame, GpuRayFrame, Projection, Ray};
+pub use scene::{ChordScratch, NOMINAL_CORTICAL_SHELL_MM, RayChords, Scene, SceneEntry};
 pub use spectrum::{AttenuationTables, Basis, Spectrum};
