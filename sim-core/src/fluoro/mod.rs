@@ -18,11 +18,13 @@
 //! The model frame, the C-arm angles and the pixel convention are documented in [`geometry`].
 
 pub mod attenuation;
+pub mod contrast;
 pub mod geometry;
 pub mod scene;
 pub mod spectrum;
 
 pub use attenuation::{BasisDepths, EnergyModel, FluoroMaterial, MaterialChords, SpectralModel};
+pub use contrast::IodineField;
 pub use geometry::{Collimation, DetectorFrame, GpuRayFrame, Projection, Ray};
 pub use scene::{ChordScratch, NOMINAL_CORTICAL_SHELL_MM, RayChords, Scene, SceneEntry};
 pub use spectrum::{AttenuationTables, Basis, Spectrum};
