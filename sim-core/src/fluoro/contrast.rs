@@ -188,7 +188,10 @@ mod tests {
         let p = |t: f64| std::array::from_fn(|a| o[a] + t * d[a]);
         let (mid, half) = (0.5 * (t0 + t1), 0.5 * (t1 - t0));
         let g3 = (0.6f64).sqrt();
-        let exact = half * (5.0 / 9.0 * c(p(mid - g3 * half)) + 8.0 / 9.0 * c(p(mid)) + 5.0 / 9.0 * c(p(mid + g3 * half)));
+        let exact = half
+            * (5.0 / 9.0 * c(p(mid - g3 * half))
+                + 8.0 / 9.0 * c(p(mid))
+                + 5.0 / 9.0 * c(p(mid + g3 * half)));
         assert!(exact > 10.0);
         assert!((col - exact).abs() < 1e-6 * exact, "{col} vs {exact}");
     }

@@ -20,11 +20,16 @@
 pub mod attenuation;
 pub mod contrast;
 pub mod geometry;
+pub mod render;
 pub mod scene;
 pub mod spectrum;
 
 pub use attenuation::{BasisDepths, EnergyModel, FluoroMaterial, MaterialChords, SpectralModel};
 pub use contrast::IodineField;
 pub use geometry::{Collimation, DetectorFrame, GpuRayFrame, Projection, Ray};
+pub use render::{
+    Exposure, Image, QuantumNoise, RenderSettings, TransmissionImage, render_chords, render_frame,
+    render_transmission,
+};
 pub use scene::{ChordScratch, NOMINAL_CORTICAL_SHELL_MM, RayChords, Scene, SceneEntry};
 pub use spectrum::{AttenuationTables, Basis, Spectrum};

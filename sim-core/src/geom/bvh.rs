@@ -237,6 +237,12 @@ impl Bvh {
         self.tris.len()
     }
 
+    /// Triangle corners in tree order (each triangle's source index is not exposed here; use the
+    /// hits for that). For overlays and conservative rasterisation.
+    pub fn triangles_mm(&self) -> &[[[f64; 3]; 3]] {
+        &self.tris
+    }
+
     /// Padded bounding box of the whole mesh `(min, max)` in mm (`None` for an empty mesh).
     pub fn bounds_mm(&self) -> Option<([f64; 3], [f64; 3])> {
         let root = self.nodes[0];
