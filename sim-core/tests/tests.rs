@@ -1,2 +1,3 @@
 //! Integration tests of sim-core, one module per area.
+mod anatomy;
 mod rubric;
