@@ -1,3 +1,4 @@
 //! Integration tests of sim-core, one module per area.
 mod anatomy;
+mod fluoro;
 mod rubric;

@@ -17,6 +17,7 @@
 //!
 //! The model frame, the C-arm angles and the pixel convention are documented in [`geometry`].
 
+pub mod analytic;
 pub mod attenuation;
 pub mod contrast;
 pub mod geometry;

@@ -1,0 +1,131 @@
+//! Fluoroscopy reference against analytic chords (issue 4's acceptance scene): nested spheres
+//! (soft tissue 100 mm, bone 30 mm) plus a 22 G needle, -ln T per pixel versus triangle count.
+
+use sim_core::fluoro::analytic::{ErrorStats, Solid, SpherePhantom, neg_log_t_errors};
+use sim_core::fluoro::{EnergyModel, FluoroMaterial, Projection, SpectralModel, render_chords};
+use sim_core::material::MaterialClass;
+use sim_core::mesh::TriMesh;
+
+const SOFT: FluoroMaterial = FluoroMaterial::Tissue(MaterialClass::SoftTissue);
+const BONE: FluoroMaterial = FluoroMaterial::Tissue(MaterialClass::CorticalBone);
+
+/// AP view whose field (128 pixels of 3.5 mm, 448 mm) holds the whole 200 mm sphere magnified
+/// 2.03 times.
+fn projection(n: u32) -> Projection {
+    Projection {
+        detector_pixels: [n, n],
+        pixel_pitch_mm: [448.0 / n as f64; 2],
+        ..Projection::default()
+    }
+}
+
+fn errors(phantom: SpherePhantom, n: u32, model: EnergyModel) -> ErrorStats {
+    let (scene, reference) = phantom.build();
+    let p = projection(n);
+    let chords = render_chords(&scene, &p, 0);
+    ErrorStats::of(neg_log_t_errors(
+        &chords,
+        &reference,
+        &p,
+        &SpectralModel::new(model).unwrap(),
+    ))
+}
+
+#[test]
+fn median_error_falls_below_one_in_ten_thousand_at_327k_triangles() {
+    // Volume-matched icospheres, 7 subdivisions: 327,680 triangles per sphere. Issue 4 asks for a
+    // median relative error of -ln T under 1e-4; the table in the bench shows the convergence.
+    let phantom = SpherePhantom {
+        subdivisions: 7,
+        volume_matched: true,
+        needle_segments: 64,
+    };
+    for model in [EnergyModel::Mono60, EnergyModel::Spectral { kvp: 80 }] {
+        let e = errors(phantom, 128, model);
+        assert!(e.pixels > 8000, "{e:?}");
+        assert!(e.median < 1e-4, "{model:?}: {e:?}");
+    }
+}
+
+#[test]
+fn error_falls_with_triangle_count() {
+    let mut last = f64::INFINITY;
+    for s in [2, 3, 4, 5] {
+        let e = errors(
+            SpherePhantom {
+                subdivisions: s,
+                volume_matched: false,
+                needle_segments: 64,
+            },
+            64,
+            EnergyModel::Mono60,
+        );
+        // Inscribed polyhedra: the deficit shrinks by about 4x per subdivision.
+        assert!(e.median < 0.5 * last, "subdivision {s}: {e:?} after {last}");
+        last = e.median;
+    }
+}
+
+#[test]
+fn bone_disc_has_zero_soft_tissue_excess() {
+    // Through the bone, soft tissue counts only outside it: soft + bone + steel must equal the
+    // chord through the outer (soft) mesh alone, to rounding, on every pixel.
+    let phantom = SpherePhantom {
+        subdivisions: 5,
+        volume_matched: true,
+        needle_segments: 32,
+    };
+    let (scene, _) = phantom.build();
+    let outer = &scene.entries()[0];
+    assert_eq!(outer.material, SOFT);
+    let p = projection(96);
+    let chords = render_chords(&scene, &p, 0);
+    let mut through_bone = 0;
+    let mut hits = Vec::new();
+    for (k, c) in chords.iter().enumerate() {
+        let ray = p.pixel_ray([(k % 96) as f64 + 0.5, (k / 96) as f64 + 0.5]);
+        outer
+            .bvh
+            .all_hits(ray.origin_mm, ray.dir, 0.0, ray.detector_t_mm, &mut hits);
+        let outer_chord: f64 = hits.chunks(2).map(|h| h[1].t_mm - h[0].t_mm).sum();
+        let total = c.chords_mm[SOFT.index()]
+            + c.chords_mm[BONE.index()]
+            + c.chords_mm[FluoroMaterial::Steel.index()];
+        // 1e-9 mm: a few ulp of 1000 mm distances.
+        assert!(
+            (total - outer_chord).abs() < 1e-9,
+            "pixel {k}: {total} vs {outer_chord}"
+        );
+        if c.chords_mm[BONE.index()] > 0.0 {
+            through_bone += 1;
+        }
+    }
+    assert!(through_bone > 300, "{through_bone} pixels cross the bone");
+}
+
+#[test]
+fn mesh_chords_equal_the_exact_polyhedron_chords() {
+    // Intersection error alone (no discretisation): compare with the exact convex polyhedron of
+    // the same icosphere, on a sample of rays including ones through the silhouette region.
+    let mesh = TriMesh::icosphere([3.0, -4.0, 5.0], 50.0, 4);
+    let poly = Solid::convex_hull_of(&mesh);
+    let mut scene = sim_core::fluoro::Scene::new();
+    scene.add("s", SOFT, &mesh);
+    let p = projection(64);
+    let mut scratch = sim_core::fluoro::ChordScratch::default();
+    let mut worst: f64 = 0.0;
+    for j in (0..64).step_by(3) {
+        for i in 0..64 {
+            let ray = p.pixel_ray([i as f64 + 0.5, j as f64 + 0.37]);
+            let c = scene
+                .ray_chords(ray.origin_mm, ray.dir, ray.detector_t_mm, &mut scratch)
+                .chords_mm[SOFT.index()];
+            let exact = poly
+                .interval(ray.origin_mm, ray.dir)
+                .map_or(0.0, |(a, b)| b - a);
+            worst = worst.max((c - exact).abs());
+        }
+    }
+    // 1e-9 mm: rounding of ~1000 mm ray parameters.
+    assert!(worst < 1e-9, "worst chord difference {worst} mm");
+}
