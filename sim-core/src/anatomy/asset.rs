@@ -183,6 +183,9 @@ struct StructureManifest {
     mask_volume_mm3: f64,
 }
 
+/// A file of the region folder: name and content.
+type NamedFile = (&'static str, Vec<u8>);
+
 /// SHA-256 of a byte string, lower-case hex.
 pub fn sha256_hex(bytes: &[u8]) -> String {
     hex::encode(Sha256::digest(bytes))
@@ -207,21 +210,32 @@ impl RegionAsset {
 
     /// The serialized files of the folder (name, bytes), provenance last, with the hashes of the
     /// others recorded in it. Deterministic: the same asset gives the same bytes.
-    fn serialize_files(&self) -> Result<(Vec<(&'static str, Vec<u8>)>, Provenance), AnatomyError> {
+    fn serialize_files(&self) -> Result<(Vec<NamedFile>, Provenance), AnatomyError> {
         if self.ct_u8.grid != self.labels.grid {
-            return Err(AnatomyError::invalid(&self.name, "CT underlay and label volume grids differ"));
+            return Err(AnatomyError::invalid(
+                &self.name,
+                "CT underlay and label volume grids differ",
+            ));
         }
-        if self.ct_u8.data.len() != self.ct_u8.grid.len() || self.labels.data.len() != self.labels.grid.len() {
-            return Err(AnatomyError::invalid(&self.name, "volume data length does not match its grid"));
+        if self.ct_u8.data.len() != self.ct_u8.grid.len()
+            || self.labels.data.len() != self.labels.grid.len()
+        {
+            return Err(AnatomyError::invalid(
+                &self.name,
+                "volume data length does not match its grid",
+            ));
         }
         let manifest = Manifest {
             format_version: FORMAT_VERSION,
             name: self.name.clone(),
-            frame: "model frame, millimetres (for imported CT: world RAS of the source NIfTI)".into(),
+            frame: "model frame, millimetres (for imported CT: world RAS of the source NIfTI)"
+                .into(),
             grid: self.ct_u8.grid,
             ct: CtManifest {
                 file: CT_FILE.into(),
-                encoding: "u8 level = round((clamp(HU, -300, 700) + 300) / (1000 / 255)), x fastest".into(),
+                encoding:
+                    "u8 level = round((clamp(HU, -300, 700) + 300) / (1000 / 255)), x fastest"
+                        .into(),
                 window_min_hu: CT_WINDOW_MIN_HU,
                 window_max_hu: CT_WINDOW_MAX_HU,
                 hu_per_level: CT_HU_PER_LEVEL,
@@ -244,17 +258,21 @@ impl RegionAsset {
                 })
                 .collect(),
         };
-        let region_json = serde_json::to_vec_pretty(&manifest)
-            .map_err(|e| AnatomyError::invalid(&self.name, format!("serializing {REGION_FILE}: {e}")))?;
+        let region_json = serde_json::to_vec_pretty(&manifest).map_err(|e| {
+            AnatomyError::invalid(&self.name, format!("serializing {REGION_FILE}: {e}"))
+        })?;
         let glb_bytes = glb::write_glb(&self.structures)?;
-        let files: Vec<(&'static str, Vec<u8>)> = vec![
+        let files: Vec<NamedFile> = vec![
             (REGION_FILE, region_json),
             (MESHES_FILE, glb_bytes),
             (CT_FILE, self.ct_u8.data.clone()),
             (LABELS_FILE, self.labels.data.clone()),
         ];
         let mut provenance = self.provenance.clone();
-        provenance.files_sha256 = files.iter().map(|(n, b)| ((*n).to_string(), sha256_hex(b))).collect();
+        provenance.files_sha256 = files
+            .iter()
+            .map(|(n, b)| ((*n).to_string(), sha256_hex(b)))
+            .collect();
         Ok((files, provenance))
     }
 
@@ -266,8 +284,9 @@ impl RegionAsset {
     /// temporary folder is removed, so no partial region is left behind.
     pub fn write_to(&self, dir: &Path) -> Result<Provenance, AnatomyError> {
         let (files, provenance) = self.serialize_files()?;
-        let provenance_json = serde_json::to_vec_pretty(&provenance)
-            .map_err(|e| AnatomyError::invalid(&self.name, format!("serializing {PROVENANCE_FILE}: {e}")))?;
+        let provenance_json = serde_json::to_vec_pretty(&provenance).map_err(|e| {
+            AnatomyError::invalid(&self.name, format!("serializing {PROVENANCE_FILE}: {e}"))
+        })?;
         let parent = match dir.parent() {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
             _ => PathBuf::from("."),
@@ -275,14 +294,20 @@ impl RegionAsset {
         fs::create_dir_all(&parent).map_err(|e| AnatomyError::io(&parent, e))?;
         let leaf = dir
             .file_name()
-            .ok_or_else(|| AnatomyError::invalid(dir.display().to_string(), "output folder has no name"))?
+            .ok_or_else(|| {
+                AnatomyError::invalid(dir.display().to_string(), "output folder has no name")
+            })?
             .to_string_lossy()
             .into_owned();
         let unique = format!("{}-{}", std::process::id(), unique_suffix());
         let tmp = parent.join(format!(".{leaf}.tmp-{unique}"));
         let result = (|| {
             fs::create_dir(&tmp).map_err(|e| AnatomyError::io(&tmp, e))?;
-            for (name, bytes) in files.iter().map(|(n, b)| (*n, b)).chain([(PROVENANCE_FILE, &provenance_json)]) {
+            for (name, bytes) in files
+                .iter()
+                .map(|(n, b)| (*n, b))
+                .chain([(PROVENANCE_FILE, &provenance_json)])
+            {
                 let path = tmp.join(name);
                 fs::write(&path, bytes).map_err(|e| AnatomyError::io(&path, e))?;
             }
@@ -315,11 +340,15 @@ impl RegionAsset {
     pub fn load(dir: &Path) -> Result<RegionAsset, AnatomyError> {
         let prov_path = dir.join(PROVENANCE_FILE);
         let prov_bytes = fs::read(&prov_path).map_err(|e| AnatomyError::io(&prov_path, e))?;
-        let provenance: Provenance = serde_json::from_slice(&prov_bytes)
-            .map_err(|e| AnatomyError::bad_file(&prov_path, format!("not a provenance record: {e}")))?;
+        let provenance: Provenance = serde_json::from_slice(&prov_bytes).map_err(|e| {
+            AnatomyError::bad_file(&prov_path, format!("not a provenance record: {e}"))
+        })?;
         for required in [REGION_FILE, MESHES_FILE, CT_FILE, LABELS_FILE] {
             if !provenance.files_sha256.contains_key(required) {
-                return Err(AnatomyError::bad_file(&prov_path, format!("no SHA-256 recorded for {required}")));
+                return Err(AnatomyError::bad_file(
+                    &prov_path,
+                    format!("no SHA-256 recorded for {required}"),
+                ));
             }
         }
         let mut contents: BTreeMap<&str, Vec<u8>> = BTreeMap::new();
@@ -328,19 +357,30 @@ impl RegionAsset {
             let bytes = fs::read(&path).map_err(|e| AnatomyError::io(&path, e))?;
             let actual = sha256_hex(&bytes);
             if &actual != expected {
-                return Err(AnatomyError::HashMismatch { path, expected: expected.clone(), actual });
+                return Err(AnatomyError::HashMismatch {
+                    path,
+                    expected: expected.clone(),
+                    actual,
+                });
             }
-            if let Some(known) = [REGION_FILE, MESHES_FILE, CT_FILE, LABELS_FILE].into_iter().find(|k| k == name) {
+            if let Some(known) = [REGION_FILE, MESHES_FILE, CT_FILE, LABELS_FILE]
+                .into_iter()
+                .find(|k| k == name)
+            {
                 contents.insert(known, bytes);
             }
         }
         let region_path = dir.join(REGION_FILE);
-        let manifest: Manifest = serde_json::from_slice(&contents[REGION_FILE])
-            .map_err(|e| AnatomyError::bad_file(&region_path, format!("not a region manifest: {e}")))?;
+        let manifest: Manifest = serde_json::from_slice(&contents[REGION_FILE]).map_err(|e| {
+            AnatomyError::bad_file(&region_path, format!("not a region manifest: {e}"))
+        })?;
         if manifest.format_version != FORMAT_VERSION {
             return Err(AnatomyError::bad_file(
                 &region_path,
-                format!("format version {} (this build reads {FORMAT_VERSION})", manifest.format_version),
+                format!(
+                    "format version {} (this build reads {FORMAT_VERSION})",
+                    manifest.format_version
+                ),
             ));
         }
         let grid = manifest.grid;
@@ -349,7 +389,12 @@ impl RegionAsset {
             if data.len() != grid.len() {
                 return Err(AnatomyError::bad_file(
                     dir.join(name),
-                    format!("{} bytes, grid {:?} needs {}", data.len(), grid.dims, grid.len()),
+                    format!(
+                        "{} bytes, grid {:?} needs {}",
+                        data.len(),
+                        grid.dims,
+                        grid.len()
+                    ),
                 ));
             }
             Ok(Volume { grid, data })
@@ -361,12 +406,20 @@ impl RegionAsset {
         let mut structures = Vec::with_capacity(manifest.structures.len());
         for s in &manifest.structures {
             let Some((material, mesh)) = meshes.get(&s.name) else {
-                return Err(AnatomyError::bad_file(&glb_path, format!("no mesh named {}", s.name)));
+                return Err(AnatomyError::bad_file(
+                    &glb_path,
+                    format!("no mesh named {}", s.name),
+                ));
             };
             if *material != s.material {
                 return Err(AnatomyError::bad_file(
                     &glb_path,
-                    format!("mesh {} is tagged {} but {REGION_FILE} says {}", s.name, material.name(), s.material.name()),
+                    format!(
+                        "mesh {} is tagged {} but {REGION_FILE} says {}",
+                        s.name,
+                        material.name(),
+                        s.material.name()
+                    ),
                 ));
             }
             structures.push(StructureAsset {
@@ -376,7 +429,13 @@ impl RegionAsset {
                 mask_volume_mm3: s.mask_volume_mm3,
             });
         }
-        Ok(RegionAsset { name: manifest.name, structures, ct_u8, labels, provenance })
+        Ok(RegionAsset {
+            name: manifest.name,
+            structures,
+            ct_u8,
+            labels,
+            provenance,
+        })
     }
 }
 
@@ -384,7 +443,9 @@ impl RegionAsset {
 fn unique_suffix() -> String {
     use std::sync::atomic::{AtomicU64, Ordering};
     static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos());
     format!("{nanos}-{}", COUNTER.fetch_add(1, Ordering::Relaxed))
 }
 
@@ -402,7 +463,10 @@ mod tests {
         for level in 0..=255u8 {
             assert_eq!(encode_hu(decode_level(level)), level);
             // Half a level either side still rounds to the same level.
-            assert_eq!(encode_hu(decode_level(level) + 0.49 * CT_HU_PER_LEVEL), level);
+            assert_eq!(
+                encode_hu(decode_level(level) + 0.49 * CT_HU_PER_LEVEL),
+                level
+            );
         }
     }
 }

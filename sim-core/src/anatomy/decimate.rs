@@ -5,11 +5,14 @@
 //! positions. It is topology-preserving in practice but not by contract, so every result is
 //! checked: closed, consistently wound, no degenerate triangles, positive signed volume, and a
 //! volume within `max_volume_change` of the input mesh's. A result that fails is rejected and the
-//! reduction backed off (twice the target triangle count, up to three times); if all fail the
-//! input mesh is kept and the report says so.
+//! reduction retried with locks around the defect or a smaller error (see [`decimate`]); if all
+//! attempts fail the input mesh is kept and the report says so.
 
 use serde::{Deserialize, Serialize};
 
+use std::collections::HashMap;
+
+use super::smooth::vertex_neighbours;
 use crate::mesh::TriMesh;
 
 /// Parameters of [`decimate`].
@@ -27,7 +30,11 @@ impl Default for DecimationParams {
     fn default() -> Self {
         // A quarter of the marching-tetrahedra triangles and 0.3 mm (a tenth of a 3 mm voxel)
         // deviation: simulator choices that keep meshes small without visible faceting.
-        DecimationParams { target_fraction: 0.25, max_error_mm: 0.3, max_volume_change: 0.01 }
+        DecimationParams {
+            target_fraction: 0.25,
+            max_error_mm: 0.3,
+            max_volume_change: 0.01,
+        }
     }
 }
 
@@ -55,7 +62,7 @@ fn acceptable(before_volume: f64, m: &TriMesh, max_volume_change: f64) -> Result
         return Err(format!("topology {t:?}"));
     }
     let v = m.signed_volume_mm3();
-    if !(v > 0.0) {
+    if v.is_nan() || v <= 0.0 {
         return Err(format!("signed volume {v}"));
     }
     let rel = (v - before_volume).abs() / before_volume;
@@ -65,29 +72,73 @@ fn acceptable(before_volume: f64, m: &TriMesh, max_volume_change: f64) -> Result
     Ok(())
 }
 
+/// Vertices (input ids) on edges that are not shared by exactly two oppositely wound triangles.
+fn defective_vertices(tris: &[[u32; 3]]) -> Vec<u32> {
+    let mut edges: HashMap<(u32, u32), (u32, u32)> = HashMap::with_capacity(tris.len() * 3 / 2);
+    let mut bad = Vec::new();
+    for t in tris {
+        if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
+            bad.extend_from_slice(t);
+            continue;
+        }
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            let e = edges.entry((a.min(b), a.max(b))).or_default();
+            if a < b {
+                e.0 += 1;
+            } else {
+                e.1 += 1;
+            }
+        }
+    }
+    for (&(a, b), &(f, r)) in &edges {
+        if f != 1 || r != 1 {
+            bad.push(a);
+            bad.push(b);
+        }
+    }
+    bad
+}
+
 /// Decimates a closed mesh; returns the result (or the input, if no attempt passed the checks)
 /// and a one-line report.
+///
+/// Back-off, up to eight attempts: where a result has topological defects (typically two
+/// nearly touching sheets of the surface collapsed onto one edge), the input vertices around the
+/// defect (two rings) are locked and the reduction is retried; where the volume changed too much,
+/// the allowed error is halved.
 pub fn decimate(mesh: &TriMesh, params: &DecimationParams) -> (TriMesh, String) {
     let before_volume = mesh.signed_volume_mm3();
-    let positions: Vec<f32> = mesh.vertices_mm.iter().flat_map(|v| v.map(|x| x as f32)).collect();
+    let positions: Vec<f32> = mesh
+        .vertices_mm
+        .iter()
+        .flat_map(|v| v.map(|x| x as f32))
+        .collect();
     let bytes: Vec<u8> = positions.iter().flat_map(|x| x.to_le_bytes()).collect();
     let Ok(adapter) = meshopt::VertexDataAdapter::new(&bytes, 12, 0) else {
-        return (mesh.clone(), "decimation skipped: vertex buffer rejected".into());
+        return (
+            mesh.clone(),
+            "decimation skipped: vertex buffer rejected".into(),
+        );
     };
     let indices: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
-    let mut fraction = params.target_fraction.clamp(0.0, 1.0);
+    let neighbours = vertex_neighbours(mesh);
+    let fraction = params.target_fraction.clamp(0.0, 1.0);
+    if fraction >= 1.0 {
+        return (mesh.clone(), "decimation skipped: target fraction 1".into());
+    }
+    let target = (((indices.len() / 3) as f64 * fraction).round() as usize * 3).max(12);
+    let mut locks = vec![false; mesh.vertices_mm.len()];
+    let mut max_error = params.max_error_mm;
     let mut rejections = Vec::new();
-    for _attempt in 0..4 {
-        if fraction >= 1.0 {
-            break;
-        }
-        let target = ((indices.len() / 3) as f64 * fraction).round() as usize * 3;
+    for attempt in 0..8 {
         let mut err = 0.0f32;
-        let out = meshopt::simplify(
+        let out = meshopt::simplify_with_locks(
             &indices,
             &adapter,
-            target.max(12),
-            params.max_error_mm as f32,
+            &locks,
+            target,
+            max_error as f32,
             meshopt::SimplifyOptions::ErrorAbsolute,
             Some(&mut err),
         );
@@ -95,20 +146,46 @@ pub fn decimate(mesh: &TriMesh, params: &DecimationParams) -> (TriMesh, String) 
         let candidate = compact(&mesh.vertices_mm, &tris);
         match acceptable(before_volume, &candidate, params.max_volume_change) {
             Ok(()) => {
+                let locked = locks.iter().filter(|&&l| l).count();
                 let report = format!(
-                    "decimated {} -> {} triangles (target fraction {fraction:.3}, max error {err:.3} mm, volume change {:.3}%){}",
+                    "decimated {} -> {} triangles (max error {err:.3} mm, volume change {:.3}%, attempt {}, {locked} vertices locked)",
                     mesh.triangles.len(),
                     candidate.triangles.len(),
                     100.0 * (candidate.signed_volume_mm3() - before_volume) / before_volume,
-                    if rejections.is_empty() { String::new() } else { format!(" after rejecting: {}", rejections.join("; ")) }
+                    attempt + 1,
                 );
                 return (candidate, report);
             }
-            Err(why) => rejections.push(format!("fraction {fraction:.3}: {why}")),
+            Err(why) => {
+                let defects = defective_vertices(&tris);
+                if defects.is_empty() {
+                    max_error *= 0.5;
+                } else {
+                    // Lock the defect's vertices and two rings around them in the input mesh.
+                    let mut ring: Vec<u32> = defects;
+                    for _ in 0..2 {
+                        let mut next = ring.clone();
+                        for &v in &ring {
+                            next.extend_from_slice(&neighbours[v as usize]);
+                        }
+                        ring = next;
+                    }
+                    for v in ring {
+                        locks[v as usize] = true;
+                    }
+                }
+                rejections.push(why);
+            }
         }
-        fraction *= 2.0;
     }
-    (mesh.clone(), format!("decimation backed off, mesh kept at {} triangles ({})", mesh.triangles.len(), rejections.join("; ")))
+    (
+        mesh.clone(),
+        format!(
+            "decimation backed off, mesh kept at {} triangles ({})",
+            mesh.triangles.len(),
+            rejections.join("; ")
+        ),
+    )
 }
 
 #[cfg(test)]
@@ -118,7 +195,11 @@ mod tests {
     #[test]
     fn decimated_sphere_stays_closed_and_close() {
         let m = TriMesh::icosphere([5.0, 6.0, 7.0], 20.0, 5);
-        let p = DecimationParams { target_fraction: 0.1, max_error_mm: 0.2, max_volume_change: 0.01 };
+        let p = DecimationParams {
+            target_fraction: 0.1,
+            max_error_mm: 0.2,
+            max_volume_change: 0.01,
+        };
         let (d, report) = decimate(&m, &p);
         assert!(d.triangles.len() < m.triangles.len() / 4, "{report}");
         assert!(d.topology_report().is_closed_and_consistent(), "{report}");

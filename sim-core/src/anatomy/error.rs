@@ -52,14 +52,23 @@ pub enum AnatomyError {
 
 impl AnatomyError {
     pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        AnatomyError::Io { path: path.into(), source }
+        AnatomyError::Io {
+            path: path.into(),
+            source,
+        }
     }
 
     pub(crate) fn bad_file(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
-        AnatomyError::BadFile { path: path.into(), message: message.into() }
+        AnatomyError::BadFile {
+            path: path.into(),
+            message: message.into(),
+        }
     }
 
     pub(crate) fn invalid(what: impl Into<String>, message: impl Into<String>) -> Self {
-        AnatomyError::Invalid { what: what.into(), message: message.into() }
+        AnatomyError::Invalid {
+            what: what.into(),
+            message: message.into(),
+        }
     }
 }

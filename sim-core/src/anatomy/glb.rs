@@ -34,7 +34,10 @@ pub(crate) fn write_glb(structures: &[StructureAsset]) -> Result<Vec<u8>, Anatom
     let mut views = Vec::new();
     for (i, s) in structures.iter().enumerate() {
         if s.mesh.triangles.is_empty() || s.mesh.vertices_mm.is_empty() {
-            return Err(AnatomyError::Mesh { structure: s.name.clone(), message: "empty mesh cannot be stored".into() });
+            return Err(AnatomyError::Mesh {
+                structure: s.name.clone(),
+                message: "empty mesh cannot be stored".into(),
+            });
         }
         let mut lo = [f32::INFINITY; 3];
         let mut hi = [f32::NEG_INFINITY; 3];
@@ -43,7 +46,10 @@ pub(crate) fn write_glb(structures: &[StructureAsset]) -> Result<Vec<u8>, Anatom
             for a in 0..3 {
                 let x = v[a] as f32;
                 if !x.is_finite() {
-                    return Err(AnatomyError::Mesh { structure: s.name.clone(), message: "non-finite vertex".into() });
+                    return Err(AnatomyError::Mesh {
+                        structure: s.name.clone(),
+                        message: "non-finite vertex".into(),
+                    });
                 }
                 lo[a] = lo[a].min(x);
                 hi[a] = hi[a].max(x);
@@ -90,15 +96,17 @@ pub(crate) fn write_glb(structures: &[StructureAsset]) -> Result<Vec<u8>, Anatom
         "bufferViews": views,
         "buffers": [{"byteLength": bin.len()}]
     });
-    let mut json_bytes = serde_json::to_vec(&doc).map_err(|e| AnatomyError::invalid("meshes.glb", e.to_string()))?;
-    while json_bytes.len() % 4 != 0 {
+    let mut json_bytes =
+        serde_json::to_vec(&doc).map_err(|e| AnatomyError::invalid("meshes.glb", e.to_string()))?;
+    while !json_bytes.len().is_multiple_of(4) {
         json_bytes.push(b' ');
     }
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let total = 12 + 8 + json_bytes.len() + 8 + bin.len();
-    let total_u32 = u32::try_from(total).map_err(|_| AnatomyError::invalid("meshes.glb", "larger than 4 GiB"))?;
+    let total_u32 = u32::try_from(total)
+        .map_err(|_| AnatomyError::invalid("meshes.glb", "larger than 4 GiB"))?;
     let mut out = Vec::with_capacity(total);
     out.extend_from_slice(&GLB_MAGIC.to_le_bytes());
     out.extend_from_slice(&2u32.to_le_bytes());
@@ -113,42 +121,76 @@ pub(crate) fn write_glb(structures: &[StructureAsset]) -> Result<Vec<u8>, Anatom
 }
 
 /// Parses a `.glb` written by [`write_glb`] into (material, mesh) by structure name.
-pub(crate) fn read_glb(bytes: &[u8], path: &Path) -> Result<BTreeMap<String, (MaterialClass, TriMesh)>, AnatomyError> {
-    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| AnatomyError::bad_file(path, format!("invalid glTF: {e}")))?;
-    let blob = gltf.blob.as_deref().ok_or_else(|| AnatomyError::bad_file(path, "no binary chunk"))?;
+pub(crate) fn read_glb(
+    bytes: &[u8],
+    path: &Path,
+) -> Result<BTreeMap<String, (MaterialClass, TriMesh)>, AnatomyError> {
+    let gltf = gltf::Gltf::from_slice(bytes)
+        .map_err(|e| AnatomyError::bad_file(path, format!("invalid glTF: {e}")))?;
+    let blob = gltf
+        .blob
+        .as_deref()
+        .ok_or_else(|| AnatomyError::bad_file(path, "no binary chunk"))?;
     let mut out = BTreeMap::new();
     for mesh in gltf.document.meshes() {
-        let name = mesh.name().ok_or_else(|| AnatomyError::bad_file(path, "unnamed mesh"))?.to_string();
-        let extras = mesh.extras().as_ref().ok_or_else(|| AnatomyError::bad_file(path, format!("mesh {name} has no extras")))?;
+        let name = mesh
+            .name()
+            .ok_or_else(|| AnatomyError::bad_file(path, "unnamed mesh"))?
+            .to_string();
+        let extras = mesh
+            .extras()
+            .as_ref()
+            .ok_or_else(|| AnatomyError::bad_file(path, format!("mesh {name} has no extras")))?;
         let extras: serde_json::Value = serde_json::from_str(extras.get())
             .map_err(|e| AnatomyError::bad_file(path, format!("mesh {name}: extras: {e}")))?;
         let material = extras
             .get("material")
             .and_then(|m| m.as_str())
             .and_then(MaterialClass::from_name)
-            .ok_or_else(|| AnatomyError::bad_file(path, format!("mesh {name} has no known material class")))?;
+            .ok_or_else(|| {
+                AnatomyError::bad_file(path, format!("mesh {name} has no known material class"))
+            })?;
         let mut tri = TriMesh::default();
         for prim in mesh.primitives() {
             if prim.mode() != gltf::mesh::Mode::Triangles {
-                return Err(AnatomyError::bad_file(path, format!("mesh {name}: primitive is not a triangle list")));
+                return Err(AnatomyError::bad_file(
+                    path,
+                    format!("mesh {name}: primitive is not a triangle list"),
+                ));
             }
             let reader = prim.reader(|b| (b.index() == 0).then_some(blob));
             let base = tri.vertices_mm.len() as u32;
-            let positions =
-                reader.read_positions().ok_or_else(|| AnatomyError::bad_file(path, format!("mesh {name}: no positions")))?;
-            tri.vertices_mm.extend(positions.map(|p| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])]));
+            let positions = reader.read_positions().ok_or_else(|| {
+                AnatomyError::bad_file(path, format!("mesh {name}: no positions"))
+            })?;
+            tri.vertices_mm
+                .extend(positions.map(|p| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])]));
             let indices: Vec<u32> = reader
                 .read_indices()
                 .ok_or_else(|| AnatomyError::bad_file(path, format!("mesh {name}: no indices")))?
                 .into_u32()
                 .collect();
-            if indices.len() % 3 != 0 || indices.iter().any(|&k| k + base >= tri.vertices_mm.len() as u32) {
-                return Err(AnatomyError::bad_file(path, format!("mesh {name}: bad index list")));
+            if !indices.len().is_multiple_of(3)
+                || indices
+                    .iter()
+                    .any(|&k| k + base >= tri.vertices_mm.len() as u32)
+            {
+                return Err(AnatomyError::bad_file(
+                    path,
+                    format!("mesh {name}: bad index list"),
+                ));
             }
-            tri.triangles.extend(indices.chunks_exact(3).map(|c| [c[0] + base, c[1] + base, c[2] + base]));
+            tri.triangles.extend(
+                indices
+                    .chunks_exact(3)
+                    .map(|c| [c[0] + base, c[1] + base, c[2] + base]),
+            );
         }
         if out.insert(name.clone(), (material, tri)).is_some() {
-            return Err(AnatomyError::bad_file(path, format!("two meshes named {name}")));
+            return Err(AnatomyError::bad_file(
+                path,
+                format!("two meshes named {name}"),
+            ));
         }
     }
     Ok(out)

@@ -102,7 +102,10 @@ fn edt_1d(f: &[f64], h: f64, out: &mut [f64]) {
 /// true; infinite if there is none.
 pub(crate) fn distance_to_mm(grid: &VolumeGrid, source: &[bool]) -> Vec<f64> {
     let [nx, ny, nz] = grid.dims;
-    let mut d: Vec<f64> = source.iter().map(|&s| if s { 0.0 } else { f64::INFINITY }).collect();
+    let mut d: Vec<f64> = source
+        .iter()
+        .map(|&s| if s { 0.0 } else { f64::INFINITY })
+        .collect();
     let dims = [nx, ny, nz];
     let strides = [1, nx, nx * ny];
     for axis in 0..3 {
@@ -154,7 +157,11 @@ pub fn label_volume(
         };
     }
     // Rule 2.
-    let h_min = grid.spacing_mm.iter().cloned().fold(f64::INFINITY, f64::min);
+    let h_min = grid
+        .spacing_mm
+        .iter()
+        .cloned()
+        .fold(f64::INFINITY, f64::min);
     for s in structures {
         let off = mask_offset(&grid, s)?;
         let mg = s.mask.grid;
@@ -162,7 +169,10 @@ pub fn label_volume(
         let split_bone = s.material == MaterialClass::CorticalBone;
         let depth = if split_bone {
             // Pad by one voxel so the mask box's faces count as outside.
-            let pg = VolumeGrid { dims: mg.dims.map(|n| n + 2), ..mg };
+            let pg = VolumeGrid {
+                dims: mg.dims.map(|n| n + 2),
+                ..mg
+            };
             let mut outside = vec![true; pg.len()];
             for (idx, &ins) in inside.iter().enumerate() {
                 let [i, j, k] = mg.ijk(idx);
@@ -182,7 +192,11 @@ pub fn label_volume(
             let class = match &depth {
                 Some((pg, d)) => {
                     let to_surface = d[pg.index(i + 1, j + 1, k + 1)] - 0.5 * h_min;
-                    if to_surface < cortical_shell_mm { MaterialClass::CorticalBone } else { MaterialClass::Cancellous }
+                    if to_surface < cortical_shell_mm {
+                        MaterialClass::CorticalBone
+                    } else {
+                        MaterialClass::Cancellous
+                    }
                 }
                 None => s.material,
             };
@@ -197,9 +211,9 @@ pub fn label_volume(
     let mut heap: BinaryHeap<Reverse<(u64, usize)>> = BinaryHeap::new();
     // Distances are kept as integer micrometres in the heap so it can order them exactly.
     let key = |d: f64| (d * 1000.0).round() as u64;
-    for g in 0..grid.len() {
+    for (g, d) in dist.iter_mut().enumerate() {
         if mask_bone[g] || (dense_free(g) && ct_hu.data[g] >= CORTICAL_FROM_HU) {
-            dist[g] = 0.0;
+            *d = 0.0;
             heap.push(Reverse((0, g)));
         }
     }
@@ -229,11 +243,11 @@ pub fn label_volume(
         }
     }
     let (mut n_cort, mut n_canc, mut n_vessel) = (0usize, 0usize, 0usize);
-    for g in 0..grid.len() {
+    for (g, d) in dist.iter().enumerate() {
         if !dense_free(g) {
             continue;
         }
-        labels.data[g] = if dist[g].is_finite() {
+        labels.data[g] = if d.is_finite() {
             if ct_hu.data[g] >= CORTICAL_FROM_HU {
                 n_cort += 1;
                 MaterialClass::CorticalBone.label()
@@ -259,24 +273,35 @@ mod tests {
 
     #[test]
     fn edt_matches_brute_force() {
-        let grid = VolumeGrid { dims: [7, 5, 6], spacing_mm: [1.0, 2.0, 0.5], origin_mm: [0.0; 3] };
+        let grid = VolumeGrid {
+            dims: [7, 5, 6],
+            spacing_mm: [1.0, 2.0, 0.5],
+            origin_mm: [0.0; 3],
+        };
         let src: Vec<bool> = (0..grid.len()).map(|i| (i * 7919) % 23 == 0).collect();
         let d = distance_to_mm(&grid, &src);
-        for a in 0..grid.len() {
+        for (a, &da) in d.iter().enumerate() {
             let pa = grid.voxel_center_mm(grid.ijk(a)[0], grid.ijk(a)[1], grid.ijk(a)[2]);
             let mut best = f64::INFINITY;
             for b in (0..grid.len()).filter(|&b| src[b]) {
                 let [i, j, k] = grid.ijk(b);
                 let pb = grid.voxel_center_mm(i, j, k);
-                best = best.min(((pa[0] - pb[0]).powi(2) + (pa[1] - pb[1]).powi(2) + (pa[2] - pb[2]).powi(2)).sqrt());
+                best = best.min(
+                    ((pa[0] - pb[0]).powi(2) + (pa[1] - pb[1]).powi(2) + (pa[2] - pb[2]).powi(2))
+                        .sqrt(),
+                );
             }
-            assert!((d[a] - best).abs() < 1e-9, "voxel {a}: {} vs {best}", d[a]);
+            assert!((da - best).abs() < 1e-9, "voxel {a}: {da} vs {best}");
         }
     }
 
     #[test]
     fn enhanced_vessel_away_from_bone_is_vessel_and_bone_interior_is_bone() {
-        let grid = VolumeGrid { dims: [40, 20, 20], spacing_mm: [1.0; 3], origin_mm: [0.0; 3] };
+        let grid = VolumeGrid {
+            dims: [40, 20, 20],
+            spacing_mm: [1.0; 3],
+            origin_mm: [0.0; 3],
+        };
         let mut ct = Volume::filled(grid, 40.0f32);
         // A "bone": 8 mm cube with a 1 mm 1000 HU shell and a 300 HU interior, at x 2..10.
         // A "vessel": 6 mm bar of 300 HU at x 25..31, well away from any cortex.
@@ -301,7 +326,11 @@ mod tests {
         // A vessel mask over the bar keeps the class even if HU said otherwise.
         let mut vm = Volume::filled(grid, 0.0f32);
         vm.set(28, 10, 10, 1.0);
-        let s = StructureMask { name: "v".into(), material: MaterialClass::Disc, mask: vm };
+        let s = StructureMask {
+            name: "v".into(),
+            material: MaterialClass::Disc,
+            mask: vm,
+        };
         let (l2, _) = label_volume(&ct, &[s], 1.8).unwrap();
         assert_eq!(l2.get(28, 10, 10), MaterialClass::Disc.label());
     }

@@ -45,7 +45,11 @@ const KUHN_TETS: [[u8; 4]; 6] = [
 ];
 
 fn corner_pos(c: u8) -> [f64; 3] {
-    [f64::from(c & 1), f64::from((c >> 1) & 1), f64::from((c >> 2) & 1)]
+    [
+        f64::from(c & 1),
+        f64::from((c >> 1) & 1),
+        f64::from((c >> 2) & 1),
+    ]
 }
 
 /// Triangles for one tetrahedron and one inside/outside case, as pairs of cube corners (the cube
@@ -59,11 +63,25 @@ fn build_tables() -> Vec<CaseTable> {
         .map(|tet| {
             (0u8..16)
                 .map(|case| {
-                    let inside: Vec<u8> = (0..4).filter(|&v| case & (1 << v) != 0).map(|v| tet[v]).collect();
-                    let outside: Vec<u8> = (0..4).filter(|&v| case & (1 << v) == 0).map(|v| tet[v]).collect();
+                    let inside: Vec<u8> = (0..4)
+                        .filter(|&v| case & (1 << v) != 0)
+                        .map(|v| tet[v])
+                        .collect();
+                    let outside: Vec<u8> = (0..4)
+                        .filter(|&v| case & (1 << v) == 0)
+                        .map(|v| tet[v])
+                        .collect();
                     let tris: Vec<[(u8, u8); 3]> = match (inside.len(), outside.len()) {
-                        (1, 3) => vec![[(inside[0], outside[0]), (inside[0], outside[1]), (inside[0], outside[2])]],
-                        (3, 1) => vec![[(inside[0], outside[0]), (inside[1], outside[0]), (inside[2], outside[0])]],
+                        (1, 3) => vec![[
+                            (inside[0], outside[0]),
+                            (inside[0], outside[1]),
+                            (inside[0], outside[2]),
+                        ]],
+                        (3, 1) => vec![[
+                            (inside[0], outside[0]),
+                            (inside[1], outside[0]),
+                            (inside[2], outside[0]),
+                        ]],
                         (2, 2) => {
                             let (a, b, c, d) = (inside[0], inside[1], outside[0], outside[1]);
                             // The quad ac-ad-bd-bc, split along the interior diagonal ac-bd.
@@ -88,12 +106,20 @@ fn build_tables() -> Vec<CaseTable> {
                         .map(|mut t| {
                             let mid = |(p, q): (u8, u8)| {
                                 let (p, q) = (corner_pos(p), corner_pos(q));
-                                [(p[0] + q[0]) / 2.0, (p[1] + q[1]) / 2.0, (p[2] + q[2]) / 2.0]
+                                [
+                                    (p[0] + q[0]) / 2.0,
+                                    (p[1] + q[1]) / 2.0,
+                                    (p[2] + q[2]) / 2.0,
+                                ]
                             };
                             let (m0, m1, m2) = (mid(t[0]), mid(t[1]), mid(t[2]));
                             let e1 = [m1[0] - m0[0], m1[1] - m0[1], m1[2] - m0[2]];
                             let e2 = [m2[0] - m0[0], m2[1] - m0[1], m2[2] - m0[2]];
-                            let n = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
+                            let n = [
+                                e1[1] * e2[2] - e1[2] * e2[1],
+                                e1[2] * e2[0] - e1[0] * e2[2],
+                                e1[0] * e2[1] - e1[1] * e2[0],
+                            ];
                             if n[0] * out_dir[0] + n[1] * out_dir[1] + n[2] * out_dir[2] < 0.0 {
                                 t.swap(1, 2);
                             }
@@ -114,7 +140,11 @@ fn build_tables() -> Vec<CaseTable> {
 /// `None` if it does not hold.
 pub fn extract_isosurface(field: &ScalarField<'_>, iso: f32, upsample: u32) -> Option<TriMesh> {
     let g = field.grid;
-    assert_eq!(field.values.len(), g.len(), "field length does not match its grid");
+    assert_eq!(
+        field.values.len(),
+        g.len(),
+        "field length does not match its grid"
+    );
     let [nx, ny, nz] = g.dims;
     if nx < 2 || ny < 2 || nz < 2 {
         return Some(TriMesh::default());
@@ -123,7 +153,8 @@ pub fn extract_isosurface(field: &ScalarField<'_>, iso: f32, upsample: u32) -> O
     for k in 0..nz {
         for j in 0..ny {
             for i in 0..nx {
-                let on_face = i == 0 || j == 0 || k == 0 || i == nx - 1 || j == ny - 1 || k == nz - 1;
+                let on_face =
+                    i == 0 || j == 0 || k == 0 || i == nx - 1 || j == ny - 1 || k == nz - 1;
                 if on_face && field.values[g.index(i, j, k)] > iso {
                     return None;
                 }
@@ -132,9 +163,14 @@ pub fn extract_isosurface(field: &ScalarField<'_>, iso: f32, upsample: u32) -> O
     }
     let u = upsample.max(1) as usize;
     let fine = [nx * u, ny * u, nz * u];
-    let fine_spacing = [g.spacing_mm[0] / u as f64, g.spacing_mm[1] / u as f64, g.spacing_mm[2] / u as f64];
+    let fine_spacing = [
+        g.spacing_mm[0] / u as f64,
+        g.spacing_mm[1] / u as f64,
+        g.spacing_mm[2] / u as f64,
+    ];
     // Fine voxel centre 0 lies half a fine voxel inside the coarse grid's outer face.
-    let fine_origin: [f64; 3] = std::array::from_fn(|a| g.origin_mm[a] - 0.5 * g.spacing_mm[a] + 0.5 * fine_spacing[a]);
+    let fine_origin: [f64; 3] =
+        std::array::from_fn(|a| g.origin_mm[a] - 0.5 * g.spacing_mm[a] + 0.5 * fine_spacing[a]);
     // Coarse index coordinate of fine index `i` along an axis, and its trilinear stencil.
     let stencil = |i: usize, n: usize| -> (usize, usize, f32) {
         let x = ((i as f64 + 0.5) / u as f64 - 0.5).clamp(0.0, (n - 1) as f64);
@@ -172,7 +208,11 @@ pub fn extract_isosurface(field: &ScalarField<'_>, iso: f32, upsample: u32) -> O
         for j in 0..fy - 1 {
             for i in 0..fx - 1 {
                 let value = |c: u8| -> f32 {
-                    let (di, dj, dk) = (usize::from(c & 1), usize::from((c >> 1) & 1), usize::from((c >> 2) & 1));
+                    let (di, dj, dk) = (
+                        usize::from(c & 1),
+                        usize::from((c >> 1) & 1),
+                        usize::from((c >> 2) & 1),
+                    );
                     let layer = if dk == 0 { &lower } else { &upper };
                     layer[(i + di) + fx * (j + dj)]
                 };
@@ -182,19 +222,26 @@ pub fn extract_isosurface(field: &ScalarField<'_>, iso: f32, upsample: u32) -> O
                     continue;
                 }
                 for (t, tet) in KUHN_TETS.iter().enumerate() {
-                    let case = (0..4).fold(0u8, |m, v| m | (u8::from(inside[usize::from(tet[v])]) << v));
+                    let case =
+                        (0..4).fold(0u8, |m, v| m | (u8::from(inside[usize::from(tet[v])]) << v));
                     for tri in &tables[t][usize::from(case)] {
                         let mut idx = [0u32; 3];
                         for (slot, &(p, q)) in tri.iter().enumerate() {
                             // Edge key: the lower lattice point and the corner offset (lower has
                             // the smaller corner bits: Kuhn edges only add axes).
                             let (lo, hi) = if p < q { (p, q) } else { (q, p) };
-                            let base = [i + usize::from(lo & 1), j + usize::from((lo >> 1) & 1), k + usize::from((lo >> 2) & 1)];
+                            let base = [
+                                i + usize::from(lo & 1),
+                                j + usize::from((lo >> 1) & 1),
+                                k + usize::from((lo >> 2) & 1),
+                            ];
                             let dir = hi ^ lo;
-                            let key = ((base[0] + fx * (base[1] + fy * base[2])) as u64) * 8 + u64::from(dir);
+                            let key = ((base[0] + fx * (base[1] + fy * base[2])) as u64) * 8
+                                + u64::from(dir);
                             idx[slot] = *vertex_of_edge.entry(key).or_insert_with(|| {
                                 let (fp, fq) = (vals[usize::from(p)], vals[usize::from(q)]);
-                                let t = (f64::from(iso - fp) / f64::from(fq - fp)).clamp(1e-3, 1.0 - 1e-3);
+                                let t = (f64::from(iso - fp) / f64::from(fq - fp))
+                                    .clamp(1e-3, 1.0 - 1e-3);
                                 let (cp, cq) = (corner_pos(p), corner_pos(q));
                                 let pos: [f64; 3] = std::array::from_fn(|a| {
                                     let c = [i, j, k][a] as f64 + cp[a] + t * (cq[a] - cp[a]);
@@ -219,7 +266,11 @@ mod tests {
     use super::*;
 
     fn grid(n: usize, h: f64) -> VolumeGrid {
-        VolumeGrid { dims: [n; 3], spacing_mm: [h; 3], origin_mm: [1.0, -2.0, 3.0] }
+        VolumeGrid {
+            dims: [n; 3],
+            spacing_mm: [h; 3],
+            origin_mm: [1.0, -2.0, 3.0],
+        }
     }
 
     #[test]
@@ -235,15 +286,34 @@ mod tests {
             }
         }
         for u in [1, 2, 3] {
-            let m = extract_isosurface(&ScalarField { grid: g, values: &v }, 0.5, u).unwrap();
-            assert!(m.topology_report().is_closed_and_consistent(), "upsample {u}: {:?}", m.topology_report());
-            assert!(m.signed_volume_mm3() > 0.0, "upsample {u}: volume {}", m.signed_volume_mm3());
+            let m = extract_isosurface(
+                &ScalarField {
+                    grid: g,
+                    values: &v,
+                },
+                0.5,
+                u,
+            )
+            .unwrap();
+            assert!(
+                m.topology_report().is_closed_and_consistent(),
+                "upsample {u}: {:?}",
+                m.topology_report()
+            );
+            assert!(
+                m.signed_volume_mm3() > 0.0,
+                "upsample {u}: volume {}",
+                m.signed_volume_mm3()
+            );
             let (lo, hi) = m.bounding_box_mm().unwrap();
             let centre = [1.0 + 1.5 * 2.0, -2.0 + 1.5 * 2.0, 3.0 + 1.5 * 2.0];
             for a in 0..3 {
                 // The bounding box is symmetric about the block centre to rounding: a quarter-voxel
                 // shift (0.5 mm here) would move its midpoint by 0.5 mm.
-                assert!(((lo[a] + hi[a]) / 2.0 - centre[a]).abs() < 1e-6, "upsample {u} axis {a}: {lo:?} {hi:?}");
+                assert!(
+                    ((lo[a] + hi[a]) / 2.0 - centre[a]).abs() < 1e-6,
+                    "upsample {u} axis {a}: {lo:?} {hi:?}"
+                );
             }
         }
     }
@@ -253,6 +323,16 @@ mod tests {
         let g = grid(3, 1.0);
         let mut v = vec![0.0f32; g.len()];
         v[g.index(0, 1, 1)] = 1.0;
-        assert!(extract_isosurface(&ScalarField { grid: g, values: &v }, 0.5, 1).is_none());
+        assert!(
+            extract_isosurface(
+                &ScalarField {
+                    grid: g,
+                    values: &v
+                },
+                0.5,
+                1
+            )
+            .is_none()
+        );
     }
 }

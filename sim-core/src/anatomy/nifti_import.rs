@@ -33,14 +33,23 @@ pub struct NiftiImage {
     pub datatype: String,
 }
 
-fn decode(raw: &[u8], ty: NiftiType, endianness: Endianness, path: &Path) -> Result<Vec<f64>, AnatomyError> {
+fn decode(
+    raw: &[u8],
+    ty: NiftiType,
+    endianness: Endianness,
+    path: &Path,
+) -> Result<Vec<f64>, AnatomyError> {
     let le = matches!(endianness, Endianness::Little);
     macro_rules! conv {
         ($t:ty, $n:expr) => {
             raw.chunks_exact($n)
                 .map(|c| {
                     let b: [u8; $n] = c.try_into().expect("chunk size");
-                    (if le { <$t>::from_le_bytes(b) } else { <$t>::from_be_bytes(b) }) as f64
+                    (if le {
+                        <$t>::from_le_bytes(b)
+                    } else {
+                        <$t>::from_be_bytes(b)
+                    }) as f64
                 })
                 .collect()
         };
@@ -56,7 +65,12 @@ fn decode(raw: &[u8], ty: NiftiType, endianness: Endianness, path: &Path) -> Res
         NiftiType::Uint64 => conv!(u64, 8),
         NiftiType::Float32 => conv!(f32, 4),
         NiftiType::Float64 => conv!(f64, 8),
-        other => return Err(AnatomyError::bad_file(path, format!("unsupported NIfTI data type {other:?}"))),
+        other => {
+            return Err(AnatomyError::bad_file(
+                path,
+                format!("unsupported NIfTI data type {other:?}"),
+            ));
+        }
     })
 }
 
@@ -65,27 +79,55 @@ pub fn read_nifti(path: &Path) -> Result<NiftiImage, AnatomyError> {
     if !path.is_file() {
         return Err(AnatomyError::bad_file(path, "no such file"));
     }
-    let obj = ReaderOptions::new()
-        .read_file(path)
-        .map_err(|e| AnatomyError::bad_file(path, format!("cannot read NIfTI (truncated or corrupt?): {e}")))?;
+    let obj = ReaderOptions::new().read_file(path).map_err(|e| {
+        AnatomyError::bad_file(
+            path,
+            format!("cannot read NIfTI (truncated or corrupt?): {e}"),
+        )
+    })?;
     let h = obj.header();
     let ndim = usize::from(h.dim[0]);
     if !(3..=7).contains(&ndim) || h.dim[4..=ndim].iter().any(|&d| d > 1) {
-        return Err(AnatomyError::bad_file(path, format!("expected a 3D volume, header dim is {:?}", &h.dim[..=ndim.min(7)])));
+        return Err(AnatomyError::bad_file(
+            path,
+            format!(
+                "expected a 3D volume, header dim is {:?}",
+                &h.dim[..=ndim.min(7)]
+            ),
+        ));
     }
-    let dims = [usize::from(h.dim[1]), usize::from(h.dim[2]), usize::from(h.dim[3])];
+    let dims = [
+        usize::from(h.dim[1]),
+        usize::from(h.dim[2]),
+        usize::from(h.dim[3]),
+    ];
     if dims.contains(&0) {
-        return Err(AnatomyError::bad_file(path, format!("zero-sized dimension {dims:?}")));
+        return Err(AnatomyError::bad_file(
+            path,
+            format!("zero-sized dimension {dims:?}"),
+        ));
     }
     let affine = header_affine(h);
     if affine.iter().flatten().any(|x| !x.is_finite()) {
-        return Err(AnatomyError::bad_file(path, format!("non-finite voxel-to-world affine {affine:?}")));
+        return Err(AnatomyError::bad_file(
+            path,
+            format!("non-finite voxel-to-world affine {affine:?}"),
+        ));
     }
-    let lin = [[affine[0][0], affine[0][1], affine[0][2]], [affine[1][0], affine[1][1], affine[1][2]], [affine[2][0], affine[2][1], affine[2][2]]];
+    let lin = [
+        [affine[0][0], affine[0][1], affine[0][2]],
+        [affine[1][0], affine[1][1], affine[1][2]],
+        [affine[2][0], affine[2][1], affine[2][2]],
+    ];
     if det3(lin).abs() < 1e-9 {
-        return Err(AnatomyError::bad_file(path, format!("singular voxel-to-world affine {affine:?}")));
+        return Err(AnatomyError::bad_file(
+            path,
+            format!("singular voxel-to-world affine {affine:?}"),
+        ));
     }
-    let ty = h.data_type().map_err(|e| AnatomyError::bad_file(path, format!("bad data type: {e}")))?;
+    let ty = h
+        .data_type()
+        .map_err(|e| AnatomyError::bad_file(path, format!("bad data type: {e}")))?;
     let (slope, inter) = (h.scl_slope, h.scl_inter);
     let endianness = h.endianness;
     let volume = obj.into_volume();
@@ -93,14 +135,39 @@ pub fn read_nifti(path: &Path) -> Result<NiftiImage, AnatomyError> {
     let n = dims[0] * dims[1] * dims[2];
     let values = decode(&raw, ty, endianness, path)?;
     if values.len() < n {
-        return Err(AnatomyError::bad_file(path, format!("{} voxels of data, header needs {n}", values.len())));
+        return Err(AnatomyError::bad_file(
+            path,
+            format!("{} voxels of data, header needs {n}", values.len()),
+        ));
     }
     // nifti1.h: scl_slope == 0 means "no scaling"; files also carry NaN there (the v1 masks of the
     // test data do), which we read the same way.
     let scale = slope.is_finite() && slope != 0.0;
-    let (slope, inter) = (f64::from(slope), if inter.is_finite() { f64::from(inter) } else { 0.0 });
-    let data = values[..n].iter().map(|&v| if scale { (v * slope + inter) as f32 } else { v as f32 }).collect();
-    Ok(NiftiImage { path: path.to_path_buf(), dims, affine, data, datatype: format!("{ty:?}") })
+    let (slope, inter) = (
+        f64::from(slope),
+        if inter.is_finite() {
+            f64::from(inter)
+        } else {
+            0.0
+        },
+    );
+    let data = values[..n]
+        .iter()
+        .map(|&v| {
+            if scale {
+                (v * slope + inter) as f32
+            } else {
+                v as f32
+            }
+        })
+        .collect();
+    Ok(NiftiImage {
+        path: path.to_path_buf(),
+        dims,
+        affine,
+        data,
+        datatype: format!("{ty:?}"),
+    })
 }
 
 fn header_affine(h: &nifti::NiftiHeader) -> [[f64; 4]; 3] {
@@ -112,29 +179,57 @@ fn header_affine(h: &nifti::NiftiHeader) -> [[f64; 4]; 3] {
     if h.qform_code > 0 {
         // nifti1.h "method 2": rotation from the quaternion (b, c, d), a = sqrt(1 - b^2 - c^2 - d^2),
         // qfac = pixdim[0] (-1 flips k).
-        let (b, c, d) = (f64::from(h.quatern_b), f64::from(h.quatern_c), f64::from(h.quatern_d));
+        let (b, c, d) = (
+            f64::from(h.quatern_b),
+            f64::from(h.quatern_c),
+            f64::from(h.quatern_d),
+        );
         let a = (1.0 - (b * b + c * c + d * d)).max(0.0).sqrt();
         let r = [
-            [a * a + b * b - c * c - d * d, 2.0 * (b * c - a * d), 2.0 * (b * d + a * c)],
-            [2.0 * (b * c + a * d), a * a + c * c - b * b - d * d, 2.0 * (c * d - a * b)],
-            [2.0 * (b * d - a * c), 2.0 * (c * d + a * b), a * a + d * d - c * c - b * b],
+            [
+                a * a + b * b - c * c - d * d,
+                2.0 * (b * c - a * d),
+                2.0 * (b * d + a * c),
+            ],
+            [
+                2.0 * (b * c + a * d),
+                a * a + c * c - b * b - d * d,
+                2.0 * (c * d - a * b),
+            ],
+            [
+                2.0 * (b * d - a * c),
+                2.0 * (c * d + a * b),
+                a * a + d * d - c * c - b * b,
+            ],
         ];
         let qfac = if p[0] < 0.0 { -1.0 } else { 1.0 };
         let s = [p[1], p[2], p[3] * qfac];
-        let t = [f64::from(h.quatern_x), f64::from(h.quatern_y), f64::from(h.quatern_z)];
-        return std::array::from_fn(|row| [r[row][0] * s[0], r[row][1] * s[1], r[row][2] * s[2], t[row]]);
+        let t = [
+            f64::from(h.quatern_x),
+            f64::from(h.quatern_y),
+            f64::from(h.quatern_z),
+        ];
+        return std::array::from_fn(|row| {
+            [r[row][0] * s[0], r[row][1] * s[1], r[row][2] * s[2], t[row]]
+        });
     }
-    [[p[1], 0.0, 0.0, 0.0], [0.0, p[2], 0.0, 0.0], [0.0, 0.0, p[3], 0.0]]
+    [
+        [p[1], 0.0, 0.0, 0.0],
+        [0.0, p[2], 0.0, 0.0],
+        [0.0, 0.0, p[3], 0.0],
+    ]
 }
 
 fn det3(m: [[f64; 3]; 3]) -> f64 {
-    m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+    m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
         + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
 }
 
 fn inverse3(m: [[f64; 3]; 3]) -> [[f64; 3]; 3] {
     let d = det3(m);
-    let c = |r0: usize, c0: usize, r1: usize, c1: usize| m[r0][c0] * m[r1][c1] - m[r0][c1] * m[r1][c0];
+    let c =
+        |r0: usize, c0: usize, r1: usize, c1: usize| m[r0][c0] * m[r1][c1] - m[r0][c1] * m[r1][c0];
     [
         [c(1, 1, 2, 2) / d, -c(0, 1, 2, 2) / d, c(0, 1, 1, 2) / d],
         [-c(1, 0, 2, 2) / d, c(0, 0, 2, 2) / d, -c(0, 0, 1, 2) / d],
@@ -159,9 +254,11 @@ pub struct RasResampler {
 impl RasResampler {
     /// Plans the resampling of images with this affine and these dims.
     pub fn new(affine: &[[f64; 4]; 3], in_dims: [usize; 3]) -> RasResampler {
-        let lin: [[f64; 3]; 3] = std::array::from_fn(|r| [affine[r][0], affine[r][1], affine[r][2]]);
+        let lin: [[f64; 3]; 3] =
+            std::array::from_fn(|r| [affine[r][0], affine[r][1], affine[r][2]]);
         let t = [affine[0][3], affine[1][3], affine[2][3]];
-        let col_norm = |c: usize| (lin[0][c].powi(2) + lin[1][c].powi(2) + lin[2][c].powi(2)).sqrt();
+        let col_norm =
+            |c: usize| (lin[0][c].powi(2) + lin[1][c].powi(2) + lin[2][c].powi(2)).sqrt();
         // A column is axis-aligned when all but one of its entries vanish (relative 1e-6).
         let exact = (0..3).all(|c| {
             let n = col_norm(c);
@@ -171,7 +268,13 @@ impl RasResampler {
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];
         for corner in 0..8 {
-            let idx = [0, 1, 2].map(|a| if corner & (1 << a) != 0 { (in_dims[a] - 1) as f64 } else { 0.0 });
+            let idx = [0, 1, 2].map(|a| {
+                if corner & (1 << a) != 0 {
+                    (in_dims[a] - 1) as f64
+                } else {
+                    0.0
+                }
+            });
             for r in 0..3 {
                 let w = t[r] + lin[r][0] * idx[0] + lin[r][1] * idx[1] + lin[r][2] * idx[2];
                 lo[r] = lo[r].min(w);
@@ -185,9 +288,14 @@ impl RasResampler {
             let s = (0..3).map(col_norm).fold(f64::INFINITY, f64::min);
             [s; 3]
         };
-        let dims: [usize; 3] = std::array::from_fn(|r| ((hi[r] - lo[r]) / spacing[r]).round() as usize + 1);
+        let dims: [usize; 3] =
+            std::array::from_fn(|r| ((hi[r] - lo[r]) / spacing[r]).round() as usize + 1);
         RasResampler {
-            grid: VolumeGrid { dims, spacing_mm: spacing, origin_mm: lo },
+            grid: VolumeGrid {
+                dims,
+                spacing_mm: spacing,
+                origin_mm: lo,
+            },
             in_dims,
             inv: inverse3(lin),
             t,
@@ -206,10 +314,16 @@ impl RasResampler {
                 for i in 0..g.dims[0] {
                     let w = g.voxel_center_mm(i, j, k);
                     let d = [w[0] - self.t[0], w[1] - self.t[1], w[2] - self.t[2]];
-                    let x: [f64; 3] = std::array::from_fn(|r| self.inv[r][0] * d[0] + self.inv[r][1] * d[1] + self.inv[r][2] * d[2]);
+                    let x: [f64; 3] = std::array::from_fn(|r| {
+                        self.inv[r][0] * d[0] + self.inv[r][1] * d[1] + self.inv[r][2] * d[2]
+                    });
                     if self.exact {
                         let idx = x.map(|v| v.round());
-                        if idx.iter().zip(&self.in_dims).any(|(&v, &n)| v < 0.0 || v > (n - 1) as f64) {
+                        if idx
+                            .iter()
+                            .zip(&self.in_dims)
+                            .any(|(&v, &n)| v < 0.0 || v > (n - 1) as f64)
+                        {
                             out.push(fill);
                         } else {
                             let (a, b, c) = (idx[0] as usize, idx[1] as usize, idx[2] as usize);
@@ -218,13 +332,21 @@ impl RasResampler {
                         continue;
                     }
                     const EDGE: f64 = 1e-6;
-                    if x.iter().zip(&self.in_dims).any(|(&v, &n)| v < -EDGE || v > (n - 1) as f64 + EDGE) {
+                    if x.iter()
+                        .zip(&self.in_dims)
+                        .any(|(&v, &n)| v < -EDGE || v > (n - 1) as f64 + EDGE)
+                    {
                         out.push(fill);
                         continue;
                     }
-                    let base: [usize; 3] = std::array::from_fn(|a| (x[a].max(0.0).floor() as usize).min(self.in_dims[a].saturating_sub(2)));
-                    let f: [f64; 3] = std::array::from_fn(|a| (x[a] - base[a] as f64).clamp(0.0, 1.0));
-                    let at = |a: usize, b: usize, c: usize| f64::from(data[a.min(ni - 1) + ni * (b.min(nj - 1) + nj * c.min(nk - 1))]);
+                    let base: [usize; 3] = std::array::from_fn(|a| {
+                        (x[a].max(0.0).floor() as usize).min(self.in_dims[a].saturating_sub(2))
+                    });
+                    let f: [f64; 3] =
+                        std::array::from_fn(|a| (x[a] - base[a] as f64).clamp(0.0, 1.0));
+                    let at = |a: usize, b: usize, c: usize| {
+                        f64::from(data[a.min(ni - 1) + ni * (b.min(nj - 1) + nj * c.min(nk - 1))])
+                    };
                     let mut v = 0.0;
                     for corner in 0..8usize {
                         let (di, dj, dk) = (corner & 1, (corner >> 1) & 1, (corner >> 2) & 1);
@@ -249,14 +371,28 @@ pub fn check_same_grid(reference: &NiftiImage, other: &NiftiImage) -> Result<(),
     if reference.dims != other.dims {
         return Err(AnatomyError::bad_file(
             &other.path,
-            format!("mask grid {:?} does not match the CT grid {:?} of {}", other.dims, reference.dims, reference.path.display()),
+            format!(
+                "mask grid {:?} does not match the CT grid {:?} of {}",
+                other.dims,
+                reference.dims,
+                reference.path.display()
+            ),
         ));
     }
-    let worst = reference.affine.iter().flatten().zip(other.affine.iter().flatten()).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+    let worst = reference
+        .affine
+        .iter()
+        .flatten()
+        .zip(other.affine.iter().flatten())
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
     if worst > 1e-3 {
         return Err(AnatomyError::bad_file(
             &other.path,
-            format!("mask affine differs from the CT affine of {} by {worst:.4} mm", reference.path.display()),
+            format!(
+                "mask affine differs from the CT affine of {} by {worst:.4} mm",
+                reference.path.display()
+            ),
         ));
     }
     Ok(())
@@ -269,7 +405,11 @@ mod tests {
     #[test]
     fn pir_affine_is_exact_reindexing_to_ras() {
         // The TPTBox L3 crop's affine (README of the test data).
-        let affine = [[0.0, 0.0, 1.5, -78.0], [-1.5, 0.0, 0.0, -135.0], [0.0, -1.5, 0.0, -34.2]];
+        let affine = [
+            [0.0, 0.0, 1.5, -78.0],
+            [-1.5, 0.0, 0.0, -135.0],
+            [0.0, -1.5, 0.0, -34.2],
+        ];
         let dims = [4, 3, 5];
         let r = RasResampler::new(&affine, dims);
         assert!(r.exact);
@@ -282,7 +422,10 @@ mod tests {
             for j in 0..dims[1] {
                 for i in 0..dims[0] {
                     let w: [f64; 3] = std::array::from_fn(|row| {
-                        affine[row][0] * i as f64 + affine[row][1] * j as f64 + affine[row][2] * k as f64 + affine[row][3]
+                        affine[row][0] * i as f64
+                            + affine[row][1] * j as f64
+                            + affine[row][2] * k as f64
+                            + affine[row][3]
                     });
                     let v = r.grid.world_to_voxel(w).map(|x| x.round() as usize);
                     assert_eq!(out.get(v[0], v[1], v[2]), data[i + 4 * (j + 3 * k)]);
@@ -294,7 +437,11 @@ mod tests {
     #[test]
     fn oblique_affine_interpolates_linear_field_exactly() {
         let (c, s) = (0.3f64.cos(), 0.3f64.sin());
-        let affine = [[2.0 * c, -2.0 * s, 0.0, 10.0], [2.0 * s, 2.0 * c, 0.0, -5.0], [0.0, 0.0, 3.0, 1.0]];
+        let affine = [
+            [2.0 * c, -2.0 * s, 0.0, 10.0],
+            [2.0 * s, 2.0 * c, 0.0, -5.0],
+            [0.0, 0.0, 3.0, 1.0],
+        ];
         let dims = [6, 7, 4];
         let r = RasResampler::new(&affine, dims);
         assert!(!r.exact);
@@ -304,7 +451,12 @@ mod tests {
         for k in 0..4 {
             for j in 0..7 {
                 for i in 0..6 {
-                    let w: [f64; 3] = std::array::from_fn(|row| affine[row][0] * i as f64 + affine[row][1] * j as f64 + affine[row][2] * k as f64 + affine[row][3]);
+                    let w: [f64; 3] = std::array::from_fn(|row| {
+                        affine[row][0] * i as f64
+                            + affine[row][1] * j as f64
+                            + affine[row][2] * k as f64
+                            + affine[row][3]
+                    });
                     data.push(field(w) as f32);
                 }
             }

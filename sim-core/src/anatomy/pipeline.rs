@@ -63,7 +63,11 @@ pub struct SourceInfo {
 
 /// Pipeline version recorded in provenance: crate version plus asset format version.
 pub fn pipeline_version() -> String {
-    format!("sim-core {} / anatomy format {}", env!("CARGO_PKG_VERSION"), super::asset::FORMAT_VERSION)
+    format!(
+        "sim-core {} / anatomy format {}",
+        env!("CARGO_PKG_VERSION"),
+        super::asset::FORMAT_VERSION
+    )
 }
 
 /// One structure to mesh: a name, its tissue class and its occupancy mask.
@@ -85,7 +89,11 @@ impl StructureMask {
         let (lo, hi) = nonzero_box(&self.mask)?;
         let g = self.mask.grid;
         let dims = [hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1];
-        let grid = VolumeGrid { dims, spacing_mm: g.spacing_mm, origin_mm: g.voxel_center_mm(lo[0], lo[1], lo[2]) };
+        let grid = VolumeGrid {
+            dims,
+            spacing_mm: g.spacing_mm,
+            origin_mm: g.voxel_center_mm(lo[0], lo[1], lo[2]),
+        };
         let mut data = Vec::with_capacity(grid.len());
         for k in lo[2]..=hi[2] {
             for j in lo[1]..=hi[1] {
@@ -94,12 +102,21 @@ impl StructureMask {
                 }
             }
         }
-        Some(StructureMask { name: self.name.clone(), material: self.material, mask: Volume { grid, data } })
+        Some(StructureMask {
+            name: self.name.clone(),
+            material: self.material,
+            mask: Volume { grid, data },
+        })
     }
 
     /// Mask volume in mm^3: the sum of occupancies (clamped to `0..=1`) times the voxel volume.
     pub fn volume_mm3(&self) -> f64 {
-        let s: f64 = self.mask.data.iter().map(|&v| f64::from(v.clamp(0.0, 1.0))).sum();
+        let s: f64 = self
+            .mask
+            .data
+            .iter()
+            .map(|&v| f64::from(v.clamp(0.0, 1.0)))
+            .sum();
         s * self.mask.grid.voxel_volume_mm3()
     }
 }
@@ -167,54 +184,94 @@ pub struct Progress {
 }
 
 /// Checks a mask lies on the CT lattice and returns its voxel offset in the CT grid.
-pub(crate) fn mask_offset(ct: &VolumeGrid, mask: &StructureMask) -> Result<[usize; 3], AnatomyError> {
+pub(crate) fn mask_offset(
+    ct: &VolumeGrid,
+    mask: &StructureMask,
+) -> Result<[usize; 3], AnatomyError> {
     let g = mask.mask.grid;
     if mask.mask.data.len() != g.len() {
-        return Err(AnatomyError::invalid(&mask.name, "mask data length does not match its grid"));
+        return Err(AnatomyError::invalid(
+            &mask.name,
+            "mask data length does not match its grid",
+        ));
     }
     let mut off = [0usize; 3];
-    for a in 0..3 {
+    for (a, off_a) in off.iter_mut().enumerate() {
         if (g.spacing_mm[a] - ct.spacing_mm[a]).abs() > 1e-6 * ct.spacing_mm[a] {
             return Err(AnatomyError::invalid(
                 &mask.name,
-                format!("mask spacing {:?} mm differs from CT spacing {:?} mm", g.spacing_mm, ct.spacing_mm),
+                format!(
+                    "mask spacing {:?} mm differs from CT spacing {:?} mm",
+                    g.spacing_mm, ct.spacing_mm
+                ),
             ));
         }
         let x = (g.origin_mm[a] - ct.origin_mm[a]) / ct.spacing_mm[a];
         if !x.is_finite() || (x - x.round()).abs() > 1e-3 || x.round() < 0.0 {
-            return Err(AnatomyError::invalid(&mask.name, format!("mask origin {:?} mm is not on the CT lattice", g.origin_mm)));
+            return Err(AnatomyError::invalid(
+                &mask.name,
+                format!("mask origin {:?} mm is not on the CT lattice", g.origin_mm),
+            ));
         }
-        off[a] = x.round() as usize;
-        if off[a] + g.dims[a] > ct.dims[a] {
-            return Err(AnatomyError::invalid(&mask.name, format!("mask grid {:?} extends beyond the CT grid {:?}", g.dims, ct.dims)));
+        *off_a = x.round() as usize;
+        if *off_a + g.dims[a] > ct.dims[a] {
+            return Err(AnatomyError::invalid(
+                &mask.name,
+                format!(
+                    "mask grid {:?} extends beyond the CT grid {:?}",
+                    g.dims, ct.dims
+                ),
+            ));
         }
     }
     Ok(off)
 }
 
 /// Meshes one mask: crop, pad, extract, smooth, decimate, check. Returns the mesh and notes.
-pub fn mesh_structure(mask: &StructureMask, params: &PipelineParams) -> Result<(TriMesh, Vec<String>), AnatomyError> {
+pub fn mesh_structure(
+    mask: &StructureMask,
+    params: &PipelineParams,
+) -> Result<(TriMesh, Vec<String>), AnatomyError> {
     const PAD: usize = 2;
     let mut notes = Vec::new();
     let Some((lo, hi)) = nonzero_box(&mask.mask) else {
-        return Err(AnatomyError::Mesh { structure: mask.name.clone(), message: "empty mask".into() });
+        return Err(AnatomyError::Mesh {
+            structure: mask.name.clone(),
+            message: "empty mask".into(),
+        });
     };
     let g = mask.mask.grid;
     let dims: [usize; 3] = std::array::from_fn(|a| hi[a] - lo[a] + 1 + 2 * PAD);
-    let origin: [f64; 3] = std::array::from_fn(|a| g.origin_mm[a] + (lo[a] as f64 - PAD as f64) * g.spacing_mm[a]);
-    let fgrid = VolumeGrid { dims, spacing_mm: g.spacing_mm, origin_mm: origin };
+    let origin: [f64; 3] =
+        std::array::from_fn(|a| g.origin_mm[a] + (lo[a] as f64 - PAD as f64) * g.spacing_mm[a]);
+    let fgrid = VolumeGrid {
+        dims,
+        spacing_mm: g.spacing_mm,
+        origin_mm: origin,
+    };
     let mut values = vec![0.0f32; fgrid.len()];
     for k in lo[2]..=hi[2] {
         for j in lo[1]..=hi[1] {
             for i in lo[0]..=hi[0] {
                 let v = mask.mask.get(i, j, k);
-                values[fgrid.index(i - lo[0] + PAD, j - lo[1] + PAD, k - lo[2] + PAD)] = if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 };
+                values[fgrid.index(i - lo[0] + PAD, j - lo[1] + PAD, k - lo[2] + PAD)] =
+                    if v.is_finite() {
+                        v.clamp(0.0, 1.0)
+                    } else {
+                        0.0
+                    };
             }
         }
     }
-    let field = ScalarField { grid: fgrid, values: &values };
+    let field = ScalarField {
+        grid: fgrid,
+        values: &values,
+    };
     let mut mesh = extract_isosurface(&field, params.iso_level, params.upsample.max(1))
-        .ok_or_else(|| AnatomyError::Mesh { structure: mask.name.clone(), message: "padding failed to enclose the mask".into() })?;
+        .ok_or_else(|| AnatomyError::Mesh {
+            structure: mask.name.clone(),
+            message: "padding failed to enclose the mask".into(),
+        })?;
     check_solid(&mask.name, &mesh, "extraction")?;
     let mask_volume = mask.volume_mm3();
     if let Some(sp) = &params.smoothing {
@@ -237,14 +294,23 @@ pub fn mesh_structure(mask: &StructureMask, params: &PipelineParams) -> Result<(
 pub fn check_solid(name: &str, mesh: &TriMesh, after: &str) -> Result<(), AnatomyError> {
     let t = mesh.topology_report();
     if mesh.triangles.is_empty() {
-        return Err(AnatomyError::Mesh { structure: name.into(), message: format!("no triangles after {after}") });
+        return Err(AnatomyError::Mesh {
+            structure: name.into(),
+            message: format!("no triangles after {after}"),
+        });
     }
     if !t.is_closed_and_consistent() {
-        return Err(AnatomyError::Mesh { structure: name.into(), message: format!("not a closed consistent surface after {after}: {t:?}") });
+        return Err(AnatomyError::Mesh {
+            structure: name.into(),
+            message: format!("not a closed consistent surface after {after}: {t:?}"),
+        });
     }
     let v = mesh.signed_volume_mm3();
     if v.is_nan() || v <= 0.0 {
-        return Err(AnatomyError::Mesh { structure: name.into(), message: format!("signed volume {v} mm^3 after {after}") });
+        return Err(AnatomyError::Mesh {
+            structure: name.into(),
+            message: format!("signed volume {v} mm^3 after {after}"),
+        });
     }
     Ok(())
 }
@@ -265,13 +331,28 @@ pub fn build_region(
 ) -> Result<RegionAsset, AnatomyError> {
     let grid = ct_hu.grid;
     if grid.is_empty() || ct_hu.data.len() != grid.len() {
-        return Err(AnatomyError::invalid(name, "CT volume is empty or its data does not match its grid"));
+        return Err(AnatomyError::invalid(
+            name,
+            "CT volume is empty or its data does not match its grid",
+        ));
     }
-    if grid.spacing_mm.iter().chain(&grid.origin_mm).any(|x| !x.is_finite()) || grid.spacing_mm.iter().any(|&s| s <= 0.0) {
-        return Err(AnatomyError::invalid(name, format!("CT grid has invalid spacing or origin: {grid:?}")));
+    if grid
+        .spacing_mm
+        .iter()
+        .chain(&grid.origin_mm)
+        .any(|x| !x.is_finite())
+        || grid.spacing_mm.iter().any(|&s| s <= 0.0)
+    {
+        return Err(AnatomyError::invalid(
+            name,
+            format!("CT grid has invalid spacing or origin: {grid:?}"),
+        ));
     }
     if params.upsample == 0 || params.upsample > 8 {
-        return Err(AnatomyError::invalid(name, format!("upsample must be 1..=8, got {}", params.upsample)));
+        return Err(AnatomyError::invalid(
+            name,
+            format!("upsample must be 1..=8, got {}", params.upsample),
+        ));
     }
     let mut notes = source.notes.clone();
     let mut kept = Vec::with_capacity(structures.len());
@@ -279,29 +360,64 @@ pub fn build_region(
     for s in structures {
         mask_offset(&grid, &s)?;
         if !seen.insert(s.name.clone()) {
-            return Err(AnatomyError::invalid(&s.name, "two structures with this name"));
+            return Err(AnatomyError::invalid(
+                &s.name,
+                "two structures with this name",
+            ));
         }
-        if s.mask.data.iter().all(|&v| !(v > 0.0)) {
+        if !s.mask.data.iter().any(|&v| v > 0.0) {
             notes.push(format!("{}: empty mask skipped", s.name));
             continue;
         }
         kept.push(s);
     }
-    progress(&Progress { stage: "labels", done: 0, total: 1, item: String::new() });
+    progress(&Progress {
+        stage: "labels",
+        done: 0,
+        total: 1,
+        item: String::new(),
+    });
     let (labels, label_notes) = label_volume(ct_hu, &kept, params.cortical_shell_mm)?;
     notes.extend(label_notes);
-    let ct_u8 = Volume { grid, data: ct_hu.data.iter().map(|&hu| encode_hu(f64::from(hu))).collect() };
-    progress(&Progress { stage: "labels", done: 1, total: 1, item: String::new() });
+    let ct_u8 = Volume {
+        grid,
+        data: ct_hu
+            .data
+            .iter()
+            .map(|&hu| encode_hu(f64::from(hu)))
+            .collect(),
+    };
+    progress(&Progress {
+        stage: "labels",
+        done: 1,
+        total: 1,
+        item: String::new(),
+    });
     let mut out = Vec::with_capacity(kept.len());
     let total = kept.len();
     for (n, s) in kept.into_iter().enumerate() {
-        progress(&Progress { stage: "mesh", done: n, total, item: s.name.clone() });
+        progress(&Progress {
+            stage: "mesh",
+            done: n,
+            total,
+            item: s.name.clone(),
+        });
         let cropped = s.cropped().unwrap_or_else(|| s.clone());
         let (mesh, mesh_notes) = mesh_structure(&cropped, params)?;
         notes.extend(mesh_notes);
-        out.push(StructureAsset { name: s.name.clone(), material: s.material, mask_volume_mm3: cropped.volume_mm3(), mesh });
+        out.push(StructureAsset {
+            name: s.name.clone(),
+            material: s.material,
+            mask_volume_mm3: cropped.volume_mm3(),
+            mesh,
+        });
     }
-    progress(&Progress { stage: "mesh", done: total, total, item: String::new() });
+    progress(&Progress {
+        stage: "mesh",
+        done: total,
+        total,
+        item: String::new(),
+    });
     Ok(RegionAsset {
         name: name.to_string(),
         structures: out,

@@ -37,7 +37,13 @@ impl Default for TaubinParams {
     fn default() -> Self {
         // Ten pairs remove the marching-tetrahedra staircase at voxel scale (simulator choice);
         // the cap of 1 mm is a third of our 3 mm CT voxels, so no feature moves by a voxel.
-        TaubinParams { iterations: 10, lambda: 0.5, mu: -0.53, max_displacement_mm: 1.0, max_volume_change: 0.02 }
+        TaubinParams {
+            iterations: 10,
+            lambda: 0.5,
+            mu: -0.53,
+            max_displacement_mm: 1.0,
+            max_volume_change: 0.02,
+        }
     }
 }
 
@@ -78,10 +84,16 @@ fn laplacian_step(pos: &[[f64; 3]], nb: &[Vec<u32>], w: f64) -> Vec<[f64; 3]> {
 }
 
 /// Smooths `mesh` (topology unchanged) and returns it with a one-line report.
-pub fn taubin_smooth(mesh: &TriMesh, params: &TaubinParams, mask_volume_mm3: f64) -> (TriMesh, String) {
+pub fn taubin_smooth(
+    mesh: &TriMesh,
+    params: &TaubinParams,
+    mask_volume_mm3: f64,
+) -> (TriMesh, String) {
     let nb = vertex_neighbours(mesh);
     let original = mesh.vertices_mm.clone();
-    let rel_err = |m: &TriMesh| (m.signed_volume_mm3() - mask_volume_mm3).abs() / mask_volume_mm3.max(f64::MIN_POSITIVE);
+    let rel_err = |m: &TriMesh| {
+        (m.signed_volume_mm3() - mask_volume_mm3).abs() / mask_volume_mm3.max(f64::MIN_POSITIVE)
+    };
     let err0 = rel_err(mesh);
     let allowed = params.max_volume_change.max(err0);
     let mut current = mesh.clone();
@@ -100,7 +112,10 @@ pub fn taubin_smooth(mesh: &TriMesh, params: &TaubinParams, mask_volume_mm3: f64
                 capped += 1;
             }
         }
-        let candidate = TriMesh { vertices_mm: step, triangles: current.triangles.clone() };
+        let candidate = TriMesh {
+            vertices_mm: step,
+            triangles: current.triangles.clone(),
+        };
         if rel_err(&candidate) > allowed {
             stopped = true;
             break;
@@ -111,7 +126,11 @@ pub fn taubin_smooth(mesh: &TriMesh, params: &TaubinParams, mask_volume_mm3: f64
     let report = format!(
         "Taubin smoothing {done}/{} pairs{}, volume error vs mask {:.2}% -> {:.2}%, {capped} vertex moves capped at {} mm",
         params.iterations,
-        if stopped { " (stopped by the volume guard)" } else { "" },
+        if stopped {
+            " (stopped by the volume guard)"
+        } else {
+            ""
+        },
         100.0 * err0,
         100.0 * rel_err(&current),
         params.max_displacement_mm
@@ -135,7 +154,12 @@ mod tests {
         }
         // Reference: the sphere of the mean radius (10.25 mm), which smoothing should approach.
         let exact = 4.0 / 3.0 * std::f64::consts::PI * 10.25f64.powi(3);
-        let p = TaubinParams { iterations: 20, max_displacement_mm: 0.3, max_volume_change: 0.05, ..Default::default() };
+        let p = TaubinParams {
+            iterations: 20,
+            max_displacement_mm: 0.3,
+            max_volume_change: 0.05,
+            ..Default::default()
+        };
         let (s, report) = taubin_smooth(&m, &p, exact);
         assert!(s.topology_report().is_closed_and_consistent());
         let max_move = s.vertices_mm.iter().zip(&m.vertices_mm).map(|(a, b)| {
@@ -144,11 +168,20 @@ mod tests {
         assert!(max_move.fold(0.0, f64::max) <= 0.3 + 1e-12, "{report}");
         // The roughness (standard deviation of the radius) drops.
         let spread = |m: &TriMesh| {
-            let r: Vec<f64> = m.vertices_mm.iter().map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()).collect();
+            let r: Vec<f64> = m
+                .vertices_mm
+                .iter()
+                .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
+                .collect();
             let mean = r.iter().sum::<f64>() / r.len() as f64;
             (r.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / r.len() as f64).sqrt()
         };
-        assert!(spread(&s) < 0.5 * spread(&m), "{report}: {} -> {}", spread(&m), spread(&s));
+        assert!(
+            spread(&s) < 0.5 * spread(&m),
+            "{report}: {} -> {}",
+            spread(&m),
+            spread(&s)
+        );
     }
 
     #[test]
@@ -156,7 +189,13 @@ mod tests {
         // Plain Laplacian (mu = 0) shrinks a sphere; a 0.5 % guard must stop it.
         let m = TriMesh::icosphere([0.0; 3], 10.0, 3);
         let v0 = m.signed_volume_mm3();
-        let p = TaubinParams { iterations: 50, lambda: 0.5, mu: 0.0, max_displacement_mm: 100.0, max_volume_change: 0.005 };
+        let p = TaubinParams {
+            iterations: 50,
+            lambda: 0.5,
+            mu: 0.0,
+            max_displacement_mm: 100.0,
+            max_volume_change: 0.005,
+        };
         let (s, report) = taubin_smooth(&m, &p, v0);
         assert!(report.contains("stopped by the volume guard"), "{report}");
         assert!((s.signed_volume_mm3() - v0).abs() / v0 <= 0.005);

@@ -27,8 +27,16 @@ pub fn material_for_structure(name: &str) -> Option<MaterialClass> {
     if starts("lung_") || n == "trachea" || starts("kidney_cyst") {
         return None;
     }
-    if starts("vertebrae_") || n == "sacrum" || starts("hip_") || starts("femur_") || starts("rib_") || n == "sternum"
-        || starts("humerus_") || starts("scapula_") || starts("clavicula_") || n == "skull"
+    if starts("vertebrae_")
+        || n == "sacrum"
+        || starts("hip_")
+        || starts("femur_")
+        || starts("rib_")
+        || n == "sternum"
+        || starts("humerus_")
+        || starts("scapula_")
+        || starts("clavicula_")
+        || n == "skull"
     {
         return Some(MaterialClass::CorticalBone);
     }
@@ -36,10 +44,19 @@ pub fn material_for_structure(name: &str) -> Option<MaterialClass> {
         // Cartilage: the disc class carries the nearest acoustic and X-ray behaviour.
         return Some(MaterialClass::Disc);
     }
-    if n == "aorta" || n == "inferior_vena_cava" || n == "superior_vena_cava" || starts("iliac_")
-        || n == "portal_vein_and_splenic_vein" || n == "pulmonary_artery" || n == "pulmonary_vein"
-        || n == "brachiocephalic_trunk" || starts("subclavian_artery") || starts("common_carotid_artery")
-        || starts("brachiocephalic_vein") || starts("heart") || n == "atrial_appendage_left"
+    if n == "aorta"
+        || n == "inferior_vena_cava"
+        || n == "superior_vena_cava"
+        || starts("iliac_")
+        || n == "portal_vein_and_splenic_vein"
+        || n == "pulmonary_artery"
+        || n == "pulmonary_vein"
+        || n == "brachiocephalic_trunk"
+        || starts("subclavian_artery")
+        || starts("common_carotid_artery")
+        || starts("brachiocephalic_vein")
+        || starts("heart")
+        || n == "atrial_appendage_left"
     {
         return Some(MaterialClass::Vessel);
     }
@@ -55,65 +72,197 @@ pub fn material_for_structure(name: &str) -> Option<MaterialClass> {
     }
     // Solid and hollow organs (liver, spleen, kidneys, bowel, bladder, prostate, ...).
     const ORGANS: [&str; 17] = [
-        "spleen", "kidney_right", "kidney_left", "gallbladder", "liver", "stomach", "pancreas",
-        "adrenal_gland_right", "adrenal_gland_left", "esophagus", "thyroid_gland", "small_bowel",
-        "duodenum", "colon", "urinary_bladder", "prostate", "face",
+        "spleen",
+        "kidney_right",
+        "kidney_left",
+        "gallbladder",
+        "liver",
+        "stomach",
+        "pancreas",
+        "adrenal_gland_right",
+        "adrenal_gland_left",
+        "esophagus",
+        "thyroid_gland",
+        "small_bowel",
+        "duodenum",
+        "colon",
+        "urinary_bladder",
+        "prostate",
+        "face",
     ];
-    ORGANS.contains(&n.as_str()).then_some(MaterialClass::SoftTissue)
+    ORGANS
+        .contains(&n.as_str())
+        .then_some(MaterialClass::SoftTissue)
 }
 
 /// TotalSegmentator v2 `total` task label ids (class map of the TotalSegmentator package,
 /// `map_to_binary.py`, 117 classes).
 pub const TOTAL_V2_LABELS: [&str; 117] = [
-    "spleen", "kidney_right", "kidney_left", "gallbladder", "liver", "stomach", "pancreas",
-    "adrenal_gland_right", "adrenal_gland_left", "lung_upper_lobe_left", "lung_lower_lobe_left",
-    "lung_upper_lobe_right", "lung_middle_lobe_right", "lung_lower_lobe_right", "esophagus", "trachea",
-    "thyroid_gland", "small_bowel", "duodenum", "colon", "urinary_bladder", "prostate", "kidney_cyst_left",
-    "kidney_cyst_right", "sacrum", "vertebrae_S1", "vertebrae_L5", "vertebrae_L4", "vertebrae_L3",
-    "vertebrae_L2", "vertebrae_L1", "vertebrae_T12", "vertebrae_T11", "vertebrae_T10", "vertebrae_T9",
-    "vertebrae_T8", "vertebrae_T7", "vertebrae_T6", "vertebrae_T5", "vertebrae_T4", "vertebrae_T3",
-    "vertebrae_T2", "vertebrae_T1", "vertebrae_C7", "vertebrae_C6", "vertebrae_C5", "vertebrae_C4",
-    "vertebrae_C3", "vertebrae_C2", "vertebrae_C1", "heart", "aorta", "pulmonary_vein",
-    "brachiocephalic_trunk", "subclavian_artery_right", "subclavian_artery_left",
-    "common_carotid_artery_right", "common_carotid_artery_left", "brachiocephalic_vein_left",
-    "brachiocephalic_vein_right", "atrial_appendage_left", "superior_vena_cava", "inferior_vena_cava",
-    "portal_vein_and_splenic_vein", "iliac_artery_left", "iliac_artery_right", "iliac_vena_left",
-    "iliac_vena_right", "humerus_left", "humerus_right", "scapula_left", "scapula_right", "clavicula_left",
-    "clavicula_right", "femur_left", "femur_right", "hip_left", "hip_right", "spinal_cord",
-    "gluteus_maximus_left", "gluteus_maximus_right", "gluteus_medius_left", "gluteus_medius_right",
-    "gluteus_minimus_left", "gluteus_minimus_right", "autochthon_left", "autochthon_right",
-    "iliopsoas_left", "iliopsoas_right", "brain", "skull", "rib_left_1", "rib_left_2", "rib_left_3",
-    "rib_left_4", "rib_left_5", "rib_left_6", "rib_left_7", "rib_left_8", "rib_left_9", "rib_left_10",
-    "rib_left_11", "rib_left_12", "rib_right_1", "rib_right_2", "rib_right_3", "rib_right_4",
-    "rib_right_5", "rib_right_6", "rib_right_7", "rib_right_8", "rib_right_9", "rib_right_10",
-    "rib_right_11", "rib_right_12", "sternum", "costal_cartilages",
+    "spleen",
+    "kidney_right",
+    "kidney_left",
+    "gallbladder",
+    "liver",
+    "stomach",
+    "pancreas",
+    "adrenal_gland_right",
+    "adrenal_gland_left",
+    "lung_upper_lobe_left",
+    "lung_lower_lobe_left",
+    "lung_upper_lobe_right",
+    "lung_middle_lobe_right",
+    "lung_lower_lobe_right",
+    "esophagus",
+    "trachea",
+    "thyroid_gland",
+    "small_bowel",
+    "duodenum",
+    "colon",
+    "urinary_bladder",
+    "prostate",
+    "kidney_cyst_left",
+    "kidney_cyst_right",
+    "sacrum",
+    "vertebrae_S1",
+    "vertebrae_L5",
+    "vertebrae_L4",
+    "vertebrae_L3",
+    "vertebrae_L2",
+    "vertebrae_L1",
+    "vertebrae_T12",
+    "vertebrae_T11",
+    "vertebrae_T10",
+    "vertebrae_T9",
+    "vertebrae_T8",
+    "vertebrae_T7",
+    "vertebrae_T6",
+    "vertebrae_T5",
+    "vertebrae_T4",
+    "vertebrae_T3",
+    "vertebrae_T2",
+    "vertebrae_T1",
+    "vertebrae_C7",
+    "vertebrae_C6",
+    "vertebrae_C5",
+    "vertebrae_C4",
+    "vertebrae_C3",
+    "vertebrae_C2",
+    "vertebrae_C1",
+    "heart",
+    "aorta",
+    "pulmonary_vein",
+    "brachiocephalic_trunk",
+    "subclavian_artery_right",
+    "subclavian_artery_left",
+    "common_carotid_artery_right",
+    "common_carotid_artery_left",
+    "brachiocephalic_vein_left",
+    "brachiocephalic_vein_right",
+    "atrial_appendage_left",
+    "superior_vena_cava",
+    "inferior_vena_cava",
+    "portal_vein_and_splenic_vein",
+    "iliac_artery_left",
+    "iliac_artery_right",
+    "iliac_vena_left",
+    "iliac_vena_right",
+    "humerus_left",
+    "humerus_right",
+    "scapula_left",
+    "scapula_right",
+    "clavicula_left",
+    "clavicula_right",
+    "femur_left",
+    "femur_right",
+    "hip_left",
+    "hip_right",
+    "spinal_cord",
+    "gluteus_maximus_left",
+    "gluteus_maximus_right",
+    "gluteus_medius_left",
+    "gluteus_medius_right",
+    "gluteus_minimus_left",
+    "gluteus_minimus_right",
+    "autochthon_left",
+    "autochthon_right",
+    "iliopsoas_left",
+    "iliopsoas_right",
+    "brain",
+    "skull",
+    "rib_left_1",
+    "rib_left_2",
+    "rib_left_3",
+    "rib_left_4",
+    "rib_left_5",
+    "rib_left_6",
+    "rib_left_7",
+    "rib_left_8",
+    "rib_left_9",
+    "rib_left_10",
+    "rib_left_11",
+    "rib_left_12",
+    "rib_right_1",
+    "rib_right_2",
+    "rib_right_3",
+    "rib_right_4",
+    "rib_right_5",
+    "rib_right_6",
+    "rib_right_7",
+    "rib_right_8",
+    "rib_right_9",
+    "rib_right_10",
+    "rib_right_11",
+    "rib_right_12",
+    "sternum",
+    "costal_cartilages",
 ];
 
 /// The built-in v2 map: label id -> structure name.
 pub fn total_v2_label_map() -> BTreeMap<u32, String> {
-    TOTAL_V2_LABELS.iter().enumerate().map(|(i, n)| (i as u32 + 1, (*n).to_string())).collect()
+    TOTAL_V2_LABELS
+        .iter()
+        .enumerate()
+        .map(|(i, n)| (i as u32 + 1, (*n).to_string()))
+        .collect()
 }
 
 /// Reads a JSON label map: either `{"1": "spleen", ...}` (id -> name) or `{"spleen": 1, ...}`.
 pub fn read_label_map(path: &Path) -> Result<BTreeMap<u32, String>, AnatomyError> {
     let text = fs::read_to_string(path).map_err(|e| AnatomyError::io(path, e))?;
-    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| AnatomyError::bad_file(path, format!("not JSON: {e}")))?;
-    let obj = v.as_object().ok_or_else(|| AnatomyError::bad_file(path, "label map must be a JSON object"))?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| AnatomyError::bad_file(path, format!("not JSON: {e}")))?;
+    let obj = v
+        .as_object()
+        .ok_or_else(|| AnatomyError::bad_file(path, "label map must be a JSON object"))?;
     let mut map = BTreeMap::new();
     for (k, val) in obj {
         let (id, name) = match (k.parse::<u32>(), val) {
             (Ok(id), serde_json::Value::String(name)) => (id, name.clone()),
             (Err(_), serde_json::Value::Number(n)) => {
-                let id = n.as_u64().and_then(|x| u32::try_from(x).ok()).ok_or_else(|| AnatomyError::bad_file(path, format!("bad label id for {k}")))?;
+                let id = n
+                    .as_u64()
+                    .and_then(|x| u32::try_from(x).ok())
+                    .ok_or_else(|| AnatomyError::bad_file(path, format!("bad label id for {k}")))?;
                 (id, k.clone())
             }
-            _ => return Err(AnatomyError::bad_file(path, format!("entry {k}: expected \"id\": \"name\" or \"name\": id"))),
+            _ => {
+                return Err(AnatomyError::bad_file(
+                    path,
+                    format!("entry {k}: expected \"id\": \"name\" or \"name\": id"),
+                ));
+            }
         };
         if id == 0 {
-            return Err(AnatomyError::bad_file(path, "label 0 is background and cannot name a structure"));
+            return Err(AnatomyError::bad_file(
+                path,
+                "label 0 is background and cannot name a structure",
+            ));
         }
         if map.insert(id, name).is_some() {
-            return Err(AnatomyError::bad_file(path, format!("label {id} given twice")));
+            return Err(AnatomyError::bad_file(
+                path,
+                format!("label {id} given twice"),
+            ));
         }
     }
     Ok(map)
@@ -151,7 +300,9 @@ pub struct ImportOptions {
 
 fn structure_name(path: &Path) -> Option<String> {
     let f = path.file_name()?.to_str()?;
-    f.strip_suffix(".nii.gz").or_else(|| f.strip_suffix(".nii")).map(str::to_string)
+    f.strip_suffix(".nii.gz")
+        .or_else(|| f.strip_suffix(".nii"))
+        .map(str::to_string)
 }
 
 /// Imports a CT and its masks into a region (not yet written; see [`RegionAsset::write_to`]).
@@ -162,7 +313,12 @@ pub fn import_ct(
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<RegionAsset, AnatomyError> {
     let mut notes = Vec::new();
-    progress(&Progress { stage: "read CT", done: 0, total: 1, item: ct_path.display().to_string() });
+    progress(&Progress {
+        stage: "read CT",
+        done: 0,
+        total: 1,
+        item: ct_path.display().to_string(),
+    });
     let ct = read_nifti(ct_path)?;
     let resampler = RasResampler::new(&ct.affine, ct.dims);
     notes.push(format!(
@@ -172,15 +328,29 @@ pub fn import_ct(
         ct.dims,
         resampler.grid.dims,
         resampler.grid.spacing_mm,
-        if resampler.exact { "exact re-indexing" } else { "trilinear, oblique affine" }
+        if resampler.exact {
+            "exact re-indexing"
+        } else {
+            "trilinear, oblique affine"
+        }
     ));
     let ct_ras = resampler.apply(&ct.data, OUTSIDE_HU);
-    let wanted = |name: &str| options.include.as_ref().is_none_or(|inc| inc.iter().any(|n| n == name));
+    let wanted = |name: &str| {
+        options
+            .include
+            .as_ref()
+            .is_none_or(|inc| inc.iter().any(|n| n == name))
+    };
     let mut structures = Vec::new();
     let mut mask_files = BTreeMap::new();
-    let mut add = |name: String, image: &NiftiImage, indicator: &dyn Fn(f32) -> f32, notes: &mut Vec<String>| {
+    let mut add = |name: String,
+                   image: &NiftiImage,
+                   indicator: &dyn Fn(f32) -> f32,
+                   notes: &mut Vec<String>| {
         let Some(material) = material_for_structure(&name) else {
-            notes.push(format!("{name}: no material class (air-filled or not simulated); skipped"));
+            notes.push(format!(
+                "{name}: no material class (air-filled or not simulated); skipped"
+            ));
             return;
         };
         let occ: Vec<f32> = image.data.iter().map(|&v| indicator(v)).collect();
@@ -188,7 +358,11 @@ pub fn import_ct(
             notes.push(format!("{name}: empty mask skipped"));
             return;
         }
-        let mask = StructureMask { name: name.clone(), material, mask: resampler.apply(&occ, 0.0) };
+        let mask = StructureMask {
+            name: name.clone(),
+            material,
+            mask: resampler.apply(&occ, 0.0),
+        };
         match mask.cropped() {
             Some(c) => structures.push(c),
             None => notes.push(format!("{name}: empty after resampling; skipped")),
@@ -209,7 +383,10 @@ pub fn import_ct(
             }
             files.sort();
             if files.is_empty() {
-                return Err(AnatomyError::bad_file(dir, "no .nii or .nii.gz masks in this folder"));
+                return Err(AnatomyError::bad_file(
+                    dir,
+                    "no .nii or .nii.gz masks in this folder",
+                ));
             }
             let total = files.len();
             for (n, f) in files.iter().enumerate() {
@@ -217,14 +394,29 @@ pub fn import_ct(
                 if !wanted(&name) {
                     continue;
                 }
-                progress(&Progress { stage: "read masks", done: n, total, item: name.clone() });
+                progress(&Progress {
+                    stage: "read masks",
+                    done: n,
+                    total,
+                    item: name.clone(),
+                });
                 let img = read_nifti(f)?;
                 check_same_grid(&ct, &img)?;
                 mask_files.insert(f.display().to_string(), sha256_file(f)?);
                 // Binary masks: any value of 0.5 or more is inside (float masks store 0.0/1.0).
-                add(name, &img, &|v| if v >= 0.5 { 1.0 } else { 0.0 }, &mut notes);
+                add(
+                    name,
+                    &img,
+                    &|v| if v >= 0.5 { 1.0 } else { 0.0 },
+                    &mut notes,
+                );
             }
-            progress(&Progress { stage: "read masks", done: total, total, item: String::new() });
+            progress(&Progress {
+                stage: "read masks",
+                done: total,
+                total,
+                item: String::new(),
+            });
         }
         MaskSource::Multilabel { file, label_map } => {
             let map = match label_map {
@@ -238,7 +430,12 @@ pub fn import_ct(
             if let Some(p) = label_map {
                 mask_files.insert(p.display().to_string(), sha256_file(p)?);
             }
-            progress(&Progress { stage: "read masks", done: 0, total: 1, item: file.display().to_string() });
+            progress(&Progress {
+                stage: "read masks",
+                done: 0,
+                total: 1,
+                item: file.display().to_string(),
+            });
             let img = read_nifti(file)?;
             check_same_grid(&ct, &img)?;
             mask_files.insert(file.display().to_string(), sha256_file(file)?);
@@ -248,7 +445,7 @@ pub fn import_ct(
                     *present.entry(v.round() as u32).or_default() += 1;
                 }
             }
-            for (&id, _) in &present {
+            for &id in present.keys() {
                 let Some(name) = map.get(&id) else {
                     notes.push(format!("label {id}: not in the label map; skipped"));
                     continue;
@@ -257,25 +454,52 @@ pub fn import_ct(
                     continue;
                 }
                 let idf = id as f32;
-                add(name.clone(), &img, &|v| if (v - idf).abs() < 0.5 { 1.0 } else { 0.0 }, &mut notes);
+                add(
+                    name.clone(),
+                    &img,
+                    &|v| if (v - idf).abs() < 0.5 { 1.0 } else { 0.0 },
+                    &mut notes,
+                );
             }
-            progress(&Progress { stage: "read masks", done: 1, total: 1, item: String::new() });
+            progress(&Progress {
+                stage: "read masks",
+                done: 1,
+                total: 1,
+                item: String::new(),
+            });
         }
     }
     if let Some(inc) = &options.include {
         for n in inc {
-            if !structures.iter().any(|s| &s.name == n) && !notes.iter().any(|x| x.starts_with(&format!("{n}:"))) {
-                return Err(AnatomyError::invalid(n, "requested structure not found among the masks"));
+            if !structures.iter().any(|s| &s.name == n)
+                && !notes.iter().any(|x| x.starts_with(&format!("{n}:")))
+            {
+                return Err(AnatomyError::invalid(
+                    n,
+                    "requested structure not found among the masks",
+                ));
             }
         }
     }
     let source = SourceInfo {
-        source: Source::Ct { ct_file: ct_path.display().to_string(), ct_sha256: sha256_file(ct_path)?, mask_files, label_map: label_map_name },
+        source: Source::Ct {
+            ct_file: ct_path.display().to_string(),
+            ct_sha256: sha256_file(ct_path)?,
+            mask_files,
+            label_map: label_map_name,
+        },
         licence: options.licence.clone(),
         attribution: options.attribution.clone(),
         notes,
     };
-    build_region(&options.region_name, &ct_ras, structures, &options.params, source, progress)
+    build_region(
+        &options.region_name,
+        &ct_ras,
+        structures,
+        &options.params,
+        source,
+        progress,
+    )
 }
 
 #[cfg(test)]
@@ -299,17 +523,38 @@ mod tests {
 
     #[test]
     fn structure_classes() {
-        assert_eq!(material_for_structure("vertebrae_L3"), Some(MaterialClass::CorticalBone));
-        assert_eq!(material_for_structure("hip_left"), Some(MaterialClass::CorticalBone));
+        assert_eq!(
+            material_for_structure("vertebrae_L3"),
+            Some(MaterialClass::CorticalBone)
+        );
+        assert_eq!(
+            material_for_structure("hip_left"),
+            Some(MaterialClass::CorticalBone)
+        );
         assert_eq!(material_for_structure("aorta"), Some(MaterialClass::Vessel));
-        assert_eq!(material_for_structure("iliac_vena_left"), Some(MaterialClass::Vessel));
-        assert_eq!(material_for_structure("gluteus_medius_right"), Some(MaterialClass::Muscle));
-        assert_eq!(material_for_structure("spinal_cord"), Some(MaterialClass::DuraCsf));
-        assert_eq!(material_for_structure("liver"), Some(MaterialClass::SoftTissue));
+        assert_eq!(
+            material_for_structure("iliac_vena_left"),
+            Some(MaterialClass::Vessel)
+        );
+        assert_eq!(
+            material_for_structure("gluteus_medius_right"),
+            Some(MaterialClass::Muscle)
+        );
+        assert_eq!(
+            material_for_structure("spinal_cord"),
+            Some(MaterialClass::DuraCsf)
+        );
+        assert_eq!(
+            material_for_structure("liver"),
+            Some(MaterialClass::SoftTissue)
+        );
         assert_eq!(material_for_structure("lung_upper_lobe_left"), None);
         for name in TOTAL_V2_LABELS {
             if !name.starts_with("lung_") && name != "trachea" && !name.starts_with("kidney_cyst") {
-                assert!(material_for_structure(name).is_some(), "{name} has no class");
+                assert!(
+                    material_for_structure(name).is_some(),
+                    "{name} has no class"
+                );
             }
         }
     }

@@ -52,7 +52,13 @@ fn run(args: &[String]) -> Result<(), String> {
         Some("verify") => {
             let dir = args.get(1).ok_or(USAGE)?;
             let region = RegionAsset::load(&PathBuf::from(dir)).map_err(|e| e.to_string())?;
-            println!("{}: {} structures, grid {:?} at {:?} mm, all file hashes verified", region.name, region.structures.len(), region.grid().dims, region.grid().spacing_mm);
+            println!(
+                "{}: {} structures, grid {:?} at {:?} mm, all file hashes verified",
+                region.name,
+                region.structures.len(),
+                region.grid().dims,
+                region.grid().spacing_mm
+            );
             for s in &region.structures {
                 println!(
                     "  {:<28} {:<14} {:>7} triangles  mesh {:>10.1} mm^3  mask {:>10.1} mm^3",
@@ -82,7 +88,11 @@ fn build(args: &[String]) -> Result<(), String> {
     let mut attribution = String::new();
     let mut it = args.iter();
     while let Some(flag) = it.next() {
-        let mut value = || it.next().cloned().ok_or_else(|| format!("{flag} needs a value\n{USAGE}"));
+        let mut value = || {
+            it.next()
+                .cloned()
+                .ok_or_else(|| format!("{flag} needs a value\n{USAGE}"))
+        };
         match flag.as_str() {
             "--ct" => ct = Some(PathBuf::from(value()?)),
             "--masks" => masks = Some(PathBuf::from(value()?)),
@@ -90,15 +100,25 @@ fn build(args: &[String]) -> Result<(), String> {
             "--label-map" => label_map = Some(PathBuf::from(value()?)),
             "--out" => out = Some(PathBuf::from(value()?)),
             "--name" => name = Some(value()?),
-            "--include" => include = Some(value()?.split(',').map(str::to_string).collect::<Vec<_>>()),
-            "--upsample" => params.upsample = value()?.parse().map_err(|e| format!("--upsample: {e}"))?,
+            "--include" => {
+                include = Some(value()?.split(',').map(str::to_string).collect::<Vec<_>>())
+            }
+            "--upsample" => {
+                params.upsample = value()?.parse().map_err(|e| format!("--upsample: {e}"))?
+            }
             "--smooth" => {
                 let n: u32 = value()?.parse().map_err(|e| format!("--smooth: {e}"))?;
-                params.smoothing = (n > 0).then(|| TaubinParams { iterations: n, ..TaubinParams::default() });
+                params.smoothing = (n > 0).then(|| TaubinParams {
+                    iterations: n,
+                    ..TaubinParams::default()
+                });
             }
             "--decimate" => {
                 let f: f64 = value()?.parse().map_err(|e| format!("--decimate: {e}"))?;
-                params.decimation = Some(DecimationParams { target_fraction: f, ..DecimationParams::default() });
+                params.decimation = Some(DecimationParams {
+                    target_fraction: f,
+                    ..DecimationParams::default()
+                });
             }
             "--licence" => licence = value()?,
             "--attribution" => attribution = value()?,
@@ -110,10 +130,24 @@ fn build(args: &[String]) -> Result<(), String> {
     let source = match (masks, multilabel) {
         (Some(dir), None) => MaskSource::Folder(dir),
         (None, Some(file)) => MaskSource::Multilabel { file, label_map },
-        _ => return Err(format!("give exactly one of --masks and --multilabel\n{USAGE}")),
+        _ => {
+            return Err(format!(
+                "give exactly one of --masks and --multilabel\n{USAGE}"
+            ));
+        }
     };
-    let region_name = name.unwrap_or_else(|| out.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "region".into()));
-    let options = ImportOptions { region_name, params, include, licence, attribution };
+    let region_name = name.unwrap_or_else(|| {
+        out.file_name()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "region".into())
+    });
+    let options = ImportOptions {
+        region_name,
+        params,
+        include,
+        licence,
+        attribution,
+    };
     let bar = ProgressBar::new(1);
     bar.set_style(
         ProgressStyle::with_template("{elapsed_precise} {msg:<36!} [{bar:30}] {pos}/{len}")
@@ -131,7 +165,11 @@ fn build(args: &[String]) -> Result<(), String> {
     bar.set_message("writing");
     let provenance = region.write_to(&out).map_err(|e| e.to_string())?;
     bar.finish_and_clear();
-    let triangles: usize = region.structures.iter().map(|s| s.mesh.triangles.len()).sum();
+    let triangles: usize = region
+        .structures
+        .iter()
+        .map(|s| s.mesh.triangles.len())
+        .sum();
     println!(
         "wrote {} ({} structures, {triangles} triangles, grid {:?}) in {:.2} s (import and meshing {:.2} s)",
         out.display(),
