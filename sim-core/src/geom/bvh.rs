@@ -42,9 +42,10 @@ struct Node {
 /// Bounding-volume hierarchy over the triangles of one mesh, for exact ray queries.
 ///
 /// Build: binned surface-area heuristic (16 bins per axis on triangle centroids, leaves of at
-/// most 4 triangles unless the heuristic prefers a larger leaf, at most 16); about 0.3 s for
-/// 327,680 triangles on one core at opt-level 2. Node boxes are padded by a relative 1e-9 of the
-/// mesh extent, so rounding in the slab test can never cull a triangle the exact ray meets.
+/// most 4 triangles unless the heuristic prefers a larger leaf, at most 16). Measured at
+/// opt-level 2 on one core of a shared 2-core machine: 0.7 s to build over 327,680 triangles,
+/// about 2.3 microseconds per `all_hits` ray through it. Node boxes are padded by a relative 1e-9
+/// of the mesh extent, so rounding in the slab test can never cull a triangle the exact ray meets.
 #[derive(Debug, Clone)]
 pub struct Bvh {
     nodes: Vec<Node>,
@@ -131,9 +132,19 @@ impl Bvh {
                 leaf(&mut nodes);
                 continue;
             }
-            // Binned SAH over the widest centroid axes (all three tried).
+            // Binned SAH: large nodes bin only the axis of widest centroid spread (as common
+            // builders do; it costs little tree quality and a third of the build time), small
+            // nodes try all three.
             let mut best: Option<(f64, usize, f64)> = None; // (cost, axis, split coordinate)
-            for axis in 0..3 {
+            let widest = (0..3)
+                .max_by(|&a, &b| (chi[a] - clo[a]).total_cmp(&(chi[b] - clo[b])))
+                .unwrap_or(0);
+            let axes = if count > 1024 {
+                widest..widest + 1
+            } else {
+                0..3
+            };
+            for axis in axes {
                 let (c0, c1) = (clo[axis], chi[axis]);
                 if c1 - c0 <= 0.0 {
                     continue;
