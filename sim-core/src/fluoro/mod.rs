@@ -16,6 +16,25 @@
 //! every chord is converted to centimetres exactly once, in [`attenuation`].
 //!
 //! The model frame, the C-arm angles and the pixel convention are documented in [`geometry`].
+//!
+//! # Contract for the GPU renderer
+//! Everything a GPU implementation needs is public and stable (names are kept once committed):
+//! - Rays: [`Projection::gpu_ray_frame`] (`f32`, relative to the source) gives the exact ray of
+//!   any continuous pixel coordinate; pixel `(i, j)`'s centre is `[i + 0.5, j + 0.5]`.
+//!   [`Projection::projection_matrix`] maps model points to pixels (for rasterising meshes).
+//! - Channels: one path length per [`FluoroMaterial`], in [`FluoroMaterial::index`] order
+//!   (11 tissue classes in `MaterialClass::ALL` order, then steel). Nesting is by
+//!   [`SceneEntry::priority`]: each point of a ray belongs to the highest-priority mesh containing
+//!   it. For strictly nested meshes this equals "own chord minus the chords of the meshes directly
+//!   inside"; [`Scene::ray_entry_chords`] gives the raw per-mesh chords an L-buffer accumulates,
+//!   so both stages can be validated separately. Cancellous runs are clamped (see [`scene`]).
+//! - Attenuation: per material [`FluoroMaterial::mu_60kev_per_cm`] and [`FluoroMaterial::basis`];
+//!   [`attenuation::basis_depths`] sums `mu_60 * L` per basis (plus the iodine column times
+//!   [`attenuation::iodine_stock_mu_60kev_per_cm`]); [`SpectralModel`] holds the weights `w_E`
+//!   and the factors `R_b(E)`, and `T = sum_E w_E exp(-sum_b A_b R_b(E))`.
+//! - Reference outputs: [`render_chords`] (per-pixel chords, no supersampling),
+//!   [`render_transmission`] and [`render_frame`]; [`analytic`] has the sphere phantom and exact
+//!   reference chords.
 
 pub mod analytic;
 pub mod attenuation;

@@ -169,6 +169,38 @@ impl Scene {
         self.entries.iter().map(|e| e.bvh.triangle_count()).sum()
     }
 
+    /// Raw chord of every entry along the ray, mm, ignoring nesting (what an L-buffer
+    /// accumulates per mesh: the sum of leaving minus entering distances within `[0, t_max]`).
+    pub fn ray_entry_chords(&self, origin_mm: [f64; 3], dir: [f64; 3], t_max: f64) -> Vec<f64> {
+        let mut hits = Vec::new();
+        self.entries
+            .iter()
+            .map(|e| {
+                e.bvh.all_hits(origin_mm, dir, 0.0, t_max, &mut hits);
+                let mut depth = 0i32;
+                let mut start = 0.0;
+                let mut total = 0.0;
+                for h in &hits {
+                    if h.entering {
+                        if depth == 0 {
+                            start = h.t_mm;
+                        }
+                        depth += 1;
+                    } else {
+                        depth -= 1;
+                        if depth == 0 {
+                            total += h.t_mm - start;
+                        }
+                    }
+                }
+                if depth > 0 {
+                    total += t_max - start;
+                }
+                total
+            })
+            .collect()
+    }
+
     /// Chord length per material along `origin + t * dir` for `0 <= t <= t_max`; `dir` must be a
     /// unit vector (chords are in mm). The origin (the focal spot) must be outside every mesh; a
     /// ray still inside a mesh at `t_max` counts the stretch up to `t_max`.
@@ -349,6 +381,11 @@ mod tests {
             &mut ChordScratch::default(),
         );
         assert_eq!(r2.chords_mm, r.chords_mm);
+        // Raw per-mesh chords (no nesting): the body's whole 200 mm, the bone's 20 mm.
+        assert_eq!(
+            s.ray_entry_chords([0.0, -500.0, 0.3], [0.0, 1.0, 0.0], 1000.0),
+            vec![200.0, 20.0]
+        );
     }
 
     #[test]
