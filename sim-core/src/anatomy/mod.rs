@@ -8,6 +8,10 @@
 //! back, verifying the SHA-256 of every file. The phantom ([`phantom`]) and real-CT import
 //! ([`nifti_import`], [`totalseg`]) are the two producers of those inputs.
 //!
+//! The `assets` binary (`sim-core/src/bin/assets.rs`) wraps real-CT import for the command line:
+//! `assets build --ct ct.nii.gz --masks segmentations/ --out assets/<region>` (or
+//! `--multilabel seg.nii.gz [--label-map map.json]`), and `assets verify assets/<region>`.
+//!
 //! Architecture invariant: every mesh that leaves the pipeline is closed, consistently wound
 //! (outward), free of degenerate triangles and of positive volume; anything else is an error.
 

@@ -365,11 +365,12 @@ pub fn build_region(
                 "two structures with this name",
             ));
         }
-        if !s.mask.data.iter().any(|&v| v > 0.0) {
-            notes.push(format!("{}: empty mask skipped", s.name));
-            continue;
+        // Cropping to the non-zero box first keeps the labelling and meshing memory proportional
+        // to the structure, not to the region.
+        match s.cropped() {
+            Some(c) => kept.push(c),
+            None => notes.push(format!("{}: empty mask skipped", s.name)),
         }
-        kept.push(s);
     }
     progress(&Progress {
         stage: "labels",
@@ -402,13 +403,12 @@ pub fn build_region(
             total,
             item: s.name.clone(),
         });
-        let cropped = s.cropped().unwrap_or_else(|| s.clone());
-        let (mesh, mesh_notes) = mesh_structure(&cropped, params)?;
+        let (mesh, mesh_notes) = mesh_structure(&s, params)?;
         notes.extend(mesh_notes);
         out.push(StructureAsset {
             name: s.name.clone(),
             material: s.material,
-            mask_volume_mm3: cropped.volume_mm3(),
+            mask_volume_mm3: s.volume_mm3(),
             mesh,
         });
     }
