@@ -33,30 +33,36 @@ pub struct NiftiImage {
     pub datatype: String,
 }
 
+/// Decodes raw voxel bytes to `f32`, applying `value * slope + inter` (in f64) when `scale`.
 fn decode(
     raw: &[u8],
     ty: NiftiType,
     endianness: Endianness,
+    scale: Option<(f64, f64)>,
     path: &Path,
-) -> Result<Vec<f64>, AnatomyError> {
+) -> Result<Vec<f32>, AnatomyError> {
     let le = matches!(endianness, Endianness::Little);
+    let out = |v: f64| match scale {
+        Some((slope, inter)) => (v * slope + inter) as f32,
+        None => v as f32,
+    };
     macro_rules! conv {
         ($t:ty, $n:expr) => {
             raw.chunks_exact($n)
                 .map(|c| {
                     let b: [u8; $n] = c.try_into().expect("chunk size");
-                    (if le {
+                    out((if le {
                         <$t>::from_le_bytes(b)
                     } else {
                         <$t>::from_be_bytes(b)
-                    }) as f64
+                    }) as f64)
                 })
                 .collect()
         };
     }
     Ok(match ty {
-        NiftiType::Uint8 => raw.iter().map(|&b| f64::from(b)).collect(),
-        NiftiType::Int8 => raw.iter().map(|&b| f64::from(b as i8)).collect(),
+        NiftiType::Uint8 => raw.iter().map(|&b| out(f64::from(b))).collect(),
+        NiftiType::Int8 => raw.iter().map(|&b| out(f64::from(b as i8))).collect(),
         NiftiType::Int16 => conv!(i16, 2),
         NiftiType::Uint16 => conv!(u16, 2),
         NiftiType::Int32 => conv!(i32, 4),
@@ -133,34 +139,27 @@ pub fn read_nifti(path: &Path) -> Result<NiftiImage, AnatomyError> {
     let volume = obj.into_volume();
     let raw = volume.into_raw_data();
     let n = dims[0] * dims[1] * dims[2];
-    let values = decode(&raw, ty, endianness, path)?;
-    if values.len() < n {
-        return Err(AnatomyError::bad_file(
-            path,
-            format!("{} voxels of data, header needs {n}", values.len()),
-        ));
-    }
     // nifti1.h: scl_slope == 0 means "no scaling"; files also carry NaN there (the v1 masks of the
     // test data do), which we read the same way.
-    let scale = slope.is_finite() && slope != 0.0;
-    let (slope, inter) = (
-        f64::from(slope),
-        if inter.is_finite() {
-            f64::from(inter)
-        } else {
-            0.0
-        },
-    );
-    let data = values[..n]
-        .iter()
-        .map(|&v| {
-            if scale {
-                (v * slope + inter) as f32
+    let scale = (slope.is_finite() && slope != 0.0).then(|| {
+        (
+            f64::from(slope),
+            if inter.is_finite() {
+                f64::from(inter)
             } else {
-                v as f32
-            }
-        })
-        .collect();
+                0.0
+            },
+        )
+    });
+    let mut data = decode(&raw, ty, endianness, scale, path)?;
+    drop(raw);
+    if data.len() < n {
+        return Err(AnatomyError::bad_file(
+            path,
+            format!("{} voxels of data, header needs {n}", data.len()),
+        ));
+    }
+    data.truncate(n);
     Ok(NiftiImage {
         path: path.to_path_buf(),
         dims,
