@@ -1,0 +1,383 @@
+//! The procedural lumbosacral phantom: the default anatomy, built from our own code on first run.
+//!
+//! L1 to the sacrum and the iliac wings, with the canal contents, exiting roots, great vessels,
+//! paraspinal muscles, fat and skin, are written as smooth implicit solids ([`sdf`], [`model`]) with
+//! dimensions from published adult morphometry (cited in [`model`]). The solids are painted into a
+//! label grid ([`voxelize`]), which gives one disjoint binary mask per structure and a CT volume in
+//! HU (tissue values, a CT-like blur and seeded noise). Masks and CT then go through the same
+//! [`pipeline::build_region`] as real CT, which meshes every structure and writes the region.
+//!
+//! Determinism: everything is a pure function of [`PhantomParams`]. Threads split the grid into
+//! z-slabs whose results do not depend on the split, noise is a hash of (seed, voxel index), and
+//! the pipeline is deterministic, so the same parameters give the same files byte for byte.
+//! [`ensure_built`] keys its cache on the SHA-256 of the parameters and the pipeline version.
+//!
+//! Model frame: the platform's RAS frame (x = patient right, y = anterior, z = cranial, millimetres,
+//! right-handed, as in `crate::fluoro::geometry`), origin at the centre of the L3 vertebral body
+//! (see [`model`]).
+//!
+//! ```no_run
+//! use sim_core::anatomy::phantom;
+//! let region = phantom::ensure_built(std::path::Path::new("assets/lumbar-phantom")).unwrap();
+//! assert!(region.structure("L4_cortical").is_some());
+//! let target = phantom::landmark(&phantom::PhantomParams::default(), "L4_transforaminal_target_left");
+//! assert!(target.is_some());
+//! ```
+
+pub mod model;
+pub mod sdf;
+pub mod voxelize;
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::asset::{RegionAsset, Source};
+use super::decimate::DecimationParams;
+use super::error::AnatomyError;
+use super::pipeline::{PipelineParams, Progress, SourceInfo, StructureMask, build_region, pipeline_version};
+use super::smooth::TaubinParams;
+use crate::material::MaterialClass;
+use crate::volume::{Volume, VolumeGrid};
+
+pub use model::{AnatomyParams, Landmark};
+
+/// Generator identifier recorded in the provenance; bump the number when the model changes shape.
+pub const GENERATOR: &str = "lumbosacral-phantom/1";
+
+/// Region name and default folder name under `assets/`.
+pub const REGION_NAME: &str = "lumbar-phantom";
+
+/// A cortical shell thickness larger than any bone, which keeps every voxel of a cortical mask
+/// cortical in the pipeline's label volume.
+pub const PIPELINE_SPLIT_OFF_MM: f64 = 1000.0;
+
+/// CT number of each tissue class in the phantom, HU.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TissueHu {
+    /// Cortical bone: 1000-1900 HU in adults (e.g. Schneider et al. 1996, Phys Med Biol
+    /// 41:111); the 8-bit underlay clips it at 700 HU anyway.
+    pub cortical_bone: f64,
+    /// Lumbar trabecular bone of a young adult: about 200-270 HU (Pickhardt et al. 2013, Ann Intern
+    /// Med 158:588, L1 attenuation by age).
+    pub cancellous: f64,
+    /// Intervertebral disc: 70-100 HU (annulus denser than nucleus; our assumption in that range).
+    pub disc: f64,
+    /// Skeletal muscle: 40-60 HU (Kalender, Computed Tomography, 3rd ed.).
+    pub muscle: f64,
+    /// Adipose tissue: -70 to -120 HU (Kalender).
+    pub fat: f64,
+    /// Skin and deep soft tissue (viscera, ligaments): 30-50 HU (our assumption).
+    pub soft_tissue: f64,
+    /// Unenhanced blood: 35-50 HU (our assumption; set about 200 HU for a contrast-enhanced scan).
+    pub vessel: f64,
+    /// Nerve roots and cauda: 30-40 HU (our assumption).
+    pub nerve: f64,
+    /// CSF in the dural sac: 0-15 HU.
+    pub dura_csf: f64,
+    /// Epidural space, mostly fat with a venous plexus: -80 HU (our assumption).
+    pub epidural_space: f64,
+    /// Ligamentum flavum: 60-80 HU, denser than muscle (our assumption).
+    pub ligamentum_flavum: f64,
+    /// Air outside the body.
+    pub air: f64,
+}
+
+impl Default for TissueHu {
+    fn default() -> Self {
+        TissueHu {
+            cortical_bone: 1200.0,
+            cancellous: 250.0,
+            disc: 85.0,
+            muscle: 50.0,
+            fat: -100.0,
+            soft_tissue: 40.0,
+            vessel: 45.0,
+            nerve: 35.0,
+            dura_csf: 8.0,
+            epidural_space: -80.0,
+            ligamentum_flavum: 70.0,
+            air: -1000.0,
+        }
+    }
+}
+
+impl TissueHu {
+    /// The CT number of a material class.
+    pub fn of(&self, m: MaterialClass) -> f64 {
+        match m {
+            MaterialClass::CorticalBone => self.cortical_bone,
+            MaterialClass::Cancellous => self.cancellous,
+            MaterialClass::Disc => self.disc,
+            MaterialClass::Muscle => self.muscle,
+            MaterialClass::Fat => self.fat,
+            MaterialClass::SoftTissue => self.soft_tissue,
+            MaterialClass::Vessel => self.vessel,
+            MaterialClass::Nerve => self.nerve,
+            MaterialClass::DuraCsf => self.dura_csf,
+            MaterialClass::EpiduralSpace => self.epidural_space,
+            MaterialClass::LigamentumFlavum => self.ligamentum_flavum,
+        }
+    }
+}
+
+/// Everything the phantom depends on. Same parameters, same bytes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PhantomParams {
+    /// Shape parameters.
+    pub anatomy: AnatomyParams,
+    /// Isotropic voxel size of the CT underlay and masks, mm.
+    pub voxel_mm: f64,
+    /// Lower corner of the region covered by the grid (outer voxel faces), mm, model frame.
+    pub extent_min_mm: [f64; 3],
+    /// Upper corner of the region covered by the grid, mm.
+    pub extent_max_mm: [f64; 3],
+    /// CT numbers per tissue.
+    pub hu: TissueHu,
+    /// Standard deviation of the Gaussian blur applied to the CT (a CT point-spread function),
+    /// mm. 0.6 mm is about 1.4 mm FWHM, typical of a body reconstruction kernel (our assumption).
+    pub blur_sigma_mm: f64,
+    /// Standard deviation of the CT noise, HU (10 HU: a standard-dose abdominal scan; our
+    /// assumption).
+    pub noise_sd_hu: f64,
+    /// Seed of the noise.
+    pub seed: u64,
+    /// Meshing parameters handed to the pipeline.
+    pub pipeline: PipelineParams,
+}
+
+impl Default for PhantomParams {
+    fn default() -> Self {
+        PhantomParams::with_voxel_mm(1.5)
+    }
+}
+
+impl PhantomParams {
+    /// Default anatomy and extent on a grid of `voxel_mm` (tests use coarser grids).
+    pub fn with_voxel_mm(voxel_mm: f64) -> PhantomParams {
+        PhantomParams {
+            anatomy: AnatomyParams::default(),
+            voxel_mm,
+            // The body envelope is 330 x 234 mm; z covers T12-L1 down to below the sacral apex
+            // and the iliac bones' lower columns (our assumption for the field of view).
+            extent_min_mm: [-171.0, -96.0, -222.0],
+            extent_max_mm: [171.0, 146.0, 102.0],
+            hu: TissueHu::default(),
+            blur_sigma_mm: 0.6,
+            noise_sd_hu: 10.0,
+            seed: 0x5eed_1u64,
+            pipeline: PipelineParams {
+                upsample: 1,
+                iso_level: 0.5,
+                // Taubin smoothing removes the voxel staircase of the binary masks; the cap of
+                // half a voxel keeps every vertex within the voxel it came from (simulator choice).
+                smoothing: Some(TaubinParams { max_displacement_mm: 0.5 * voxel_mm, ..TaubinParams::default() }),
+                // A quarter of the triangles with at most a fifth of a voxel of deviation.
+                decimation: Some(DecimationParams { max_error_mm: 0.2 * voxel_mm, ..DecimationParams::default() }),
+                // The phantom supplies separate cortical and cancellous masks, so the pipeline's
+                // depth split of bone masks (meant for whole-bone masks of real CT) is switched
+                // off by a shell thicker than any bone.
+                cortical_shell_mm: PIPELINE_SPLIT_OFF_MM,
+            },
+        }
+    }
+
+    /// The grid: voxel faces span the extent (rounded up to whole voxels).
+    pub fn grid(&self) -> VolumeGrid {
+        let dims: [usize; 3] =
+            std::array::from_fn(|a| ((self.extent_max_mm[a] - self.extent_min_mm[a]) / self.voxel_mm).ceil().max(1.0) as usize);
+        VolumeGrid {
+            dims,
+            spacing_mm: [self.voxel_mm; 3],
+            origin_mm: std::array::from_fn(|a| self.extent_min_mm[a] + 0.5 * self.voxel_mm),
+        }
+    }
+
+    /// SHA-256 (hex) of the generator name, pipeline version and parameters: the cache key.
+    pub fn hash_hex(&self) -> String {
+        let json = serde_json::to_string(self).unwrap_or_default();
+        super::asset::sha256_hex(format!("{GENERATOR}\n{}\n{json}", pipeline_version()).as_bytes())
+    }
+}
+
+/// The implicit anatomy used on the grid of `params` (solids in painting order and landmarks).
+pub fn anatomy(params: &PhantomParams) -> model::Anatomy {
+    model::Anatomy::new(&params.effective_anatomy())
+}
+
+/// The phantom's named structures in painting order (name, material).
+pub fn structure_list(params: &PhantomParams) -> Vec<(String, MaterialClass)> {
+    model::Anatomy::new(&params.effective_anatomy()).parts.into_iter().map(|p| (p.name, p.material)).collect()
+}
+
+/// The named landmarks of the phantom (model frame, mm).
+pub fn landmarks(params: &PhantomParams) -> Vec<Landmark> {
+    model::Anatomy::new(&params.effective_anatomy()).landmarks
+}
+
+/// One landmark by name.
+pub fn landmark(params: &PhantomParams, name: &str) -> Option<Landmark> {
+    landmarks(params).into_iter().find(|l| l.name == name)
+}
+
+/// The voxelized phantom before meshing.
+#[derive(Debug, Clone)]
+pub struct PhantomVolumes {
+    /// Structure index + 1 per voxel (0 = air outside the body); indices into `structures`.
+    pub structure_ids: Volume<u8>,
+    /// CT in HU (tissue values, blur, noise).
+    pub ct_hu: Volume<f32>,
+    /// Structures in painting order (name, material).
+    pub structures: Vec<(String, MaterialClass)>,
+}
+
+impl PhantomVolumes {
+    /// Voxel count of each structure (same order as `structures`).
+    pub fn voxel_counts(&self) -> Vec<usize> {
+        let mut counts = vec![0usize; self.structures.len() + 1];
+        for &l in &self.structure_ids.data {
+            counts[usize::from(l)] += 1;
+        }
+        counts[1..].to_vec()
+    }
+
+    /// Binary masks (0/1 occupancy) of every structure, each cropped to its own bounding box on
+    /// the CT lattice; empty structures give a 1-voxel empty mask (the pipeline skips it with a note).
+    pub fn masks(&self) -> Vec<StructureMask> {
+        let g = self.structure_ids.grid;
+        let n = self.structures.len();
+        let mut lo = vec![[usize::MAX; 3]; n];
+        let mut hi = vec![[0usize; 3]; n];
+        let [nx, ny, nz] = g.dims;
+        for k in 0..nz {
+            for j in 0..ny {
+                let row = &self.structure_ids.data[g.index(0, j, k)..g.index(0, j, k) + nx];
+                for (i, &l) in row.iter().enumerate() {
+                    if l > 0 {
+                        let s = usize::from(l) - 1;
+                        let ijk = [i, j, k];
+                        for a in 0..3 {
+                            lo[s][a] = lo[s][a].min(ijk[a]);
+                            hi[s][a] = hi[s][a].max(ijk[a]);
+                        }
+                    }
+                }
+            }
+        }
+        (0..n)
+            .map(|s| {
+                let (name, material) = self.structures[s].clone();
+                if lo[s][0] == usize::MAX {
+                    let grid = VolumeGrid { dims: [1, 1, 1], spacing_mm: g.spacing_mm, origin_mm: g.origin_mm };
+                    return StructureMask { name, material, mask: Volume::filled(grid, 0.0) };
+                }
+                let dims: [usize; 3] = std::array::from_fn(|a| hi[s][a] - lo[s][a] + 1);
+                let grid = VolumeGrid { dims, spacing_mm: g.spacing_mm, origin_mm: g.voxel_center_mm(lo[s][0], lo[s][1], lo[s][2]) };
+                let label = s as u8 + 1;
+                let mut data = Vec::with_capacity(grid.len());
+                for k in lo[s][2]..=hi[s][2] {
+                    for j in lo[s][1]..=hi[s][1] {
+                        let base = g.index(0, j, k);
+                        data.extend(self.structure_ids.data[base + lo[s][0]..=base + hi[s][0]].iter().map(|&l| if l == label { 1.0f32 } else { 0.0 }));
+                    }
+                }
+                StructureMask { name, material, mask: Volume { grid, data } }
+            })
+            .collect()
+    }
+}
+
+impl PhantomParams {
+    /// The anatomy parameters actually used on this grid: layers thinner than two voxels (the
+    /// cortical shell and the skin) are thickened to two voxels, so that their binary masks are
+    /// connected sheets rather than scattered voxels (simulator choice; at 1 mm nothing changes
+    /// but the 1.5 mm cortex, which becomes 2 mm).
+    pub fn effective_anatomy(&self) -> AnatomyParams {
+        let min_layer = 2.0 * self.voxel_mm;
+        AnatomyParams {
+            cortical_thickness_mm: self.anatomy.cortical_thickness_mm.max(min_layer),
+            skin_mm: self.anatomy.skin_mm.max(min_layer),
+            ..self.anatomy
+        }
+    }
+}
+
+/// Paints the phantom into its grid and makes the CT (no meshing).
+pub fn voxelize(params: &PhantomParams) -> PhantomVolumes {
+    let anatomy = model::Anatomy::new(&params.effective_anatomy());
+    let grid = params.grid();
+    let workers = voxelize::worker_count(8);
+    let solids: Vec<&sdf::Sdf> = anatomy.parts.iter().map(|p| &p.sdf).collect();
+    let structure_ids = voxelize::paint_labels(&grid, &solids, workers, false);
+    let hu_of: Vec<f32> = std::iter::once(params.hu.air)
+        .chain(anatomy.parts.iter().map(|p| params.hu.of(p.material)))
+        .map(|h| h as f32)
+        .collect();
+    let sharp = Volume { grid, data: structure_ids.data.iter().map(|&l| hu_of[usize::from(l)]).collect() };
+    let mut ct_hu = voxelize::gaussian_blur(&sharp, params.blur_sigma_mm, workers);
+    if params.noise_sd_hu > 0.0 {
+        for (i, v) in ct_hu.data.iter_mut().enumerate() {
+            *v += (params.noise_sd_hu * voxelize::voxel_gaussian(params.seed, i as u64)) as f32;
+        }
+    }
+    PhantomVolumes { structure_ids, ct_hu, structures: anatomy.parts.into_iter().map(|p| (p.name, p.material)).collect() }
+}
+
+/// Builds the phantom region in memory: voxelize, then mesh through the shared pipeline.
+pub fn build(params: &PhantomParams, progress: &mut dyn FnMut(&Progress)) -> Result<RegionAsset, AnatomyError> {
+    progress(&Progress { stage: "voxelize", done: 0, total: 1, item: String::new() });
+    let vols = voxelize(params);
+    progress(&Progress { stage: "voxelize", done: 1, total: 1, item: String::new() });
+    let masks = vols.masks();
+    let PhantomVolumes { ct_hu, .. } = vols;
+    let source = SourceInfo {
+        source: Source::Phantom {
+            generator: GENERATOR.to_string(),
+            parameters: serde_json::json!({ "params": params, "params_sha256": params.hash_hex() }),
+        },
+        licence: "Apache-2.0".to_string(),
+        attribution: "Procedural lumbosacral phantom generated by sim-core (no patient data); dimensions from \
+                      published adult morphometry cited in sim_core::anatomy::phantom::model."
+            .to_string(),
+        notes: vec![format!("model frame: RAS (x = patient right, y = anterior, z = cranial), mm; origin at the L3 body centre")],
+    };
+    build_region(REGION_NAME, &ct_hu, masks, &params.pipeline, source, progress)
+}
+
+/// Whether the region folder `dir` holds a phantom built with exactly `params` (and this pipeline
+/// version). Only reads the provenance; hashes are verified when the region is loaded.
+pub fn is_cached(dir: &Path, params: &PhantomParams) -> bool {
+    let Ok(bytes) = std::fs::read(dir.join(super::asset::PROVENANCE_FILE)) else {
+        return false;
+    };
+    let Ok(prov) = serde_json::from_slice::<super::asset::Provenance>(&bytes) else {
+        return false;
+    };
+    match prov.source {
+        Source::Phantom { generator, parameters } => {
+            generator == GENERATOR
+                && prov.pipeline_version == pipeline_version()
+                && parameters.get("params_sha256").and_then(|v| v.as_str()) == Some(params.hash_hex().as_str())
+        }
+        Source::Ct { .. } => false,
+    }
+}
+
+/// Returns the phantom region stored in `dir`, building and writing it first if `dir` is missing,
+/// was built with other parameters or another pipeline version, or fails its hash check.
+pub fn ensure_built_with(dir: &Path, params: &PhantomParams, progress: &mut dyn FnMut(&Progress)) -> Result<RegionAsset, AnatomyError> {
+    if is_cached(dir, params) {
+        if let Ok(region) = RegionAsset::load(dir) {
+            return Ok(region);
+        }
+    }
+    let region = build(params, progress)?;
+    region.write_to(dir)?;
+    // Return what was stored (f32 mesh positions), so a fresh build and a cache hit are identical.
+    RegionAsset::load(dir)
+}
+
+/// [`ensure_built_with`] using the default parameters and no progress reporting.
+pub fn ensure_built(dir: &Path) -> Result<RegionAsset, AnatomyError> {
+    ensure_built_with(dir, &PhantomParams::default(), &mut |_| {})
+}
