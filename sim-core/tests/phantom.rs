@@ -284,17 +284,3 @@ fn ensure_built_caches_by_parameter_hash() {
     assert!(calls_tampered > 0);
     assert_eq!(rebuilt.ct_u8.data.len(), rebuilt.grid().len());
 }
-
-#[test]
-fn zz_print_landmarks() {
-    let params = PhantomParams::default();
-    let a = phantom::anatomy(&params);
-    for l in phantom::landmarks(&params) {
-        let p = l.position_mm;
-        let here = a.structure_at(p).map(|i| a.parts[i].name.clone());
-        // Depth to skin straight back.
-        let mut d = 0.0;
-        while a.structure_at([p[0], p[1] - d, p[2]]).is_some() { d += 0.5; }
-        eprintln!("{:40} [{:7.1} {:7.1} {:7.1}] {:?} skin_back {d}", l.name, p[0], p[1], p[2], here);
-    }
-}

@@ -2,3 +2,4 @@
 mod anatomy;
 mod fluoro;
 mod rubric;
+mod phantom;

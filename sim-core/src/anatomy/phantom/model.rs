@@ -940,7 +940,7 @@ impl Anatomy {
         );
         let hiatus = sf.to_world(sacral_canal_point(4) + DVec3::new(0.0, -4.0, 0.0));
         add("sacral_hiatus", hiatus, "sacral hiatus opening at S4-S5 (caudal epidural entry)", None);
-        add("L5_spinous_tip", l5.w(0.0, l5.canal_back_y() - l5.dims.sp_length - 0.5, 0.5 * (l5.lamina_z().0 + l5.lamina_z().1) - 6.0), "tip of the L5 spinous process", Some("L5_cortical"));
+        add("L5_spinous_tip", l5.w(0.0, l5.canal_back_y() - l5.dims.sp_length - 0.5, 0.5 * (l5.lamina_z().0 + l5.lamina_z().1) - 6.0), "tip of the L5 spinous process, half a millimetre inside the bone", None);
         Anatomy { parts, landmarks }
     }
 }
