@@ -18,5 +18,6 @@ pub mod fluoro;
 pub mod geom;
 pub mod material;
 pub mod mesh;
+pub mod needle;
 pub mod rubric;
 pub mod volume;

@@ -3,3 +3,4 @@ mod anatomy;
 mod fluoro;
 mod rubric;
 mod phantom;
+mod needle;
