@@ -18,6 +18,7 @@
 //! Errors name the offending file; the output folder is written atomically, so a failed build
 //! leaves nothing behind (an existing folder is kept as it was).
 
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -52,22 +53,30 @@ fn run(args: &[String]) -> Result<(), String> {
         Some("verify") => {
             let dir = args.get(1).ok_or(USAGE)?;
             let region = RegionAsset::load(&PathBuf::from(dir)).map_err(|e| e.to_string())?;
-            println!(
+            // Written through a locked handle so that a closed pipe (`| head`) ends the listing
+            // quietly instead of panicking.
+            let mut out = std::io::stdout().lock();
+            let mut lines = vec![format!(
                 "{}: {} structures, grid {:?} at {:?} mm, all file hashes verified",
                 region.name,
                 region.structures.len(),
                 region.grid().dims,
                 region.grid().spacing_mm
-            );
+            )];
             for s in &region.structures {
-                println!(
+                lines.push(format!(
                     "  {:<28} {:<14} {:>7} triangles  mesh {:>10.1} mm^3  mask {:>10.1} mm^3",
                     s.name,
                     s.material.name(),
                     s.mesh.triangles.len(),
                     s.mesh.signed_volume_mm3(),
                     s.mask_volume_mm3
-                );
+                ));
+            }
+            for line in lines {
+                if writeln!(out, "{line}").is_err() {
+                    break;
+                }
             }
             Ok(())
         }
