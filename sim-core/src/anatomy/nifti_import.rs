@@ -402,6 +402,44 @@ mod tests {
     use super::*;
 
     #[test]
+    fn qform_quaternion_and_fallback_affines() {
+        // 90 degrees about z: quaternion (a, b, c, d) = (cos 45, 0, 0, sin 45); i -> +y, j -> -x.
+        let h = nifti::NiftiHeader {
+            sform_code: 0,
+            qform_code: 1,
+            quatern_b: 0.0,
+            quatern_c: 0.0,
+            quatern_d: std::f32::consts::FRAC_1_SQRT_2,
+            quatern_x: 5.0,
+            quatern_y: -6.0,
+            quatern_z: 7.0,
+            // qfac = -1 flips k.
+            pixdim: [-1.0, 2.0, 3.0, 4.0, 0.0, 0.0, 0.0, 0.0],
+            ..Default::default()
+        };
+        let a = header_affine(&h);
+        let expected = [
+            [0.0, -3.0, 0.0, 5.0],
+            [2.0, 0.0, 0.0, -6.0],
+            [0.0, 0.0, -4.0, 7.0],
+        ];
+        for r in 0..3 {
+            for c in 0..4 {
+                assert!((a[r][c] - expected[r][c]).abs() < 1e-6, "{a:?}");
+            }
+        }
+        // Neither form: the nifti1.h method-1 diagonal.
+        let h = nifti::NiftiHeader {
+            sform_code: 0,
+            qform_code: 0,
+            pixdim: [1.0, 0.5, 0.6, 0.7, 0.0, 0.0, 0.0, 0.0],
+            ..Default::default()
+        };
+        assert_eq!(header_affine(&h)[1][1], f64::from(0.6f32));
+        assert_eq!(header_affine(&h)[0][3], 0.0);
+    }
+
+    #[test]
     fn pir_affine_is_exact_reindexing_to_ras() {
         // The TPTBox L3 crop's affine (README of the test data).
         let affine = [

@@ -522,6 +522,37 @@ mod tests {
     }
 
     #[test]
+    fn label_map_files_in_both_directions_and_bad_ones() {
+        let dir = std::env::temp_dir().join(format!("anatomy-label-map-{}", std::process::id()));
+        fs::create_dir_all(&dir).unwrap();
+        let write = |name: &str, text: &str| {
+            let p = dir.join(name);
+            fs::write(&p, text).unwrap();
+            p
+        };
+        let by_id = read_label_map(&write(
+            "a.json",
+            r#"{"22": "vertebrae_L3", "7": "pancreas"}"#,
+        ))
+        .unwrap();
+        let by_name =
+            read_label_map(&write("b.json", r#"{"vertebrae_L3": 22, "pancreas": 7}"#)).unwrap();
+        assert_eq!(by_id, by_name);
+        assert_eq!(by_id[&22], "vertebrae_L3");
+        for (file, text) in [
+            ("c.json", r#"{"0": "x"}"#),
+            ("d.json", "[1, 2]"),
+            ("e.json", r#"{"a": 1, "b": 1}"#),
+            ("f.json", "{"),
+        ] {
+            let p = write(file, text);
+            let e = read_label_map(&p).unwrap_err().to_string();
+            assert!(e.contains(file), "{e}");
+        }
+        fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
     fn structure_classes() {
         assert_eq!(
             material_for_structure("vertebrae_L3"),
