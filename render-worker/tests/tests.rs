@@ -1,1 +1,2 @@
 //! Integration tests of render-worker, one module per area.
+mod gpu;

@@ -1,1 +1,51 @@
-//! server
+//! `server`: the platform's HTTP service.
+//!
+//! It owns the database (an existing PostgreSQL via `DATABASE_URL`, or by default a private
+//! cluster it starts itself, see [`embedded_pg`]), runs the migrations, serves the JSON API and
+//! the web client, and dispatches simulation sessions to render workers (in-process by default).
+//!
+//! The router is built by a function, [`app`], from an [`AppState`], so tests drive exactly the
+//! router production uses.
+
+pub mod config;
+pub mod db;
+pub mod embedded_pg;
+pub mod error;
+pub mod routes;
+pub mod startup;
+pub mod telemetry;
+pub mod test_support;
+pub mod workers;
+
+use axum::Router;
+use axum::routing::get;
+use sqlx::PgPool;
+use tower_http::services::{ServeDir, ServeFile};
+use tower_http::trace::TraceLayer;
+
+pub use config::Config;
+pub use error::ApiError;
+
+/// Everything a request handler may need. Cheap to clone.
+#[derive(Clone)]
+pub struct AppState {
+    /// Database pool.
+    pub pool: PgPool,
+    /// True when the database is the embedded private cluster.
+    pub embedded_db: bool,
+    /// Render workers.
+    pub workers: workers::Workers,
+    /// Configuration in force.
+    pub config: Config,
+}
+
+/// The complete HTTP application.
+pub fn app(state: AppState) -> Router {
+    let web = ServeDir::new(&state.config.web_dir).fallback(ServeFile::new(state.config.web_dir.join("index.html")));
+    Router::new()
+        .route("/healthz", get(routes::health::healthz))
+        .fallback_service(web)
+        .layer(axum::extract::DefaultBodyLimit::max(state.config.max_body_bytes))
+        .layer(TraceLayer::new_for_http())
+        .with_state(state)
+}

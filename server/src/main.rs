@@ -1,1 +1,34 @@
-fn main() {}
+//! The `server` binary: `server` (or `server serve`) runs the platform.
+
+use std::process::ExitCode;
+
+fn main() -> ExitCode {
+    server::telemetry::init();
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match args.first().map(String::as_str) {
+        None | Some("serve") => {}
+        Some("-h" | "--help" | "help") => {
+            println!("usage: server [serve]\n\nConfiguration comes from the environment; see server/src/config.rs.");
+            return ExitCode::SUCCESS;
+        }
+        Some(other) => {
+            eprintln!("unknown command {other:?}; try `server --help`");
+            return ExitCode::from(2);
+        }
+    }
+    let config = match server::Config::from_env() {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build().expect("building the tokio runtime");
+    match runtime.block_on(server::startup::run(config)) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,100 @@
+//! Start-up and shutdown: database (embedded or external), migrations, workers, HTTP server.
+
+use std::path::Path;
+
+use anyhow::Context;
+use sqlx::PgPool;
+use sqlx::postgres::PgConnectOptions;
+use tokio::net::TcpListener;
+
+use crate::embedded_pg::PrivateCluster;
+use crate::{AppState, Config, app, db, workers::Workers};
+
+/// The database in use and, when embedded, the cluster to stop at shutdown.
+pub struct Database {
+    /// Pool with the schema migrated.
+    pub pool: PgPool,
+    /// The private cluster, when embedded.
+    pub cluster: Option<PrivateCluster>,
+}
+
+/// Connects to `DATABASE_URL`, or starts the private cluster under `data_dir/pg`; then migrates.
+pub async fn open_database(config: &Config) -> anyhow::Result<Database> {
+    let (options, cluster) = match &config.database_url {
+        Some(url) => {
+            let options: PgConnectOptions = url.parse().context("DATABASE_URL is not a valid PostgreSQL URL")?;
+            (options, None)
+        }
+        None => {
+            let root = config.data_dir.join("pg");
+            let cluster = tokio::task::spawn_blocking(move || PrivateCluster::start(&root)).await??;
+            ensure_database(&cluster, "painsim").await?;
+            (cluster.connect_options("painsim"), Some(cluster))
+        }
+    };
+    let pool = match db::connect(options, 20).await {
+        Ok(p) => p,
+        Err(e) => {
+            if let Some(c) = cluster {
+                let _ = tokio::task::spawn_blocking(move || c.stop()).await;
+            }
+            return Err(e).context("connecting to the database");
+        }
+    };
+    db::migrate(&pool).await.context("applying migrations")?;
+    let (id, starts): (uuid::Uuid, i64) = sqlx::query_as(
+        "INSERT INTO installation (id, starts) VALUES ($1, 1)
+         ON CONFLICT (singleton) DO UPDATE SET starts = installation.starts + 1
+         RETURNING id, starts",
+    )
+    .bind(uuid::Uuid::new_v4())
+    .fetch_one(&pool)
+    .await
+    .context("recording this start")?;
+    tracing::info!(installation = %id, starts, "database ready");
+    Ok(Database { pool, cluster })
+}
+
+async fn ensure_database(cluster: &PrivateCluster, name: &str) -> anyhow::Result<()> {
+    use sqlx::Connection;
+    let mut conn = sqlx::PgConnection::connect_with(&cluster.connect_options("postgres")).await.context("connecting to the private cluster")?;
+    let exists: bool = sqlx::query_scalar("SELECT EXISTS (SELECT 1 FROM pg_database WHERE datname = $1)").bind(name).fetch_one(&mut conn).await?;
+    if !exists {
+        sqlx::query(&format!("CREATE DATABASE \"{name}\"")).execute(&mut conn).await?;
+    }
+    conn.close().await.ok();
+    Ok(())
+}
+
+/// Runs the server until SIGTERM or SIGINT, then shuts down in order: stop accepting, finish
+/// in-flight requests, close the pool, stop the embedded cluster.
+pub async fn run(config: Config) -> anyhow::Result<()> {
+    let listener = TcpListener::bind(config.bind).await.with_context(|| format!("binding {}", config.bind))?;
+    let workers = Workers::start_in_process();
+    let Database { pool, cluster } = open_database(&config).await?;
+    let state = AppState { pool: pool.clone(), embedded_db: cluster.is_some(), workers, config: config.clone() };
+    let addr = listener.local_addr()?;
+    tracing::info!(web = %show_path(&config.web_dir), "serving the web client");
+    println!("pain-sim is running at http://{addr}/  (health: http://{addr}/healthz)");
+    let served = axum::serve(listener, app(state)).with_graceful_shutdown(shutdown_signal()).await;
+    tracing::info!("shutting down");
+    pool.close().await;
+    if let Some(c) = cluster {
+        tokio::task::spawn_blocking(move || c.stop()).await??;
+    }
+    served.context("HTTP server")
+}
+
+fn show_path(p: &Path) -> String {
+    p.canonicalize().unwrap_or_else(|_| p.to_owned()).display().to_string()
+}
+
+async fn shutdown_signal() {
+    use tokio::signal::unix::{SignalKind, signal};
+    let mut term = signal(SignalKind::terminate()).expect("installing the SIGTERM handler");
+    let mut int = signal(SignalKind::interrupt()).expect("installing the SIGINT handler");
+    tokio::select! {
+        _ = term.recv() => tracing::info!("SIGTERM received"),
+        _ = int.recv() => tracing::info!("SIGINT received"),
+    }
+}

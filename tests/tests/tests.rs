@@ -1,0 +1,3 @@
+//! Whole-system tests: one binary, one module per area.
+
+mod architecture;
