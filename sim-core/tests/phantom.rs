@@ -206,30 +206,61 @@ fn structures_are_where_anatomy_puts_them() {
     assert!(l3[1] - chord_y > 5.0, "L3 is {} mm in front of the L1-L5 chord", l3[1] - chord_y);
 }
 
+/// Whether a structure is thick enough on a grid of `voxel_mm` for a 6 % mesh/mask volume check:
+/// bones, discs, vessels and the dural sac are at least 3 voxels across at 1.5 mm.
+fn thin_ok(name: &str, voxel_mm: f64) -> bool {
+    voxel_mm <= 1.5
+        && (name.ends_with("_cortical") || name.starts_with("disc_") || name == "aorta" || name == "inferior_vena_cava" || name == "dural_sac")
+}
+
 /// Mesh and CT checks shared by the coarse and the default builds.
 fn check_region(region: &RegionAsset, params: &PhantomParams) {
     let expected = phantom::structure_list(params);
     assert_eq!(region.structures.len(), expected.len(), "every structure is meshed");
     for s in &region.structures {
         check_solid(&s.name, &s.mesh, "build").unwrap();
-        assert!(s.mesh.signed_volume_mm3() > 0.0);
+        // Structures whose smallest half-thickness is several voxels on this grid (the envelope
+        // layers and the paraspinal muscles, 15 mm and thicker): the 0.5 level of a partial-volume
+        // mask encloses the mask volume to within 3 % (the sphere unit test gives 0.5 % at a
+        // radius of 9 voxels; the margin covers blends, creases and decimation's 1 % guard).
+        // Thinner structures (vessels, roots, canal layers, cortex at a few voxels) lose more at
+        // coarse grids and are checked for closure only; `default_parameters_build` checks them
+        // on the default grid.
+        let bulky = ["skin", "subcutaneous_fat", "deep_soft_tissue", "psoas_left", "psoas_right", "erector_spinae_left", "erector_spinae_right"];
+        if bulky.contains(&s.name.as_str()) || thin_ok(s.name.as_str(), region.grid().spacing_mm[0]) {
+            let rel = (s.mesh.signed_volume_mm3() - s.mask_volume_mm3) / s.mask_volume_mm3;
+            assert!(rel.abs() < 0.03 || (!bulky.contains(&s.name.as_str()) && rel.abs() < 0.06), "{}: mesh/mask volume {rel:+.3}", s.name);
+        }
     }
     // CT numbers: the mean HU of the L3 cancellous label equals its tissue value up to the noise
     // and blur at its edge (the 8-bit window quantises by 3.9 HU).
     let g = region.grid();
     let hu = |l: u8| sim_core::anatomy::asset::decode_level(l);
     let canc = sim_core::material::MaterialClass::Cancellous.label();
-    let vals: Vec<f64> = region.labels.data.iter().zip(&region.ct_u8.data).filter(|(l, _)| **l == canc).map(|(_, c)| hu(*c)).collect();
+    // Interior cancellous voxels (all six neighbours cancellous too) are free of partial volumes.
+    let interior = |idx: usize, label: u8| {
+        let [i, j, k] = g.ijk(idx);
+        let [nx, ny, nz] = g.dims;
+        i > 0 && j > 0 && k > 0 && i + 1 < nx && j + 1 < ny && k + 1 < nz && {
+            let l = &region.labels;
+            [l.get(i - 1, j, k), l.get(i + 1, j, k), l.get(i, j - 1, k), l.get(i, j + 1, k), l.get(i, j, k - 1), l.get(i, j, k + 1)]
+                .iter()
+                .all(|&n| n == label)
+        }
+    };
+    let vals: Vec<f64> = (0..g.len()).filter(|&idx| region.labels.data[idx] == canc && interior(idx, canc)).map(|idx| hu(region.ct_u8.data[idx])).collect();
+    assert!(vals.len() >= 5, "{} interior cancellous voxels", vals.len());
     let mean = vals.iter().sum::<f64>() / vals.len() as f64;
-    // Cancellous voxels next to the cortex are pulled up by the blur (sigma 0.6 mm); at 1 mm or
-    // coarser that moves the mean by less than 40 HU; noise averages out (10 HU / sqrt(n)).
-    assert!(mean > params.hu.cancellous - 5.0 && mean < params.hu.cancellous + 40.0, "cancellous mean {mean} HU");
+    // The 10 HU noise averages out; the blur (sigma 0.6 mm) reaches at most a voxel into the
+    // interior and the cortex is 950 HU above, so allow +25 HU at 1.5 mm; quantisation 3.9 HU.
+    assert!(mean > params.hu.cancellous - 8.0 && mean < params.hu.cancellous + 25.0, "cancellous mean {mean} HU");
     let cort = sim_core::material::MaterialClass::CorticalBone.label();
     let n_cort = region.labels.data.iter().filter(|&&l| l == cort).count();
-    let above = region.labels.data.iter().zip(&region.ct_u8.data).filter(|(l, c)| **l == cort && hu(**c) > 600.0).count();
-    // Cortical voxels are at 1200 HU (clipped to 700 in the window); only blur at thin edges next to
-    // soft tissue brings a few below 600 HU.
-    assert!(above as f64 > 0.8 * n_cort as f64, "{above} of {n_cort} cortical voxels above 600 HU");
+    // Cortical voxels are at 1200 HU (clipped to 700 in the window); partial volumes at the edges
+    // bring some lower, but a voxel labelled cortical is at least half cortex: above
+    // 0.5 * 1200 + 0.5 * (-100) = 550 HU before noise, so most stay above 500 HU.
+    let above = region.labels.data.iter().zip(&region.ct_u8.data).filter(|(l, c)| **l == cort && hu(**c) > 500.0).count();
+    assert!(above as f64 > 0.9 * n_cort as f64, "{above} of {n_cort} cortical voxels above 500 HU");
     assert_eq!(g.dims, params.grid().dims);
 }
 
@@ -248,13 +279,12 @@ fn coarse_build_is_deterministic_and_its_meshes_are_closed() {
     let b = phantom::build(&params, &mut |_| {}).unwrap();
     let pb = b.write_to(&dir.path().join("b")).unwrap();
     assert_eq!(pa.files_sha256, pb.files_sha256, "same parameters, same bytes");
-    // A different noise seed changes the CT and nothing else.
+    // A different noise seed changes the CT and not the masks (which alone determine the meshes).
     let mut other = params.clone();
     other.seed += 1;
-    let c = phantom::build(&other, &mut |_| {}).unwrap();
-    let pc = c.write_to(&dir.path().join("c")).unwrap();
-    assert_ne!(pa.files_sha256["ct_u8.raw"], pc.files_sha256["ct_u8.raw"]);
-    assert_eq!(pa.files_sha256["meshes.glb"], pc.files_sha256["meshes.glb"]);
+    let (va, vc) = (phantom::voxelize(&params), phantom::voxelize(&other));
+    assert_ne!(va.ct_hu.data, vc.ct_hu.data);
+    assert_eq!(va.masks(), vc.masks());
 }
 
 #[test]
@@ -283,4 +313,48 @@ fn ensure_built_caches_by_parameter_hash() {
     let rebuilt = phantom::ensure_built_with(&region_dir, &other, &mut |_| calls_tampered += 1).unwrap();
     assert!(calls_tampered > 0);
     assert_eq!(rebuilt.ct_u8.data.len(), rebuilt.grid().len());
+}
+
+/// Per-structure mesh statistics (run with `--ignored --nocapture`; `PHANTOM_VOXEL_MM` sets the grid).
+#[test]
+#[ignore = "prints a table"]
+fn print_structure_table() {
+    let voxel = std::env::var("PHANTOM_VOXEL_MM").ok().and_then(|v| v.parse().ok()).unwrap_or(3.0);
+    let params = PhantomParams::with_voxel_mm(voxel);
+    let t = std::time::Instant::now();
+    let vols = phantom::voxelize(&params);
+    eprintln!("voxelize {:?}", t.elapsed());
+    let masks = vols.masks();
+    for m in masks {
+        let t = std::time::Instant::now();
+        let r = sim_core::anatomy::pipeline::mesh_structure(&m.cropped().unwrap(), &params.pipeline);
+        match r {
+            Ok((mesh, notes)) => eprintln!(
+                "| {} | {:?} | {:.1} | {:.1} | {} | {:.2}s | {:?}",
+                m.name,
+                m.material,
+                m.volume_mm3() / 1000.0,
+                mesh.signed_volume_mm3() / 1000.0,
+                mesh.triangle_count(),
+                t.elapsed().as_secs_f64(),
+                notes
+            ),
+            Err(e) => eprintln!("| {} | error {e}", m.name),
+        }
+    }
+}
+
+
+/// The default grid (1.5 mm): every mesh closed, outward, positive, and bones, discs, vessels and
+/// the sac within 6 % of their mask volumes. About 35 s of CPU in release; minutes in the dev
+/// profile on a loaded machine, hence ignored by default (run with `--ignored`).
+#[test]
+#[ignore = "slow: builds the default phantom"]
+fn default_parameters_build() {
+    let params = PhantomParams::default();
+    let region = phantom::build(&params, &mut |_| {}).unwrap();
+    check_region(&region, &params);
+    for s in &region.structures {
+        eprintln!("| {} | {} | {:.1} | {:.1} | {} |", s.name, s.material.name(), s.mask_volume_mm3 / 1000.0, s.mesh.signed_volume_mm3() / 1000.0, s.mesh.triangle_count());
+    }
 }

@@ -36,7 +36,6 @@ use super::asset::{RegionAsset, Source};
 use super::decimate::DecimationParams;
 use super::error::AnatomyError;
 use super::pipeline::{PipelineParams, Progress, SourceInfo, StructureMask, build_region, pipeline_version};
-use super::smooth::TaubinParams;
 use crate::material::MaterialClass;
 use crate::volume::{Volume, VolumeGrid};
 
@@ -169,9 +168,9 @@ impl PhantomParams {
             pipeline: PipelineParams {
                 upsample: 1,
                 iso_level: 0.5,
-                // Taubin smoothing removes the voxel staircase of the binary masks; the cap of
-                // half a voxel keeps every vertex within the voxel it came from (simulator choice).
-                smoothing: Some(TaubinParams { max_displacement_mm: 0.5 * voxel_mm, ..TaubinParams::default() }),
+                // No smoothing: the masks carry partial volumes from the exact solids, so the
+                // extracted surface has no voxel staircase to remove.
+                smoothing: None,
                 // A quarter of the triangles with at most a fifth of a voxel of deviation.
                 decimation: Some(DecimationParams { max_error_mm: 0.2 * voxel_mm, ..DecimationParams::default() }),
                 // The phantom supplies separate cortical and cancellous masks, so the pipeline's
@@ -223,16 +222,23 @@ pub fn landmark(params: &PhantomParams, name: &str) -> Option<Landmark> {
 /// The voxelized phantom before meshing.
 #[derive(Debug, Clone)]
 pub struct PhantomVolumes {
-    /// Structure index + 1 per voxel (0 = air outside the body); indices into `structures`.
+    /// Structure index + 1 per voxel under the painting order, sampled at voxel centres (0 = air
+    /// outside the body); indices into `structures`.
     pub structure_ids: Volume<u8>,
-    /// CT in HU (tissue values, blur, noise).
+    /// Partial volumes of the voxels near a boundary (sorted by voxel); everywhere else a voxel is
+    /// wholly its `structure_ids` structure.
+    pub fractions: Vec<voxelize::Fraction>,
+    /// CT in HU (partial-volume tissue values, blur, noise).
     pub ct_hu: Volume<f32>,
     /// Structures in painting order (name, material).
     pub structures: Vec<(String, MaterialClass)>,
+    /// For nested structures, the centre labels (1 inside) and boundary fractions of their whole
+    /// solid; `None` for the others.
+    pub nested: Vec<Option<(Volume<u8>, Vec<voxelize::Fraction>)>>,
 }
 
 impl PhantomVolumes {
-    /// Voxel count of each structure (same order as `structures`).
+    /// Voxel count of each structure by centre sampling (same order as `structures`).
     pub fn voxel_counts(&self) -> Vec<usize> {
         let mut counts = vec![0usize; self.structures.len() + 1];
         for &l in &self.structure_ids.data {
@@ -241,57 +247,96 @@ impl PhantomVolumes {
         counts[1..].to_vec()
     }
 
-    /// Binary masks (0/1 occupancy) of every structure, each cropped to its own bounding box on
-    /// the CT lattice; empty structures give a 1-voxel empty mask (the pipeline skips it with a note).
-    pub fn masks(&self) -> Vec<StructureMask> {
-        let g = self.structure_ids.grid;
-        let n = self.structures.len();
-        let mut lo = vec![[usize::MAX; 3]; n];
-        let mut hi = vec![[0usize; 3]; n];
-        let [nx, ny, nz] = g.dims;
-        for k in 0..nz {
-            for j in 0..ny {
-                let row = &self.structure_ids.data[g.index(0, j, k)..g.index(0, j, k) + nx];
-                for (i, &l) in row.iter().enumerate() {
-                    if l > 0 {
-                        let s = usize::from(l) - 1;
-                        let ijk = [i, j, k];
-                        for a in 0..3 {
-                            lo[s][a] = lo[s][a].min(ijk[a]);
-                            hi[s][a] = hi[s][a].max(ijk[a]);
-                        }
-                    }
-                }
+    /// Volume of each structure from its partial-volume occupancies, mm^3.
+    pub fn volumes_mm3(&self) -> Vec<f64> {
+        let mut vol = vec![0f64; self.structures.len() + 1];
+        let mut in_band = vec![false; self.structure_ids.data.len()];
+        for f in &self.fractions {
+            in_band[f.voxel as usize] = true;
+            vol[usize::from(f.label)] += f64::from(f.occupancy);
+        }
+        for (&l, &b) in self.structure_ids.data.iter().zip(&in_band) {
+            if !b {
+                vol[usize::from(l)] += 1.0;
             }
         }
-        (0..n)
-            .map(|s| {
-                let (name, material) = self.structures[s].clone();
-                if lo[s][0] == usize::MAX {
-                    let grid = VolumeGrid { dims: [1, 1, 1], spacing_mm: g.spacing_mm, origin_mm: g.origin_mm };
-                    return StructureMask { name, material, mask: Volume::filled(grid, 0.0) };
-                }
-                let dims: [usize; 3] = std::array::from_fn(|a| hi[s][a] - lo[s][a] + 1);
-                let grid = VolumeGrid { dims, spacing_mm: g.spacing_mm, origin_mm: g.voxel_center_mm(lo[s][0], lo[s][1], lo[s][2]) };
-                let label = s as u8 + 1;
-                let mut data = Vec::with_capacity(grid.len());
-                for k in lo[s][2]..=hi[s][2] {
-                    for j in lo[s][1]..=hi[s][1] {
-                        let base = g.index(0, j, k);
-                        data.extend(self.structure_ids.data[base + lo[s][0]..=base + hi[s][0]].iter().map(|&l| if l == label { 1.0f32 } else { 0.0 }));
-                    }
-                }
-                StructureMask { name, material, mask: Volume { grid, data } }
+        let v = self.structure_ids.grid.voxel_volume_mm3();
+        vol[1..].iter().map(|n| n * v).collect()
+    }
+
+    /// Occupancy masks (partial volumes in `0..=1`) of every structure, each cropped to its own
+    /// bounding box on the CT lattice; an empty structure gives a 1-voxel empty mask (the pipeline
+    /// skips it with a note). Nested structures (see [`model::PhantomPart::nested`]) get the mask
+    /// of their whole solid, the others the part the painting order leaves to them.
+    pub fn masks(&self) -> Vec<StructureMask> {
+        (1..=self.structures.len())
+            .map(|l| {
+                let (name, material) = self.structures[l - 1].clone();
+                let mask = match &self.nested[l - 1] {
+                    Some((ids, fr)) => occupancy_mask(ids, fr, 1),
+                    None => occupancy_mask(&self.structure_ids, &self.fractions, l as u8),
+                };
+                StructureMask { name, material, mask }
             })
             .collect()
     }
 }
 
+/// The occupancy of `label` from centre labels plus boundary fractions, cropped to its box.
+fn occupancy_mask(ids: &Volume<u8>, fractions: &[voxelize::Fraction], label: u8) -> Volume<f32> {
+    let g = ids.grid;
+    let mut lo = [usize::MAX; 3];
+    let mut hi = [0usize; 3];
+    let mut grow = |ijk: [usize; 3]| {
+        for a in 0..3 {
+            lo[a] = lo[a].min(ijk[a]);
+            hi[a] = hi[a].max(ijk[a]);
+        }
+    };
+    for (idx, &l) in ids.data.iter().enumerate() {
+        if l == label {
+            grow(g.ijk(idx));
+        }
+    }
+    let mut in_band = vec![false; ids.data.len()];
+    let mut mine = Vec::new();
+    for f in fractions {
+        in_band[f.voxel as usize] = true;
+        if f.label == label {
+            mine.push((f.voxel as usize, f.occupancy));
+            grow(g.ijk(f.voxel as usize));
+        }
+    }
+    if lo[0] == usize::MAX {
+        let grid = VolumeGrid { dims: [1, 1, 1], spacing_mm: g.spacing_mm, origin_mm: g.origin_mm };
+        return Volume::filled(grid, 0.0);
+    }
+    let dims: [usize; 3] = std::array::from_fn(|a| hi[a] - lo[a] + 1);
+    let grid = VolumeGrid { dims, spacing_mm: g.spacing_mm, origin_mm: g.voxel_center_mm(lo[0], lo[1], lo[2]) };
+    let mut mask = Volume::filled(grid, 0f32);
+    for k in lo[2]..=hi[2] {
+        for j in lo[1]..=hi[1] {
+            let base = g.index(0, j, k);
+            let out = grid.index(0, j - lo[1], k - lo[2]);
+            for i in lo[0]..=hi[0] {
+                if ids.data[base + i] == label && !in_band[base + i] {
+                    mask.data[out + i - lo[0]] = 1.0;
+                }
+            }
+        }
+    }
+    for (v, occ) in mine {
+        let [i, j, k] = g.ijk(v);
+        mask.set(i - lo[0], j - lo[1], k - lo[2], occ);
+    }
+    mask
+}
+
 impl PhantomParams {
     /// The anatomy parameters actually used on this grid: layers thinner than two voxels (the
-    /// cortical shell and the skin) are thickened to two voxels, so that their binary masks are
-    /// connected sheets rather than scattered voxels (simulator choice; at 1 mm nothing changes
-    /// but the 1.5 mm cortex, which becomes 2 mm).
+    /// cortical shell and the skin) are thickened to two voxels, so that their masks are solid
+    /// sheets whose 0.5 level does not break up (simulator choice; at 1 mm only the 1.5 mm cortex
+    /// changes, to 2 mm).
     pub fn effective_anatomy(&self) -> AnatomyParams {
         let min_layer = 2.0 * self.voxel_mm;
         AnatomyParams {
@@ -302,25 +347,55 @@ impl PhantomParams {
     }
 }
 
-/// Paints the phantom into its grid and makes the CT (no meshing).
+/// Paints the phantom into its grid, computes partial volumes and makes the CT (no meshing).
 pub fn voxelize(params: &PhantomParams) -> PhantomVolumes {
     let anatomy = model::Anatomy::new(&params.effective_anatomy());
     let grid = params.grid();
     let workers = voxelize::worker_count(8);
     let solids: Vec<&sdf::Sdf> = anatomy.parts.iter().map(|p| &p.sdf).collect();
     let structure_ids = voxelize::paint_labels(&grid, &solids, workers, false);
-    let hu_of: Vec<f32> = std::iter::once(params.hu.air)
-        .chain(anatomy.parts.iter().map(|p| params.hu.of(p.material)))
-        .map(|h| h as f32)
-        .collect();
-    let sharp = Volume { grid, data: structure_ids.data.iter().map(|&l| hu_of[usize::from(l)]).collect() };
+    let fractions = voxelize::partial_volumes(&grid, &solids, &structure_ids, workers);
+    let hu_of: Vec<f64> = std::iter::once(params.hu.air).chain(anatomy.parts.iter().map(|p| params.hu.of(p.material))).collect();
+    let mut sharp = Volume { grid, data: structure_ids.data.iter().map(|&l| hu_of[usize::from(l)] as f32).collect() };
+    // Partial-volume CT numbers in boundary voxels; what the structures leave is air.
+    let mut start = 0;
+    while start < fractions.len() {
+        let v = fractions[start].voxel;
+        let mut end = start;
+        let (mut hu, mut occ) = (0.0, 0.0);
+        while end < fractions.len() && fractions[end].voxel == v {
+            hu += f64::from(fractions[end].occupancy) * hu_of[usize::from(fractions[end].label)];
+            occ += f64::from(fractions[end].occupancy);
+            end += 1;
+        }
+        let value = if occ >= 1.0 { hu / occ } else { hu + (1.0 - occ) * params.hu.air };
+        sharp.data[v as usize] = value as f32;
+        start = end;
+    }
     let mut ct_hu = voxelize::gaussian_blur(&sharp, params.blur_sigma_mm, workers);
     if params.noise_sd_hu > 0.0 {
         for (i, v) in ct_hu.data.iter_mut().enumerate() {
             *v += (params.noise_sd_hu * voxelize::voxel_gaussian(params.seed, i as u64)) as f32;
         }
     }
-    PhantomVolumes { structure_ids, ct_hu, structures: anatomy.parts.into_iter().map(|p| (p.name, p.material)).collect() }
+    let nested = anatomy
+        .parts
+        .iter()
+        .map(|p| {
+            p.nested.then(|| {
+                let own = voxelize::paint_labels(&grid, &[&p.sdf], workers, false);
+                let fr = voxelize::partial_volumes(&grid, &[&p.sdf], &own, workers);
+                (own, fr)
+            })
+        })
+        .collect();
+    PhantomVolumes {
+        structure_ids,
+        fractions,
+        ct_hu,
+        structures: anatomy.parts.into_iter().map(|p| (p.name, p.material)).collect(),
+        nested,
+    }
 }
 
 /// Builds the phantom region in memory: voxelize, then mesh through the shared pipeline.

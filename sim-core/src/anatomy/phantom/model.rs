@@ -52,6 +52,10 @@ pub struct PhantomPart {
     pub material: MaterialClass,
     /// The solid.
     pub sdf: Sdf,
+    /// Whether the structure's mesh bounds its whole solid, with later structures nested inside it
+    /// (true for the body envelope layers that contain everything), rather than only the part the
+    /// painting order leaves to it. Labels and CT follow the painting order either way.
+    pub nested: bool,
 }
 
 /// A named point of interest for stations and scorers.
@@ -590,7 +594,11 @@ impl Anatomy {
         let mut parts: Vec<PhantomPart> = Vec::new();
         let mut landmarks: Vec<Landmark> = Vec::new();
         let mut push = |name: &str, material: MaterialClass, sdf: Sdf| {
-            parts.push(PhantomPart { name: name.to_string(), material, sdf });
+            // The two envelope solids that contain everything are meshed whole (nested): their
+            // exclusive parts would be a thin shell (skin) and a surface wrapped round every organ
+            // (deep soft tissue), both slow to mesh and of no use to a renderer that nests.
+            let nested = name == "skin" || name == "deep_soft_tissue";
+            parts.push(PhantomPart { name: name.to_string(), material, sdf, nested });
         };
 
         // --- Body envelope: skin, subcutaneous fat, deep soft tissue (our assumption: an

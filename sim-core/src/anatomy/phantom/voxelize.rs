@@ -131,6 +131,143 @@ fn paint_one(
     }
 }
 
+/// Fractional occupancy of one structure in one voxel near a surface.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fraction {
+    /// Linear voxel index.
+    pub voxel: u32,
+    /// Structure label (index + 1), as in [`paint_labels`].
+    pub label: u8,
+    /// Occupancy in `(0, 1]`.
+    pub occupancy: f32,
+}
+
+/// Partial volumes at the boundaries of the painted labels.
+///
+/// Under the painting order, structure `i` owns the region where its *exclusive* distance bound
+/// `g_i = max(f_i, max_{j > i} -f_j)` is negative (inside `i`, outside everything painted later).
+/// `g_i` is 1-Lipschitz like the `f`s, and `clamp(0.5 - g_i / h, 0, 1)` (h = voxel size) is the
+/// occupancy of a voxel cut by a plane at signed distance `g_i` along a grid axis. Two structures
+/// that meet get occupancies summing to one, whose 0.5 level is their common surface, so their
+/// meshes share it; and occupancy >= 0.5 holds exactly where the painted label is that structure.
+///
+/// Only voxels with a differently labelled 26-neighbour are evaluated (a surface within half a
+/// voxel of a centre puts a neighbour's centre on the other side); everywhere else the binary label
+/// is exact. Returned sorted by voxel index, one entry per structure with non-zero occupancy.
+pub fn partial_volumes(grid: &VolumeGrid, solids: &[&Sdf], labels: &Volume<u8>, workers: usize) -> Vec<Fraction> {
+    let [nx, ny, nz] = grid.dims;
+    let h = grid.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min);
+    let bounds: Vec<_> = solids.iter().map(|s| s.bounds().expand(h)).collect();
+    let lab = &labels.data;
+    let differs = |i: usize, j: usize, k: usize| -> bool {
+        let l = lab[grid.index(i, j, k)];
+        for dk in k.saturating_sub(1)..=(k + 1).min(nz - 1) {
+            for dj in j.saturating_sub(1)..=(j + 1).min(ny - 1) {
+                let row = grid.index(0, dj, dk);
+                for di in i.saturating_sub(1)..=(i + 1).min(nx - 1) {
+                    if lab[row + di] != l {
+                        return true;
+                    }
+                }
+            }
+        }
+        false
+    };
+    let parts: Vec<Vec<Fraction>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = slabs(nz.div_ceil(BLOCK), workers)
+            .into_iter()
+            .map(|(b0, b1)| {
+                let bounds = &bounds;
+                let differs = &differs;
+                scope.spawn(move || {
+                    let mut out = Vec::new();
+                    let mut band = Vec::new();
+                    let mut cand: Vec<usize> = Vec::new();
+                    let mut f = Vec::new();
+                    for bk in (b0 * BLOCK..(b1 * BLOCK).min(nz)).step_by(BLOCK) {
+                        let ek = (bk + BLOCK).min(nz);
+                        for bj in (0..ny).step_by(BLOCK) {
+                            let ej = (bj + BLOCK).min(ny);
+                            for bi in (0..nx).step_by(BLOCK) {
+                                let ei = (bi + BLOCK).min(nx);
+                                band.clear();
+                                for k in bk..ek {
+                                    for j in bj..ej {
+                                        for i in bi..ei {
+                                            if differs(i, j, k) {
+                                                band.push([i, j, k]);
+                                            }
+                                        }
+                                    }
+                                }
+                                if band.is_empty() {
+                                    continue;
+                                }
+                                let lo = DVec3::from(grid.voxel_center_mm(bi, bj, bk));
+                                let hi = DVec3::from(grid.voxel_center_mm(ei - 1, ej - 1, ek - 1));
+                                let c = 0.5 * (lo + hi);
+                                let reach = 0.5 * (hi - lo).length() + h;
+                                // Candidates: the last solid containing the whole block (its f is
+                                // below -h throughout, so it zeroes everything painted before it)
+                                // and the later solids whose surface may come near the block.
+                                cand.clear();
+                                let mut floor = None;
+                                for (si, solid) in solids.iter().enumerate() {
+                                    let b = bounds[si];
+                                    if b.min.cmpgt(hi).any() || b.max.cmplt(lo).any() {
+                                        continue;
+                                    }
+                                    let fc = solid.eval(c);
+                                    if fc > reach {
+                                        continue;
+                                    }
+                                    if fc < -reach {
+                                        floor = Some(si);
+                                        cand.retain(|&x| x > si);
+                                        continue;
+                                    }
+                                    cand.push(si);
+                                }
+                                for &[i, j, k] in &band {
+                                    let p = DVec3::from(grid.voxel_center_mm(i, j, k));
+                                    f.clear();
+                                    f.extend(cand.iter().map(|&si| solids[si].eval(p)));
+                                    let voxel = grid.index(i, j, k) as u32;
+                                    // Walk from the last painted down, carrying max(-f) of later ones.
+                                    let mut later = f64::NEG_INFINITY;
+                                    let start = out.len();
+                                    for (n, &si) in cand.iter().enumerate().rev() {
+                                        let g = f[n].max(later);
+                                        later = later.max(-f[n]);
+                                        let occ = (0.5 - g / h).clamp(0.0, 1.0);
+                                        if occ > 0.0 {
+                                            out.push(Fraction { voxel, label: si as u8 + 1, occupancy: occ as f32 });
+                                        }
+                                    }
+                                    if let Some(si) = floor {
+                                        let occ = (0.5 - later / h).clamp(0.0, 1.0);
+                                        if occ > 0.0 {
+                                            out.push(Fraction { voxel, label: si as u8 + 1, occupancy: occ as f32 });
+                                        }
+                                    }
+                                    out[start..].reverse();
+                                }
+                            }
+                        }
+                    }
+                    out
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().expect("partial-volume worker panicked")).collect()
+    });
+    let mut all: Vec<Fraction> = parts.into_iter().flatten().collect();
+    // Blocks are visited in block order, not voxel order: sort (stable, so per-voxel order stays
+    // ascending by label).
+    all.sort_by_key(|f| f.voxel);
+    all
+}
+
 /// A reproducible standard-normal deviate for voxel `index` under `seed` (SplitMix64 hashing and
 /// the Box-Muller transform): the same on every platform and independent of threading.
 pub fn voxel_gaussian(seed: u64, index: u64) -> f64 {
@@ -246,6 +383,54 @@ mod tests {
         assert_eq!(fast.data, threaded.data);
         for l in 1..=3u8 {
             assert!(fast.data.contains(&l), "label {l} painted");
+        }
+    }
+
+    #[test]
+    fn partial_volumes_recover_analytic_volumes_and_agree_with_labels() {
+        let g = grid(48, 1.0);
+        let r_out = 15.0;
+        let r_in = 9.0;
+        let centre = DVec3::new(0.31, -0.17, 0.23);
+        let outer = Sdf::Sphere { radius: r_out }.at(centre);
+        let inner = Sdf::Sphere { radius: r_in }.at(centre);
+        let solids = [&outer, &inner];
+        let labels = paint_labels(&g, &solids, 2, false);
+        let fr = partial_volumes(&g, &solids, &labels, 2);
+        // Occupancy per label: binary labels away from the band, fractions in it.
+        let mut occ = [vec![0f64; g.len()], vec![0f64; g.len()]];
+        for (v, &l) in labels.data.iter().enumerate() {
+            if l > 0 {
+                occ[usize::from(l) - 1][v] = 1.0;
+            }
+        }
+        let mut band = vec![false; g.len()];
+        for f in &fr {
+            band[f.voxel as usize] = true;
+        }
+        for (v, b) in band.iter().enumerate() {
+            if *b {
+                occ[0][v] = 0.0;
+                occ[1][v] = 0.0;
+            }
+        }
+        for f in &fr {
+            occ[usize::from(f.label) - 1][f.voxel as usize] = f64::from(f.occupancy);
+            // The painted label is the structure with occupancy >= 0.5.
+            assert_eq!(f.occupancy >= 0.5, labels.data[f.voxel as usize] == f.label, "voxel {}", f.voxel);
+        }
+        let shell: f64 = occ[0].iter().sum();
+        let core: f64 = occ[1].iter().sum();
+        let v = |r: f64| 4.0 / 3.0 * std::f64::consts::PI * r * r * r;
+        // The linear ramp is exact for planes along an axis; for a sphere of radius >= 9 voxels the
+        // curvature and obliquity error is below 0.5 % (it is ~3 % for voxel counting at r = 9).
+        assert!((core - v(r_in)).abs() / v(r_in) < 5e-3, "core {core} vs {}", v(r_in));
+        assert!((shell - (v(r_out) - v(r_in))).abs() / (v(r_out) - v(r_in)) < 5e-3, "shell {shell}");
+        // Where the two meet, their occupancies add up to one.
+        for v in 0..g.len() {
+            if occ[1][v] > 0.0 && occ[1][v] < 1.0 {
+                assert!((occ[0][v] + occ[1][v] - 1.0).abs() < 1e-6, "voxel {v}");
+            }
         }
     }
 
