@@ -24,11 +24,22 @@ fn main() {
     let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
     let sizes: &[f64] = if quick { &[4.0, 3.0] } else { &[3.0, 2.0, 1.5] };
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    println!("Phantom build, {threads} hardware threads, profile {}", if cfg!(debug_assertions) { "dev" } else { "release" });
+    println!(
+        "Phantom build, {threads} hardware threads, profile {}",
+        if cfg!(debug_assertions) {
+            "dev"
+        } else {
+            "release"
+        }
+    );
     println!();
-    println!("Wall times include any load from other processes; CPU s is this process's own CPU time (all threads).");
+    println!(
+        "Wall times include any load from other processes; CPU s is this process's own CPU time (all threads)."
+    );
     println!();
-    println!("| voxel mm | grid | voxelize s | build s (wall) | build CPU s | structures | triangles | worst mesh/mask volume error (>= 5 ml) |");
+    println!(
+        "| voxel mm | grid | voxelize s | build s (wall) | build CPU s | structures | triangles | worst mesh/mask volume error (>= 5 ml) |"
+    );
     println!("|---|---|---|---|---|---|---|---|");
     for &voxel in sizes {
         let params = PhantomParams::with_voxel_mm(voxel);
@@ -41,7 +52,10 @@ fn main() {
         let region = match phantom::build(&params, &mut |_| {}) {
             Ok(r) => r,
             Err(e) => {
-                println!("| {voxel} | {:?} | {t_vox:.2} | failed: {e} | | | | |", params.grid().dims);
+                println!(
+                    "| {voxel} | {:?} | {t_vox:.2} | failed: {e} | | | | |",
+                    params.grid().dims
+                );
                 continue;
             }
         };
@@ -50,7 +64,11 @@ fn main() {
             (Some(a), Some(b)) => format!("{:.1}", b - a),
             _ => "n/a".to_string(),
         };
-        let tris: usize = region.structures.iter().map(|s| s.mesh.triangle_count()).sum();
+        let tris: usize = region
+            .structures
+            .iter()
+            .map(|s| s.mesh.triangle_count())
+            .sum();
         let worst = region
             .structures
             .iter()

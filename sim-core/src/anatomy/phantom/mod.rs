@@ -35,7 +35,9 @@ use serde::{Deserialize, Serialize};
 use super::asset::{RegionAsset, Source};
 use super::decimate::DecimationParams;
 use super::error::AnatomyError;
-use super::pipeline::{PipelineParams, Progress, SourceInfo, StructureMask, build_region, pipeline_version};
+use super::pipeline::{
+    PipelineParams, Progress, SourceInfo, StructureMask, build_region, pipeline_version,
+};
 use crate::material::MaterialClass;
 use crate::volume::{Volume, VolumeGrid};
 
@@ -164,7 +166,7 @@ impl PhantomParams {
             hu: TissueHu::default(),
             blur_sigma_mm: 0.6,
             noise_sd_hu: 10.0,
-            seed: 0x5eed_1u64,
+            seed: 0x0005_eed1_u64,
             pipeline: PipelineParams {
                 upsample: 1,
                 iso_level: 0.5,
@@ -172,7 +174,10 @@ impl PhantomParams {
                 // extracted surface has no voxel staircase to remove.
                 smoothing: None,
                 // A quarter of the triangles with at most a fifth of a voxel of deviation.
-                decimation: Some(DecimationParams { max_error_mm: 0.2 * voxel_mm, ..DecimationParams::default() }),
+                decimation: Some(DecimationParams {
+                    max_error_mm: 0.2 * voxel_mm,
+                    ..DecimationParams::default()
+                }),
                 // The phantom supplies separate cortical and cancellous masks, so the pipeline's
                 // depth split of bone masks (meant for whole-bone masks of real CT) is switched
                 // off by a shell thicker than any bone.
@@ -183,8 +188,11 @@ impl PhantomParams {
 
     /// The grid: voxel faces span the extent (rounded up to whole voxels).
     pub fn grid(&self) -> VolumeGrid {
-        let dims: [usize; 3] =
-            std::array::from_fn(|a| ((self.extent_max_mm[a] - self.extent_min_mm[a]) / self.voxel_mm).ceil().max(1.0) as usize);
+        let dims: [usize; 3] = std::array::from_fn(|a| {
+            ((self.extent_max_mm[a] - self.extent_min_mm[a]) / self.voxel_mm)
+                .ceil()
+                .max(1.0) as usize
+        });
         VolumeGrid {
             dims,
             spacing_mm: [self.voxel_mm; 3],
@@ -206,7 +214,11 @@ pub fn anatomy(params: &PhantomParams) -> model::Anatomy {
 
 /// The phantom's named structures in painting order (name, material).
 pub fn structure_list(params: &PhantomParams) -> Vec<(String, MaterialClass)> {
-    model::Anatomy::new(&params.effective_anatomy()).parts.into_iter().map(|p| (p.name, p.material)).collect()
+    model::Anatomy::new(&params.effective_anatomy())
+        .parts
+        .into_iter()
+        .map(|p| (p.name, p.material))
+        .collect()
 }
 
 /// The named landmarks of the phantom (model frame, mm).
@@ -276,7 +288,11 @@ impl PhantomVolumes {
                     Some((ids, fr)) => occupancy_mask(ids, fr, 1),
                     None => occupancy_mask(&self.structure_ids, &self.fractions, l as u8),
                 };
-                StructureMask { name, material, mask }
+                StructureMask {
+                    name,
+                    material,
+                    mask,
+                }
             })
             .collect()
     }
@@ -308,11 +324,19 @@ fn occupancy_mask(ids: &Volume<u8>, fractions: &[voxelize::Fraction], label: u8)
         }
     }
     if lo[0] == usize::MAX {
-        let grid = VolumeGrid { dims: [1, 1, 1], spacing_mm: g.spacing_mm, origin_mm: g.origin_mm };
+        let grid = VolumeGrid {
+            dims: [1, 1, 1],
+            spacing_mm: g.spacing_mm,
+            origin_mm: g.origin_mm,
+        };
         return Volume::filled(grid, 0.0);
     }
     let dims: [usize; 3] = std::array::from_fn(|a| hi[a] - lo[a] + 1);
-    let grid = VolumeGrid { dims, spacing_mm: g.spacing_mm, origin_mm: g.voxel_center_mm(lo[0], lo[1], lo[2]) };
+    let grid = VolumeGrid {
+        dims,
+        spacing_mm: g.spacing_mm,
+        origin_mm: g.voxel_center_mm(lo[0], lo[1], lo[2]),
+    };
     let mut mask = Volume::filled(grid, 0f32);
     for k in lo[2]..=hi[2] {
         for j in lo[1]..=hi[1] {
@@ -355,8 +379,17 @@ pub fn voxelize(params: &PhantomParams) -> PhantomVolumes {
     let solids: Vec<&sdf::Sdf> = anatomy.parts.iter().map(|p| &p.sdf).collect();
     let structure_ids = voxelize::paint_labels(&grid, &solids, workers, false);
     let fractions = voxelize::partial_volumes(&grid, &solids, &structure_ids, workers);
-    let hu_of: Vec<f64> = std::iter::once(params.hu.air).chain(anatomy.parts.iter().map(|p| params.hu.of(p.material))).collect();
-    let mut sharp = Volume { grid, data: structure_ids.data.iter().map(|&l| hu_of[usize::from(l)] as f32).collect() };
+    let hu_of: Vec<f64> = std::iter::once(params.hu.air)
+        .chain(anatomy.parts.iter().map(|p| params.hu.of(p.material)))
+        .collect();
+    let mut sharp = Volume {
+        grid,
+        data: structure_ids
+            .data
+            .iter()
+            .map(|&l| hu_of[usize::from(l)] as f32)
+            .collect(),
+    };
     // Partial-volume CT numbers in boundary voxels; what the structures leave is air.
     let mut start = 0;
     while start < fractions.len() {
@@ -368,7 +401,11 @@ pub fn voxelize(params: &PhantomParams) -> PhantomVolumes {
             occ += f64::from(fractions[end].occupancy);
             end += 1;
         }
-        let value = if occ >= 1.0 { hu / occ } else { hu + (1.0 - occ) * params.hu.air };
+        let value = if occ >= 1.0 {
+            hu / occ
+        } else {
+            hu + (1.0 - occ) * params.hu.air
+        };
         sharp.data[v as usize] = value as f32;
         start = end;
     }
@@ -393,16 +430,33 @@ pub fn voxelize(params: &PhantomParams) -> PhantomVolumes {
         structure_ids,
         fractions,
         ct_hu,
-        structures: anatomy.parts.into_iter().map(|p| (p.name, p.material)).collect(),
+        structures: anatomy
+            .parts
+            .into_iter()
+            .map(|p| (p.name, p.material))
+            .collect(),
         nested,
     }
 }
 
 /// Builds the phantom region in memory: voxelize, then mesh through the shared pipeline.
-pub fn build(params: &PhantomParams, progress: &mut dyn FnMut(&Progress)) -> Result<RegionAsset, AnatomyError> {
-    progress(&Progress { stage: "voxelize", done: 0, total: 1, item: String::new() });
+pub fn build(
+    params: &PhantomParams,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<RegionAsset, AnatomyError> {
+    progress(&Progress {
+        stage: "voxelize",
+        done: 0,
+        total: 1,
+        item: String::new(),
+    });
     let vols = voxelize(params);
-    progress(&Progress { stage: "voxelize", done: 1, total: 1, item: String::new() });
+    progress(&Progress {
+        stage: "voxelize",
+        done: 1,
+        total: 1,
+        item: String::new(),
+    });
     let masks = vols.masks();
     let PhantomVolumes { ct_hu, .. } = vols;
     let source = SourceInfo {
@@ -416,7 +470,14 @@ pub fn build(params: &PhantomParams, progress: &mut dyn FnMut(&Progress)) -> Res
             .to_string(),
         notes: vec![format!("model frame: RAS (x = patient right, y = anterior, z = cranial), mm; origin at the L3 body centre")],
     };
-    build_region(REGION_NAME, &ct_hu, masks, &params.pipeline, source, progress)
+    build_region(
+        REGION_NAME,
+        &ct_hu,
+        masks,
+        &params.pipeline,
+        source,
+        progress,
+    )
 }
 
 /// Whether the region folder `dir` holds a phantom built with exactly `params` (and this pipeline
@@ -429,10 +490,14 @@ pub fn is_cached(dir: &Path, params: &PhantomParams) -> bool {
         return false;
     };
     match prov.source {
-        Source::Phantom { generator, parameters } => {
+        Source::Phantom {
+            generator,
+            parameters,
+        } => {
             generator == GENERATOR
                 && prov.pipeline_version == pipeline_version()
-                && parameters.get("params_sha256").and_then(|v| v.as_str()) == Some(params.hash_hex().as_str())
+                && parameters.get("params_sha256").and_then(|v| v.as_str())
+                    == Some(params.hash_hex().as_str())
         }
         Source::Ct { .. } => false,
     }
@@ -440,7 +505,11 @@ pub fn is_cached(dir: &Path, params: &PhantomParams) -> bool {
 
 /// Returns the phantom region stored in `dir`, building and writing it first if `dir` is missing,
 /// was built with other parameters or another pipeline version, or fails its hash check.
-pub fn ensure_built_with(dir: &Path, params: &PhantomParams, progress: &mut dyn FnMut(&Progress)) -> Result<RegionAsset, AnatomyError> {
+pub fn ensure_built_with(
+    dir: &Path,
+    params: &PhantomParams,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<RegionAsset, AnatomyError> {
     if is_cached(dir, params) {
         if let Ok(region) = RegionAsset::load(dir) {
             return Ok(region);

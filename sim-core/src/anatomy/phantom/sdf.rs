@@ -25,27 +25,42 @@ pub struct Aabb {
 impl Aabb {
     /// The box `centre +- half`.
     pub fn centered(centre: DVec3, half: DVec3) -> Aabb {
-        Aabb { min: centre - half, max: centre + half }
+        Aabb {
+            min: centre - half,
+            max: centre + half,
+        }
     }
 
     /// An infinite box (for unbounded shapes such as half-spaces).
     pub fn everything() -> Aabb {
-        Aabb { min: DVec3::splat(f64::NEG_INFINITY), max: DVec3::splat(f64::INFINITY) }
+        Aabb {
+            min: DVec3::splat(f64::NEG_INFINITY),
+            max: DVec3::splat(f64::INFINITY),
+        }
     }
 
     /// Smallest box holding both.
     pub fn union(self, o: Aabb) -> Aabb {
-        Aabb { min: self.min.min(o.min), max: self.max.max(o.max) }
+        Aabb {
+            min: self.min.min(o.min),
+            max: self.max.max(o.max),
+        }
     }
 
     /// Overlap of both (may be empty: some `min > max`).
     pub fn intersect(self, o: Aabb) -> Aabb {
-        Aabb { min: self.min.max(o.min), max: self.max.min(o.max) }
+        Aabb {
+            min: self.min.max(o.min),
+            max: self.max.min(o.max),
+        }
     }
 
     /// Grown by `r` on every side.
     pub fn expand(self, r: f64) -> Aabb {
-        Aabb { min: self.min - DVec3::splat(r), max: self.max + DVec3::splat(r) }
+        Aabb {
+            min: self.min - DVec3::splat(r),
+            max: self.max + DVec3::splat(r),
+        }
     }
 
     /// True when the box holds no point.
@@ -63,7 +78,10 @@ impl Aabb {
         if !self.is_finite() {
             return Aabb::everything();
         }
-        let mut out = Aabb { min: DVec3::splat(f64::INFINITY), max: DVec3::splat(f64::NEG_INFINITY) };
+        let mut out = Aabb {
+            min: DVec3::splat(f64::INFINITY),
+            max: DVec3::splat(f64::NEG_INFINITY),
+        };
         for c in 0..8 {
             let p = DVec3::new(
                 if c & 1 == 0 { self.min.x } else { self.max.x },
@@ -89,11 +107,17 @@ pub struct Rigid {
 
 impl Rigid {
     /// The identity placement.
-    pub const IDENTITY: Rigid = Rigid { rotation: DMat3::IDENTITY, translation: DVec3::ZERO };
+    pub const IDENTITY: Rigid = Rigid {
+        rotation: DMat3::IDENTITY,
+        translation: DVec3::ZERO,
+    };
 
     /// A translation only.
     pub fn at(translation: DVec3) -> Rigid {
-        Rigid { rotation: DMat3::IDENTITY, translation }
+        Rigid {
+            rotation: DMat3::IDENTITY,
+            translation,
+        }
     }
 
     /// A placement whose local axes are `x`, `y`, `z` (orthonormalised from `x` and `z`).
@@ -101,7 +125,10 @@ impl Rigid {
         let z = z.normalize();
         let x = (x - z * x.dot(z)).normalize();
         let y = z.cross(x);
-        Rigid { rotation: DMat3::from_cols(x, y, z), translation }
+        Rigid {
+            rotation: DMat3::from_cols(x, y, z),
+            translation,
+        }
     }
 
     /// Local point to world.
@@ -243,7 +270,12 @@ impl Sdf {
                 let q = p.abs() - (*half - DVec3::splat(*round));
                 q.max(DVec3::ZERO).length() + q.max_element().min(0.0) - round
             }
-            Sdf::EllipticCylinder { rx, ry, half_h, round } => {
+            Sdf::EllipticCylinder {
+                rx,
+                ry,
+                half_h,
+                round,
+            } => {
                 // The ellipse bound is exact on the axes; the rim is rounded by offsetting the
                 // 2-D profile inwards and back out.
                 let d2 = (DVec2::new(p.x / rx, p.y / ry).length() - 1.0) * rx.min(*ry);
@@ -253,7 +285,13 @@ impl Sdf {
             Sdf::Tube { points, radii } => {
                 let mut d = f64::INFINITY;
                 for i in 0..points.len().saturating_sub(1) {
-                    d = d.min(round_cone(p, points[i], points[i + 1], radii[i], radii[i + 1]));
+                    d = d.min(round_cone(
+                        p,
+                        points[i],
+                        points[i + 1],
+                        radii[i],
+                        radii[i + 1],
+                    ));
                 }
                 if points.len() == 1 {
                     d = (p - points[0]).length() - radii[0];
@@ -294,9 +332,16 @@ impl Sdf {
                 .zip(radii)
                 .map(|(p, r)| Aabb::centered(*p, DVec3::splat(*r)))
                 .reduce(Aabb::union)
-                .unwrap_or(Aabb { min: DVec3::ZERO, max: DVec3::ZERO }),
+                .unwrap_or(Aabb {
+                    min: DVec3::ZERO,
+                    max: DVec3::ZERO,
+                }),
             Sdf::HalfSpace { .. } => Aabb::everything(),
-            Sdf::Union(c) => c.iter().map(Sdf::bounds).reduce(Aabb::union).unwrap_or(Aabb::everything()),
+            Sdf::Union(c) => c
+                .iter()
+                .map(Sdf::bounds)
+                .reduce(Aabb::union)
+                .unwrap_or(Aabb::everything()),
             // A smooth union only bulges within the blend radius of the children.
             Sdf::SmoothUnion(c, k) => c
                 .iter()
@@ -343,26 +388,50 @@ impl Sdf {
 
     /// A straight capsule from `a` to `b` of radius `r`.
     pub fn capsule(a: DVec3, b: DVec3, r: f64) -> Sdf {
-        Sdf::Tube { points: vec![a, b], radii: vec![r, r] }
+        Sdf::Tube {
+            points: vec![a, b],
+            radii: vec![r, r],
+        }
     }
 
     /// A round cone from `a` (radius `ra`) to `b` (radius `rb`).
     pub fn cone(a: DVec3, ra: f64, b: DVec3, rb: f64) -> Sdf {
-        Sdf::Tube { points: vec![a, b], radii: vec![ra, rb] }
+        Sdf::Tube {
+            points: vec![a, b],
+            radii: vec![ra, rb],
+        }
     }
 
     /// A rounded box whose local x axis runs from `a` to `b` (centred between them, reaching
     /// `round` beyond each end), with half-thickness `half_y`, half-height `half_z`, and local z
     /// axis as close to `up` as possible.
-    pub fn slab_between(a: DVec3, b: DVec3, up: DVec3, half_y: f64, half_z: f64, round: f64) -> Sdf {
+    pub fn slab_between(
+        a: DVec3,
+        b: DVec3,
+        up: DVec3,
+        half_y: f64,
+        half_z: f64,
+        round: f64,
+    ) -> Sdf {
         let axis = b - a;
         let half_x = 0.5 * axis.length() + round;
         let x = axis.normalize();
         let z = up - x * up.dot(x);
-        let z = if z.length() < 1e-9 { x.any_orthonormal_vector() } else { z.normalize() };
+        let z = if z.length() < 1e-9 {
+            x.any_orthonormal_vector()
+        } else {
+            z.normalize()
+        };
         let y = z.cross(x);
-        let rigid = Rigid { rotation: DMat3::from_cols(x, y, z), translation: 0.5 * (a + b) };
-        Sdf::RoundBox { half: DVec3::new(half_x, half_y, half_z), round }.placed(rigid)
+        let rigid = Rigid {
+            rotation: DMat3::from_cols(x, y, z),
+            translation: 0.5 * (a + b),
+        };
+        Sdf::RoundBox {
+            half: DVec3::new(half_x, half_y, half_z),
+            round,
+        }
+        .placed(rigid)
     }
 }
 
@@ -396,11 +465,22 @@ mod tests {
         let s = Sdf::Sphere { radius: 5.0 }.at(DVec3::new(1.0, 2.0, 3.0));
         assert!((s.eval(DVec3::new(6.0, 2.0, 3.0))).abs() < 1e-12);
         assert!((s.eval(DVec3::new(1.0, 2.0, 3.0)) + 5.0).abs() < 1e-12);
-        let e = Sdf::Ellipsoid { radii: DVec3::new(10.0, 5.0, 2.0) };
-        for p in [DVec3::new(10.0, 0.0, 0.0), DVec3::new(0.0, -5.0, 0.0), DVec3::new(0.0, 0.0, 2.0)] {
+        let e = Sdf::Ellipsoid {
+            radii: DVec3::new(10.0, 5.0, 2.0),
+        };
+        for p in [
+            DVec3::new(10.0, 0.0, 0.0),
+            DVec3::new(0.0, -5.0, 0.0),
+            DVec3::new(0.0, 0.0, 2.0),
+        ] {
             assert!(e.eval(p).abs() < 1e-12);
         }
-        let c = Sdf::EllipticCylinder { rx: 20.0, ry: 15.0, half_h: 10.0, round: 2.0 };
+        let c = Sdf::EllipticCylinder {
+            rx: 20.0,
+            ry: 15.0,
+            half_h: 10.0,
+            round: 2.0,
+        };
         assert!(c.eval(DVec3::new(20.0, 0.0, 0.0)).abs() < 1e-12);
         assert!(c.eval(DVec3::new(0.0, 0.0, 10.0)).abs() < 1e-12);
         assert!(c.eval(DVec3::new(0.0, 15.0, 0.0)).abs() < 1e-12);
@@ -412,11 +492,23 @@ mod tests {
 
     #[test]
     fn blends_and_bounds_stay_one_lipschitz() {
-        let a = Sdf::Ellipsoid { radii: DVec3::new(12.0, 6.0, 4.0) };
-        let b = Sdf::RoundBox { half: DVec3::new(3.0, 15.0, 3.0), round: 1.0 }
-            .placed(Rigid::from_axes(DVec3::new(4.0, 2.0, 1.0), DVec3::new(1.0, 1.0, 0.0), DVec3::Z));
+        let a = Sdf::Ellipsoid {
+            radii: DVec3::new(12.0, 6.0, 4.0),
+        };
+        let b = Sdf::RoundBox {
+            half: DVec3::new(3.0, 15.0, 3.0),
+            round: 1.0,
+        }
+        .placed(Rigid::from_axes(
+            DVec3::new(4.0, 2.0, 1.0),
+            DVec3::new(1.0, 1.0, 0.0),
+            DVec3::Z,
+        ));
         let u = Sdf::SmoothUnion(vec![a.clone(), b.clone()], 4.0);
-        let sub = Sdf::Scaled(Box::new(u.clone().smooth_minus(Sdf::Sphere { radius: 3.0 }, 2.0)), DVec3::new(1.0, 0.5, 2.0));
+        let sub = Sdf::Scaled(
+            Box::new(u.clone().smooth_minus(Sdf::Sphere { radius: 3.0 }, 2.0)),
+            DVec3::new(1.0, 0.5, 2.0),
+        );
         for s in [&a, &b, &u, &sub] {
             // 1.0 is the property the voxelizer's block culling needs; 1e-6 absorbs round-off.
             let slope = max_slope(s, DVec3::ZERO, 25.0);
@@ -425,11 +517,16 @@ mod tests {
             let bb = s.bounds();
             let mut state = 12345u64;
             for _ in 0..20000 {
-                state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
                 let f = |sh: u32| ((state >> sh) & 0xffff) as f64 / 65535.0 * 80.0 - 40.0;
                 let p = DVec3::new(f(0), f(16), f(32));
                 if s.eval(p) <= 0.0 {
-                    assert!(p.cmpge(bb.min).all() && p.cmple(bb.max).all(), "{p} outside {bb:?}");
+                    assert!(
+                        p.cmpge(bb.min).all() && p.cmple(bb.max).all(),
+                        "{p} outside {bb:?}"
+                    );
                 }
             }
         }

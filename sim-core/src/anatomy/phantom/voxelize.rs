@@ -17,20 +17,29 @@ const BLOCK: usize = 8;
 
 /// Worker threads to use: the machine's parallelism, at most `cap`.
 pub fn worker_count(cap: usize) -> usize {
-    std::thread::available_parallelism().map_or(1, |n| n.get()).clamp(1, cap.max(1))
+    std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .clamp(1, cap.max(1))
 }
 
 /// Splits `0..nz` into `workers` contiguous ranges of near-equal size.
 fn slabs(nz: usize, workers: usize) -> Vec<(usize, usize)> {
     let workers = workers.clamp(1, nz.max(1));
-    (0..workers).map(|w| (nz * w / workers, nz * (w + 1) / workers)).filter(|(a, b)| b > a).collect()
+    (0..workers)
+        .map(|w| (nz * w / workers, nz * (w + 1) / workers))
+        .filter(|(a, b)| b > a)
+        .collect()
 }
 
 /// Index range of voxels whose centres may lie inside `[lo, hi]` along one axis.
 fn axis_range(lo: f64, hi: f64, origin: f64, spacing: f64, n: usize) -> (usize, usize) {
     let a = ((lo - origin) / spacing).floor().max(0.0);
     let b = ((hi - origin) / spacing).ceil() + 1.0;
-    let b = if b.is_finite() { b.min(n as f64) } else { n as f64 };
+    let b = if b.is_finite() {
+        b.min(n as f64)
+    } else {
+        n as f64
+    };
     let a = if a.is_finite() { a.min(n as f64) } else { 0.0 };
     (a as usize, (b as usize).max(a as usize))
 }
@@ -40,7 +49,12 @@ fn axis_range(lo: f64, hi: f64, origin: f64, spacing: f64, n: usize) -> (usize, 
 ///
 /// `exhaustive` disables the block culling (every voxel of each solid's bounding box is
 /// evaluated); it exists so tests can check the culling against the plain evaluation.
-pub fn paint_labels(grid: &VolumeGrid, solids: &[&Sdf], workers: usize, exhaustive: bool) -> Volume<u8> {
+pub fn paint_labels(
+    grid: &VolumeGrid,
+    solids: &[&Sdf],
+    workers: usize,
+    exhaustive: bool,
+) -> Volume<u8> {
     assert!(solids.len() < 255, "labels are u8");
     let [nx, ny, nz] = grid.dims;
     let mut data = vec![0u8; grid.len()];
@@ -56,14 +70,27 @@ pub fn paint_labels(grid: &VolumeGrid, solids: &[&Sdf], workers: usize, exhausti
                 for (si, solid) in solids.iter().enumerate() {
                     let label = si as u8 + 1;
                     let b = bounds[si];
-                    let (i0, i1) = axis_range(b.min.x, b.max.x, grid.origin_mm[0], grid.spacing_mm[0], nx);
-                    let (j0, j1) = axis_range(b.min.y, b.max.y, grid.origin_mm[1], grid.spacing_mm[1], ny);
-                    let (k0, k1) = axis_range(b.min.z, b.max.z, grid.origin_mm[2], grid.spacing_mm[2], nz);
+                    let (i0, i1) =
+                        axis_range(b.min.x, b.max.x, grid.origin_mm[0], grid.spacing_mm[0], nx);
+                    let (j0, j1) =
+                        axis_range(b.min.y, b.max.y, grid.origin_mm[1], grid.spacing_mm[1], ny);
+                    let (k0, k1) =
+                        axis_range(b.min.z, b.max.z, grid.origin_mm[2], grid.spacing_mm[2], nz);
                     let (k0, k1) = (k0.max(z0), k1.min(z1));
                     if i0 >= i1 || j0 >= j1 || k0 >= k1 {
                         continue;
                     }
-                    paint_one(grid, solid, label, [i0, i1], [j0, j1], [k0, k1], z0, chunk, exhaustive);
+                    paint_one(
+                        grid,
+                        solid,
+                        label,
+                        [i0, i1],
+                        [j0, j1],
+                        [k0, k1],
+                        z0,
+                        chunk,
+                        exhaustive,
+                    );
                 }
             });
         }
@@ -71,7 +98,10 @@ pub fn paint_labels(grid: &VolumeGrid, solids: &[&Sdf], workers: usize, exhausti
     Volume { grid: *grid, data }
 }
 
-#[expect(clippy::too_many_arguments, reason = "a private kernel; the ranges are clearer apart")]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "a private kernel; the ranges are clearer apart"
+)]
 fn paint_one(
     grid: &VolumeGrid,
     solid: &Sdf,
@@ -154,9 +184,18 @@ pub struct Fraction {
 /// Only voxels with a differently labelled 26-neighbour are evaluated (a surface within half a
 /// voxel of a centre puts a neighbour's centre on the other side); everywhere else the binary label
 /// is exact. Returned sorted by voxel index, one entry per structure with non-zero occupancy.
-pub fn partial_volumes(grid: &VolumeGrid, solids: &[&Sdf], labels: &Volume<u8>, workers: usize) -> Vec<Fraction> {
+pub fn partial_volumes(
+    grid: &VolumeGrid,
+    solids: &[&Sdf],
+    labels: &Volume<u8>,
+    workers: usize,
+) -> Vec<Fraction> {
     let [nx, ny, nz] = grid.dims;
-    let h = grid.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min);
+    let h = grid
+        .spacing_mm
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min);
     let bounds: Vec<_> = solids.iter().map(|s| s.bounds().expand(h)).collect();
     let lab = &labels.data;
     let differs = |i: usize, j: usize, k: usize| -> bool {
@@ -241,13 +280,21 @@ pub fn partial_volumes(grid: &VolumeGrid, solids: &[&Sdf], labels: &Volume<u8>, 
                                         later = later.max(-f[n]);
                                         let occ = (0.5 - g / h).clamp(0.0, 1.0);
                                         if occ > 0.0 {
-                                            out.push(Fraction { voxel, label: si as u8 + 1, occupancy: occ as f32 });
+                                            out.push(Fraction {
+                                                voxel,
+                                                label: si as u8 + 1,
+                                                occupancy: occ as f32,
+                                            });
                                         }
                                     }
                                     if let Some(si) = floor {
                                         let occ = (0.5 - later / h).clamp(0.0, 1.0);
                                         if occ > 0.0 {
-                                            out.push(Fraction { voxel, label: si as u8 + 1, occupancy: occ as f32 });
+                                            out.push(Fraction {
+                                                voxel,
+                                                label: si as u8 + 1,
+                                                occupancy: occ as f32,
+                                            });
                                         }
                                     }
                                     out[start..].reverse();
@@ -259,7 +306,10 @@ pub fn partial_volumes(grid: &VolumeGrid, solids: &[&Sdf], labels: &Volume<u8>, 
                 })
             })
             .collect();
-        handles.into_iter().map(|h| h.join().expect("partial-volume worker panicked")).collect()
+        handles
+            .into_iter()
+            .map(|h| h.join().expect("partial-volume worker panicked"))
+            .collect()
     });
     let mut all: Vec<Fraction> = parts.into_iter().flatten().collect();
     // Blocks are visited in block order, not voxel order: sort (stable, so per-voxel order stays
@@ -301,7 +351,9 @@ pub fn gaussian_blur(vol: &Volume<f32>, sigma_mm: f64, workers: usize) -> Volume
         if radius == 0 {
             continue;
         }
-        let w: Vec<f64> = (-radius..=radius).map(|t| (-0.5 * (t as f64 / sigma_vox).powi(2)).exp()).collect();
+        let w: Vec<f64> = (-radius..=radius)
+            .map(|t| (-0.5 * (t as f64 / sigma_vox).powi(2)).exp())
+            .collect();
         let norm: f64 = w.iter().sum();
         let w: Vec<f32> = w.iter().map(|x| (x / norm) as f32).collect();
         let n_axis = vol.grid.dims[axis] as isize;
@@ -330,7 +382,10 @@ pub fn gaussian_blur(vol: &Volume<f32>, sigma_mm: f64, workers: usize) -> Volume
         });
         std::mem::swap(&mut cur, &mut next);
     }
-    Volume { grid: vol.grid, data: cur }
+    Volume {
+        grid: vol.grid,
+        data: cur,
+    }
 }
 
 #[cfg(test)]
@@ -340,7 +395,11 @@ mod tests {
 
     fn grid(n: usize, spacing: f64) -> VolumeGrid {
         let o = -0.5 * (n as f64 - 1.0) * spacing;
-        VolumeGrid { dims: [n, n, n], spacing_mm: [spacing; 3], origin_mm: [o, o, o] }
+        VolumeGrid {
+            dims: [n, n, n],
+            spacing_mm: [spacing; 3],
+            origin_mm: [o, o, o],
+        }
     }
 
     #[test]
@@ -348,7 +407,11 @@ mod tests {
         let g = grid(64, 1.0);
         let r = 20.0;
         let sphere = Sdf::Sphere { radius: r }.at(DVec3::new(0.3, -0.2, 0.1));
-        let bx = Sdf::RoundBox { half: DVec3::new(10.0, 6.0, 4.0), round: 0.0 }.at(DVec3::new(0.25, 0.25, 0.25));
+        let bx = Sdf::RoundBox {
+            half: DVec3::new(10.0, 6.0, 4.0),
+            round: 0.0,
+        }
+        .at(DVec3::new(0.25, 0.25, 0.25));
         let labels = paint_labels(&g, &[&sphere], 2, false);
         let n = labels.data.iter().filter(|&&l| l == 1).count() as f64;
         let exact = 4.0 / 3.0 * std::f64::consts::PI * r * r * r;
@@ -363,18 +426,42 @@ mod tests {
 
     #[test]
     fn culling_equals_exhaustive_evaluation_and_threads_do_not_matter() {
-        let g = VolumeGrid { dims: [50, 41, 37], spacing_mm: [1.3, 1.1, 1.7], origin_mm: [-30.0, -20.0, -31.0] };
-        let a = Sdf::Ellipsoid { radii: DVec3::new(25.0, 12.0, 20.0) };
+        let g = VolumeGrid {
+            dims: [50, 41, 37],
+            spacing_mm: [1.3, 1.1, 1.7],
+            origin_mm: [-30.0, -20.0, -31.0],
+        };
+        let a = Sdf::Ellipsoid {
+            radii: DVec3::new(25.0, 12.0, 20.0),
+        };
         let b = Sdf::SmoothUnion(
             vec![
-                Sdf::capsule(DVec3::new(-20.0, 0.0, -10.0), DVec3::new(15.0, 5.0, 20.0), 5.0),
-                Sdf::RoundBox { half: DVec3::new(4.0, 9.0, 6.0), round: 1.5 }
-                    .placed(Rigid::from_axes(DVec3::new(5.0, -3.0, 0.0), DVec3::new(1.0, 2.0, 0.5), DVec3::Z)),
+                Sdf::capsule(
+                    DVec3::new(-20.0, 0.0, -10.0),
+                    DVec3::new(15.0, 5.0, 20.0),
+                    5.0,
+                ),
+                Sdf::RoundBox {
+                    half: DVec3::new(4.0, 9.0, 6.0),
+                    round: 1.5,
+                }
+                .placed(Rigid::from_axes(
+                    DVec3::new(5.0, -3.0, 0.0),
+                    DVec3::new(1.0, 2.0, 0.5),
+                    DVec3::Z,
+                )),
             ],
             4.0,
         )
-        .smooth_minus(Sdf::Sphere { radius: 6.0 }.at(DVec3::new(0.0, 0.0, 5.0)), 2.0);
-        let c = Sdf::Scaled(Box::new(Sdf::Sphere { radius: 8.0 }), DVec3::new(2.0, 0.7, 1.0)).at(DVec3::new(0.0, 10.0, -15.0));
+        .smooth_minus(
+            Sdf::Sphere { radius: 6.0 }.at(DVec3::new(0.0, 0.0, 5.0)),
+            2.0,
+        );
+        let c = Sdf::Scaled(
+            Box::new(Sdf::Sphere { radius: 8.0 }),
+            DVec3::new(2.0, 0.7, 1.0),
+        )
+        .at(DVec3::new(0.0, 10.0, -15.0));
         let solids = [&a, &b, &c];
         let fast = paint_labels(&g, &solids, 1, false);
         let slow = paint_labels(&g, &solids, 1, true);
@@ -417,19 +504,31 @@ mod tests {
         for f in &fr {
             occ[usize::from(f.label) - 1][f.voxel as usize] = f64::from(f.occupancy);
             // The painted label is the structure with occupancy >= 0.5.
-            assert_eq!(f.occupancy >= 0.5, labels.data[f.voxel as usize] == f.label, "voxel {}", f.voxel);
+            assert_eq!(
+                f.occupancy >= 0.5,
+                labels.data[f.voxel as usize] == f.label,
+                "voxel {}",
+                f.voxel
+            );
         }
         let shell: f64 = occ[0].iter().sum();
         let core: f64 = occ[1].iter().sum();
         let v = |r: f64| 4.0 / 3.0 * std::f64::consts::PI * r * r * r;
         // The linear ramp is exact for planes along an axis; for a sphere of radius >= 9 voxels the
         // curvature and obliquity error is below 0.5 % (it is ~3 % for voxel counting at r = 9).
-        assert!((core - v(r_in)).abs() / v(r_in) < 5e-3, "core {core} vs {}", v(r_in));
-        assert!((shell - (v(r_out) - v(r_in))).abs() / (v(r_out) - v(r_in)) < 5e-3, "shell {shell}");
+        assert!(
+            (core - v(r_in)).abs() / v(r_in) < 5e-3,
+            "core {core} vs {}",
+            v(r_in)
+        );
+        assert!(
+            (shell - (v(r_out) - v(r_in))).abs() / (v(r_out) - v(r_in)) < 5e-3,
+            "shell {shell}"
+        );
         // Where the two meet, their occupancies add up to one.
-        for v in 0..g.len() {
-            if occ[1][v] > 0.0 && occ[1][v] < 1.0 {
-                assert!((occ[0][v] + occ[1][v] - 1.0).abs() < 1e-6, "voxel {v}");
+        for (v, (&shell_occ, &core_occ)) in occ[0].iter().zip(&occ[1]).enumerate() {
+            if core_occ > 0.0 && core_occ < 1.0 {
+                assert!((shell_occ + core_occ - 1.0).abs() < 1e-6, "voxel {v}");
             }
         }
     }
