@@ -79,6 +79,9 @@ impl GpuContext {
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("render-worker"),
                 required_limits: limits.clone(),
+                // The fluoroscopy L-buffer blends into 32-bit float targets; requested when the
+                // adapter has it (lavapipe and desktop GPUs do), checked by the renderer.
+                required_features: adapter.features() & wgpu::Features::FLOAT32_BLENDABLE,
                 ..Default::default()
             })
             .await

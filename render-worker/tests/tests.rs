@@ -1,2 +1,3 @@
 //! Integration tests of render-worker, one module per area.
+mod fluoro;
 mod gpu;

@@ -1,0 +1,86 @@
+// L-buffer passes: closed meshes rasterised without a depth test; every fragment adds its signed
+// distance from the source along the pixel's ray (+ leaving, - entering) into additive float
+// render targets. See `render_worker::fluoro` for the channel layout.
+
+struct View {
+    // Rows of the projection matrix applied to (point - source): (px * w, py * w, w).
+    row_x: vec4<f32>,
+    row_y: vec4<f32>,
+    row_w: vec4<f32>,
+    // Focal spot, model frame, mm.
+    source: vec4<f32>,
+    // (columns, rows, needle reference depth mm, unused).
+    size: vec4<f32>,
+}
+
+@group(0) @binding(0) var<uniform> view: View;
+// Per mesh, 5 vec4: geometric weights (slots 0-3, 4-5), displaced weights (slots 0-3, 4-5),
+// (reference depth mm, 0, 0, 0).
+@group(0) @binding(1) var<storage, read> weights: array<vec4<f32>>;
+// Needle hull per pixel: (nearest entering distance, -farthest leaving distance), mm.
+@group(0) @binding(2) var needle_hull: texture_2d<f32>;
+
+// "No needle" marker in the hull target (cleared to it; Min-blended).
+const NO_NEEDLE: f32 = 1.0e30;
+
+struct VOut {
+    @builtin(position) clip: vec4<f32>,
+    // Vertex minus source, mm (perspective-correct: at a fragment it is the point of the
+    // triangle on the pixel's ray).
+    @location(0) rel: vec3<f32>,
+    @location(1) @interpolate(flat) mesh: u32,
+}
+
+@vertex
+fn vs(@location(0) pos: vec3<f32>, @location(1) mesh: u32) -> VOut {
+    let rel = pos - view.source.xyz;
+    let px_w = dot(view.row_x.xyz, rel);
+    let py_w = dot(view.row_y.xyz, rel);
+    let w = dot(view.row_w.xyz, rel);
+    var o: VOut;
+    // Continuous pixel coordinates [0, W] x [0, H] (y down) to clip space (y up).
+    o.clip = vec4<f32>(2.0 * px_w / view.size.x - w, w - 2.0 * py_w / view.size.y, 0.5 * w, w);
+    o.rel = rel;
+    o.mesh = mesh;
+    return o;
+}
+
+struct AnatomyOut {
+    @location(0) a: vec4<f32>,
+    @location(1) b: vec2<f32>,
+}
+
+@fragment
+fn fs_anatomy(v: VOut, @builtin(front_facing) entering: bool) -> AnatomyOut {
+    let t = length(v.rel);
+    let base = v.mesh * 5u;
+    let tref = weights[base + 4u].x;
+    let s = select(1.0, -1.0, entering);
+    let tg = s * (t - tref);
+    let hull = textureLoad(needle_hull, vec2<i32>(v.clip.xy), 0).xy;
+    let t0 = hull.x;
+    let t1 = -hull.y;
+    // Signed part of this crossing inside the needle's [t0, t1]: summed over a closed mesh it is
+    // the length of the mesh's interior the needle occupies along this ray.
+    let td = select(0.0, s * (min(max(t, t0), t1) - t0), t1 > t0);
+    var o: AnatomyOut;
+    o.a = weights[base] * tg + weights[base + 2u] * td;
+    o.b = (weights[base + 1u] * tg + weights[base + 3u] * td).xy;
+    return o;
+}
+
+struct NeedleOut {
+    // Min-blended: (entering distance or NO_NEEDLE, -leaving distance or NO_NEEDLE).
+    @location(0) hull: vec2<f32>,
+    // Added: signed distance relative to the needle's reference depth.
+    @location(1) chord: f32,
+}
+
+@fragment
+fn fs_needle(v: VOut, @builtin(front_facing) entering: bool) -> NeedleOut {
+    let t = length(v.rel);
+    var o: NeedleOut;
+    o.hull = select(vec2<f32>(NO_NEEDLE, -t), vec2<f32>(t, NO_NEEDLE), entering);
+    o.chord = select(1.0, -1.0, entering) * (t - view.size.z);
+    return o;
+}

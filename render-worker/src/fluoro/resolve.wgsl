@@ -1,0 +1,139 @@
+// Resolve pass: L-buffer channels to chords (steel subtraction, cancellous clamp), basis optical
+// depths, iodine column, and the spectral sum T = sum_E w_E exp(-sum_b A_b R_b(E)).
+
+struct Params {
+    // Ray generator (relative to the source), mm: pixel (0, 0) centre, per-column, per-row step.
+    p00: vec4<f32>,
+    step_u: vec4<f32>,
+    step_v: vec4<f32>,
+    // Focal spot, mm.
+    source: vec4<f32>,
+    // Collimator blades in the detector plane, mm: x_min, x_max, y_min, y_max.
+    blades: vec4<f32>,
+    // (iris radius squared mm^2 or -1, column pitch mm, row pitch mm, cortical shell mm).
+    misc: vec4<f32>,
+    // (columns, rows, spectral bins, iodine present).
+    dims: vec4<u32>,
+    // 60 keV coefficients per cm: cortical, cancellous, steel, stock iodine.
+    mu: vec4<f32>,
+    // Iodine grid: origin of voxel (0,0,0) centre mm (w: march step mm), 1 / spacing per mm,
+    // dimensions.
+    iod_origin: vec4<f32>,
+    iod_inv_spacing: vec4<f32>,
+    iod_dims: vec4<u32>,
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var lbuf_a: texture_2d<f32>;
+@group(0) @binding(2) var lbuf_b: texture_2d<f32>;
+@group(0) @binding(3) var needle_chord: texture_2d<f32>;
+// Per bin: (R_water, R_bone, R_iodine, R_iron) * log2(e), then (w_E, 0, 0, 0).
+@group(0) @binding(4) var<storage, read> bins: array<vec4<f32>>;
+@group(0) @binding(5) var iodine: texture_3d<f32>;
+@group(0) @binding(6) var<storage, read_write> out_t: array<f32>;
+
+fn voxel(c: vec3<i32>) -> f32 {
+    return textureLoad(iodine, c, 0).x;
+}
+
+// Trilinear stock fraction at continuous voxel coordinates inside the box of voxel centres.
+fn trilinear(v: vec3<f32>) -> f32 {
+    let dims = vec3<i32>(params.iod_dims.xyz);
+    let top = max(dims - vec3<i32>(2), vec3<i32>(0));
+    let c = clamp(vec3<i32>(floor(v)), vec3<i32>(0), top);
+    let f = select(vec3<f32>(0.0), clamp(v - vec3<f32>(c), vec3<f32>(0.0), vec3<f32>(1.0)), dims > vec3<i32>(1));
+    let n = select(vec3<i32>(0), vec3<i32>(1), dims > vec3<i32>(1));
+    let c000 = voxel(c);
+    let c100 = voxel(c + vec3<i32>(n.x, 0, 0));
+    let c010 = voxel(c + vec3<i32>(0, n.y, 0));
+    let c110 = voxel(c + vec3<i32>(n.x, n.y, 0));
+    let c001 = voxel(c + vec3<i32>(0, 0, n.z));
+    let c101 = voxel(c + vec3<i32>(n.x, 0, n.z));
+    let c011 = voxel(c + vec3<i32>(0, n.y, n.z));
+    let c111 = voxel(c + n);
+    let x00 = mix(c000, c100, f.x);
+    let x10 = mix(c010, c110, f.x);
+    let x01 = mix(c001, c101, f.x);
+    let x11 = mix(c011, c111, f.x);
+    return mix(mix(x00, x10, f.y), mix(x01, x11, f.y), f.z);
+}
+
+// Stock-equivalent iodine column along source + t * dir (dir unit), 0 <= t <= t_max, by the
+// midpoint rule with steps of at most params.iod_origin.w mm.
+fn iodine_column(dir: vec3<f32>, t_max: f32) -> f32 {
+    let inv = params.iod_inv_spacing.xyz;
+    let dims = vec3<f32>(params.iod_dims.xyz);
+    // In voxel coordinates the ray is a + t * b.
+    let a = (params.source.xyz - params.iod_origin.xyz) * inv;
+    let b = dir * inv;
+    var t0 = 0.0;
+    var t1 = t_max;
+    for (var k = 0; k < 3; k++) {
+        if (abs(b[k]) < 1e-12) {
+            if (a[k] < 0.0 || a[k] > dims[k] - 1.0) {
+                return 0.0;
+            }
+        } else {
+            let ta = (0.0 - a[k]) / b[k];
+            let tb = (dims[k] - 1.0 - a[k]) / b[k];
+            t0 = max(t0, min(ta, tb));
+            t1 = min(t1, max(ta, tb));
+        }
+    }
+    if (t1 <= t0) {
+        return 0.0;
+    }
+    let n = max(1u, u32(ceil((t1 - t0) / params.iod_origin.w)));
+    let h = (t1 - t0) / f32(n);
+    var acc = 0.0;
+    for (var i = 0u; i < n; i++) {
+        acc += trilinear(a + (t0 + (f32(i) + 0.5) * h) * b);
+    }
+    return acc * h;
+}
+
+@compute @workgroup_size(8, 8)
+fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
+    let w = params.dims.x;
+    let h = params.dims.y;
+    if (id.x >= w || id.y >= h) {
+        return;
+    }
+    let p = vec2<i32>(id.xy);
+    let idx = id.y * w + id.x;
+    // Collimation at the pixel centre (detector-plane mm from the centre, x right, y down).
+    let ox = (f32(id.x) + 0.5 - 0.5 * f32(w)) * params.misc.y;
+    let oy = (f32(id.y) + 0.5 - 0.5 * f32(h)) * params.misc.z;
+    let inside_blades = ox >= params.blades.x && ox <= params.blades.y && oy >= params.blades.z && oy <= params.blades.w;
+    let inside_iris = params.misc.x < 0.0 || ox * ox + oy * oy <= params.misc.x;
+    if (!(inside_blades && inside_iris)) {
+        out_t[idx] = 0.0;
+        return;
+    }
+    let a = textureLoad(lbuf_a, p, 0);
+    let b = textureLoad(lbuf_b, p, 0).xy;
+    let steel = max(textureLoad(needle_chord, p, 0).x, 0.0);
+    // Bone within the run (the clamp is applied to the pixel's total; see the module doc).
+    let cort = a.y;
+    let canc = a.z;
+    let total = max(cort + canc, 0.0);
+    let c = clamp(canc, 0.0, max(total - 2.0 * params.misc.w, 0.0));
+    let canc_left = max(c - b.y, 0.0);
+    let cort_left = max(total - b.x - b.y - canc_left, 0.0);
+    // 60 keV optical depths (mm * per cm * 0.1).
+    let a_water = max(a.x - a.w, 0.0) * 0.1;
+    let a_bone = (params.mu.x * cort_left + params.mu.y * canc_left) * 0.1;
+    let a_iron = params.mu.z * steel * 0.1;
+    var a_iod = 0.0;
+    if (params.dims.w != 0u) {
+        let d = params.p00.xyz + f32(id.x) * params.step_u.xyz + f32(id.y) * params.step_v.xyz;
+        let len = length(d);
+        a_iod = params.mu.w * iodine_column(d / len, len) * 0.1;
+    }
+    let depth = vec4<f32>(a_water, a_bone, a_iod, a_iron);
+    var t = 0.0;
+    for (var k = 0u; k < params.dims.z; k++) {
+        t += bins[2u * k + 1u].x * exp2(-dot(depth, bins[2u * k]));
+    }
+    out_t[idx] = t;
+}
