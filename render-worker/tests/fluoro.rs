@@ -314,3 +314,82 @@ fn iodine_column_matches_the_exact_cpu_integral() {
     // meets a handful of the pool's jumps: 0.03 mm. The f32 ln-ratio adds ~1e-5 mm.
     assert!(worst < 0.03, "{worst}");
 }
+
+/// The lumbar phantom (procedural, 5 mm grid: about 184k triangles, a few seconds to build).
+///
+/// Two comparisons, because the phantom's structures come from disjoint masks meshed and
+/// decimated separately, so neighbours touch with sub-voxel gaps and overlaps, which the
+/// L-buffer's laminar nesting counts twice where the CPU's priority rule counts them once:
+/// 1. The GPU against the same linear rule evaluated on the CPU from sim-core's exact raw
+///    per-mesh chords (`Scene::ray_entry_chords`) and the renderer's nesting: this isolates the
+///    GPU implementation and must meet the issue's 0.1 mm / 0.5 % at every interior pixel.
+/// 2. The GPU against the CPU priority rule: reported, with the fraction of interior pixels
+///    within that tolerance asserted at the level measured when this test was written.
+#[test]
+fn lumbar_phantom_chords_match_the_cpu() {
+    let Some(ctx) = context_for_tests() else {
+        return;
+    };
+    use sim_core::anatomy::phantom::{self, PhantomParams};
+    let params = PhantomParams::with_voxel_mm(5.0);
+    let region = phantom::build(&params, &mut |_| {}).expect("phantom");
+    let mut scene = Scene::new();
+    for s in &region.structures {
+        scene.add(s.name.clone(), FluoroMaterial::Tissue(s.material), &s.mesh);
+    }
+    let mut gpu = GpuFluoroRenderer::new(&ctx, &scene).expect("renderer");
+    let p = Projection {
+        orbital_deg: 15.0,
+        isocentre_mm: [0.0, 0.0, -40.0],
+        detector_pixels: [192, 192],
+        pixel_pitch_mm: [300.0 / 192.0; 2],
+        ..Projection::default()
+    };
+    let (w, h) = (192usize, 192usize);
+    let g = gpu.render_chords(&p).expect("gpu chords");
+    let cpu = render_chords(&scene, &p, 0);
+    let interior = interior_pixels(&cpu, w, h);
+    assert!(interior.len() > w * h / 2);
+    let cort = FluoroMaterial::Tissue(MaterialClass::CorticalBone).index();
+    let canc = FluoroMaterial::Tissue(MaterialClass::Cancellous).index();
+    let (mut linear_worst, mut within, mut priority_errs) = (f64::NEG_INFINITY, 0usize, Vec::new());
+    for &q in &interior {
+        let ray = p.pixel_ray([(q % w) as f64 + 0.5, (q / w) as f64 + 0.5]);
+        let raw = scene.ray_entry_chords(ray.origin_mm, ray.dir, ray.detector_t_mm);
+        let mut lin = [0f64; CHANNELS];
+        for d in gpu.drawn() {
+            lin[d.effective.index()] += raw[d.entry];
+            if let Some(c) = d.container {
+                lin[c.index()] -= raw[d.entry];
+            }
+        }
+        let total = (lin[cort] + lin[canc]).max(0.0);
+        lin[canc] = lin[canc].clamp(0.0, (total - 2.0 * scene.cortical_shell_mm).max(0.0));
+        lin[cort] = total - lin[canc];
+        let mut ok = true;
+        for c in 0..CHANNELS {
+            let gq = f64::from(g[q][c]);
+            linear_worst = linear_worst.max((gq - lin[c]).abs() - chord_tolerance_mm(lin[c]));
+            let e = (gq - cpu[q].chords_mm[c]).abs();
+            priority_errs.push(e);
+            ok &= e <= chord_tolerance_mm(cpu[q].chords_mm[c]);
+        }
+        within += usize::from(ok);
+    }
+    priority_errs.sort_by(f64::total_cmp);
+    let n = priority_errs.len();
+    let frac = within as f64 / interior.len() as f64;
+    eprintln!(
+        "phantom: {} interior pixels; GPU vs linear rule worst excess {linear_worst:.2e} mm; \
+         GPU vs priority rule: median {:.1e} mm, p99 {:.2} mm, max {:.2} mm, {:.1} % of pixels within tolerance",
+        interior.len(),
+        priority_errs[n / 2],
+        priority_errs[n * 99 / 100],
+        priority_errs[n - 1],
+        100.0 * frac
+    );
+    assert!(linear_worst <= 0.0, "{linear_worst}");
+    // Measured when written: 86 % of interior pixels within tolerance on this 5 mm phantom and
+    // view (the rest see touching structures' overlaps); 80 % leaves slack for rounding only.
+    assert!(frac > 0.80, "{frac}");
+}

@@ -96,13 +96,18 @@ pub enum FluoroGpuError {
 /// `mu_60 x L` displaced by the needle), target B = (cortical displaced, cancellous displaced).
 const SLOTS: usize = 6;
 
-/// One anatomy mesh as the GPU sees it.
-#[derive(Debug, Clone)]
-struct MeshInfo {
+/// One anatomy mesh as the GPU draws it: its raw chord is added to `effective` and subtracted
+/// from `container` (see the module doc's "Nesting").
+#[derive(Debug, Clone, PartialEq)]
+pub struct DrawnMesh {
+    /// Index of the scene entry.
+    pub entry: usize,
+    /// Scene entry name.
+    pub name: String,
     /// Effective material of its interior (after nesting).
-    effective: FluoroMaterial,
+    pub effective: FluoroMaterial,
     /// Effective material of its direct container, if any.
-    container: Option<FluoroMaterial>,
+    pub container: Option<FluoroMaterial>,
     /// Box centre, mm (for the reference depth).
     centre_mm: [f64; 3],
 }
@@ -172,7 +177,7 @@ pub struct GpuTransmission {
 /// move every frame.
 pub struct GpuFluoroRenderer {
     ctx: GpuContext,
-    meshes: Vec<MeshInfo>,
+    meshes: Vec<DrawnMesh>,
     anatomy: Option<MeshBuffers>,
     needle: Option<(MeshBuffers, [f64; 3])>,
     needle_pipeline: wgpu::RenderPipeline,
@@ -392,7 +397,9 @@ impl GpuFluoroRenderer {
             let tris = entries[m].bvh.triangles_mm();
             let (lo, hi) = soup_box(tris);
             let id = meshes.len() as u32;
-            meshes.push(MeshInfo {
+            meshes.push(DrawnMesh {
+                entry: m,
+                name: entries[m].name.clone(),
                 effective: eff,
                 container: cont,
                 centre_mm: std::array::from_fn(|a| 0.5 * (lo[a] + hi[a])),
@@ -526,6 +533,11 @@ impl GpuFluoroRenderer {
     /// The adapter this renderer runs on.
     pub fn adapter_name(&self) -> &str {
         &self.ctx.summary.name
+    }
+
+    /// The drawn anatomy meshes with their nesting (what the L-buffer adds and subtracts).
+    pub fn drawn(&self) -> &[DrawnMesh] {
+        &self.meshes
     }
 
     /// Number of anatomy meshes drawn (meshes that add nothing after nesting are dropped).

@@ -1,0 +1,186 @@
+//! GPU fluoroscopy: frame time against error on the lumbar phantom (issue 4).
+//!
+//! For several phantom mesh resolutions (CT voxel size of the procedural phantom, which sets the
+//! marching-tetrahedra and decimation scale) it builds the scene once, uploads it, and prints:
+//! - the GPU time of a polychromatic (80 kVp) transmission frame at 512 x 512 and 1024 x 1024
+//!   (needle pass, L-buffer, resolve, read-back; mean of several frames after a warm-up), and of
+//!   the displayed 8-bit frame (plus sim-core's automatic brightness and log mapping on the CPU);
+//! - the error against the CPU reference on the same meshes (centre-sampled, so both sample the
+//!   same rays): median and p99 of |ln T_gpu - ln T_cpu| over pixels away from silhouette edges
+//!   (3 x 3 neighbourhood with one CPU hit signature), and the largest 8-bit grey difference there;
+//! - the mesh's own error: median |ln T| difference of the GPU frame against the CPU frame of the
+//!   finest mesh of the run (same pixels), i.e. what a coarser mesh costs in fidelity.
+//!
+//! `BENCH_QUICK=1`: two coarse meshes, GPU at both sizes, CPU reference at 512 x 512 only (under a
+//! minute on 2 cores in the dev profile). Without it: three meshes, CPU reference at both sizes.
+
+use std::time::Instant;
+
+use render_worker::fluoro::GpuFluoroRenderer;
+use render_worker::gpu::GpuContext;
+use sim_core::anatomy::phantom::{self, PhantomParams};
+use sim_core::fluoro::{
+    EnergyModel, FluoroMaterial, Projection, RenderSettings, Scene, render_chords,
+    render_transmission,
+};
+use sim_core::geom::{capped_cylinder, equal_area_vertex_radius};
+
+fn phantom_scene(voxel_mm: f64) -> (Scene, f64) {
+    let t = Instant::now();
+    let params = PhantomParams::with_voxel_mm(voxel_mm);
+    let region = phantom::build(&params, &mut |_| {}).expect("phantom builds");
+    let mut scene = Scene::new();
+    for s in &region.structures {
+        scene.add(s.name.clone(), FluoroMaterial::Tissue(s.material), &s.mesh);
+    }
+    // A 22 G needle from the skin of the left back towards the left L4 transforaminal target.
+    let target = phantom::landmark(&params, "L4_transforaminal_target_left")
+        .map_or([-30.0, 0.0, -40.0], |l| l.position_mm);
+    let entry = [target[0] - 60.0, target[1] - 90.0, target[2] + 10.0];
+    let r = equal_area_vertex_radius(0.36, 16);
+    scene.add(
+        "needle",
+        FluoroMaterial::Steel,
+        &capped_cylinder(entry, target, r, 16),
+    );
+    (scene, t.elapsed().as_secs_f64())
+}
+
+fn view(n: u32) -> Projection {
+    // AP, isocentre at L4 level, a 300 mm flat panel.
+    Projection {
+        isocentre_mm: [0.0, 0.0, -40.0],
+        detector_pixels: [n, n],
+        pixel_pitch_mm: [300.0 / f64::from(n); 2],
+        ..Projection::default()
+    }
+}
+
+fn percentile(mut v: Vec<f64>, q: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+fn main() {
+    let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
+    let ctx = match GpuContext::new_headless() {
+        Ok(c) => c,
+        Err(e) => {
+            println!("no GPU adapter, benchmark skipped: {e}");
+            return;
+        }
+    };
+    let voxels: &[f64] = if quick { &[5.0, 3.5] } else { &[5.0, 3.0, 2.0] };
+    let cpu_sizes: &[u32] = if quick { &[512] } else { &[512, 1024] };
+    let frames = if quick { 3 } else { 10 };
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    println!(
+        "GPU fluoroscopy, lumbar phantom + 22 G needle, 80 kVp, adapter: {} ({}, {}), {threads} CPU threads",
+        ctx.summary.name, ctx.summary.backend, ctx.summary.device_type
+    );
+    println!();
+    println!(
+        "| phantom voxel (mm) | triangles | image | GPU T (ms) | GPU 8-bit frame (ms) | CPU T (ms) | median / p99 abs. ln T err vs CPU | max grey diff | interior px | median abs. ln T err vs finest mesh |"
+    );
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let energy = EnergyModel::Spectral { kvp: 80 };
+    let settings = RenderSettings {
+        energy,
+        supersample: 1,
+        ..RenderSettings::default()
+    };
+    // The finest mesh's CPU ln T per image size (filled by the last, finest voxel size first).
+    let mut finest: std::collections::HashMap<u32, Vec<f64>> = Default::default();
+    let mut rows = Vec::new();
+    for &voxel in voxels.iter().rev() {
+        let (scene, build_s) = phantom_scene(voxel);
+        let tris = scene.triangle_count();
+        let t = Instant::now();
+        let mut gpu = GpuFluoroRenderer::new(&ctx, &scene).expect("renderer");
+        eprintln!(
+            "voxel {voxel} mm: {tris} triangles, phantom build {build_s:.1} s, upload {:.2} s",
+            t.elapsed().as_secs_f64()
+        );
+        for n in [512u32, 1024] {
+            let p = view(n);
+            let _ = gpu
+                .render_transmission(&p, &energy, None)
+                .expect("gpu frame");
+            let t = Instant::now();
+            let mut g = None;
+            for _ in 0..frames {
+                g = Some(
+                    gpu.render_transmission(&p, &energy, None)
+                        .expect("gpu frame"),
+                );
+            }
+            let gpu_ms = t.elapsed().as_secs_f64() * 1e3 / frames as f64;
+            let g = g.expect("frames > 0");
+            let t = Instant::now();
+            for _ in 0..frames {
+                let _ = gpu.render_frame(&p, &settings, None).expect("gpu frame");
+            }
+            let frame_ms = t.elapsed().as_secs_f64() * 1e3 / frames as f64;
+            let gpu_img = gpu.render_frame(&p, &settings, None).expect("gpu frame");
+            let (mut cpu_ms, mut vs_cpu, mut grey, mut interior_n, mut vs_finest) = (
+                f64::NAN,
+                String::from("-"),
+                String::from("-"),
+                0usize,
+                String::from("-"),
+            );
+            if cpu_sizes.contains(&n) {
+                let [w, h] = p.detector_pixels.map(|x| x as usize);
+                let t = Instant::now();
+                let cpu = render_transmission(&scene, None, &p, &settings).expect("cpu");
+                cpu_ms = t.elapsed().as_secs_f64() * 1e3;
+                let cpu_img =
+                    sim_core::fluoro::render_frame(&scene, None, &p, &settings).expect("cpu");
+                let sig = render_chords(&scene, &p, 0);
+                let interior: Vec<usize> = (0..w * h)
+                    .filter(|&q| {
+                        let (i, j) = (q % w, q / w);
+                        (j.saturating_sub(1)..(j + 2).min(h)).all(|jj| {
+                            (i.saturating_sub(1)..(i + 2).min(w))
+                                .all(|ii| sig[jj * w + ii].signature == sig[q].signature)
+                        })
+                    })
+                    .collect();
+                interior_n = interior.len();
+                let ln = |x: f64| x.max(1e-30).ln();
+                let errs: Vec<f64> = interior
+                    .iter()
+                    .map(|&q| (ln(f64::from(g.transmission[q])) - ln(cpu.transmission[q])).abs())
+                    .collect();
+                vs_cpu = format!(
+                    "{:.1e} / {:.1e}",
+                    percentile(errs.clone(), 0.5),
+                    percentile(errs, 0.99)
+                );
+                grey = interior
+                    .iter()
+                    .map(|&q| (i32::from(gpu_img.pixels[q]) - i32::from(cpu_img.pixels[q])).abs())
+                    .max()
+                    .unwrap_or(0)
+                    .to_string();
+                let cpu_ln: Vec<f64> = cpu.transmission.iter().map(|&x| ln(x)).collect();
+                let reference = finest.entry(n).or_insert_with(|| cpu_ln.clone());
+                let e: Vec<f64> = interior
+                    .iter()
+                    .map(|&q| (ln(f64::from(g.transmission[q])) - reference[q]).abs())
+                    .collect();
+                vs_finest = format!("{:.1e}", percentile(e, 0.5));
+            }
+            rows.push(format!(
+                "| {voxel} | {tris} | {n} x {n} | {gpu_ms:.1} | {frame_ms:.1} | {cpu_ms:.0} | {vs_cpu} | {grey} | {interior_n} | {vs_finest} |"
+            ));
+            eprintln!("{}", rows.last().expect("row"));
+        }
+    }
+    for r in rows {
+        println!("{r}");
+    }
+}
