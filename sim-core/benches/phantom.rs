@@ -73,13 +73,22 @@ fn main() {
             .structures
             .iter()
             .filter(|s| s.mask_volume_mm3 >= 5000.0)
-            .map(|s| (s.mesh.signed_volume_mm3() - s.mask_volume_mm3).abs() / s.mask_volume_mm3)
-            .fold(0.0f64, f64::max);
+            .map(|s| {
+                (
+                    (s.mesh.signed_volume_mm3() - s.mask_volume_mm3).abs() / s.mask_volume_mm3,
+                    s.name.clone(),
+                )
+            })
+            .fold(
+                (0.0f64, String::new()),
+                |a, b| if b.0 > a.0 { b } else { a },
+            );
         println!(
-            "| {voxel} | {:?} | {t_vox:.2} | {t_build:.2} | {cpu} | {} | {tris} | {:.2} % |",
+            "| {voxel} | {:?} | {t_vox:.2} | {t_build:.2} | {cpu} | {} | {tris} | {:.2} % ({}) |",
             params.grid().dims,
             region.structures.len(),
-            100.0 * worst
+            100.0 * worst.0,
+            worst.1
         );
     }
 }
