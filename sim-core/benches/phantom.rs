@@ -38,9 +38,9 @@ fn main() {
     );
     println!();
     println!(
-        "| voxel mm | grid | voxelize s | build s (wall) | build CPU s | structures | triangles | worst mesh/mask volume error (>= 5 ml) |"
+        "| voxel mm | grid | voxelize s | build s (wall) | build CPU s | write s | cache-hit load s | structures | triangles | worst mesh/mask volume error (>= 5 ml) |"
     );
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
     for &voxel in sizes {
         let params = PhantomParams::with_voxel_mm(voxel);
         let t0 = Instant::now();
@@ -53,7 +53,7 @@ fn main() {
             Ok(r) => r,
             Err(e) => {
                 println!(
-                    "| {voxel} | {:?} | {t_vox:.2} | failed: {e} | | | | |",
+                    "| {voxel} | {:?} | {t_vox:.2} | failed: {e} | | | | | | |",
                     params.grid().dims
                 );
                 continue;
@@ -63,6 +63,23 @@ fn main() {
         let cpu = match (c1, cpu_seconds()) {
             (Some(a), Some(b)) => format!("{:.1}", b - a),
             _ => "n/a".to_string(),
+        };
+        // Writing the region folder, then what a cache hit costs: reading it back with every
+        // file's SHA-256 verified.
+        let dir = tempfile::tempdir().expect("temporary folder");
+        let t2 = Instant::now();
+        region
+            .write_to(&dir.path().join("lumbar-phantom"))
+            .expect("write region");
+        let t_write = t2.elapsed().as_secs_f64();
+        let t3 = Instant::now();
+        let t_load = match phantom::ensure_built_with(
+            &dir.path().join("lumbar-phantom"),
+            &params,
+            &mut |_| {},
+        ) {
+            Ok(_) => format!("{:.2}", t3.elapsed().as_secs_f64()),
+            Err(e) => format!("failed: {e}"),
         };
         let tris: usize = region
             .structures
@@ -84,7 +101,7 @@ fn main() {
                 |a, b| if b.0 > a.0 { b } else { a },
             );
         println!(
-            "| {voxel} | {:?} | {t_vox:.2} | {t_build:.2} | {cpu} | {} | {tris} | {:.2} % ({}) |",
+            "| {voxel} | {:?} | {t_vox:.2} | {t_build:.2} | {cpu} | {t_write:.2} | {t_load} | {} | {tris} | {:.2} % ({}) |",
             params.grid().dims,
             region.structures.len(),
             100.0 * worst.0,
