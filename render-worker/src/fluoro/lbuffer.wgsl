@@ -11,11 +11,13 @@ struct View {
     source: vec4<f32>,
     // (columns, rows, needle reference depth mm, unused).
     size: vec4<f32>,
+    // Pixel box (x0, y0, x1, y1) holding the needle's projection; fragments outside it skip the
+    // needle-hull lookup.
+    needle_box: vec4<f32>,
 }
 
 @group(0) @binding(0) var<uniform> view: View;
-// Per mesh, 5 vec4: geometric weights (slots 0-3, 4-5), displaced weights (slots 0-3, 4-5),
-// (reference depth mm, 0, 0, 0).
+// Per mesh, 3 vec4: geometric weights, displaced weights, (reference depth mm, 0, 0, 0).
 @group(0) @binding(1) var<storage, read> weights: array<vec4<f32>>;
 // Needle hull per pixel: (nearest entering distance, -farthest leaving distance), mm.
 @group(0) @binding(2) var needle_hull: texture_2d<f32>;
@@ -28,11 +30,13 @@ struct VOut {
     // Vertex minus source, mm (perspective-correct: at a fragment it is the point of the
     // triangle on the pixel's ray).
     @location(0) rel: vec3<f32>,
-    @location(1) @interpolate(flat) mesh: u32,
+    // The mesh's weights and reference depth, constant over the triangle.
+    @location(1) @interpolate(flat) g: vec4<f32>,
+    @location(2) @interpolate(flat) d: vec4<f32>,
+    @location(3) @interpolate(flat) tref: f32,
 }
 
-@vertex
-fn vs(@location(0) pos: vec3<f32>, @location(1) mesh: u32) -> VOut {
+fn project(pos: vec3<f32>) -> VOut {
     let rel = pos - view.source.xyz;
     let px_w = dot(view.row_x.xyz, rel);
     let py_w = dot(view.row_y.xyz, rel);
@@ -41,32 +45,42 @@ fn vs(@location(0) pos: vec3<f32>, @location(1) mesh: u32) -> VOut {
     // Continuous pixel coordinates [0, W] x [0, H] (y down) to clip space (y up).
     o.clip = vec4<f32>(2.0 * px_w / view.size.x - w, w - 2.0 * py_w / view.size.y, 0.5 * w, w);
     o.rel = rel;
-    o.mesh = mesh;
     return o;
 }
 
-struct AnatomyOut {
-    @location(0) a: vec4<f32>,
-    @location(1) b: vec2<f32>,
+@vertex
+fn vs_anatomy(@location(0) pos: vec3<f32>, @location(1) mesh: u32) -> VOut {
+    var o = project(pos);
+    o.g = weights[3u * mesh];
+    o.d = weights[3u * mesh + 1u];
+    o.tref = weights[3u * mesh + 2u].x;
+    return o;
+}
+
+@vertex
+fn vs_needle(@location(0) pos: vec3<f32>, @location(1) mesh: u32) -> VOut {
+    var o = project(pos);
+    o.g = vec4<f32>(0.0);
+    o.d = vec4<f32>(0.0);
+    o.tref = view.size.z;
+    return o;
 }
 
 @fragment
-fn fs_anatomy(v: VOut, @builtin(front_facing) entering: bool) -> AnatomyOut {
+fn fs_anatomy(v: VOut, @builtin(front_facing) entering: bool) -> @location(0) vec4<f32> {
     let t = length(v.rel);
-    let base = v.mesh * 5u;
-    let tref = weights[base + 4u].x;
     let s = select(1.0, -1.0, entering);
-    let tg = s * (t - tref);
-    let hull = textureLoad(needle_hull, vec2<i32>(v.clip.xy), 0).xy;
-    let t0 = hull.x;
-    let t1 = -hull.y;
-    // Signed part of this crossing inside the needle's [t0, t1]: summed over a closed mesh it is
-    // the length of the mesh's interior the needle occupies along this ray.
-    let td = select(0.0, s * (min(max(t, t0), t1) - t0), t1 > t0);
-    var o: AnatomyOut;
-    o.a = weights[base] * tg + weights[base + 2u] * td;
-    o.b = (weights[base + 1u] * tg + weights[base + 3u] * td).xy;
-    return o;
+    var td = 0.0;
+    let b = view.needle_box;
+    if (v.clip.x >= b.x && v.clip.x <= b.z && v.clip.y >= b.y && v.clip.y <= b.w) {
+        let hull = textureLoad(needle_hull, vec2<i32>(v.clip.xy), 0).xy;
+        let t0 = hull.x;
+        let t1 = -hull.y;
+        // Signed part of this crossing inside the needle's [t0, t1]: summed over a closed mesh
+        // it is the length of the mesh's interior the needle occupies along this ray.
+        td = select(0.0, s * (min(max(t, t0), t1) - t0), t1 > t0);
+    }
+    return v.g * (s * (t - v.tref)) + v.d * td;
 }
 
 struct NeedleOut {
@@ -81,6 +95,6 @@ fn fs_needle(v: VOut, @builtin(front_facing) entering: bool) -> NeedleOut {
     let t = length(v.rel);
     var o: NeedleOut;
     o.hull = select(vec2<f32>(NO_NEEDLE, -t), vec2<f32>(t, NO_NEEDLE), entering);
-    o.chord = select(1.0, -1.0, entering) * (t - view.size.z);
+    o.chord = select(1.0, -1.0, entering) * (t - v.tref);
     return o;
 }

@@ -21,16 +21,21 @@ struct Params {
     iod_origin: vec4<f32>,
     iod_inv_spacing: vec4<f32>,
     iod_dims: vec4<u32>,
+    // ln T table over (A_water, A_bone): 1 / step per axis; (columns, rows, enabled, 0).
+    lut_scale: vec4<f32>,
+    lut_dims: vec4<u32>,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var lbuf_a: texture_2d<f32>;
-@group(0) @binding(2) var lbuf_b: texture_2d<f32>;
-@group(0) @binding(3) var needle_chord: texture_2d<f32>;
+// (water-basis mu_60 L, bone-basis mu_60 L, cortical L, cancellous L), mm / cm.
+@group(0) @binding(1) var lbuf: texture_2d<f32>;
+@group(0) @binding(2) var needle_chord: texture_2d<f32>;
 // Per bin: (R_water, R_bone, R_iodine, R_iron) * log2(e), then (w_E, 0, 0, 0).
-@group(0) @binding(4) var<storage, read> bins: array<vec4<f32>>;
-@group(0) @binding(5) var iodine: texture_3d<f32>;
-@group(0) @binding(6) var<storage, read_write> out_t: array<f32>;
+@group(0) @binding(3) var<storage, read> bins: array<vec4<f32>>;
+@group(0) @binding(4) var iodine: texture_3d<f32>;
+@group(0) @binding(5) var<storage, read_write> out_t: array<f32>;
+// ln T on a grid of (A_water, A_bone), row-major with A_water fastest.
+@group(0) @binding(6) var<storage, read> lut: array<f32>;
 
 fn voxel(c: vec3<i32>) -> f32 {
     return textureLoad(iodine, c, 0).x;
@@ -110,25 +115,36 @@ fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
         out_t[idx] = 0.0;
         return;
     }
-    let a = textureLoad(lbuf_a, p, 0);
-    let b = textureLoad(lbuf_b, p, 0).xy;
+    let a = textureLoad(lbuf, p, 0);
     let steel = max(textureLoad(needle_chord, p, 0).x, 0.0);
-    // Bone within the run (the clamp is applied to the pixel's total; see the module doc).
-    let cort = a.y;
-    let canc = a.z;
-    let total = max(cort + canc, 0.0);
-    let c = clamp(canc, 0.0, max(total - 2.0 * params.misc.w, 0.0));
-    let canc_left = max(c - b.y, 0.0);
-    let cort_left = max(total - b.x - b.y - canc_left, 0.0);
+    // Cancellous clamp on the pixel's bone total (see the module doc); the excess becomes cortex.
+    let total = max(a.z + a.w, 0.0);
+    let c = clamp(a.w, 0.0, max(total - 2.0 * params.misc.w, 0.0));
     // 60 keV optical depths (mm * per cm * 0.1).
-    let a_water = max(a.x - a.w, 0.0) * 0.1;
-    let a_bone = (params.mu.x * cort_left + params.mu.y * canc_left) * 0.1;
+    let a_water = max(a.x, 0.0) * 0.1;
+    let a_bone = max(a.y + (params.mu.x - params.mu.y) * (a.w - c), 0.0) * 0.1;
     let a_iron = params.mu.z * steel * 0.1;
     var a_iod = 0.0;
     if (params.dims.w != 0u) {
         let d = params.p00.xyz + f32(id.x) * params.step_u.xyz + f32(id.y) * params.step_v.xyz;
         let len = length(d);
         a_iod = params.mu.w * iodine_column(d / len, len) * 0.1;
+    }
+    // Without steel or iodine, T depends on (A_water, A_bone) only: bilinear in the ln T table.
+    let u = a_water * params.lut_scale.x;
+    let v = a_bone * params.lut_scale.y;
+    let nw = params.lut_dims.x;
+    let nb = params.lut_dims.y;
+    if (params.lut_dims.z != 0u && a_iron == 0.0 && a_iod == 0.0 && u < f32(nw - 1u) && v < f32(nb - 1u)) {
+        let i = u32(u);
+        let j = u32(v);
+        let fu = u - f32(i);
+        let fv = v - f32(j);
+        let k = j * nw + i;
+        let l0 = mix(lut[k], lut[k + 1u], fu);
+        let l1 = mix(lut[k + nw], lut[k + nw + 1u], fu);
+        out_t[idx] = exp(mix(l0, l1, fv));
+        return;
     }
     let depth = vec4<f32>(a_water, a_bone, a_iod, a_iron);
     var t = 0.0;
