@@ -39,6 +39,8 @@ pub struct Config {
     pub web_dir: PathBuf,
     /// Largest accepted request body in bytes.
     pub max_body_bytes: usize,
+    /// Learning-records settings (sessions, passwords, TOTP, stations); see `records::config`.
+    pub records: crate::records::RecordsConfig,
 }
 
 impl Config {
@@ -69,6 +71,7 @@ impl Config {
                 .map(PathBuf::from)
                 .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../web-client"))),
             max_body_bytes,
+            records: crate::records::RecordsConfig::from_lookup(&lookup)?,
         })
     }
 }

@@ -18,6 +18,12 @@ pub enum ApiError {
     /// No valid session (401).
     #[error("authentication required")]
     Unauthorized,
+    /// Wrong credentials at login (401).
+    #[error("{0}")]
+    InvalidCredentials(String),
+    /// The password was right but the account needs a TOTP code (401).
+    #[error("this account needs a TOTP code: send `totp_code` with the login")]
+    TotpRequired,
     /// Authenticated but not allowed (403).
     #[error("{0}")]
     Forbidden(String),
@@ -61,6 +67,8 @@ impl ApiError {
         match self {
             ApiError::BadRequest(_) => (StatusCode::BAD_REQUEST, "bad_request"),
             ApiError::Unauthorized => (StatusCode::UNAUTHORIZED, "unauthorized"),
+            ApiError::InvalidCredentials(_) => (StatusCode::UNAUTHORIZED, "invalid_credentials"),
+            ApiError::TotpRequired => (StatusCode::UNAUTHORIZED, "totp_required"),
             ApiError::Forbidden(_) => (StatusCode::FORBIDDEN, "forbidden"),
             ApiError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
             ApiError::Conflict(_) => (StatusCode::CONFLICT, "conflict"),
@@ -86,6 +94,14 @@ impl IntoResponse for ApiError {
             }
             other => other.to_string(),
         };
-        (status, Json(ErrorBody { error: ErrorDetail { code, message } })).into_response()
+        let retry_after = match &self {
+            ApiError::TooManyRequests(s) => Some(*s),
+            _ => None,
+        };
+        let mut resp = (status, Json(ErrorBody { error: ErrorDetail { code, message } })).into_response();
+        if let Some(s) = retry_after {
+            resp.headers_mut().insert(axum::http::header::RETRY_AFTER, axum::http::HeaderValue::from(s));
+        }
+        resp
     }
 }

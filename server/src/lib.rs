@@ -11,6 +11,7 @@ pub mod config;
 pub mod db;
 pub mod embedded_pg;
 pub mod error;
+pub mod records;
 pub mod routes;
 pub mod startup;
 pub mod telemetry;
@@ -44,6 +45,7 @@ pub fn app(state: AppState) -> Router {
     let web = ServeDir::new(&state.config.web_dir).fallback(ServeFile::new(state.config.web_dir.join("index.html")));
     Router::new()
         .route("/healthz", get(routes::health::healthz))
+        .merge(records::router(records::RecordsState::from_parts(state.pool.clone(), state.config.records.clone())).0)
         .fallback_service(web)
         .layer(axum::extract::DefaultBodyLimit::max(state.config.max_body_bytes))
         .layer(TraceLayer::new_for_http())

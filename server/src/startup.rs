@@ -72,11 +72,17 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
     let listener = TcpListener::bind(config.bind).await.with_context(|| format!("binding {}", config.bind))?;
     let workers = Workers::start_in_process();
     let Database { pool, cluster } = open_database(&config).await?;
+    let demo_notice = crate::records::prepare(&pool, &config.records, cluster.is_some()).await?;
     let state = AppState { pool: pool.clone(), embedded_db: cluster.is_some(), workers, config: config.clone() };
     let addr = listener.local_addr()?;
     tracing::info!(web = %show_path(&config.web_dir), "serving the web client");
     println!("pain-sim is running at http://{addr}/  (health: http://{addr}/healthz)");
-    let served = axum::serve(listener, app(state)).with_graceful_shutdown(shutdown_signal()).await;
+    if let Some(notice) = demo_notice {
+        // After the URL line (which tools read first); a closed stdout must not stop the server.
+        use std::io::Write;
+        let _ = writeln!(std::io::stdout().lock(), "{notice}");
+    }
+    let served = axum::serve(listener, app(state).into_make_service_with_connect_info::<std::net::SocketAddr>()).with_graceful_shutdown(shutdown_signal()).await;
     tracing::info!("shutting down");
     pool.close().await;
     if let Some(c) = cluster {

@@ -3,3 +3,9 @@
 mod embedded;
 mod health;
 mod process;
+mod records_approval;
+mod records_auth;
+mod records_authz;
+mod records_bad_input;
+mod records_sigkill;
+mod records_support;
