@@ -14,6 +14,12 @@ struct View {
     // Pixel box (x0, y0, x1, y1) holding the needle's projection; fragments outside it skip the
     // needle-hull lookup.
     needle_box: vec4<f32>,
+    // Ray generator relative to the source (mm): pixel (0, 0) centre, per-column, per-row step.
+    p00: vec4<f32>,
+    step_u: vec4<f32>,
+    step_v: vec4<f32>,
+    // Rendered region: (first pixel column, first row, 1 / samples per pixel axis, 0).
+    region: vec4<f32>,
 }
 
 @group(0) @binding(0) var<uniform> view: View;
@@ -34,9 +40,12 @@ struct VOut {
     @location(1) @interpolate(flat) g: vec4<f32>,
     @location(2) @interpolate(flat) d: vec4<f32>,
     @location(3) @interpolate(flat) tref: f32,
+    // The triangle's outward unit normal and its plane's distance from the source.
+    @location(4) @interpolate(flat) n: vec3<f32>,
+    @location(5) @interpolate(flat) h: f32,
 }
 
-fn project(pos: vec3<f32>) -> VOut {
+fn project(pos: vec3<f32>, n: vec3<f32>) -> VOut {
     let rel = pos - view.source.xyz;
     let px_w = dot(view.row_x.xyz, rel);
     let py_w = dot(view.row_y.xyz, rel);
@@ -45,12 +54,41 @@ fn project(pos: vec3<f32>) -> VOut {
     // Continuous pixel coordinates [0, W] x [0, H] (y down) to clip space (y up).
     o.clip = vec4<f32>(2.0 * px_w / view.size.x - w, w - 2.0 * py_w / view.size.y, 0.5 * w, w);
     o.rel = rel;
+    o.n = n;
+    o.h = dot(n, rel);
     return o;
 }
 
+struct Crossing {
+    t: f32,
+    entering: bool,
+}
+
+// Distance from the source along the fragment's exact pixel ray to the triangle's plane, and
+// whether the ray enters the mesh there (against the outward normal). Interpolated positions
+// lose precision on long, thin triangles seen edge-on (a needle's sides); the plane does not.
+// Degenerate triangles (zero normal) fall back to the interpolated point and the rasteriser's
+// facing.
+fn crossing(v: VOut, front: bool) -> Crossing {
+    let px = view.region.x + v.clip.x * view.region.z;
+    let py = view.region.y + v.clip.y * view.region.z;
+    let d = view.p00.xyz + (px - 0.5) * view.step_u.xyz + (py - 0.5) * view.step_v.xyz;
+    let len = length(d);
+    let dn = dot(v.n, d);
+    var c: Crossing;
+    if (abs(dn) > 1e-4 * len) {
+        c.t = v.h * len / dn;
+        c.entering = dn < 0.0;
+    } else {
+        c.t = length(v.rel);
+        c.entering = front;
+    }
+    return c;
+}
+
 @vertex
-fn vs_anatomy(@location(0) pos: vec3<f32>, @location(1) mesh: u32) -> VOut {
-    var o = project(pos);
+fn vs_anatomy(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2) n: vec3<f32>) -> VOut {
+    var o = project(pos, n);
     o.g = weights[3u * mesh];
     o.d = weights[3u * mesh + 1u];
     o.tref = weights[3u * mesh + 2u].x;
@@ -58,8 +96,8 @@ fn vs_anatomy(@location(0) pos: vec3<f32>, @location(1) mesh: u32) -> VOut {
 }
 
 @vertex
-fn vs_needle(@location(0) pos: vec3<f32>, @location(1) mesh: u32) -> VOut {
-    var o = project(pos);
+fn vs_needle(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2) n: vec3<f32>) -> VOut {
+    var o = project(pos, n);
     o.g = vec4<f32>(0.0);
     o.d = vec4<f32>(0.0);
     o.tref = view.size.z;
@@ -67,9 +105,10 @@ fn vs_needle(@location(0) pos: vec3<f32>, @location(1) mesh: u32) -> VOut {
 }
 
 @fragment
-fn fs_anatomy(v: VOut, @builtin(front_facing) entering: bool) -> @location(0) vec4<f32> {
-    let t = length(v.rel);
-    let s = select(1.0, -1.0, entering);
+fn fs_anatomy(v: VOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
+    let c = crossing(v, front);
+    let t = c.t;
+    let s = select(1.0, -1.0, c.entering);
     var td = 0.0;
     let b = view.needle_box;
     if (v.clip.x >= b.x && v.clip.x <= b.z && v.clip.y >= b.y && v.clip.y <= b.w) {
@@ -91,10 +130,11 @@ struct NeedleOut {
 }
 
 @fragment
-fn fs_needle(v: VOut, @builtin(front_facing) entering: bool) -> NeedleOut {
-    let t = length(v.rel);
+fn fs_needle(v: VOut, @builtin(front_facing) front: bool) -> NeedleOut {
+    let c = crossing(v, front);
+    let t = c.t;
     var o: NeedleOut;
-    o.hull = select(vec2<f32>(NO_NEEDLE, -t), vec2<f32>(t, NO_NEEDLE), entering);
-    o.chord = select(1.0, -1.0, entering) * (t - v.tref);
+    o.hull = select(vec2<f32>(NO_NEEDLE, -t), vec2<f32>(t, NO_NEEDLE), c.entering);
+    o.chord = select(1.0, -1.0, c.entering) * (t - v.tref);
     return o;
 }

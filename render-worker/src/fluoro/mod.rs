@@ -27,9 +27,11 @@
 //! [`GpuFluoroRenderer::render_chords`] (validation) uses the same passes with per-material
 //! channels, four L-buffer passes, resolved on the CPU.
 //!
-//! `t` is the exact distance along the ray: the fragment's perspective-correct interpolation of
-//! `vertex - source` is the point of the triangle's plane on the pixel-centre ray, and `t` is its
-//! length (f32; about `1e-4` mm at 1 m).
+//! `t` is the exact distance along the ray: the fragment's pixel ray (from sim-core's
+//! [`Projection::gpu_ray_frame`]) meets the triangle's plane (outward unit normal from an f64
+//! cross product, passed flat) at `t = n.(v - s) |d| / n.d`, in f32 (about `1e-4` mm at 1 m), and
+//! the sign of `n.d` says entering or leaving. (Interpolating `vertex - source` instead lost
+//! 0.02 mm on the needle's long, thin side triangles seen nearly edge-on.)
 //!
 //! # Nesting
 //! The CPU assigns each point of a ray to the highest-priority mesh containing it. An L-buffer
@@ -57,10 +59,12 @@
 //! ray through the needle (`render_chords` follows the CPU's order exactly).
 //!
 //! # Differences from the CPU frame
-//! - Sampling: one ray per pixel centre. The CPU supersamples silhouette pixels and pixels near
-//!   a projected needle edge (`RenderSettings::supersample`); the GPU does not yet, so at those
-//!   pixels the GPU image is the centre sample (the 0.72 mm needle, 2.5 pixels wide at the
-//!   isocentre on a 512 x 512, 300 mm detector, keeps its width but aliases by up to a pixel).
+//! - Sampling: [`GpuFluoroRenderer::render_frame`] supersamples the pixels within 1.5 pixels of
+//!   the needle's projected edges exactly as the CPU (same flags, same `n x n` positions; a second
+//!   set of passes over their bounding box at `n` times the resolution). The CPU also supersamples
+//!   anatomy silhouettes (pixels whose neighbours' rays cross other meshes); the GPU takes their
+//!   centre sample. `render_transmission` and `render_chords` sample pixel centres only, like
+//!   sim-core's `render_chords`.
 //! - Iodine: midpoint rule with steps of at most [`GpuFluoroRenderer::iodine_step_fraction`]
 //!   voxels (the CPU integrates the trilinear field exactly).
 //! - Display (automatic brightness, noise, log mapping, shutters) runs on the CPU with
@@ -126,6 +130,31 @@ pub struct DrawnMesh {
 struct Vertex {
     pos: [f32; 3],
     mesh: u32,
+    /// Outward unit normal of the vertex's triangle (f64 cross product; zero if degenerate).
+    normal: [f32; 3],
+    pad: u32,
+}
+
+/// The three vertices of a triangle with its unit normal.
+fn triangle_vertices(t: &[[f64; 3]; 3], mesh: u32) -> [Vertex; 3] {
+    let (e1, e2) = (sub3(t[1], t[0]), sub3(t[2], t[0]));
+    let c = [
+        e1[1] * e2[2] - e1[2] * e2[1],
+        e1[2] * e2[0] - e1[0] * e2[2],
+        e1[0] * e2[1] - e1[1] * e2[0],
+    ];
+    let len = norm3(c);
+    let normal = if len > 0.0 {
+        c.map(|x| (x / len) as f32)
+    } else {
+        [0.0; 3]
+    };
+    t.map(|v| Vertex {
+        pos: v.map(|x| x as f32),
+        mesh,
+        normal,
+        pad: 0,
+    })
 }
 
 #[repr(C)]
@@ -137,6 +166,10 @@ struct ViewUniform {
     source: [f32; 4],
     size: [f32; 4],
     needle_box: [f32; 4],
+    p00: [f32; 4],
+    step_u: [f32; 4],
+    step_v: [f32; 4],
+    region: [f32; 4],
 }
 
 #[repr(C)]
@@ -154,6 +187,8 @@ struct ResolveUniform {
     iod_inv_spacing: [f32; 4],
     iod_dims: [u32; 4],
     lut_scale: [f32; 4],
+    region: [f32; 4],
+    full: [u32; 4],
     lut_dims: [u32; 4],
 }
 
@@ -176,6 +211,32 @@ struct Targets {
     hull: wgpu::Texture,
     chord: wgpu::Texture,
     out_t: wgpu::Buffer,
+}
+
+/// A rectangle of the detector sampled `n x n` per pixel: sample `(i, j)` of the region lies at
+/// continuous pixel coordinates `origin + ((i, j) + 0.5) / n` (the CPU's stratified sub-pixel
+/// positions). The full image is `origin 0, n 1`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Region {
+    origin: [u32; 2],
+    n: u32,
+    /// Samples per axis (pixels x n).
+    size: [u32; 2],
+}
+
+impl Region {
+    fn full(p: &Projection) -> Region {
+        Region {
+            origin: [0, 0],
+            n: 1,
+            size: p.detector_pixels,
+        }
+    }
+
+    /// Which set of targets and uniforms it uses.
+    fn index(&self) -> usize {
+        usize::from(self.n > 1)
+    }
 }
 
 /// Spectral bins and the `ln T` table of one energy model, kept until the model changes.
@@ -214,11 +275,12 @@ pub struct GpuFluoroRenderer {
     needle_pipeline: wgpu::RenderPipeline,
     anatomy_pipeline: wgpu::RenderPipeline,
     resolve_pipeline: wgpu::ComputePipeline,
-    view_buf: wgpu::Buffer,
-    resolve_buf: wgpu::Buffer,
+    /// Uniforms of the full image (0) and of the supersampled needle region (1).
+    view_buf: [wgpu::Buffer; 2],
+    resolve_buf: [wgpu::Buffer; 2],
     weights_buf: wgpu::Buffer,
     empty_iodine: wgpu::Texture,
-    targets: Option<Targets>,
+    targets: [Option<Targets>; 2],
     spectral: Option<SpectralTables>,
     cortical_shell_mm: f64,
     /// Iodine ray-march step as a fraction of the smallest voxel spacing (default 0.25).
@@ -446,10 +508,7 @@ impl GpuFluoroRenderer {
                 container: cont,
                 centre_mm: std::array::from_fn(|a| 0.5 * (lo[a] + hi[a])),
             });
-            vertices.extend(tris.iter().flatten().map(|v| Vertex {
-                pos: v.map(|x| x as f32),
-                mesh: id,
-            }));
+            vertices.extend(tris.iter().flat_map(|t| triangle_vertices(t, id)));
         }
         let anatomy_bufs = (!vertices.is_empty()).then(|| upload(device, &vertices));
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -463,7 +522,7 @@ impl GpuFluoroRenderer {
         let vertex_layout = wgpu::VertexBufferLayout {
             array_stride: std::mem::size_of::<Vertex>() as u64,
             step_mode: wgpu::VertexStepMode::Vertex,
-            attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32],
+            attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32, 2 => Float32x3],
         };
         let raster =
             |label: &str, vs: &str, fs: &str, targets: &[Option<wgpu::ColorTargetState>]| {
@@ -528,8 +587,9 @@ impl GpuFluoroRenderer {
                 mapped_at_creation: false,
             })
         };
-        let view_buf = uniform("fluoro view", std::mem::size_of::<ViewUniform>());
-        let resolve_buf = uniform("fluoro resolve", std::mem::size_of::<ResolveUniform>());
+        let view_buf = [0, 1].map(|_| uniform("fluoro view", std::mem::size_of::<ViewUniform>()));
+        let resolve_buf =
+            [0, 1].map(|_| uniform("fluoro resolve", std::mem::size_of::<ResolveUniform>()));
         let weights_buf = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("fluoro weights"),
             size: (meshes.len().max(1) * 3 * 16) as u64,
@@ -549,7 +609,7 @@ impl GpuFluoroRenderer {
             resolve_buf,
             weights_buf,
             empty_iodine,
-            targets: None,
+            targets: [None, None],
             spectral: None,
             cortical_shell_mm: scene.cortical_shell_mm,
             iodine_step_fraction: 0.25,
@@ -612,14 +672,7 @@ impl GpuFluoroRenderer {
             return;
         }
         let (lo, hi) = soup_box(tris);
-        let vertices: Vec<Vertex> = tris
-            .iter()
-            .flatten()
-            .map(|v| Vertex {
-                pos: v.map(|x| x as f32),
-                mesh: 0,
-            })
-            .collect();
+        let vertices: Vec<Vertex> = tris.iter().flat_map(|t| triangle_vertices(t, 0)).collect();
         self.needle = Some(Needle {
             bufs: upload(&self.ctx.device, &vertices),
             centre_mm: std::array::from_fn(|a| 0.5 * (lo[a] + hi[a])),
@@ -627,8 +680,8 @@ impl GpuFluoroRenderer {
         });
     }
 
-    fn ensure_targets(&mut self, size: [u32; 2]) {
-        if self.targets.as_ref().is_some_and(|t| t.size == size) {
+    fn ensure_targets(&mut self, ri: usize, size: [u32; 2]) {
+        if self.targets[ri].as_ref().is_some_and(|t| t.size == size) {
             return;
         }
         let tex = |label: &str, format| {
@@ -649,7 +702,7 @@ impl GpuFluoroRenderer {
                 view_formats: &[],
             })
         };
-        self.targets = Some(Targets {
+        self.targets[ri] = Some(Targets {
             size,
             a: tex("fluoro lbuffer", FMT_A),
             hull: tex("fluoro needle hull", FMT_HULL),
@@ -670,12 +723,26 @@ impl GpuFluoroRenderer {
         projection: &Projection,
         layout: Layout,
         with_needle_pass: bool,
+        region: Region,
     ) {
-        let size = projection.detector_pixels;
-        self.ensure_targets(size);
+        let ri = region.index();
+        let size = region.size;
+        self.ensure_targets(ri, size);
         let frame = projection.frame();
+        let rays = projection.gpu_ray_frame();
+        let v4 = |v: [f32; 3]| [v[0], v[1], v[2], 0.0];
         let m = projection.projection_matrix();
-        let row = |r: [f64; 4]| [r[0] as f32, r[1] as f32, r[2] as f32, 0.0];
+        // Region pixel coordinates: n (px - x0), n (py - y0).
+        let n = f64::from(region.n);
+        let (x0, y0) = (f64::from(region.origin[0]), f64::from(region.origin[1]));
+        let row = |r: [f64; 4], o: f64| {
+            [
+                (n * (r[0] - o * m[2][0])) as f32,
+                (n * (r[1] - o * m[2][1])) as f32,
+                (n * (r[2] - o * m[2][2])) as f32,
+                0.0,
+            ]
+        };
         let src = frame.source_mm;
         let needle_ref = self
             .needle
@@ -683,16 +750,17 @@ impl GpuFluoroRenderer {
             .map_or(0.0, |n| norm3(sub3(n.centre_mm, src)));
         // Pixel box of the needle's projection, two pixels wider (rasterisation rounding); the
         // whole image if a vertex is not in front of the source.
-        let needle_box = self.needle.as_ref().map_or([1.0, 1.0, -1.0, -1.0], |n| {
+        let needle_box = self.needle.as_ref().map_or([1.0, 1.0, -1.0, -1.0], |nd| {
             let mut b = [
                 f32::INFINITY,
                 f32::INFINITY,
                 f32::NEG_INFINITY,
                 f32::NEG_INFINITY,
             ];
-            for &v in &n.vertices_mm {
+            for &v in &nd.vertices_mm {
                 match projection.project_point(v) {
                     Some([x, y]) => {
+                        let (x, y) = (n * (x - x0), n * (y - y0));
                         b = [
                             b[0].min(x as f32 - 2.0),
                             b[1].min(y as f32 - 2.0),
@@ -706,15 +774,24 @@ impl GpuFluoroRenderer {
             b
         });
         let view = ViewUniform {
-            row_x: row(m[0]),
-            row_y: row(m[1]),
-            row_w: row(m[2]),
+            row_x: row(m[0], x0),
+            row_y: row(m[1], y0),
+            row_w: [m[2][0] as f32, m[2][1] as f32, m[2][2] as f32, 0.0],
             source: [src[0] as f32, src[1] as f32, src[2] as f32, 0.0],
             size: [size[0] as f32, size[1] as f32, needle_ref as f32, 0.0],
             needle_box,
+            p00: v4(rays.pixel00_from_source_mm),
+            step_u: v4(rays.step_u_mm),
+            step_v: v4(rays.step_v_mm),
+            region: [
+                region.origin[0] as f32,
+                region.origin[1] as f32,
+                1.0 / n as f32,
+                0.0,
+            ],
         };
         let queue = &self.ctx.queue;
-        queue.write_buffer(&self.view_buf, 0, bytemuck::bytes_of(&view));
+        queue.write_buffer(&self.view_buf[ri], 0, bytemuck::bytes_of(&view));
         let mut w: Vec<[f32; 4]> = Vec::with_capacity(self.meshes.len() * 3);
         for mesh in &self.meshes {
             let (mut g, mut d) = slot_weights(mesh.effective, layout);
@@ -734,7 +811,7 @@ impl GpuFluoroRenderer {
             queue.write_buffer(&self.weights_buf, 0, bytemuck::cast_slice(&w));
         }
         let device = &self.ctx.device;
-        let t = self.targets.as_ref().expect("targets");
+        let t = self.targets[ri].as_ref().expect("targets");
         let view_of = |x: &wgpu::Texture| x.create_view(&wgpu::TextureViewDescriptor::default());
         let (va, vh, vc) = (view_of(&t.a), view_of(&t.hull), view_of(&t.chord));
         fn attach(
@@ -762,7 +839,7 @@ impl GpuFluoroRenderer {
                 layout: &self.needle_pipeline.get_bind_group_layout(0),
                 entries: &[wgpu::BindGroupEntry {
                     binding: 0,
-                    resource: self.view_buf.as_entire_binding(),
+                    resource: self.view_buf[ri].as_entire_binding(),
                 }],
             });
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -787,7 +864,7 @@ impl GpuFluoroRenderer {
             entries: &[
                 wgpu::BindGroupEntry {
                     binding: 0,
-                    resource: self.view_buf.as_entire_binding(),
+                    resource: self.view_buf[ri].as_entire_binding(),
                 },
                 wgpu::BindGroupEntry {
                     binding: 1,
@@ -876,7 +953,7 @@ impl GpuFluoroRenderer {
 
     /// Reads a whole float texture back, `channels` f32 per texel, row-major without padding.
     fn read_texture(&self, tex: &wgpu::Texture, channels: usize) -> Result<Vec<f32>, GpuError> {
-        let [w, h] = self.targets.as_ref().expect("targets").size;
+        let [w, h] = self.targets[0].as_ref().expect("targets").size;
         let row = w as usize * channels * 4;
         let padded = row.div_ceil(256) * 256;
         let buf = self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
@@ -938,9 +1015,10 @@ impl GpuFluoroRenderer {
                 .ctx
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-            self.encode_lbuffer(&mut enc, projection, Layout::Chords(pass), pass == 0);
+            let full = Region::full(projection);
+            self.encode_lbuffer(&mut enc, projection, Layout::Chords(pass), pass == 0, full);
             self.ctx.queue.submit([enc.finish()]);
-            let t = self.targets.as_ref().expect("targets");
+            let t = self.targets[0].as_ref().expect("targets");
             let (ta, tc) = (t.a.clone(), t.chord.clone());
             let a = self.read_texture(&ta, 4)?;
             if pass == 0 {
@@ -986,13 +1064,31 @@ impl GpuFluoroRenderer {
         iodine: Option<&IodineField>,
     ) -> Result<GpuTransmission, FluoroGpuError> {
         let model = SpectralModel::new(*energy)?;
-        let size = projection.detector_pixels;
+        let full = Region::full(projection);
+        let t = self.run_region(projection, &model, iodine, full)?;
+        Ok(GpuTransmission {
+            width: full.size[0],
+            height: full.size[1],
+            transmission: t,
+        })
+    }
+
+    /// Needle pass, L-buffer and resolve over one region; returns its transmission samples.
+    fn run_region(
+        &mut self,
+        projection: &Projection,
+        model: &SpectralModel,
+        iodine: Option<&IodineField>,
+        region: Region,
+    ) -> Result<Vec<f32>, FluoroGpuError> {
+        let ri = region.index();
+        let size = region.size;
         let mut enc = self
             .ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        self.encode_lbuffer(&mut enc, projection, Layout::Transmission, true);
-        self.ensure_spectral(&model);
+        self.encode_lbuffer(&mut enc, projection, Layout::Transmission, true, region);
+        self.ensure_spectral(model);
         let device = &self.ctx.device;
         let tables = self.spectral.as_ref().expect("spectral tables");
         let frame = projection.gpu_ray_frame();
@@ -1048,6 +1144,18 @@ impl GpuFluoroRenderer {
                 0.0,
                 0.0,
             ],
+            region: [
+                region.origin[0] as f32,
+                region.origin[1] as f32,
+                1.0 / region.n as f32,
+                0.0,
+            ],
+            full: [
+                projection.detector_pixels[0],
+                projection.detector_pixels[1],
+                0,
+                0,
+            ],
             lut_dims: [
                 LUT_DIMS[0] as u32,
                 LUT_DIMS[1] as u32,
@@ -1066,8 +1174,8 @@ impl GpuFluoroRenderer {
         };
         self.ctx
             .queue
-            .write_buffer(&self.resolve_buf, 0, bytemuck::bytes_of(&params));
-        let t = self.targets.as_ref().expect("targets");
+            .write_buffer(&self.resolve_buf[ri], 0, bytemuck::bytes_of(&params));
+        let t = self.targets[ri].as_ref().expect("targets");
         let view_of = |x: &wgpu::Texture| x.create_view(&wgpu::TextureViewDescriptor::default());
         let iod_view = iod_tex.create_view(&wgpu::TextureViewDescriptor::default());
         let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -1076,7 +1184,7 @@ impl GpuFluoroRenderer {
             entries: &[
                 wgpu::BindGroupEntry {
                     binding: 0,
-                    resource: self.resolve_buf.as_entire_binding(),
+                    resource: self.resolve_buf[ri].as_entire_binding(),
                 },
                 wgpu::BindGroupEntry {
                     binding: 1,
@@ -1117,23 +1225,119 @@ impl GpuFluoroRenderer {
         let bytes = self
             .ctx
             .read_buffer(&t.out_t, u64::from(size[0]) * u64::from(size[1]) * 4)?;
+        Ok(bytemuck::cast_slice::<u8, f32>(&bytes).to_vec())
+    }
+
+    /// Pixels within 1.5 pixels of a projected edge of the needle: the CPU reference's steel-edge
+    /// rule (same triangles, same f64 projection, same 0.5-pixel steps along each edge), so a
+    /// needle thinner than a pixel is still supersampled. Row-major; all `false` without needle.
+    pub fn needle_edge_pixels(&self, projection: &Projection) -> Vec<bool> {
+        const RADIUS_PX: f64 = 1.5;
+        let [w, h] = projection.detector_pixels.map(|x| x as usize);
+        let mut flag = vec![false; w * h];
+        let Some(needle) = &self.needle else {
+            return flag;
+        };
+        for t in needle.vertices_mm.chunks_exact(3) {
+            for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+                let (Some(pa), Some(pb)) =
+                    (projection.project_point(a), projection.project_point(b))
+                else {
+                    continue;
+                };
+                let len = ((pb[0] - pa[0]).powi(2) + (pb[1] - pa[1]).powi(2)).sqrt();
+                let steps = (len / 0.5).ceil().max(1.0) as usize;
+                for k in 0..=steps {
+                    let f = k as f64 / steps as f64;
+                    let (x, y) = (pa[0] + f * (pb[0] - pa[0]), pa[1] + f * (pb[1] - pa[1]));
+                    let (x0, x1) = (
+                        (x - RADIUS_PX).floor().max(0.0),
+                        (x + RADIUS_PX).floor().min(w as f64 - 1.0),
+                    );
+                    let (y0, y1) = (
+                        (y - RADIUS_PX).floor().max(0.0),
+                        (y + RADIUS_PX).floor().min(h as f64 - 1.0),
+                    );
+                    if x1 < x0 || y1 < y0 {
+                        continue;
+                    }
+                    for jj in y0 as usize..=y1 as usize {
+                        for ii in x0 as usize..=x1 as usize {
+                            flag[jj * w + ii] = true;
+                        }
+                    }
+                }
+            }
+        }
+        flag
+    }
+
+    /// Transmission as the displayed frame samples it: pixel centres, and `n x n` stratified
+    /// samples (`settings.supersample`, the CPU's positions) averaged at the
+    /// [`GpuFluoroRenderer::needle_edge_pixels`]. The samples come from a second needle,
+    /// L-buffer and resolve pass over the flagged pixels' bounding box at `n` times the
+    /// resolution. Unlike the CPU, anatomy silhouettes are not supersampled and
+    /// `settings.adaptive = false` supersamples only near the needle too.
+    pub fn render_transmission_supersampled(
+        &mut self,
+        projection: &Projection,
+        settings: &RenderSettings,
+        iodine: Option<&IodineField>,
+    ) -> Result<GpuTransmission, FluoroGpuError> {
+        let model = SpectralModel::new(settings.energy)?;
+        let full = Region::full(projection);
+        let mut t = self.run_region(projection, &model, iodine, full)?;
+        let w = full.size[0] as usize;
+        let flags = self.needle_edge_pixels(projection);
+        let (mut lo, mut hi) = ([usize::MAX; 2], [0usize; 2]);
+        for (q, _) in flags.iter().enumerate().filter(|(_, f)| **f) {
+            let (i, j) = (q % w, q / w);
+            lo = [lo[0].min(i), lo[1].min(j)];
+            hi = [hi[0].max(i), hi[1].max(j)];
+        }
+        let n = settings.supersample.max(1) as usize;
+        if n > 1 && lo[0] != usize::MAX {
+            let (bw, bh) = (hi[0] - lo[0] + 1, hi[1] - lo[1] + 1);
+            let max_dim = self.ctx.limits.max_texture_dimension_2d as usize;
+            let n = n.min(max_dim / bw.max(bh)).max(1);
+            let region = Region {
+                origin: [lo[0] as u32, lo[1] as u32],
+                n: n as u32,
+                size: [(bw * n) as u32, (bh * n) as u32],
+            };
+            let sub = self.run_region(projection, &model, iodine, region)?;
+            let sw = bw * n;
+            for j in lo[1]..=hi[1] {
+                for i in lo[0]..=hi[0] {
+                    if !flags[j * w + i] {
+                        continue;
+                    }
+                    let mut acc = 0f64;
+                    for b in 0..n {
+                        let row = ((j - lo[1]) * n + b) * sw + (i - lo[0]) * n;
+                        acc += sub[row..row + n].iter().map(|&x| f64::from(x)).sum::<f64>();
+                    }
+                    t[j * w + i] = (acc / (n * n) as f64) as f32;
+                }
+            }
+        }
         Ok(GpuTransmission {
-            width: size[0],
-            height: size[1],
-            transmission: bytemuck::cast_slice::<u8, f32>(&bytes).to_vec(),
+            width: full.size[0],
+            height: full.size[1],
+            transmission: t,
         })
     }
 
-    /// The displayed 8-bit frame: GPU transmission (pixel centres, see the module doc for the
-    /// supersampling difference), then sim-core's noise, automatic brightness, log mapping and
-    /// shutters on the CPU. Same output type as `sim_core::fluoro::render_frame`.
+    /// The displayed 8-bit frame: [`GpuFluoroRenderer::render_transmission_supersampled`], then
+    /// sim-core's noise, automatic brightness, log mapping and shutters on the CPU. Same output
+    /// type as `sim_core::fluoro::render_frame`.
     pub fn render_frame(
         &mut self,
         projection: &Projection,
         settings: &RenderSettings,
         iodine: Option<&IodineField>,
     ) -> Result<Image, FluoroGpuError> {
-        let g = self.render_transmission(projection, &settings.energy, iodine)?;
+        let g = self.render_transmission_supersampled(projection, settings, iodine)?;
         let mut t = to_transmission_image(projection, &g);
         if let Some(n) = &settings.noise {
             apply_noise(&mut t, n);

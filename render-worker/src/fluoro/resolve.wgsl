@@ -23,6 +23,11 @@ struct Params {
     iod_dims: vec4<u32>,
     // ln T table over (A_water, A_bone): 1 / step per axis; (columns, rows, enabled, 0).
     lut_scale: vec4<f32>,
+    // Sampled region: (first pixel column, first row, 1 / samples per pixel axis, 0); sample
+    // (i, j) is at continuous pixel coordinates first + (i + 0.5, j + 0.5) / n.
+    region: vec4<f32>,
+    // Whole detector (columns, rows, 0, 0).
+    full: vec4<u32>,
     lut_dims: vec4<u32>,
 }
 
@@ -106,9 +111,12 @@ fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let p = vec2<i32>(id.xy);
     let idx = id.y * w + id.x;
-    // Collimation at the pixel centre (detector-plane mm from the centre, x right, y down).
-    let ox = (f32(id.x) + 0.5 - 0.5 * f32(w)) * params.misc.y;
-    let oy = (f32(id.y) + 0.5 - 0.5 * f32(h)) * params.misc.z;
+    // Continuous pixel coordinates of this sample; collimation is decided at its pixel's centre
+    // (detector-plane mm from the centre, x right, y down), as on the CPU.
+    let px = params.region.x + (f32(id.x) + 0.5) * params.region.z;
+    let py = params.region.y + (f32(id.y) + 0.5) * params.region.z;
+    let ox = (floor(px) + 0.5 - 0.5 * f32(params.full.x)) * params.misc.y;
+    let oy = (floor(py) + 0.5 - 0.5 * f32(params.full.y)) * params.misc.z;
     let inside_blades = ox >= params.blades.x && ox <= params.blades.y && oy >= params.blades.z && oy <= params.blades.w;
     let inside_iris = params.misc.x < 0.0 || ox * ox + oy * oy <= params.misc.x;
     if (!(inside_blades && inside_iris)) {
@@ -126,7 +134,7 @@ fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
     let a_iron = params.mu.z * steel * 0.1;
     var a_iod = 0.0;
     if (params.dims.w != 0u) {
-        let d = params.p00.xyz + f32(id.x) * params.step_u.xyz + f32(id.y) * params.step_v.xyz;
+        let d = params.p00.xyz + (px - 0.5) * params.step_u.xyz + (py - 0.5) * params.step_v.xyz;
         let len = length(d);
         a_iod = params.mu.w * iodine_column(d / len, len) * 0.1;
     }
