@@ -48,6 +48,9 @@ use crate::material::MaterialClass;
 use crate::mesh::TriMesh;
 use crate::volume::{Volume, VolumeGrid};
 
+/// What meshing one structure gives: the mesh and notes, or why it failed.
+type MeshResult = Result<(TriMesh, Vec<String>), AnatomyError>;
+
 /// Where the input came from, and under which terms the derived asset may be shared.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SourceInfo {
@@ -394,16 +397,42 @@ pub fn build_region(
         total: 1,
         item: String::new(),
     });
-    let mut out = Vec::with_capacity(kept.len());
+    // Structures are meshed in parallel (one worker per core, each taking the next structure);
+    // each result depends only on its own mask, and they are gathered in input order, so the
+    // asset is identical whatever the thread count.
     let total = kept.len();
-    for (n, s) in kept.into_iter().enumerate() {
-        progress(&Progress {
-            stage: "mesh",
-            done: n,
-            total,
-            item: s.name.clone(),
-        });
-        let (mesh, mesh_notes) = mesh_structure(&s, params)?;
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).clamp(1, total.max(1));
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let mut meshed: Vec<Option<MeshResult>> = (0..total).map(|_| None).collect();
+    std::thread::scope(|scope| {
+        let (tx, rx) = std::sync::mpsc::channel::<(usize, MeshResult)>();
+        for _ in 0..threads {
+            let (tx, kept, next) = (tx.clone(), &kept, &next);
+            scope.spawn(move || {
+                loop {
+                    let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    let Some(s) = kept.get(i) else { break };
+                    if tx.send((i, mesh_structure(s, params))).is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        drop(tx);
+        for (done, (i, result)) in rx.iter().enumerate() {
+            progress(&Progress {
+                stage: "mesh",
+                done,
+                total,
+                item: kept[i].name.clone(),
+            });
+            meshed[i] = Some(result);
+        }
+    });
+    let mut out = Vec::with_capacity(total);
+    for (s, result) in kept.into_iter().zip(meshed) {
+        let (mesh, mesh_notes) =
+            result.expect("every structure index is taken by exactly one worker")?;
         notes.extend(mesh_notes);
         out.push(StructureAsset {
             name: s.name.clone(),
