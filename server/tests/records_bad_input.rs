@@ -7,6 +7,17 @@ use serde_json::json;
 
 use crate::records_support::{TestApp, World, reproducibility};
 
+/// (who, method, uri, content type, body, expected status, fragment of the error message)
+type Case<'a> = (
+    &'a crate::records_support::Session,
+    Method,
+    String,
+    &'a str,
+    Vec<u8>,
+    u16,
+    &'a str,
+);
+
 #[tokio::test]
 async fn bad_requests_get_clear_4xx_and_change_nothing() {
     let app = TestApp::new(&[("PAINSIM_MAX_BODY_BYTES", "65536")]).await;
@@ -28,8 +39,7 @@ async fn bad_requests_get_clear_4xx_and_change_nothing() {
     let mut server_field = reproducibility();
     server_field["activity_event_count"] = json!(1);
 
-    // (who, method, uri, content type, body, status, fragment of the message)
-    let table: Vec<(&crate::records_support::Session, Method, String, &str, Vec<u8>, u16, &str)> = vec![
+    let table: Vec<Case<'_>> = vec![
         (&learner, Method::POST, activity.clone(), "application/json", b"{\"kind\": ".to_vec(), 400, "invalid JSON"),
         (&learner, Method::POST, activity.clone(), "application/json", b"[1, 2]".to_vec(), 400, "invalid JSON"),
         (&learner, Method::POST, activity.clone(), "application/json", br#"{"kind": 7}"#.to_vec(), 400, "kind"),

@@ -620,6 +620,7 @@ fn every_station_file_loads_and_validates() {
         "l4-l5-interlaminar-epidural",
         "l4-left-transforaminal",
         "l4-l5-left-facet",
+        "l4-l5-left-facet-ultrasound",
     ] {
         assert!(ids.contains(&required), "{required} missing from {ids:?}");
     }
@@ -673,9 +674,19 @@ fn every_station_file_loads_and_validates() {
         // Frame convention (assets/stations/README.md): RAS, so left-sided targets lie at x < 0
         // and every target here is posterior to the L4 body centre (y < 0).
         for t in &s.targets {
-            assert!(t.position_mm[1] < 0.0, "{}: {} is not posterior", s.id, t.name);
+            assert!(
+                t.position_mm[1] < 0.0,
+                "{}: {} is not posterior",
+                s.id,
+                t.name
+            );
             if s.id.contains("left") && t.name.starts_with("left") {
-                assert!(t.position_mm[0] < 0.0, "{}: {} is not on the left (RAS)", s.id, t.name);
+                assert!(
+                    t.position_mm[0] < 0.0,
+                    "{}: {} is not on the left (RAS)",
+                    s.id,
+                    t.name
+                );
             }
         }
         // The same file parses identically through the string entry point.

@@ -353,13 +353,15 @@ pub async fn login(
     .bind(&email)
     .fetch_optional(&state.pool)
     .await?;
-    let (hash, pw) = match &row {
-        Some(r) => (r.3.clone(), req.password.clone()),
-        None => (password::decoy_hash(cfg.argon2), req.password.clone()),
-    };
-    let ok = tokio::task::spawn_blocking(move || password::verify_password(&pw, &hash))
-        .await
-        .map_err(|e| ApiError::Internal(format!("password check: {e}")))?;
+    let known = row.as_ref().map(|r| r.3.clone());
+    let (decoy, cost, pw) = (state.decoy_hash.clone(), cfg.argon2, req.password.clone());
+    let ok = tokio::task::spawn_blocking(move || {
+        let hash =
+            known.unwrap_or_else(|| decoy.get_or_init(|| password::decoy_hash(cost)).clone());
+        password::verify_password(&pw, &hash)
+    })
+    .await
+    .map_err(|e| ApiError::Internal(format!("password check: {e}")))?;
     let fail = |state: RecordsState, email: String, message: &'static str| async move {
         sqlx::query("INSERT INTO login_failures (email) VALUES ($1)")
             .bind(&email)
@@ -400,6 +402,15 @@ pub async fn login(
         .bind(&email)
         .execute(&mut *tx)
         .await?;
+    // Expired sessions of this account go now rather than lingering until a sweep.
+    sqlx::query(
+        "DELETE FROM auth_sessions WHERE user_id = $1
+           AND (expires_at <= now() OR last_seen_at <= now() - make_interval(secs => $2))",
+    )
+    .bind(id)
+    .bind(cfg.session_idle.as_secs_f64())
+    .execute(&mut *tx)
+    .await?;
     if let Some(old) = cookie_value(&headers, SESSION_COOKIE) {
         sqlx::query("DELETE FROM auth_sessions WHERE token_sha256 = $1")
             .bind(sha256(old))

@@ -57,6 +57,9 @@ pub struct RecordsState {
     pub stations: Arc<StationCatalog>,
     /// Per-client limiter of the authentication endpoints.
     pub auth_limiter: Arc<ratelimit::RateLimiter>,
+    /// Hash verified against when a login names an unknown e-mail (made once, on first need, so
+    /// that unknown and known e-mails cost the same single verification).
+    pub decoy_hash: Arc<std::sync::OnceLock<String>>,
 }
 
 impl RecordsState {
@@ -75,6 +78,7 @@ impl RecordsState {
             config: Arc::new(config),
             stations: Arc::new(stations),
             auth_limiter: Arc::new(auth_limiter),
+            decoy_hash: Arc::default(),
         }
     }
 }
