@@ -440,18 +440,26 @@ pub async fn export_csv(
         "attempt_id,learner_email,learner_name,course_code,station_id,station_revision,rubric_revision,state,\
          technical_outcome,technical_score,updated_at,last_decision,last_reviewer,last_review_at,last_comment\r\n",
     );
-    for a in rows {
-        let last: Option<(String, String, OffsetDateTime, String)> = sqlx::query_as(
-            "SELECT r.decision, u.email, r.created_at, r.comment FROM reviews r JOIN users u ON u.id = r.reviewer_id
-             WHERE r.attempt_id = $1 ORDER BY r.created_at DESC, r.id DESC LIMIT 1",
+    // The latest review of every listed attempt, in one query.
+    let ids: Vec<Uuid> = rows.iter().map(|a| a.id).collect();
+    let latest: std::collections::HashMap<Uuid, (String, String, OffsetDateTime, String)> =
+        sqlx::query_as::<_, (Uuid, String, String, OffsetDateTime, String)>(
+            "SELECT DISTINCT ON (r.attempt_id) r.attempt_id, r.decision, u.email, r.created_at, r.comment
+             FROM reviews r JOIN users u ON u.id = r.reviewer_id
+             WHERE r.attempt_id = ANY($1) ORDER BY r.attempt_id, r.created_at DESC, r.id DESC",
         )
-        .bind(a.id)
-        .fetch_optional(&state.pool)
-        .await?;
-        let rfc = |t: OffsetDateTime| {
-            t.format(&time::format_description::well_known::Rfc3339)
-                .unwrap_or_default()
-        };
+        .bind(&ids)
+        .fetch_all(&state.pool)
+        .await?
+        .into_iter()
+        .map(|(id, d, r, t, c)| (id, (d, r, t, c)))
+        .collect();
+    let rfc = |t: OffsetDateTime| {
+        t.format(&time::format_description::well_known::Rfc3339)
+            .unwrap_or_default()
+    };
+    for a in rows {
+        let last = latest.get(&a.id).cloned();
         let (decision, reviewer, at, comment) = last
             .map(|(d, r, t, c)| (d, r, rfc(t), c))
             .unwrap_or_default();
