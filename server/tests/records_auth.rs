@@ -293,3 +293,83 @@ async fn create_admin_makes_a_working_admin() {
         .is_err()
     );
 }
+
+#[tokio::test]
+async fn create_admin_command_of_the_real_binary() {
+    let app = TestApp::new(&[]).await;
+    let run = |email: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_server"))
+            .args(["create-admin", "--email", email])
+            .env("DATABASE_URL", &app.db.url)
+            .env("PAINSIM_ADMIN_PASSWORD", PASSWORD)
+            .env("PAINSIM_ARGON2_MEMORY_KIB", "64")
+            .env("PAINSIM_ARGON2_ITERATIONS", "1")
+            .env("RUST_LOG", "warn")
+            .output()
+            .expect("run server create-admin")
+    };
+    let out = run("first-admin@example.org");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("created admin first-admin@example.org"));
+    let role: String =
+        sqlx::query_scalar("SELECT role FROM users WHERE email = 'first-admin@example.org'")
+            .fetch_one(app.pool())
+            .await
+            .unwrap();
+    assert_eq!(role, "admin");
+    // The password was taken from the environment, not the command line, and works.
+    let s = app.login("first-admin@example.org", None).await;
+    assert_eq!(
+        app.send(Method::GET, "/api/audit", Some(&s), None)
+            .await
+            .status,
+        StatusCode::OK
+    );
+    // A second run for the same address fails with a clear message and exit status 2.
+    let out = run("first-admin@example.org");
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("already exists"));
+}
+
+#[tokio::test]
+async fn an_edited_published_station_revision_is_refused() {
+    let app = TestApp::new(&[]).await;
+    // `TestApp::new` registered the repository's stations. A copy whose rubric changed but whose
+    // revisions did not must be refused, naming the station and the fix.
+    let dir = tempfile::tempdir().unwrap();
+    let original =
+        std::fs::read_to_string(app.config.stations_dir.join("l4-l5-left-facet.toml")).unwrap();
+    let edited = original.replace("pass_threshold = 0.75", "pass_threshold = 0.5");
+    assert_ne!(original, edited);
+    std::fs::write(dir.path().join("l4-l5-left-facet.toml"), &edited).unwrap();
+    let mut cfg = app.config.clone();
+    cfg.stations_dir = dir.path().to_owned();
+    let err = server::records::prepare(app.pool(), &cfg, false)
+        .await
+        .unwrap_err();
+    let msg = format!("{err:#}");
+    assert!(
+        msg.contains("l4-l5-left-facet") && msg.contains("bump"),
+        "{msg}"
+    );
+    // Bumping the rubric revision makes it a new, accepted revision.
+    std::fs::write(
+        dir.path().join("l4-l5-left-facet.toml"),
+        edited.replacen("[rubric]\nrevision = 1", "[rubric]\nrevision = 2", 1),
+    )
+    .unwrap();
+    server::records::prepare(app.pool(), &cfg, false)
+        .await
+        .unwrap();
+    let revisions: i64 = sqlx::query_scalar(
+        "SELECT count(*) FROM station_revisions WHERE station_id = 'l4-l5-left-facet'",
+    )
+    .fetch_one(app.pool())
+    .await
+    .unwrap();
+    assert_eq!(revisions, 2);
+}
