@@ -124,7 +124,7 @@ impl PgBinaries {
                 .filter_map(|e| e.ok())
                 .filter_map(|e| Some((e.file_name().to_str()?.parse::<u32>().ok()?, e.path().join("bin"))))
                 .collect();
-            majors.sort_by(|a, b| b.0.cmp(&a.0));
+            majors.sort_by_key(|m| std::cmp::Reverse(m.0));
             dirs.extend(majors.into_iter().map(|(_, p)| p));
         }
         Self::locate_in(&dirs)

@@ -15,7 +15,7 @@ pub enum WorkerState {
     /// The GPU is being opened.
     Starting,
     /// The GPU is open and passed its self-test.
-    Ready(GpuContext),
+    Ready(Box<GpuContext>),
     /// The GPU could not be opened or failed its self-test.
     Failed(String),
 }
@@ -52,7 +52,7 @@ impl Workers {
                 let next = match open_and_self_test() {
                     Ok(ctx) => {
                         tracing::info!(adapter = %ctx.summary.name, backend = %ctx.summary.backend, "in-process render worker ready");
-                        WorkerState::Ready(ctx)
+                        WorkerState::Ready(Box::new(ctx))
                     }
                     Err(e) => {
                         tracing::error!(error = %e, "in-process render worker failed");
