@@ -5,3 +5,4 @@
 
 pub mod fluoro;
 pub mod gpu;
+pub mod session;

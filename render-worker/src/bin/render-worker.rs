@@ -1,57 +1,109 @@
-//! The `render-worker` process: opens the GPU, proves it with a compute self-test, and reports
-//! its health at `GET /healthz` on `RENDER_WORKER_BIND` (default `127.0.0.1:8081`).
+//! The `render-worker` process: hosts training sessions over HTTP and websockets (see
+//! `render_worker::session::http`) and reports health at `GET /healthz`.
 //!
-//! In the embedded default the server runs its worker in-process and this binary is not needed;
-//! it is the unit that scales out (see docker-compose.yml). Session hosting over websockets and
-//! registration with the server build on this process.
+//! Environment: `RENDER_WORKER_BIND` (default `127.0.0.1:8081`), `RENDER_WORKER_ASSETS` (region
+//! folders and `stations/`, default `assets`), `RENDER_WORKER_CAPACITY` (sessions, default 8).
+//!
+//! In the embedded default the server runs a `SessionHost` in-process and this binary is not
+//! needed; it is the unit that scales out (see docker-compose.yml).
 
-use std::io::{BufRead, BufReader, Write};
-use std::net::TcpListener;
+use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 
 use render_worker::gpu::{GpuContext, saxpy};
+use render_worker::session::{
+    CpuFluoroBackend, FluoroBackend, GpuFluoroBackend, HostConfig, SessionConfig, SessionHost, http,
+};
 
 fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .init();
     let bind = std::env::var("RENDER_WORKER_BIND").unwrap_or_else(|_| "127.0.0.1:8081".to_owned());
-    let ctx = match GpuContext::new_headless() {
-        Ok(c) => c,
+    let assets = PathBuf::from(
+        std::env::var("RENDER_WORKER_ASSETS").unwrap_or_else(|_| "assets".to_owned()),
+    );
+    let capacity = std::env::var("RENDER_WORKER_CAPACITY")
+        .ok()
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(8);
+    // Sessions render on the GPU when one opens, passes its self-test and has the float blending
+    // the fluoroscopy L-buffer needs; otherwise on the CPU reference (a worker without an adapter
+    // still serves, more slowly).
+    let (backend, adapter): (Arc<dyn FluoroBackend>, _) = match GpuContext::new_headless() {
+        Ok(ctx) => {
+            let x: Vec<f32> = (0..256).map(|i| i as f32).collect();
+            let ok = saxpy(&ctx, 2.0, &x, 1.0)
+                .is_ok_and(|y| y.iter().zip(&x).all(|(y, x)| *y == 2.0 * x + 1.0));
+            let blendable = ctx
+                .device
+                .features()
+                .contains(wgpu::Features::FLOAT32_BLENDABLE);
+            let summary = serde_json::to_value(&ctx.summary).ok();
+            if ok && blendable {
+                (Arc::new(GpuFluoroBackend { ctx }), summary)
+            } else {
+                tracing::warn!(
+                    "GPU {} unusable for fluoroscopy (self-test {ok}, float blending {blendable}); using the CPU renderer",
+                    ctx.summary.name
+                );
+                (Arc::new(CpuFluoroBackend { threads: 0 }), summary)
+            }
+        }
+        Err(e) => {
+            tracing::warn!("no GPU ({e}); using the CPU renderer");
+            (Arc::new(CpuFluoroBackend { threads: 0 }), None)
+        }
+    };
+    let config = HostConfig {
+        stations_dir: assets.join("stations"),
+        assets_root: assets,
+        capacity,
+        session: SessionConfig::default(),
+    };
+    let host = match SessionHost::new(config, backend, adapter) {
+        Ok(h) => h,
         Err(e) => {
             eprintln!("render-worker: {e}");
             return ExitCode::FAILURE;
         }
     };
-    let x: Vec<f32> = (0..256).map(|i| i as f32).collect();
-    let ok = saxpy(&ctx, 2.0, &x, 1.0).is_ok_and(|y| y.iter().zip(&x).all(|(y, x)| *y == 2.0 * x + 1.0));
-    if !ok {
-        eprintln!("render-worker: GPU self-test failed on {}", ctx.summary.name);
-        return ExitCode::FAILURE;
-    }
-    let health = serde_json::json!({ "status": "ok", "adapter": ctx.summary, "capacity_sessions": 8 }).to_string();
-    let listener = match TcpListener::bind(&bind) {
-        Ok(l) => l,
+    let runtime = match tokio::runtime::Runtime::new() {
+        Ok(r) => r,
         Err(e) => {
-            eprintln!("render-worker: cannot bind {bind}: {e}");
+            eprintln!("render-worker: cannot start the async runtime: {e}");
             return ExitCode::FAILURE;
         }
     };
-    println!("render-worker on {} ready at http://{}/healthz", ctx.summary.name, listener.local_addr().map(|a| a.to_string()).unwrap_or(bind));
-    for stream in listener.incoming().flatten() {
-        let mut reader = BufReader::new(&stream);
-        let mut request_line = String::new();
-        if reader.read_line(&mut request_line).is_err() {
-            continue;
-        }
-        let (status, body) = if request_line.starts_with("GET /healthz ") {
-            ("200 OK", health.as_str())
-        } else {
-            ("404 Not Found", r#"{"error":{"code":"not_found","message":"only GET /healthz is served"}}"#)
+    runtime.block_on(async move {
+        let listener = match tokio::net::TcpListener::bind(&bind).await {
+            Ok(l) => l,
+            Err(e) => {
+                eprintln!("render-worker: cannot bind {bind}: {e}");
+                return ExitCode::FAILURE;
+            }
         };
-        let mut stream = &stream;
-        let _ = write!(
-            stream,
-            "HTTP/1.1 {status}\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
-            body.len()
+        let addr = listener.local_addr().map(|a| a.to_string()).unwrap_or(bind);
+        println!(
+            "render-worker ready at http://{addr}/healthz (stations: {})",
+            host.station_ids().join(", ")
         );
-    }
-    ExitCode::SUCCESS
+        let shutdown = async {
+            let _ = tokio::signal::ctrl_c().await;
+        };
+        match axum::serve(listener, http::router(host))
+            .with_graceful_shutdown(shutdown)
+            .await
+        {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("render-worker: {e}");
+                ExitCode::FAILURE
+            }
+        }
+    })
 }

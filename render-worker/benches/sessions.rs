@@ -1,0 +1,287 @@
+//! Session costs: idle CPU, session overhead over a bare render, and N concurrent streamed
+//! sessions over loopback websockets (input-to-frame latency p50/p99, frames per second).
+//!
+//! Scene: the analytic demo region (`render_worker::session::demo`), CPU reference renderer,
+//! 512 x 512 detector, 2 x 2 adaptive supersampling, quantum noise on. `BENCH_QUICK=1` shortens
+//! every phase (CI, under a minute on 2 cores in the dev profile).
+
+use std::collections::BTreeSet;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use futures::{SinkExt, StreamExt};
+use render_worker::session::demo::{demo_region, demo_station};
+use render_worker::session::frame::EncodedFrame;
+use render_worker::session::*;
+use tokio_tungstenite::tungstenite::Message;
+
+/// Process CPU time (user + system) in seconds, from /proc/self/stat (clock ticks of
+/// 1/100 s: Linux's USER_HZ).
+fn cpu_s() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+fn rss_mb() -> f64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    status
+        .lines()
+        .find(|l| l.starts_with("VmRSS:"))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|v| v.parse::<f64>().ok())
+        .map_or(0.0, |kb| kb / 1024.0)
+}
+
+fn config(px: u32) -> SessionConfig {
+    SessionConfig {
+        fluoro: FluoroConfig {
+            detector_pixels: px,
+            detector_mm: 300.0,
+            supersample: 2,
+            noise: true,
+        },
+        seed: 1,
+    }
+}
+
+fn host(capacity: usize, extra: &[&str]) -> SessionHost {
+    SessionHost::with_regions(
+        vec![demo_station(extra)],
+        vec![Arc::new(demo_region())],
+        Arc::new(CpuFluoroBackend { threads: 0 }),
+        capacity,
+        config(512),
+    )
+}
+
+fn percentile(v: &mut [f64], p: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * p).round() as usize]
+}
+
+fn main() {
+    let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .expect("runtime");
+
+    // 1. Idle sessions.
+    println!("## Idle sessions (process CPU while no input arrives)\n");
+    println!("| sessions | idle period (s) | CPU time (ms) | CPU per session-second (ms) |");
+    println!("|---:|---:|---:|---:|");
+    let idle_s = if quick { 2.0 } else { 5.0 };
+    for n in [1usize, 8] {
+        let h = host(n, &[]);
+        let handles: Vec<_> = (0..n)
+            .map(|_| h.create_blocking("demo-station").expect("session"))
+            .collect();
+        rt.block_on(async {
+            for s in &handles {
+                s.command(Envelope {
+                    seq: 1,
+                    command: Command::Shot,
+                })
+                .await
+                .expect("shot");
+            }
+            // Idle starts once every session has rendered and published its frame.
+            for s in &handles {
+                let mut rx = s.frames();
+                while rx.borrow_and_update().get(&ViewId::Fluoroscopy).is_none() {
+                    rx.changed().await.expect("session alive");
+                }
+            }
+        });
+        std::thread::sleep(Duration::from_millis(200));
+        let c0 = cpu_s();
+        std::thread::sleep(Duration::from_secs_f64(idle_s));
+        let used_ms = (cpu_s() - c0) * 1000.0;
+        println!(
+            "| {n} | {idle_s} | {used_ms:.0} | {:.2} |",
+            used_ms / (n as f64 * idle_s)
+        );
+        for s in &handles {
+            let _ = h.close(&s.info.id);
+        }
+    }
+
+    // 2. A session's cost over the bare renderer, and with another modality listed.
+    println!("\n## Shot to encoded frame: session vs. bare `render_frame` (512 x 512)\n");
+    println!("| path | station modalities | median time (ms) | state bytes | RSS after (MiB) |");
+    println!("|---|---|---:|---:|---:|");
+    let reps = if quick { 3 } else { 20 };
+    let region = Arc::new(demo_region());
+    let projection = sim_core::fluoro::Projection::default();
+    let settings = sim_core::fluoro::RenderSettings {
+        supersample: 2,
+        noise: Some(sim_core::fluoro::QuantumNoise {
+            photons_per_pixel: 3000.0,
+            seed: 1,
+        }),
+        ..Default::default()
+    };
+    let mut bare = Vec::new();
+    for _ in 0..reps {
+        let t = Instant::now();
+        let img = sim_core::fluoro::render_frame(&region.scene, None, &projection, &settings)
+            .expect("render");
+        let _ = render_worker::session::frame::encode_jpeg(&img).expect("jpeg");
+        bare.push(t.elapsed().as_secs_f64() * 1000.0);
+    }
+    println!(
+        "| bare render_frame + JPEG | - | {:.1} | - | {:.0} |",
+        percentile(&mut bare, 0.5),
+        rss_mb()
+    );
+    for extra in [&[][..], &["ultrasound"][..]] {
+        let (station, sha) = demo_station(extra);
+        let mut s = Session::new(
+            SessionEnv {
+                station: Arc::new(StationContext::new(station, sha, &region)),
+                region: Arc::clone(&region),
+                backend: Arc::new(CpuFluoroBackend { threads: 0 }),
+            },
+            config(512),
+        );
+        let visible: BTreeSet<ViewId> = [ViewId::Fluoroscopy].into();
+        let mut times = Vec::new();
+        for k in 0..reps {
+            let t = Instant::now();
+            s.apply(
+                Envelope {
+                    seq: k as u64 + 1,
+                    command: Command::Shot,
+                },
+                k as u64,
+            )
+            .expect("shot");
+            let f = s
+                .render_dirty(&visible)
+                .expect("render")
+                .pop()
+                .expect("frame");
+            let _ = EncodedFrame::new(f.view, 1, f.input_seq, f.t_ms, &f.image).expect("jpeg");
+            times.push(t.elapsed().as_secs_f64() * 1000.0);
+        }
+        let mods = std::iter::once("fluoroscopy")
+            .chain(extra.iter().copied())
+            .collect::<Vec<_>>()
+            .join(" + ");
+        println!(
+            "| session (modalities built: {}) | {mods} | {:.1} | {} | {:.0} |",
+            s.modality_names().join(", "),
+            percentile(&mut times, 0.5),
+            s.snapshot().to_bytes().len(),
+            rss_mb()
+        );
+    }
+
+    // 3. Concurrent streamed sessions over loopback websockets.
+    println!("\n## Concurrent live sessions over loopback websockets (512 x 512, CPU reference)\n");
+    println!(
+        "| sessions | inputs per session | latency p50 (ms) | latency p99 (ms) | frames/s per session |"
+    );
+    println!("|---:|---:|---:|---:|---:|");
+    let counts: &[usize] = if quick { &[1, 4] } else { &[1, 2, 4, 8] };
+    let inputs = if quick { 5 } else { 30 };
+    for &n in counts {
+        let h = host(n, &[]);
+        let (lat, fps) = rt.block_on(async move {
+            let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+                .await
+                .expect("bind");
+            let addr = listener.local_addr().expect("addr");
+            let server = tokio::spawn(async move {
+                axum::serve(listener, http::router(h.clone()))
+                    .await
+                    .map(|_| h)
+            });
+            let mut clients = Vec::new();
+            for _ in 0..n {
+                clients.push(tokio::spawn(async move { client(addr, inputs).await }));
+            }
+            let mut lat = Vec::new();
+            let mut fps = Vec::new();
+            for c in clients {
+                let (l, f) = c.await.expect("client");
+                lat.extend(l);
+                fps.push(f);
+            }
+            server.abort();
+            (lat, fps.iter().sum::<f64>() / fps.len() as f64)
+        });
+        let mut lat = lat;
+        println!(
+            "| {n} | {inputs} | {:.1} | {:.1} | {fps:.1} |",
+            percentile(&mut lat, 0.5),
+            percentile(&mut lat, 0.99)
+        );
+    }
+}
+
+/// One scripted client: create a session, live fluoroscopy on, then C-arm moves, each sent when
+/// the frame of the previous one arrived. Returns input-to-frame latencies (ms) and frames/s.
+async fn client(addr: std::net::SocketAddr, inputs: u64) -> (Vec<f64>, f64) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let body = r#"{"station_id":"demo-station"}"#;
+    let mut s = tokio::net::TcpStream::connect(addr).await.expect("connect");
+    let req = format!(
+        "POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+        body.len()
+    );
+    s.write_all(req.as_bytes()).await.expect("write");
+    let mut resp = String::new();
+    s.read_to_string(&mut resp).await.expect("read");
+    let json: serde_json::Value =
+        serde_json::from_str(resp.split("\r\n\r\n").nth(1).unwrap_or("{}")).expect("json");
+    let path = json["ws"].as_str().expect("ws path").to_string();
+    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}{path}"))
+        .await
+        .expect("ws");
+    let mut latencies = Vec::new();
+    let started = Instant::now();
+    let mut frames = 0u64;
+    for seq in 1..=inputs + 1 {
+        let command = if seq == 1 {
+            Command::Live { on: true }
+        } else {
+            Command::CarmPose {
+                orbital_deg: seq as f64,
+                angular_deg: 0.0,
+                table_mm: [0.0; 3],
+            }
+        };
+        let msg =
+            serde_json::json!({ "type": "command", "seq": seq, "command": command }).to_string();
+        let t = Instant::now();
+        ws.send(Message::Text(msg.into())).await.expect("send");
+        loop {
+            match ws.next().await {
+                Some(Ok(Message::Binary(b))) => {
+                    let f = EncodedFrame::parse(&b).expect("frame");
+                    frames += 1;
+                    if f.input_seq >= seq {
+                        break;
+                    }
+                }
+                Some(Ok(_)) => {}
+                _ => return (latencies, 0.0),
+            }
+        }
+        if seq > 1 {
+            latencies.push(t.elapsed().as_secs_f64() * 1000.0);
+        }
+    }
+    let fps = frames as f64 / started.elapsed().as_secs_f64();
+    let _ = ws.close(None).await;
+    (latencies, fps)
+}

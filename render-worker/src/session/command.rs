@@ -1,0 +1,495 @@
+//! Typed session commands, their validation, and the ordered log of accepted commands.
+//!
+//! A command arrives in an [`Envelope`] with a client sequence number. Validation happens once,
+//! here, before anything touches the state: every rejection is a [`CommandError`] naming the
+//! offending field (`command.orbital_deg`, `seq`, ...), never a panic. Accepted commands are
+//! appended to the session's log as [`LogEntry`]s stamped with the simulation clock, which is
+//! all that replay needs.
+
+use serde::{Deserialize, Serialize};
+use sim_core::needle::NeedleCommand;
+
+/// Largest |orbital| rotation, degrees. Simulator choice: beyond both true laterals (90) with
+/// margin; mobile C-arms reach about +-95 to +-135 depending on the model.
+pub const MAX_ORBITAL_DEG: f64 = 135.0;
+/// Largest |angular| (cranio-caudal) rotation, degrees. Simulator choice: mobile C-arms tilt
+/// about +-40 to +-45; steeper than that the tube hits the table.
+pub const MAX_ANGULAR_DEG: f64 = 45.0;
+/// Largest table translation on each axis, mm. Simulator choice: a lumbar procedure moves the
+/// table by centimetres; 300 mm bounds a typo without restricting real use.
+pub const MAX_TABLE_MM: f64 = 300.0;
+/// Tube current range, mA. Simulator choice: continuous fluoroscopy on mobile C-arms runs at
+/// about 0.5 to 10 mA, pulsed up to about 20 mA.
+pub const MA_RANGE: (f64, f64) = (0.1, 20.0);
+/// Largest single needle feed or withdrawal, mm. Simulator choice: a hand movement; longer moves
+/// are several commands (and the whole needle is 89 to 150 mm long).
+pub const MAX_NEEDLE_STEP_MM: f64 = 50.0;
+/// Largest single hub roll, degrees (two turns). Simulator choice.
+pub const MAX_ROLL_DEG: f64 = 720.0;
+/// Largest volume of one injection, ml. Simulator choice: diagnostic contrast and therapeutic
+/// injections at the lumbar spine are 0.5 to 10 ml; 20 ml rejects absurd values (a typo of
+/// 200 ml) while leaving room for a large epidural volume.
+pub const MAX_INJECTION_ML: f64 = 20.0;
+/// Largest injection rate, ml/s. Simulator choice: hand injection through a spinal needle is
+/// well below 1 ml/s; 2 ml/s bounds it.
+pub const MAX_INJECTION_RATE_ML_PER_S: f64 = 2.0;
+/// Longest annotation label, characters.
+pub const MAX_LABEL_CHARS: usize = 64;
+
+/// What an operator can do at a station. JSON form: `{"type": "carm_pose", "orbital_deg": 20,
+/// ...}`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Command {
+    /// Move the C-arm (absolute pose).
+    CarmPose {
+        /// Orbital rotation, degrees: positive LAO, negative RAO (see `sim_core::fluoro::geometry`).
+        orbital_deg: f64,
+        /// Angular rotation, degrees: positive cranial, negative caudal.
+        angular_deg: f64,
+        /// Table translation in model axes, mm.
+        #[serde(default)]
+        table_mm: [f64; 3],
+    },
+    /// Tube voltage and current.
+    Technique {
+        /// Tube voltage, kVp (a committed spectrum: 40 to 120 in steps of 5).
+        kvp: u32,
+        /// Tube current, mA.
+        ma: f64,
+    },
+    /// One fluoroscopic acquisition (a single exposure).
+    Shot,
+    /// Start or stop live (continuous) fluoroscopy.
+    Live {
+        /// True starts, false stops.
+        on: bool,
+    },
+    /// Put a needle from the tray at a skin entry point (only while no needle is in tissue).
+    NeedlePlace {
+        /// Instrument id from the station's tray.
+        instrument: String,
+        /// Skin entry point, model frame, mm.
+        entry_mm: [f64; 3],
+        /// Direction of insertion (need not be unit length).
+        direction: [f64; 3],
+        /// Where the bevel faces (projected onto the plane normal to `direction`).
+        bevel_reference: [f64; 3],
+    },
+    /// Advance the needle, mm of hub travel.
+    NeedleFeed {
+        /// Hub travel, mm.
+        mm: f64,
+    },
+    /// Roll the needle hub, degrees.
+    NeedleRoll {
+        /// Hub rotation, degrees.
+        deg: f64,
+    },
+    /// Pull the needle back along its tract, mm.
+    NeedleWithdraw {
+        /// Hub travel, mm.
+        mm: f64,
+    },
+    /// Mark a point on the current fluoroscopy image.
+    Annotate {
+        /// Continuous pixel coordinates `[x, y]` on the detector (top-left corner is `[0, 0]`).
+        pixel: [f64; 2],
+        /// What the mark names (a station target or an anatomical landmark).
+        label: String,
+    },
+    /// Ultrasound probe pose (needs an ultrasound station).
+    ProbePose {
+        /// Probe face centre, mm.
+        position_mm: [f64; 3],
+        /// Beam direction.
+        direction: [f64; 3],
+        /// In-plane lateral axis of the image.
+        lateral: [f64; 3],
+    },
+    /// Ultrasound settings (needs an ultrasound station).
+    ProbeSettings {
+        /// Imaging depth, mm.
+        depth_mm: f64,
+        /// Gain, dB.
+        gain_db: f64,
+        /// Centre frequency, MHz.
+        frequency_mhz: f64,
+    },
+    /// Inject through the needle (needs contrast transport at the station).
+    Inject {
+        /// What is injected.
+        agent: Agent,
+        /// Volume, ml.
+        volume_ml: f64,
+        /// Rate, ml/s.
+        rate_ml_per_s: f64,
+    },
+    /// End the attempt and score it.
+    Submit,
+}
+
+/// An injectable agent.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Agent {
+    /// Iodinated contrast.
+    Contrast,
+    /// Normal saline.
+    Saline,
+}
+
+/// Which part of the session a command belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CommandClass {
+    /// C-arm, technique, shots, live fluoroscopy, annotations on its image.
+    Fluoroscopy,
+    /// Probe pose and settings.
+    Ultrasound,
+    /// Injections.
+    Contrast,
+    /// The needle (an instrument, shared by every modality).
+    Needle,
+    /// Submit.
+    Session,
+}
+
+impl Command {
+    /// The part of the session that handles this command.
+    pub fn class(&self) -> CommandClass {
+        match self {
+            Command::CarmPose { .. }
+            | Command::Technique { .. }
+            | Command::Shot
+            | Command::Live { .. }
+            | Command::Annotate { .. } => CommandClass::Fluoroscopy,
+            Command::ProbePose { .. } | Command::ProbeSettings { .. } => CommandClass::Ultrasound,
+            Command::Inject { .. } => CommandClass::Contrast,
+            Command::NeedlePlace { .. }
+            | Command::NeedleFeed { .. }
+            | Command::NeedleRoll { .. }
+            | Command::NeedleWithdraw { .. } => CommandClass::Needle,
+            Command::Submit => CommandClass::Session,
+        }
+    }
+
+    /// The snake_case name used in JSON (`"carm_pose"`, ...).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Command::CarmPose { .. } => "carm_pose",
+            Command::Technique { .. } => "technique",
+            Command::Shot => "shot",
+            Command::Live { .. } => "live",
+            Command::NeedlePlace { .. } => "needle_place",
+            Command::NeedleFeed { .. } => "needle_feed",
+            Command::NeedleRoll { .. } => "needle_roll",
+            Command::NeedleWithdraw { .. } => "needle_withdraw",
+            Command::Annotate { .. } => "annotate",
+            Command::ProbePose { .. } => "probe_pose",
+            Command::ProbeSettings { .. } => "probe_settings",
+            Command::Inject { .. } => "inject",
+            Command::Submit => "submit",
+        }
+    }
+
+    /// The needle command, for the three needle motions.
+    pub fn needle_command(&self) -> Option<NeedleCommand> {
+        match *self {
+            Command::NeedleFeed { mm } => Some(NeedleCommand::Feed { mm }),
+            Command::NeedleRoll { deg } => Some(NeedleCommand::Roll { deg }),
+            Command::NeedleWithdraw { mm } => Some(NeedleCommand::Withdraw { mm }),
+            _ => None,
+        }
+    }
+
+    /// Checks every field's value (finite, in range). Station-dependent checks (is the modality
+    /// there, is the instrument on the tray) happen in the session.
+    pub fn validate(&self) -> Result<(), CommandError> {
+        match self {
+            Command::CarmPose {
+                orbital_deg,
+                angular_deg,
+                table_mm,
+            } => {
+                range(
+                    "command.orbital_deg",
+                    *orbital_deg,
+                    -MAX_ORBITAL_DEG,
+                    MAX_ORBITAL_DEG,
+                )?;
+                range(
+                    "command.angular_deg",
+                    *angular_deg,
+                    -MAX_ANGULAR_DEG,
+                    MAX_ANGULAR_DEG,
+                )?;
+                for (a, v) in table_mm.iter().enumerate() {
+                    range(
+                        &format!("command.table_mm[{a}]"),
+                        *v,
+                        -MAX_TABLE_MM,
+                        MAX_TABLE_MM,
+                    )?;
+                }
+                Ok(())
+            }
+            Command::Technique { kvp, ma } => {
+                if !sim_core::fluoro::Spectrum::available_kvp().contains(kvp) {
+                    return Err(CommandError::field(
+                        "command.kvp",
+                        ErrorCode::OutOfRange,
+                        format!("{kvp} kVp has no spectrum (40 to 120 kVp in steps of 5)"),
+                    ));
+                }
+                range("command.ma", *ma, MA_RANGE.0, MA_RANGE.1)
+            }
+            Command::Shot | Command::Live { .. } | Command::Submit => Ok(()),
+            Command::NeedlePlace {
+                instrument,
+                entry_mm,
+                direction,
+                bevel_reference,
+            } => {
+                if instrument.is_empty() {
+                    return Err(CommandError::field(
+                        "command.instrument",
+                        ErrorCode::Invalid,
+                        "instrument id is empty",
+                    ));
+                }
+                for (a, v) in entry_mm.iter().enumerate() {
+                    range(&format!("command.entry_mm[{a}]"), *v, -1000.0, 1000.0)?;
+                }
+                unit_vector("command.direction", *direction)?;
+                unit_vector("command.bevel_reference", *bevel_reference)?;
+                Ok(())
+            }
+            Command::NeedleFeed { mm } => range("command.mm", *mm, 0.0, MAX_NEEDLE_STEP_MM),
+            Command::NeedleWithdraw { mm } => range("command.mm", *mm, 0.0, MAX_NEEDLE_STEP_MM),
+            Command::NeedleRoll { deg } => range("command.deg", *deg, -MAX_ROLL_DEG, MAX_ROLL_DEG),
+            Command::Annotate { pixel, label } => {
+                for (a, v) in pixel.iter().enumerate() {
+                    finite(&format!("command.pixel[{a}]"), *v)?;
+                }
+                if label.trim().is_empty() || label.chars().count() > MAX_LABEL_CHARS {
+                    return Err(CommandError::field(
+                        "command.label",
+                        ErrorCode::Invalid,
+                        format!("label must be 1 to {MAX_LABEL_CHARS} characters"),
+                    ));
+                }
+                Ok(())
+            }
+            Command::ProbePose {
+                position_mm,
+                direction,
+                lateral,
+            } => {
+                for (a, v) in position_mm.iter().enumerate() {
+                    range(&format!("command.position_mm[{a}]"), *v, -1000.0, 1000.0)?;
+                }
+                unit_vector("command.direction", *direction)?;
+                unit_vector("command.lateral", *lateral)
+            }
+            Command::ProbeSettings {
+                depth_mm,
+                gain_db,
+                frequency_mhz,
+            } => {
+                // Ranges of clinical musculoskeletal/spine probes (simulator choice).
+                range("command.depth_mm", *depth_mm, 10.0, 200.0)?;
+                range("command.gain_db", *gain_db, -20.0, 60.0)?;
+                range("command.frequency_mhz", *frequency_mhz, 1.0, 20.0)
+            }
+            Command::Inject {
+                volume_ml,
+                rate_ml_per_s,
+                ..
+            } => {
+                positive_at_most("command.volume_ml", *volume_ml, MAX_INJECTION_ML)?;
+                positive_at_most(
+                    "command.rate_ml_per_s",
+                    *rate_ml_per_s,
+                    MAX_INJECTION_RATE_ML_PER_S,
+                )
+            }
+        }
+    }
+}
+
+fn finite(field: &str, v: f64) -> Result<(), CommandError> {
+    if v.is_finite() {
+        Ok(())
+    } else {
+        Err(CommandError::field(
+            field,
+            ErrorCode::NotFinite,
+            format!("{v} is not a finite number"),
+        ))
+    }
+}
+
+fn range(field: &str, v: f64, lo: f64, hi: f64) -> Result<(), CommandError> {
+    finite(field, v)?;
+    if v < lo || v > hi {
+        return Err(CommandError::field(
+            field,
+            ErrorCode::OutOfRange,
+            format!("{v} is outside [{lo}, {hi}]"),
+        ));
+    }
+    Ok(())
+}
+
+fn positive_at_most(field: &str, v: f64, hi: f64) -> Result<(), CommandError> {
+    finite(field, v)?;
+    if v <= 0.0 || v > hi {
+        return Err(CommandError::field(
+            field,
+            ErrorCode::OutOfRange,
+            format!("{v} must be > 0 and at most {hi}"),
+        ));
+    }
+    Ok(())
+}
+
+fn unit_vector(field: &str, v: [f64; 3]) -> Result<(), CommandError> {
+    for (a, x) in v.iter().enumerate() {
+        finite(&format!("{field}[{a}]"), *x)?;
+    }
+    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if len < 1e-9 {
+        return Err(CommandError::field(
+            field,
+            ErrorCode::Invalid,
+            "zero-length direction",
+        ));
+    }
+    Ok(())
+}
+
+/// A command with the client's sequence number. Sequence numbers increase strictly (gaps are
+/// allowed); re-sending an already accepted command with its number is acknowledged again
+/// without being applied twice (a client reconnecting after a lost connection re-sends what it
+/// has not seen acknowledged).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Envelope {
+    /// Client sequence number, >= 1.
+    pub seq: u64,
+    /// The command.
+    pub command: Command,
+}
+
+/// One accepted command, as logged.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LogEntry {
+    /// The client's sequence number.
+    pub seq: u64,
+    /// Simulation time at which it was applied, ms since the session started.
+    pub t_ms: u64,
+    /// The command.
+    pub command: Command,
+}
+
+/// Machine-readable reason of a rejection.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ErrorCode {
+    /// Not valid JSON or not a known message or command.
+    Malformed,
+    /// A number that is NaN or infinite.
+    NotFinite,
+    /// A number outside its allowed range.
+    OutOfRange,
+    /// Any other bad value.
+    Invalid,
+    /// The sequence number is not above the last accepted one.
+    Sequence,
+    /// The station has no such modality (ultrasound at a fluoroscopy station, ...).
+    ModalityUnavailable,
+    /// The instrument is not on this station's tray.
+    InstrumentUnavailable,
+    /// The command does not fit the current state (needle not placed, session submitted...).
+    State,
+    /// The session does not exist or has ended.
+    NoSession,
+}
+
+/// Why a command (or message) was rejected: the field, a code and a sentence.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, thiserror::Error)]
+#[error("{field}: {message}")]
+pub struct CommandError {
+    /// Path of the offending field, e.g. `command.orbital_deg`, `seq`, `command.type`.
+    pub field: String,
+    /// Machine-readable reason.
+    pub code: ErrorCode,
+    /// What is wrong, for people.
+    pub message: String,
+}
+
+impl CommandError {
+    /// An error about `field`.
+    pub fn field(field: &str, code: ErrorCode, message: impl Into<String>) -> CommandError {
+        CommandError {
+            field: field.to_string(),
+            code,
+            message: message.into(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn json_shape_and_field_names_in_errors() {
+        let c: Command =
+            serde_json::from_str(r#"{"type":"carm_pose","orbital_deg":20,"angular_deg":-5}"#)
+                .unwrap();
+        assert_eq!(
+            c,
+            Command::CarmPose {
+                orbital_deg: 20.0,
+                angular_deg: -5.0,
+                table_mm: [0.0; 3]
+            }
+        );
+        let e = Command::CarmPose {
+            orbital_deg: f64::NAN,
+            angular_deg: 0.0,
+            table_mm: [0.0; 3],
+        }
+        .validate()
+        .unwrap_err();
+        assert_eq!(
+            (e.field.as_str(), e.code),
+            ("command.orbital_deg", ErrorCode::NotFinite)
+        );
+        let e = Command::CarmPose {
+            orbital_deg: 0.0,
+            angular_deg: 60.0,
+            table_mm: [0.0; 3],
+        }
+        .validate()
+        .unwrap_err();
+        assert_eq!(
+            (e.field.as_str(), e.code),
+            ("command.angular_deg", ErrorCode::OutOfRange)
+        );
+        let e = Command::Inject {
+            agent: Agent::Contrast,
+            volume_ml: 500.0,
+            rate_ml_per_s: 0.2,
+        }
+        .validate()
+        .unwrap_err();
+        assert_eq!(e.field, "command.volume_ml");
+        let e = Command::Technique { kvp: 83, ma: 2.0 }
+            .validate()
+            .unwrap_err();
+        assert_eq!(e.field, "command.kvp");
+        assert!(Command::Technique { kvp: 85, ma: 2.0 }.validate().is_ok());
+    }
+}

@@ -1,0 +1,816 @@
+//! The fluoroscopy modality: C-arm pose and technique, shots and live runs, the displayed image,
+//! annotations on it, and its scorers (view alignment, annotation error, shot count, exposure).
+//!
+//! A C-arm only makes a new image when the beam is on: moving the C-arm or the needle without
+//! exposure leaves the last image on screen (last-image hold). So a shot, or any change while
+//! live fluoroscopy runs, is what makes the view dirty; nothing else renders.
+//!
+//! Each image records everything that decides its pixels when it is acquired (projection,
+//! technique, the needle shaft, the noise seed), so a frame rendered later (after the client
+//! caught up, or after a restore) is exactly the image of that moment.
+
+use std::sync::Arc;
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use sim_core::fluoro::{
+    Collimation, EnergyModel, FluoroMaterial, Image, Projection, QuantumNoise, RenderSettings,
+    Scene,
+};
+use sim_core::geom::{capped_cylinder, equal_area_vertex_radius};
+use sim_core::rubric::Measurements;
+
+use super::command::{Command, CommandClass, CommandError, ErrorCode};
+use super::modality::{Modality, ViewId, WorldChange};
+use super::region::Region;
+use super::world::{StationContext, World};
+
+/// Fluoroscopy time booked for one single-shot acquisition, ms. Simulator choice: C-arms display
+/// fluoroscopy time in 0.1 s steps, and a single pulse-and-hold shot books one step.
+pub const SHOT_EXPOSURE_MS: u64 = 100;
+/// Mean detected quanta per pixel at 1 mA. Simulator choice: a few thousand quanta per pixel at
+/// typical fluoroscopy currents (2 to 3 mA) gives visible but not dominant grain.
+pub const PHOTONS_PER_PIXEL_PER_MA: f64 = 1500.0;
+/// An acquisition counts as an AP view when its orbital rotation is within this many degrees of
+/// zero. Simulator choice: beyond 10 degrees a view is read as oblique.
+pub const AP_MAX_OBLIQUITY_DEG: f64 = 10.0;
+/// An acquisition counts as an oblique view from this orbital rotation on (same choice).
+pub const OBLIQUE_MIN_DEG: f64 = 10.0;
+/// Facets of the needle prism. Simulator choice: with the equal-area radius, 8 facets keep the
+/// mean chord of the round shaft exactly and its silhouette within 4% of the radius.
+pub const NEEDLE_FACETS: u32 = 8;
+
+/// Makes fluoroscopy renderers: the CPU reference, or the GPU renderer (same output type).
+/// Shared by every session of a worker; each session gets its own [`FluoroRenderer`], created on
+/// its first exposure (a session that never takes an image allocates nothing).
+pub trait FluoroBackend: Send + Sync {
+    /// What renders (e.g. `cpu-reference`, or the GPU adapter's name), for records and health.
+    fn profile(&self) -> BackendProfile;
+    /// A renderer of `region` for one session.
+    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String>;
+}
+
+/// One session's renderer (may hold per-session resources, such as uploaded meshes).
+pub trait FluoroRenderer: Send {
+    /// One frame of the region (no iodine yet) with the needle, if any, through `projection`.
+    fn render(
+        &mut self,
+        needle: Option<&NeedleShaft>,
+        projection: &Projection,
+        settings: &RenderSettings,
+    ) -> Result<Image, String>;
+}
+
+/// Which renderer made a frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BackendProfile {
+    /// Renderer kind: `cpu-reference` or `gpu`.
+    pub kind: String,
+    /// Device or adapter (`cpu` for the reference).
+    pub device: String,
+}
+
+/// The f64 CPU reference renderer of `sim_core::fluoro`.
+#[derive(Debug, Clone, Copy)]
+pub struct CpuFluoroBackend {
+    /// Render threads per frame (0: all cores).
+    pub threads: usize,
+}
+
+impl FluoroBackend for CpuFluoroBackend {
+    fn profile(&self) -> BackendProfile {
+        BackendProfile {
+            kind: "cpu-reference".to_string(),
+            device: "cpu".to_string(),
+        }
+    }
+
+    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String> {
+        Ok(Box::new(CpuRenderer {
+            region: Arc::clone(region),
+            threads: self.threads,
+            cache: None,
+        }))
+    }
+}
+
+/// The CPU renderer of one session: the region's scene plus the needle's prisms, rebuilt only
+/// when the needle moved.
+struct CpuRenderer {
+    region: Arc<Region>,
+    threads: usize,
+    cache: Option<(NeedleShaft, Scene)>,
+}
+
+impl FluoroRenderer for CpuRenderer {
+    fn render(
+        &mut self,
+        needle: Option<&NeedleShaft>,
+        projection: &Projection,
+        settings: &RenderSettings,
+    ) -> Result<Image, String> {
+        let settings = RenderSettings {
+            threads: self.threads,
+            ..*settings
+        };
+        let scene = match needle {
+            None => &self.region.scene,
+            Some(n) => {
+                if self.cache.as_ref().is_none_or(|(c, _)| c != n) {
+                    let mut scene = self.region.scene.clone();
+                    for (k, mesh) in needle_meshes(n).iter().enumerate() {
+                        scene.add(format!("needle_{k}"), FluoroMaterial::Steel, mesh);
+                    }
+                    self.cache = Some((n.clone(), scene));
+                }
+                match &self.cache {
+                    Some((_, s)) => s,
+                    None => &self.region.scene,
+                }
+            }
+        };
+        sim_core::fluoro::render_frame(scene, None, projection, &settings)
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// The GPU renderer of `render_worker::fluoro` on a worker's device.
+#[derive(Debug, Clone)]
+pub struct GpuFluoroBackend {
+    /// The device shared by every session.
+    pub ctx: crate::gpu::GpuContext,
+}
+
+impl FluoroBackend for GpuFluoroBackend {
+    fn profile(&self) -> BackendProfile {
+        BackendProfile {
+            kind: "gpu".to_string(),
+            device: format!("{} ({})", self.ctx.summary.name, self.ctx.summary.backend),
+        }
+    }
+
+    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String> {
+        let r = crate::fluoro::GpuFluoroRenderer::new(&self.ctx, &region.scene)
+            .map_err(|e| e.to_string())?;
+        Ok(Box::new(GpuRenderer {
+            renderer: r,
+            needle: None,
+        }))
+    }
+}
+
+struct GpuRenderer {
+    renderer: crate::fluoro::GpuFluoroRenderer,
+    needle: Option<NeedleShaft>,
+}
+
+impl FluoroRenderer for GpuRenderer {
+    fn render(
+        &mut self,
+        needle: Option<&NeedleShaft>,
+        projection: &Projection,
+        settings: &RenderSettings,
+    ) -> Result<Image, String> {
+        if self.needle.as_ref() != needle {
+            match needle {
+                // One mesh of all segments: exact for a straight shaft (one convex prism); a bent
+                // shaft's segments overlap at the joints by a fraction of its radius.
+                Some(n) => {
+                    let mut mesh = sim_core::mesh::TriMesh {
+                        vertices_mm: Vec::new(),
+                        triangles: Vec::new(),
+                    };
+                    for m in needle_meshes(n) {
+                        mesh.append(&m);
+                    }
+                    self.renderer.update_needle(&mesh);
+                }
+                None => self.renderer.clear_needle(),
+            }
+            self.needle = needle.cloned();
+        }
+        self.renderer
+            .render_frame(projection, settings, None)
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// The needle's closed prisms, one per polyline segment (equal-area radius, [`NEEDLE_FACETS`]).
+pub fn needle_meshes(needle: &NeedleShaft) -> Vec<sim_core::mesh::TriMesh> {
+    let r = equal_area_vertex_radius(needle.radius_mm, NEEDLE_FACETS);
+    needle
+        .points_mm
+        .windows(2)
+        .filter(|w| (0..3).map(|a| (w[1][a] - w[0][a]).powi(2)).sum::<f64>() > 1e-12)
+        .map(|w| capped_cylinder(w[0], w[1], r, NEEDLE_FACETS))
+        .collect()
+}
+
+/// Fixed settings of a session's C-arm.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FluoroConfig {
+    /// Square detector size, pixels.
+    pub detector_pixels: u32,
+    /// Detector side, mm (300: a 30 cm flat panel, as `Projection::default`).
+    pub detector_mm: f64,
+    /// Supersampling of silhouette pixels (`n x n`). Simulator choice for live use: 2.
+    pub supersample: u32,
+    /// Quantum noise on (seeded per image).
+    pub noise: bool,
+}
+
+impl Default for FluoroConfig {
+    fn default() -> Self {
+        FluoroConfig {
+            detector_pixels: 512,
+            detector_mm: 300.0,
+            supersample: 2,
+            noise: true,
+        }
+    }
+}
+
+/// The needle shaft as imaged: a polyline (hub first) and its radius.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NeedleShaft {
+    /// Points, mm.
+    pub points_mm: Vec<[f64; 3]>,
+    /// Outer radius, mm.
+    pub radius_mm: f64,
+}
+
+/// Everything that decides one image's pixels.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AcquiredImage {
+    /// Acquisition number in this session (0-based): shots and live frames together.
+    pub index: u64,
+    /// Simulation time, ms.
+    pub t_ms: u64,
+    /// C-arm projection.
+    pub projection: Projection,
+    /// Tube voltage.
+    pub kvp: u32,
+    /// Tube current.
+    pub ma: f64,
+    /// Live frame (true) or single shot.
+    pub live: bool,
+    /// The needle at that moment.
+    pub needle: Option<NeedleShaft>,
+    /// Quantum noise seed.
+    pub noise_seed: u64,
+}
+
+/// A mark on an image.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Annotation {
+    /// Continuous pixel coordinates.
+    pub pixel: [f64; 2],
+    /// What it names.
+    pub label: String,
+    /// The projection of the image it was placed on.
+    pub projection: Projection,
+    /// Simulation time, ms.
+    pub t_ms: u64,
+}
+
+/// Serializable fluoroscopy state.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FluoroState {
+    /// Fixed configuration.
+    pub config: FluoroConfig,
+    /// Model point at the isocentre with the table at zero, mm.
+    pub isocentre_mm: [f64; 3],
+    /// Orbital rotation, degrees.
+    pub orbital_deg: f64,
+    /// Angular rotation, degrees.
+    pub angular_deg: f64,
+    /// Table translation, mm.
+    pub table_mm: [f64; 3],
+    /// Tube voltage.
+    pub kvp: u32,
+    /// Tube current.
+    pub ma: f64,
+    /// Live fluoroscopy running since this time (ms), or `None`.
+    pub live_since_ms: Option<u64>,
+    /// Fluoroscopy time booked so far (completed live runs and shots), ms.
+    pub exposure_ms: u64,
+    /// Single shots taken.
+    pub shots: u32,
+    /// Live runs started.
+    pub live_runs: u32,
+    /// Every image acquired (shots and live frames), oldest first; the last one is displayed.
+    pub images: Vec<AcquiredImage>,
+    /// Marks placed on images.
+    pub annotations: Vec<Annotation>,
+    /// Session seed for quantum noise.
+    pub seed: u64,
+}
+
+/// The fluoroscopy modality.
+pub struct FluoroModality {
+    state: FluoroState,
+    backend: Arc<dyn FluoroBackend>,
+    /// Index of the last image rendered (`None`: none yet), not part of the state.
+    rendered: Option<u64>,
+    /// Created on the first render.
+    renderer: Option<Box<dyn FluoroRenderer>>,
+}
+
+impl std::fmt::Debug for FluoroModality {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FluoroModality")
+            .field("state", &self.state)
+            .field("backend", &self.backend.profile())
+            .finish()
+    }
+}
+
+impl FluoroModality {
+    /// A C-arm in the AP position at 80 kVp / 2 mA, centred on `isocentre_mm`.
+    pub fn new(
+        config: FluoroConfig,
+        isocentre_mm: [f64; 3],
+        seed: u64,
+        backend: Arc<dyn FluoroBackend>,
+    ) -> FluoroModality {
+        FluoroModality {
+            state: FluoroState {
+                config,
+                isocentre_mm,
+                orbital_deg: 0.0,
+                angular_deg: 0.0,
+                table_mm: [0.0; 3],
+                // 80 kVp: the methods page's starting beam; 2 mA: a typical fluoroscopy current.
+                kvp: 80,
+                ma: 2.0,
+                live_since_ms: None,
+                exposure_ms: 0,
+                shots: 0,
+                live_runs: 0,
+                images: Vec::new(),
+                annotations: Vec::new(),
+                seed,
+            },
+            backend,
+            rendered: None,
+            renderer: None,
+        }
+    }
+
+    /// The current state.
+    pub fn fluoro_state(&self) -> &FluoroState {
+        &self.state
+    }
+
+    /// The projection of the current C-arm pose.
+    pub fn projection(&self) -> Projection {
+        let c = &self.state.config;
+        // The blades at the detector's edges: the same as `Collimation::OPEN` for every pixel,
+        // but finite, so the state survives JSON (which has no infinity).
+        let half_mm = 0.5 * c.detector_mm;
+        Projection {
+            orbital_deg: self.state.orbital_deg,
+            angular_deg: self.state.angular_deg,
+            isocentre_mm: self.state.isocentre_mm,
+            table_translation_mm: self.state.table_mm,
+            detector_pixels: [c.detector_pixels; 2],
+            pixel_pitch_mm: [c.detector_mm / f64::from(c.detector_pixels); 2],
+            collimation: Collimation {
+                x_min_mm: -half_mm,
+                x_max_mm: half_mm,
+                y_min_mm: -half_mm,
+                y_max_mm: half_mm,
+                iris_radius_mm: None,
+            },
+            ..Projection::default()
+        }
+    }
+
+    /// Fluoroscopy time including a live run still going at `now_ms`, ms.
+    pub fn exposure_ms_at(&self, now_ms: u64) -> u64 {
+        self.state.exposure_ms
+            + self
+                .state
+                .live_since_ms
+                .map_or(0, |s| now_ms.saturating_sub(s))
+    }
+
+    fn acquire(&mut self, world: &World, live: bool) {
+        let index = self.state.images.len() as u64;
+        let needle = world.needle.as_ref().map(|n| NeedleShaft {
+            points_mm: simplify_polyline(
+                &n.state
+                    .shaft_polyline(2.0)
+                    .iter()
+                    .map(|p| p.to_array())
+                    .collect::<Vec<_>>(),
+            ),
+            radius_mm: 0.5 * n.state.profile.outer_diameter_mm,
+        });
+        self.state.images.push(AcquiredImage {
+            index,
+            t_ms: world.clock_ms,
+            projection: self.projection(),
+            kvp: self.state.kvp,
+            ma: self.state.ma,
+            live,
+            needle,
+            noise_seed: splitmix(self.state.seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15)),
+        });
+    }
+}
+
+/// Drops polyline points that lie on the line of their neighbours (within 1e-6 rad), so a
+/// straight needle is one prism instead of dozens.
+fn simplify_polyline(points: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    let mut out: Vec<[f64; 3]> = Vec::new();
+    for &p in points {
+        if let Some(&last) = out.last() {
+            if (0..3).all(|a| (p[a] - last[a]).abs() < 1e-9) {
+                continue;
+            }
+        }
+        if out.len() >= 2 {
+            let a = DVec3::from_array(out[out.len() - 2]);
+            let b = DVec3::from_array(out[out.len() - 1]);
+            let c = DVec3::from_array(p);
+            let (u, v) = ((b - a).normalize_or_zero(), (c - b).normalize_or_zero());
+            if u.cross(v).length() < 1e-6 && u.dot(v) > 0.0 {
+                out.pop();
+            }
+        }
+        out.push(p);
+    }
+    out
+}
+
+/// SplitMix64 finaliser (Steele, Lea and Flood 2014): decorrelates per-image seeds.
+fn splitmix(x: u64) -> u64 {
+    let mut z = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+impl Modality for FluoroModality {
+    fn name(&self) -> &'static str {
+        "fluoroscopy"
+    }
+
+    fn accepts(&self) -> &'static [CommandClass] {
+        &[CommandClass::Fluoroscopy]
+    }
+
+    fn views(&self) -> &'static [ViewId] {
+        &[ViewId::Fluoroscopy]
+    }
+
+    fn apply(
+        &mut self,
+        command: &Command,
+        world: &World,
+    ) -> Result<serde_json::Value, CommandError> {
+        let now = world.clock_ms;
+        let live = self.state.live_since_ms.is_some();
+        match command {
+            Command::CarmPose {
+                orbital_deg,
+                angular_deg,
+                table_mm,
+            } => {
+                self.state.orbital_deg = *orbital_deg;
+                self.state.angular_deg = *angular_deg;
+                self.state.table_mm = *table_mm;
+                if live {
+                    self.acquire(world, true);
+                }
+            }
+            Command::Technique { kvp, ma } => {
+                self.state.kvp = *kvp;
+                self.state.ma = *ma;
+                if live {
+                    self.acquire(world, true);
+                }
+            }
+            Command::Shot => {
+                self.state.shots += 1;
+                self.state.exposure_ms += SHOT_EXPOSURE_MS;
+                self.acquire(world, false);
+            }
+            Command::Live { on: true } => {
+                if !live {
+                    self.state.live_runs += 1;
+                    self.state.live_since_ms = Some(now);
+                    self.acquire(world, true);
+                }
+            }
+            Command::Live { on: false } => {
+                if let Some(since) = self.state.live_since_ms.take() {
+                    self.state.exposure_ms += now.saturating_sub(since);
+                }
+            }
+            Command::Annotate { pixel, label } => {
+                let Some(image) = self.state.images.last() else {
+                    return Err(CommandError::field(
+                        "command.type",
+                        ErrorCode::State,
+                        "no fluoroscopy image to annotate yet: take a shot first",
+                    ));
+                };
+                let [w, h] = image.projection.detector_pixels;
+                if !(0.0..=f64::from(w)).contains(&pixel[0])
+                    || !(0.0..=f64::from(h)).contains(&pixel[1])
+                {
+                    return Err(CommandError::field(
+                        "command.pixel",
+                        ErrorCode::OutOfRange,
+                        format!("{pixel:?} is outside the {w} x {h} image"),
+                    ));
+                }
+                self.state.annotations.push(Annotation {
+                    pixel: *pixel,
+                    label: label.clone(),
+                    projection: image.projection,
+                    t_ms: now,
+                });
+                let error = annotation_error_mm(self.state.annotations.last(), world);
+                return Ok(serde_json::json!({ "annotation_error_mm": error }));
+            }
+            other => {
+                return Err(CommandError::field(
+                    "command.type",
+                    ErrorCode::ModalityUnavailable,
+                    format!("fluoroscopy does not handle {}", other.name()),
+                ));
+            }
+        }
+        Ok(serde_json::json!({
+            "acquisitions": self.state.shots + self.state.live_runs,
+            "exposure_s": self.exposure_ms_at(now) as f64 / 1000.0,
+            "image": self.state.images.last().map(|i| i.index),
+        }))
+    }
+
+    fn world_changed(&mut self, change: WorldChange, world: &World) {
+        match change {
+            WorldChange::Needle => {
+                if self.state.live_since_ms.is_some() {
+                    self.acquire(world, true);
+                }
+            }
+        }
+    }
+
+    fn dirty_views(&self) -> Vec<ViewId> {
+        let last = self.state.images.last().map(|i| i.index);
+        if last.is_some() && last != self.rendered {
+            vec![ViewId::Fluoroscopy]
+        } else {
+            Vec::new()
+        }
+    }
+
+    fn render(&mut self, _view: ViewId, world: &World) -> Result<Option<Image>, String> {
+        let Some(image) = self.state.images.last().cloned() else {
+            return Ok(None);
+        };
+        let settings = RenderSettings {
+            energy: EnergyModel::Spectral { kvp: image.kvp },
+            supersample: self.state.config.supersample,
+            adaptive: true,
+            noise: self.state.config.noise.then_some(QuantumNoise {
+                photons_per_pixel: PHOTONS_PER_PIXEL_PER_MA * image.ma,
+                seed: image.noise_seed,
+            }),
+            ..RenderSettings::default()
+        };
+        if self.renderer.is_none() {
+            self.renderer = Some(self.backend.renderer(&world.region)?);
+        }
+        let Some(renderer) = self.renderer.as_mut() else {
+            return Ok(None);
+        };
+        let frame = renderer.render(image.needle.as_ref(), &image.projection, &settings)?;
+        self.rendered = Some(image.index);
+        Ok(Some(frame))
+    }
+
+    fn measure(&self, world: &World, out: &mut Measurements) {
+        let s = &self.state;
+        out.insert(
+            "fluoro_acquisitions_count".into(),
+            f64::from(s.shots + s.live_runs),
+        );
+        out.insert(
+            "fluoro_exposure_s".into(),
+            self.exposure_ms_at(world.clock_ms) as f64 / 1000.0,
+        );
+        let region = &world.region;
+        let side = primary_target(&world.station)
+            .map(|t| target_side(region, t))
+            .unwrap_or(-1.0);
+        let beams: Vec<(f64, DVec3)> = s
+            .images
+            .iter()
+            .map(|i| (i.projection.orbital_deg, beam_direction(&i.projection)))
+            .collect();
+        if let Some(n) = endplate_normal(region, "L4", "L5") {
+            let best = beams
+                .iter()
+                .filter(|(orb, _)| orb.abs() <= AP_MAX_OBLIQUITY_DEG)
+                .map(|(_, b)| angle_to_plane_deg(*b, n))
+                .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.min(v))));
+            if let Some(v) = best {
+                out.insert("ap_endplate_tilt_deg".into(), v);
+            }
+        }
+        // Ipsilateral oblique: the beam line runs from posterior-ipsilateral to
+        // anterior-contralateral, which in this C-arm's convention is orbital = side * angle
+        // (see the module doc of `scoring`).
+        if let Some((orb, _)) = beams
+            .iter()
+            .rev()
+            .find(|(o, _)| side * o >= OBLIQUE_MIN_DEG)
+        {
+            out.insert("ipsilateral_oblique_deg".into(), side * orb);
+        }
+        if let Some((orb, _)) = beams
+            .iter()
+            .rev()
+            .find(|(o, _)| -side * o >= OBLIQUE_MIN_DEG)
+        {
+            out.insert("clo_angle_deg".into(), -side * orb);
+        }
+        if let Some(t) = primary_target(&world.station) {
+            if let Some(n) = facet_joint_normal(region, t) {
+                let best = beams
+                    .iter()
+                    .map(|(_, b)| angle_to_plane_deg(*b, n))
+                    .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.min(v))));
+                if let Some(v) = best {
+                    out.insert("beam_to_joint_plane_deg".into(), v);
+                }
+            }
+        }
+        if let Some(e) = s
+            .annotations
+            .iter()
+            .rev()
+            .find_map(|a| annotation_error_mm(Some(a), world))
+        {
+            out.insert("annotation_error_mm".into(), e);
+        }
+    }
+
+    fn record(&self) -> serde_json::Value {
+        let s = &self.state;
+        serde_json::json!({
+            "backend": self.backend.profile(),
+            "orbital_deg": s.orbital_deg,
+            "angular_deg": s.angular_deg,
+            "table_mm": s.table_mm,
+            "isocentre_mm": s.isocentre_mm,
+            "kvp": s.kvp,
+            "ma": s.ma,
+            "detector_pixels": s.config.detector_pixels,
+            "detector_mm": s.config.detector_mm,
+            "supersample": s.config.supersample,
+            "noise": s.config.noise,
+        })
+    }
+
+    fn state(&self) -> serde_json::Value {
+        serde_json::to_value(&self.state).unwrap_or(serde_json::Value::Null)
+    }
+
+    fn restore(&mut self, state: serde_json::Value) -> Result<(), String> {
+        self.state =
+            serde_json::from_value(state).map_err(|e| format!("fluoroscopy state: {e}"))?;
+        self.rendered = None;
+        Ok(())
+    }
+}
+
+/// Unit vector of the central ray (source to detector).
+pub fn beam_direction(p: &Projection) -> DVec3 {
+    DVec3::from_array(p.frame().normal)
+}
+
+/// Angle between a line and a plane (given by its normal), degrees in 0..=90.
+pub fn angle_to_plane_deg(line: DVec3, plane_normal: DVec3) -> f64 {
+    line.normalize()
+        .dot(plane_normal.normalize())
+        .abs()
+        .min(1.0)
+        .asin()
+        .to_degrees()
+}
+
+/// The target that the station's `tip_to_target_mm` criterion names, else its first target.
+pub fn primary_target(station: &StationContext) -> Option<[f64; 3]> {
+    let named = station
+        .station
+        .rubric
+        .criteria
+        .iter()
+        .find(|c| c.measurement == "tip_to_target_mm")
+        .and_then(|c| c.target.as_ref())
+        .and_then(|t| station.targets.get(t));
+    named
+        .or_else(|| {
+            station
+                .station
+                .targets
+                .first()
+                .and_then(|t| station.targets.get(&t.name))
+        })
+        .copied()
+}
+
+/// -1 for a target left of the midline (x below the L4 body centre's), +1 for right.
+pub fn target_side(region: &Region, target: [f64; 3]) -> f64 {
+    let mid = region.landmarks.get("L4_body_centre").map_or(0.0, |c| c[0]);
+    if target[0] < mid { -1.0 } else { 1.0 }
+}
+
+/// Error of an annotation whose label names a target or landmark: the distance from that point
+/// to the ray through the marked pixel, mm (the miss measured at the point's own depth).
+pub fn annotation_error_mm(a: Option<&Annotation>, world: &World) -> Option<f64> {
+    let a = a?;
+    let p = DVec3::from_array(world.station.point(&world.region, &a.label)?);
+    let ray = a.projection.pixel_ray(a.pixel);
+    let o = DVec3::from_array(ray.origin_mm);
+    let d = DVec3::from_array(ray.dir);
+    let v = p - o;
+    Some((v - d * v.dot(d)).length())
+}
+
+/// Outward normal of the inferior endplate of vertebra `upper`, estimated from its cortical mesh:
+/// a 5 x 5 bundle of rays (6 mm apart at the edges, well inside a 35 mm endplate) leaves the body
+/// centre towards the next body centre; the mean of the surface normals where they leave the
+/// bone is the endplate normal. `None` when the region lacks the structures or landmarks.
+pub fn endplate_normal(region: &Region, upper: &str, lower: &str) -> Option<DVec3> {
+    let c = DVec3::from_array(*region.landmarks.get(&format!("{upper}_body_centre"))?);
+    let l = DVec3::from_array(*region.landmarks.get(&format!("{lower}_body_centre"))?);
+    let bone = region.entry(&format!("{upper}_cortical"))?;
+    let axis = (l - c).normalize();
+    let e1 = axis.any_orthonormal_vector();
+    let e2 = axis.cross(e1);
+    let mut sum = DVec3::ZERO;
+    for i in -2..=2 {
+        for j in -2..=2 {
+            let o = c + e1 * (3.0 * f64::from(i)) + e2 * (3.0 * f64::from(j));
+            if let Some(h) = region.first_hit(bone, o.to_array(), axis.to_array(), 60.0) {
+                // Leaving the bone: the outward normal points along the ray.
+                if h.normal.dot(axis) > 0.0 {
+                    sum += h.normal;
+                }
+            }
+        }
+    }
+    (sum.length() > 0.0).then(|| sum.normalize())
+}
+
+/// Normal of the facet joint plane nearest to `target`, estimated from the bone meshes around
+/// the joint landmark (`*_facet_joint_left/right`): of 2000 directions (a Fibonacci sphere),
+/// the one along which bone lies closest on both sides (the joint gap is the thinnest
+/// direction); then the mean of the two facing surface normals there. `None` without a facet
+/// joint landmark within 40 mm or without bone on both sides.
+pub fn facet_joint_normal(region: &Region, target: [f64; 3]) -> Option<DVec3> {
+    let t = DVec3::from_array(target);
+    let (_, centre) = region
+        .landmarks
+        .iter()
+        .filter(|(k, _)| k.contains("facet_joint"))
+        .map(|(k, p)| (k, DVec3::from_array(*p)))
+        .min_by(|a, b| a.1.distance(t).total_cmp(&b.1.distance(t)))?;
+    if centre.distance(t) > 40.0 {
+        return None;
+    }
+    let bones = region.bones();
+    use sim_core::needle::BoneSurface;
+    const N: usize = 2000;
+    const REACH_MM: f64 = 8.0;
+    let mut best: Option<(f64, DVec3, DVec3, DVec3)> = None;
+    for k in 0..N {
+        // Fibonacci sphere, upper half only (a line and its reverse are the same probe).
+        let z = 1.0 - (k as f64 + 0.5) / N as f64;
+        let r = (1.0 - z * z).sqrt();
+        let phi = k as f64 * std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        let d = DVec3::new(r * phi.cos(), r * phi.sin(), z);
+        let (Some(a), Some(b)) = (
+            bones.first_hit(centre, d, REACH_MM),
+            bones.first_hit(centre, -d, REACH_MM),
+        ) else {
+            continue;
+        };
+        let width = a.t_mm + b.t_mm;
+        if best.is_none_or(|(w, ..)| width < w) {
+            best = Some((width, d, a.normal, b.normal));
+        }
+    }
+    let (_, d, na, nb) = best?;
+    // Surfaces facing the gap have outward normals against the probe: -na along d, nb along -d.
+    let n = (nb - na).normalize_or_zero();
+    if n == DVec3::ZERO { Some(d) } else { Some(n) }
+}

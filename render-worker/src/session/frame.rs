@@ -1,0 +1,138 @@
+//! Encoded frames: 8-bit grey JPEG behind a small fixed header.
+//!
+//! Binary websocket message layout (little endian), 40 bytes then the JPEG:
+//!
+//! | bytes  | field                                                  |
+//! |--------|--------------------------------------------------------|
+//! | 0..4   | magic `SIMF`                                           |
+//! | 4      | header version (1)                                     |
+//! | 5      | view code (0 fluoroscopy, 1 ultrasound)                |
+//! | 6..8   | reserved (0)                                           |
+//! | 8..16  | frame sequence (per session, increasing)               |
+//! | 16..24 | last accepted input sequence the frame reflects        |
+//! | 24..32 | simulation time of the image, ms                       |
+//! | 32..34 | width, pixels                                          |
+//! | 34..36 | height, pixels                                         |
+//! | 36..40 | reserved (0)                                           |
+
+use sim_core::fluoro::Image;
+
+use super::modality::ViewId;
+
+/// Header length, bytes.
+pub const HEADER_BYTES: usize = 40;
+/// Magic bytes.
+pub const MAGIC: &[u8; 4] = b"SIMF";
+/// JPEG quality. Simulator choice: 85 keeps grey-level steps of 1 to 2 at 512 x 512 in about
+/// 30 to 60 kB per frame.
+pub const JPEG_QUALITY: u8 = 85;
+
+/// One frame ready to send.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct EncodedFrame {
+    /// Which view.
+    pub view: ViewId,
+    /// Frame sequence.
+    pub frame_seq: u64,
+    /// Last accepted input sequence reflected.
+    pub input_seq: u64,
+    /// Simulation time, ms.
+    pub t_ms: u64,
+    /// Width, pixels.
+    pub width: u16,
+    /// Height, pixels.
+    pub height: u16,
+    /// JPEG bytes.
+    pub jpeg: Vec<u8>,
+}
+
+/// Grey JPEG of an image.
+pub fn encode_jpeg(image: &Image) -> Result<Vec<u8>, String> {
+    let w = u16::try_from(image.width).map_err(|_| "image too wide for JPEG".to_string())?;
+    let h = u16::try_from(image.height).map_err(|_| "image too tall for JPEG".to_string())?;
+    let mut out = Vec::new();
+    jpeg_encoder::Encoder::new(&mut out, JPEG_QUALITY)
+        .encode(&image.pixels, w, h, jpeg_encoder::ColorType::Luma)
+        .map_err(|e| e.to_string())?;
+    Ok(out)
+}
+
+impl EncodedFrame {
+    /// Encodes `image` with its sequence numbers.
+    pub fn new(
+        view: ViewId,
+        frame_seq: u64,
+        input_seq: u64,
+        t_ms: u64,
+        image: &Image,
+    ) -> Result<EncodedFrame, String> {
+        Ok(EncodedFrame {
+            view,
+            frame_seq,
+            input_seq,
+            t_ms,
+            width: image.width as u16,
+            height: image.height as u16,
+            jpeg: encode_jpeg(image)?,
+        })
+    }
+
+    /// The binary message: header then JPEG.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut b = Vec::with_capacity(HEADER_BYTES + self.jpeg.len());
+        b.extend_from_slice(MAGIC);
+        b.push(1);
+        b.push(self.view.code());
+        b.extend_from_slice(&[0, 0]);
+        b.extend_from_slice(&self.frame_seq.to_le_bytes());
+        b.extend_from_slice(&self.input_seq.to_le_bytes());
+        b.extend_from_slice(&self.t_ms.to_le_bytes());
+        b.extend_from_slice(&self.width.to_le_bytes());
+        b.extend_from_slice(&self.height.to_le_bytes());
+        b.extend_from_slice(&[0; 4]);
+        b.extend_from_slice(&self.jpeg);
+        b
+    }
+
+    /// Parses a binary message.
+    pub fn parse(b: &[u8]) -> Result<EncodedFrame, String> {
+        if b.len() < HEADER_BYTES || &b[0..4] != MAGIC || b[4] != 1 {
+            return Err("not a version-1 SIMF frame".to_string());
+        }
+        let u64_at = |i: usize| u64::from_le_bytes(b[i..i + 8].try_into().unwrap_or([0; 8]));
+        let u16_at = |i: usize| u16::from_le_bytes([b[i], b[i + 1]]);
+        Ok(EncodedFrame {
+            view: ViewId::from_code(b[5]).ok_or_else(|| format!("unknown view code {}", b[5]))?,
+            frame_seq: u64_at(8),
+            input_seq: u64_at(16),
+            t_ms: u64_at(24),
+            width: u16_at(32),
+            height: u16_at(34),
+            jpeg: b[HEADER_BYTES..].to_vec(),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn header_round_trips_and_jpeg_is_a_jpeg() {
+        let image = Image {
+            width: 16,
+            height: 8,
+            pixels: (0..128).map(|i| (i * 2) as u8).collect(),
+        };
+        let f = EncodedFrame::new(ViewId::Fluoroscopy, 7, 42, 1234, &image).unwrap();
+        assert_eq!(&f.jpeg[0..2], &[0xFF, 0xD8], "JPEG SOI marker");
+        assert_eq!(
+            &f.jpeg[f.jpeg.len() - 2..],
+            &[0xFF, 0xD9],
+            "JPEG EOI marker"
+        );
+        let back = EncodedFrame::parse(&f.to_bytes()).unwrap();
+        assert_eq!(back, f);
+        assert!(EncodedFrame::parse(b"nope").is_err());
+    }
+}

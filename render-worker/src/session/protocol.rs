@@ -1,0 +1,276 @@
+//! The session websocket protocol, over any `Sink`/`Stream` of [`WsMessage`]s (axum's socket,
+//! tokio-tungstenite, or plain channels in tests).
+//!
+//! Client to worker, text JSON:
+//! - `{"type":"command","seq":7,"command":{"type":"carm_pose","orbital_deg":20,"angular_deg":0}}`
+//! - `{"type":"views","visible":["fluoroscopy"]}`: only these views are rendered.
+//!
+//! Worker to client:
+//! - text `{"type":"hello","session":{...SessionInfo},"last_seq":N}` on connect (a reconnecting
+//!   client re-sends its commands above `last_seq`; re-sent ones at or below are acknowledged as
+//!   duplicates);
+//! - text `{"type":"ack","seq":7,"t_ms":..,"duplicate":false,"outcome":{..}}` for every accepted
+//!   command, in order (the submit's outcome is the `SubmitResult`);
+//! - text `{"type":"error","seq":7,"error":{"field":"command.orbital_deg","code":"out_of_range",
+//!   "message":".."}}` for every rejected one;
+//! - binary frames (see [`super::frame`]): the newest frame of each view. Frames that were
+//!   superseded while the client was slow are skipped; acknowledgements never are.
+
+use std::collections::BTreeMap;
+use std::fmt::Display;
+
+use futures::{Sink, SinkExt, Stream, StreamExt};
+use serde::{Deserialize, Serialize};
+use tokio::sync::mpsc;
+
+use super::Ack;
+use super::command::{Command, CommandError, Envelope, ErrorCode};
+use super::host::{FrameSet, Reply, SessionHandle, SessionInfo};
+use super::modality::ViewId;
+
+/// A websocket message, independent of the websocket library.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum WsMessage {
+    /// UTF-8 text.
+    Text(String),
+    /// Bytes.
+    Binary(Vec<u8>),
+    /// The peer closes.
+    Close,
+}
+
+/// Messages a client sends.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ClientMessage {
+    /// A command.
+    Command {
+        /// Sequence number.
+        seq: u64,
+        /// The command.
+        command: Command,
+    },
+    /// Visible views.
+    Views {
+        /// Views to render.
+        visible: Vec<ViewId>,
+    },
+}
+
+/// Text messages the worker sends.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ServerMessage {
+    /// First message of a connection.
+    Hello {
+        /// The session.
+        session: SessionInfo,
+        /// Last accepted sequence number.
+        last_seq: u64,
+    },
+    /// A command was accepted.
+    Ack(Ack),
+    /// A command or message was rejected.
+    Error {
+        /// The command's sequence number, when it could be read.
+        seq: Option<u64>,
+        /// What is wrong.
+        error: CommandError,
+    },
+}
+
+/// Parses a client's text message; errors name the offending field.
+pub fn parse_client_message(text: &str) -> Result<ClientMessage, (Option<u64>, CommandError)> {
+    let value: serde_json::Value = serde_json::from_str(text).map_err(|e| {
+        (
+            None,
+            CommandError::field("message", ErrorCode::Malformed, format!("not JSON: {e}")),
+        )
+    })?;
+    let kind = value.get("type").and_then(|t| t.as_str()).unwrap_or("");
+    match kind {
+        "command" => {
+            let seq = value
+                .get("seq")
+                .and_then(serde_json::Value::as_u64)
+                .ok_or_else(|| {
+                    (
+                        None,
+                        CommandError::field(
+                            "seq",
+                            ErrorCode::Malformed,
+                            "seq must be a positive integer",
+                        ),
+                    )
+                })?;
+            let raw = value.get("command").ok_or_else(|| {
+                (
+                    Some(seq),
+                    CommandError::field("command", ErrorCode::Malformed, "missing command"),
+                )
+            })?;
+            let command: Command = serde_path_to_error::deserialize(raw).map_err(|e| {
+                let path = e.path().to_string();
+                let field = if path.is_empty() || path == "." {
+                    "command".to_string()
+                } else {
+                    format!("command.{path}")
+                };
+                let message = e.inner().to_string();
+                let field = if field == "command" {
+                    locate_field(raw, &message)
+                } else {
+                    field
+                };
+                (
+                    Some(seq),
+                    CommandError {
+                        field,
+                        code: ErrorCode::Malformed,
+                        message,
+                    },
+                )
+            })?;
+            Ok(ClientMessage::Command { seq, command })
+        }
+        "views" => serde_json::from_value(value).map_err(|e| {
+            (
+                None,
+                CommandError::field("visible", ErrorCode::Malformed, e.to_string()),
+            )
+        }),
+        other => Err((
+            None,
+            CommandError::field(
+                "type",
+                ErrorCode::Malformed,
+                format!("unknown message type {other:?} (expected \"command\" or \"views\")"),
+            ),
+        )),
+    }
+}
+
+fn quoted_after<'a>(message: &'a str, prefix: &str) -> Option<&'a str> {
+    message.strip_prefix(prefix)?.split('`').next()
+}
+
+/// Names the field a command failed on. serde loses the path inside internally tagged enums, but
+/// its messages name missing and unknown fields and variants; for a value of the wrong type, the
+/// culprit is the field whose removal turns the error into "missing field" for that field.
+fn locate_field(raw: &serde_json::Value, message: &str) -> String {
+    if let Some(f) = quoted_after(message, "missing field `") {
+        return format!("command.{f}");
+    }
+    if let Some(f) = quoted_after(message, "unknown field `") {
+        return format!("command.{f}");
+    }
+    if message.starts_with("unknown variant") || raw.get("type").is_none() {
+        return "command.type".to_string();
+    }
+    if let Some(obj) = raw.as_object() {
+        for key in obj.keys().filter(|k| k.as_str() != "type") {
+            let mut trial = obj.clone();
+            trial.remove(key);
+            let e = serde_json::from_value::<Command>(serde_json::Value::Object(trial)).err();
+            if e.is_some_and(|e| quoted_after(&e.to_string(), "missing field `") == Some(key)) {
+                return format!("command.{key}");
+            }
+        }
+    }
+    "command".to_string()
+}
+
+fn text(m: &ServerMessage) -> WsMessage {
+    WsMessage::Text(serde_json::to_string(m).unwrap_or_default())
+}
+
+/// Serves one client connection of `handle` until the client closes or the session ends.
+pub async fn serve_connection<Si, St, E>(
+    handle: SessionHandle,
+    mut sink: Si,
+    mut stream: St,
+) -> Result<(), String>
+where
+    Si: Sink<WsMessage> + Unpin,
+    Si::Error: Display,
+    St: Stream<Item = Result<WsMessage, E>> + Unpin,
+    E: Display,
+{
+    let send_err = |e: Si::Error| format!("send failed: {e}");
+    let last_seq = handle.snapshot().await.map_or(0, |(s, _)| s.last_seq);
+    sink.send(text(&ServerMessage::Hello {
+        session: handle.info.clone(),
+        last_seq,
+    }))
+    .await
+    .map_err(send_err)?;
+    let (reply_tx, mut reply_rx) = mpsc::unbounded_channel::<Reply>();
+    let mut frames = handle.frames();
+    let mut sent: BTreeMap<ViewId, u64> = BTreeMap::new();
+    let current = frames.borrow_and_update().clone();
+    send_new_frames(&current, &mut sent, &mut sink)
+        .await
+        .map_err(send_err)?;
+    let mut frames_open = true;
+    loop {
+        tokio::select! {
+            biased;
+            r = reply_rx.recv() => {
+                let Some(r) = r else { break };
+                let m = match r {
+                    Reply::Ack(a) => ServerMessage::Ack(a),
+                    Reply::Error { seq, error } => ServerMessage::Error { seq, error },
+                };
+                sink.send(text(&m)).await.map_err(send_err)?;
+            }
+            msg = stream.next() => match msg {
+                None | Some(Ok(WsMessage::Close)) => break,
+                Some(Err(e)) => return Err(format!("receive failed: {e}")),
+                Some(Ok(WsMessage::Binary(_))) => {
+                    let error = CommandError::field("message", ErrorCode::Malformed, "binary client messages are not understood; send JSON text");
+                    sink.send(text(&ServerMessage::Error { seq: None, error })).await.map_err(send_err)?;
+                }
+                Some(Ok(WsMessage::Text(t))) => match parse_client_message(&t) {
+                    Ok(ClientMessage::Command { seq, command }) => {
+                        if let Err(error) = handle.send(Envelope { seq, command }, reply_tx.clone()) {
+                            sink.send(text(&ServerMessage::Error { seq: Some(seq), error })).await.map_err(send_err)?;
+                            break;
+                        }
+                    }
+                    Ok(ClientMessage::Views { visible }) => handle.set_visible(visible.into_iter().collect()),
+                    Err((seq, error)) => {
+                        sink.send(text(&ServerMessage::Error { seq, error })).await.map_err(send_err)?;
+                    }
+                },
+            },
+            changed = frames.changed(), if frames_open => {
+                if changed.is_err() {
+                    // The session ended: deliver what is pending, then stop.
+                    frames_open = false;
+                    continue;
+                }
+                let set = frames.borrow_and_update().clone();
+                send_new_frames(&set, &mut sent, &mut sink).await.map_err(send_err)?;
+            }
+        }
+    }
+    let _ = sink.close().await;
+    Ok(())
+}
+
+async fn send_new_frames<Si>(
+    set: &FrameSet,
+    sent: &mut BTreeMap<ViewId, u64>,
+    sink: &mut Si,
+) -> Result<(), Si::Error>
+where
+    Si: Sink<WsMessage> + Unpin,
+{
+    for (view, f) in set.iter() {
+        if sent.get(view).is_none_or(|&s| f.frame_seq > s) {
+            sink.send(WsMessage::Binary(f.to_bytes())).await?;
+            sent.insert(*view, f.frame_seq);
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,167 @@
+//! The anatomy a session runs in, loaded once per worker and shared (read-only) by its sessions.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use glam::DVec3;
+use sim_core::anatomy::asset::{RegionAsset, Source, StructureAsset};
+use sim_core::anatomy::phantom;
+use sim_core::fluoro::{FluoroMaterial, Scene};
+use sim_core::material::MaterialClass;
+use sim_core::needle::{BoneSurface, RayHit};
+
+/// A region ready for simulation: the fluoroscopy scene of its structures (one BVH each, built
+/// once), which of them are bone for needle contact, named landmarks, and the hashes that
+/// identify the asset in reproducibility records.
+#[derive(Debug)]
+pub struct Region {
+    /// Region name (e.g. `lumbar-phantom`).
+    pub name: String,
+    /// Every structure as a scene entry, in asset order (entry `i` is structure `i`).
+    pub scene: Scene,
+    /// Indices of the cortical-bone entries (the outer bone surface the needle meets).
+    pub bone_entries: Vec<usize>,
+    /// Named points, model frame, mm.
+    pub landmarks: BTreeMap<String, [f64; 3]>,
+    /// SHA-256 of every asset file (from the provenance), by file name.
+    pub asset_sha256: BTreeMap<String, String>,
+    /// Where the anatomy came from, in words (generator or CT file).
+    pub source: String,
+}
+
+impl Region {
+    /// Builds the scene of `structures` (this is where BVHs are built: tens of milliseconds to a
+    /// second for a whole phantom).
+    pub fn from_structures(
+        name: &str,
+        structures: &[StructureAsset],
+        landmarks: BTreeMap<String, [f64; 3]>,
+        asset_sha256: BTreeMap<String, String>,
+        source: String,
+    ) -> Region {
+        let mut scene = Scene::new();
+        let mut bone_entries = Vec::new();
+        for s in structures {
+            let i = scene.add(s.name.clone(), FluoroMaterial::Tissue(s.material), &s.mesh);
+            if s.material == MaterialClass::CorticalBone {
+                bone_entries.push(i);
+            }
+        }
+        Region {
+            name: name.to_string(),
+            scene,
+            bone_entries,
+            landmarks,
+            asset_sha256,
+            source,
+        }
+    }
+
+    /// A loaded asset; for a phantom region the landmarks are recomputed from the parameters
+    /// recorded in its provenance (the phantom is a pure function of them).
+    pub fn from_asset(asset: &RegionAsset) -> Region {
+        let (landmarks, source) = match &asset.provenance.source {
+            Source::Phantom {
+                generator,
+                parameters,
+            } => {
+                let params: Option<phantom::PhantomParams> = parameters
+                    .get("params")
+                    .and_then(|p| serde_json::from_value(p.clone()).ok());
+                let landmarks = params
+                    .map(|p| {
+                        phantom::landmarks(&p)
+                            .into_iter()
+                            .map(|l| (l.name, l.position_mm))
+                            .collect()
+                    })
+                    .unwrap_or_default();
+                (landmarks, generator.clone())
+            }
+            Source::Ct { ct_file, .. } => (BTreeMap::new(), format!("ct:{ct_file}")),
+        };
+        Region::from_structures(
+            &asset.name,
+            &asset.structures,
+            landmarks,
+            asset.provenance.files_sha256.clone(),
+            source,
+        )
+    }
+
+    /// Loads `assets_root/<name>`; the phantom region is built there first if missing or stale.
+    pub fn load(assets_root: &Path, name: &str) -> Result<Region, String> {
+        let dir = assets_root.join(name);
+        let asset = if name == phantom::REGION_NAME {
+            phantom::ensure_built(&dir)
+        } else {
+            RegionAsset::load(&dir)
+        }
+        .map_err(|e| format!("region {name}: {e}"))?;
+        Ok(Region::from_asset(&asset))
+    }
+
+    /// Entry index of a structure by name.
+    pub fn entry(&self, name: &str) -> Option<usize> {
+        self.scene.entries().iter().position(|e| e.name == name)
+    }
+
+    /// Whether `p` lies inside the named structure (`None` when the region has no such structure).
+    pub fn contains(&self, structure: &str, p_mm: [f64; 3]) -> Option<bool> {
+        self.entry(structure)
+            .map(|i| self.scene.entries()[i].bvh.contains(p_mm))
+    }
+
+    /// The bone surface the needle is steered against.
+    pub fn bones(&self) -> RegionBones<'_> {
+        RegionBones { region: self }
+    }
+
+    /// First crossing of a ray with one structure, with the surface normal there.
+    pub fn first_hit(
+        &self,
+        structure: usize,
+        origin_mm: [f64; 3],
+        dir: [f64; 3],
+        max_t_mm: f64,
+    ) -> Option<RayHit> {
+        self.scene.entries()[structure]
+            .bvh
+            .first_hit(origin_mm, dir, 0.0, max_t_mm)
+            .map(|h| RayHit {
+                t_mm: h.hit.t_mm,
+                normal: DVec3::from_array(h.normal),
+            })
+    }
+}
+
+/// Every cortical-bone structure of a region as one [`BoneSurface`] (the nearest hit of any).
+#[derive(Debug, Clone, Copy)]
+pub struct RegionBones<'a> {
+    region: &'a Region,
+}
+
+impl BoneSurface for RegionBones<'_> {
+    fn first_hit(&self, origin: DVec3, dir: DVec3, max_t_mm: f64) -> Option<RayHit> {
+        let mut best: Option<RayHit> = None;
+        for &i in &self.region.bone_entries {
+            let limit = best.map_or(max_t_mm, |b| b.t_mm);
+            if let Some(h) = self
+                .region
+                .first_hit(i, origin.to_array(), dir.to_array(), limit)
+            {
+                if best.is_none_or(|b| h.t_mm < b.t_mm) {
+                    best = Some(h);
+                }
+            }
+        }
+        best
+    }
+
+    fn contains(&self, p: DVec3) -> bool {
+        self.region
+            .bone_entries
+            .iter()
+            .any(|&i| self.region.scene.entries()[i].bvh.contains(p.to_array()))
+    }
+}

@@ -1,0 +1,130 @@
+//! What every part of a session shares: the anatomy, the station, the simulation clock and the
+//! needle (an instrument seen by every modality).
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use sim_core::needle::{InitialResponse, InstrumentProfile, NeedleState};
+use sim_core::rubric::Station;
+
+use super::region::Region;
+
+/// Largest feed substep of session needles, mm. Simulator choice: half a millimetre resolves
+/// contact with the thinnest bone features of the phantom (1.8 mm cortex) and keeps a 50 mm
+/// feed at 100 substeps.
+pub const NEEDLE_SUBSTEP_MM: f64 = 0.5;
+
+/// Structures whose entry by the needle tip is recorded (for critical rubric items such as a
+/// dural puncture). Names of the lumbar phantom's structures.
+pub const WATCHED_STRUCTURES: [&str; 3] = ["dural_sac", "aorta", "inferior_vena_cava"];
+
+/// A station with its targets resolved into the region's model frame.
+#[derive(Debug, Clone)]
+pub struct StationContext {
+    /// The validated station.
+    pub station: Station,
+    /// SHA-256 of the station file text (empty when built in code).
+    pub station_sha256: String,
+    /// Station targets in the model frame, mm.
+    pub targets: BTreeMap<String, [f64; 3]>,
+}
+
+/// Frame note of the stations authored before the phantom published landmarks (see
+/// `assets/stations/README.md`): their targets are relative to the L4 vertebral body centre.
+pub const L4_ORIGIN_NOTE: &str = "origin at the L4 vertebral body centre";
+
+impl StationContext {
+    /// Resolves the targets: stations whose `frame_note` says their origin is the L4 vertebral
+    /// body centre are shifted by the region's `L4_body_centre` landmark (when it has one); all
+    /// others are taken to be in the model frame already.
+    pub fn new(station: Station, station_sha256: String, region: &Region) -> StationContext {
+        let offset = if station.frame_note.contains(L4_ORIGIN_NOTE) {
+            region
+                .landmarks
+                .get("L4_body_centre")
+                .copied()
+                .unwrap_or([0.0; 3])
+        } else {
+            [0.0; 3]
+        };
+        let targets = station
+            .targets
+            .iter()
+            .map(|t| {
+                (
+                    t.name.clone(),
+                    std::array::from_fn(|a| t.position_mm[a] + offset[a]),
+                )
+            })
+            .collect();
+        StationContext {
+            station,
+            station_sha256,
+            targets,
+        }
+    }
+
+    /// A named point: a station target first, else a region landmark.
+    pub fn point(&self, region: &Region, name: &str) -> Option<[f64; 3]> {
+        self.targets
+            .get(name)
+            .or_else(|| region.landmarks.get(name))
+            .copied()
+    }
+}
+
+/// The needle in the session.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NeedleInstrument {
+    /// Instrument id from the station's tray.
+    pub instrument: String,
+    /// Kinematic state.
+    pub state: NeedleState,
+    /// Watched structures the tip has been inside (see [`WATCHED_STRUCTURES`]).
+    pub entered: BTreeSet<String>,
+}
+
+/// The needle profile for a tray instrument kind, or `None` for a non-needle.
+pub fn profile_for_kind(kind: &str) -> Option<InstrumentProfile> {
+    match kind {
+        "spinal-needle" => Some(InstrumentProfile::spinal_22g_quincke()),
+        "tuohy-needle" => Some(InstrumentProfile::tuohy_18g()),
+        "steerable-needle" => Some(InstrumentProfile::flexible_prebent()),
+        _ => None,
+    }
+}
+
+/// A fresh needle state at a skin entry.
+pub fn new_needle(
+    profile: InstrumentProfile,
+    entry_mm: [f64; 3],
+    direction: [f64; 3],
+    bevel_reference: [f64; 3],
+) -> Result<NeedleState, String> {
+    NeedleState::new(
+        profile,
+        DVec3::from_array(entry_mm),
+        DVec3::from_array(direction),
+        DVec3::from_array(bevel_reference),
+        NEEDLE_SUBSTEP_MM,
+        InitialResponse::Relaxed,
+    )
+    .map_err(|e| e.to_string())
+}
+
+/// Shared session state.
+#[derive(Debug, Clone)]
+pub struct World {
+    /// Anatomy (shared by all sessions in the same region).
+    pub region: Arc<Region>,
+    /// Station and resolved targets.
+    pub station: Arc<StationContext>,
+    /// Simulation time of the latest accepted command, ms since the session started.
+    pub clock_ms: u64,
+    /// The needle, once placed.
+    pub needle: Option<NeedleInstrument>,
+    /// Bumped whenever the needle geometry changes.
+    pub needle_version: u64,
+}
