@@ -878,3 +878,83 @@ async fn real_websocket_creates_a_session_takes_a_shot_and_streams_a_jpeg() {
     assert_eq!(&f.jpeg[..2], &[0xFF, 0xD8]);
     ws.close(None).await.unwrap();
 }
+
+/// Runs `steps` on a CPU-reference session and a GPU session; returns the fraction of pixels of
+/// the final frame within one grey level, and the largest difference.
+fn gpu_vs_cpu(steps: &[(u64, Command)]) -> Option<(f64, i32)> {
+    let ctx = render_worker::gpu::context_for_tests()?;
+    let mut gpu_env = env();
+    gpu_env.backend = Arc::new(GpuFluoroBackend { ctx });
+    let mut cpu = Session::new(env(), config());
+    let mut gpu = Session::new(gpu_env, config());
+    // Render after every step, as a session thread does, so renderer state carries over.
+    let (mut c, mut g) = (None, None);
+    for (k, (t, command)) in steps.iter().enumerate() {
+        for (s, last) in [(&mut cpu, &mut c), (&mut gpu, &mut g)] {
+            let env = Envelope {
+                seq: k as u64 + 1,
+                command: command.clone(),
+            };
+            s.apply(env, *t).unwrap();
+            if let Some(f) = s.render_dirty(&fluoro_only()).unwrap().pop() {
+                *last = Some(f.image);
+            }
+        }
+    }
+    let (c, g) = (c.unwrap(), g.unwrap());
+    // State and scores do not depend on the renderer.
+    assert_eq!(cpu.snapshot().to_bytes(), gpu.snapshot().to_bytes());
+    assert_eq!(cpu.measurements(), gpu.measurements());
+    assert_eq!(gpu.score().record.renderer.kind, "gpu");
+    let diffs: Vec<i32> = c
+        .pixels
+        .iter()
+        .zip(&g.pixels)
+        .map(|(a, b)| (i32::from(*a) - i32::from(*b)).abs())
+        .collect();
+    let within_one = diffs.iter().filter(|&&d| d <= 1).count() as f64 / diffs.len() as f64;
+    let max = diffs.iter().copied().max().unwrap_or(0);
+    eprintln!(
+        "GPU vs CPU session frame: {:.1} % of pixels within one grey level, max difference {max}",
+        100.0 * within_one
+    );
+    Some((within_one, max))
+}
+
+#[test]
+fn gpu_backend_session_matches_the_cpu_reference_session() {
+    // AP views, needle in, live and single shots, technique change.
+    let steps = vec![
+        (100, Command::Technique { kvp: 75, ma: 2.5 }),
+        (200, place([12.0, -100.0, 1.0], [0.0, 1.0, 0.05])),
+        (300, Command::NeedleFeed { mm: 30.0 }),
+        (400, Command::Live { on: true }),
+        (500, Command::NeedleFeed { mm: 15.0 }),
+        (600, Command::Live { on: false }),
+        (700, Command::Shot),
+    ];
+    let Some((within_one, _)) = gpu_vs_cpu(&steps) else {
+        return;
+    };
+    // render-worker/tests/fluoro.rs shows interior pixels within one grey level (2e-3 in ln T);
+    // silhouette pixels of the demo's box edges, supersampled differently, are about 1.5 % of
+    // this 128 x 128 view (measured 98.7 % within one level when written), so 97 %.
+    assert!(within_one >= 0.97, "{within_one}");
+}
+
+/// Known discrepancy, kept as a failing check for the owner of `render_worker::fluoro`: in the
+/// scripted attempt, the live frame made when the C-arm turns to orbital -20 degrees with the
+/// needle 60 mm in differs from the CPU reference almost everywhere (0.3 % of pixels within one
+/// grey level, up to 65 levels), and so does the final shot after a 2 mm withdrawal; the frames
+/// before it, and the shot after a 15 mm feed at the same pose, agree (98.7 to 98.8 %). Shorter
+/// sequences reaching the same pose and needle agree too, so the cause is not isolated. Session
+/// state and scores agree in every case (asserted in `gpu_vs_cpu`).
+#[test]
+#[ignore = "GPU fluoroscopy frame differs from the CPU in one scripted sequence (see doc)"]
+fn gpu_session_oblique_view_with_needle_matches_the_cpu() {
+    let steps = script()[..9].to_vec();
+    let Some((within_one, _)) = gpu_vs_cpu(&steps) else {
+        return;
+    };
+    assert!(within_one >= 0.97, "{within_one}");
+}
