@@ -49,10 +49,14 @@ fn config(px: u32) -> SessionConfig {
 }
 
 fn host(capacity: usize, extra: &[&str]) -> SessionHost {
+    host_with(capacity, extra, Arc::new(CpuFluoroBackend { threads: 0 }))
+}
+
+fn host_with(capacity: usize, extra: &[&str], backend: Arc<dyn FluoroBackend>) -> SessionHost {
     SessionHost::with_regions(
         vec![demo_station(extra)],
         vec![Arc::new(demo_region())],
-        Arc::new(CpuFluoroBackend { threads: 0 }),
+        backend,
         capacity,
         config(512),
     )
@@ -186,45 +190,55 @@ fn main() {
     }
 
     // 3. Concurrent streamed sessions over loopback websockets.
-    println!("\n## Concurrent live sessions over loopback websockets (512 x 512, CPU reference)\n");
+    let mut backends: Vec<Arc<dyn FluoroBackend>> = vec![Arc::new(CpuFluoroBackend { threads: 0 })];
+    match render_worker::gpu::GpuContext::new_headless() {
+        Ok(ctx) => backends.push(Arc::new(GpuFluoroBackend { ctx })),
+        Err(e) => println!("\n(no GPU adapter, GPU rows skipped: {e})"),
+    }
+    println!("\n## Concurrent live sessions over loopback websockets (512 x 512)\n");
     println!(
-        "| sessions | inputs per session | latency p50 (ms) | latency p99 (ms) | frames/s per session |"
+        "| renderer | sessions | inputs per session | latency p50 (ms) | latency p99 (ms) | frames/s per session |"
     );
-    println!("|---:|---:|---:|---:|---:|");
+    println!("|---|---:|---:|---:|---:|---:|");
     let counts: &[usize] = if quick { &[1, 4] } else { &[1, 2, 4, 8] };
     let inputs = if quick { 5 } else { 30 };
-    for &n in counts {
-        let h = host(n, &[]);
-        let (lat, fps) = rt.block_on(async move {
-            let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
-                .await
-                .expect("bind");
-            let addr = listener.local_addr().expect("addr");
-            let server = tokio::spawn(async move {
-                axum::serve(listener, http::router(h.clone()))
+    for backend in backends {
+        let profile = backend.profile();
+        for &n in counts {
+            let h = host_with(n, &[], Arc::clone(&backend));
+            let (lat, fps) = rt.block_on(async move {
+                let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
                     .await
-                    .map(|_| h)
+                    .expect("bind");
+                let addr = listener.local_addr().expect("addr");
+                let server = tokio::spawn(async move {
+                    axum::serve(listener, http::router(h.clone()))
+                        .await
+                        .map(|_| h)
+                });
+                let mut clients = Vec::new();
+                for _ in 0..n {
+                    clients.push(tokio::spawn(async move { client(addr, inputs).await }));
+                }
+                let mut lat = Vec::new();
+                let mut fps = Vec::new();
+                for c in clients {
+                    let (l, f) = c.await.expect("client");
+                    lat.extend(l);
+                    fps.push(f);
+                }
+                server.abort();
+                (lat, fps.iter().sum::<f64>() / fps.len() as f64)
             });
-            let mut clients = Vec::new();
-            for _ in 0..n {
-                clients.push(tokio::spawn(async move { client(addr, inputs).await }));
-            }
-            let mut lat = Vec::new();
-            let mut fps = Vec::new();
-            for c in clients {
-                let (l, f) = c.await.expect("client");
-                lat.extend(l);
-                fps.push(f);
-            }
-            server.abort();
-            (lat, fps.iter().sum::<f64>() / fps.len() as f64)
-        });
-        let mut lat = lat;
-        println!(
-            "| {n} | {inputs} | {:.1} | {:.1} | {fps:.1} |",
-            percentile(&mut lat, 0.5),
-            percentile(&mut lat, 0.99)
-        );
+            let mut lat = lat;
+            println!(
+                "| {} {} | {n} | {inputs} | {:.1} | {:.1} | {fps:.1} |",
+                profile.kind,
+                profile.device,
+                percentile(&mut lat, 0.5),
+                percentile(&mut lat, 0.99)
+            );
+        }
     }
 }
 
