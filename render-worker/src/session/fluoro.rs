@@ -746,9 +746,9 @@ pub fn annotation_error_mm(a: Option<&Annotation>, world: &World) -> Option<f64>
 }
 
 /// Outward normal of the inferior endplate of vertebra `upper`, estimated from its cortical mesh:
-/// a 5 x 5 bundle of rays (6 mm apart at the edges, well inside a 35 mm endplate) leaves the body
-/// centre towards the next body centre; the mean of the surface normals where they leave the
-/// bone is the endplate normal. `None` when the region lacks the structures or landmarks.
+/// a 5 x 5 bundle of rays (12 mm wide, well inside a 35 mm endplate) leaves the body centre
+/// towards the next body centre; the mean of the surface normals where they first meet the
+/// cortex (turned to point caudally, along the rays) is the endplate normal. `None` when the region lacks the structures or landmarks.
 pub fn endplate_normal(region: &Region, upper: &str, lower: &str) -> Option<DVec3> {
     let c = DVec3::from_array(*region.landmarks.get(&format!("{upper}_body_centre"))?);
     let l = DVec3::from_array(*region.landmarks.get(&format!("{lower}_body_centre"))?);
@@ -761,10 +761,10 @@ pub fn endplate_normal(region: &Region, upper: &str, lower: &str) -> Option<DVec
         for j in -2..=2 {
             let o = c + e1 * (3.0 * f64::from(i)) + e2 * (3.0 * f64::from(j));
             if let Some(h) = region.first_hit(bone, o.to_array(), axis.to_array(), 60.0) {
-                // Leaving the bone: the outward normal points along the ray.
-                if h.normal.dot(axis) > 0.0 {
-                    sum += h.normal;
-                }
+                // A solid bone mesh is left here (outward normal along the ray); a cortical
+                // shell (the phantom's cortex is a mask of its own around the marrow) is entered
+                // through its inner surface, parallel to the endplate, normal against the ray.
+                sum += h.normal * h.normal.dot(axis).signum();
             }
         }
     }
