@@ -195,17 +195,60 @@ fn main() {
         Ok(ctx) => backends.push(Arc::new(GpuFluoroBackend { ctx })),
         Err(e) => println!("\n(no GPU adapter, GPU rows skipped: {e})"),
     }
+    // The phantom region: 4 mm grid in quick mode, 2 mm otherwise (the default asset is 1.5 mm;
+    // its frame cost on the CPU is in sim-core's fluoro bench).
+    let voxel_mm = if quick { 4.0 } else { 2.0 };
+    let t = Instant::now();
+    let asset = sim_core::anatomy::phantom::build(
+        &sim_core::anatomy::phantom::PhantomParams::with_voxel_mm(voxel_mm),
+        &mut |_| {},
+    )
+    .expect("phantom");
+    let phantom = Arc::new(Region::from_asset(&asset));
+    let stations_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/stations");
+    let facet = sim_core::rubric::load_station_dir(&stations_dir)
+        .expect("stations")
+        .into_iter()
+        .find(|f| f.station.id == "l4-l5-left-facet")
+        .expect("facet station");
+    let facet = (facet.station, sha256_hex(facet.text.as_bytes()));
+    println!(
+        "\n(phantom at {voxel_mm} mm: {} triangles, built in {:.1} s)",
+        phantom.scene.triangle_count(),
+        t.elapsed().as_secs_f64()
+    );
     println!("\n## Concurrent live sessions over loopback websockets (512 x 512)\n");
     println!(
-        "| renderer | sessions | inputs per session | latency p50 (ms) | latency p99 (ms) | frames/s per session |"
+        "| scene | renderer | sessions | inputs per session | latency p50 (ms) | latency p99 (ms) | frames/s per session |"
     );
-    println!("|---|---:|---:|---:|---:|---:|");
+    println!("|---|---|---:|---:|---:|---:|---:|");
     let counts: &[usize] = if quick { &[1, 4] } else { &[1, 2, 4, 8] };
     let inputs = if quick { 5 } else { 30 };
-    for backend in backends {
+    let gpu = backends.get(1).cloned();
+    let mut runs: Vec<(&str, Arc<dyn FluoroBackend>, &[usize])> = backends
+        .iter()
+        .map(|b| ("demo boxes", Arc::clone(b), counts))
+        .collect();
+    // The CPU reference on the phantom takes seconds per frame here: one session, quick mode.
+    match gpu {
+        Some(g) => runs.push(("phantom", g, counts)),
+        None => runs.push(("phantom", Arc::clone(&backends[0]), &[1])),
+    }
+    for (scene, backend, counts) in runs {
         let profile = backend.profile();
         for &n in counts {
-            let h = host_with(n, &[], Arc::clone(&backend));
+            let (h, station_id) = if scene == "phantom" {
+                let h = SessionHost::with_regions(
+                    vec![facet.clone()],
+                    vec![Arc::clone(&phantom)],
+                    Arc::clone(&backend),
+                    n,
+                    config(512),
+                );
+                (h, "l4-l5-left-facet")
+            } else {
+                (host_with(n, &[], Arc::clone(&backend)), "demo-station")
+            };
             let (lat, fps) = rt.block_on(async move {
                 let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
                     .await
@@ -218,7 +261,9 @@ fn main() {
                 });
                 let mut clients = Vec::new();
                 for _ in 0..n {
-                    clients.push(tokio::spawn(async move { client(addr, inputs).await }));
+                    clients.push(tokio::spawn(async move {
+                        client(addr, inputs, station_id).await
+                    }));
                 }
                 let mut lat = Vec::new();
                 let mut fps = Vec::new();
@@ -232,7 +277,7 @@ fn main() {
             });
             let mut lat = lat;
             println!(
-                "| {} {} | {n} | {inputs} | {:.1} | {:.1} | {fps:.1} |",
+                "| {scene} | {} {} | {n} | {inputs} | {:.1} | {:.1} | {fps:.1} |",
                 profile.kind,
                 profile.device,
                 percentile(&mut lat, 0.5),
@@ -244,9 +289,9 @@ fn main() {
 
 /// One scripted client: create a session, live fluoroscopy on, then C-arm moves, each sent when
 /// the frame of the previous one arrived. Returns input-to-frame latencies (ms) and frames/s.
-async fn client(addr: std::net::SocketAddr, inputs: u64) -> (Vec<f64>, f64) {
+async fn client(addr: std::net::SocketAddr, inputs: u64, station_id: &str) -> (Vec<f64>, f64) {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let body = r#"{"station_id":"demo-station"}"#;
+    let body = format!(r#"{{"station_id":"{station_id}"}}"#);
     let mut s = tokio::net::TcpStream::connect(addr).await.expect("connect");
     let req = format!(
         "POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
