@@ -622,6 +622,17 @@ fn a_submitted_attempt_replays_to_the_same_score_and_final_frame() {
         )
         .unwrap_err();
     assert_eq!(e.code, ErrorCode::State, "read-only after submit");
+    // Faculty review: replay from the initial snapshot and the log.
+    let review = replay_attempt(env(), &initial, a.log()).unwrap();
+    assert_eq!(review.result.as_ref(), Some(&result));
+    assert_eq!(review.final_state, a.snapshot());
+    let reviewed = &review.final_frames[0];
+    let mut live = EncodedFrame::parse(&frame).unwrap();
+    live.frame_seq = 0;
+    assert_eq!(
+        reviewed, &live,
+        "the review shows the live session's last frame, byte for byte"
+    );
     let mut b = Session::restore(env(), &initial, a.log()).unwrap();
     assert_eq!(b.result(), Some(&result));
     assert_eq!(

@@ -694,3 +694,35 @@ impl Session {
             .any(|m| m.dirty_views().iter().any(|v| visible.contains(v)))
     }
 }
+
+/// What a faculty review of a recorded attempt gets back.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Replay {
+    /// The replayed session (state at the end of the log; step through `log()` for a timeline).
+    pub final_state: SessionSnapshot,
+    /// The result, when the log ends with a submit.
+    pub result: Option<SubmitResult>,
+    /// The last image of each view, encoded as it was streamed (frame sequence 0).
+    pub final_frames: Vec<EncodedFrame>,
+}
+
+/// Replays a recorded attempt from its initial snapshot and full log: the same state, score and
+/// (with the same renderer) the same final frame bytes as the live session.
+pub fn replay_attempt(
+    env: SessionEnv,
+    initial: &SessionSnapshot,
+    log: &[LogEntry],
+) -> Result<Replay, String> {
+    let mut s = Session::restore(env, initial, log)?;
+    let views: BTreeSet<ViewId> = s.views().into_iter().collect();
+    let final_frames = s
+        .render_dirty(&views)?
+        .into_iter()
+        .map(|v| EncodedFrame::new(v.view, 0, v.input_seq, v.t_ms, &v.image))
+        .collect::<Result<_, _>>()?;
+    Ok(Replay {
+        final_state: s.snapshot(),
+        result: s.result().cloned(),
+        final_frames,
+    })
+}
