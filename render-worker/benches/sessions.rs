@@ -189,6 +189,20 @@ fn main() {
         );
     }
 
+    let img = sim_core::fluoro::render_frame(&region.scene, None, &projection, &settings)
+        .expect("render");
+    let mut jpeg = Vec::new();
+    for _ in 0..reps {
+        let t = Instant::now();
+        let _ = render_worker::session::frame::encode_jpeg(&img).expect("jpeg");
+        jpeg.push(t.elapsed().as_secs_f64() * 1000.0);
+    }
+    println!(
+        "| JPEG encoding alone | - | {:.1} | - | {:.0} |",
+        percentile(&mut jpeg, 0.5),
+        rss_mb()
+    );
+
     // 3. Concurrent streamed sessions over loopback websockets.
     let mut backends: Vec<Arc<dyn FluoroBackend>> = vec![Arc::new(CpuFluoroBackend { threads: 0 })];
     match render_worker::gpu::GpuContext::new_headless() {
@@ -217,6 +231,36 @@ fn main() {
         phantom.scene.triangle_count(),
         t.elapsed().as_secs_f64()
     );
+    println!("\n## One phantom frame per renderer (512 x 512, 2 x 2 supersampling, noise)\n");
+    println!("| renderer | per-session renderer set-up (ms) | frame median (ms) |");
+    println!("|---|---:|---:|");
+    for b in &backends {
+        if quick && b.profile().kind == "cpu-reference" {
+            // About 6 s per frame on 2 loaded cores: full mode only.
+            println!("| cpu-reference cpu | (full mode only) | |");
+            continue;
+        }
+        let t = Instant::now();
+        let mut r = b.renderer(&phantom).expect("renderer");
+        let setup_ms = t.elapsed().as_secs_f64() * 1000.0;
+        let p = sim_core::fluoro::Projection {
+            isocentre_mm: phantom.landmarks["L4_body_centre"],
+            ..Default::default()
+        };
+        let mut times = Vec::new();
+        for _ in 0..reps.min(3) {
+            let t = Instant::now();
+            let _ = r.render(None, &p, &settings).expect("frame");
+            times.push(t.elapsed().as_secs_f64() * 1000.0);
+        }
+        let profile = b.profile();
+        println!(
+            "| {} {} | {setup_ms:.0} | {:.1} |",
+            profile.kind,
+            profile.device,
+            percentile(&mut times, 0.5)
+        );
+    }
     println!("\n## Concurrent live sessions over loopback websockets (512 x 512)\n");
     println!(
         "| scene | renderer | sessions | inputs per session | latency p50 (ms) | latency p99 (ms) | frames/s per session |"
@@ -229,10 +273,11 @@ fn main() {
         .iter()
         .map(|b| ("demo boxes", Arc::clone(b), counts))
         .collect();
-    // The CPU reference on the phantom takes seconds per frame here: one session, quick mode.
+    // The CPU reference on the phantom takes seconds per frame here: one session, full mode only.
     match gpu {
         Some(g) => runs.push(("phantom", g, counts)),
-        None => runs.push(("phantom", Arc::clone(&backends[0]), &[1])),
+        None if !quick => runs.push(("phantom", Arc::clone(&backends[0]), &[1])),
+        None => println!("(no GPU: phantom sessions on the CPU run in full mode only)"),
     }
     for (scene, backend, counts) in runs {
         let profile = backend.profile();
