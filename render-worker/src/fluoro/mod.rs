@@ -211,6 +211,8 @@ struct Targets {
     hull: wgpu::Texture,
     chord: wgpu::Texture,
     out_t: wgpu::Buffer,
+    /// Kept mapped-readable copy of `out_t` (no allocation per frame).
+    staging: wgpu::Buffer,
 }
 
 /// A rectangle of the detector sampled `n x n` per pixel: sample `(i, j)` of the region lies at
@@ -713,6 +715,12 @@ impl GpuFluoroRenderer {
                 usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
                 mapped_at_creation: false,
             }),
+            staging: self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("fluoro transmission readback"),
+                size: u64::from(size[0]) * u64::from(size[1]) * 4,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
         });
     }
 
@@ -833,7 +841,7 @@ impl GpuFluoroRenderer {
                 },
             })
         }
-        if with_needle_pass {
+        if with_needle_pass && self.needle.is_some() {
             let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("fluoro needle"),
                 layout: &self.needle_pipeline.get_bind_group_layout(0),
@@ -1022,7 +1030,11 @@ impl GpuFluoroRenderer {
             let (ta, tc) = (t.a.clone(), t.chord.clone());
             let a = self.read_texture(&ta, 4)?;
             if pass == 0 {
-                steel = self.read_texture(&tc, 1)?;
+                steel = if self.needle.is_some() {
+                    self.read_texture(&tc, 1)?
+                } else {
+                    vec![0.0; w * h]
+                };
             }
             for (p, r) in raw.iter_mut().enumerate() {
                 for s in 0..SLOTS {
@@ -1153,7 +1165,7 @@ impl GpuFluoroRenderer {
             full: [
                 projection.detector_pixels[0],
                 projection.detector_pixels[1],
-                0,
+                u32::from(self.needle.is_some()),
                 0,
             ],
             lut_dims: [
@@ -1221,11 +1233,30 @@ impl GpuFluoroRenderer {
             pass.set_bind_group(0, &bind, &[]);
             pass.dispatch_workgroups(size[0].div_ceil(8), size[1].div_ceil(8), 1);
         }
+        let bytes = u64::from(size[0]) * u64::from(size[1]) * 4;
+        enc.copy_buffer_to_buffer(&t.out_t, 0, &t.staging, 0, bytes);
         self.ctx.queue.submit([enc.finish()]);
-        let bytes = self
-            .ctx
-            .read_buffer(&t.out_t, u64::from(size[0]) * u64::from(size[1]) * 4)?;
-        Ok(bytemuck::cast_slice::<u8, f32>(&bytes).to_vec())
+        let (tx, rx) = std::sync::mpsc::channel();
+        t.staging.map_async(wgpu::MapMode::Read, .., move |r| {
+            // The receiver lives until recv() below returns, so a send error cannot happen.
+            let _ = tx.send(r);
+        });
+        let fail = |e: String| FluoroGpuError::Gpu(GpuError::Readback(e));
+        device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| fail(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| fail(e.to_string()))?
+            .map_err(|e| fail(e.to_string()))?;
+        let out = {
+            let view = t
+                .staging
+                .get_mapped_range(..)
+                .map_err(|e| fail(e.to_string()))?;
+            bytemuck::cast_slice::<u8, f32>(&view).to_vec()
+        };
+        t.staging.unmap();
+        Ok(out)
     }
 
     /// Pixels within 1.5 pixels of a projected edge of the needle: the CPU reference's steel-edge

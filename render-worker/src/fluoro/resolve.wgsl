@@ -26,7 +26,7 @@ struct Params {
     // Sampled region: (first pixel column, first row, 1 / samples per pixel axis, 0); sample
     // (i, j) is at continuous pixel coordinates first + (i + 0.5, j + 0.5) / n.
     region: vec4<f32>,
-    // Whole detector (columns, rows, 0, 0).
+    // Whole detector (columns, rows, needle present, 0).
     full: vec4<u32>,
     lut_dims: vec4<u32>,
 }
@@ -124,7 +124,10 @@ fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
         return;
     }
     let a = textureLoad(lbuf, p, 0);
-    let steel = max(textureLoad(needle_chord, p, 0).x, 0.0);
+    var steel = 0.0;
+    if (params.full.z != 0u) {
+        steel = max(textureLoad(needle_chord, p, 0).x, 0.0);
+    }
     // Cancellous clamp on the pixel's bone total (see the module doc); the excess becomes cortex.
     let total = max(a.z + a.w, 0.0);
     let c = clamp(a.w, 0.0, max(total - 2.0 * params.misc.w, 0.0));
