@@ -3,6 +3,9 @@
 //!
 //! Environment: `RENDER_WORKER_BIND` (default `127.0.0.1:8081`), `RENDER_WORKER_ASSETS` (region
 //! folders and `stations/`, default `assets`), `RENDER_WORKER_CAPACITY` (sessions, default 8).
+//! With `RENDER_WORKER_REGISTER_URL` (the server's `/api/workers`) and `RENDER_WORKER_TOKEN` (its
+//! `PAINSIM_WORKER_TOKEN`) it registers with the server, announcing `RENDER_WORKER_PUBLIC_URL`
+//! (default `http://` and the bound address).
 //!
 //! In the embedded default the server runs a `SessionHost` in-process and this binary is not
 //! needed; it is the unit that scales out (see docker-compose.yml).
@@ -88,6 +91,21 @@ fn main() -> ExitCode {
             }
         };
         let addr = listener.local_addr().map(|a| a.to_string()).unwrap_or(bind);
+        // Cluster mode: announce this worker to the server (see render_worker::cluster).
+        if let (Ok(register), Ok(token)) = (
+            std::env::var("RENDER_WORKER_REGISTER_URL"),
+            std::env::var("RENDER_WORKER_TOKEN"),
+        ) {
+            let health = host.health();
+            let me = render_worker::cluster::Registration {
+                url: std::env::var("RENDER_WORKER_PUBLIC_URL")
+                    .unwrap_or_else(|_| format!("http://{addr}")),
+                capacity: health.capacity,
+                renderer: serde_json::to_value(&health.renderer).unwrap_or_default(),
+                adapter: health.adapter,
+            };
+            tokio::spawn(render_worker::cluster::register_forever(register, token, me));
+        }
         println!(
             "render-worker ready at http://{addr}/healthz (stations: {})",
             host.station_ids().join(", ")

@@ -1,0 +1,272 @@
+//! A worker in a cluster: registration with the server, and the small HTTP/1.1 JSON client that
+//! server and worker use to talk to each other.
+//!
+//! A `render-worker` process started with `RENDER_WORKER_REGISTER_URL` (the server's
+//! `/api/workers` endpoint) and `RENDER_WORKER_TOKEN` announces itself there: its URL, capacity,
+//! renderer and adapter. It repeats the announcement every [`HEARTBEAT`], so a server that
+//! restarted learns about it again, and the server polls its `/healthz` for load.
+//!
+//! The client speaks plain HTTP/1.1 with `Connection: close` over TCP, which is all that the
+//! cluster-internal calls need (loopback or a private network; TLS is the job of the network
+//! in front). It avoids pulling a full HTTP client stack into both binaries.
+
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+/// How often a worker re-announces itself. Simulator choice: short enough that a restarted
+/// server knows its workers again within seconds, long enough to cost nothing.
+pub const HEARTBEAT: Duration = Duration::from_secs(5);
+
+/// Time limit of one cluster-internal request. Simulator choice: these are loopback or LAN calls
+/// that answer in milliseconds; restoring a session (which may load a region) is the slow one.
+pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// Largest response body read, bytes (a snapshot with a long log is well below this).
+const MAX_RESPONSE_BYTES: usize = 64 << 20;
+
+/// What a worker tells the server about itself.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Registration {
+    /// Base URL the server reaches the worker at, e.g. `http://10.0.0.5:8081`.
+    pub url: String,
+    /// Most sessions at once.
+    pub capacity: usize,
+    /// Renderer profile (CPU reference or GPU) as JSON.
+    pub renderer: serde_json::Value,
+    /// GPU adapter, when one was opened (`null` for software-only workers).
+    pub adapter: Option<serde_json::Value>,
+}
+
+/// A response: status, headers and body.
+#[derive(Debug, Clone)]
+pub struct HttpResponse {
+    /// HTTP status code.
+    pub status: u16,
+    /// Header names (lower case) and values, in order.
+    pub headers: Vec<(String, String)>,
+    /// Body bytes.
+    pub body: Vec<u8>,
+}
+
+impl HttpResponse {
+    /// The body as JSON.
+    pub fn json(&self) -> Result<serde_json::Value, String> {
+        serde_json::from_slice(&self.body).map_err(|e| format!("response is not JSON: {e}"))
+    }
+}
+
+/// Splits `http://host:port/path` into `(host:port, /path)`.
+pub fn split_url(url: &str) -> Result<(String, String), String> {
+    let rest = url
+        .strip_prefix("http://")
+        .ok_or_else(|| format!("{url}: only http:// URLs are supported"))?;
+    let (authority, path) = match rest.find('/') {
+        Some(i) => (&rest[..i], &rest[i..]),
+        None => (rest, "/"),
+    };
+    if authority.is_empty() {
+        return Err(format!("{url}: no host"));
+    }
+    let authority = if authority.contains(':') {
+        authority.to_string()
+    } else {
+        format!("{authority}:80")
+    };
+    Ok((authority, path.to_string()))
+}
+
+/// One request with an optional JSON body and bearer token; `Connection: close`.
+pub async fn request(
+    method: &str,
+    url: &str,
+    body: Option<&serde_json::Value>,
+    bearer: Option<&str>,
+) -> Result<HttpResponse, String> {
+    let auth = bearer.map(|t| format!("Bearer {t}"));
+    let headers: Vec<(&str, &str)> = auth.iter().map(|a| ("Authorization", a.as_str())).collect();
+    request_with_headers(method, url, body, &headers).await
+}
+
+/// [`request`] with arbitrary extra headers (cookies and CSRF tokens in tests and benches).
+pub async fn request_with_headers(
+    method: &str,
+    url: &str,
+    body: Option<&serde_json::Value>,
+    headers: &[(&str, &str)],
+) -> Result<HttpResponse, String> {
+    tokio::time::timeout(REQUEST_TIMEOUT, request_inner(method, url, body, headers))
+        .await
+        .map_err(|_| {
+            format!(
+                "{method} {url}: no answer within {} s",
+                REQUEST_TIMEOUT.as_secs()
+            )
+        })?
+}
+
+async fn request_inner(
+    method: &str,
+    url: &str,
+    body: Option<&serde_json::Value>,
+    headers: &[(&str, &str)],
+) -> Result<HttpResponse, String> {
+    let (authority, path) = split_url(url)?;
+    let mut stream = TcpStream::connect(&authority)
+        .await
+        .map_err(|e| format!("{method} {url}: {e}"))?;
+    let payload = body.map(|b| b.to_string()).unwrap_or_default();
+    let mut head = format!(
+        "{method} {path} HTTP/1.1\r\nHost: {authority}\r\nConnection: close\r\nAccept: application/json\r\n"
+    );
+    for (k, v) in headers {
+        if k.contains(['\r', '\n']) || v.contains(['\r', '\n']) {
+            return Err(format!("{method} {url}: header {k} contains a line break"));
+        }
+        head.push_str(&format!("{k}: {v}\r\n"));
+    }
+    if body.is_some() {
+        head.push_str(&format!(
+            "Content-Type: application/json\r\nContent-Length: {}\r\n",
+            payload.len()
+        ));
+    }
+    head.push_str("\r\n");
+    stream
+        .write_all(head.as_bytes())
+        .await
+        .map_err(|e| format!("{method} {url}: {e}"))?;
+    stream
+        .write_all(payload.as_bytes())
+        .await
+        .map_err(|e| format!("{method} {url}: {e}"))?;
+    let mut raw = Vec::new();
+    stream
+        .take(MAX_RESPONSE_BYTES as u64 + 64 * 1024)
+        .read_to_end(&mut raw)
+        .await
+        .map_err(|e| format!("{method} {url}: {e}"))?;
+    parse_response(&raw).map_err(|e| format!("{method} {url}: {e}"))
+}
+
+/// Parses an HTTP/1.1 response read to the end (Content-Length or chunked or read-to-close).
+pub fn parse_response(raw: &[u8]) -> Result<HttpResponse, String> {
+    let end = raw
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .ok_or("no complete response header")?;
+    let head = std::str::from_utf8(&raw[..end]).map_err(|_| "response header is not UTF-8")?;
+    let mut lines = head.split("\r\n");
+    let status_line = lines.next().unwrap_or_default();
+    let status: u16 = status_line
+        .split_whitespace()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .ok_or_else(|| format!("bad status line {status_line:?}"))?;
+    let mut length = None;
+    let mut chunked = false;
+    let mut headers = Vec::new();
+    for l in lines {
+        if let Some((k, v)) = l.split_once(':') {
+            let (k, v) = (k.trim().to_ascii_lowercase(), v.trim());
+            if k == "content-length" {
+                length = v.parse::<usize>().ok();
+            } else if k == "transfer-encoding" && v.eq_ignore_ascii_case("chunked") {
+                chunked = true;
+            }
+            headers.push((k, v.to_string()));
+        }
+    }
+    let rest = &raw[end + 4..];
+    let body = if chunked {
+        dechunk(rest)?
+    } else if let Some(n) = length {
+        rest.get(..n)
+            .ok_or("response body shorter than its Content-Length")?
+            .to_vec()
+    } else {
+        rest.to_vec()
+    };
+    Ok(HttpResponse {
+        status,
+        headers,
+        body,
+    })
+}
+
+fn dechunk(mut b: &[u8]) -> Result<Vec<u8>, String> {
+    let mut out = Vec::new();
+    loop {
+        let eol = b
+            .windows(2)
+            .position(|w| w == b"\r\n")
+            .ok_or("truncated chunk size")?;
+        let size_text = std::str::from_utf8(&b[..eol]).map_err(|_| "bad chunk size")?;
+        let size = usize::from_str_radix(size_text.split(';').next().unwrap_or("").trim(), 16)
+            .map_err(|_| format!("bad chunk size {size_text:?}"))?;
+        b = &b[eol + 2..];
+        if size == 0 {
+            return Ok(out);
+        }
+        out.extend_from_slice(b.get(..size).ok_or("truncated chunk")?);
+        b = b.get(size + 2..).ok_or("truncated chunk")?;
+    }
+}
+
+/// Announces the worker to the server now and every [`HEARTBEAT`] (forever; run it as a task).
+/// Failures are logged and retried: the server may start after the worker.
+pub async fn register_forever(register_url: String, token: String, me: Registration) {
+    let body = match serde_json::to_value(&me) {
+        Ok(b) => b,
+        Err(e) => {
+            tracing::error!("cannot encode the registration: {e}");
+            return;
+        }
+    };
+    let mut announced = false;
+    loop {
+        match request("POST", &register_url, Some(&body), Some(&token)).await {
+            Ok(r) if (200..300).contains(&r.status) => {
+                if !announced {
+                    tracing::info!(server = %register_url, "registered with the server");
+                    announced = true;
+                }
+            }
+            Ok(r) => {
+                tracing::warn!(status = r.status, body = %String::from_utf8_lossy(&r.body), "the server refused the registration");
+                announced = false;
+            }
+            Err(e) => {
+                tracing::warn!("cannot register with the server: {e}");
+                announced = false;
+            }
+        }
+        tokio::time::sleep(HEARTBEAT).await;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn urls_and_responses_parse() {
+        assert_eq!(
+            split_url("http://127.0.0.1:81/a/b").unwrap(),
+            ("127.0.0.1:81".into(), "/a/b".into())
+        );
+        assert_eq!(
+            split_url("http://w1").unwrap(),
+            ("w1:80".into(), "/".into())
+        );
+        assert!(split_url("https://w1").is_err());
+        let r =
+            parse_response(b"HTTP/1.1 201 Created\r\nContent-Length: 2\r\n\r\n{}extra").unwrap();
+        assert_eq!((r.status, r.body.as_slice()), (201, b"{}".as_slice()));
+        let r = parse_response(b"HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\n\r\n3\r\nabc\r\n2\r\nde\r\n0\r\n\r\n").unwrap();
+        assert_eq!(r.body, b"abcde");
+        assert!(parse_response(b"HTTP/1.1 200 OK\r\nContent-Length: 9\r\n\r\nabc").is_err());
+    }
+}
