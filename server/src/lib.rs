@@ -9,6 +9,7 @@
 
 pub mod config;
 pub mod db;
+pub mod dispatch;
 pub mod embedded_pg;
 pub mod error;
 pub mod records;
@@ -43,9 +44,11 @@ pub struct AppState {
 /// The complete HTTP application.
 pub fn app(state: AppState) -> Router {
     let web = ServeDir::new(&state.config.web_dir).fallback(ServeFile::new(state.config.web_dir.join("index.html")));
+    let records_state = records::RecordsState::from_parts(state.pool.clone(), state.config.records.clone());
     Router::new()
         .route("/healthz", get(routes::health::healthz))
-        .merge(records::router(records::RecordsState::from_parts(state.pool.clone(), state.config.records.clone())).0)
+        .merge(records::router(records_state.clone()).0)
+        .merge(dispatch::router(records_state, dispatch::Dispatcher::for_app(&state)))
         .fallback_service(web)
         .layer(axum::extract::DefaultBodyLimit::max(state.config.max_body_bytes))
         .layer(TraceLayer::new_for_http())

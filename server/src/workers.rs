@@ -39,6 +39,9 @@ pub struct WorkerStatus {
 #[derive(Debug, Clone)]
 pub struct Workers {
     state: Arc<RwLock<WorkerState>>,
+    /// Session dispatch chosen at start-up (or by a test); `None`: [`crate::app`] builds the
+    /// default from the configuration.
+    dispatcher: Option<crate::dispatch::Dispatcher>,
 }
 
 impl Workers {
@@ -62,7 +65,26 @@ impl Workers {
                 *shared.write().unwrap_or_else(|p| p.into_inner()) = next;
             })
             .expect("spawning a thread at start-up");
-        Workers { state }
+        Workers { state, dispatcher: None }
+    }
+
+    /// Uses `dispatcher` for sessions (instead of the default built from the configuration).
+    pub fn with_dispatcher(mut self, dispatcher: crate::dispatch::Dispatcher) -> Workers {
+        self.dispatcher = Some(dispatcher);
+        self
+    }
+
+    /// The dispatcher attached with [`Workers::with_dispatcher`].
+    pub fn dispatcher(&self) -> Option<crate::dispatch::Dispatcher> {
+        self.dispatcher.clone()
+    }
+
+    /// The in-process worker's GPU, once it is open and passed its self-test.
+    pub fn gpu(&self) -> Option<GpuContext> {
+        match &*self.state.read().unwrap_or_else(|p| p.into_inner()) {
+            WorkerState::Ready(ctx) => Some((**ctx).clone()),
+            _ => None,
+        }
     }
 
     /// Blocks until the worker is no longer starting, or `timeout` passes; returns the status.

@@ -1,5 +1,7 @@
 //! Integration tests of the server against a real PostgreSQL, one module per area.
 
+mod dispatch;
+mod e2e_browser;
 mod embedded;
 mod health;
 mod process;

@@ -1,0 +1,432 @@
+//! Dispatch of live simulation sessions to render workers, and the browser's websocket.
+//!
+//! # Where sessions run
+//! A session runs on the in-process worker (a [`SessionHost`] inside the server, the embedded
+//! default), or on a separate `render-worker` process that registered itself at
+//! `POST /api/workers` with the cluster token (`PAINSIM_WORKER_TOKEN`). New sessions go to the
+//! registered worker with the least load (sessions placed there over its capacity); without a
+//! live registered worker they stay in-process. The server polls each worker's `/healthz`.
+//!
+//! # The browser's websocket goes through the server
+//! `GET /api/sessions/{id}/ws` is authenticated by the session cookie and only the attempt's
+//! learner may drive it. The server relays the session protocol
+//! (`render_worker::session::protocol`) to the worker and watches it: every acknowledged command
+//! is appended to the server's own copy of the session log (in memory and in `live_sessions`),
+//! engagement events go to the learning records, and the submit's result is stored as the
+//! attempt's technical result, then sent to the browser as `{"type":"technical_result", ...}`.
+//!
+//! # Failover
+//! Because the server holds the initial snapshot and every acknowledged command, it can rebuild
+//! a session anywhere: when a remote worker's socket fails, the session is restored on another
+//! worker from snapshot + log and the commands the browser sent that were not yet acknowledged
+//! are sent again. Commands are never applied twice (the worker acknowledges a re-sent sequence
+//! number as a duplicate) and never lost (the browser's socket stays open throughout).
+//!
+//! # Replay
+//! `GET /api/attempts/{id}/replay` gives faculty of the course (and the learner) the recorded
+//! log; `.../replay/frame?step=k` renders the image on screen after the first `k` commands, by
+//! restoring the session from its initial snapshot and that prefix of the log. The full replay
+//! is checked against the stored result: same score, same final state hash, same final frame.
+
+mod proxy;
+mod registry;
+mod routes;
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+use render_worker::session::fluoro::FluoroRenderer;
+use render_worker::session::region::Region;
+use render_worker::session::{
+    BackendProfile, CpuFluoroBackend, FluoroBackend, GpuFluoroBackend, HostConfig, LogEntry,
+    SessionConfig, SessionHost, SessionSnapshot,
+};
+use uuid::Uuid;
+
+pub use registry::{RemoteWorker, WorkerView};
+pub use routes::router;
+
+/// Where a session runs now.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Placement {
+    /// On the in-process host, under the host's session id.
+    Local {
+        /// Id of the session in the host.
+        worker_session: String,
+    },
+    /// On a registered worker.
+    Remote {
+        /// Worker base URL.
+        worker_url: String,
+        /// Id of the session on that worker.
+        worker_session: String,
+    },
+}
+
+impl Placement {
+    /// `in-process` or the worker URL.
+    pub fn worker_label(&self) -> String {
+        match self {
+            Placement::Local { .. } => "in-process".into(),
+            Placement::Remote { worker_url, .. } => worker_url.clone(),
+        }
+    }
+}
+
+/// A live session as the server sees it.
+#[derive(Debug)]
+pub struct LiveSession {
+    /// Server-side session id (stable across failover).
+    pub id: Uuid,
+    /// The attempt it belongs to.
+    pub attempt_id: Uuid,
+    /// The learner who drives it.
+    pub learner_id: Uuid,
+    /// Station id.
+    pub station_id: String,
+    /// Placement, initial snapshot and the log of acknowledged commands.
+    pub state: tokio::sync::Mutex<SessionRecord>,
+    /// Increases with every new browser connection; an older connection ends when it sees a
+    /// newer one (one driver at a time: a reloaded page takes over).
+    pub generation: std::sync::atomic::AtomicU64,
+}
+
+/// The server's copy of a session.
+#[derive(Debug, Clone)]
+pub struct SessionRecord {
+    /// Where it runs.
+    pub placement: Placement,
+    /// Its initial state.
+    pub initial: SessionSnapshot,
+    /// Every acknowledged command, in order.
+    pub log: Vec<LogEntry>,
+    /// SHA-256 of the newest frame's JPEG sent to the browser.
+    pub last_frame_sha256: Option<String>,
+    /// Set once the submit was stored.
+    pub result_id: Option<Uuid>,
+    /// How many times it was restored on another worker.
+    pub failovers: u32,
+}
+
+/// Settings of dispatch.
+#[derive(Debug, Clone)]
+pub struct DispatchConfig {
+    /// Region folders (`assets/`).
+    pub assets_root: std::path::PathBuf,
+    /// Station files (`assets/stations/`).
+    pub stations_dir: std::path::PathBuf,
+    /// Sessions the in-process worker takes.
+    pub in_process_capacity: usize,
+    /// Token workers present to register; `None` refuses registrations.
+    pub worker_token: Option<String>,
+}
+
+impl DispatchConfig {
+    /// From the environment: `PAINSIM_ASSETS_DIR` (default: the repository's `assets/`),
+    /// `PAINSIM_IN_PROCESS_SESSIONS` (default 8), `PAINSIM_WORKER_TOKEN` (unset: no remote
+    /// workers), with the stations folder of the learning records.
+    pub fn from_env(stations_dir: std::path::PathBuf) -> DispatchConfig {
+        DispatchConfig {
+            assets_root: std::env::var("PAINSIM_ASSETS_DIR")
+                .map(Into::into)
+                .unwrap_or_else(|_| concat!(env!("CARGO_MANIFEST_DIR"), "/../assets").into()),
+            stations_dir,
+            in_process_capacity: std::env::var("PAINSIM_IN_PROCESS_SESSIONS")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(8),
+            worker_token: std::env::var("PAINSIM_WORKER_TOKEN")
+                .ok()
+                .filter(|t| t.len() >= 16),
+        }
+    }
+}
+
+/// The in-process worker's renderer: the GPU renderer once the server's GPU is open and passed
+/// its self-test (a real adapter or lavapipe), the CPU reference before that or without one.
+/// A session keeps the renderer it got at its first exposure; a session that began in the
+/// first seconds after start-up, before the GPU was ready, may therefore render on the CPU
+/// while its record (read at submit) names the GPU.
+struct InProcessBackend {
+    workers: crate::workers::Workers,
+}
+
+impl InProcessBackend {
+    fn current(&self) -> Box<dyn FluoroBackend> {
+        match self.workers.gpu() {
+            Some(ctx) => Box::new(GpuFluoroBackend { ctx }),
+            None => Box::new(CpuFluoroBackend { threads: 0 }),
+        }
+    }
+}
+
+impl FluoroBackend for InProcessBackend {
+    fn profile(&self) -> BackendProfile {
+        self.current().profile()
+    }
+
+    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String> {
+        self.current().renderer(region)
+    }
+}
+
+struct Inner {
+    local: Option<SessionHost>,
+    replay: SessionHost,
+    remote: registry::Registry,
+    sessions: Mutex<HashMap<Uuid, Arc<LiveSession>>>,
+    worker_token: Option<String>,
+}
+
+/// Session dispatch: the in-process host, registered workers, and the live sessions.
+#[derive(Clone)]
+pub struct Dispatcher {
+    inner: Arc<Inner>,
+}
+
+impl std::fmt::Debug for Dispatcher {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Dispatcher")
+            .field("in_process", &self.inner.local.is_some())
+            .finish()
+    }
+}
+
+impl Dispatcher {
+    /// A dispatcher over an in-process host (`local`, `None` for remote-only), a host used for
+    /// replays, and the cluster token.
+    pub fn new(
+        local: Option<SessionHost>,
+        replay: SessionHost,
+        worker_token: Option<String>,
+    ) -> Dispatcher {
+        let d = Dispatcher {
+            inner: Arc::new(Inner {
+                local,
+                replay,
+                remote: registry::Registry::default(),
+                sessions: Mutex::new(HashMap::new()),
+                worker_token,
+            }),
+        };
+        d.inner.remote.start_polling();
+        d
+    }
+
+    /// The default: an in-process host over `config`'s stations and regions (regions load on
+    /// first use) rendering with `backend`.
+    pub fn from_config(
+        config: &DispatchConfig,
+        backend: Arc<dyn FluoroBackend>,
+    ) -> Result<Dispatcher, String> {
+        let host = SessionHost::new(
+            HostConfig {
+                assets_root: config.assets_root.clone(),
+                stations_dir: config.stations_dir.clone(),
+                capacity: config.in_process_capacity,
+                session: SessionConfig::default(),
+            },
+            backend,
+            None,
+        )
+        .map_err(|e| e.to_string())?;
+        Ok(Dispatcher::new(
+            Some(host.clone()),
+            host,
+            config.worker_token.clone(),
+        ))
+    }
+
+    /// The dispatcher of [`crate::app`]: the one attached to `state.workers`, else the default
+    /// from the environment and the learning records' stations folder. A station folder that
+    /// does not load leaves an in-process host without stations (start-up reports the folder).
+    pub fn for_app(state: &crate::AppState) -> Dispatcher {
+        if let Some(d) = state.workers.dispatcher() {
+            return d;
+        }
+        let config = DispatchConfig::from_env(state.config.records.stations_dir.clone());
+        let backend = Arc::new(InProcessBackend {
+            workers: state.workers.clone(),
+        });
+        Dispatcher::from_config(&config, backend).unwrap_or_else(|e| {
+            tracing::error!("no in-process sessions: {e}");
+            let empty = SessionHost::with_regions(
+                Vec::new(),
+                Vec::new(),
+                Arc::new(CpuFluoroBackend { threads: 0 }),
+                0,
+                SessionConfig::default(),
+            );
+            Dispatcher::new(None, empty, config.worker_token)
+        })
+    }
+
+    /// The in-process host, if any.
+    pub fn local_host(&self) -> Option<&SessionHost> {
+        self.inner.local.as_ref()
+    }
+
+    /// Registered workers as reported by `GET /api/workers`.
+    pub fn workers(&self) -> Vec<WorkerView> {
+        self.inner.remote.views(&self.sessions_by_worker())
+    }
+
+    fn sessions_by_worker(&self) -> HashMap<String, usize> {
+        let mut by = HashMap::new();
+        let list: Vec<Arc<LiveSession>> = self
+            .inner
+            .sessions
+            .lock()
+            .map(|m| m.values().cloned().collect())
+            .unwrap_or_default();
+        for s in list {
+            if let Ok(st) = s.state.try_lock() {
+                *by.entry(st.placement.worker_label()).or_insert(0) += 1;
+            }
+        }
+        by
+    }
+
+    /// A live session by id.
+    pub fn session(&self, id: Uuid) -> Option<Arc<LiveSession>> {
+        self.inner.sessions.lock().ok()?.get(&id).cloned()
+    }
+
+    /// The live, not yet submitted session of an attempt, if one exists.
+    pub async fn session_of_attempt(&self, attempt_id: Uuid) -> Option<Arc<LiveSession>> {
+        let list: Vec<Arc<LiveSession>> = self
+            .inner
+            .sessions
+            .lock()
+            .ok()?
+            .values()
+            .filter(|s| s.attempt_id == attempt_id)
+            .cloned()
+            .collect();
+        for s in list {
+            if s.state.lock().await.result_id.is_none() {
+                return Some(s);
+            }
+        }
+        None
+    }
+
+    /// Creates a session for a station on the least loaded worker (excluding `avoid`), returning
+    /// its placement and initial snapshot.
+    async fn place_new(&self, station_id: &str) -> Result<(Placement, SessionSnapshot), String> {
+        let mut errors = Vec::new();
+        for url in self.inner.remote.by_load(&self.sessions_by_worker(), None) {
+            match registry::create_remote(&url, station_id).await {
+                Ok((worker_session, snapshot)) => {
+                    return Ok((
+                        Placement::Remote {
+                            worker_url: url,
+                            worker_session,
+                        },
+                        snapshot,
+                    ));
+                }
+                Err(e) => {
+                    tracing::warn!(worker = %url, "session creation failed: {e}");
+                    errors.push(e);
+                }
+            }
+        }
+        let Some(host) = &self.inner.local else {
+            return Err(if errors.is_empty() {
+                "no render worker is registered".into()
+            } else {
+                errors.join("; ")
+            });
+        };
+        let h = host.create(station_id).await.map_err(|e| e.to_string())?;
+        let (snapshot, _) = h.snapshot().await.ok_or("the new session ended at once")?;
+        Ok((
+            Placement::Local {
+                worker_session: h.info.id.clone(),
+            },
+            snapshot,
+        ))
+    }
+
+    /// Restores `record`'s session on a worker other than the failed one: a live registered
+    /// worker by least load, else the in-process host.
+    async fn restore_elsewhere(
+        &self,
+        failed: &Placement,
+        record: &SessionRecord,
+    ) -> Result<Placement, String> {
+        if let Placement::Remote { worker_url, .. } = failed {
+            self.inner.remote.mark_dead(worker_url);
+        }
+        let avoid = match failed {
+            Placement::Remote { worker_url, .. } => Some(worker_url.as_str()),
+            Placement::Local { .. } => None,
+        };
+        let mut errors = Vec::new();
+        for url in self.inner.remote.by_load(&self.sessions_by_worker(), avoid) {
+            match registry::restore_remote(&url, &record.initial, &record.log).await {
+                Ok(worker_session) => {
+                    return Ok(Placement::Remote {
+                        worker_url: url,
+                        worker_session,
+                    });
+                }
+                Err(e) => errors.push(e),
+            }
+        }
+        if let Some(host) = &self.inner.local {
+            let (h, initial, log) = (host.clone(), record.initial.clone(), record.log.clone());
+            let handle = tokio::task::spawn_blocking(move || h.restore_blocking(&initial, &log))
+                .await
+                .map_err(|e| e.to_string())?
+                .map_err(|e| e.to_string())?;
+            return Ok(Placement::Local {
+                worker_session: handle.info.id.clone(),
+            });
+        }
+        Err(format!(
+            "no worker could take the session over: {}",
+            errors.join("; ")
+        ))
+    }
+
+    fn insert(&self, s: Arc<LiveSession>) {
+        if let Ok(mut m) = self.inner.sessions.lock() {
+            m.insert(s.id, s);
+        }
+    }
+
+    /// Ends a session on its worker and forgets it.
+    pub async fn close(&self, id: Uuid) {
+        let Some(s) = self
+            .inner
+            .sessions
+            .lock()
+            .ok()
+            .and_then(|mut m| m.remove(&id))
+        else {
+            return;
+        };
+        let placement = s.state.lock().await.placement.clone();
+        match placement {
+            Placement::Local { worker_session } => {
+                if let Some(h) = &self.inner.local {
+                    let _ = h.close(&worker_session);
+                }
+            }
+            Placement::Remote {
+                worker_url,
+                worker_session,
+            } => {
+                let _ = render_worker::cluster::request(
+                    "DELETE",
+                    &format!("{worker_url}/sessions/{worker_session}"),
+                    None,
+                    None,
+                )
+                .await;
+            }
+        }
+    }
+}

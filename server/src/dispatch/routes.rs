@@ -1,0 +1,398 @@
+//! HTTP routes of dispatch: start a session, its websocket, worker registration, replay.
+
+use std::collections::BTreeSet;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use axum::Router;
+use axum::extract::ws::WebSocketUpgrade;
+use axum::extract::{FromRequestParts, Query, State};
+use axum::http::header::{AUTHORIZATION, CONTENT_TYPE, HOST, ORIGIN};
+use axum::http::request::Parts;
+use axum::http::{HeaderMap, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use render_worker::cluster::Registration;
+use render_worker::session::{LogEntry, Session, SessionSnapshot, ViewId};
+use serde::Deserialize;
+use serde_json::json;
+use sha2::{Digest, Sha256};
+use uuid::Uuid;
+
+use super::{Dispatcher, LiveSession, SessionRecord, proxy};
+use crate::ApiError;
+use crate::records::RecordsState;
+use crate::records::attempts::{ActivityKind, record_activity};
+use crate::records::auth::{CurrentUser, Role};
+use crate::records::authz::attempt_visible;
+use crate::records::extract::ApiPath;
+
+/// State of the dispatch routes.
+#[derive(Clone)]
+pub struct DispatchState {
+    records: RecordsState,
+    dispatcher: Dispatcher,
+}
+
+/// The authenticated caller (the learning records' session cookie and CSRF rules).
+struct Caller(CurrentUser);
+
+impl FromRequestParts<DispatchState> for Caller {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(
+        parts: &mut Parts,
+        state: &DispatchState,
+    ) -> Result<Self, ApiError> {
+        CurrentUser::from_request_parts(parts, &state.records)
+            .await
+            .map(Caller)
+    }
+}
+
+/// The dispatch routes.
+pub fn router<S: Clone + Send + Sync + 'static>(
+    records: RecordsState,
+    dispatcher: Dispatcher,
+) -> Router<S> {
+    Router::new()
+        .route("/api/attempts/{attempt_id}/session", post(start_session))
+        .route("/api/attempts/{attempt_id}/replay", get(replay))
+        .route("/api/attempts/{attempt_id}/replay/frame", get(replay_frame))
+        .route("/api/sessions/{session_id}", get(session_info))
+        .route("/api/sessions/{session_id}/ws", get(session_ws))
+        .route("/api/workers", post(register_worker).get(list_workers))
+        .with_state(DispatchState {
+            records,
+            dispatcher,
+        })
+}
+
+fn session_json(s: &LiveSession, st: &SessionRecord) -> serde_json::Value {
+    json!({
+        "session_id": s.id,
+        "attempt_id": s.attempt_id,
+        "station_id": s.station_id,
+        "ws": format!("/api/sessions/{}/ws", s.id),
+        "worker": st.placement.worker_label(),
+        "failovers": st.failovers,
+        "log_len": st.log.len(),
+        "last_seq": st.log.last().map_or(0, |e| e.seq),
+        "submitted": st.result_id.is_some(),
+    })
+}
+
+/// The attempt as the caller may see it: (learner, station, state); 404 when not visible.
+async fn visible_attempt(
+    state: &DispatchState,
+    user: &CurrentUser,
+    attempt_id: Uuid,
+) -> Result<(Uuid, String, String), ApiError> {
+    sqlx::query_as(&format!(
+        "SELECT a.learner_id, a.station_id, a.state FROM attempts a WHERE a.id = $3 AND {}",
+        attempt_visible(1, 2)
+    ))
+    .bind(user.id)
+    .bind(user.is_admin())
+    .bind(attempt_id)
+    .fetch_optional(&state.records.pool)
+    .await?
+    .ok_or_else(|| ApiError::NotFound("attempt".into()))
+}
+
+/// `POST /api/attempts/{attempt_id}/session`: the learner's live session for an attempt (the
+/// running one, or a new one on the least loaded worker). Records `session_launched`.
+async fn start_session(
+    State(state): State<DispatchState>,
+    Caller(user): Caller,
+    ApiPath(attempt_id): ApiPath<Uuid>,
+) -> Result<Response, ApiError> {
+    let (learner, station_id, attempt_state) = visible_attempt(&state, &user, attempt_id).await?;
+    if learner != user.id {
+        return Err(ApiError::Forbidden(
+            "only the attempt's learner drives its session".into(),
+        ));
+    }
+    if !["in_progress", "returned"].contains(&attempt_state.as_str()) {
+        return Err(ApiError::Conflict(format!(
+            "the attempt is {attempt_state}; a session can be opened while it is in progress or returned"
+        )));
+    }
+    if let Some(s) = state.dispatcher.session_of_attempt(attempt_id).await {
+        let st = s.state.lock().await;
+        return Ok((StatusCode::OK, axum::Json(session_json(&s, &st))).into_response());
+    }
+    let (placement, initial) = state.dispatcher.place_new(&station_id).await.map_err(|e| {
+        tracing::error!(attempt = %attempt_id, "no session could be created: {e}");
+        ApiError::Unavailable("render worker")
+    })?;
+    let id = Uuid::new_v4();
+    sqlx::query("INSERT INTO live_sessions (id, attempt_id, learner_id, station_id, initial_snapshot) VALUES ($1, $2, $3, $4, $5)")
+        .bind(id)
+        .bind(attempt_id)
+        .bind(user.id)
+        .bind(&station_id)
+        .bind(serde_json::to_value(&initial).map_err(|e| ApiError::Internal(e.to_string()))?)
+        .execute(&state.records.pool)
+        .await?;
+    let worker = placement.worker_label();
+    let session = Arc::new(LiveSession {
+        id,
+        attempt_id,
+        learner_id: user.id,
+        station_id,
+        state: tokio::sync::Mutex::new(SessionRecord {
+            placement,
+            initial,
+            log: Vec::new(),
+            last_frame_sha256: None,
+            result_id: None,
+            failovers: 0,
+        }),
+        generation: AtomicU64::new(0),
+    });
+    state.dispatcher.insert(session.clone());
+    record_activity(
+        &state.records.pool,
+        attempt_id,
+        user.id,
+        ActivityKind::SessionLaunched,
+        json!({ "session_id": id, "worker": worker }),
+    )
+    .await?;
+    let st = session.state.lock().await;
+    Ok((StatusCode::CREATED, axum::Json(session_json(&session, &st))).into_response())
+}
+
+/// The session, for its learner.
+async fn owned_session(
+    state: &DispatchState,
+    user: &CurrentUser,
+    session_id: Uuid,
+) -> Result<Arc<LiveSession>, ApiError> {
+    let s = state
+        .dispatcher
+        .session(session_id)
+        .ok_or_else(|| ApiError::NotFound("session".into()))?;
+    if s.learner_id != user.id {
+        // Not revealing whose it is: faculty review through the replay instead.
+        return Err(ApiError::NotFound("session".into()));
+    }
+    Ok(s)
+}
+
+/// `GET /api/sessions/{session_id}`: where it runs and how far it is (its learner only).
+async fn session_info(
+    State(state): State<DispatchState>,
+    Caller(user): Caller,
+    ApiPath(session_id): ApiPath<Uuid>,
+) -> Result<axum::Json<serde_json::Value>, ApiError> {
+    let s = owned_session(&state, &user, session_id).await?;
+    let st = s.state.lock().await;
+    Ok(axum::Json(session_json(&s, &st)))
+}
+
+/// Browsers send cookies with cross-site websocket handshakes; a handshake whose `Origin` is
+/// not this server's own host is refused (cross-site websocket hijacking).
+fn same_origin(headers: &HeaderMap) -> bool {
+    let Some(origin) = headers.get(ORIGIN).and_then(|o| o.to_str().ok()) else {
+        return true; // Not a browser (tests, benches, tools): cookies are not ambient there.
+    };
+    let host = headers
+        .get(HOST)
+        .and_then(|h| h.to_str().ok())
+        .unwrap_or("");
+    origin
+        .split_once("://")
+        .is_some_and(|(_, rest)| rest == host)
+}
+
+/// `GET /api/sessions/{session_id}/ws`: the session protocol, relayed (its learner only).
+async fn session_ws(
+    State(state): State<DispatchState>,
+    Caller(user): Caller,
+    ApiPath(session_id): ApiPath<Uuid>,
+    headers: HeaderMap,
+    upgrade: WebSocketUpgrade,
+) -> Result<Response, ApiError> {
+    if !same_origin(&headers) {
+        return Err(ApiError::Forbidden("websocket from another origin".into()));
+    }
+    let s = owned_session(&state, &user, session_id).await?;
+    let generation = s.generation.fetch_add(1, Ordering::SeqCst) + 1;
+    let (dispatcher, records) = (state.dispatcher.clone(), state.records.clone());
+    Ok(upgrade.on_upgrade(move |socket| proxy::relay(dispatcher, records, s, socket, generation)))
+}
+
+/// `POST /api/workers`: a render worker announces itself (bearer: the cluster token).
+async fn register_worker(
+    State(state): State<DispatchState>,
+    headers: HeaderMap,
+    body: axum::Json<Registration>,
+) -> Result<StatusCode, ApiError> {
+    let Some(token) = &state.dispatcher.inner.worker_token else {
+        return Err(ApiError::Forbidden(
+            "this server takes no remote render workers (PAINSIM_WORKER_TOKEN is unset)".into(),
+        ));
+    };
+    let sent = headers
+        .get(AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        .unwrap_or("");
+    // Compare digests: equal length, no early exit on the first differing byte.
+    if Sha256::digest(sent.as_bytes()) != Sha256::digest(token.as_bytes()) {
+        return Err(ApiError::Unauthorized);
+    }
+    let reg = body.0;
+    if render_worker::cluster::split_url(&reg.url).is_err()
+        || reg.capacity == 0
+        || reg.capacity > 10_000
+    {
+        return Err(ApiError::BadRequest(
+            "url must be http://host:port and capacity 1 to 10000".into(),
+        ));
+    }
+    state.dispatcher.inner.remote.register(reg);
+    Ok(StatusCode::NO_CONTENT)
+}
+
+/// `GET /api/workers`: registered workers (admins).
+async fn list_workers(
+    State(state): State<DispatchState>,
+    Caller(user): Caller,
+) -> Result<axum::Json<serde_json::Value>, ApiError> {
+    user.require(&[Role::Admin])?;
+    let local = state.dispatcher.local_host().map(|h| h.health());
+    Ok(axum::Json(
+        json!({ "in_process": local, "remote": state.dispatcher.workers() }),
+    ))
+}
+
+type ReplayRow = (
+    Uuid,
+    String,
+    serde_json::Value,
+    serde_json::Value,
+    Option<Uuid>,
+    Option<String>,
+    Option<String>,
+    Option<f64>,
+    Option<String>,
+);
+
+/// The newest recorded session of a visible attempt (submitted ones first).
+async fn recorded_session(
+    state: &DispatchState,
+    user: &CurrentUser,
+    attempt_id: Uuid,
+) -> Result<ReplayRow, ApiError> {
+    visible_attempt(state, user, attempt_id).await?;
+    sqlx::query_as(
+        "SELECT s.id, s.station_id, s.initial_snapshot, s.log, s.result_id, s.final_state_sha256, s.final_frame_sha256, r.score, r.outcome
+         FROM live_sessions s LEFT JOIN technical_results r ON r.id = s.result_id
+         WHERE s.attempt_id = $1 ORDER BY (s.result_id IS NOT NULL) DESC, s.created_at DESC LIMIT 1",
+    )
+    .bind(attempt_id)
+    .fetch_optional(&state.records.pool)
+    .await?
+    .ok_or_else(|| ApiError::NotFound("recorded session".into()))
+}
+
+/// Replays `log` from `initial` on the replay host: the session and its displayed image.
+async fn replay_to(
+    state: &DispatchState,
+    station_id: String,
+    initial: SessionSnapshot,
+    log: Vec<LogEntry>,
+) -> Result<(Session, Option<Vec<u8>>), ApiError> {
+    let host = state.dispatcher.inner.replay.clone();
+    tokio::task::spawn_blocking(move || {
+        let env = host
+            .env_for(&station_id)
+            .map_err(|e| ApiError::Internal(e.to_string()))?;
+        let mut s = Session::restore(env, &initial, &log)
+            .map_err(|e| ApiError::Internal(format!("replay: {e}")))?;
+        let visible: BTreeSet<ViewId> = s.views().into_iter().collect();
+        let views = s
+            .render_dirty(&visible)
+            .map_err(|e| ApiError::Internal(format!("replay render: {e}")))?;
+        let jpeg = match views.into_iter().find(|v| v.view == ViewId::Fluoroscopy) {
+            Some(v) => Some(
+                render_worker::session::frame::encode_jpeg(&v.image).map_err(ApiError::Internal)?,
+            ),
+            None => None,
+        };
+        Ok((s, jpeg))
+    })
+    .await
+    .map_err(|e| ApiError::Internal(e.to_string()))?
+}
+
+fn parse_recorded(
+    initial: serde_json::Value,
+    log: serde_json::Value,
+) -> Result<(SessionSnapshot, Vec<LogEntry>), ApiError> {
+    let initial = serde_json::from_value(initial)
+        .map_err(|e| ApiError::Internal(format!("stored snapshot: {e}")))?;
+    let log =
+        serde_json::from_value(log).map_err(|e| ApiError::Internal(format!("stored log: {e}")))?;
+    Ok((initial, log))
+}
+
+/// `GET /api/attempts/{attempt_id}/replay`: the recorded log (the timeline) of the attempt's
+/// session, and a full replay checked against what was recorded: score, final state and final
+/// frame. Faculty of the course, admins and the learner.
+async fn replay(
+    State(state): State<DispatchState>,
+    Caller(user): Caller,
+    ApiPath(attempt_id): ApiPath<Uuid>,
+) -> Result<axum::Json<serde_json::Value>, ApiError> {
+    let (session_id, station_id, initial, log, result_id, final_state, final_frame, score, outcome) =
+        recorded_session(&state, &user, attempt_id).await?;
+    let (initial, log) = parse_recorded(initial, log)?;
+    let (s, jpeg) = replay_to(&state, station_id.clone(), initial, log.clone()).await?;
+    let replayed = s.result().cloned();
+    let replayed_frame = jpeg.as_deref().map(render_worker::session::sha256_hex);
+    let replayed_state = replayed
+        .as_ref()
+        .map(|r| r.record.final_state_sha256.clone());
+    let replayed_score = replayed.as_ref().and_then(|r| r.rubric.score);
+    Ok(axum::Json(json!({
+        "session_id": session_id,
+        "station_id": station_id,
+        "timeline": log,
+        "recorded": { "result_id": result_id, "score": score, "outcome": outcome, "final_state_sha256": final_state, "final_frame_sha256": final_frame },
+        "replayed": { "score": replayed_score, "outcome": replayed.as_ref().map(|r| r.rubric.outcome.as_str()), "final_state_sha256": replayed_state, "final_frame_sha256": replayed_frame },
+        "identical": result_id.is_some() && replayed_state == final_state && replayed_frame == final_frame && replayed_score == score,
+    })))
+}
+
+#[derive(Deserialize)]
+struct StepQuery {
+    step: usize,
+}
+
+/// `GET /api/attempts/{attempt_id}/replay/frame?step=k`: the JPEG on screen after the first `k`
+/// recorded commands (204 before the first image).
+async fn replay_frame(
+    State(state): State<DispatchState>,
+    Caller(user): Caller,
+    ApiPath(attempt_id): ApiPath<Uuid>,
+    Query(q): Query<StepQuery>,
+) -> Result<Response, ApiError> {
+    let (_, station_id, initial, log, ..) = recorded_session(&state, &user, attempt_id).await?;
+    let (initial, mut log) = parse_recorded(initial, log)?;
+    if q.step > log.len() {
+        return Err(ApiError::BadRequest(format!(
+            "step must be 0 to {}",
+            log.len()
+        )));
+    }
+    log.truncate(q.step);
+    let (_, jpeg) = replay_to(&state, station_id, initial, log).await?;
+    Ok(match jpeg {
+        Some(j) => ([(CONTENT_TYPE, "image/jpeg")], j).into_response(),
+        None => StatusCode::NO_CONTENT.into_response(),
+    })
+}

@@ -1,0 +1,680 @@
+//! Dispatch of live sessions: the server's websocket relay, authorization, engagement events,
+//! the submit hand-off to the learning records, exact replay, and failover after a render
+//! worker process is killed.
+//!
+//! Sessions run on the render worker's analytic demo region (boxes of known geometry) and its
+//! demo station, so frames render in milliseconds; the station file is written to a temporary
+//! stations folder that the learning records load too, so both sides agree on its hash.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::sync::{Arc, OnceLock};
+use std::time::Duration;
+
+use futures::{SinkExt, StreamExt};
+use render_worker::cluster::{Registration, register_forever, request_with_headers};
+use render_worker::session::demo::{demo_region, demo_station, demo_station_toml};
+use render_worker::session::{CpuFluoroBackend, SessionConfig, SessionHost};
+use serde_json::{Value, json};
+use server::dispatch::Dispatcher;
+use server::records::config::Argon2Cost;
+use server::test_support::{TestDb, test_db};
+use server::{AppState, Config, app, workers::Workers};
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+
+/// Password of the demo accounts.
+pub const DEMO_PASSWORD: &str = server::records::demo::DEMO_PASSWORD;
+
+/// One render worker status tracker for the whole test binary (see `records_support`).
+fn base_workers() -> Workers {
+    static W: OnceLock<Workers> = OnceLock::new();
+    W.get_or_init(|| {
+        let w = Workers::start_in_process();
+        w.wait_until_settled(Duration::from_secs(120));
+        w
+    })
+    .clone()
+}
+
+/// An in-process session host over the demo station and region.
+pub fn demo_host(capacity: usize) -> SessionHost {
+    SessionHost::with_regions(
+        vec![demo_station(&[])],
+        vec![Arc::new(demo_region())],
+        Arc::new(CpuFluoroBackend { threads: 0 }),
+        capacity,
+        SessionConfig::default(),
+    )
+}
+
+/// A server on a loopback port over a fresh database with the demo accounts and station.
+pub struct DemoServer {
+    /// Its address.
+    pub addr: SocketAddr,
+    /// The database.
+    pub db: TestDb,
+    /// The dispatcher it uses.
+    pub dispatcher: Dispatcher,
+    _stations: tempfile::TempDir,
+}
+
+/// Starts a [`DemoServer`]: sessions in-process when `in_process`, and remote workers accepted
+/// with `worker_token`.
+pub async fn demo_server(in_process: bool, worker_token: Option<&str>) -> DemoServer {
+    let stations = tempfile::tempdir().expect("temporary stations folder");
+    std::fs::write(
+        stations.path().join("demo-station.toml"),
+        demo_station_toml(&[]),
+    )
+    .expect("write the demo station");
+    let map: HashMap<&str, String> = [
+        (
+            "PAINSIM_STATIONS_DIR",
+            stations.path().display().to_string(),
+        ),
+        ("PAINSIM_AUTH_RATE_PER_MINUTE", "100000".into()),
+        ("PAINSIM_AUTH_BURST", "100000".into()),
+    ]
+    .into_iter()
+    .collect();
+    let mut config = Config::from_lookup(|k| map.get(k).cloned()).expect("test configuration");
+    config.records.argon2 = Argon2Cost::TEST_ONLY;
+    let db = test_db().await;
+    server::records::prepare(&db.pool, &config.records, true)
+        .await
+        .expect("stations and demo accounts");
+    let host = demo_host(8);
+    let dispatcher = Dispatcher::new(
+        in_process.then(|| host.clone()),
+        host,
+        worker_token.map(str::to_owned),
+    );
+    let state = AppState {
+        pool: db.pool.clone(),
+        embedded_db: true,
+        workers: base_workers().with_dispatcher(dispatcher.clone()),
+        config,
+    };
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind a loopback port");
+    let addr = listener.local_addr().expect("local address");
+    let router = app(state);
+    tokio::spawn(async move { axum::serve(listener, router).await });
+    DemoServer {
+        addr,
+        db,
+        dispatcher,
+        _stations: stations,
+    }
+}
+
+/// A logged-in HTTP client (cookie and CSRF token).
+#[derive(Clone)]
+pub struct Client {
+    /// Server address.
+    pub addr: SocketAddr,
+    /// `painsim_session=...`.
+    pub cookie: String,
+    /// CSRF token.
+    pub csrf: String,
+}
+
+impl Client {
+    /// Logs in a demo account.
+    pub async fn login(addr: SocketAddr, email: &str) -> Client {
+        let r = request_with_headers(
+            "POST",
+            &format!("http://{addr}/api/auth/login"),
+            Some(&json!({ "email": email, "password": DEMO_PASSWORD })),
+            &[],
+        )
+        .await
+        .expect("login request");
+        assert_eq!(
+            r.status,
+            200,
+            "login {email}: {}",
+            String::from_utf8_lossy(&r.body)
+        );
+        let cookie = r
+            .headers
+            .iter()
+            .filter(|(k, _)| k == "set-cookie")
+            .filter_map(|(_, v)| v.split(';').next())
+            .find(|c| c.starts_with("painsim_session="))
+            .expect("session cookie")
+            .to_string();
+        let csrf = r.json().unwrap()["csrf_token"]
+            .as_str()
+            .unwrap()
+            .to_string();
+        Client { addr, cookie, csrf }
+    }
+
+    /// A request; returns status and JSON (or Null).
+    pub async fn call(&self, method: &str, path: &str, body: Option<Value>) -> (u16, Value) {
+        let headers = [
+            ("Cookie", self.cookie.as_str()),
+            ("X-CSRF-Token", self.csrf.as_str()),
+        ];
+        let r = request_with_headers(
+            method,
+            &format!("http://{}{path}", self.addr),
+            body.as_ref(),
+            &headers,
+        )
+        .await
+        .expect("request");
+        (r.status, r.json().unwrap_or(Value::Null))
+    }
+
+    /// Opens an attempt at the demo station in the demo course and its session.
+    pub async fn start_demo_attempt(&self) -> (String, Value) {
+        let (s, courses) = self.call("GET", "/api/courses", None).await;
+        assert_eq!(s, 200);
+        let course = courses
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["code"] == "DEMO-101")
+            .expect("demo course")["id"]
+            .clone();
+        let (s, attempt) = self
+            .call(
+                "POST",
+                "/api/attempts",
+                Some(json!({ "course_id": course, "station_id": "demo-station" })),
+            )
+            .await;
+        assert_eq!(s, 201, "{attempt}");
+        let id = attempt["id"].as_str().unwrap().to_string();
+        let (s, session) = self
+            .call("POST", &format!("/api/attempts/{id}/session"), None)
+            .await;
+        assert_eq!(s, 201, "{session}");
+        (id, session)
+    }
+
+    /// Opens the session's websocket through the server.
+    pub async fn websocket(&self, ws_path: &str) -> Ws {
+        let mut req = format!("ws://{}{ws_path}", self.addr)
+            .into_client_request()
+            .unwrap();
+        req.headers_mut()
+            .insert("Cookie", self.cookie.parse().unwrap());
+        let (ws, _) = tokio_tungstenite::connect_async(req)
+            .await
+            .expect("websocket through the server");
+        Ws { ws }
+    }
+}
+
+/// A session websocket with helpers.
+pub struct Ws {
+    ws: tokio_tungstenite::WebSocketStream<
+        tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
+    >,
+}
+
+/// What arrived: text messages as JSON, and frames as (input_seq, jpeg length).
+#[derive(Debug, Default)]
+pub struct Received {
+    /// Text messages.
+    pub texts: Vec<Value>,
+    /// Frames: the input sequence they reflect.
+    pub frames: Vec<u64>,
+}
+
+impl Ws {
+    /// Sends a command.
+    pub async fn send(&mut self, seq: u64, command: Value) {
+        let m = json!({ "type": "command", "seq": seq, "command": command }).to_string();
+        self.ws.send(Message::Text(m.into())).await.expect("send");
+    }
+
+    /// Reads until `done` holds for what arrived (at most 60 s: a hang fails the test).
+    pub async fn until(&mut self, got: &mut Received, done: impl Fn(&Received) -> bool) {
+        while !done(got) {
+            let m = tokio::time::timeout(Duration::from_secs(60), self.ws.next())
+                .await
+                .expect("a message within 60 s")
+                .expect("open")
+                .expect("ok");
+            match m {
+                Message::Text(t) => got.texts.push(serde_json::from_str(&t).unwrap()),
+                Message::Binary(b) => {
+                    let f =
+                        render_worker::session::frame::EncodedFrame::parse(&b).expect("a frame");
+                    got.frames.push(f.input_seq);
+                }
+                _ => {}
+            }
+        }
+    }
+}
+
+/// Acknowledged sequence numbers (not duplicates).
+pub fn acked(r: &Received) -> Vec<u64> {
+    r.texts
+        .iter()
+        .filter(|t| t["type"] == "ack" && t["duplicate"] != true)
+        .map(|t| t["seq"].as_u64().unwrap())
+        .collect()
+}
+
+/// Entry point of a worker process for the failover test: the test binary runs itself with
+/// `PAINSIM_TEST_WORKER_REGISTER` set, and this "test" then serves the demo host over the
+/// render worker's HTTP and websocket surface and registers with the server, until killed.
+/// Without the variable it returns at once (it is ignored in normal runs).
+#[test]
+#[ignore = "entry point of the worker processes spawned by `failover_after_worker_process_is_killed`"]
+fn worker_process_entry() {
+    let Ok(register) = std::env::var("PAINSIM_TEST_WORKER_REGISTER") else {
+        return;
+    };
+    let token = std::env::var("PAINSIM_TEST_WORKER_TOKEN").expect("token");
+    let rt = tokio::runtime::Runtime::new().expect("runtime");
+    rt.block_on(async move {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+            .await
+            .expect("bind");
+        let addr = listener.local_addr().unwrap();
+        let host = demo_host(8);
+        let me = Registration {
+            url: format!("http://{addr}"),
+            capacity: 8,
+            renderer: serde_json::to_value(host.health().renderer).unwrap(),
+            adapter: None,
+        };
+        tokio::spawn(register_forever(register, token, me));
+        println!("worker {addr} ready");
+        axum::serve(listener, render_worker::session::http::router(host))
+            .await
+            .expect("serve");
+    });
+}
+
+fn spawn_worker(register: &str, token: &str) -> std::process::Child {
+    std::process::Command::new(std::env::current_exe().expect("test binary"))
+        .args([
+            "--exact",
+            "dispatch::worker_process_entry",
+            "--ignored",
+            "--nocapture",
+            "--test-threads=1",
+        ])
+        .env("PAINSIM_TEST_WORKER_REGISTER", register)
+        .env("PAINSIM_TEST_WORKER_TOKEN", token)
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .expect("spawn a worker process")
+}
+
+async fn wait_for_workers(d: &Dispatcher, n: usize) {
+    for _ in 0..600 {
+        if d.workers().iter().filter(|w| w.state == "alive").count() >= n {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    panic!(
+        "{n} workers did not register within 60 s: {:?}",
+        d.workers()
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn in_process_session_records_activity_result_and_replays_exactly() {
+    let srv = demo_server(true, None).await;
+    let learner = Client::login(srv.addr, "learner@demo.invalid").await;
+    let (attempt, session) = learner.start_demo_attempt().await;
+    assert_eq!(session["worker"], "in-process");
+    let mut ws = learner.websocket(session["ws"].as_str().unwrap()).await;
+    let mut got = Received::default();
+    ws.until(&mut got, |r| !r.texts.is_empty()).await;
+    assert_eq!(got.texts[0]["type"], "hello");
+    assert_eq!(
+        got.texts[0]["session"]["id"], session["session_id"],
+        "the browser sees the server's session id"
+    );
+    let commands = [
+        json!({ "type": "shot" }),
+        json!({ "type": "carm_pose", "orbital_deg": 25, "angular_deg": -5 }),
+        json!({ "type": "needle_place", "instrument": "spinal-22g", "entry_mm": [12, -80, 0], "direction": [0, 1, 0], "bevel_reference": [1, 0, 0] }),
+        json!({ "type": "needle_feed", "mm": 20 }),
+        json!({ "type": "shot" }),
+    ];
+    for (i, c) in commands.iter().enumerate() {
+        ws.send(i as u64 + 1, c.clone()).await;
+    }
+    ws.until(&mut got, |r| {
+        acked(r).len() == 5 && r.frames.last() == Some(&5)
+    })
+    .await;
+    assert_eq!(acked(&got), vec![1, 2, 3, 4, 5]);
+    ws.send(6, json!({ "type": "submit" })).await;
+    ws.until(&mut got, |r| {
+        r.texts.iter().any(|t| t["type"] == "technical_result")
+    })
+    .await;
+    let result = got
+        .texts
+        .iter()
+        .find(|t| t["type"] == "technical_result")
+        .unwrap()["result"]
+        .clone();
+    assert_eq!(result["source"], "server");
+    drop(ws);
+
+    // The attempt is submitted with the result and the engagement events of the session.
+    let (s, detail) = learner
+        .call("GET", &format!("/api/attempts/{attempt}"), None)
+        .await;
+    assert_eq!(s, 200);
+    assert_eq!(detail["attempt"]["state"], "submitted");
+    assert_eq!(detail["results"][0]["id"], result["id"]);
+    let (_, events) = learner
+        .call("GET", &format!("/api/attempts/{attempt}/activity"), None)
+        .await;
+    let kinds: Vec<&str> = events
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["kind"].as_str().unwrap())
+        .collect();
+    for k in [
+        "station_opened",
+        "session_launched",
+        "image_acquired",
+        "view_changed",
+        "needle_adjusted",
+        "submission",
+    ] {
+        assert!(kinds.contains(&k), "{k} missing from {kinds:?}");
+    }
+    // Activity is recorded asynchronously; shots: 2 by the end.
+    for _ in 0..50 {
+        let (_, events) = learner
+            .call("GET", &format!("/api/attempts/{attempt}/activity"), None)
+            .await;
+        if events
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|e| e["kind"] == "image_acquired")
+            .count()
+            == 2
+        {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+
+    // Faculty replay: the timeline is the log, and the full replay reproduces score, final
+    // state and final frame exactly.
+    let faculty = Client::login(srv.addr, "faculty@demo.invalid").await;
+    let (s, replay) = faculty
+        .call("GET", &format!("/api/attempts/{attempt}/replay"), None)
+        .await;
+    assert_eq!(s, 200, "{replay}");
+    assert_eq!(replay["timeline"].as_array().unwrap().len(), 6);
+    assert_eq!(replay["recorded"]["score"], replay["replayed"]["score"]);
+    assert_eq!(
+        replay["recorded"]["final_state_sha256"],
+        replay["replayed"]["final_state_sha256"]
+    );
+    assert!(
+        replay["recorded"]["final_frame_sha256"].is_string(),
+        "{replay}"
+    );
+    assert_eq!(replay["identical"], true, "{replay}");
+    let r = request_with_headers(
+        "GET",
+        &format!(
+            "http://{}/api/attempts/{attempt}/replay/frame?step=1",
+            srv.addr
+        ),
+        None,
+        &[("Cookie", &faculty.cookie)],
+    )
+    .await
+    .unwrap();
+    assert_eq!(r.status, 200);
+    assert_eq!(&r.body[..2], &[0xFF, 0xD8], "a JPEG");
+    let r = request_with_headers(
+        "GET",
+        &format!(
+            "http://{}/api/attempts/{attempt}/replay/frame?step=0",
+            srv.addr
+        ),
+        None,
+        &[("Cookie", &faculty.cookie)],
+    )
+    .await
+    .unwrap();
+    assert_eq!(r.status, 204, "no image before the first shot");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn only_the_learner_drives_and_workers_need_the_token() {
+    let srv = demo_server(true, Some("a-cluster-token-of-some-length")).await;
+    let learner = Client::login(srv.addr, "learner@demo.invalid").await;
+    let (attempt, session) = learner.start_demo_attempt().await;
+    let sid = session["session_id"].as_str().unwrap();
+    // Another learner of the same course: cannot see the attempt, open or join its session.
+    let other = Client::login(srv.addr, "learner2@demo.invalid").await;
+    assert_eq!(
+        other
+            .call("POST", &format!("/api/attempts/{attempt}/session"), None)
+            .await
+            .0,
+        404
+    );
+    assert_eq!(
+        other
+            .call("GET", &format!("/api/sessions/{sid}"), None)
+            .await
+            .0,
+        404
+    );
+    assert_eq!(
+        handshake_status(srv.addr, sid, &other.cookie, None).await,
+        404
+    );
+    // Faculty can read the replay but cannot drive the session.
+    let faculty = Client::login(srv.addr, "faculty@demo.invalid").await;
+    assert_eq!(
+        faculty
+            .call("POST", &format!("/api/attempts/{attempt}/session"), None)
+            .await
+            .0,
+        403
+    );
+    assert_eq!(
+        faculty
+            .call("GET", &format!("/api/sessions/{sid}"), None)
+            .await
+            .0,
+        404
+    );
+    // A cross-site handshake with the learner's cookie is refused.
+    assert_eq!(
+        handshake_status(srv.addr, sid, &learner.cookie, Some("http://evil.example")).await,
+        403
+    );
+    let own_origin = format!("http://{}", srv.addr);
+    assert_eq!(
+        handshake_status(srv.addr, sid, &learner.cookie, Some(&own_origin)).await,
+        101,
+        "the learner, same origin"
+    );
+    // Registration needs the cluster token.
+    let reg =
+        json!({ "url": "http://127.0.0.1:1", "capacity": 4, "renderer": {}, "adapter": null });
+    let r = request_with_headers(
+        "POST",
+        &format!("http://{}/api/workers", srv.addr),
+        Some(&reg),
+        &[("Authorization", "Bearer wrong-token-wrong-token")],
+    )
+    .await
+    .unwrap();
+    assert_eq!(r.status, 401);
+    assert!(srv.dispatcher.workers().is_empty());
+    let r = request_with_headers(
+        "POST",
+        &format!("http://{}/api/workers", srv.addr),
+        Some(&reg),
+        &[("Authorization", "Bearer a-cluster-token-of-some-length")],
+    )
+    .await
+    .unwrap();
+    assert_eq!(r.status, 204);
+    assert_eq!(srv.dispatcher.workers().len(), 1);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn failover_after_worker_process_is_killed() {
+    let token = "failover-test-cluster-token";
+    let srv = demo_server(false, Some(token)).await;
+    let register = format!("http://{}/api/workers", srv.addr);
+    let mut workers = [
+        spawn_worker(&register, token),
+        spawn_worker(&register, token),
+    ];
+    let result = async {
+        wait_for_workers(&srv.dispatcher, 2).await;
+        let learner = Client::login(srv.addr, "learner@demo.invalid").await;
+        let (attempt, session) = learner.start_demo_attempt().await;
+        let first_worker = session["worker"].as_str().unwrap().to_string();
+        assert!(
+            first_worker.starts_with("http://127.0.0.1:"),
+            "placed on a registered worker: {session}"
+        );
+        let mut ws = learner.websocket(session["ws"].as_str().unwrap()).await;
+        let mut got = Received::default();
+        let before = [
+            json!({ "type": "carm_pose", "orbital_deg": 20, "angular_deg": 0 }),
+            json!({ "type": "shot" }),
+            json!({ "type": "needle_place", "instrument": "spinal-22g", "entry_mm": [12, -80, 0], "direction": [0, 1, 0], "bevel_reference": [1, 0, 0] }),
+            json!({ "type": "needle_feed", "mm": 10 }),
+        ];
+        for (i, c) in before.iter().enumerate() {
+            ws.send(i as u64 + 1, c.clone()).await;
+        }
+        ws.until(&mut got, |r| acked(r).len() == 4).await;
+        // Kill the worker that runs the session, then keep sending without waiting.
+        let placed_port: u16 = first_worker.rsplit(':').next().unwrap().parse().unwrap();
+        let mut killed = false;
+        // The process handle does not know its port: find the process listening on it (Linux).
+        for w in workers.iter_mut() {
+            if process_listens_on(w.id(), placed_port) {
+                w.kill().expect("kill the worker process");
+                w.wait().expect("reap it");
+                killed = true;
+            }
+        }
+        assert!(killed, "found the process listening on {placed_port}");
+        let after = [
+            json!({ "type": "needle_feed", "mm": 5 }),
+            json!({ "type": "carm_pose", "orbital_deg": 30, "angular_deg": 0 }),
+            json!({ "type": "shot" }),
+            json!({ "type": "needle_feed", "mm": 2 }),
+        ];
+        for (i, c) in after.iter().enumerate() {
+            ws.send(i as u64 + 5, c.clone()).await;
+        }
+        ws.until(&mut got, |r| acked(r).len() == 8).await;
+        assert_eq!(
+            acked(&got),
+            (1..=8).collect::<Vec<u64>>(),
+            "every input applied once, in order"
+        );
+        assert!(
+            got.texts.iter().all(|t| t["type"] != "error"),
+            "{:?}",
+            got.texts
+        );
+        assert!(
+            got.texts.iter().any(|t| t["type"] == "notice"),
+            "the browser is told about the move"
+        );
+        let (_, info) = learner
+            .call(
+                "GET",
+                &format!("/api/sessions/{}", session["session_id"].as_str().unwrap()),
+                None,
+            )
+            .await;
+        assert_eq!(info["failovers"], 1, "{info}");
+        assert_ne!(info["worker"], first_worker);
+        ws.send(9, json!({ "type": "submit" })).await;
+        ws.until(&mut got, |r| {
+            r.texts.iter().any(|t| t["type"] == "technical_result")
+        })
+        .await;
+        // The replay of the whole log (restored on the server) reproduces the submitted result.
+        let (s, replay) = learner
+            .call("GET", &format!("/api/attempts/{attempt}/replay"), None)
+            .await;
+        assert_eq!(s, 200, "{replay}");
+        assert_eq!(replay["timeline"].as_array().unwrap().len(), 9);
+        assert_eq!(
+            replay["recorded"]["final_state_sha256"], replay["replayed"]["final_state_sha256"],
+            "{replay}"
+        );
+        assert_eq!(replay["recorded"]["score"], replay["replayed"]["score"]);
+    };
+    let outcome = futures::FutureExt::catch_unwind(std::panic::AssertUnwindSafe(result)).await;
+    for w in workers.iter_mut() {
+        let _ = w.kill();
+        let _ = w.wait();
+    }
+    if let Err(p) = outcome {
+        std::panic::resume_unwind(p);
+    }
+}
+
+/// HTTP status of a websocket handshake to a session (101 when it upgrades).
+async fn handshake_status(addr: SocketAddr, sid: &str, cookie: &str, origin: Option<&str>) -> u16 {
+    let mut req = format!("ws://{addr}/api/sessions/{sid}/ws")
+        .into_client_request()
+        .unwrap();
+    req.headers_mut().insert("Cookie", cookie.parse().unwrap());
+    if let Some(o) = origin {
+        req.headers_mut().insert("Origin", o.parse().unwrap());
+    }
+    match tokio_tungstenite::connect_async(req).await {
+        Ok((_, resp)) => resp.status().as_u16(),
+        Err(tokio_tungstenite::tungstenite::Error::Http(resp)) => resp.status().as_u16(),
+        Err(e) => panic!("handshake failed without an HTTP answer: {e}"),
+    }
+}
+
+/// Whether process `pid` has a listening TCP socket on `port` (reads /proc).
+fn process_listens_on(pid: u32, port: u16) -> bool {
+    let Ok(tcp) = std::fs::read_to_string("/proc/net/tcp") else {
+        return false;
+    };
+    let inodes: Vec<String> = tcp
+        .lines()
+        .skip(1)
+        .filter_map(|l| {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            let local_port = u16::from_str_radix(f.get(1)?.rsplit(':').next()?, 16).ok()?;
+            (local_port == port && *f.get(3)? == "0A").then(|| f.get(9).map(|s| s.to_string()))?
+        })
+        .collect();
+    let Ok(fds) = std::fs::read_dir(format!("/proc/{pid}/fd")) else {
+        return false;
+    };
+    fds.flatten().any(|fd| {
+        std::fs::read_link(fd.path()).is_ok_and(|l| {
+            inodes
+                .iter()
+                .any(|i| l.to_string_lossy() == format!("socket:[{i}]"))
+        })
+    })
+}
