@@ -1,0 +1,400 @@
+// The learner view (stations, the live session, the technical result) and the faculty view
+// (review queue, replay with a timeline, approve or return). Plain modules, no build step.
+
+import { api, setCsrf, ApiError } from './api.js';
+import { LiveSession } from './session.js';
+
+const $ = (id) => document.getElementById(id);
+const views = ['login-view', 'learner-view', 'session-view', 'faculty-view'];
+let me = null;
+let live = null;
+let station = null;
+
+function show(id) {
+  for (const v of views) $(v).hidden = v !== id;
+  const heading = $(id).querySelector('h2');
+  if (heading) { heading.tabIndex = -1; heading.focus(); }
+}
+
+function say(text) {
+  $('message').textContent = text || '';
+}
+
+function fmt(v, digits = 2) {
+  return v == null ? '–' : Number(v).toFixed(digits);
+}
+
+function el(tag, props = {}, ...children) {
+  const e = document.createElement(tag);
+  Object.assign(e, props);
+  for (const c of children) e.append(c);
+  return e;
+}
+
+/** Plain words for rubric outcomes: a technical statement, never a verdict on the person. */
+function outcomeWords(outcome) {
+  return { met: 'technical criteria met', not_met: 'technical criteria not met', incomplete: 'incomplete (some measurements missing)' }[outcome] || (outcome || 'not scored yet');
+}
+
+// ---------------------------------------------------------------- health and login
+
+async function health() {
+  try {
+    const h = await (await fetch('/healthz')).json();
+    $('health').textContent = `${h.status} (database ${h.database.ready ? 'ready' : 'not ready'}, render worker ${h.render_worker.state})`;
+  } catch {
+    $('health').textContent = 'unreachable';
+  }
+}
+
+async function start() {
+  health();
+  try {
+    const s = await api('GET', '/api/auth/me');
+    await loggedIn(s);
+  } catch {
+    show('login-view');
+  }
+}
+
+async function loggedIn(s) {
+  me = s;
+  setCsrf(s.csrf_token);
+  $('who').hidden = false;
+  $('who-name').textContent = `${s.user.display_name} (${s.user.role}${s.user.is_demo ? ', demo account' : ''})`;
+  say('');
+  if (s.user.role === 'learner') await learnerHome();
+  else await facultyHome();
+}
+
+$('login-form').addEventListener('submit', async (ev) => {
+  ev.preventDefault();
+  const body = { email: $('login-email').value, password: $('login-password').value };
+  const code = $('login-totp').value.trim();
+  if (code) body.totp_code = code;
+  try {
+    const s = await api('POST', '/api/auth/login', body);
+    $('login-totp').value = '';
+    $('login-totp-label').hidden = true;
+    await loggedIn(s);
+  } catch (e) {
+    if (e instanceof ApiError && e.code === 'totp_required') {
+      $('login-totp-label').hidden = false;
+      $('login-totp').focus();
+      say('Enter the code from your authenticator.');
+    } else {
+      say(e.message);
+    }
+  }
+});
+
+$('logout').addEventListener('click', async () => {
+  if (live) { live.close(); live = null; }
+  try { await api('POST', '/api/auth/logout'); } catch { /* already gone */ }
+  me = null;
+  setCsrf(null);
+  $('who').hidden = true;
+  show('login-view');
+});
+
+// ---------------------------------------------------------------- learner: stations and attempts
+
+async function learnerHome() {
+  show('learner-view');
+  const [courses, stations, attempts] = await Promise.all([
+    api('GET', '/api/courses'), api('GET', '/api/stations'), api('GET', '/api/attempts'),
+  ]);
+  const sel = $('course-select');
+  sel.replaceChildren(...courses.filter((c) => c.my_role === 'learner').map((c) => el('option', { value: c.id, textContent: `${c.code} — ${c.title}` })));
+  $('station-list').replaceChildren(...stations.map((s) => {
+    const b = el('button', { type: 'button', textContent: 'Start attempt' });
+    b.setAttribute('aria-label', `Start an attempt at ${s.title}`);
+    b.dataset.station = s.id;
+    b.addEventListener('click', () => newAttempt(s.id));
+    return el('li', {}, el('h3', { textContent: s.title }), el('p', { textContent: `${s.modalities.join(', ')} · ${s.criteria} criteria` }), b);
+  }));
+  const rows = attempts.map((a) => {
+    const td = el('td');
+    if (a.state === 'in_progress' || a.state === 'returned') {
+      const b = el('button', { type: 'button', textContent: 'Continue' });
+      b.setAttribute('aria-label', `Continue the attempt at ${a.station_id}`);
+      b.addEventListener('click', () => openSession(a.id, a.station_id));
+      td.append(b);
+    }
+    return el('tr', {}, el('td', { textContent: a.station_id }), el('td', { textContent: a.state.replace('_', ' ') }),
+      el('td', { textContent: a.latest_outcome ? `${outcomeWords(a.latest_outcome)} (${fmt(a.latest_score)})` : '–' }),
+      el('td', { textContent: new Date(a.updated_at).toLocaleString() }), td);
+  });
+  $('my-attempts').tBodies[0].replaceChildren(...rows);
+}
+
+async function newAttempt(stationId) {
+  try {
+    const courseId = $('course-select').value;
+    if (!courseId) { say('You are not enrolled as a learner in any course.'); return; }
+    const a = await api('POST', '/api/attempts', { course_id: courseId, station_id: stationId });
+    await openSession(a.id, stationId);
+  } catch (e) {
+    say(e.message);
+  }
+}
+
+// ---------------------------------------------------------------- learner: the live session
+
+const pose = { orbital: 0, angular: 0 };
+let poseTimer = null;
+let lastPoseSent = 0;
+
+function sendPose(now = false) {
+  $('orbital-out').textContent = `${pose.orbital}°`;
+  $('angular-out').textContent = `${pose.angular}°`;
+  $('orbital').value = pose.orbital;
+  $('angular').value = pose.angular;
+  if (!live) return;
+  // At most one pose command per 50 ms while dragging (simulator choice: 20 Hz is smooth for a
+  // C-arm and keeps the log short); the final pose is always sent.
+  const go = () => { lastPoseSent = performance.now(); live.send({ type: 'carm_pose', orbital_deg: pose.orbital, angular_deg: pose.angular }); };
+  clearTimeout(poseTimer);
+  const since = performance.now() - lastPoseSent;
+  if (now || since >= 50) go(); else poseTimer = setTimeout(go, 50 - since);
+}
+
+function clamp(v, lo, hi) { return Math.max(lo, Math.min(hi, v)); }
+
+function rotate(dOrbital, dAngular) {
+  pose.orbital = clamp(Math.round(pose.orbital + dOrbital), -90, 90);
+  pose.angular = clamp(Math.round(pose.angular + dAngular), -40, 40);
+  sendPose();
+}
+
+function logLine(text) {
+  $('session-log').textContent = text;
+}
+
+async function openSession(attemptId, stationId) {
+  say('');
+  try {
+    station = await api('GET', `/api/stations/${encodeURIComponent(stationId)}`);
+    const s = await api('POST', `/api/attempts/${attemptId}/session`);
+    if (live) live.close();
+    show('session-view');
+    $('session-title').textContent = station.title;
+    $('result').hidden = true;
+    $('instrument').replaceChildren(...station.instruments.filter((i) => i.kind.includes('needle'))
+      .map((i) => el('option', { value: i.id, textContent: `${i.id} (${i.kind})` })));
+    const ctx = $('fluoro').getContext('2d');
+    ctx.fillStyle = '#000';
+    ctx.fillRect(0, 0, 512, 512);
+    live = new LiveSession(s.ws);
+    window.__sim = { session: s, live, stats: live.stats };
+    live.addEventListener('connection', (e) => { $('conn').textContent = e.detail.state; });
+    live.addEventListener('hello', () => { $('conn').textContent = 'live'; });
+    live.addEventListener('frame', (e) => {
+      const { bitmap } = e.detail;
+      ctx.drawImage(bitmap, 0, 0, 512, 512);
+      bitmap.close();
+      $('frame-count').textContent = String(live.stats.frames);
+    });
+    live.addEventListener('ack', (e) => {
+      const o = e.detail.outcome || {};
+      if (o.depth_mm != null) $('depth').textContent = `${fmt(o.depth_mm, 1)} mm`;
+      if (o.outcome && o.outcome.kind) logLine(`Needle: ${o.outcome.kind}`);
+    });
+    live.addEventListener('commanderror', (e) => { logLine(`Not accepted (${e.detail.error.field}): ${e.detail.error.message}`); });
+    live.addEventListener('notice', (e) => { logLine(e.detail.message); });
+    live.addEventListener('technical_result', (e) => showResult(e.detail.result));
+    live.addEventListener('technical_result_error', (e) => { say(`The result could not be stored: ${e.detail.message}`); });
+    live.connect();
+    $('fluoro').focus();
+  } catch (e) {
+    say(e.message);
+  }
+}
+
+function showResult(r) {
+  $('result').hidden = false;
+  $('result-summary').textContent = `Technical result: ${outcomeWords(r.outcome)}; weighted score ${fmt(r.score)} (measured weight ${fmt(r.measured_weight_fraction)}). It now waits for faculty review.`;
+  const criteria = (r.detail && r.detail.criteria) || [];
+  $('result-criteria').tBodies[0].replaceChildren(...criteria.map((c) => el('tr', {},
+    el('td', { textContent: c.description }),
+    el('td', { textContent: c.value == null ? 'not measured' : `${fmt(c.value)} ${c.unit || ''}` }),
+    el('td', { textContent: String(c.status).replace('_', ' ') + (c.critical_failure ? ' (critical)' : '') }))));
+  $('result-notice').textContent = r.notice || '';
+  $('result-title').focus();
+}
+
+setInterval(() => {
+  if (!live) return;
+  const l = live.latencyMs();
+  $('latency').textContent = l == null ? '–' : `${l.toFixed(0)} ms`;
+  $('fps').textContent = `${live.fps().toFixed(1)} /s`;
+}, 500);
+
+$('orbital').addEventListener('input', (e) => { pose.orbital = Number(e.target.value); sendPose(); });
+$('angular').addEventListener('input', (e) => { pose.angular = Number(e.target.value); sendPose(); });
+// Technique: the committed spectra run from 40 to 120 kVp in 5 kVp steps; 80 kVp and 2 mA are
+// the session's defaults (render_worker::session::fluoro).
+$('kvp').replaceChildren(...Array.from({ length: 17 }, (_, i) => 40 + 5 * i).map((v) => el('option', { value: String(v), textContent: String(v), selected: v === 80 })));
+function sendTechnique() {
+  const ma = Number($('ma').value);
+  if (live && ma >= 0.1 && ma <= 20) live.send({ type: 'technique', kvp: Number($('kvp').value), ma });
+}
+$('kvp').addEventListener('change', sendTechnique);
+$('ma').addEventListener('change', sendTechnique);
+$('shot').addEventListener('click', () => live && live.send({ type: 'shot' }));
+$('live').addEventListener('click', (e) => {
+  if (!live) return;
+  const on = e.target.getAttribute('aria-pressed') !== 'true';
+  e.target.setAttribute('aria-pressed', String(on));
+  live.send({ type: 'live', on });
+});
+
+function placeNeedle() {
+  if (!live || !station) return;
+  const target = station.targets && station.targets[0];
+  const t = target ? target.position_mm : [0, 0, 0];
+  // Default posterior approach: 60 mm behind the first target along -y (posterior in the
+  // model frame), aimed straight at it, bevel facing patient right.
+  live.send({ type: 'needle_place', instrument: $('instrument').value, entry_mm: [t[0], t[1] - 60, t[2]], direction: [0, 1, 0], bevel_reference: [1, 0, 0] });
+}
+$('needle-place').addEventListener('click', placeNeedle);
+$('feed-1').addEventListener('click', () => live && live.send({ type: 'needle_feed', mm: 1 }));
+$('feed-5').addEventListener('click', () => live && live.send({ type: 'needle_feed', mm: 5 }));
+$('withdraw-1').addEventListener('click', () => live && live.send({ type: 'needle_withdraw', mm: 1 }));
+$('roll-90').addEventListener('click', () => live && live.send({ type: 'needle_roll', deg: 90 }));
+$('submit').addEventListener('click', () => live && live.send({ type: 'submit' }));
+$('leave').addEventListener('click', () => { if (live) { live.close(); live = null; } learnerHome(); });
+
+// Keyboard on the image: arrows rotate, S/Space shoot, F/W/R move the needle.
+$('fluoro').addEventListener('keydown', (e) => {
+  const k = e.key;
+  const step = e.shiftKey ? 1 : 5;
+  const handled = {
+    ArrowLeft: () => rotate(-step, 0), ArrowRight: () => rotate(step, 0),
+    ArrowUp: () => rotate(0, step), ArrowDown: () => rotate(0, -step),
+    s: () => live && live.send({ type: 'shot' }), ' ': () => live && live.send({ type: 'shot' }),
+    f: () => live && live.send({ type: 'needle_feed', mm: 1 }),
+    w: () => live && live.send({ type: 'needle_withdraw', mm: 1 }),
+    r: () => live && live.send({ type: 'needle_roll', deg: 90 }),
+  }[k.length === 1 ? k.toLowerCase() : k];
+  if (handled) { e.preventDefault(); handled(); }
+});
+
+// Mouse and touch (pointer events): drag rotates the C-arm, the wheel feeds or withdraws.
+let drag = null;
+$('fluoro').addEventListener('pointerdown', (e) => {
+  drag = { x: e.clientX, y: e.clientY, o: pose.orbital, a: pose.angular };
+  e.target.setPointerCapture(e.pointerId);
+});
+$('fluoro').addEventListener('pointermove', (e) => {
+  if (!drag) return;
+  // 4 screen pixels per degree (simulator choice: a full-width drag turns about 120 degrees).
+  pose.orbital = clamp(Math.round(drag.o + (e.clientX - drag.x) / 4), -90, 90);
+  pose.angular = clamp(Math.round(drag.a - (e.clientY - drag.y) / 4), -40, 40);
+  sendPose();
+});
+const endDrag = () => { if (drag) { drag = null; sendPose(true); } };
+$('fluoro').addEventListener('pointerup', endDrag);
+$('fluoro').addEventListener('pointercancel', endDrag);
+$('fluoro').addEventListener('wheel', (e) => {
+  if (!live) return;
+  e.preventDefault();
+  live.send(e.deltaY < 0 ? { type: 'needle_feed', mm: 1 } : { type: 'needle_withdraw', mm: 1 });
+}, { passive: false });
+
+// ---------------------------------------------------------------- faculty: queue, replay, review
+
+let reviewing = null;
+
+async function facultyHome() {
+  show('faculty-view');
+  $('review').hidden = true;
+  $('totp-setup').hidden = me.mfa;
+  try {
+    const queue = await api('GET', '/api/reviews?state=submitted');
+    $('queue').tBodies[0].replaceChildren(...queue.map((a) => {
+      const b = el('button', { type: 'button', textContent: 'Review' });
+      b.setAttribute('aria-label', `Review the attempt of ${a.learner_name} at ${a.station_id}`);
+      b.addEventListener('click', () => openReview(a));
+      return el('tr', {}, el('td', { textContent: a.learner_name }), el('td', { textContent: a.station_id }),
+        el('td', { textContent: a.state }), el('td', { textContent: `${outcomeWords(a.latest_outcome)} (${fmt(a.latest_score)})` }), el('td', {}, b));
+    }));
+  } catch (e) {
+    say(e.message);
+  }
+}
+
+$('totp-enroll').addEventListener('click', async () => {
+  try {
+    const t = await api('POST', '/api/auth/totp/enroll');
+    $('totp-secret').textContent = t.secret_base32;
+    $('totp-secret-box').hidden = false;
+    $('totp-confirm-code').focus();
+  } catch (e) { say(e.message); }
+});
+$('totp-confirm').addEventListener('click', async () => {
+  try {
+    await api('POST', '/api/auth/totp/confirm', { code: $('totp-confirm-code').value.trim() });
+    // Confirming counts as a login with a code for this session; later logins ask for one.
+    me.mfa = true;
+    $('totp-secret-box').hidden = true;
+    await facultyHome();
+    say('Authenticator set up. Future logins ask for a code.');
+  } catch (e) { say(e.message); }
+});
+
+function setStep(k) {
+  if (!reviewing) return;
+  $('timeline').value = String(k);
+  const steps = reviewing.replay.timeline;
+  $('timeline-out').textContent = k === 0 ? 'start' : `${k} / ${steps.length}: ${steps[k - 1].command.type} at ${(steps[k - 1].t_ms / 1000).toFixed(1)} s`;
+  for (const [i, li] of [...$('timeline-list').children].entries()) {
+    if (i + 1 === k) li.setAttribute('aria-current', 'step'); else li.removeAttribute('aria-current');
+  }
+  $('replay-frame').src = `/api/attempts/${reviewing.attempt.id}/replay/frame?step=${k}`;
+}
+
+async function openReview(a) {
+  say('');
+  try {
+    const [replay, detail] = await Promise.all([api('GET', `/api/attempts/${a.id}/replay`), api('GET', `/api/attempts/${a.id}`)]);
+    reviewing = { attempt: a, replay, detail };
+    $('review').hidden = false;
+    $('review-title').textContent = `${a.learner_name} — ${a.station_id}`;
+    $('timeline').max = String(replay.timeline.length);
+    $('timeline-list').replaceChildren(...replay.timeline.map((e, i) => {
+      const b = el('button', { type: 'button', textContent: `${e.command.type} (${(e.t_ms / 1000).toFixed(1)} s)` });
+      b.addEventListener('click', () => setStep(i + 1));
+      return el('li', {}, b);
+    }));
+    $('replay-check').textContent = replay.identical
+      ? 'Replay reproduces the recorded score, final state and final image exactly.'
+      : 'Replay differs from the record (see the server log).';
+    const r = detail.results[detail.results.length - 1];
+    $('review-result').replaceChildren(el('p', { textContent: r ? `Technical result: ${outcomeWords(r.outcome)}, score ${fmt(r.score)}.` : 'No technical result.' }),
+      el('p', { className: 'notice', textContent: detail.notice || '' }));
+    setStep(replay.timeline.length);
+    $('review-title').focus();
+  } catch (e) {
+    say(e.message);
+  }
+}
+
+$('timeline').addEventListener('input', (e) => setStep(Number(e.target.value)));
+$('review-form').addEventListener('submit', async (ev) => {
+  ev.preventDefault();
+  if (!reviewing) return;
+  const decision = ev.submitter ? ev.submitter.value : 'approve';
+  try {
+    await api('POST', `/api/attempts/${reviewing.attempt.id}/review`, { decision, comment: $('review-comment').value });
+    say(decision === 'approve' ? 'Approved.' : 'Returned to the learner.');
+    $('review-comment').value = '';
+    reviewing = null;
+    await facultyHome();
+  } catch (e) {
+    say(e.message);
+    if (e.status === 403 && /TOTP/i.test(e.message)) $('totp-setup').hidden = false;
+  }
+});
+
+start();

@@ -1,0 +1,139 @@
+// A live session over the server's websocket: sequenced commands, acknowledgements, JPEG
+// frames with their header, latency and frame-rate measurement, and reconnection that re-sends
+// every command not yet acknowledged (the worker acknowledges a re-sent sequence number as a
+// duplicate, so nothing is applied twice and nothing is lost).
+
+/** Frame header length, bytes (render_worker::session::frame). */
+export const HEADER_BYTES = 40;
+
+/** Parses a binary frame message: header fields and the JPEG bytes. */
+export function parseFrame(buffer) {
+  const b = new Uint8Array(buffer);
+  const magic = String.fromCharCode(b[0], b[1], b[2], b[3]);
+  if (b.length < HEADER_BYTES || magic !== 'SIMF' || b[4] !== 1) return null;
+  const dv = new DataView(buffer);
+  return {
+    view: b[5] === 0 ? 'fluoroscopy' : 'ultrasound',
+    frameSeq: Number(dv.getBigUint64(8, true)),
+    inputSeq: Number(dv.getBigUint64(16, true)),
+    tMs: Number(dv.getBigUint64(24, true)),
+    width: dv.getUint16(32, true),
+    height: dv.getUint16(34, true),
+    jpeg: b.subarray(HEADER_BYTES),
+  };
+}
+
+export class LiveSession extends EventTarget {
+  /** `wsPath` is the server's `/api/sessions/{id}/ws`. */
+  constructor(wsPath) {
+    super();
+    this.wsPath = wsPath;
+    this.seq = 0;
+    this.pending = new Map(); // seq -> message text, until acknowledged or rejected
+    this.sentAt = new Map(); // seq -> performance.now() when first sent
+    this.lastFrameInput = 0;
+    this.frameTimes = [];
+    this.stats = { frames: 0, acks: 0, errors: 0, latenciesMs: [], lastFrame: null };
+    this.closed = false;
+    this.retryMs = 250;
+  }
+
+  connect() {
+    const url = (location.protocol === 'https:' ? 'wss://' : 'ws://') + location.host + this.wsPath;
+    const ws = new WebSocket(url);
+    ws.binaryType = 'arraybuffer';
+    this.ws = ws;
+    ws.onopen = () => this.emit('connection', { state: 'open' });
+    ws.onmessage = (ev) => {
+      if (typeof ev.data === 'string') this.onText(ev.data);
+      else this.onFrame(ev.data);
+    };
+    ws.onclose = () => {
+      this.emit('connection', { state: 'closed' });
+      if (this.closed) return;
+      // Reconnect with back-off; unacknowledged commands are re-sent after the hello.
+      setTimeout(() => this.connect(), this.retryMs);
+      this.retryMs = Math.min(this.retryMs * 2, 4000);
+    };
+  }
+
+  close() {
+    this.closed = true;
+    if (this.ws) this.ws.close();
+  }
+
+  emit(type, detail) {
+    this.dispatchEvent(new CustomEvent(type, { detail }));
+  }
+
+  onText(text) {
+    let m;
+    try { m = JSON.parse(text); } catch { return; }
+    switch (m.type) {
+      case 'hello':
+        this.retryMs = 250;
+        this.seq = Math.max(this.seq, m.last_seq);
+        for (const [seq, t] of [...this.pending.entries()].sort((a, b) => a[0] - b[0])) {
+          if (seq > m.last_seq) this.ws.send(t); else this.pending.delete(seq);
+        }
+        this.emit('hello', m);
+        break;
+      case 'ack':
+        this.pending.delete(m.seq);
+        this.stats.acks += 1;
+        this.emit('ack', m);
+        break;
+      case 'error':
+        if (m.seq != null) this.pending.delete(m.seq);
+        this.stats.errors += 1;
+        this.emit('commanderror', m);
+        break;
+      default:
+        this.emit(m.type, m);
+    }
+  }
+
+  async onFrame(buffer) {
+    const f = parseFrame(buffer);
+    if (!f) return;
+    const now = performance.now();
+    // Input-to-frame latency: from sending the newest input this frame reflects to its arrival.
+    if (f.inputSeq > this.lastFrameInput && this.sentAt.has(f.inputSeq)) {
+      const ms = now - this.sentAt.get(f.inputSeq);
+      this.stats.latenciesMs.push(ms);
+      if (this.stats.latenciesMs.length > 200) this.stats.latenciesMs.shift();
+    }
+    for (const s of this.sentAt.keys()) if (s <= f.inputSeq) this.sentAt.delete(s);
+    this.lastFrameInput = Math.max(this.lastFrameInput, f.inputSeq);
+    this.frameTimes.push(now);
+    while (this.frameTimes.length && now - this.frameTimes[0] > 2000) this.frameTimes.shift();
+    this.stats.frames += 1;
+    this.stats.lastFrame = { frameSeq: f.frameSeq, inputSeq: f.inputSeq, width: f.width, height: f.height };
+    const bitmap = await createImageBitmap(new Blob([f.jpeg], { type: 'image/jpeg' }));
+    this.emit('frame', { frame: f, bitmap });
+  }
+
+  /** Frames per second over the last two seconds. */
+  fps() {
+    const t = this.frameTimes;
+    if (t.length < 2) return 0;
+    return (t.length - 1) / ((t[t.length - 1] - t[0]) / 1000 || 1);
+  }
+
+  /** Median of the recent latencies, ms. */
+  latencyMs() {
+    const l = [...this.stats.latenciesMs].sort((a, b) => a - b);
+    return l.length ? l[Math.floor(l.length / 2)] : null;
+  }
+
+  /** Sends a command; returns its sequence number. */
+  send(command) {
+    this.seq += 1;
+    const seq = this.seq;
+    const text = JSON.stringify({ type: 'command', seq, command });
+    this.pending.set(seq, text);
+    this.sentAt.set(seq, performance.now());
+    if (this.ws && this.ws.readyState === WebSocket.OPEN) this.ws.send(text);
+    return seq;
+  }
+}

@@ -1,0 +1,239 @@
+// End-to-end run of the web client in headless Chromium (Debian's /usr/bin/chromium, driven by
+// playwright-core): a learner logs in, opens a fluoroscopy station, takes a shot, rotates the
+// C-arm, takes a shot, places and advances the needle, takes a shot and submits; then faculty
+// log in, set up an authenticator (the code is computed here, as an authenticator app would),
+// open the replay and approve.
+//
+// Usage: node tests/e2e.mjs <base-url> [out-dir]
+// Prints one JSON object on stdout (the figures the Rust test asserts on) and exits 0 when every
+// step passed, 1 with {"ok": false, "error": ...} otherwise. Canvas captures go to out-dir.
+
+import { chromium } from 'playwright-core';
+import { createHmac } from 'node:crypto';
+import { mkdtempSync, rmSync, writeFileSync, mkdirSync } from 'node:fs';
+import { tmpdir } from 'node:os';
+import { join } from 'node:path';
+
+const base = process.argv[2];
+const outDir = process.argv[3] || null;
+if (!base) {
+  console.error('usage: node tests/e2e.mjs <base-url> [out-dir]');
+  process.exit(2);
+}
+const DEMO_PASSWORD = process.env.E2E_PASSWORD || 'demo-password-not-secret';
+const STEP_TIMEOUT_MS = 60_000;
+
+/** RFC 6238 TOTP (HMAC-SHA1, 6 digits, 30 s), from a base32 secret. */
+function totp(secretBase32, unixS = Date.now() / 1000) {
+  const alphabet = 'ABCDEFGHIJKLMNOPQRSTUVWXYZ234567';
+  let bits = '';
+  for (const c of secretBase32.replace(/=+$/, '').toUpperCase()) bits += alphabet.indexOf(c).toString(2).padStart(5, '0');
+  const key = Buffer.from(bits.match(/.{8}/g).map((b) => parseInt(b, 2)));
+  const counter = Buffer.alloc(8);
+  counter.writeBigUInt64BE(BigInt(Math.floor(unixS / 30)));
+  const h = createHmac('sha1', key).update(counter).digest();
+  const o = h[h.length - 1] & 0xf;
+  const n = (h.readUInt32BE(o) & 0x7fffffff) % 1_000_000;
+  return String(n).padStart(6, '0');
+}
+
+/** Grey-level statistics of the canvas and its 4 x 4 block means (128 x 128) for comparisons:
+ * block means keep a 1 to 2 pixel needle shaft visible while averaging quantum noise down. */
+async function canvasStats(page) {
+  return page.evaluate(() => {
+    const c = document.getElementById('fluoro');
+    const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+    const n = c.width * c.height;
+    let sum = 0, sum2 = 0;
+    const thumb = new Array(128 * 128).fill(0);
+    for (let i = 0; i < n; i++) {
+      const g = d[4 * i];
+      sum += g; sum2 += g * g;
+      const x = ((i % c.width) * 128 / c.width) | 0, y = (Math.floor(i / c.width) * 128 / c.height) | 0;
+      thumb[y * 128 + x] += g * 128 * 128 / n;
+    }
+    const mean = sum / n;
+    return { mean, std: Math.sqrt(Math.max(0, sum2 / n - mean * mean)), thumb };
+  });
+}
+
+function meanAbsDiff(a, b) {
+  let s = 0;
+  for (let i = 0; i < a.thumb.length; i++) s += Math.abs(a.thumb[i] - b.thumb[i]);
+  return s / a.thumb.length;
+}
+
+function maxAbsDiff(a, b) {
+  let m = 0;
+  for (let i = 0; i < a.thumb.length; i++) m = Math.max(m, Math.abs(a.thumb[i] - b.thumb[i]));
+  return m;
+}
+
+function countAbove(a, b, level) {
+  let n = 0;
+  for (let i = 0; i < a.thumb.length; i++) if (Math.abs(a.thumb[i] - b.thumb[i]) > level) n += 1;
+  return n;
+}
+
+async function framesSoFar(page) {
+  return page.evaluate(() => (window.__sim ? window.__sim.stats.frames : 0));
+}
+
+async function acksSoFar(page) {
+  return page.evaluate(() => (window.__sim ? window.__sim.stats.acks : 0));
+}
+
+/** Runs `action`, then waits until a new frame arrived and every sent command was answered. */
+async function act(page, action) {
+  const before = await framesSoFar(page);
+  await action();
+  await page.waitForFunction((n) => window.__sim.stats.frames > n && window.__sim.live.pending.size === 0, before, { timeout: STEP_TIMEOUT_MS });
+  // The frame event draws after decoding; wait for the draw of this frame.
+  await page.waitForFunction(() => Number(document.getElementById('frame-count').textContent) === window.__sim.stats.frames, null, { timeout: STEP_TIMEOUT_MS });
+}
+
+async function capture(page, name) {
+  const stats = await canvasStats(page);
+  if (outDir) {
+    mkdirSync(outDir, { recursive: true });
+    writeFileSync(join(outDir, `${name}.png`), await page.locator('#fluoro').screenshot());
+  }
+  return stats;
+}
+
+async function login(page, email, code) {
+  await page.fill('#login-email', email);
+  await page.fill('#login-password', DEMO_PASSWORD);
+  if (code) await page.fill('#login-totp', code);
+  await page.click('#login-submit');
+}
+
+const profile = mkdtempSync(join(tmpdir(), 'painsim-e2e-chromium-'));
+const report = { ok: false, steps: [] };
+let context;
+try {
+  context = await chromium.launchPersistentContext(profile, {
+    executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
+    headless: true,
+    args: ['--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
+      '--disable-background-networking', '--disable-component-update', '--disable-sync'],
+    viewport: { width: 1200, height: 900 },
+  });
+  const page = context.pages()[0] || await context.newPage();
+  const consoleErrors = [];
+  // Script errors; the browser's own "Failed to load resource" lines for expected HTTP errors
+  // (401 from /api/auth/me before login, 503 health while the GPU check runs) are not ours.
+  page.on('console', (m) => { if (m.type() === 'error' && !m.text().startsWith('Failed to load resource')) consoleErrors.push(m.text()); });
+  page.on('pageerror', (e) => consoleErrors.push(String(e)));
+  page.setDefaultTimeout(STEP_TIMEOUT_MS);
+
+  // Learner.
+  await page.goto(base);
+  await page.waitForSelector('#login-view:not([hidden])');
+  await login(page, 'learner@demo.invalid');
+  await page.waitForSelector('#learner-view:not([hidden])');
+  const stationButton = page.locator('#station-list button').first();
+  report.station = await stationButton.getAttribute('data-station');
+  await stationButton.click();
+  await page.waitForSelector('#session-view:not([hidden])');
+  await page.waitForFunction(() => document.getElementById('conn').textContent === 'live');
+  report.steps.push('session open');
+  report.accessible = await page.evaluate(() => ({
+    canvas_label: document.getElementById('fluoro').getAttribute('aria-label') || '',
+    unlabeled_buttons: [...document.querySelectorAll('#session-view button')].filter((b) => !(b.textContent.trim() || b.getAttribute('aria-label'))).length,
+  }));
+
+  // Highest tube current: least quantum noise, so input-driven changes stand out clearly.
+  const acksBefore = await acksSoFar(page);
+  await page.fill('#ma', '20');
+  await page.dispatchEvent('#ma', 'change');
+  await page.waitForFunction((n) => window.__sim.stats.acks > n, acksBefore);
+  await act(page, () => page.click('#shot'));
+  const first = await capture(page, '1-first-shot');
+  report.steps.push('shot');
+  // Control: the same view again differs only by quantum noise (a new noise seed per image).
+  await act(page, () => page.click('#shot'));
+  const repeat = await capture(page, '1b-repeat-shot');
+
+  // Rotate the C-arm by keyboard (20 degrees LAO) and by a mouse drag, then shoot.
+  await page.focus('#fluoro');
+  for (let i = 0; i < 4; i++) await page.keyboard.press('ArrowRight');
+  const box = await page.locator('#fluoro').boundingBox();
+  await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
+  await page.mouse.down();
+  await page.mouse.move(box.x + box.width / 2 + 40, box.y + box.height / 2, { steps: 5 });
+  await page.mouse.up();
+  report.orbital_deg = Number(await page.inputValue('#orbital'));
+  await act(page, () => page.keyboard.press('s'));
+  const rotated = await capture(page, '2-rotated');
+  report.steps.push('rotated');
+
+  // Needle: place at the skin, advance 15 mm, shoot.
+  const acks0 = await acksSoFar(page);
+  await page.click('#needle-place');
+  for (let i = 0; i < 3; i++) await page.click('#feed-5');
+  await page.waitForFunction((n) => window.__sim.stats.acks >= n + 4 && window.__sim.live.pending.size === 0, acks0);
+  report.depth_text = await page.textContent('#depth');
+  await act(page, () => page.click('#shot'));
+  const needle = await capture(page, '3-needle');
+  report.steps.push('needle');
+
+  report.frames = {
+    first: { mean: first.mean, std: first.std },
+    rotated: { mean: rotated.mean, std: rotated.std },
+    needle: { mean: needle.mean, std: needle.std },
+    mean_diff_noise_only: meanAbsDiff(first, repeat),
+    max_diff_noise_only: maxAbsDiff(first, repeat),
+    mean_diff_rotation: meanAbsDiff(repeat, rotated),
+    max_diff_needle: maxAbsDiff(rotated, needle),
+    // Blocks changed by more than the largest noise-only change: about 1 expected from noise
+    // alone (the chance that one of two equal-size noise samples holds the joint maximum).
+    needle_blocks_above_noise_max: countAbove(rotated, needle, maxAbsDiff(first, repeat)),
+  };
+  report.readout = { latency: await page.textContent('#latency'), fps: await page.textContent('#fps') };
+  report.command_errors = await page.evaluate(() => window.__sim.stats.errors);
+  report.session_log = await page.textContent('#session-log');
+
+  await page.click('#submit');
+  await page.waitForSelector('#result:not([hidden])');
+  report.result_text = (await page.textContent('#result')).replace(/\s+/g, ' ').trim();
+  report.acks = await acksSoFar(page);
+  report.steps.push('submitted');
+  await page.click('#logout');
+  await page.waitForSelector('#login-view:not([hidden])');
+
+  // Faculty.
+  await login(page, 'faculty@demo.invalid');
+  await page.waitForSelector('#faculty-view:not([hidden])');
+  if (await page.isVisible('#totp-enroll')) {
+    await page.click('#totp-enroll');
+    await page.waitForSelector('#totp-secret-box:not([hidden])');
+    const secret = (await page.textContent('#totp-secret')).trim();
+    await page.fill('#totp-confirm-code', totp(secret));
+    await page.click('#totp-confirm');
+    await page.waitForSelector('#totp-setup[hidden]', { state: 'attached' });
+    report.steps.push('totp');
+  }
+  await page.waitForSelector('#queue tbody button');
+  report.queue_rows = await page.locator('#queue tbody tr').count();
+  await page.locator('#queue tbody button').first().click();
+  await page.waitForSelector('#review:not([hidden])');
+  await page.waitForFunction(() => document.getElementById('replay-check').textContent.length > 0);
+  report.replay_check = await page.textContent('#replay-check');
+  report.timeline_steps = await page.locator('#timeline-list li').count();
+  await page.waitForFunction(() => { const i = document.getElementById('replay-frame'); return i.complete && i.naturalWidth > 0; });
+  report.replay_frame_width = await page.evaluate(() => document.getElementById('replay-frame').naturalWidth);
+  await page.fill('#review-comment', 'Approved in the end-to-end test.');
+  await page.click('#approve');
+  await page.waitForFunction(() => document.getElementById('message').textContent === 'Approved.');
+  report.steps.push('approved');
+  report.console_errors = consoleErrors;
+  report.ok = true;
+} catch (e) {
+  report.error = String(e && e.stack ? e.stack : e);
+} finally {
+  if (context) await context.close().catch(() => {});
+  rmSync(profile, { recursive: true, force: true });
+}
+console.log(JSON.stringify(report));
+process.exit(report.ok ? 0 : 1);
