@@ -175,7 +175,9 @@ async function openSession(attemptId, stationId) {
   say('');
   try {
     station = await api('GET', `/api/stations/${encodeURIComponent(stationId)}`);
+    say('Starting the session… (the first session of an anatomy region loads or builds it, which can take a minute)');
     const s = await api('POST', `/api/attempts/${attemptId}/session`);
+    say('');
     if (live) live.close();
     show('session-view');
     $('session-title').textContent = station.title;
