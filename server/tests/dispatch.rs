@@ -678,3 +678,68 @@ fn process_listens_on(pid: u32, port: u16) -> bool {
         })
     })
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_session_the_server_no_longer_holds_resumes_from_its_recorded_log() {
+    let srv = demo_server(true, None).await;
+    let learner = Client::login(srv.addr, "learner@demo.invalid").await;
+    let (attempt, session) = learner.start_demo_attempt().await;
+    let sid = session["session_id"].as_str().unwrap().to_string();
+    let mut ws = learner.websocket(session["ws"].as_str().unwrap()).await;
+    let mut got = Received::default();
+    for (seq, c) in [
+        (
+            1,
+            json!({ "type": "carm_pose", "orbital_deg": 15, "angular_deg": 0 }),
+        ),
+        (2, json!({ "type": "shot" })),
+        (
+            3,
+            json!({ "type": "needle_place", "instrument": "spinal-22g", "entry_mm": [12, -80, 0], "direction": [0, 1, 0], "bevel_reference": [1, 0, 0] }),
+        ),
+    ] {
+        ws.send(seq, c).await;
+    }
+    ws.until(&mut got, |r| acked(r).len() == 3).await;
+    drop(ws);
+    // The relay saves the log when the connection ends; then the server forgets the session
+    // (as after a restart).
+    let id: uuid::Uuid = sid.parse().unwrap();
+    let mut saved = 0;
+    for _ in 0..100 {
+        saved = sqlx::query_scalar::<_, i32>(
+            "SELECT jsonb_array_length(log) FROM live_sessions WHERE id = $1",
+        )
+        .bind(id)
+        .fetch_one(&srv.db.pool)
+        .await
+        .unwrap();
+        if saved == 3 {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert_eq!(saved, 3, "the log was saved when the connection ended");
+    srv.dispatcher.close(id).await;
+    assert!(srv.dispatcher.session(id).is_none());
+    // Opening the attempt again continues the same session at the same point.
+    let (s, resumed) = learner
+        .call("POST", &format!("/api/attempts/{attempt}/session"), None)
+        .await;
+    assert_eq!(s, 200, "{resumed}");
+    assert_eq!(resumed["session_id"], sid.as_str());
+    assert_eq!(resumed["last_seq"], 3);
+    let mut ws = learner.websocket(resumed["ws"].as_str().unwrap()).await;
+    let mut got = Received::default();
+    ws.until(&mut got, |r| !r.texts.is_empty()).await;
+    assert_eq!(got.texts[0]["last_seq"], 3, "{:?}", got.texts);
+    ws.send(4, json!({ "type": "needle_feed", "mm": 5 })).await;
+    ws.until(&mut got, |r| acked(r) == [4]).await;
+    let depth = got.texts.iter().find(|t| t["type"] == "ack").unwrap()["outcome"]["depth_mm"]
+        .as_f64()
+        .unwrap();
+    assert!(
+        depth > 0.0,
+        "the needle placed before the restart is still there: depth {depth}"
+    );
+}

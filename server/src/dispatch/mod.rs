@@ -349,6 +349,14 @@ impl Dispatcher {
         ))
     }
 
+    /// Restores a recorded session on a live registered worker by least load, else in-process.
+    async fn restore_anywhere(&self, record: &SessionRecord) -> Result<Placement, String> {
+        let nowhere = Placement::Local {
+            worker_session: String::new(),
+        };
+        self.restore_elsewhere(&nowhere, record).await
+    }
+
     /// Restores `record`'s session on a worker other than the failed one: a live registered
     /// worker by least load, else the in-process host.
     async fn restore_elsewhere(

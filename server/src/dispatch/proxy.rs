@@ -328,6 +328,12 @@ pub async fn relay(
         }
     }
     persist(&records, &session).await;
+    // A submitted session is finished: free its worker (replays run from the stored log).
+    if session.state.lock().await.result_id.is_some()
+        && session.generation.load(Ordering::SeqCst) == generation
+    {
+        dispatcher.close(session.id).await;
+    }
     let _ = browser_tx.send(to_axum(WsMessage::Close)).await;
 }
 

@@ -19,7 +19,7 @@ use serde_json::json;
 use sha2::{Digest, Sha256};
 use uuid::Uuid;
 
-use super::{Dispatcher, LiveSession, SessionRecord, proxy};
+use super::{Dispatcher, LiveSession, Placement, SessionRecord, proxy};
 use crate::ApiError;
 use crate::records::RecordsState;
 use crate::records::attempts::{ActivityKind, record_activity};
@@ -121,6 +121,52 @@ async fn start_session(
     if let Some(s) = state.dispatcher.session_of_attempt(attempt_id).await {
         let st = s.state.lock().await;
         return Ok((StatusCode::OK, axum::Json(session_json(&s, &st))).into_response());
+    }
+    // A session of this attempt that the server no longer holds (it restarted, or the session
+    // was closed): continue it from its recorded snapshot and log.
+    let stored: Option<(Uuid, serde_json::Value, serde_json::Value)> = sqlx::query_as(
+        "SELECT id, initial_snapshot, log FROM live_sessions
+         WHERE attempt_id = $1 AND result_id IS NULL ORDER BY created_at DESC LIMIT 1",
+    )
+    .bind(attempt_id)
+    .fetch_optional(&state.records.pool)
+    .await?;
+    if let Some((id, initial, log)) = stored {
+        let (initial, log) = parse_recorded(initial, log)?;
+        let mut record = SessionRecord {
+            placement: Placement::Local {
+                worker_session: String::new(),
+            },
+            initial,
+            log,
+            last_frame_sha256: None,
+            result_id: None,
+            failovers: 0,
+        };
+        record.placement = state.dispatcher.restore_anywhere(&record).await.map_err(|e| {
+            tracing::error!(attempt = %attempt_id, "the recorded session could not be resumed: {e}");
+            ApiError::Unavailable("render worker")
+        })?;
+        let worker = record.placement.worker_label();
+        let session = Arc::new(LiveSession {
+            id,
+            attempt_id,
+            learner_id: user.id,
+            station_id,
+            state: tokio::sync::Mutex::new(record),
+            generation: AtomicU64::new(0),
+        });
+        state.dispatcher.insert(session.clone());
+        record_activity(
+            &state.records.pool,
+            attempt_id,
+            user.id,
+            ActivityKind::SessionLaunched,
+            json!({ "session_id": id, "worker": worker, "resumed": true }),
+        )
+        .await?;
+        let st = session.state.lock().await;
+        return Ok((StatusCode::OK, axum::Json(session_json(&session, &st))).into_response());
     }
     let (placement, initial) = state.dispatcher.place_new(&station_id).await.map_err(|e| {
         tracing::error!(attempt = %attempt_id, "no session could be created: {e}");
