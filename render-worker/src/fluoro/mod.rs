@@ -1263,42 +1263,11 @@ impl GpuFluoroRenderer {
     /// rule (same triangles, same f64 projection, same 0.5-pixel steps along each edge), so a
     /// needle thinner than a pixel is still supersampled. Row-major; all `false` without needle.
     pub fn needle_edge_pixels(&self, projection: &Projection) -> Vec<bool> {
-        const RADIUS_PX: f64 = 1.5;
         let [w, h] = projection.detector_pixels.map(|x| x as usize);
         let mut flag = vec![false; w * h];
-        let Some(needle) = &self.needle else {
-            return flag;
-        };
-        for t in needle.vertices_mm.chunks_exact(3) {
-            for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
-                let (Some(pa), Some(pb)) =
-                    (projection.project_point(a), projection.project_point(b))
-                else {
-                    continue;
-                };
-                let len = ((pb[0] - pa[0]).powi(2) + (pb[1] - pa[1]).powi(2)).sqrt();
-                let steps = (len / 0.5).ceil().max(1.0) as usize;
-                for k in 0..=steps {
-                    let f = k as f64 / steps as f64;
-                    let (x, y) = (pa[0] + f * (pb[0] - pa[0]), pa[1] + f * (pb[1] - pa[1]));
-                    let (x0, x1) = (
-                        (x - RADIUS_PX).floor().max(0.0),
-                        (x + RADIUS_PX).floor().min(w as f64 - 1.0),
-                    );
-                    let (y0, y1) = (
-                        (y - RADIUS_PX).floor().max(0.0),
-                        (y + RADIUS_PX).floor().min(h as f64 - 1.0),
-                    );
-                    if x1 < x0 || y1 < y0 {
-                        continue;
-                    }
-                    for jj in y0 as usize..=y1 as usize {
-                        for ii in x0 as usize..=x1 as usize {
-                            flag[jj * w + ii] = true;
-                        }
-                    }
-                }
-            }
+        if let Some(needle) = &self.needle {
+            let triangles = needle.vertices_mm.chunks_exact(3).map(|t| [t[0], t[1], t[2]]);
+            sim_core::fluoro::render::mark_projected_edges(projection, triangles, &mut flag, w, h);
         }
         flag
     }

@@ -281,42 +281,55 @@ pub fn render_transmission(
 /// Flags every pixel within 1.5 pixels of a projected edge of a steel mesh, so an instrument
 /// thinner than a pixel (which centre rays can miss entirely) is still supersampled.
 fn mark_steel_edges(scene: &Scene, projection: &Projection, flag: &mut [bool], w: usize, h: usize) {
-    const RADIUS_PX: f64 = 1.5;
     for entry in scene
         .entries()
         .iter()
         .filter(|e| e.material == FluoroMaterial::Steel)
     {
-        let edges = entry
-            .bvh
-            .triangles_mm()
-            .iter()
-            .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])]);
-        for (a, b) in edges {
-            let (Some(pa), Some(pb)) = (projection.project_point(a), projection.project_point(b))
-            else {
+        mark_projected_edges(projection, entry.bvh.triangles_mm().iter().copied(), flag, w, h);
+    }
+}
+
+/// The steel-edge rule shared by the CPU reference and the GPU renderer: every pixel within
+/// `1.5` pixels of a projected triangle edge is flagged, walking each edge in 0.5-pixel steps
+/// with the f64 projection. `flag` is row-major, `w x h`.
+pub fn mark_projected_edges(
+    projection: &Projection,
+    triangles_mm: impl IntoIterator<Item = [[f64; 3]; 3]>,
+    flag: &mut [bool],
+    w: usize,
+    h: usize,
+) {
+    // 1.5 px covers the 3x3 neighbourhood of any pixel a sub-pixel needle edge passes through;
+    // 0.5 px steps cannot skip a pixel (simulator choice, tested through needle supersampling).
+    const RADIUS_PX: f64 = 1.5;
+    let edges = triangles_mm
+        .into_iter()
+        .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])]);
+    for (a, b) in edges {
+        let (Some(pa), Some(pb)) = (projection.project_point(a), projection.project_point(b))
+        else {
+            continue;
+        };
+        let len = ((pb[0] - pa[0]).powi(2) + (pb[1] - pa[1]).powi(2)).sqrt();
+        let steps = (len / 0.5).ceil().max(1.0) as usize;
+        for k in 0..=steps {
+            let f = k as f64 / steps as f64;
+            let (x, y) = (pa[0] + f * (pb[0] - pa[0]), pa[1] + f * (pb[1] - pa[1]));
+            let (x0, x1) = (
+                (x - RADIUS_PX).floor().max(0.0),
+                (x + RADIUS_PX).floor().min(w as f64 - 1.0),
+            );
+            let (y0, y1) = (
+                (y - RADIUS_PX).floor().max(0.0),
+                (y + RADIUS_PX).floor().min(h as f64 - 1.0),
+            );
+            if x1 < x0 || y1 < y0 {
                 continue;
-            };
-            let len = ((pb[0] - pa[0]).powi(2) + (pb[1] - pa[1]).powi(2)).sqrt();
-            let steps = (len / 0.5).ceil().max(1.0) as usize;
-            for k in 0..=steps {
-                let f = k as f64 / steps as f64;
-                let (x, y) = (pa[0] + f * (pb[0] - pa[0]), pa[1] + f * (pb[1] - pa[1]));
-                let (x0, x1) = (
-                    (x - RADIUS_PX).floor().max(0.0),
-                    (x + RADIUS_PX).floor().min(w as f64 - 1.0),
-                );
-                let (y0, y1) = (
-                    (y - RADIUS_PX).floor().max(0.0),
-                    (y + RADIUS_PX).floor().min(h as f64 - 1.0),
-                );
-                if x1 < x0 || y1 < y0 {
-                    continue;
-                }
-                for jj in y0 as usize..=y1 as usize {
-                    for ii in x0 as usize..=x1 as usize {
-                        flag[jj * w + ii] = true;
-                    }
+            }
+            for jj in y0 as usize..=y1 as usize {
+                for ii in x0 as usize..=x1 as usize {
+                    flag[jj * w + ii] = true;
                 }
             }
         }
