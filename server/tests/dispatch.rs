@@ -743,3 +743,41 @@ async fn a_session_the_server_no_longer_holds_resumes_from_its_recorded_log() {
         "the needle placed before the restart is still there: depth {depth}"
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_sessions_are_closed_only_without_a_connection_and_then_resume() {
+    let srv = demo_server(true, None).await;
+    // A short idle limit for the test (production: dispatch::IDLE_CLOSE).
+    srv.dispatcher.start_reaper(Duration::from_millis(400));
+    let learner = Client::login(srv.addr, "learner@demo.invalid").await;
+    let (attempt, session) = learner.start_demo_attempt().await;
+    let id: uuid::Uuid = session["session_id"].as_str().unwrap().parse().unwrap();
+    let mut ws = learner.websocket(session["ws"].as_str().unwrap()).await;
+    let mut got = Received::default();
+    ws.send(1, json!({ "type": "shot" })).await;
+    ws.until(&mut got, |r| acked(r) == [1]).await;
+    // Connected for several idle limits: kept.
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    assert!(
+        srv.dispatcher.session(id).is_some(),
+        "a connected session is never closed as idle"
+    );
+    drop(ws);
+    let mut closed = false;
+    for _ in 0..100 {
+        if srv.dispatcher.session(id).is_none() {
+            closed = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert!(closed, "the session was closed once nobody was connected");
+    let (s, resumed) = learner
+        .call("POST", &format!("/api/attempts/{attempt}/session"), None)
+        .await;
+    assert_eq!(
+        (s, resumed["last_seq"].as_u64()),
+        (200, Some(1)),
+        "{resumed}"
+    );
+}

@@ -89,7 +89,39 @@ pub struct LiveSession {
     /// Increases with every new browser connection; an older connection ends when it sees a
     /// newer one (one driver at a time: a reloaded page takes over).
     pub generation: std::sync::atomic::AtomicU64,
+    /// Open browser connections.
+    pub connections: std::sync::atomic::AtomicUsize,
+    /// When the last connection ended (or the session was created).
+    pub last_active: Mutex<std::time::Instant>,
 }
+
+impl LiveSession {
+    /// A session just created or resumed.
+    pub fn new(
+        id: Uuid,
+        attempt_id: Uuid,
+        learner_id: Uuid,
+        station_id: String,
+        record: SessionRecord,
+    ) -> LiveSession {
+        LiveSession {
+            id,
+            attempt_id,
+            learner_id,
+            station_id,
+            state: tokio::sync::Mutex::new(record),
+            generation: std::sync::atomic::AtomicU64::new(0),
+            connections: std::sync::atomic::AtomicUsize::new(0),
+            last_active: Mutex::new(std::time::Instant::now()),
+        }
+    }
+}
+
+/// How long a session with no browser connected stays on its worker. Simulator choice: a
+/// learner who steps away for a few minutes comes back to a running session; after that the
+/// worker's capacity is freed, and opening the attempt again resumes the session from its
+/// recorded log (saved whenever a connection ends).
+pub const IDLE_CLOSE: std::time::Duration = std::time::Duration::from_secs(20 * 60);
 
 /// The server's copy of a session.
 #[derive(Debug, Clone)]
@@ -210,7 +242,41 @@ impl Dispatcher {
             }),
         };
         d.inner.remote.start_polling();
+        d.start_reaper(IDLE_CLOSE);
         d
+    }
+
+    /// Closes, every `idle / 4`, the sessions no browser has been connected to for `idle`.
+    pub fn start_reaper(&self, idle: std::time::Duration) {
+        let Ok(rt) = tokio::runtime::Handle::try_current() else {
+            return;
+        };
+        let weak = Arc::downgrade(&self.inner);
+        rt.spawn(async move {
+            loop {
+                tokio::time::sleep(idle / 4).await;
+                let Some(inner) = weak.upgrade() else { return };
+                let d = Dispatcher { inner };
+                let idle_ids: Vec<Uuid> = d
+                    .inner
+                    .sessions
+                    .lock()
+                    .map(|m| {
+                        m.values()
+                            .filter(|s| {
+                                s.connections.load(std::sync::atomic::Ordering::SeqCst) == 0
+                                    && s.last_active.lock().is_ok_and(|t| t.elapsed() >= idle)
+                            })
+                            .map(|s| s.id)
+                            .collect()
+                    })
+                    .unwrap_or_default();
+                for id in idle_ids {
+                    tracing::info!(session = %id, "closing an idle session (it resumes from its log)");
+                    d.close(id).await;
+                }
+            }
+        });
     }
 
     /// The default: an in-process host over `config`'s stations and regions (regions load on

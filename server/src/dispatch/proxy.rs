@@ -190,6 +190,7 @@ pub async fn relay(
     generation: u64,
 ) {
     let (mut browser_tx, mut browser_rx) = socket.split();
+    session.connections.fetch_add(1, Ordering::SeqCst);
     // Commands sent to the worker and not yet acknowledged or rejected: re-sent after failover.
     let mut pending: BTreeMap<u64, (String, Command)> = BTreeMap::new();
     let mut first_hello = true;
@@ -328,6 +329,10 @@ pub async fn relay(
         }
     }
     persist(&records, &session).await;
+    if let Ok(mut t) = session.last_active.lock() {
+        *t = std::time::Instant::now();
+    }
+    session.connections.fetch_sub(1, Ordering::SeqCst);
     // A submitted session is finished: free its worker (replays run from the stored log).
     if session.state.lock().await.result_id.is_some()
         && session.generation.load(Ordering::SeqCst) == generation

@@ -2,7 +2,7 @@
 
 use std::collections::BTreeSet;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::Ordering;
 
 use axum::Router;
 use axum::extract::ws::WebSocketUpgrade;
@@ -148,14 +148,9 @@ async fn start_session(
             ApiError::Unavailable("render worker")
         })?;
         let worker = record.placement.worker_label();
-        let session = Arc::new(LiveSession {
-            id,
-            attempt_id,
-            learner_id: user.id,
-            station_id,
-            state: tokio::sync::Mutex::new(record),
-            generation: AtomicU64::new(0),
-        });
+        let session = Arc::new(LiveSession::new(
+            id, attempt_id, user.id, station_id, record,
+        ));
         state.dispatcher.insert(session.clone());
         record_activity(
             &state.records.pool,
@@ -182,21 +177,17 @@ async fn start_session(
         .execute(&state.records.pool)
         .await?;
     let worker = placement.worker_label();
-    let session = Arc::new(LiveSession {
-        id,
-        attempt_id,
-        learner_id: user.id,
-        station_id,
-        state: tokio::sync::Mutex::new(SessionRecord {
-            placement,
-            initial,
-            log: Vec::new(),
-            last_frame_sha256: None,
-            result_id: None,
-            failovers: 0,
-        }),
-        generation: AtomicU64::new(0),
-    });
+    let record = SessionRecord {
+        placement,
+        initial,
+        log: Vec::new(),
+        last_frame_sha256: None,
+        result_id: None,
+        failovers: 0,
+    };
+    let session = Arc::new(LiveSession::new(
+        id, attempt_id, user.id, station_id, record,
+    ));
     state.dispatcher.insert(session.clone());
     record_activity(
         &state.records.pool,
