@@ -71,7 +71,6 @@
 //!   sim-core's own functions on the transmission read back from the GPU.
 
 use bytemuck::{Pod, Zeroable};
-use sim_core::fluoro::render::{apply_noise, to_display};
 use sim_core::fluoro::spectrum::UnknownKvp;
 use sim_core::fluoro::{
     EnergyModel, FluoroMaterial, Image, IodineField, Projection, RenderSettings, Scene,
@@ -1338,15 +1337,9 @@ impl GpuFluoroRenderer {
         iodine: Option<&IodineField>,
     ) -> Result<Image, FluoroGpuError> {
         let g = self.render_transmission_supersampled(projection, settings, iodine)?;
-        let mut t = to_transmission_image(projection, &g);
-        if let Some(n) = &settings.noise {
-            apply_noise(&mut t, n);
-        }
-        Ok(to_display(
-            &t,
-            &settings.exposure,
-            settings.invert,
-            settings.noise.as_ref(),
+        Ok(sim_core::fluoro::render::finish_frame(
+            to_transmission_image(projection, &g),
+            settings,
         ))
     }
 }

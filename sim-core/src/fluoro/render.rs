@@ -444,16 +444,18 @@ pub fn render_frame(
     projection: &Projection,
     settings: &RenderSettings,
 ) -> Result<Image, UnknownKvp> {
-    let mut t = render_transmission(scene, iodine, projection, settings)?;
+    let t = render_transmission(scene, iodine, projection, settings)?;
+    Ok(finish_frame(t, settings))
+}
+
+/// Turns a transmission image into the displayed frame: seeded quantum noise (when enabled),
+/// then exposure normalisation, tone mapping and shutters. The CPU reference and the GPU
+/// renderer both end with this, so their frames differ only where their transmissions do.
+pub fn finish_frame(mut t: TransmissionImage, settings: &RenderSettings) -> Image {
     if let Some(n) = &settings.noise {
         apply_noise(&mut t, n);
     }
-    Ok(to_display(
-        &t,
-        &settings.exposure,
-        settings.invert,
-        settings.noise.as_ref(),
-    ))
+    to_display(&t, &settings.exposure, settings.invert, settings.noise.as_ref())
 }
 
 /// Chord channels of one pixel-centre ray (a convenience for tests and picking overlays).
