@@ -94,25 +94,11 @@ impl TriMesh {
 
     /// Counts boundary, non-manifold and inconsistently wound edges (by vertex index).
     pub fn topology_report(&self) -> TopologyReport {
-        let mut report = TopologyReport::default();
-        // For each undirected edge: (uses in direction lo->hi, uses in direction hi->lo).
-        let mut edges: HashMap<(u32, u32), (u32, u32)> = HashMap::with_capacity(self.triangles.len() * 3 / 2);
-        for t in &self.triangles {
-            if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
-                report.degenerate_triangles += 1;
-                continue;
-            }
-            for k in 0..3 {
-                let (a, b) = (t[k], t[(k + 1) % 3]);
-                let e = edges.entry((a.min(b), a.max(b))).or_default();
-                if a < b {
-                    e.0 += 1;
-                } else {
-                    e.1 += 1;
-                }
-            }
-        }
-        for &(fwd, back) in edges.values() {
+        let mut report = TopologyReport {
+            degenerate_triangles: self.triangles.iter().filter(|t| is_degenerate(t)).count(),
+            ..TopologyReport::default()
+        };
+        for &(fwd, back) in directed_edge_uses(&self.triangles).values() {
             match fwd + back {
                 1 => report.boundary_edges += 1,
                 2 if fwd != 1 => report.inconsistent_edges += 1,
@@ -243,6 +229,30 @@ impl TriMesh {
             .collect();
         TriMesh { vertices_mm, triangles: tris }
     }
+}
+
+/// True for a triangle with a repeated vertex index.
+pub fn is_degenerate(t: &[u32; 3]) -> bool {
+    t[0] == t[1] || t[1] == t[2] || t[0] == t[2]
+}
+
+/// For each undirected edge `(lo, hi)` of the non-degenerate triangles: how many triangles
+/// traverse it `lo -> hi` and how many `hi -> lo`. A closed, consistently wound mesh has `(1, 1)`
+/// on every edge.
+pub fn directed_edge_uses(triangles: &[[u32; 3]]) -> HashMap<(u32, u32), (u32, u32)> {
+    let mut edges: HashMap<(u32, u32), (u32, u32)> = HashMap::with_capacity(triangles.len() * 3 / 2);
+    for t in triangles.iter().filter(|t| !is_degenerate(t)) {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            let e = edges.entry((a.min(b), a.max(b))).or_default();
+            if a < b {
+                e.0 += 1;
+            } else {
+                e.1 += 1;
+            }
+        }
+    }
+    edges
 }
 
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {

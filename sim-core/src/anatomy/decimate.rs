@@ -10,10 +10,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use std::collections::HashMap;
-
 use super::smooth::vertex_neighbours;
-use crate::mesh::TriMesh;
+use crate::mesh::{TriMesh, directed_edge_uses, is_degenerate};
 
 /// Parameters of [`decimate`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -74,24 +72,8 @@ fn acceptable(before_volume: f64, m: &TriMesh, max_volume_change: f64) -> Result
 
 /// Vertices (input ids) on edges that are not shared by exactly two oppositely wound triangles.
 fn defective_vertices(tris: &[[u32; 3]]) -> Vec<u32> {
-    let mut edges: HashMap<(u32, u32), (u32, u32)> = HashMap::with_capacity(tris.len() * 3 / 2);
-    let mut bad = Vec::new();
-    for t in tris {
-        if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
-            bad.extend_from_slice(t);
-            continue;
-        }
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            let e = edges.entry((a.min(b), a.max(b))).or_default();
-            if a < b {
-                e.0 += 1;
-            } else {
-                e.1 += 1;
-            }
-        }
-    }
-    for (&(a, b), &(f, r)) in &edges {
+    let mut bad: Vec<u32> = tris.iter().filter(|t| is_degenerate(t)).flatten().copied().collect();
+    for (&(a, b), &(f, r)) in &directed_edge_uses(tris) {
         if f != 1 || r != 1 {
             bad.push(a);
             bad.push(b);
