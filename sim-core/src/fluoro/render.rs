@@ -385,16 +385,32 @@ pub fn apply_noise(t: &mut TransmissionImage, noise: &QuantumNoise) {
     }
 }
 
-/// Automatic brightness, log tone mapping and shutters: transmission to 8-bit grey.
+/// Automatic brightness, log tone mapping and shutters: transmission to 8-bit grey, metered on
+/// `t` itself (see [`exposure_centre`]).
 pub fn to_display(
     t: &TransmissionImage,
     exposure: &Exposure,
     invert: bool,
     noise: Option<&QuantumNoise>,
 ) -> Image {
+    let centre = exposure_centre(t, exposure, noise);
+    to_display_centred(t, exposure, invert, noise, centre)
+}
+
+/// Floor for `ln T`: half a quantum when noisy (a zero count), else 1e-12.
+fn ln_t_floor(noise: Option<&QuantumNoise>) -> f64 {
+    noise.map_or(1e-12, |n| 0.5 / n.photons_per_pixel)
+}
+
+/// The automatic-brightness set point: the median `ln T` of the exposed pixels in the central
+/// region of interest (all exposed pixels if it has none).
+pub fn exposure_centre(
+    t: &TransmissionImage,
+    exposure: &Exposure,
+    noise: Option<&QuantumNoise>,
+) -> f64 {
     let (w, h) = (t.width as usize, t.height as usize);
-    // Floor for ln T: half a quantum when noisy (a zero count), else 1e-12.
-    let floor = noise.map_or(1e-12, |n| 0.5 / n.photons_per_pixel);
+    let floor = ln_t_floor(noise);
     let ln_t = |p: usize| t.transmission[p].max(floor).ln();
     let (rx0, rx1) = roi(w, exposure.roi_fraction);
     let (ry0, ry1) = roi(h, exposure.roi_fraction);
@@ -406,12 +422,26 @@ pub fn to_display(
     if vals.is_empty() {
         vals = (0..w * h).filter(|&p| t.exposed[p]).map(ln_t).collect();
     }
-    let centre = if vals.is_empty() {
+    if vals.is_empty() {
         0.0
     } else {
         let mid = vals.len() / 2;
         *vals.select_nth_unstable_by(mid, f64::total_cmp).1
-    };
+    }
+}
+
+/// Log tone mapping around a given set point `centre` (`ln T` shown at the target grey) and
+/// shutters.
+pub fn to_display_centred(
+    t: &TransmissionImage,
+    exposure: &Exposure,
+    invert: bool,
+    noise: Option<&QuantumNoise>,
+    centre: f64,
+) -> Image {
+    let (w, h) = (t.width as usize, t.height as usize);
+    let floor = ln_t_floor(noise);
+    let ln_t = |p: usize| t.transmission[p].max(floor).ln();
     let pixels = (0..w * h)
         .map(|p| {
             if !t.exposed[p] {
@@ -448,14 +478,25 @@ pub fn render_frame(
     Ok(finish_frame(t, settings))
 }
 
-/// Turns a transmission image into the displayed frame: seeded quantum noise (when enabled),
-/// then exposure normalisation, tone mapping and shutters. The CPU reference and the GPU
-/// renderer both end with this, so their frames differ only where their transmissions do.
+/// Turns a transmission image into the displayed frame: automatic brightness metered on the
+/// noise-free image, then seeded quantum noise (when enabled), tone mapping and shutters. The
+/// CPU reference and the GPU renderer both end with this, so their frames differ only where
+/// their transmissions do.
+///
+/// Why meter before the noise: a C-arm's brightness control integrates its sensor over many
+/// pulses, so it follows the mean signal, not one frame's grain. Metering the noisy frame made
+/// the set point a median of integer photon counts (about 12 per pixel behind the lumbar spine
+/// at 2.5 mA), which jumps by a whole count (0.087 in `ln T`, 6 grey levels) when a few
+/// silhouette pixels change slightly: a 2 mm needle move could flip the brightness of the whole
+/// image, and the GPU frame (same transmission within 0.005 in the median) differed from the
+/// CPU's everywhere (render-worker's `gpu_session_oblique_view_with_needle_matches_the_cpu`).
 pub fn finish_frame(mut t: TransmissionImage, settings: &RenderSettings) -> Image {
-    if let Some(n) = &settings.noise {
+    let noise = settings.noise.as_ref();
+    let centre = exposure_centre(&t, &settings.exposure, noise);
+    if let Some(n) = noise {
         apply_noise(&mut t, n);
     }
-    to_display(&t, &settings.exposure, settings.invert, settings.noise.as_ref())
+    to_display_centred(&t, &settings.exposure, settings.invert, noise, centre)
 }
 
 /// Chord channels of one pixel-centre ray (a convenience for tests and picking overlays).
@@ -530,6 +571,42 @@ mod tests {
         )
         .unwrap();
         assert_ne!(a, c, "another seed gives other grain");
+    }
+
+    #[test]
+    fn brightness_is_metered_on_the_noise_free_image() {
+        // Uniform T with 11.5 expected quanta per pixel: the noisy counts are integers, so a
+        // meter on the noisy frame would put the median count (11 or 12) at the target grey.
+        // Metered on the noise-free image, count k shows at 0.5 + ln(k / 11.5) / 3.5 exactly.
+        let (n, photons) = (64usize, 1000.0);
+        let lambda = 11.5;
+        let t = TransmissionImage {
+            width: n as u32,
+            height: n as u32,
+            transmission: vec![lambda / photons; n * n],
+            exposed: vec![true; n * n],
+            supersampled_pixels: 0,
+        };
+        for seed in [1, 2, 3] {
+            let noise = QuantumNoise {
+                photons_per_pixel: photons,
+                seed,
+            };
+            let settings = RenderSettings {
+                noise: Some(noise),
+                ..RenderSettings::default()
+            };
+            let mut noisy = t.clone();
+            apply_noise(&mut noisy, &noise);
+            let img = finish_frame(t.clone(), &settings);
+            let e = settings.exposure;
+            for (p, &g) in img.pixels.iter().enumerate() {
+                let ln_t = noisy.transmission[p].max(0.5 / photons).ln();
+                let want = (e.target_grey + (ln_t - (lambda / photons).ln()) / e.log_range)
+                    .clamp(0.0, 1.0);
+                assert_eq!(g, (want * 255.0).round() as u8, "seed {seed} pixel {p}");
+            }
+        }
     }
 
     #[test]
