@@ -3,4 +3,5 @@ mod anatomy;
 mod fluoro;
 mod rubric;
 mod phantom;
+mod laminar;
 mod needle;

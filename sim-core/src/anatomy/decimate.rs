@@ -54,7 +54,11 @@ pub(crate) fn compact(vertices: &[[f64; 3]], triangles: &[[u32; 3]]) -> TriMesh 
     out
 }
 
-fn acceptable(before_volume: f64, m: &TriMesh, max_volume_change: f64) -> Result<(), String> {
+pub(crate) fn acceptable(
+    before_volume: f64,
+    m: &TriMesh,
+    max_volume_change: f64,
+) -> Result<(), String> {
     let t = m.topology_report();
     if !t.is_closed_and_consistent() {
         return Err(format!("topology {t:?}"));
@@ -71,8 +75,13 @@ fn acceptable(before_volume: f64, m: &TriMesh, max_volume_change: f64) -> Result
 }
 
 /// Vertices (input ids) on edges that are not shared by exactly two oppositely wound triangles.
-fn defective_vertices(tris: &[[u32; 3]]) -> Vec<u32> {
-    let mut bad: Vec<u32> = tris.iter().filter(|t| is_degenerate(t)).flatten().copied().collect();
+pub(crate) fn defective_vertices(tris: &[[u32; 3]]) -> Vec<u32> {
+    let mut bad: Vec<u32> = tris
+        .iter()
+        .filter(|t| is_degenerate(t))
+        .flatten()
+        .copied()
+        .collect();
     for (&(a, b), &(f, r)) in &directed_edge_uses(tris) {
         if f != 1 || r != 1 {
             bad.push(a);

@@ -139,6 +139,34 @@ fn build_tables() -> Vec<CaseTable> {
 /// it), otherwise the surface is cut open there; [`extract_isosurface`] checks this and returns
 /// `None` if it does not hold.
 pub fn extract_isosurface(field: &ScalarField<'_>, iso: f32, upsample: u32) -> Option<TriMesh> {
+    extract_isosurface_keyed(field, iso, upsample).map(|(mesh, _)| mesh)
+}
+
+/// Where a vertex of an extracted surface lies on the (up-sampled) sample lattice: on the edge
+/// from lattice point `lower` (fine indices in the field's grid) along the corner offset
+/// `axes` (bit 1 = +x, 2 = +y, 4 = +z; Kuhn edges add one to three axes), at fraction `s` of
+/// the edge from `lower`.
+///
+/// Two structures meshed from fields on the same lattice cross the same edge at the same point
+/// exactly where their shared surface is (two disjoint occupancies summing to one); this key is
+/// how the pipeline finds those vertices again (see `pipeline`'s shared interfaces).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EdgeCrossing {
+    /// Fine lattice index of the edge's lower end.
+    pub lower: [usize; 3],
+    /// Corner offset of the edge's upper end.
+    pub axes: u8,
+    /// Position along the edge, `0..1` from `lower`.
+    pub s: f64,
+}
+
+/// [`extract_isosurface`], also giving every vertex's [`EdgeCrossing`] (same order as the
+/// vertices).
+pub fn extract_isosurface_keyed(
+    field: &ScalarField<'_>,
+    iso: f32,
+    upsample: u32,
+) -> Option<(TriMesh, Vec<EdgeCrossing>)> {
     let g = field.grid;
     assert_eq!(
         field.values.len(),
@@ -147,7 +175,7 @@ pub fn extract_isosurface(field: &ScalarField<'_>, iso: f32, upsample: u32) -> O
     );
     let [nx, ny, nz] = g.dims;
     if nx < 2 || ny < 2 || nz < 2 {
-        return Some(TriMesh::default());
+        return Some((TriMesh::default(), Vec::new()));
     }
     // The outermost samples must be outside.
     for k in 0..nz {
@@ -202,6 +230,7 @@ pub fn extract_isosurface(field: &ScalarField<'_>, iso: f32, upsample: u32) -> O
     let mut upper = Vec::with_capacity(fx * fy);
     fill_layer(0, &mut lower);
     let mut mesh = TriMesh::default();
+    let mut crossings = Vec::new();
     let mut vertex_of_edge: HashMap<u64, u32> = HashMap::new();
     for k in 0..fine[2] - 1 {
         fill_layer(k + 1, &mut upper);
@@ -248,6 +277,11 @@ pub fn extract_isosurface(field: &ScalarField<'_>, iso: f32, upsample: u32) -> O
                                     fine_origin[a] + c * fine_spacing[a]
                                 });
                                 mesh.vertices_mm.push(pos);
+                                crossings.push(EdgeCrossing {
+                                    lower: base,
+                                    axes: dir,
+                                    s: if p == lo { t } else { 1.0 - t },
+                                });
                                 (mesh.vertices_mm.len() - 1) as u32
                             });
                         }
@@ -258,7 +292,7 @@ pub fn extract_isosurface(field: &ScalarField<'_>, iso: f32, upsample: u32) -> O
         }
         std::mem::swap(&mut lower, &mut upper);
     }
-    Some(mesh)
+    Some((mesh, crossings))
 }
 
 #[cfg(test)]

@@ -19,6 +19,7 @@ pub mod asset;
 pub mod decimate;
 pub mod error;
 mod glb;
+pub mod interfaces;
 pub mod labels;
 pub mod mesher;
 pub mod nifti_import;

@@ -6,10 +6,15 @@
 //!
 //! Per structure: crop the mask to its non-zero box, pad it with two empty voxels on every side
 //! (so a structure cut by the volume boundary still gives a closed surface), extract the 0.5
-//! iso-surface by marching tetrahedra (optionally up-sampled), optionally Taubin-smooth it with a
-//! displacement cap and a volume guard, optionally decimate it, and check the result is closed,
-//! consistently wound and of positive volume. A structure that fails is an error, never a silently
-//! broken mesh.
+//! iso-surface by marching tetrahedra (optionally up-sampled). Then, for all structures together
+//! ([`super::interfaces`]): weld the vertices that touching structures share, split the surfaces
+//! into patches (shared with another structure, or free), optionally Taubin-smooth them with a
+//! displacement cap and a volume guard, optionally decimate each patch once with its borders
+//! locked, reassemble every structure and check the result is closed, consistently wound and of
+//! positive volume. Touching structures thus share their interface exactly (the same vertices and
+//! triangles, opposite winding): the meshes form a laminar family (any two disjoint or nested),
+//! which is what a renderer summing per-mesh chords needs. A structure that fails is an error,
+//! never a silently broken mesh.
 //!
 //! ```
 //! use sim_core::anatomy::pipeline::{build_region, PipelineParams, SourceInfo, StructureMask};
@@ -39,17 +44,15 @@
 use serde::{Deserialize, Serialize};
 
 use super::asset::{Provenance, RegionAsset, Source, StructureAsset, encode_hu};
-use super::decimate::{DecimationParams, decimate};
+use super::decimate::DecimationParams;
 use super::error::AnatomyError;
+use super::interfaces::{ExtractedSurface, lattice_edge_key, mesh_family, par_map};
 use super::labels::label_volume;
-use super::mesher::{ScalarField, extract_isosurface};
-use super::smooth::{TaubinParams, taubin_smooth};
+use super::mesher::{ScalarField, extract_isosurface_keyed};
+use super::smooth::TaubinParams;
 use crate::material::MaterialClass;
 use crate::mesh::TriMesh;
 use crate::volume::{Volume, VolumeGrid};
-
-/// What meshing one structure gives: the mesh and notes, or why it failed.
-type MeshResult = Result<(TriMesh, Vec<String>), AnatomyError>;
 
 /// Where the input came from, and under which terms the derived asset may be shared.
 #[derive(Debug, Clone, PartialEq)]
@@ -64,10 +67,15 @@ pub struct SourceInfo {
     pub notes: Vec<String>,
 }
 
-/// Pipeline version recorded in provenance: crate version plus asset format version.
+/// Version of the meshing steps, part of [`pipeline_version`]: 2 shares the interfaces of
+/// touching structures (`interfaces`); 1 meshed every structure on its own.
+pub const MESHING_VERSION: u32 = 2;
+
+/// Pipeline version recorded in provenance (and in the phantom's cache key): crate version, asset
+/// format version and meshing version.
 pub fn pipeline_version() -> String {
     format!(
-        "sim-core {} / anatomy format {}",
+        "sim-core {} / anatomy format {} / meshing {MESHING_VERSION}",
         env!("CARGO_PKG_VERSION"),
         super::asset::FORMAT_VERSION
     )
@@ -230,13 +238,19 @@ pub(crate) fn mask_offset(
     Ok(off)
 }
 
-/// Meshes one mask: crop, pad, extract, smooth, decimate, check. Returns the mesh and notes.
-pub fn mesh_structure(
+/// Empty voxels padded around each structure's non-zero box before extraction, so that a
+/// structure cut by the volume boundary still gives a closed surface.
+const PAD: usize = 2;
+
+/// Crops a mask to its non-zero box, pads it and extracts its 0.5 iso-surface, keying every vertex
+/// by its edge of the region's sample lattice. `offset` is the voxel index of the mask grid's
+/// origin in the region's grid, whose dimensions are `region_dims`.
+fn extract_structure(
     mask: &StructureMask,
     params: &PipelineParams,
-) -> Result<(TriMesh, Vec<String>), AnatomyError> {
-    const PAD: usize = 2;
-    let mut notes = Vec::new();
+    offset: [usize; 3],
+    region_dims: [usize; 3],
+) -> Result<ExtractedSurface, AnatomyError> {
     let Some((lo, hi)) = nonzero_box(&mask.mask) else {
         return Err(AnatomyError::Mesh {
             structure: mask.name.clone(),
@@ -270,26 +284,49 @@ pub fn mesh_structure(
         grid: fgrid,
         values: &values,
     };
-    let mut mesh = extract_isosurface(&field, params.iso_level, params.upsample.max(1))
-        .ok_or_else(|| AnatomyError::Mesh {
-            structure: mask.name.clone(),
-            message: "padding failed to enclose the mask".into(),
+    let u = params.upsample.max(1);
+    let (mesh, crossings) =
+        extract_isosurface_keyed(&field, params.iso_level, u).ok_or_else(|| {
+            AnatomyError::Mesh {
+                structure: mask.name.clone(),
+                message: "padding failed to enclose the mask".into(),
+            }
         })?;
     check_solid(&mask.name, &mesh, "extraction")?;
-    let mask_volume = mask.volume_mm3();
-    if let Some(sp) = &params.smoothing {
-        let (smoothed, report) = taubin_smooth(&mesh, sp, mask_volume);
-        notes.push(format!("{}: {report}", mask.name));
-        check_solid(&mask.name, &smoothed, "smoothing")?;
-        mesh = smoothed;
-    }
-    if let Some(dp) = &params.decimation {
-        let (decimated, report) = decimate(&mesh, dp);
-        notes.push(format!("{}: {report}", mask.name));
-        check_solid(&mask.name, &decimated, "decimation")?;
-        mesh = decimated;
-    }
-    Ok((mesh, notes))
+    // Fine lattice index in the region: the padded box starts PAD voxels below `offset + lo`,
+    // and keys are shifted by PAD voxels so that they are never negative.
+    let u64u = u64::from(u);
+    let extent: [u64; 3] = std::array::from_fn(|a| (region_dims[a] + 2 * PAD + 1) as u64 * u64u);
+    let edges = crossings
+        .iter()
+        .map(|c| {
+            let lower: [u64; 3] =
+                std::array::from_fn(|a| (offset[a] + lo[a]) as u64 * u64u + c.lower[a] as u64);
+            (lattice_edge_key(lower, c.axes, extent), c.s)
+        })
+        .collect();
+    Ok(ExtractedSurface {
+        name: mask.name.clone(),
+        mesh,
+        edges,
+        mask_volume_mm3: mask.volume_mm3(),
+    })
+}
+
+/// Meshes one mask on its own: crop, pad, extract, smooth, decimate, check. Returns the mesh and
+/// notes. (A region's structures go through [`build_region`], which also shares the interfaces
+/// of touching structures.)
+pub fn mesh_structure(
+    mask: &StructureMask,
+    params: &PipelineParams,
+) -> Result<(TriMesh, Vec<String>), AnatomyError> {
+    let item = extract_structure(mask, params, [0; 3], mask.mask.grid.dims)?;
+    let mut out = mesh_family(
+        std::slice::from_ref(&item),
+        params.smoothing.as_ref(),
+        params.decimation.as_ref(),
+    )?;
+    Ok(out.meshes.remove(0))
 }
 
 /// The checks every stored mesh passes: closed, consistently wound, no degenerate triangles,
@@ -397,42 +434,38 @@ pub fn build_region(
         total: 1,
         item: String::new(),
     });
-    // Structures are meshed in parallel (one worker per core, each taking the next structure);
-    // each result depends only on its own mask, and they are gathered in input order, so the
-    // asset is identical whatever the thread count.
+    // Structures are extracted in parallel (one worker per core, each taking the next
+    // structure), then smoothed and decimated together so that touching structures share their
+    // interfaces (`interfaces`); every step writes by index, so the asset is identical whatever
+    // the thread count.
     let total = kept.len();
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).clamp(1, total.max(1));
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let mut meshed: Vec<Option<MeshResult>> = (0..total).map(|_| None).collect();
-    std::thread::scope(|scope| {
-        let (tx, rx) = std::sync::mpsc::channel::<(usize, MeshResult)>();
-        for _ in 0..threads {
-            let (tx, kept, next) = (tx.clone(), &kept, &next);
-            scope.spawn(move || {
-                loop {
-                    let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                    let Some(s) = kept.get(i) else { break };
-                    if tx.send((i, mesh_structure(s, params))).is_err() {
-                        break;
-                    }
-                }
-            });
-        }
-        drop(tx);
-        for (done, (i, result)) in rx.iter().enumerate() {
+    let offsets: Vec<[usize; 3]> = kept
+        .iter()
+        .map(|s| mask_offset(&grid, s))
+        .collect::<Result<_, _>>()?;
+    let mut finished = 0;
+    let extracted = par_map(
+        total,
+        &|i| extract_structure(&kept[i], params, offsets[i], grid.dims),
+        &mut |i| {
             progress(&Progress {
                 stage: "mesh",
-                done,
+                done: finished,
                 total,
                 item: kept[i].name.clone(),
             });
-            meshed[i] = Some(result);
-        }
-    });
+            finished += 1;
+        },
+    );
+    let extracted: Vec<ExtractedSurface> = extracted.into_iter().collect::<Result<_, _>>()?;
+    let meshed = mesh_family(
+        &extracted,
+        params.smoothing.as_ref(),
+        params.decimation.as_ref(),
+    )?;
+    drop(extracted);
     let mut out = Vec::with_capacity(total);
-    for (s, result) in kept.into_iter().zip(meshed) {
-        let (mesh, mesh_notes) =
-            result.expect("every structure index is taken by exactly one worker")?;
+    for (s, (mesh, mesh_notes)) in kept.into_iter().zip(meshed.meshes) {
         notes.extend(mesh_notes);
         out.push(StructureAsset {
             name: s.name.clone(),
@@ -441,6 +474,7 @@ pub fn build_region(
             mesh,
         });
     }
+    notes.extend(meshed.notes);
     progress(&Progress {
         stage: "mesh",
         done: total,

@@ -69,7 +69,7 @@ use crate::volume::{Volume, VolumeGrid};
 pub use model::{AnatomyParams, Landmark};
 
 /// Generator identifier recorded in the provenance; bump the number when the model changes shape.
-pub const GENERATOR: &str = "lumbosacral-phantom/1";
+pub const GENERATOR: &str = "lumbosacral-phantom/2";
 
 /// Region name and default folder name under `assets/`.
 pub const REGION_NAME: &str = "lumbar-phantom";

@@ -767,6 +767,11 @@ impl Anatomy {
         }
         .at(DVec3::new(0.0, BODY_CENTRE_Y_MM, -200.0));
         let envelope = Sdf::SmoothUnion(vec![waist, hips], 30.0);
+        // Everything inside the body lies under the skin: the erector spinae column and the
+        // iliac wings reach beyond the envelope otherwise (a few cm^3 each), which no anatomy
+        // has and which would leave them outside the skin mesh that every renderer nests the
+        // body in. Their solids are clipped to the inner surface of the skin.
+        let under_skin = envelope.clone().offset(-p.skin_mm);
         push("skin", MaterialClass::SoftTissue, envelope.clone());
         push(
             "subcutaneous_fat",
@@ -841,7 +846,7 @@ impl Anatomy {
             push(
                 &format!("erector_spinae_{side}"),
                 MaterialClass::Muscle,
-                shape,
+                Sdf::Intersect(vec![shape, under_skin.clone()]),
             );
         }
 
@@ -1281,6 +1286,8 @@ impl Anatomy {
         bones.extend(ilia);
         let t = p.cortical_thickness_mm;
         for (name, bone) in bones {
+            // Clipped before the cortex/marrow split, so the cortex covers the cut as well.
+            let bone = Sdf::Intersect(vec![bone, under_skin.clone()]);
             push(
                 &format!("{name}_cortical"),
                 MaterialClass::CorticalBone,
