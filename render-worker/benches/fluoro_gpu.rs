@@ -14,23 +14,32 @@
 //! - the mesh's own error: median |ln T| difference of the GPU frame against the CPU frame of the
 //!   finest mesh of the run (same pixels), i.e. what a coarser mesh costs in fidelity.
 //!
+//! Then, per mesh and image size, the phases of a session's displayed frame (80 kVp, 2 x 2
+//! supersampling at the needle, quantum noise) in four cases: from scratch (caches off: every
+//! pass, the whole resolve and read-back, as every frame was rendered before the caches), after
+//! a C-arm move (geometry redrawn), after a needle-only move (the common case: feed, roll,
+//! withdraw; only the needle, the anatomy under its pixel box and its rows are redone), and with
+//! nothing changed (a new shot at the same pose: only the noise and display). Each cached frame
+//! is checked bit for bit against the frame from scratch.
+//!
 //! `BENCH_QUICK=1`: two coarse meshes, GPU at both sizes, CPU reference at 512 x 512 only (under a
 //! minute on 2 cores in the dev profile). Without it: three meshes, CPU reference at both sizes.
 
 use std::time::Instant;
 
-use render_worker::fluoro::GpuFluoroRenderer;
+use render_worker::fluoro::{FrameTimings, GpuFluoroRenderer};
 use render_worker::gpu::GpuContext;
 use sim_core::anatomy::phantom::{self, PhantomParams};
 use sim_core::fluoro::attenuation::basis_depths;
 use sim_core::fluoro::render::to_display;
 use sim_core::fluoro::{
-    EnergyModel, FluoroMaterial, Projection, RenderSettings, Scene, SpectralModel, render_chords,
-    render_transmission,
+    EnergyModel, FluoroMaterial, Projection, QuantumNoise, RenderSettings, Scene, SpectralModel,
+    render_chords, render_transmission,
 };
 use sim_core::geom::{capped_cylinder, equal_area_vertex_radius};
 
-fn phantom_scene(voxel_mm: f64) -> (Scene, f64) {
+/// The phantom with a needle, the needle's entry and tip, and the build time (s).
+fn phantom_scene(voxel_mm: f64) -> (Scene, [f64; 3], [f64; 3], f64) {
     let t = Instant::now();
     let params = PhantomParams::with_voxel_mm(voxel_mm);
     let region = phantom::build(&params, &mut |_| {}).expect("phantom builds");
@@ -48,7 +57,54 @@ fn phantom_scene(voxel_mm: f64) -> (Scene, f64) {
         FluoroMaterial::Steel,
         &capped_cylinder(entry, target, r, 16),
     );
-    (scene, t.elapsed().as_secs_f64())
+    (scene, entry, target, t.elapsed().as_secs_f64())
+}
+
+/// Mean phases of `frames` displayed frames; `prepare(k)` makes frame `k`'s change. Also returns
+/// whether every frame's transmission equalled `reference(k)`'s bit for bit.
+fn phases(
+    gpu: &mut GpuFluoroRenderer,
+    frames: usize,
+    mut change: impl FnMut(&mut GpuFluoroRenderer, usize) -> (Projection, RenderSettings),
+    mut reference: impl FnMut(usize, &Projection, &RenderSettings) -> Vec<f32>,
+) -> (FrameTimings, f64, bool) {
+    let mut sum = FrameTimings::default();
+    let mut wall = 0.0;
+    let mut exact = true;
+    for k in 0..frames {
+        let (p, settings) = change(gpu, k);
+        let t = Instant::now();
+        let _ = gpu.render_frame(&p, &settings, None).expect("frame");
+        wall += t.elapsed().as_secs_f64() * 1e3;
+        let f = gpu.last_timings();
+        sum.encode_ms += f.encode_ms;
+        sum.gpu_ms += f.gpu_ms;
+        sum.readback_ms += f.readback_ms;
+        sum.supersample_ms += f.supersample_ms;
+        sum.finish_ms += f.finish_ms;
+        sum.resolved_samples += f.resolved_samples;
+        let mine = gpu
+            .render_transmission_supersampled(&p, &settings, None)
+            .expect("frame")
+            .transmission;
+        let want = reference(k, &p, &settings);
+        exact &= mine.len() == want.len()
+            && mine
+                .iter()
+                .zip(&want)
+                .all(|(a, b)| a.to_bits() == b.to_bits());
+    }
+    let n = frames as f64;
+    let mean = FrameTimings {
+        encode_ms: sum.encode_ms / n,
+        gpu_ms: sum.gpu_ms / n,
+        readback_ms: sum.readback_ms / n,
+        supersample_ms: sum.supersample_ms / n,
+        finish_ms: sum.finish_ms / n,
+        resolved_samples: sum.resolved_samples / frames as u64,
+        ..FrameTimings::default()
+    };
+    (mean, wall / n, exact)
 }
 
 fn view(n: u32) -> Projection {
@@ -146,11 +202,14 @@ fn main() {
     // The finest mesh's CPU ln T per image size (filled by the last, finest voxel size first).
     let mut finest: std::collections::HashMap<u32, Vec<f64>> = Default::default();
     let mut rows = Vec::new();
+    let mut phase_rows = Vec::new();
     for &voxel in voxels.iter().rev() {
-        let (scene, build_s) = phantom_scene(voxel);
+        let (scene, entry, tip, build_s) = phantom_scene(voxel);
         let tris = scene.triangle_count();
         let t = Instant::now();
         let mut gpu = GpuFluoroRenderer::new(&ctx, &scene).expect("renderer");
+        // The run-time-against-error table times frames from scratch.
+        gpu.caching = false;
         eprintln!(
             "voxel {voxel} mm: {tris} triangles, phantom build {build_s:.1} s, upload {:.2} s",
             t.elapsed().as_secs_f64()
@@ -249,8 +308,121 @@ fn main() {
             ));
             eprintln!("{}", rows.last().expect("row"));
         }
+        if !quick || voxel == voxels[voxels.len() - 1] {
+            phase_rows.extend(phase_table(&ctx, &scene, entry, tip, voxel, frames));
+        }
     }
     for r in rows {
         println!("{r}");
     }
+    println!();
+    println!(
+        "Phases of a session's displayed frame (80 kVp, 2 x 2 supersampling at the needle, noise), mean ms per frame; 'exact' = transmission bit-identical to the frame from scratch"
+    );
+    println!();
+    println!(
+        "| phantom voxel (mm) | triangles | image | case | encode | GPU (submit to mapped) | read-back | supersample (CPU) | noise + display (CPU) | frame wall (ms) | resolved samples | exact |"
+    );
+    println!("|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---|");
+    for r in phase_rows {
+        println!("{r}");
+    }
+}
+
+/// Rows of the phase table for one mesh: from scratch, C-arm move, needle-only move, nothing
+/// changed, at 512 and 1024 pixels.
+fn phase_table(
+    ctx: &GpuContext,
+    scene: &Scene,
+    entry: [f64; 3],
+    tip: [f64; 3],
+    voxel: f64,
+    frames: usize,
+) -> Vec<String> {
+    let r = equal_area_vertex_radius(0.36, 16);
+    // Needle k: fed k x 1 mm further along its line (alternating 0 and 1 mm).
+    let dir = {
+        let d = [tip[0] - entry[0], tip[1] - entry[1], tip[2] - entry[2]];
+        let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        d.map(|x| x / l)
+    };
+    let needle = |k: usize| {
+        let f = (k % 2) as f64;
+        capped_cylinder(entry, std::array::from_fn(|a| tip[a] + f * dir[a]), r, 16)
+    };
+    let settings = |k: usize| RenderSettings {
+        energy: EnergyModel::Spectral { kvp: 80 },
+        supersample: 2,
+        // Simulator's session default (3000 quanta at 2 mA), a new seed per frame.
+        noise: Some(QuantumNoise {
+            photons_per_pixel: 3000.0,
+            seed: k as u64,
+        }),
+        ..RenderSettings::default()
+    };
+    let mut out = Vec::new();
+    let tris = scene.triangle_count();
+    let mut scratch = GpuFluoroRenderer::new(ctx, scene).expect("renderer");
+    scratch.caching = false;
+    for n in [512u32, 1024] {
+        let ap = view(n);
+        let pose = |k: usize| Projection {
+            orbital_deg: (k % 2) as f64 * 2.0,
+            ..ap
+        };
+        let mut reference = |needle_k: usize, p: &Projection, s: &RenderSettings| {
+            scratch.update_needle(&needle(needle_k));
+            scratch
+                .render_transmission_supersampled(p, s, None)
+                .expect("frame")
+                .transmission
+        };
+        let mut gpu = GpuFluoroRenderer::new(ctx, scene).expect("renderer");
+        gpu.update_needle(&needle(0));
+        // Warm-up (pipelines, tables, targets).
+        let _ = gpu.render_frame(&ap, &settings(0), None).expect("frame");
+        let cases: [(&str, bool); 4] = [
+            ("from scratch (caches off)", false),
+            ("C-arm moved", true),
+            ("needle moved 1 mm, same pose", true),
+            ("nothing changed (new shot)", true),
+        ];
+        for (case, (name, caching)) in cases.into_iter().enumerate() {
+            gpu.caching = caching;
+            let (t, wall, exact) = phases(
+                &mut gpu,
+                frames,
+                |g, k| match case {
+                    0 | 1 => (pose(k + 1), settings(k)),
+                    2 => {
+                        g.update_needle(&needle(k + 1));
+                        (ap, settings(k))
+                    }
+                    _ => (ap, settings(k)),
+                },
+                |k, p, s| match case {
+                    0 | 1 => reference(0, p, s),
+                    2 => reference(k + 1, p, s),
+                    _ => reference(frames, p, s),
+                },
+            );
+            if case == 1 {
+                // Back to the AP pose with needle 0 before the needle and shot cases.
+                gpu.update_needle(&needle(0));
+                let _ = gpu.render_frame(&ap, &settings(0), None).expect("frame");
+            }
+            out.push(format!(
+                "| {voxel} | {tris} | {n} x {n} | {name} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {wall:.1} | {} | {} |",
+                t.encode_ms,
+                t.gpu_ms,
+                t.readback_ms,
+                t.supersample_ms,
+                t.finish_ms,
+                t.resolved_samples,
+                if exact { "yes" } else { "NO" }
+            ));
+            eprintln!("{}", out.last().expect("row"));
+        }
+    }
+    out
 }

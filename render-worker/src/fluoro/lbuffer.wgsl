@@ -1,6 +1,8 @@
 // L-buffer passes: closed meshes rasterised without a depth test; every fragment adds its signed
 // distance from the source along the pixel's ray (+ leaving, - entering) into additive float
-// render targets. See `render_worker::fluoro` for the channel layout.
+// render targets. See `render_worker::fluoro` for the channel layout. The geometric pass
+// (`fs_anatomy`) does not depend on the needle, so a session keeps it while only the needle
+// moves; the displaced pass (`fs_displaced`) runs scissored to the needle's pixel box.
 
 struct View {
     // Rows of the projection matrix applied to (point - source): (px * w, py * w, w).
@@ -11,8 +13,8 @@ struct View {
     source: vec4<f32>,
     // (columns, rows, needle reference depth mm, unused).
     size: vec4<f32>,
-    // Pixel box (x0, y0, x1, y1) holding the needle's projection; fragments outside it skip the
-    // needle-hull lookup.
+    // Pixel box (x0, y0, x1, y1) holding the needle's projection (the displaced pass is
+    // scissored to it; kept for the layout).
     needle_box: vec4<f32>,
     // Ray generator relative to the source (mm): pixel (0, 0) centre, per-column, per-row step.
     p00: vec4<f32>,
@@ -104,22 +106,26 @@ fn vs_needle(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2) n
     return o;
 }
 
+// Geometric pass: the mesh's signed distances times its geometric weights.
 @fragment
 fn fs_anatomy(v: VOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
     let c = crossing(v, front);
-    let t = c.t;
     let s = select(1.0, -1.0, c.entering);
-    var td = 0.0;
-    let b = view.needle_box;
-    if (v.clip.x >= b.x && v.clip.x <= b.z && v.clip.y >= b.y && v.clip.y <= b.w) {
-        let hull = textureLoad(needle_hull, vec2<i32>(v.clip.xy), 0).xy;
-        let t0 = hull.x;
-        let t1 = -hull.y;
-        // Signed part of this crossing inside the needle's [t0, t1]: summed over a closed mesh
-        // it is the length of the mesh's interior the needle occupies along this ray.
-        td = select(0.0, s * (min(max(t, t0), t1) - t0), t1 > t0);
-    }
-    return v.g * (s * (t - v.tref)) + v.d * td;
+    return v.g * (s * (c.t - v.tref));
+}
+
+// Displaced pass (scissored to the needle's pixel box): the signed part of this crossing inside
+// the needle's [t0, t1], times the mesh's displaced weights. Summed over a closed mesh it is the
+// length of the mesh's interior the needle occupies along this ray.
+@fragment
+fn fs_displaced(v: VOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
+    let c = crossing(v, front);
+    let s = select(1.0, -1.0, c.entering);
+    let hull = textureLoad(needle_hull, vec2<i32>(v.clip.xy), 0).xy;
+    let t0 = hull.x;
+    let t1 = -hull.y;
+    let td = select(0.0, s * (min(max(c.t, t0), t1) - t0), t1 > t0);
+    return v.d * td;
 }
 
 struct NeedleOut {

@@ -78,6 +78,8 @@ use sim_core::fluoro::{
 };
 use sim_core::material::MaterialClass;
 use sim_core::mesh::TriMesh;
+use std::time::Instant;
+
 use thiserror::Error;
 use wgpu::util::DeviceExt;
 
@@ -189,6 +191,7 @@ struct ResolveUniform {
     region: [f32; 4],
     full: [u32; 4],
     lut_dims: [u32; 4],
+    rect: [u32; 4],
 }
 
 struct Needle {
@@ -206,7 +209,10 @@ struct MeshBuffers {
 /// Render targets of one detector size.
 struct Targets {
     size: [u32; 2],
+    /// Geometric L-buffer (needle-independent).
     a: wgpu::Texture,
+    /// Displaced part (zero outside the needle's pixel box).
+    d: wgpu::Texture,
     hull: wgpu::Texture,
     chord: wgpu::Texture,
     out_t: wgpu::Buffer,
@@ -272,9 +278,14 @@ pub struct GpuFluoroRenderer {
     ctx: GpuContext,
     meshes: Vec<DrawnMesh>,
     anatomy: Option<MeshBuffers>,
+    /// Anatomy vertex positions as uploaded (three per triangle), for culling on the CPU.
+    anatomy_positions: Vec<[f32; 3]>,
+    /// Each anatomy triangle's pixel bounding box under one projection (see `culled`).
+    triangle_boxes: Option<(Projection, Vec<[f32; 4]>)>,
     needle: Option<Needle>,
     needle_pipeline: wgpu::RenderPipeline,
     anatomy_pipeline: wgpu::RenderPipeline,
+    displaced_pipeline: wgpu::RenderPipeline,
     resolve_pipeline: wgpu::ComputePipeline,
     /// Uniforms of the full image (0) and of the supersampled needle region (1).
     view_buf: [wgpu::Buffer; 2],
@@ -284,8 +295,78 @@ pub struct GpuFluoroRenderer {
     targets: [Option<Targets>; 2],
     spectral: Option<SpectralTables>,
     cortical_shell_mm: f64,
+    /// What the full-image geometric L-buffer (`targets[0].a`) holds, if anything.
+    geo_key: Option<(Projection, Layout)>,
+    /// The last full-image transmission resolve without iodine (see [`Resolved`]).
+    resolved: Option<Resolved>,
+    /// Bumped whenever the needle changes.
+    needle_generation: u64,
+    /// The last displayed-frame transmission and what decided it.
+    last_frame: Option<(FrameKey, GpuTransmission)>,
+    /// Exposed-pixel mask of the last projection displayed.
+    exposed: Option<(Projection, Vec<bool>)>,
+    /// Use the caches (default `true`; `false` renders every frame from scratch, for the
+    /// benchmark's before/after rows and the cache tests).
+    pub caching: bool,
+    /// Draw only the anatomy triangles that can reach the needle's pixel box or the
+    /// supersampled region into them (default `true`; bit-identical either way, see
+    /// `culled`).
+    pub culling: bool,
+    timings: FrameTimings,
     /// Iodine ray-march step as a fraction of the smallest voxel spacing (default 0.25).
     pub iodine_step_fraction: f64,
+}
+
+/// The full-image transmission of the last resolve: for which projection and energy model, the
+/// needle's pixel rectangle then (where the displaced pass and the steel wrote), and the values.
+/// Outside the union of that rectangle and the next frame's, every input of the resolve is the
+/// same (same geometric L-buffer, no displaced part, no steel), so only that union is resolved
+/// and read back again, and the result is bit-identical to a frame from scratch.
+struct Resolved {
+    projection: Projection,
+    model: EnergyModel,
+    needle_rect: Option<[u32; 4]>,
+    transmission: Vec<f32>,
+}
+
+/// Everything that decides [`GpuFluoroRenderer::render_transmission_supersampled`] without
+/// iodine.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct FrameKey {
+    projection: Projection,
+    energy: EnergyModel,
+    supersample: u32,
+    needle_generation: u64,
+}
+
+/// Wall-clock phases of the last frame rendered by [`GpuFluoroRenderer::render_frame`] (or the
+/// transmission calls), ms. GPU work is measured from submit to the end of the wait for the
+/// read-back (lavapipe runs it on the CPU); `cpu_*` are work on the calling thread.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct FrameTimings {
+    /// Recording passes and uploading uniforms.
+    pub encode_ms: f64,
+    /// Submit until the read-back buffer is mapped (rasterising, resolve, copy).
+    pub gpu_ms: f64,
+    /// Copying the mapped read-back into the frame.
+    pub readback_ms: f64,
+    /// Needle-edge flags and averaging the supersampled region.
+    pub supersample_ms: f64,
+    /// sim-core's finishing step (noise, brightness, tone map, shutters).
+    pub finish_ms: f64,
+    /// Transmission samples resolved on the GPU (full image and supersampled region).
+    pub resolved_samples: u64,
+    /// Whether the full-image geometric L-buffer was reused.
+    pub geometry_reused: bool,
+    /// Whether the whole transmission was reused (nothing changed).
+    pub frame_reused: bool,
+}
+
+impl FrameTimings {
+    /// Sum of the phases, ms.
+    pub fn total_ms(&self) -> f64 {
+        self.encode_ms + self.gpu_ms + self.readback_ms + self.supersample_ms + self.finish_ms
+    }
 }
 
 const FMT_A: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
@@ -370,6 +451,22 @@ fn chord_weights(m: FluoroMaterial, pass: usize) -> ([f32; SLOTS], [f32; SLOTS])
         }
     }
     (g, d)
+}
+
+/// Which passes [`GpuFluoroRenderer::encode_lbuffer`] records.
+#[derive(Debug, Clone, Copy)]
+struct Passes {
+    geometry: bool,
+    needle: bool,
+    displaced: bool,
+}
+
+impl Passes {
+    const ALL: Passes = Passes {
+        geometry: true,
+        needle: true,
+        displaced: true,
+    };
 }
 
 /// The slot layout of one pass.
@@ -512,6 +609,7 @@ impl GpuFluoroRenderer {
             vertices.extend(tris.iter().flat_map(|t| triangle_vertices(t, id)));
         }
         let anatomy_bufs = (!vertices.is_empty()).then(|| upload(device, &vertices));
+        let anatomy_positions: Vec<[f32; 3]> = vertices.iter().map(|v| v.pos).collect();
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("fluoro lbuffer"),
             source: wgpu::ShaderSource::Wgsl(include_str!("lbuffer.wgsl").into()),
@@ -572,6 +670,12 @@ impl GpuFluoroRenderer {
             "fs_anatomy",
             &[target(FMT_A, additive())],
         );
+        let displaced_pipeline = raster(
+            "fluoro displaced",
+            "vs_anatomy",
+            "fs_displaced",
+            &[target(FMT_A, additive())],
+        );
         let resolve_pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some("fluoro resolve"),
             layout: None,
@@ -602,9 +706,12 @@ impl GpuFluoroRenderer {
             ctx: ctx.clone(),
             meshes,
             anatomy: anatomy_bufs,
+            anatomy_positions,
+            triangle_boxes: None,
             needle: None,
             needle_pipeline,
             anatomy_pipeline,
+            displaced_pipeline,
             resolve_pipeline,
             view_buf,
             resolve_buf,
@@ -613,6 +720,14 @@ impl GpuFluoroRenderer {
             targets: [None, None],
             spectral: None,
             cortical_shell_mm: scene.cortical_shell_mm,
+            geo_key: None,
+            resolved: None,
+            needle_generation: 0,
+            last_frame: None,
+            exposed: None,
+            caching: true,
+            culling: true,
+            timings: FrameTimings::default(),
             iodine_step_fraction: 0.25,
         };
         let steel: Vec<[[f64; 3]; 3]> = entries
@@ -665,9 +780,16 @@ impl GpuFluoroRenderer {
     /// Removes the needle.
     pub fn clear_needle(&mut self) {
         self.needle = None;
+        self.needle_generation += 1;
+    }
+
+    /// Phases of the last frame.
+    pub fn last_timings(&self) -> FrameTimings {
+        self.timings
     }
 
     fn set_needle_soup(&mut self, tris: &[[[f64; 3]; 3]]) {
+        self.needle_generation += 1;
         if tris.is_empty() {
             self.needle = None;
             return;
@@ -703,9 +825,14 @@ impl GpuFluoroRenderer {
                 view_formats: &[],
             })
         };
+        if ri == 0 {
+            self.geo_key = None;
+            self.resolved = None;
+        }
         self.targets[ri] = Some(Targets {
             size,
             a: tex("fluoro lbuffer", FMT_A),
+            d: tex("fluoro displaced lbuffer", FMT_A),
             hull: tex("fluoro needle hull", FMT_HULL),
             chord: tex("fluoro needle chord", FMT_CHORD),
             out_t: self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
@@ -723,15 +850,19 @@ impl GpuFluoroRenderer {
         });
     }
 
-    /// Records the needle pass and one anatomy L-buffer pass with `layout` into `encoder`.
+    /// Records into `encoder`: the geometric anatomy pass with `layout` (if `passes.geometry`),
+    /// and with a needle its pass (if `passes.needle`) and the displaced anatomy pass scissored
+    /// to its pixel box (if `passes.displaced`; the target is cleared even when the box is off
+    /// the image). Returns that box in region samples, clipped (`None` without a needle or off
+    /// the image).
     fn encode_lbuffer(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
         projection: &Projection,
         layout: Layout,
-        with_needle_pass: bool,
+        passes: Passes,
         region: Region,
-    ) {
+    ) -> Option<[u32; 4]> {
         let ri = region.index();
         let size = region.size;
         self.ensure_targets(ri, size);
@@ -817,10 +948,46 @@ impl GpuFluoroRenderer {
         if !w.is_empty() {
             queue.write_buffer(&self.weights_buf, 0, bytemuck::cast_slice(&w));
         }
+        // The needle's pixel box in whole samples, clipped to the target.
+        let clip = |lo: f32, hi: f32, n: u32| {
+            let lo = lo.floor().clamp(0.0, n as f32) as u32;
+            let hi = hi.ceil().clamp(0.0, n as f32) as u32;
+            (lo, hi)
+        };
+        let (bx0, bx1) = clip(needle_box[0], needle_box[2], size[0]);
+        let (by0, by1) = clip(needle_box[1], needle_box[3], size[1]);
+        let rect = (self.needle.is_some() && bx1 > bx0 && by1 > by0)
+            .then(|| [bx0, by0, bx1 - bx0, by1 - by0]);
+        // Region samples to full-image pixel coordinates.
+        let to_pixels = |r: [u32; 4]| {
+            let (inv, o) = (1.0 / n as f32, region.origin.map(|x| x as f32));
+            [
+                o[0] + r[0] as f32 * inv,
+                o[1] + r[1] as f32 * inv,
+                o[0] + (r[0] + r[2]) as f32 * inv,
+                o[1] + (r[1] + r[3]) as f32 * inv,
+            ]
+        };
+        // Only the triangles that can reach a small rectangle are drawn into it: the
+        // supersampled region's geometric pass and every displaced pass.
+        // `None`: the whole list; `Some(None)`: no triangle reaches the rectangle.
+        let geo_list = (self.culling && passes.geometry && region.n > 1)
+            .then(|| self.culled(projection, to_pixels([0, 0, size[0], size[1]])));
+        let disp_list = match rect {
+            Some(r) if self.culling && passes.displaced => {
+                Some(self.culled(projection, to_pixels(r)))
+            }
+            _ => None,
+        };
         let device = &self.ctx.device;
         let t = self.targets[ri].as_ref().expect("targets");
         let view_of = |x: &wgpu::Texture| x.create_view(&wgpu::TextureViewDescriptor::default());
-        let (va, vh, vc) = (view_of(&t.a), view_of(&t.hull), view_of(&t.chord));
+        let (va, vd, vh, vc) = (
+            view_of(&t.a),
+            view_of(&t.d),
+            view_of(&t.hull),
+            view_of(&t.chord),
+        );
         fn attach(
             v: &wgpu::TextureView,
             clear: f64,
@@ -840,35 +1007,8 @@ impl GpuFluoroRenderer {
                 },
             })
         }
-        if with_needle_pass && self.needle.is_some() {
-            let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("fluoro needle"),
-                layout: &self.needle_pipeline.get_bind_group_layout(0),
-                entries: &[wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: self.view_buf[ri].as_entire_binding(),
-                }],
-            });
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("fluoro needle"),
-                color_attachments: &[attach(&vh, NO_NEEDLE), attach(&vc, 0.0)],
-                depth_stencil_attachment: None,
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            if let Some(Needle { bufs, .. }) = &self.needle {
-                pass.set_pipeline(&self.needle_pipeline);
-                pass.set_bind_group(0, &bind, &[]);
-                pass.set_vertex_buffer(0, bufs.vertices.slice(..));
-                pass.set_index_buffer(bufs.indices.slice(..), wgpu::IndexFormat::Uint32);
-                pass.draw_indexed(0..bufs.index_count, 0, 0..1);
-            }
-        }
-        let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("fluoro anatomy"),
-            layout: &self.anatomy_pipeline.get_bind_group_layout(0),
-            entries: &[
+        let anatomy_bind = |pipeline: &wgpu::RenderPipeline, with_hull: bool| {
+            let mut entries = vec![
                 wgpu::BindGroupEntry {
                     binding: 0,
                     resource: self.view_buf[ri].as_entire_binding(),
@@ -877,27 +1017,163 @@ impl GpuFluoroRenderer {
                     binding: 1,
                     resource: self.weights_buf.as_entire_binding(),
                 },
-                wgpu::BindGroupEntry {
+            ];
+            if with_hull {
+                entries.push(wgpu::BindGroupEntry {
                     binding: 2,
                     resource: wgpu::BindingResource::TextureView(&vh),
-                },
-            ],
-        });
-        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("fluoro anatomy"),
-            color_attachments: &[attach(&va, 0.0)],
-            depth_stencil_attachment: None,
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
-        if let Some(bufs) = &self.anatomy {
-            pass.set_pipeline(&self.anatomy_pipeline);
-            pass.set_bind_group(0, &bind, &[]);
-            pass.set_vertex_buffer(0, bufs.vertices.slice(..));
-            pass.set_index_buffer(bufs.indices.slice(..), wgpu::IndexFormat::Uint32);
-            pass.draw_indexed(0..bufs.index_count, 0, 0..1);
+                });
+            }
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("fluoro anatomy"),
+                layout: &pipeline.get_bind_group_layout(0),
+                entries: &entries,
+            })
+        };
+        fn pass_desc<'a>(
+            label: &'a str,
+            attachments: &'a [Option<wgpu::RenderPassColorAttachment<'a>>],
+        ) -> wgpu::RenderPassDescriptor<'a> {
+            wgpu::RenderPassDescriptor {
+                label: Some(label),
+                color_attachments: attachments,
+                depth_stencil_attachment: None,
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            }
         }
+        if passes.geometry {
+            let bind = anatomy_bind(&self.anatomy_pipeline, false);
+            let attachments = [attach(&va, 0.0)];
+            let mut pass = encoder.begin_render_pass(&pass_desc("fluoro anatomy", &attachments));
+            if let Some(bufs) = &self.anatomy {
+                let (indices, count) = match &geo_list {
+                    Some(Some((b, c))) => (b, *c),
+                    Some(None) => (&bufs.indices, 0),
+                    None => (&bufs.indices, bufs.index_count),
+                };
+                if count > 0 {
+                    pass.set_pipeline(&self.anatomy_pipeline);
+                    pass.set_bind_group(0, &bind, &[]);
+                    pass.set_vertex_buffer(0, bufs.vertices.slice(..));
+                    pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
+                    pass.draw_indexed(0..count, 0, 0..1);
+                }
+            }
+        }
+        let needle = self.needle.as_ref()?;
+        if passes.needle {
+            let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("fluoro needle"),
+                layout: &self.needle_pipeline.get_bind_group_layout(0),
+                entries: &[wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: self.view_buf[ri].as_entire_binding(),
+                }],
+            });
+            let attachments = [attach(&vh, NO_NEEDLE), attach(&vc, 0.0)];
+            let mut pass = encoder.begin_render_pass(&pass_desc("fluoro needle", &attachments));
+            pass.set_pipeline(&self.needle_pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.set_vertex_buffer(0, needle.bufs.vertices.slice(..));
+            pass.set_index_buffer(needle.bufs.indices.slice(..), wgpu::IndexFormat::Uint32);
+            pass.draw_indexed(0..needle.bufs.index_count, 0, 0..1);
+        }
+        if passes.displaced {
+            let bind = anatomy_bind(&self.displaced_pipeline, true);
+            let attachments = [attach(&vd, 0.0)];
+            let mut pass = encoder.begin_render_pass(&pass_desc("fluoro displaced", &attachments));
+            if let (Some(bufs), Some([x, y, w, h])) = (&self.anatomy, rect) {
+                let (indices, count) = match &disp_list {
+                    Some(Some((b, c))) => (b, *c),
+                    Some(None) => (&bufs.indices, 0),
+                    None => (&bufs.indices, bufs.index_count),
+                };
+                if count > 0 {
+                    pass.set_pipeline(&self.displaced_pipeline);
+                    pass.set_bind_group(0, &bind, &[]);
+                    pass.set_scissor_rect(x, y, w, h);
+                    pass.set_vertex_buffer(0, bufs.vertices.slice(..));
+                    pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
+                    pass.draw_indexed(0..count, 0, 0..1);
+                }
+            }
+        }
+        rect
+    }
+
+    /// An index buffer of the anatomy triangles whose pixel bounding box, widened by one pixel,
+    /// meets the rectangle `r` (`x0, y0, x1, y1`, continuous full-image pixel coordinates),
+    /// in drawing order (so every pixel of `r` blends the same fragments in the same order as
+    /// with the whole list: the result is bit-identical). `None` if no triangle does. A
+    /// triangle with a vertex less than 1 mm in front of the source plane always qualifies.
+    /// The boxes are computed once per projection.
+    fn culled(&mut self, projection: &Projection, r: [f32; 4]) -> Option<(wgpu::Buffer, u32)> {
+        if self.anatomy_positions.is_empty() {
+            return None;
+        }
+        if self
+            .triangle_boxes
+            .as_ref()
+            .is_none_or(|(p, _)| p != projection)
+        {
+            let m = projection.projection_matrix();
+            let dot = |row: [f64; 4], v: [f32; 3]| {
+                row[0] * f64::from(v[0])
+                    + row[1] * f64::from(v[1])
+                    + row[2] * f64::from(v[2])
+                    + row[3]
+            };
+            let everywhere = [
+                f32::NEG_INFINITY,
+                f32::NEG_INFINITY,
+                f32::INFINITY,
+                f32::INFINITY,
+            ];
+            let boxes = self
+                .anatomy_positions
+                .chunks_exact(3)
+                .map(|t| {
+                    let mut b = [
+                        f32::INFINITY,
+                        f32::INFINITY,
+                        f32::NEG_INFINITY,
+                        f32::NEG_INFINITY,
+                    ];
+                    for &v in t {
+                        let w = dot(m[2], v);
+                        if w < 1.0 {
+                            return everywhere;
+                        }
+                        let (x, y) = ((dot(m[0], v) / w) as f32, (dot(m[1], v) / w) as f32);
+                        b = [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)];
+                    }
+                    b
+                })
+                .collect();
+            self.triangle_boxes = Some((*projection, boxes));
+        }
+        let boxes = &self.triangle_boxes.as_ref()?.1;
+        let mut indices: Vec<u32> = Vec::new();
+        for (t, b) in boxes.iter().enumerate() {
+            if b[2] >= r[0] - 1.0 && b[0] <= r[2] + 1.0 && b[3] >= r[1] - 1.0 && b[1] <= r[3] + 1.0
+            {
+                let k = 3 * t as u32;
+                indices.extend([k, k + 1, k + 2]);
+            }
+        }
+        (!indices.is_empty()).then(|| {
+            let buffer = self
+                .ctx
+                .device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("fluoro culled indices"),
+                    contents: bytemuck::cast_slice(&indices),
+                    usage: wgpu::BufferUsages::INDEX,
+                });
+            (buffer, indices.len() as u32)
+        })
     }
 
     /// Uploads the spectral bins and, for polychromatic models, the `ln T` table.
@@ -1023,11 +1299,22 @@ impl GpuFluoroRenderer {
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
             let full = Region::full(projection);
-            self.encode_lbuffer(&mut enc, projection, Layout::Chords(pass), pass == 0, full);
+            let passes = Passes {
+                needle: pass == 0,
+                ..Passes::ALL
+            };
+            self.encode_lbuffer(&mut enc, projection, Layout::Chords(pass), passes, full);
+            self.geo_key = Some((*projection, Layout::Chords(pass)));
             self.ctx.queue.submit([enc.finish()]);
             let t = self.targets[0].as_ref().expect("targets");
-            let (ta, tc) = (t.a.clone(), t.chord.clone());
-            let a = self.read_texture(&ta, 4)?;
+            let (ta, td, tc) = (t.a.clone(), t.d.clone(), t.chord.clone());
+            let mut a = self.read_texture(&ta, 4)?;
+            if self.needle.is_some() {
+                let d = self.read_texture(&td, 4)?;
+                for (x, y) in a.iter_mut().zip(d) {
+                    *x += y;
+                }
+            }
             if pass == 0 {
                 steel = if self.needle.is_some() {
                     self.read_texture(&tc, 1)?
@@ -1066,8 +1353,11 @@ impl GpuFluoroRenderer {
     }
 
     /// Transmission at every pixel centre (0 behind the collimator) for `energy`, with an
-    /// optional iodine field: needle pass, one L-buffer pass, one resolve pass, then a read-back
-    /// of `4 x pixels` bytes.
+    /// optional iodine field: geometric L-buffer pass, needle and displaced passes, one resolve
+    /// pass, then a read-back. With [`GpuFluoroRenderer::caching`], the geometric pass is kept
+    /// while the projection stays, and without iodine only the rows the needle covers now or
+    /// covered in the previous frame are resolved and read back (bit-identical to a frame from
+    /// scratch, see [`Resolved`]).
     pub fn render_transmission(
         &mut self,
         projection: &Projection,
@@ -1075,30 +1365,105 @@ impl GpuFluoroRenderer {
         iodine: Option<&IodineField>,
     ) -> Result<GpuTransmission, FluoroGpuError> {
         let model = SpectralModel::new(*energy)?;
-        let full = Region::full(projection);
-        let t = self.run_region(projection, &model, iodine, full)?;
+        self.timings = FrameTimings::default();
+        let t = self.run_full(projection, &model, iodine)?;
         Ok(GpuTransmission {
-            width: full.size[0],
-            height: full.size[1],
+            width: projection.detector_pixels[0],
+            height: projection.detector_pixels[1],
             transmission: t,
         })
     }
 
-    /// Needle pass, L-buffer and resolve over one region; returns its transmission samples.
+    /// The full-image transmission, from the caches where they apply.
+    fn run_full(
+        &mut self,
+        projection: &Projection,
+        model: &SpectralModel,
+        iodine: Option<&IodineField>,
+    ) -> Result<Vec<f32>, FluoroGpuError> {
+        let full = Region::full(projection);
+        self.ensure_targets(0, full.size);
+        let key = (*projection, Layout::Transmission);
+        let geometry = !(self.caching && self.geo_key == Some(key));
+        self.timings.geometry_reused = !geometry;
+        let previous = if !geometry && iodine.is_none() {
+            self.resolved
+                .take()
+                .filter(|r| r.projection == *projection && r.model == model.model)
+        } else {
+            None
+        };
+        self.resolved = None;
+        let passes = Passes {
+            geometry,
+            ..Passes::ALL
+        };
+        // Invalidated first: a failure below leaves no stale key behind.
+        self.geo_key = None;
+        let out = self.run_region(
+            projection,
+            model,
+            iodine,
+            full,
+            passes,
+            previous.as_ref().map(|p| p.needle_rect),
+        )?;
+        self.geo_key = Some(key);
+        let w = full.size[0] as usize;
+        let transmission = match previous {
+            Some(mut p) => {
+                let start = out.rows.start as usize * w;
+                p.transmission[start..start + out.data.len()].copy_from_slice(&out.data);
+                p.transmission
+            }
+            None => out.data,
+        };
+        if self.caching && iodine.is_none() {
+            self.resolved = Some(Resolved {
+                projection: *projection,
+                model: model.model,
+                needle_rect: out.needle_rect,
+                transmission: transmission.clone(),
+            });
+        }
+        Ok(transmission)
+    }
+
+    /// The passes of `passes`, then the resolve over one region, or (with `previous`, the
+    /// needle rectangle of the previous frame in the same targets) only over the union of that
+    /// rectangle and the needle's new one. Returns the resolved rows (whole rows of the region).
     fn run_region(
         &mut self,
         projection: &Projection,
         model: &SpectralModel,
         iodine: Option<&IodineField>,
         region: Region,
-    ) -> Result<Vec<f32>, FluoroGpuError> {
+        passes: Passes,
+        previous: Option<Option<[u32; 4]>>,
+    ) -> Result<RegionOut, FluoroGpuError> {
+        let started = Instant::now();
         let ri = region.index();
         let size = region.size;
         let mut enc = self
             .ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        self.encode_lbuffer(&mut enc, projection, Layout::Transmission, true, region);
+        let needle_rect =
+            self.encode_lbuffer(&mut enc, projection, Layout::Transmission, passes, region);
+        let rect = match previous {
+            None => [0, 0, size[0], size[1]],
+            Some(old) => match union_rect(old, needle_rect) {
+                Some(r) => r,
+                // No needle then or now: nothing to resolve.
+                None => {
+                    return Ok(RegionOut {
+                        rows: 0..0,
+                        data: Vec::new(),
+                        needle_rect,
+                    });
+                }
+            },
+        };
         self.ensure_spectral(model);
         let device = &self.ctx.device;
         let tables = self.spectral.as_ref().expect("spectral tables");
@@ -1173,6 +1538,7 @@ impl GpuFluoroRenderer {
                 u32::from(tables.lut_enabled),
                 0,
             ],
+            rect,
             mu: [
                 mu(FluoroMaterial::Tissue(MaterialClass::CorticalBone)),
                 mu(FluoroMaterial::Tissue(MaterialClass::Cancellous)),
@@ -1221,6 +1587,10 @@ impl GpuFluoroRenderer {
                     binding: 6,
                     resource: tables.lut.as_entire_binding(),
                 },
+                wgpu::BindGroupEntry {
+                    binding: 7,
+                    resource: wgpu::BindingResource::TextureView(&view_of(&t.d)),
+                },
             ],
         });
         {
@@ -1230,13 +1600,23 @@ impl GpuFluoroRenderer {
             });
             pass.set_pipeline(&self.resolve_pipeline);
             pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups(size[0].div_ceil(8), size[1].div_ceil(8), 1);
+            pass.dispatch_workgroups(rect[2].div_ceil(8), rect[3].div_ceil(8), 1);
         }
-        let bytes = u64::from(size[0]) * u64::from(size[1]) * 4;
-        enc.copy_buffer_to_buffer(&t.out_t, 0, &t.staging, 0, bytes);
+        let row_bytes = u64::from(size[0]) * 4;
+        let bytes = row_bytes * u64::from(rect[3]);
+        enc.copy_buffer_to_buffer(
+            &t.out_t,
+            row_bytes * u64::from(rect[1]),
+            &t.staging,
+            0,
+            bytes,
+        );
+        self.timings.resolved_samples += u64::from(rect[2]) * u64::from(rect[3]);
+        self.timings.encode_ms += started.elapsed().as_secs_f64() * 1e3;
+        let started = Instant::now();
         self.ctx.queue.submit([enc.finish()]);
         let (tx, rx) = std::sync::mpsc::channel();
-        t.staging.map_async(wgpu::MapMode::Read, .., move |r| {
+        t.staging.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
             // The receiver lives until recv() below returns, so a send error cannot happen.
             let _ = tx.send(r);
         });
@@ -1247,15 +1627,22 @@ impl GpuFluoroRenderer {
         rx.recv()
             .map_err(|e| fail(e.to_string()))?
             .map_err(|e| fail(e.to_string()))?;
-        let out = {
+        self.timings.gpu_ms += started.elapsed().as_secs_f64() * 1e3;
+        let started = Instant::now();
+        let data = {
             let view = t
                 .staging
-                .get_mapped_range(..)
+                .get_mapped_range(..bytes)
                 .map_err(|e| fail(e.to_string()))?;
             bytemuck::cast_slice::<u8, f32>(&view).to_vec()
         };
         t.staging.unmap();
-        Ok(out)
+        self.timings.readback_ms += started.elapsed().as_secs_f64() * 1e3;
+        Ok(RegionOut {
+            rows: rect[1]..rect[1] + rect[3],
+            data,
+            needle_rect,
+        })
     }
 
     /// Pixels within 1.5 pixels of a projected edge of the needle: the CPU reference's steel-edge
@@ -1265,7 +1652,10 @@ impl GpuFluoroRenderer {
         let [w, h] = projection.detector_pixels.map(|x| x as usize);
         let mut flag = vec![false; w * h];
         if let Some(needle) = &self.needle {
-            let triangles = needle.vertices_mm.chunks_exact(3).map(|t| [t[0], t[1], t[2]]);
+            let triangles = needle
+                .vertices_mm
+                .chunks_exact(3)
+                .map(|t| [t[0], t[1], t[2]]);
             sim_core::fluoro::render::mark_projected_edges(projection, triangles, &mut flag, w, h);
         }
         flag
@@ -1276,7 +1666,9 @@ impl GpuFluoroRenderer {
     /// [`GpuFluoroRenderer::needle_edge_pixels`]. The samples come from a second needle,
     /// L-buffer and resolve pass over the flagged pixels' bounding box at `n` times the
     /// resolution. Unlike the CPU, anatomy silhouettes are not supersampled and
-    /// `settings.adaptive = false` supersamples only near the needle too.
+    /// `settings.adaptive = false` supersamples only near the needle too. With
+    /// [`GpuFluoroRenderer::caching`] and no iodine, a call with the same projection, energy,
+    /// supersampling and needle as the previous one returns its result without GPU work.
     pub fn render_transmission_supersampled(
         &mut self,
         projection: &Projection,
@@ -1284,8 +1676,26 @@ impl GpuFluoroRenderer {
         iodine: Option<&IodineField>,
     ) -> Result<GpuTransmission, FluoroGpuError> {
         let model = SpectralModel::new(settings.energy)?;
+        self.timings = FrameTimings::default();
+        let key = FrameKey {
+            projection: *projection,
+            energy: settings.energy,
+            supersample: settings.supersample,
+            needle_generation: self.needle_generation,
+        };
+        if self.caching && iodine.is_none() {
+            if let Some((k, t)) = &self.last_frame {
+                if *k == key {
+                    self.timings.frame_reused = true;
+                    self.timings.geometry_reused = true;
+                    return Ok(t.clone());
+                }
+            }
+        }
+        self.last_frame = None;
         let full = Region::full(projection);
-        let mut t = self.run_region(projection, &model, iodine, full)?;
+        let mut t = self.run_full(projection, &model, iodine)?;
+        let started = Instant::now();
         let w = full.size[0] as usize;
         let flags = self.needle_edge_pixels(projection);
         let (mut lo, mut hi) = ([usize::MAX; 2], [0usize; 2]);
@@ -1304,7 +1714,11 @@ impl GpuFluoroRenderer {
                 n: n as u32,
                 size: [(bw * n) as u32, (bh * n) as u32],
             };
-            let sub = self.run_region(projection, &model, iodine, region)?;
+            self.timings.supersample_ms += started.elapsed().as_secs_f64() * 1e3;
+            let sub = self
+                .run_region(projection, &model, iodine, region, Passes::ALL, None)?
+                .data;
+            let started = Instant::now();
             let sw = bw * n;
             for j in lo[1]..=hi[1] {
                 for i in lo[0]..=hi[0] {
@@ -1319,12 +1733,19 @@ impl GpuFluoroRenderer {
                     t[j * w + i] = (acc / (n * n) as f64) as f32;
                 }
             }
+            self.timings.supersample_ms += started.elapsed().as_secs_f64() * 1e3;
+        } else {
+            self.timings.supersample_ms += started.elapsed().as_secs_f64() * 1e3;
         }
-        Ok(GpuTransmission {
+        let out = GpuTransmission {
             width: full.size[0],
             height: full.size[1],
             transmission: t,
-        })
+        };
+        if self.caching && iodine.is_none() {
+            self.last_frame = Some((key, out.clone()));
+        }
+        Ok(out)
     }
 
     /// The displayed 8-bit frame: [`GpuFluoroRenderer::render_transmission_supersampled`], then
@@ -1337,11 +1758,55 @@ impl GpuFluoroRenderer {
         iodine: Option<&IodineField>,
     ) -> Result<Image, FluoroGpuError> {
         let g = self.render_transmission_supersampled(projection, settings, iodine)?;
-        Ok(sim_core::fluoro::render::finish_frame(
-            to_transmission_image(projection, &g),
-            settings,
-        ))
+        let started = Instant::now();
+        let exposed = match &self.exposed {
+            Some((p, mask)) if p == projection => mask.clone(),
+            _ => {
+                let mask = exposed_mask(projection);
+                self.exposed = Some((*projection, mask.clone()));
+                mask
+            }
+        };
+        let image = TransmissionImage {
+            width: g.width,
+            height: g.height,
+            transmission: g.transmission.iter().map(|&x| f64::from(x)).collect(),
+            exposed,
+            supersampled_pixels: 0,
+        };
+        let frame = sim_core::fluoro::render::finish_frame(image, settings);
+        self.timings.finish_ms = started.elapsed().as_secs_f64() * 1e3;
+        Ok(frame)
     }
+}
+
+/// Resolved rows of one region.
+struct RegionOut {
+    rows: std::ops::Range<u32>,
+    data: Vec<f32>,
+    needle_rect: Option<[u32; 4]>,
+}
+
+/// Smallest rectangle `[x, y, w, h]` holding both (`None` if both are).
+fn union_rect(a: Option<[u32; 4]>, b: Option<[u32; 4]>) -> Option<[u32; 4]> {
+    match (a, b) {
+        (None, r) | (r, None) => r,
+        (Some(a), Some(b)) => {
+            let (x0, y0) = (a[0].min(b[0]), a[1].min(b[1]));
+            let x1 = (a[0] + a[2]).max(b[0] + b[2]);
+            let y1 = (a[1] + a[3]).max(b[1] + b[3]);
+            Some([x0, y0, x1 - x0, y1 - y0])
+        }
+    }
+}
+
+/// Which pixels the collimator exposes (decided at pixel centres, as the CPU).
+fn exposed_mask(projection: &Projection) -> Vec<bool> {
+    let w = projection.detector_pixels[0] as usize;
+    let n = w * projection.detector_pixels[1] as usize;
+    (0..n)
+        .map(|p| projection.is_exposed([(p % w) as f64 + 0.5, (p / w) as f64 + 0.5]))
+        .collect()
 }
 
 /// Converts a GPU transmission into sim-core's [`TransmissionImage`] (exposure from the

@@ -29,6 +29,8 @@ struct Params {
     // Whole detector (columns, rows, needle present, 0).
     full: vec4<u32>,
     lut_dims: vec4<u32>,
+    // Resolved rectangle of samples: (first column, first row, columns, rows).
+    rect: vec4<u32>,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -41,6 +43,8 @@ struct Params {
 @group(0) @binding(5) var<storage, read_write> out_t: array<f32>;
 // ln T on a grid of (A_water, A_bone), row-major with A_water fastest.
 @group(0) @binding(6) var<storage, read> lut: array<f32>;
+// Displaced part of the L-buffer (zero outside the needle's pixel box), added to `lbuf`.
+@group(0) @binding(7) var dbuf: texture_2d<f32>;
 
 fn voxel(c: vec3<i32>) -> f32 {
     return textureLoad(iodine, c, 0).x;
@@ -103,13 +107,13 @@ fn iodine_column(dir: vec3<f32>, t_max: f32) -> f32 {
 }
 
 @compute @workgroup_size(8, 8)
-fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
+fn resolve(@builtin(global_invocation_id) gid: vec3<u32>) {
     let w = params.dims.x;
-    let h = params.dims.y;
-    if (id.x >= w || id.y >= h) {
+    if (gid.x >= params.rect.z || gid.y >= params.rect.w) {
         return;
     }
-    let p = vec2<i32>(id.xy);
+    let id = gid.xy + params.rect.xy;
+    let p = vec2<i32>(id);
     let idx = id.y * w + id.x;
     // Continuous pixel coordinates of this sample; collimation is decided at its pixel's centre
     // (detector-plane mm from the centre, x right, y down), as on the CPU.
@@ -123,10 +127,11 @@ fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
         out_t[idx] = 0.0;
         return;
     }
-    let a = textureLoad(lbuf, p, 0);
+    var a = textureLoad(lbuf, p, 0);
     var steel = 0.0;
     if (params.full.z != 0u) {
         steel = max(textureLoad(needle_chord, p, 0).x, 0.0);
+        a += textureLoad(dbuf, p, 0);
     }
     // Cancellous clamp on the pixel's bone total (see the module doc); the excess becomes cortex.
     let total = max(a.z + a.w, 0.0);
