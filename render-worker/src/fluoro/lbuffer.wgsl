@@ -35,19 +35,25 @@ const NO_NEEDLE: f32 = 1.0e30;
 
 struct VOut {
     @builtin(position) clip: vec4<f32>,
-    // Vertex minus source, mm (perspective-correct: at a fragment it is the point of the
-    // triangle on the pixel's ray).
-    @location(0) rel: vec3<f32>,
-    // The mesh's weights and reference depth, constant over the triangle.
+    // xyz: vertex minus source, mm (perspective-correct: at a fragment it is the point of the
+    // triangle on the pixel's ray); w: the mesh's reference depth (constant over a triangle).
+    @location(0) rel: vec4<f32>,
+    // The mesh's geometric and displaced weights, constant over the triangle.
     @location(1) @interpolate(flat) g: vec4<f32>,
     @location(2) @interpolate(flat) d: vec4<f32>,
-    @location(3) @interpolate(flat) tref: f32,
-    // The triangle's outward unit normal and its plane's distance from the source.
-    @location(4) @interpolate(flat) n: vec3<f32>,
-    @location(5) @interpolate(flat) h: f32,
+    // The triangle's outward unit normal (xyz) and its plane's distance from the source (w).
+    @location(3) @interpolate(flat) n: vec4<f32>,
 }
 
-fn project(pos: vec3<f32>, n: vec3<f32>) -> VOut {
+// The same without the displaced weights (fewer values to set up per triangle).
+struct GOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) rel: vec4<f32>,
+    @location(1) @interpolate(flat) g: vec4<f32>,
+    @location(3) @interpolate(flat) n: vec4<f32>,
+}
+
+fn project(pos: vec3<f32>, n: vec3<f32>, tref: f32) -> VOut {
     let rel = pos - view.source.xyz;
     let px_w = dot(view.row_x.xyz, rel);
     let py_w = dot(view.row_y.xyz, rel);
@@ -55,9 +61,8 @@ fn project(pos: vec3<f32>, n: vec3<f32>) -> VOut {
     var o: VOut;
     // Continuous pixel coordinates [0, W] x [0, H] (y down) to clip space (y up).
     o.clip = vec4<f32>(2.0 * px_w / view.size.x - w, w - 2.0 * py_w / view.size.y, 0.5 * w, w);
-    o.rel = rel;
-    o.n = n;
-    o.h = dot(n, rel);
+    o.rel = vec4<f32>(rel, tref);
+    o.n = vec4<f32>(n, dot(n, rel));
     return o;
 }
 
@@ -71,47 +76,56 @@ struct Crossing {
 // lose precision on long, thin triangles seen edge-on (a needle's sides); the plane does not.
 // Degenerate triangles (zero normal) fall back to the interpolated point and the rasteriser's
 // facing.
-fn crossing(v: VOut, front: bool) -> Crossing {
-    let px = view.region.x + v.clip.x * view.region.z;
-    let py = view.region.y + v.clip.y * view.region.z;
+fn crossing(clip: vec4<f32>, rel: vec3<f32>, n: vec4<f32>, front: bool) -> Crossing {
+    let px = view.region.x + clip.x * view.region.z;
+    let py = view.region.y + clip.y * view.region.z;
     let d = view.p00.xyz + (px - 0.5) * view.step_u.xyz + (py - 0.5) * view.step_v.xyz;
     let len = length(d);
-    let dn = dot(v.n, d);
+    let dn = dot(n.xyz, d);
     var c: Crossing;
     if (abs(dn) > 1e-4 * len) {
-        c.t = v.h * len / dn;
+        c.t = n.w * len / dn;
         c.entering = dn < 0.0;
     } else {
-        c.t = length(v.rel);
+        c.t = length(rel);
         c.entering = front;
     }
     return c;
 }
 
 @vertex
+fn vs_geometry(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2) n: vec3<f32>) -> GOut {
+    let v = project(pos, n, weights[3u * mesh + 2u].x);
+    var o: GOut;
+    o.clip = v.clip;
+    o.rel = v.rel;
+    o.g = weights[3u * mesh];
+    o.n = v.n;
+    return o;
+}
+
+@vertex
 fn vs_anatomy(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2) n: vec3<f32>) -> VOut {
-    var o = project(pos, n);
+    var o = project(pos, n, weights[3u * mesh + 2u].x);
     o.g = weights[3u * mesh];
     o.d = weights[3u * mesh + 1u];
-    o.tref = weights[3u * mesh + 2u].x;
     return o;
 }
 
 @vertex
 fn vs_needle(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2) n: vec3<f32>) -> VOut {
-    var o = project(pos, n);
+    var o = project(pos, n, view.size.z);
     o.g = vec4<f32>(0.0);
     o.d = vec4<f32>(0.0);
-    o.tref = view.size.z;
     return o;
 }
 
 // Geometric pass: the mesh's signed distances times its geometric weights.
 @fragment
-fn fs_anatomy(v: VOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    let c = crossing(v, front);
+fn fs_anatomy(v: GOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
+    let c = crossing(v.clip, v.rel.xyz, v.n, front);
     let s = select(1.0, -1.0, c.entering);
-    return v.g * (s * (c.t - v.tref));
+    return v.g * (s * (c.t - v.rel.w));
 }
 
 // Displaced pass (scissored to the needle's pixel box): the signed part of this crossing inside
@@ -119,7 +133,7 @@ fn fs_anatomy(v: VOut, @builtin(front_facing) front: bool) -> @location(0) vec4<
 // length of the mesh's interior the needle occupies along this ray.
 @fragment
 fn fs_displaced(v: VOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    let c = crossing(v, front);
+    let c = crossing(v.clip, v.rel.xyz, v.n, front);
     let s = select(1.0, -1.0, c.entering);
     let hull = textureLoad(needle_hull, vec2<i32>(v.clip.xy), 0).xy;
     let t0 = hull.x;
@@ -137,10 +151,10 @@ struct NeedleOut {
 
 @fragment
 fn fs_needle(v: VOut, @builtin(front_facing) front: bool) -> NeedleOut {
-    let c = crossing(v, front);
+    let c = crossing(v.clip, v.rel.xyz, v.n, front);
     let t = c.t;
     var o: NeedleOut;
     o.hull = select(vec2<f32>(NO_NEEDLE, -t), vec2<f32>(t, NO_NEEDLE), c.entering);
-    o.chord = select(1.0, -1.0, c.entering) * (t - v.tref);
+    o.chord = select(1.0, -1.0, c.entering) * (t - v.rel.w);
     return o;
 }

@@ -4,25 +4,40 @@
 //! `render-worker/tests/fluoro.rs` compare the two pixel by pixel.
 //!
 //! # Passes per frame
-//! 1. **Needle** (only when one is set): its triangles are drawn without depth test into a
+//! 1. **Anatomy L-buffer, geometric part**: every anatomy triangle is drawn without depth test
+//!    or culling into one `Rgba32Float` target with additive blending. A fragment at distance `t`
+//!    from the source along the pixel-centre ray adds `s (t - t_ref)` times the mesh's
+//!    *geometric* weights, with `s = -1` entering (front face) and `+1` leaving; summed over a
+//!    closed mesh it is the mesh's chord. `t_ref` (the distance from the source to the mesh's box
+//!    centre) cancels in each entering/leaving pair and keeps the summed terms small, so f32
+//!    cancellation stays near `ulp(mesh size)` instead of `ulp(source distance)`. The four
+//!    channels of a frame are the water-basis and bone-basis `sum mu_60 L`, and the cortical and
+//!    cancellous geometric chords (for the clamp). It does not depend on the needle.
+//! 2. **Needle** (only when one is set): its triangles are drawn without depth test into a
 //!    `Rg32Float` target with `Min` blending, holding the nearest entering and the farthest leaving
 //!    distance (the needle's hull interval `[t0, t1]` on the pixel's ray), and into an `R32Float`
 //!    target with additive blending, holding its exact chord (sum of leaving minus entering
 //!    distances).
-//! 2. **Anatomy L-buffer**: every anatomy triangle is drawn without depth test or culling into one
-//!    `Rgba32Float` target with additive blending. A fragment at distance `t` from the source
-//!    along the pixel-centre ray adds `s (t - t_ref)` times the mesh's *geometric* weights and
-//!    `s (clamp(t, t0, t1) - t0)` times its *displaced* weights (the latter only inside the
-//!    needle's projected pixel box), with `s = -1` entering (front face) and `+1` leaving. Summed
-//!    over a closed mesh the first is its chord, the second the part of the chord the needle
-//!    occupies. `t_ref` (the distance from the source to the mesh's box centre) cancels in each
-//!    entering/leaving pair and keeps the summed terms small, so f32 cancellation stays near
-//!    `ulp(mesh size)` instead of `ulp(source distance)`. The four channels of a frame are the
-//!    water-basis and bone-basis `sum mu_60 L` net of the needle, and the cortical and cancellous
-//!    geometric chords (for the clamp).
-//! 3. **Resolve** (compute): cancellous clamp, optical depths, iodine ray march and
-//!    `T = sum_E w_E exp(-sum_b A_b R_b(E))`; on rays without steel or iodine, `ln T` comes from
-//!    a table over (water depth, bone depth) instead (see `ensure_spectral`: < 2e-5 in `ln T`).
+//! 3. **Anatomy L-buffer, displaced part** (only with a needle): the anatomy again, scissored to
+//!    the needle's projected pixel box, into a second `Rgba32Float` target (cleared to zero): a
+//!    fragment adds `s (clamp(t, t0, t1) - t0)` times the mesh's *displaced* weights, summing to
+//!    the part of each chord the needle occupies (negative weights: the channels end up net of
+//!    the needle). Only the triangles whose pixel bounding box meets the scissor box are drawn
+//!    (see `culled`).
+//! 4. **Resolve** (compute): adds the two L-buffer parts, then cancellous clamp, optical depths,
+//!    iodine ray march and `T = sum_E w_E exp(-sum_b A_b R_b(E))`; on rays without steel or
+//!    iodine, `ln T` comes from a table over (water depth, bone depth) instead (see
+//!    `ensure_spectral`: < 2e-5 in `ln T`).
+//!
+//! # Caches (sessions: the needle moves far more often than the C-arm)
+//! With [`GpuFluoroRenderer::caching`] (the default) the renderer keeps, between frames, the
+//! geometric L-buffer of the last projection (pass 1 is skipped while the C-arm stays), the last
+//! full-image transmission without iodine (only the union of the needle's old and new pixel
+//! boxes is resolved and read back: outside it every input of the resolve is unchanged), and the
+//! last displayed transmission (a shot with nothing changed costs only the CPU's noise and
+//! display). Each cached frame is bit-identical to a frame from scratch, and so is culling
+//! (tests in `render-worker/tests/fluoro_cache.rs`). [`GpuFluoroRenderer::last_timings`] gives
+//! the phases of the last frame.
 //!
 //! [`GpuFluoroRenderer::render_chords`] (validation) uses the same passes with per-material
 //! channels, four L-buffer passes, resolved on the CPU.
@@ -666,7 +681,7 @@ impl GpuFluoroRenderer {
         );
         let anatomy_pipeline = raster(
             "fluoro anatomy",
-            "vs_anatomy",
+            "vs_geometry",
             "fs_anatomy",
             &[target(FMT_A, additive())],
         );
