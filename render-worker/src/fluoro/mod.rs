@@ -221,6 +221,18 @@ struct MeshBuffers {
     index_count: u32,
 }
 
+/// Triangles per culling chunk. Simulator choice: 32 keeps the per-projection box work at
+/// 8 corners per 32 triangles while a needle box still draws only nearby chunks.
+const CHUNK_TRIANGLES: usize = 32;
+
+/// A run of consecutive anatomy triangles (in drawing order) and its bounding box, mm.
+struct Chunk {
+    first_vertex: u32,
+    vertices: u32,
+    lo: [f32; 3],
+    hi: [f32; 3],
+}
+
 /// Render targets of one detector size.
 struct Targets {
     size: [u32; 2],
@@ -293,10 +305,11 @@ pub struct GpuFluoroRenderer {
     ctx: GpuContext,
     meshes: Vec<DrawnMesh>,
     anatomy: Option<MeshBuffers>,
-    /// Anatomy vertex positions as uploaded (three per triangle), for culling on the CPU.
-    anatomy_positions: Vec<[f32; 3]>,
-    /// Each anatomy triangle's pixel bounding box under one projection (see `culled`).
-    triangle_boxes: Option<(Projection, Vec<[f32; 4]>)>,
+    /// Runs of [`CHUNK_TRIANGLES`] consecutive anatomy triangles with their bounding boxes, for
+    /// culling on the CPU.
+    chunks: Vec<Chunk>,
+    /// Each chunk's pixel bounding box under one projection (see `culled`).
+    chunk_boxes: Option<(Projection, Vec<[f32; 4]>)>,
     needle: Option<Needle>,
     needle_pipeline: wgpu::RenderPipeline,
     anatomy_pipeline: wgpu::RenderPipeline,
@@ -624,7 +637,25 @@ impl GpuFluoroRenderer {
             vertices.extend(tris.iter().flat_map(|t| triangle_vertices(t, id)));
         }
         let anatomy_bufs = (!vertices.is_empty()).then(|| upload(device, &vertices));
-        let anatomy_positions: Vec<[f32; 3]> = vertices.iter().map(|v| v.pos).collect();
+        let chunks = vertices
+            .chunks(3 * CHUNK_TRIANGLES)
+            .enumerate()
+            .map(|(k, vs)| {
+                let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+                for v in vs {
+                    for a in 0..3 {
+                        lo[a] = lo[a].min(v.pos[a]);
+                        hi[a] = hi[a].max(v.pos[a]);
+                    }
+                }
+                Chunk {
+                    first_vertex: (k * 3 * CHUNK_TRIANGLES) as u32,
+                    vertices: vs.len() as u32,
+                    lo,
+                    hi,
+                }
+            })
+            .collect();
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("fluoro lbuffer"),
             source: wgpu::ShaderSource::Wgsl(include_str!("lbuffer.wgsl").into()),
@@ -721,8 +752,8 @@ impl GpuFluoroRenderer {
             ctx: ctx.clone(),
             meshes,
             anatomy: anatomy_bufs,
-            anatomy_positions,
-            triangle_boxes: None,
+            chunks,
+            chunk_boxes: None,
             needle: None,
             needle_pipeline,
             anatomy_pipeline,
@@ -1118,28 +1149,23 @@ impl GpuFluoroRenderer {
         rect
     }
 
-    /// An index buffer of the anatomy triangles whose pixel bounding box, widened by one pixel,
-    /// meets the rectangle `r` (`x0, y0, x1, y1`, continuous full-image pixel coordinates),
-    /// in drawing order (so every pixel of `r` blends the same fragments in the same order as
-    /// with the whole list: the result is bit-identical). `None` if no triangle does. A
-    /// triangle with a vertex less than 1 mm in front of the source plane always qualifies.
-    /// The boxes are computed once per projection.
+    /// An index buffer of the anatomy triangles of every chunk whose pixel bounding box,
+    /// widened by one pixel, meets the rectangle `r` (`x0, y0, x1, y1`, continuous full-image
+    /// pixel coordinates), in drawing order: every pixel of `r` then blends the same fragments
+    /// in the same order as with the whole list, so the result is bit-identical. `None` if no
+    /// chunk does. A chunk's pixel box is the box of its eight projected 3-D box corners (the
+    /// image of a box in front of the source is the hull of its corners); a chunk with a corner
+    /// less than 1 mm in front of the source plane always qualifies. The boxes are computed once
+    /// per projection (eight points per chunk instead of three per triangle).
     fn culled(&mut self, projection: &Projection, r: [f32; 4]) -> Option<(wgpu::Buffer, u32)> {
-        if self.anatomy_positions.is_empty() {
-            return None;
-        }
         if self
-            .triangle_boxes
+            .chunk_boxes
             .as_ref()
             .is_none_or(|(p, _)| p != projection)
         {
             let m = projection.projection_matrix();
-            let dot = |row: [f64; 4], v: [f32; 3]| {
-                row[0] * f64::from(v[0])
-                    + row[1] * f64::from(v[1])
-                    + row[2] * f64::from(v[2])
-                    + row[3]
-            };
+            let dot =
+                |row: [f64; 4], v: [f64; 3]| row[0] * v[0] + row[1] * v[1] + row[2] * v[2] + row[3];
             let everywhere = [
                 f32::NEG_INFINITY,
                 f32::NEG_INFINITY,
@@ -1147,16 +1173,23 @@ impl GpuFluoroRenderer {
                 f32::INFINITY,
             ];
             let boxes = self
-                .anatomy_positions
-                .chunks_exact(3)
-                .map(|t| {
+                .chunks
+                .iter()
+                .map(|c| {
                     let mut b = [
                         f32::INFINITY,
                         f32::INFINITY,
                         f32::NEG_INFINITY,
                         f32::NEG_INFINITY,
                     ];
-                    for &v in t {
+                    for corner in 0..8 {
+                        let v: [f64; 3] = std::array::from_fn(|a| {
+                            f64::from(if corner & (1 << a) == 0 {
+                                c.lo[a]
+                            } else {
+                                c.hi[a]
+                            })
+                        });
                         let w = dot(m[2], v);
                         if w < 1.0 {
                             return everywhere;
@@ -1167,15 +1200,14 @@ impl GpuFluoroRenderer {
                     b
                 })
                 .collect();
-            self.triangle_boxes = Some((*projection, boxes));
+            self.chunk_boxes = Some((*projection, boxes));
         }
-        let boxes = &self.triangle_boxes.as_ref()?.1;
+        let boxes = &self.chunk_boxes.as_ref()?.1;
         let mut indices: Vec<u32> = Vec::new();
-        for (t, b) in boxes.iter().enumerate() {
+        for (c, b) in self.chunks.iter().zip(boxes) {
             if b[2] >= r[0] - 1.0 && b[0] <= r[2] + 1.0 && b[3] >= r[1] - 1.0 && b[1] <= r[3] + 1.0
             {
-                let k = 3 * t as u32;
-                indices.extend([k, k + 1, k + 2]);
+                indices.extend(c.first_vertex..c.first_vertex + c.vertices);
             }
         }
         (!indices.is_empty()).then(|| {
