@@ -1413,7 +1413,10 @@ impl GpuFluoroRenderer {
     ) -> Result<GpuTransmission, FluoroGpuError> {
         let model = SpectralModel::new(*energy)?;
         self.timings = FrameTimings::default();
-        let t = self.run_full(projection, &model, iodine)?;
+        let mut enc = self.encoder();
+        let full = self.begin_full(&mut enc, projection, &model, iodine);
+        let mut outs = self.submit_and_read(enc, std::slice::from_ref(&full.pending))?;
+        let t = self.end_full(full, outs.remove(0), iodine);
         Ok(GpuTransmission {
             width: projection.detector_pixels[0],
             height: projection.detector_pixels[1],
@@ -1421,13 +1424,21 @@ impl GpuFluoroRenderer {
         })
     }
 
-    /// The full-image transmission, from the caches where they apply.
-    fn run_full(
+    fn encoder(&self) -> wgpu::CommandEncoder {
+        self.ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None })
+    }
+
+    /// Records the full image's passes and resolve into `enc`, from the caches where they
+    /// apply; [`GpuFluoroRenderer::end_full`] completes it after the read-back.
+    fn begin_full(
         &mut self,
+        enc: &mut wgpu::CommandEncoder,
         projection: &Projection,
         model: &SpectralModel,
         iodine: Option<&IodineField>,
-    ) -> Result<Vec<f32>, FluoroGpuError> {
+    ) -> FullFrame {
         let full = Region::full(projection);
         self.ensure_targets(0, full.size);
         let key = (*projection, Layout::Transmission);
@@ -1445,18 +1456,42 @@ impl GpuFluoroRenderer {
             geometry,
             ..Passes::ALL
         };
-        // Invalidated first: a failure below leaves no stale key behind.
+        // Invalidated until the frame is read back: a failure leaves no stale key behind.
         self.geo_key = None;
-        let out = self.run_region(
+        let pending = self.encode_region(
+            enc,
             projection,
             model,
             iodine,
             full,
             passes,
             previous.as_ref().map(|p| p.needle_rect),
-        )?;
+        );
+        FullFrame {
+            pending,
+            key,
+            model: model.model,
+            previous,
+            width: full.size[0] as usize,
+        }
+    }
+
+    /// The full-image transmission from its read-back `out`, kept for the next frame.
+    fn end_full(
+        &mut self,
+        frame: FullFrame,
+        out: RegionOut,
+        iodine: Option<&IodineField>,
+    ) -> Vec<f32> {
+        let FullFrame {
+            key,
+            model,
+            previous,
+            width: w,
+            ..
+        } = frame;
+        let projection = &key.0;
         self.geo_key = Some(key);
-        let w = full.size[0] as usize;
         let transmission = match previous {
             Some(mut p) => {
                 let start = out.rows.start as usize * w;
@@ -1468,46 +1503,46 @@ impl GpuFluoroRenderer {
         if self.caching && iodine.is_none() {
             self.resolved = Some(Resolved {
                 projection: *projection,
-                model: model.model,
+                model,
                 needle_rect: out.needle_rect,
                 transmission: transmission.clone(),
             });
         }
-        Ok(transmission)
+        transmission
     }
 
-    /// The passes of `passes`, then the resolve over one region, or (with `previous`, the
-    /// needle rectangle of the previous frame in the same targets) only over the union of that
-    /// rectangle and the needle's new one. Returns the resolved rows (whole rows of the region).
-    fn run_region(
+    /// Records the passes of `passes`, then the resolve over one region, or (with `previous`,
+    /// the needle rectangle of the previous frame in the same targets) only over the union of
+    /// that rectangle and the needle's new one, and the copy of the resolved rows (whole rows
+    /// of the region) to the region's read-back buffer.
+    #[expect(clippy::too_many_arguments, reason = "one private recording step")]
+    fn encode_region(
         &mut self,
+        enc: &mut wgpu::CommandEncoder,
         projection: &Projection,
         model: &SpectralModel,
         iodine: Option<&IodineField>,
         region: Region,
         passes: Passes,
         previous: Option<Option<[u32; 4]>>,
-    ) -> Result<RegionOut, FluoroGpuError> {
+    ) -> Pending {
         let started = Instant::now();
         let ri = region.index();
         let size = region.size;
-        let mut enc = self
-            .ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
         let needle_rect =
-            self.encode_lbuffer(&mut enc, projection, Layout::Transmission, passes, region);
+            self.encode_lbuffer(enc, projection, Layout::Transmission, passes, region);
         let rect = match previous {
             None => [0, 0, size[0], size[1]],
             Some(old) => match union_rect(old, needle_rect) {
                 Some(r) => r,
                 // No needle then or now: nothing to resolve.
                 None => {
-                    return Ok(RegionOut {
+                    return Pending {
+                        ri,
                         rows: 0..0,
-                        data: Vec::new(),
+                        bytes: 0,
                         needle_rect,
-                    });
+                    };
                 }
             },
         };
@@ -1660,36 +1695,69 @@ impl GpuFluoroRenderer {
         );
         self.timings.resolved_samples += u64::from(rect[2]) * u64::from(rect[3]);
         self.timings.encode_ms += started.elapsed().as_secs_f64() * 1e3;
+        Pending {
+            ri,
+            rows: rect[1]..rect[1] + rect[3],
+            bytes,
+            needle_rect,
+        }
+    }
+
+    /// Submits `enc` once, waits, and reads back every pending region.
+    fn submit_and_read(
+        &mut self,
+        enc: wgpu::CommandEncoder,
+        pending: &[Pending],
+    ) -> Result<Vec<RegionOut>, FluoroGpuError> {
         let started = Instant::now();
         self.ctx.queue.submit([enc.finish()]);
-        let (tx, rx) = std::sync::mpsc::channel();
-        t.staging.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
-            // The receiver lives until recv() below returns, so a send error cannot happen.
-            let _ = tx.send(r);
-        });
         let fail = |e: String| FluoroGpuError::Gpu(GpuError::Readback(e));
-        device
+        let mut receivers = Vec::new();
+        for p in pending.iter().filter(|p| p.bytes > 0) {
+            let (tx, rx) = std::sync::mpsc::channel();
+            let t = self.targets[p.ri].as_ref().expect("targets");
+            t.staging
+                .map_async(wgpu::MapMode::Read, ..p.bytes, move |r| {
+                    // The receiver lives until recv() below returns, so a send error cannot happen.
+                    let _ = tx.send(r);
+                });
+            receivers.push(rx);
+        }
+        self.ctx
+            .device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| fail(e.to_string()))?;
-        rx.recv()
-            .map_err(|e| fail(e.to_string()))?
-            .map_err(|e| fail(e.to_string()))?;
+        for rx in receivers {
+            rx.recv()
+                .map_err(|e| fail(e.to_string()))?
+                .map_err(|e| fail(e.to_string()))?;
+        }
         self.timings.gpu_ms += started.elapsed().as_secs_f64() * 1e3;
         let started = Instant::now();
-        let data = {
-            let view = t
-                .staging
-                .get_mapped_range(..bytes)
-                .map_err(|e| fail(e.to_string()))?;
-            bytemuck::cast_slice::<u8, f32>(&view).to_vec()
-        };
-        t.staging.unmap();
+        let mut outs = Vec::with_capacity(pending.len());
+        for p in pending {
+            let data = if p.bytes > 0 {
+                let t = self.targets[p.ri].as_ref().expect("targets");
+                let data = {
+                    let view = t
+                        .staging
+                        .get_mapped_range(..p.bytes)
+                        .map_err(|e| fail(e.to_string()))?;
+                    bytemuck::cast_slice::<u8, f32>(&view).to_vec()
+                };
+                t.staging.unmap();
+                data
+            } else {
+                Vec::new()
+            };
+            outs.push(RegionOut {
+                rows: p.rows.clone(),
+                data,
+                needle_rect: p.needle_rect,
+            });
+        }
         self.timings.readback_ms += started.elapsed().as_secs_f64() * 1e3;
-        Ok(RegionOut {
-            rows: rect[1]..rect[1] + rect[3],
-            data,
-            needle_rect,
-        })
+        Ok(outs)
     }
 
     /// Pixels within 1.5 pixels of a projected edge of the needle: the CPU reference's steel-edge
@@ -1741,7 +1809,6 @@ impl GpuFluoroRenderer {
         }
         self.last_frame = None;
         let full = Region::full(projection);
-        let mut t = self.run_full(projection, &model, iodine)?;
         let started = Instant::now();
         let w = full.size[0] as usize;
         let flags = self.needle_edge_pixels(projection);
@@ -1752,21 +1819,40 @@ impl GpuFluoroRenderer {
             hi = [hi[0].max(i), hi[1].max(j)];
         }
         let n = settings.supersample.max(1) as usize;
-        if n > 1 && lo[0] != usize::MAX {
+        let sub = (n > 1 && lo[0] != usize::MAX).then(|| {
             let (bw, bh) = (hi[0] - lo[0] + 1, hi[1] - lo[1] + 1);
             let max_dim = self.ctx.limits.max_texture_dimension_2d as usize;
             let n = n.min(max_dim / bw.max(bh)).max(1);
-            let region = Region {
+            Region {
                 origin: [lo[0] as u32, lo[1] as u32],
                 n: n as u32,
                 size: [(bw * n) as u32, (bh * n) as u32],
-            };
-            self.timings.supersample_ms += started.elapsed().as_secs_f64() * 1e3;
-            let sub = self
-                .run_region(projection, &model, iodine, region, Passes::ALL, None)?
-                .data;
+            }
+        });
+        self.timings.supersample_ms += started.elapsed().as_secs_f64() * 1e3;
+        // The full image and the supersampled region in one submission and one wait.
+        let mut enc = self.encoder();
+        let frame = self.begin_full(&mut enc, projection, &model, iodine);
+        let mut pending = vec![frame.pending.clone()];
+        if let Some(region) = sub {
+            pending.push(self.encode_region(
+                &mut enc,
+                projection,
+                &model,
+                iodine,
+                region,
+                Passes::ALL,
+                None,
+            ));
+        }
+        let mut outs = self.submit_and_read(enc, &pending)?.into_iter();
+        let main = outs.next().expect("full image read back");
+        let mut t = self.end_full(frame, main, iodine);
+        if let (Some(region), Some(sub)) = (sub, outs.next()) {
             let started = Instant::now();
-            let sw = bw * n;
+            let sub = sub.data;
+            let n = region.n as usize;
+            let sw = region.size[0] as usize;
             for j in lo[1]..=hi[1] {
                 for i in lo[0]..=hi[0] {
                     if !flags[j * w + i] {
@@ -1780,8 +1866,6 @@ impl GpuFluoroRenderer {
                     t[j * w + i] = (acc / (n * n) as f64) as f32;
                 }
             }
-            self.timings.supersample_ms += started.elapsed().as_secs_f64() * 1e3;
-        } else {
             self.timings.supersample_ms += started.elapsed().as_secs_f64() * 1e3;
         }
         let out = GpuTransmission {
@@ -1825,6 +1909,26 @@ impl GpuFluoroRenderer {
         self.timings.finish_ms = started.elapsed().as_secs_f64() * 1e3;
         Ok(frame)
     }
+}
+
+/// A region recorded for resolve and read-back.
+#[derive(Debug, Clone)]
+struct Pending {
+    ri: usize,
+    rows: std::ops::Range<u32>,
+    /// Bytes to read back (0: nothing was resolved).
+    bytes: u64,
+    needle_rect: Option<[u32; 4]>,
+}
+
+/// The full image between [`GpuFluoroRenderer::begin_full`] and
+/// [`GpuFluoroRenderer::end_full`].
+struct FullFrame {
+    pending: Pending,
+    key: (Projection, Layout),
+    model: EnergyModel,
+    previous: Option<Resolved>,
+    width: usize,
 }
 
 /// Resolved rows of one region.
