@@ -9,10 +9,12 @@ export function setCsrf(token) {
 
 /** An API error: HTTP status, stable code and the server's message. */
 export class ApiError extends Error {
-  constructor(status, code, message) {
+  constructor(status, code, message, detail = {}) {
     super(message);
     this.status = status;
     this.code = code;
+    /** The whole `error` object (e.g. `retry_after_s` and `readiness` of `anatomy_preparing`). */
+    this.detail = detail;
   }
 }
 
@@ -33,7 +35,7 @@ export async function api(method, path, body) {
   try { json = text ? JSON.parse(text) : null; } catch { /* not JSON */ }
   if (!r.ok) {
     const e = json && json.error ? json.error : { code: 'http_' + r.status, message: text || r.statusText };
-    throw new ApiError(r.status, e.code, e.message);
+    throw new ApiError(r.status, e.code, e.message, e);
   }
   return json;
 }

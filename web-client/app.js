@@ -171,12 +171,36 @@ function logLine(text) {
   $('session-log').textContent = text;
 }
 
+/** What the server says while a station's anatomy is prepared (503 `anatomy_preparing`). */
+function preparingMessage(detail) {
+  const r = detail.readiness || {};
+  let text = `Preparing the anatomy (${detail.region || 'region'})`;
+  if (typeof r.fraction === 'number') text += `: ${Math.round(100 * r.fraction)} % done`;
+  if (typeof r.remaining_s === 'number') text += `, about ${Math.max(1, Math.ceil(r.remaining_s))} s left`;
+  return `${text}. The session starts by itself when it is ready.`;
+}
+
+/** Opens the attempt's session; while the anatomy is being prepared, shows the progress and asks
+ * again after the server's Retry-After (never a request held for the build). */
+async function startSession(attemptId) {
+  for (;;) {
+    try {
+      return await api('POST', `/api/attempts/${attemptId}/session`);
+    } catch (e) {
+      if (!(e instanceof ApiError) || e.code !== 'anatomy_preparing') throw e;
+      say(preparingMessage(e.detail));
+      const waitS = Math.min(10, Math.max(1, Number(e.detail.retry_after_s) || 2));
+      await new Promise((resolve) => setTimeout(resolve, 1000 * waitS));
+    }
+  }
+}
+
 async function openSession(attemptId, stationId) {
   say('');
   try {
     station = await api('GET', `/api/stations/${encodeURIComponent(stationId)}`);
-    say('Starting the session… (the first session of an anatomy region loads or builds it, which can take a minute)');
-    const s = await api('POST', `/api/attempts/${attemptId}/session`);
+    say('Starting the session…');
+    const s = await startSession(attemptId);
     say('');
     if (live) live.close();
     show('session-view');

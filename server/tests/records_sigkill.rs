@@ -3,9 +3,6 @@
 //! the middle of the stream, several times. Every event whose 201 reached a client must be in the
 //! database afterwards (a 201 is sent only after the transaction committed).
 
-use std::io::{BufRead, BufReader, Read, Write};
-use std::net::TcpStream;
-use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -16,67 +13,7 @@ use server::test_support::test_db;
 use uuid::Uuid;
 
 use crate::records_support::PASSWORD;
-
-/// One HTTP/1.1 request over a fresh connection; returns (status, headers, body).
-fn http(
-    addr: &str,
-    method: &str,
-    path: &str,
-    headers: &[(&str, &str)],
-    body: &str,
-) -> std::io::Result<(u16, String, String)> {
-    let mut s = TcpStream::connect(addr)?;
-    s.set_read_timeout(Some(Duration::from_secs(10)))?;
-    let mut req = format!(
-        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n",
-        body.len()
-    );
-    for (k, v) in headers {
-        req.push_str(&format!("{k}: {v}\r\n"));
-    }
-    req.push_str("\r\n");
-    req.push_str(body);
-    s.write_all(req.as_bytes())?;
-    let mut raw = String::new();
-    s.read_to_string(&mut raw)?;
-    let status = raw
-        .split_whitespace()
-        .nth(1)
-        .and_then(|c| c.parse().ok())
-        .unwrap_or(0);
-    let (head, body) = raw.split_once("\r\n\r\n").unwrap_or((&raw, ""));
-    Ok((status, head.to_owned(), body.to_owned()))
-}
-
-fn spawn(url: &str, data: &std::path::Path) -> (Child, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_server"))
-        .env("DATABASE_URL", url)
-        .env("PAINSIM_BIND", "127.0.0.1:0")
-        .env("PAINSIM_DATA_DIR", data)
-        .env(
-            "PAINSIM_ARGON2_MEMORY_KIB",
-            Argon2Cost::TEST_ONLY.memory_kib.to_string(),
-        )
-        .env("PAINSIM_ARGON2_ITERATIONS", "1")
-        .env("PAINSIM_AUTH_RATE_PER_MINUTE", "100000")
-        .env("PAINSIM_AUTH_BURST", "100000")
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("spawn server");
-    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
-    let line = lines.next().expect("server printed its URL").unwrap();
-    let addr = line
-        .split("http://")
-        .nth(1)
-        .and_then(|r| r.split('/').next())
-        .expect("URL in the first line")
-        .to_owned();
-    // Keep draining stdout so the server never blocks on a full pipe.
-    std::thread::spawn(move || for _ in lines {});
-    (child, addr)
-}
+use crate::server_process::{fast_auth_env, http, spawn_server};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sigkill_mid_stream_loses_no_acknowledged_activity() {
@@ -122,12 +59,18 @@ async fn sigkill_mid_stream_loses_no_acknowledged_activity() {
     let mut cookie = String::new();
     let mut csrf = String::new();
     for round in 0..rounds {
-        let (mut child, addr) = tokio::task::spawn_blocking({
+        let server = tokio::task::spawn_blocking({
             let (url, data) = (url.clone(), data.path().to_owned());
-            move || spawn(&url, &data)
+            move || {
+                // No session here: leave the anatomy (a phantom build) to the first session.
+                let mut env = fast_auth_env();
+                env.push(("PAINSIM_PREPARE_ANATOMY", "0".into()));
+                spawn_server(&data, Some(&url), &env)
+            }
         })
         .await
         .unwrap();
+        let addr = server.addr.clone();
         if round == 0 {
             // Log in and open the attempt once: the session lives in PostgreSQL and survives the kills.
             let (st, head, body) = http(
@@ -210,11 +153,7 @@ async fn sigkill_mid_stream_loses_no_acknowledged_activity() {
             tokio::time::sleep(Duration::from_millis(5)).await;
         }
         // SIGKILL while the clients are still writing.
-        Command::new("kill")
-            .args(["-KILL", &child.id().to_string()])
-            .status()
-            .unwrap();
-        child.wait().unwrap();
+        server.sigkill();
         stop.store(true, Ordering::SeqCst);
         for c in clients {
             c.join().unwrap();

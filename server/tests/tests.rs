@@ -1,5 +1,6 @@
 //! Integration tests of the server against a real PostgreSQL, one module per area.
 
+mod anatomy_readiness;
 mod dispatch;
 mod e2e_browser;
 mod embedded;
@@ -11,3 +12,5 @@ mod records_authz;
 mod records_bad_input;
 mod records_sigkill;
 mod records_support;
+mod server_process;
+mod session_sigkill;

@@ -75,6 +75,9 @@ fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
+    // Load (or build) the stations' anatomy now, in the background: session requests that come
+    // first get 503 with Retry-After and the progress, never a request held for the build.
+    host.prepare_in_background();
     let runtime = match tokio::runtime::Runtime::new() {
         Ok(r) => r,
         Err(e) => {

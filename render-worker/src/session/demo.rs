@@ -58,7 +58,10 @@ fn structure(name: &str, material: MaterialClass, mesh: TriMesh) -> StructureAss
     }
 }
 
-/// The demo region (named `demo-region`).
+/// Name of the demo region.
+pub const DEMO_REGION_NAME: &str = "demo-region";
+
+/// The demo region (named [`DEMO_REGION_NAME`]).
 pub fn demo_region() -> Region {
     let half_gap = 0.5 * FACET_GAP_MM;
     let structures = vec![
@@ -129,7 +132,7 @@ pub fn demo_region() -> Region {
     .into_iter()
     .collect();
     Region::from_structures(
-        "demo-region",
+        DEMO_REGION_NAME,
         &structures,
         landmarks,
         hashes,

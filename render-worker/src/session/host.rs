@@ -9,10 +9,11 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Condvar, Mutex};
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
+use sim_core::anatomy::pipeline::Progress;
 use sim_core::rubric::{Station, load_station_dir};
 use tokio::sync::{mpsc, oneshot, watch};
 
@@ -38,7 +39,7 @@ pub struct HostConfig {
 }
 
 /// Why the host refused.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error, Serialize, Deserialize)]
 pub enum HostError {
     /// No such station.
     #[error("unknown station {0}")]
@@ -58,6 +59,129 @@ pub enum HostError {
     /// Stations could not be loaded.
     #[error("stations: {0}")]
     Stations(String),
+    /// The station's region is still being loaded or built (the first phantom build takes tens
+    /// of seconds): ask again after `retry_after_s`.
+    #[error("the anatomy ({region}) is being prepared; retry after {retry_after_s} s")]
+    Preparing {
+        /// Region name.
+        region: String,
+        /// Its state (stage, fraction done, estimated time left).
+        readiness: RegionReadiness,
+        /// Seconds to wait before asking again.
+        retry_after_s: u64,
+    },
+}
+
+/// Where a region stands on a worker: reported in `/healthz`, and in the answer to a session
+/// request that arrives while it is being prepared.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "state", rename_all = "snake_case")]
+pub enum RegionReadiness {
+    /// Not requested yet (loaded on first use, or by [`SessionHost::prepare_in_background`]).
+    NotStarted,
+    /// Being loaded or built.
+    Building {
+        /// Stage of the build (`"start"`, or the phantom pipeline's `"voxelize"`, `"labels"`,
+        /// `"mesh"`).
+        stage: String,
+        /// Estimated fraction done, 0 to 1 (see [`build_fraction`]).
+        fraction: f64,
+        /// Seconds since it started.
+        elapsed_s: f64,
+        /// Estimated seconds left.
+        remaining_s: f64,
+    },
+    /// Loaded; sessions start at once.
+    Ready {
+        /// Seconds the preparation took (0 for regions given to the host ready-made).
+        prepare_s: f64,
+    },
+    /// Loading or building failed; sessions of its stations cannot start.
+    Failed {
+        /// Why, in words.
+        reason: String,
+    },
+}
+
+/// Expected duration of a phantom build when no progress has been reported yet, s. Measured:
+/// about 18 s for the default lumbar phantom on the 2-core development machine.
+pub const EXPECTED_BUILD_S: f64 = 20.0;
+
+/// Longest `Retry-After` handed out, s. Simulator choice: a client told to come back in at most
+/// a few seconds shows progress that moves, and starts within that much of the build's end.
+pub const MAX_RETRY_AFTER_S: f64 = 3.0;
+
+/// Fraction of a phantom build done at a progress report. The stage weights are a simulator
+/// choice from one timed build of the default phantom on 2 cores (voxelization about 40 % of
+/// the time, label volume 10 %, meshing the structures the rest); they only shape the progress
+/// shown and the `Retry-After` estimate.
+pub fn build_fraction(p: &Progress) -> f64 {
+    let part = if p.total == 0 {
+        0.0
+    } else {
+        (p.done as f64 / p.total as f64).clamp(0.0, 1.0)
+    };
+    match p.stage {
+        "voxelize" => 0.40 * part,
+        "labels" => 0.40 + 0.10 * part,
+        "mesh" => 0.50 + 0.45 * part,
+        _ => 0.0,
+    }
+}
+
+/// What the host remembers of a region's preparation.
+#[derive(Debug, Clone)]
+enum Prep {
+    Building {
+        started: Instant,
+        stage: String,
+        fraction: f64,
+    },
+    Ready {
+        prepare_s: f64,
+    },
+    Failed(String),
+}
+
+impl Prep {
+    fn building() -> Prep {
+        Prep::Building {
+            started: Instant::now(),
+            stage: "start".into(),
+            fraction: 0.0,
+        }
+    }
+
+    fn readiness(&self) -> RegionReadiness {
+        match self {
+            Prep::Building {
+                started,
+                stage,
+                fraction,
+            } => {
+                let elapsed_s = started.elapsed().as_secs_f64();
+                // Extrapolate from the progress so far once there is some; before that, the
+                // expected build time.
+                let remaining_s = if *fraction >= 0.05 {
+                    elapsed_s * (1.0 - fraction) / fraction
+                } else {
+                    (EXPECTED_BUILD_S - elapsed_s).max(1.0)
+                };
+                RegionReadiness::Building {
+                    stage: stage.clone(),
+                    fraction: *fraction,
+                    elapsed_s,
+                    remaining_s,
+                }
+            }
+            Prep::Ready { prepare_s } => RegionReadiness::Ready {
+                prepare_s: *prepare_s,
+            },
+            Prep::Failed(reason) => RegionReadiness::Failed {
+                reason: reason.clone(),
+            },
+        }
+    }
 }
 
 /// What a client needs to know about a session.
@@ -90,6 +214,9 @@ pub struct Health {
     pub sessions: usize,
     /// sessions / capacity.
     pub load: f64,
+    /// Readiness of each region the stations use.
+    #[serde(default)]
+    pub regions: BTreeMap<String, RegionReadiness>,
 }
 
 /// Latest frame of each view.
@@ -199,11 +326,14 @@ fn closed(seq: u64) -> CommandError {
     }
 }
 
-type RegionLoader = dyn Fn(&str) -> Result<Region, String> + Send + Sync;
+type RegionLoader = dyn Fn(&str, &mut dyn FnMut(&Progress)) -> Result<Region, String> + Send + Sync;
 
 struct Inner {
     stations: BTreeMap<String, (Station, String)>,
     regions: Mutex<BTreeMap<String, Arc<Region>>>,
+    /// Preparation state of regions not given ready-made; `prepared` wakes its waiters.
+    prep: Mutex<BTreeMap<String, Prep>>,
+    prepared: Condvar,
     loader: Box<RegionLoader>,
     sessions: Mutex<BTreeMap<String, SessionHandle>>,
     backend: Arc<dyn FluoroBackend>,
@@ -248,7 +378,7 @@ impl SessionHost {
         let root = config.assets_root.clone();
         Ok(SessionHost::from_parts(
             stations,
-            Box::new(move |name| Region::load(&root, name)),
+            Box::new(move |name, progress| Region::load_with_progress(&root, name, progress)),
             backend,
             config.capacity,
             config.session,
@@ -270,7 +400,7 @@ impl SessionHost {
                 .into_iter()
                 .map(|(s, h)| (s.id.clone(), (s, h)))
                 .collect(),
-            Box::new(|name| Err(format!("region {name} is not loaded in this host"))),
+            Box::new(|name, _| Err(format!("region {name} is not loaded in this host"))),
             backend,
             capacity,
             session_config,
@@ -296,6 +426,8 @@ impl SessionHost {
             inner: Arc::new(Inner {
                 stations,
                 regions: Mutex::new(BTreeMap::new()),
+                prep: Mutex::new(BTreeMap::new()),
+                prepared: Condvar::new(),
                 loader,
                 sessions: Mutex::new(BTreeMap::new()),
                 backend,
@@ -321,6 +453,233 @@ impl SessionHost {
             capacity: self.inner.capacity,
             sessions,
             load: sessions as f64 / self.inner.capacity.max(1) as f64,
+            regions: self.regions_readiness(),
+        }
+    }
+
+    /// A new host over given stations with a custom region loader (`loader(name, progress)`
+    /// returns the region, reporting build stages to `progress`): for tests of the preparation
+    /// states, and for servers that find regions elsewhere.
+    pub fn with_loader(
+        stations: Vec<(Station, String)>,
+        loader: impl Fn(&str, &mut dyn FnMut(&Progress)) -> Result<Region, String>
+        + Send
+        + Sync
+        + 'static,
+        backend: Arc<dyn FluoroBackend>,
+        capacity: usize,
+        session_config: SessionConfig,
+    ) -> SessionHost {
+        SessionHost::from_parts(
+            stations
+                .into_iter()
+                .map(|(s, h)| (s.id.clone(), (s, h)))
+                .collect(),
+            Box::new(loader),
+            backend,
+            capacity,
+            session_config,
+            None,
+        )
+    }
+
+    /// The regions the stations use, by name.
+    fn station_regions(&self) -> BTreeSet<String> {
+        self.inner
+            .stations
+            .values()
+            .map(|(s, _)| s.region.clone())
+            .collect()
+    }
+
+    fn loaded(&self, region: &str) -> Option<Arc<Region>> {
+        self.inner.regions.lock().ok()?.get(region).cloned()
+    }
+
+    /// Readiness of one region.
+    pub fn region_readiness(&self, region: &str) -> RegionReadiness {
+        if self.loaded(region).is_some() {
+            let prepare_s = match self
+                .inner
+                .prep
+                .lock()
+                .ok()
+                .and_then(|p| p.get(region).cloned())
+            {
+                Some(Prep::Ready { prepare_s }) => prepare_s,
+                _ => 0.0,
+            };
+            return RegionReadiness::Ready { prepare_s };
+        }
+        match self
+            .inner
+            .prep
+            .lock()
+            .ok()
+            .and_then(|p| p.get(region).cloned())
+        {
+            Some(p) => p.readiness(),
+            None => RegionReadiness::NotStarted,
+        }
+    }
+
+    /// Readiness of every region the stations use.
+    pub fn regions_readiness(&self) -> BTreeMap<String, RegionReadiness> {
+        self.station_regions()
+            .into_iter()
+            .map(|r| {
+                let state = self.region_readiness(&r);
+                (r, state)
+            })
+            .collect()
+    }
+
+    /// Starts loading (building, for the phantom) every region the stations use that is not
+    /// loaded or being prepared yet, one after the other on a background thread, so that the
+    /// first session does not wait for it. Returns at once.
+    pub fn prepare_in_background(&self) {
+        let todo: Vec<String> = self
+            .station_regions()
+            .into_iter()
+            .filter(|r| self.claim(r))
+            .collect();
+        self.spawn_preparation(todo);
+    }
+
+    /// Marks `region` as being prepared by the caller; false when it is loaded or already being
+    /// prepared.
+    fn claim(&self, region: &str) -> bool {
+        if self.loaded(region).is_some() {
+            return false;
+        }
+        let Ok(mut prep) = self.inner.prep.lock() else {
+            return false;
+        };
+        if matches!(prep.get(region), Some(Prep::Building { .. })) {
+            return false;
+        }
+        prep.insert(region.to_string(), Prep::building());
+        true
+    }
+
+    fn spawn_preparation(&self, regions: Vec<String>) {
+        if regions.is_empty() {
+            return;
+        }
+        let host = self.clone();
+        let spawned = std::thread::Builder::new()
+            .name("region-prepare".into())
+            .spawn(move || {
+                for r in regions {
+                    match host.load_claimed(&r) {
+                        Ok(_) => tracing::info!(region = %r, "region ready"),
+                        Err(e) => tracing::error!(region = %r, "region preparation failed: {e}"),
+                    }
+                }
+            });
+        if let Err(e) = spawned {
+            tracing::error!("cannot start the region preparation thread: {e}");
+        }
+    }
+
+    /// Loads a region the caller claimed, recording progress and the outcome, and wakes anyone
+    /// waiting for it.
+    fn load_claimed(&self, region: &str) -> Result<Arc<Region>, HostError> {
+        let started = Instant::now();
+        let mut progress = |p: &Progress| {
+            if let Ok(mut prep) = self.inner.prep.lock()
+                && let Some(Prep::Building {
+                    stage, fraction, ..
+                }) = prep.get_mut(region)
+            {
+                *stage = p.stage.to_string();
+                *fraction = fraction.max(build_fraction(p));
+            }
+        };
+        let loaded = (self.inner.loader)(region, &mut progress);
+        let prepare_s = started.elapsed().as_secs_f64();
+        let result = match loaded {
+            Ok(r) => {
+                let r = Arc::new(r);
+                if let Ok(mut m) = self.inner.regions.lock() {
+                    m.insert(region.to_string(), Arc::clone(&r));
+                }
+                Ok(r)
+            }
+            Err(e) => Err(e),
+        };
+        if let Ok(mut prep) = self.inner.prep.lock() {
+            let state = match &result {
+                Ok(_) => Prep::Ready { prepare_s },
+                Err(e) => Prep::Failed(e.clone()),
+            };
+            prep.insert(region.to_string(), state);
+        }
+        self.inner.prepared.notify_all();
+        result.map_err(HostError::Region)
+    }
+
+    /// The region, loading it here if nobody is (blocking: possibly a whole phantom build), or
+    /// waiting for the preparation under way.
+    fn region_blocking(&self, region: &str) -> Result<Arc<Region>, HostError> {
+        loop {
+            if let Some(r) = self.loaded(region) {
+                return Ok(r);
+            }
+            if self.claim(region) {
+                return self.load_claimed(region);
+            }
+            let prep = self
+                .inner
+                .prep
+                .lock()
+                .map_err(|_| HostError::Region("lock poisoned".into()))?;
+            if matches!(prep.get(region), Some(Prep::Building { .. })) {
+                let _unused = self
+                    .inner
+                    .prepared
+                    .wait_while(prep, |p| {
+                        matches!(p.get(region), Some(Prep::Building { .. }))
+                    })
+                    .map_err(|_| HostError::Region("lock poisoned".into()))?;
+            }
+        }
+    }
+
+    /// Whether a session of `station_id` can start now: `Ok` when its region is loaded; a
+    /// [`HostError::Preparing`] while it is loaded or built (and the preparation is started
+    /// in the background if it was not); [`HostError::Region`] with the reason if it failed.
+    pub fn check_ready(&self, station_id: &str) -> Result<(), HostError> {
+        let (station, _) = self
+            .inner
+            .stations
+            .get(station_id)
+            .ok_or_else(|| HostError::UnknownStation(station_id.to_string()))?;
+        let region = station.region.clone();
+        if self.loaded(&region).is_some() {
+            return Ok(());
+        }
+        if !matches!(
+            self.region_readiness(&region),
+            RegionReadiness::Failed { .. }
+        ) && self.claim(&region)
+        {
+            self.spawn_preparation(vec![region.clone()]);
+        }
+        match self.region_readiness(&region) {
+            RegionReadiness::Ready { .. } => Ok(()),
+            RegionReadiness::Failed { reason } => Err(HostError::Region(reason)),
+            readiness => {
+                let remaining_s = match &readiness {
+                    RegionReadiness::Building { remaining_s, .. } => *remaining_s,
+                    _ => EXPECTED_BUILD_S,
+                };
+                Err(HostError::Preparing {
+                    region,
+                    retry_after_s: remaining_s.clamp(1.0, MAX_RETRY_AFTER_S).ceil() as u64,
+                    readiness,
+                })
+            }
         }
     }
 
@@ -332,22 +691,7 @@ impl SessionHost {
             .get(station_id)
             .cloned()
             .ok_or_else(|| HostError::UnknownStation(station_id.to_string()))?;
-        let region = {
-            let mut regions = self
-                .inner
-                .regions
-                .lock()
-                .map_err(|_| HostError::Region("lock poisoned".into()))?;
-            match regions.get(&station.region) {
-                Some(r) => Arc::clone(r),
-                None => {
-                    let r =
-                        Arc::new((self.inner.loader)(&station.region).map_err(HostError::Region)?);
-                    regions.insert(station.region.clone(), Arc::clone(&r));
-                    r
-                }
-            }
-        };
+        let region = self.region_blocking(&station.region)?;
         Ok(SessionEnv {
             station: Arc::new(StationContext::new(station, sha, &region)),
             region,
@@ -363,8 +707,10 @@ impl SessionHost {
         Ok(self.spawn(Session::new(env, self.inner.session_config)))
     }
 
-    /// Async [`SessionHost::create_blocking`].
+    /// Async [`SessionHost::create_blocking`], except that it does not wait for a region being
+    /// prepared: it answers [`HostError::Preparing`] instead (see [`SessionHost::check_ready`]).
     pub async fn create(&self, station_id: &str) -> Result<SessionHandle, HostError> {
+        self.check_ready(station_id)?;
         let host = self.clone();
         let id = station_id.to_string();
         tokio::task::spawn_blocking(move || host.create_blocking(&id))

@@ -3,7 +3,8 @@
 //!
 //! - `GET /healthz`: [`super::host::Health`] (renderer, adapter, capacity, sessions, load).
 //! - `POST /sessions` with `{"station_id": "..."}`: 201 and `{"session": SessionInfo, "ws":
-//!   "/sessions/{id}/ws"}`; 404 unknown station, 503 at capacity.
+//!   "/sessions/{id}/ws"}`; 404 unknown station, 503 at capacity, 503 with `Retry-After` while
+//!   the station's anatomy is being prepared (code `anatomy_preparing`).
 //! - `POST /sessions/restore` with `{"snapshot": .., "log": [..]}`: resumes a session handed
 //!   over from another worker; 201 as above.
 //! - `GET /sessions/{id}/snapshot`: `{"snapshot": .., "log": [..]}`.
@@ -48,6 +49,20 @@ struct RestoreBody {
 }
 
 fn error(e: &HostError) -> Response {
+    if let HostError::Preparing {
+        readiness,
+        retry_after_s,
+        ..
+    } = e
+    {
+        let body = serde_json::json!({ "error": { "code": "anatomy_preparing", "message": e.to_string(), "retry_after_s": retry_after_s, "readiness": readiness } });
+        return (
+            StatusCode::SERVICE_UNAVAILABLE,
+            [(axum::http::header::RETRY_AFTER, retry_after_s.to_string())],
+            Json(body),
+        )
+            .into_response();
+    }
     let (status, code) = match e {
         HostError::UnknownStation(_) | HostError::NoSession(_) => {
             (StatusCode::NOT_FOUND, "not_found")
@@ -57,6 +72,7 @@ fn error(e: &HostError) -> Response {
         HostError::Region(_) | HostError::Stations(_) => {
             (StatusCode::INTERNAL_SERVER_ERROR, "internal")
         }
+        HostError::Preparing { .. } => (StatusCode::SERVICE_UNAVAILABLE, "anatomy_preparing"),
     };
     (
         status,

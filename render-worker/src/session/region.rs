@@ -6,6 +6,7 @@ use std::path::Path;
 use glam::DVec3;
 use sim_core::anatomy::asset::{RegionAsset, Source, StructureAsset};
 use sim_core::anatomy::phantom;
+use sim_core::anatomy::pipeline::Progress;
 use sim_core::fluoro::{FluoroMaterial, Scene};
 use sim_core::material::MaterialClass;
 use sim_core::needle::{BoneSurface, RayHit};
@@ -90,10 +91,26 @@ impl Region {
     }
 
     /// Loads `assets_root/<name>`; the phantom region is built there first if missing or stale.
+    /// The analytic demo region ([`super::demo::DEMO_REGION_NAME`], boxes of known geometry) is
+    /// built in memory when no folder of that name exists, so whole-process tests (the real
+    /// server binary) can run sessions that render in milliseconds.
     pub fn load(assets_root: &Path, name: &str) -> Result<Region, String> {
+        Region::load_with_progress(assets_root, name, &mut |_| {})
+    }
+
+    /// [`Region::load`], reporting the phantom build's stages to `progress` (a region that is
+    /// cached or read from files reports nothing).
+    pub fn load_with_progress(
+        assets_root: &Path,
+        name: &str,
+        progress: &mut dyn FnMut(&Progress),
+    ) -> Result<Region, String> {
         let dir = assets_root.join(name);
+        if name == super::demo::DEMO_REGION_NAME && !dir.exists() {
+            return Ok(super::demo::demo_region());
+        }
         let asset = if name == phantom::REGION_NAME {
-            phantom::ensure_built(&dir)
+            phantom::ensure_built_with(&dir, &phantom::PhantomParams::default(), progress)
         } else {
             RegionAsset::load(&dir)
         }

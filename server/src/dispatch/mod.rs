@@ -11,8 +11,10 @@
 //! `GET /api/sessions/{id}/ws` is authenticated by the session cookie and only the attempt's
 //! learner may drive it. The server relays the session protocol
 //! (`render_worker::session::protocol`) to the worker and watches it: every acknowledged command
-//! is appended to the server's own copy of the session log (in memory and in `live_sessions`),
-//! engagement events go to the learning records, and the submit's result is stored as the
+//! is appended to the server's own copy of the session log, in memory and in
+//! `live_session_commands` (committed before the acknowledgement is passed on, so a server that
+//! dies loses nothing the browser saw acknowledged: see `durable`), engagement events go to the
+//! learning records, and the submit's result is stored as the
 //! attempt's technical result, then sent to the browser as `{"type":"technical_result", ...}`.
 //!
 //! # Failover
@@ -28,6 +30,7 @@
 //! restoring the session from its initial snapshot and that prefix of the log. The full replay
 //! is checked against the stored result: same score, same final state hash, same final frame.
 
+mod durable;
 mod proxy;
 mod registry;
 mod routes;
@@ -37,9 +40,10 @@ use std::sync::{Arc, Mutex};
 
 use render_worker::session::fluoro::FluoroRenderer;
 use render_worker::session::region::Region;
+use render_worker::session::host::RegionReadiness;
 use render_worker::session::{
-    BackendProfile, CpuFluoroBackend, FluoroBackend, GpuFluoroBackend, HostConfig, LogEntry,
-    SessionConfig, SessionHost, SessionSnapshot,
+    BackendProfile, CpuFluoroBackend, FluoroBackend, GpuFluoroBackend, HostConfig, HostError,
+    LogEntry, SessionConfig, SessionHost, SessionSnapshot,
 };
 use uuid::Uuid;
 
@@ -120,7 +124,7 @@ impl LiveSession {
 /// How long a session with no browser connected stays on its worker. Simulator choice: a
 /// learner who steps away for a few minutes comes back to a running session; after that the
 /// worker's capacity is freed, and opening the attempt again resumes the session from its
-/// recorded log (saved whenever a connection ends).
+/// recorded log.
 pub const IDLE_CLOSE: std::time::Duration = std::time::Duration::from_secs(20 * 60);
 
 /// The server's copy of a session.
@@ -132,12 +136,50 @@ pub struct SessionRecord {
     pub initial: SessionSnapshot,
     /// Every acknowledged command, in order.
     pub log: Vec<LogEntry>,
+    /// How many of `log`'s first entries are in `live_session_commands` (see `durable`).
+    pub durable_len: usize,
     /// SHA-256 of the newest frame's JPEG sent to the browser.
     pub last_frame_sha256: Option<String>,
     /// Set once the submit was stored.
     pub result_id: Option<Uuid>,
     /// How many times it was restored on another worker.
     pub failovers: u32,
+}
+
+/// Why a session could not be placed.
+#[derive(Debug, Clone)]
+pub enum PlaceError {
+    /// The station's anatomy is still being prepared: ask again after `retry_after_s`.
+    Preparing {
+        /// Region name.
+        region: String,
+        /// Its state.
+        readiness: RegionReadiness,
+        /// Seconds to wait.
+        retry_after_s: u64,
+    },
+    /// The anatomy could not be prepared.
+    AnatomyFailed(String),
+    /// No worker could take it.
+    Failed(String),
+}
+
+impl From<HostError> for PlaceError {
+    fn from(e: HostError) -> PlaceError {
+        match e {
+            HostError::Preparing {
+                region,
+                readiness,
+                retry_after_s,
+            } => PlaceError::Preparing {
+                region,
+                readiness,
+                retry_after_s,
+            },
+            HostError::Region(reason) => PlaceError::AnatomyFailed(reason),
+            other => PlaceError::Failed(other.to_string()),
+        }
+    }
 }
 
 /// Settings of dispatch.
@@ -151,12 +193,15 @@ pub struct DispatchConfig {
     pub in_process_capacity: usize,
     /// Token workers present to register; `None` refuses registrations.
     pub worker_token: Option<String>,
+    /// Whether the server starts loading (building) the stations' anatomy at start-up.
+    pub prepare_at_start: bool,
 }
 
 impl DispatchConfig {
     /// From the environment: `PAINSIM_ASSETS_DIR` (default: the repository's `assets/`),
     /// `PAINSIM_IN_PROCESS_SESSIONS` (default 8), `PAINSIM_WORKER_TOKEN` (unset: no remote
-    /// workers), with the stations folder of the learning records.
+    /// workers), `PAINSIM_PREPARE_ANATOMY` (default on; `0`/`false`/`off` leaves the anatomy to
+    /// the first session), with the stations folder of the learning records.
     pub fn from_env(stations_dir: std::path::PathBuf) -> DispatchConfig {
         DispatchConfig {
             assets_root: std::env::var("PAINSIM_ASSETS_DIR")
@@ -170,6 +215,9 @@ impl DispatchConfig {
             worker_token: std::env::var("PAINSIM_WORKER_TOKEN")
                 .ok()
                 .filter(|t| t.len() >= 16),
+            prepare_at_start: std::env::var("PAINSIM_PREPARE_ANATOMY")
+                .map(|v| !matches!(v.trim(), "0" | "false" | "off" | "no"))
+                .unwrap_or(true),
         }
     }
 }
@@ -377,9 +425,47 @@ impl Dispatcher {
         None
     }
 
+    /// Whether a session of `station_id` can start (or resume) on the in-process worker now.
+    /// Only asked when that is where it would go: with a live registered worker it is placed
+    /// there. Starts preparing the station's region in the background if nobody has.
+    fn check_local_ready(&self, station_id: &str) -> Result<(), PlaceError> {
+        let Some(host) = &self.inner.local else {
+            return Ok(());
+        };
+        if !self
+            .inner
+            .remote
+            .by_load(&self.sessions_by_worker(), None)
+            .is_empty()
+        {
+            return Ok(());
+        }
+        host.check_ready(station_id).map_err(PlaceError::from)
+    }
+
+    /// Starts loading (building, for the phantom) the in-process worker's regions in the
+    /// background (see [`SessionHost::prepare_in_background`]).
+    pub fn prepare_in_background(&self) {
+        if let Some(h) = &self.inner.local {
+            h.prepare_in_background();
+        }
+    }
+
+    /// Readiness of the in-process worker's regions (empty without one).
+    pub fn anatomy(&self) -> std::collections::BTreeMap<String, RegionReadiness> {
+        self.inner
+            .local
+            .as_ref()
+            .map(SessionHost::regions_readiness)
+            .unwrap_or_default()
+    }
+
     /// Creates a session for a station on the least loaded worker (excluding `avoid`), returning
     /// its placement and initial snapshot.
-    async fn place_new(&self, station_id: &str) -> Result<(Placement, SessionSnapshot), String> {
+    async fn place_new(
+        &self,
+        station_id: &str,
+    ) -> Result<(Placement, SessionSnapshot), PlaceError> {
         let mut errors = Vec::new();
         for url in self.inner.remote.by_load(&self.sessions_by_worker(), None) {
             match registry::create_remote(&url, station_id).await {
@@ -399,14 +485,17 @@ impl Dispatcher {
             }
         }
         let Some(host) = &self.inner.local else {
-            return Err(if errors.is_empty() {
+            return Err(PlaceError::Failed(if errors.is_empty() {
                 "no render worker is registered".into()
             } else {
                 errors.join("; ")
-            });
+            }));
         };
-        let h = host.create(station_id).await.map_err(|e| e.to_string())?;
-        let (snapshot, _) = h.snapshot().await.ok_or("the new session ended at once")?;
+        let h = host.create(station_id).await?;
+        let (snapshot, _) = h
+            .snapshot()
+            .await
+            .ok_or_else(|| PlaceError::Failed("the new session ended at once".into()))?;
         Ok((
             Placement::Local {
                 worker_session: h.info.id.clone(),

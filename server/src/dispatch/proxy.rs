@@ -1,7 +1,7 @@
 //! The relay between the browser's websocket and the worker's session socket, with the log
 //! mirror, engagement events, the submit hand-off to the learning records, and failover.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::pin::Pin;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -15,6 +15,7 @@ use render_worker::session::{Command, LogEntry, SubmitResult, sha256_hex};
 use serde_json::json;
 use tokio_tungstenite::tungstenite::Message as TMessage;
 
+use super::durable::LogWriter;
 use super::{Dispatcher, LiveSession, Placement};
 use crate::records::RecordsState;
 use crate::records::attempts::{
@@ -161,23 +162,47 @@ fn to_axum(m: WsMessage) -> Message {
     }
 }
 
-/// Saves the log and frame hash of a session.
+/// Saves the frame hash of a session (its commands are written as they are acknowledged).
 pub async fn persist(records: &RecordsState, session: &LiveSession) {
-    let (log, frame) = {
-        let st = session.state.lock().await;
-        (
-            serde_json::to_value(&st.log).unwrap_or_default(),
-            st.last_frame_sha256.clone(),
-        )
-    };
-    let r = sqlx::query("UPDATE live_sessions SET log = $2, final_frame_sha256 = COALESCE($3, final_frame_sha256), updated_at = now() WHERE id = $1")
+    let frame = session.state.lock().await.last_frame_sha256.clone();
+    let r = sqlx::query("UPDATE live_sessions SET final_frame_sha256 = COALESCE($2, final_frame_sha256), updated_at = now() WHERE id = $1")
         .bind(session.id)
-        .bind(log)
         .bind(frame)
         .execute(&records.pool)
         .await;
     if let Err(e) = r {
-        tracing::error!(session = %session.id, "saving the session log failed: {e}");
+        tracing::error!(session = %session.id, "saving the session's frame hash failed: {e}");
+    }
+}
+
+/// Text messages on their way to the browser, each held until the log length it needs is
+/// durable (see [`super::durable`]); frames bypass it.
+#[derive(Default)]
+struct Outbox {
+    held: VecDeque<(usize, String)>,
+}
+
+impl Outbox {
+    /// Queues `text`, to be sent once `needs` log entries are durable.
+    fn push(&mut self, needs: usize, text: String) {
+        self.held.push_back((needs, text));
+    }
+
+    /// Sends, in order, every message whose log prefix is durable. False when the browser is gone.
+    async fn release(
+        &mut self,
+        durable: usize,
+        browser_tx: &mut futures::stream::SplitSink<WebSocket, Message>,
+    ) -> bool {
+        while self.held.front().is_some_and(|(needs, _)| *needs <= durable) {
+            let Some((_, text)) = self.held.pop_front() else {
+                break;
+            };
+            if browser_tx.send(Message::Text(text.into())).await.is_err() {
+                return false;
+            }
+        }
+        true
     }
 }
 
@@ -196,6 +221,9 @@ pub async fn relay(
     let mut first_hello = true;
     let mut failovers_in_a_row = 0u32;
     let mut tick = tokio::time::interval(std::time::Duration::from_millis(500));
+    let durable_now = session.state.lock().await.durable_len;
+    let mut writer = LogWriter::start(records.pool.clone(), session.clone(), durable_now);
+    let mut outbox = Outbox::default();
     'connection: loop {
         let placement = session.state.lock().await.placement.clone();
         let (mut up_tx, mut up_rx) = match connect(&dispatcher, &placement).await {
@@ -235,7 +263,9 @@ pub async fn relay(
                                     info.id = session.id.to_string();
                                     let hello = ServerMessage::Hello { session: info, last_seq };
                                     let text = serde_json::to_string(&hello).unwrap_or_default();
-                                    if browser_tx.send(Message::Text(text.into())).await.is_err() {
+                                    let needs = session.state.lock().await.log.len();
+                                    outbox.push(needs, text);
+                                    if !outbox.release(writer.durable_len(), &mut browser_tx).await {
                                         break 'connection;
                                     }
                                 }
@@ -243,8 +273,13 @@ pub async fn relay(
                             Ok(ServerMessage::Ack(ack)) => {
                                 let command = pending.remove(&ack.seq).map(|(_, c)| c);
                                 let mut result_message = None;
-                                if let (Some(command), false) = (command, ack.duplicate) {
-                                    session.state.lock().await.log.push(LogEntry { seq: ack.seq, t_ms: ack.t_ms, command: command.clone() });
+                                let needs = if let (Some(command), false) = (command, ack.duplicate) {
+                                    let needs = {
+                                        let mut st = session.state.lock().await;
+                                        st.log.push(LogEntry { seq: ack.seq, t_ms: ack.t_ms, command: command.clone() });
+                                        st.log.len()
+                                    };
+                                    writer.kick();
                                     if let Some(kind) = activity_of(&command) {
                                         let (pool, s) = (records.pool.clone(), session.clone());
                                         let detail = json!({ "session_id": s.id, "seq": ack.seq, "command": command.name() });
@@ -255,15 +290,21 @@ pub async fn relay(
                                         });
                                     }
                                     if command == Command::Submit {
+                                        // The result is stored only after the log it scores.
+                                        if !writer.wait_durable(needs).await {
+                                            break 'connection;
+                                        }
                                         result_message = Some(store_result(&records, &session, &placement, &ack.outcome).await);
                                     }
+                                    needs
+                                } else {
+                                    session.state.lock().await.log.len()
+                                };
+                                outbox.push(needs, t);
+                                if let Some(m) = result_message {
+                                    outbox.push(needs, m.to_string());
                                 }
-                                if browser_tx.send(Message::Text(t.into())).await.is_err() {
-                                    break 'connection;
-                                }
-                                if let Some(m) = result_message
-                                    && browser_tx.send(Message::Text(m.to_string().into())).await.is_err()
-                                {
+                                if !outbox.release(writer.durable_len(), &mut browser_tx).await {
                                     break 'connection;
                                 }
                             }
@@ -271,12 +312,16 @@ pub async fn relay(
                                 if let Some(seq) = seq {
                                     pending.remove(&seq);
                                 }
-                                if browser_tx.send(Message::Text(t.into())).await.is_err() {
+                                let needs = session.state.lock().await.log.len();
+                                outbox.push(needs, t);
+                                if !outbox.release(writer.durable_len(), &mut browser_tx).await {
                                     break 'connection;
                                 }
                             }
                             Err(_) => {
-                                if browser_tx.send(Message::Text(t.into())).await.is_err() {
+                                let needs = session.state.lock().await.log.len();
+                                outbox.push(needs, t);
+                                if !outbox.release(writer.durable_len(), &mut browser_tx).await {
                                     break 'connection;
                                 }
                             }
@@ -317,6 +362,16 @@ pub async fn relay(
                         break 'connection;
                     }
                 },
+                changed = writer.durable.changed() => {
+                    if changed.is_err() {
+                        tracing::error!(session = %session.id, "the session's log writer stopped");
+                        break 'connection;
+                    }
+                    let durable = writer.durable_len();
+                    if !outbox.release(durable, &mut browser_tx).await {
+                        break 'connection;
+                    }
+                }
                 _ = tick.tick() => {
                     if session.generation.load(Ordering::SeqCst) != generation {
                         let note = json!({ "type": "notice", "message": "this session was opened in another window" });
@@ -328,6 +383,7 @@ pub async fn relay(
             }
         }
     }
+    writer.finish().await;
     persist(&records, &session).await;
     if let Ok(mut t) = session.last_active.lock() {
         *t = std::time::Instant::now();
@@ -413,14 +469,12 @@ async fn store_result(
         Ok(view) => {
             let mut st = session.state.lock().await;
             st.result_id = Some(view.id);
-            let log = serde_json::to_value(&st.log).unwrap_or_default();
             let frame = st.last_frame_sha256.clone();
             drop(st);
             let r = sqlx::query(
-                "UPDATE live_sessions SET log = $2, result_id = $3, final_state_sha256 = $4, final_frame_sha256 = $5, updated_at = now() WHERE id = $1",
+                "UPDATE live_sessions SET result_id = $2, final_state_sha256 = $3, final_frame_sha256 = $4, updated_at = now() WHERE id = $1",
             )
             .bind(session.id)
-            .bind(log)
             .bind(view.id)
             .bind(&result.record.final_state_sha256)
             .bind(frame)

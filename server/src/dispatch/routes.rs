@@ -7,7 +7,7 @@ use std::sync::atomic::Ordering;
 use axum::Router;
 use axum::extract::ws::WebSocketUpgrade;
 use axum::extract::{FromRequestParts, Query, State};
-use axum::http::header::{AUTHORIZATION, CONTENT_TYPE, HOST, ORIGIN};
+use axum::http::header::{AUTHORIZATION, CONTENT_TYPE, HOST, ORIGIN, RETRY_AFTER};
 use axum::http::request::Parts;
 use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -19,7 +19,7 @@ use serde_json::json;
 use sha2::{Digest, Sha256};
 use uuid::Uuid;
 
-use super::{Dispatcher, LiveSession, Placement, SessionRecord, proxy};
+use super::{Dispatcher, LiveSession, PlaceError, Placement, SessionRecord, proxy};
 use crate::ApiError;
 use crate::records::RecordsState;
 use crate::records::attempts::{ActivityKind, record_activity};
@@ -124,20 +124,24 @@ async fn start_session(
     }
     // A session of this attempt that the server no longer holds (it restarted, or the session
     // was closed): continue it from its recorded snapshot and log.
-    let stored: Option<(Uuid, serde_json::Value, serde_json::Value)> = sqlx::query_as(
-        "SELECT id, initial_snapshot, log FROM live_sessions
+    let stored: Option<(Uuid, serde_json::Value)> = sqlx::query_as(
+        "SELECT id, initial_snapshot FROM live_sessions
          WHERE attempt_id = $1 AND result_id IS NULL ORDER BY created_at DESC LIMIT 1",
     )
     .bind(attempt_id)
     .fetch_optional(&state.records.pool)
     .await?;
-    if let Some((id, initial, log)) = stored {
-        let (initial, log) = parse_recorded(initial, log)?;
+    if let Err(e) = state.dispatcher.check_local_ready(&station_id) {
+        return Ok(not_placed(attempt_id, e));
+    }
+    if let Some((id, initial)) = stored {
+        let (initial, log) = parse_recorded(&state, id, initial).await?;
         let mut record = SessionRecord {
             placement: Placement::Local {
                 worker_session: String::new(),
             },
             initial,
+            durable_len: log.len(),
             log,
             last_frame_sha256: None,
             result_id: None,
@@ -163,10 +167,10 @@ async fn start_session(
         let st = session.state.lock().await;
         return Ok((StatusCode::OK, axum::Json(session_json(&session, &st))).into_response());
     }
-    let (placement, initial) = state.dispatcher.place_new(&station_id).await.map_err(|e| {
-        tracing::error!(attempt = %attempt_id, "no session could be created: {e}");
-        ApiError::Unavailable("render worker")
-    })?;
+    let (placement, initial) = match state.dispatcher.place_new(&station_id).await {
+        Ok(p) => p,
+        Err(e) => return Ok(not_placed(attempt_id, e)),
+    };
     let id = Uuid::new_v4();
     sqlx::query("INSERT INTO live_sessions (id, attempt_id, learner_id, station_id, initial_snapshot) VALUES ($1, $2, $3, $4, $5)")
         .bind(id)
@@ -181,6 +185,7 @@ async fn start_session(
         placement,
         initial,
         log: Vec::new(),
+        durable_len: 0,
         last_frame_sha256: None,
         result_id: None,
         failovers: 0,
@@ -199,6 +204,46 @@ async fn start_session(
     .await?;
     let st = session.state.lock().await;
     Ok((StatusCode::CREATED, axum::Json(session_json(&session, &st))).into_response())
+}
+
+/// The answer when no session could be placed: while the anatomy is being prepared, 503 with
+/// `Retry-After` and a body the web client shows as progress (code `anatomy_preparing`, the
+/// region's stage, fraction done and estimated seconds left); when its preparation failed, 503
+/// with the reason (code `anatomy_failed`); otherwise the generic unavailable error.
+fn not_placed(attempt_id: Uuid, e: PlaceError) -> Response {
+    match e {
+        PlaceError::Preparing {
+            region,
+            readiness,
+            retry_after_s,
+        } => {
+            let body = json!({ "error": {
+                "code": "anatomy_preparing",
+                "message": format!("the anatomy ({region}) is being prepared; retry after {retry_after_s} s"),
+                "retry_after_s": retry_after_s,
+                "region": region,
+                "readiness": readiness,
+            } });
+            (
+                StatusCode::SERVICE_UNAVAILABLE,
+                [(RETRY_AFTER, retry_after_s.to_string())],
+                axum::Json(body),
+            )
+                .into_response()
+        }
+        PlaceError::AnatomyFailed(reason) => {
+            tracing::error!(attempt = %attempt_id, "the anatomy could not be prepared: {reason}");
+            let body = json!({ "error": {
+                "code": "anatomy_failed",
+                "message": format!("the anatomy could not be prepared: {reason}"),
+            } });
+            (StatusCode::SERVICE_UNAVAILABLE, axum::Json(body)).into_response()
+        }
+        PlaceError::Failed(e) => {
+            tracing::error!(attempt = %attempt_id, "no session could be created: {e}");
+            ApiError::Unavailable("render worker").into_response()
+        }
+    }
 }
 
 /// The session, for its learner.
@@ -310,7 +355,6 @@ type ReplayRow = (
     Uuid,
     String,
     serde_json::Value,
-    serde_json::Value,
     Option<Uuid>,
     Option<String>,
     Option<String>,
@@ -326,7 +370,7 @@ async fn recorded_session(
 ) -> Result<ReplayRow, ApiError> {
     visible_attempt(state, user, attempt_id).await?;
     sqlx::query_as(
-        "SELECT s.id, s.station_id, s.initial_snapshot, s.log, s.result_id, s.final_state_sha256, s.final_frame_sha256, r.score, r.outcome
+        "SELECT s.id, s.station_id, s.initial_snapshot, s.result_id, s.final_state_sha256, s.final_frame_sha256, r.score, r.outcome
          FROM live_sessions s LEFT JOIN technical_results r ON r.id = s.result_id
          WHERE s.attempt_id = $1 ORDER BY (s.result_id IS NOT NULL) DESC, s.created_at DESC LIMIT 1",
     )
@@ -344,6 +388,10 @@ async fn replay_to(
     log: Vec<LogEntry>,
 ) -> Result<(Session, Option<Vec<u8>>), ApiError> {
     let host = state.dispatcher.inner.replay.clone();
+    // Never hold a request for an anatomy build: say when to come back instead.
+    if let Err(render_worker::session::HostError::Preparing { .. }) = host.check_ready(&station_id) {
+        return Err(ApiError::Unavailable("anatomy (being prepared; retry shortly)"));
+    }
     tokio::task::spawn_blocking(move || {
         let env = host
             .env_for(&station_id)
@@ -366,14 +414,17 @@ async fn replay_to(
     .map_err(|e| ApiError::Internal(e.to_string()))?
 }
 
-fn parse_recorded(
+/// A recorded session's initial snapshot (stored JSON) and its logged commands.
+async fn parse_recorded(
+    state: &DispatchState,
+    session_id: Uuid,
     initial: serde_json::Value,
-    log: serde_json::Value,
 ) -> Result<(SessionSnapshot, Vec<LogEntry>), ApiError> {
     let initial = serde_json::from_value(initial)
         .map_err(|e| ApiError::Internal(format!("stored snapshot: {e}")))?;
-    let log =
-        serde_json::from_value(log).map_err(|e| ApiError::Internal(format!("stored log: {e}")))?;
+    let log = super::durable::load(&state.records.pool, session_id)
+        .await
+        .map_err(|e| ApiError::Internal(format!("stored log: {e}")))?;
     Ok((initial, log))
 }
 
@@ -385,9 +436,9 @@ async fn replay(
     Caller(user): Caller,
     ApiPath(attempt_id): ApiPath<Uuid>,
 ) -> Result<axum::Json<serde_json::Value>, ApiError> {
-    let (session_id, station_id, initial, log, result_id, final_state, final_frame, score, outcome) =
+    let (session_id, station_id, initial, result_id, final_state, final_frame, score, outcome) =
         recorded_session(&state, &user, attempt_id).await?;
-    let (initial, log) = parse_recorded(initial, log)?;
+    let (initial, log) = parse_recorded(&state, session_id, initial).await?;
     let (s, jpeg) = replay_to(&state, station_id.clone(), initial, log.clone()).await?;
     let replayed = s.result().cloned();
     let replayed_frame = jpeg.as_deref().map(render_worker::session::sha256_hex);
@@ -418,8 +469,8 @@ async fn replay_frame(
     ApiPath(attempt_id): ApiPath<Uuid>,
     Query(q): Query<StepQuery>,
 ) -> Result<Response, ApiError> {
-    let (_, station_id, initial, log, ..) = recorded_session(&state, &user, attempt_id).await?;
-    let (initial, mut log) = parse_recorded(initial, log)?;
+    let (session_id, station_id, initial, ..) = recorded_session(&state, &user, attempt_id).await?;
+    let (initial, mut log) = parse_recorded(&state, session_id, initial).await?;
     if q.step > log.len() {
         return Err(ApiError::BadRequest(format!(
             "step must be 0 to {}",

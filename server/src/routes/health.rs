@@ -9,6 +9,7 @@ use serde::Serialize;
 
 use crate::AppState;
 use crate::workers::WorkerStatus;
+use render_worker::session::host::RegionReadiness;
 
 /// Database part of the health report.
 #[derive(Debug, Serialize)]
@@ -32,6 +33,19 @@ pub struct Health {
     pub database: DatabaseStatus,
     /// Render worker readiness.
     pub render_worker: WorkerStatus,
+    /// The in-process worker's anatomy (absent when the server has no in-process worker).
+    pub anatomy: Option<AnatomyStatus>,
+}
+
+/// Anatomy part of the health report. Not part of `status`: the server serves while the anatomy
+/// is prepared, and session requests meanwhile get 503 with `Retry-After`.
+#[derive(Debug, Serialize)]
+pub struct AnatomyStatus {
+    /// True when every region the stations use is loaded.
+    pub ready: bool,
+    /// Each region: `not_started`, `building` (stage, fraction, elapsed and remaining seconds),
+    /// `ready`, or `failed` with the reason.
+    pub regions: std::collections::BTreeMap<String, RegionReadiness>,
 }
 
 /// 200 with the report when database and render worker are ready, 503 with it otherwise.
@@ -50,7 +64,11 @@ pub async fn healthz(State(state): State<AppState>) -> (StatusCode, Json<Health>
     };
     let database = DatabaseStatus { ready: installation_id.is_some(), embedded: state.embedded_db, installation_id };
     let render_worker = state.workers.status();
+    let anatomy = state.workers.dispatcher().filter(|d| d.local_host().is_some()).map(|d| {
+        let regions = d.anatomy();
+        AnatomyStatus { ready: regions.values().all(|r| matches!(r, RegionReadiness::Ready { .. })), regions }
+    });
     let ok = database.ready && render_worker.ready;
     let status = if ok { StatusCode::OK } else { StatusCode::SERVICE_UNAVAILABLE };
-    (status, Json(Health { status: if ok { "ok" } else { "unavailable" }, version: env!("CARGO_PKG_VERSION"), database, render_worker }))
+    (status, Json(Health { status: if ok { "ok" } else { "unavailable" }, version: env!("CARGO_PKG_VERSION"), database, render_worker, anatomy }))
 }

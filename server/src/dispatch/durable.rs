@@ -1,0 +1,187 @@
+//! The durable half of the server's copy of a session: every acknowledged command is a row of
+//! `live_session_commands`, written before its acknowledgement reaches the browser.
+//!
+//! # The rule
+//! The relay passes no text message (acknowledgement, error, hello, notice, result) to the
+//! browser until every command logged in memory before it was committed to the database. So a
+//! browser never holds an acknowledgement that a restarted server has forgotten: if the server
+//! process dies, whatever the browser saw acknowledged is in the table, and whatever it did not
+//! see acknowledged it sends again after reconnecting (`web-client/session.js` re-sends
+//! unacknowledged commands; the resumed session acknowledges a sequence number it already has
+//! as a duplicate). Frames are not held back: they only show state, and losing the state they
+//! show loses no input the browser considers delivered.
+//!
+//! # Group commit
+//! One [`LogWriter`] task per browser connection writes what the in-memory log holds beyond
+//! the session's durable length, in one `INSERT ... UNNEST` per round: commands acknowledged
+//! while a write is in flight go together in the next one, so a fast stream of commands costs
+//! one commit per round trip, not one per command. The relay never blocks on the write except
+//! at submit, where the stored result must follow its logged command.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use render_worker::session::LogEntry;
+use sqlx::PgPool;
+use tokio::sync::{mpsc, watch};
+use uuid::Uuid;
+
+use super::LiveSession;
+
+/// Writes `entries` (consecutive, in order) of session `id`. Idempotent: a row that is already
+/// there (written by another connection's writer) is kept as it is.
+pub async fn append(pool: &PgPool, id: Uuid, entries: &[LogEntry]) -> Result<(), String> {
+    if entries.is_empty() {
+        return Ok(());
+    }
+    let mut seqs = Vec::with_capacity(entries.len());
+    let mut times = Vec::with_capacity(entries.len());
+    let mut commands = Vec::with_capacity(entries.len());
+    for e in entries {
+        seqs.push(i64::try_from(e.seq).map_err(|_| format!("seq {} out of range", e.seq))?);
+        times.push(i64::try_from(e.t_ms).map_err(|_| format!("t_ms {} out of range", e.t_ms))?);
+        commands.push(serde_json::to_value(&e.command).map_err(|e| e.to_string())?);
+    }
+    sqlx::query(
+        "INSERT INTO live_session_commands (session_id, seq, t_ms, command)
+         SELECT $1, s, t, c FROM UNNEST($2::bigint[], $3::bigint[], $4::jsonb[]) AS u(s, t, c)
+         ON CONFLICT (session_id, seq) DO NOTHING",
+    )
+    .bind(id)
+    .bind(seqs)
+    .bind(times)
+    .bind(commands)
+    .execute(pool)
+    .await
+    .map_err(|e| e.to_string())?;
+    Ok(())
+}
+
+/// The logged commands of session `id`, in order.
+pub async fn load(pool: &PgPool, id: Uuid) -> Result<Vec<LogEntry>, String> {
+    let rows: Vec<(i64, i64, serde_json::Value)> = sqlx::query_as(
+        "SELECT seq, t_ms, command FROM live_session_commands WHERE session_id = $1 ORDER BY seq",
+    )
+    .bind(id)
+    .fetch_all(pool)
+    .await
+    .map_err(|e| e.to_string())?;
+    rows.into_iter()
+        .map(|(seq, t_ms, command)| {
+            Ok(LogEntry {
+                seq: u64::try_from(seq).map_err(|_| format!("stored seq {seq}"))?,
+                t_ms: u64::try_from(t_ms).map_err(|_| format!("stored t_ms {t_ms}"))?,
+                command: serde_json::from_value(command)
+                    .map_err(|e| format!("stored command {seq}: {e}"))?,
+            })
+        })
+        .collect()
+}
+
+/// First wait after a failed write; doubled on each failure up to [`RETRY_MAX`]. Simulator
+/// choice: a database restart or failover takes seconds, and the relay meanwhile only holds
+/// acknowledgements back.
+const RETRY_FIRST: Duration = Duration::from_millis(50);
+/// Longest wait between retries.
+const RETRY_MAX: Duration = Duration::from_secs(2);
+/// Attempts left to flush the log once the connection ended; what is still not written then
+/// stays in memory and is written by the session's next connection (or lost with the process,
+/// but none of it was acknowledged to the browser).
+const FINAL_ATTEMPTS: u32 = 5;
+
+/// The writer task of one browser connection.
+pub struct LogWriter {
+    kick: mpsc::Sender<()>,
+    /// How many log entries of the session are known to be in the database.
+    pub durable: watch::Receiver<usize>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl LogWriter {
+    /// Starts the writer of `session` (it first writes anything an earlier connection left).
+    pub fn start(pool: PgPool, session: Arc<LiveSession>, durable_now: usize) -> LogWriter {
+        let (kick, mut kicks) = mpsc::channel::<()>(1);
+        let (durable_tx, durable) = watch::channel(durable_now);
+        let task = tokio::spawn(async move {
+            loop {
+                flush(&pool, &session, &durable_tx).await;
+                if durable_tx.is_closed() || kicks.recv().await.is_none() {
+                    // The connection ended: one last flush of what it pushed last.
+                    flush(&pool, &session, &durable_tx).await;
+                    return;
+                }
+            }
+        });
+        let w = LogWriter {
+            kick,
+            durable,
+            task,
+        };
+        w.kick();
+        w
+    }
+
+    /// Asks for a write of whatever is new (never waits; a pending request covers later pushes).
+    pub fn kick(&self) {
+        let _ = self.kick.try_send(());
+    }
+
+    /// The durable length now.
+    pub fn durable_len(&self) -> usize {
+        *self.durable.borrow()
+    }
+
+    /// Waits until at least `len` entries are durable (false if the writer stopped first).
+    pub async fn wait_durable(&mut self, len: usize) -> bool {
+        self.kick();
+        self.durable.wait_for(|d| *d >= len).await.is_ok()
+    }
+
+    /// Ends the writer after a last flush (a few attempts at most).
+    pub async fn finish(self) {
+        let LogWriter {
+            kick,
+            durable,
+            task,
+        } = self;
+        drop((kick, durable));
+        let _ = task.await;
+    }
+}
+
+/// Writes the log beyond the session's durable length until nothing is left (retrying with
+/// back-off while the connection is open, at most [`FINAL_ATTEMPTS`] times once it ended).
+async fn flush(pool: &PgPool, session: &LiveSession, durable_tx: &watch::Sender<usize>) {
+    let mut wait = RETRY_FIRST;
+    let mut failures = 0u32;
+    loop {
+        let (from, batch) = {
+            let st = session.state.lock().await;
+            let from = st.durable_len.min(st.log.len());
+            (from, st.log[from..].to_vec())
+        };
+        if batch.is_empty() {
+            return;
+        }
+        match append(pool, session.id, &batch).await {
+            Ok(()) => {
+                let mut st = session.state.lock().await;
+                st.durable_len = st.durable_len.max(from + batch.len());
+                let now = st.durable_len;
+                drop(st);
+                durable_tx.send_replace(now);
+                wait = RETRY_FIRST;
+                failures = 0;
+            }
+            Err(e) => {
+                failures += 1;
+                tracing::error!(session = %session.id, entries = batch.len(), failures, "writing acknowledged commands failed: {e}");
+                if durable_tx.is_closed() && failures >= FINAL_ATTEMPTS {
+                    return;
+                }
+                tokio::time::sleep(wait).await;
+                wait = (wait * 2).min(RETRY_MAX);
+            }
+        }
+    }
+}

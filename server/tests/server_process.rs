@@ -1,0 +1,172 @@
+//! The real `server` binary as a child process, shared by the whole-process tests
+//! (`process`, `records_sigkill`, `session_sigkill`): spawn it on a data folder (embedded
+//! database) or a test database, read its address, wait for health, SIGTERM or SIGKILL it.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use server::records::config::Argon2Cost;
+
+/// One HTTP/1.1 request over a fresh connection; returns (status, head, body). Small enough for
+/// health checks and JSON calls without a client crate; status 0 never comes back (an error does).
+pub fn http(
+    addr: &str,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    body: &str,
+) -> std::io::Result<(u16, String, String)> {
+    let mut s = TcpStream::connect(addr)?;
+    s.set_read_timeout(Some(Duration::from_secs(10)))?;
+    let mut req = format!(
+        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n",
+        body.len()
+    );
+    for (k, v) in headers {
+        req.push_str(&format!("{k}: {v}\r\n"));
+    }
+    req.push_str("\r\n");
+    req.push_str(body);
+    s.write_all(req.as_bytes())?;
+    let mut raw = String::new();
+    s.read_to_string(&mut raw)?;
+    let status = raw
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    let (head, body) = raw.split_once("\r\n\r\n").unwrap_or((&raw, ""));
+    Ok((status, head.to_owned(), body.to_owned()))
+}
+
+/// `GET path`: (status, body).
+pub fn http_get(addr: &str, path: &str) -> std::io::Result<(u16, String)> {
+    http(addr, "GET", path, &[], "").map(|(s, _, b)| (s, b))
+}
+
+/// The settings that make logins cheap and unthrottled in tests (argon2 at its test cost, rate
+/// limits out of the way).
+pub fn fast_auth_env() -> Vec<(&'static str, String)> {
+    vec![
+        (
+            "PAINSIM_ARGON2_MEMORY_KIB",
+            Argon2Cost::TEST_ONLY.memory_kib.to_string(),
+        ),
+        ("PAINSIM_ARGON2_ITERATIONS", "1".into()),
+        ("PAINSIM_AUTH_RATE_PER_MINUTE", "100000".into()),
+        ("PAINSIM_AUTH_BURST", "100000".into()),
+    ]
+}
+
+/// A running `server` process.
+pub struct ServerProcess {
+    /// The child.
+    pub child: Child,
+    /// `127.0.0.1:port` it serves on.
+    pub addr: String,
+}
+
+/// Starts the `server` binary on a loopback port with `data_dir`, against `database_url` (or the
+/// embedded cluster under `data_dir` when `None`), with `env` added. Returns once it printed its
+/// URL; its stdout keeps being drained so it never blocks on a full pipe.
+pub fn spawn_server(
+    data_dir: &std::path::Path,
+    database_url: Option<&str>,
+    env: &[(&str, String)],
+) -> ServerProcess {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_server"));
+    cmd.env("PAINSIM_BIND", "127.0.0.1:0")
+        .env("PAINSIM_DATA_DIR", data_dir)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit());
+    match database_url {
+        Some(url) => cmd.env("DATABASE_URL", url),
+        None => cmd.env_remove("DATABASE_URL"),
+    };
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let mut child = cmd.spawn().expect("spawn server");
+    let mut lines = BufReader::new(child.stdout.take().expect("piped stdout")).lines();
+    let line = lines
+        .next()
+        .expect("server printed its URL")
+        .expect("readable stdout");
+    let addr = line
+        .split("http://")
+        .nth(1)
+        .and_then(|r| r.split('/').next())
+        .expect("URL in the first line")
+        .to_owned();
+    std::thread::spawn(move || for _ in lines {});
+    ServerProcess { child, addr }
+}
+
+impl ServerProcess {
+    /// Polls `/healthz` until the database is ready and the render worker settled (no longer
+    /// `starting`); returns how long it took and the last report. Panics after `limit`.
+    pub fn wait_healthy(&self, limit: Duration) -> (Duration, serde_json::Value) {
+        let start = Instant::now();
+        loop {
+            if let Ok((code, body)) = http_get(&self.addr, "/healthz") {
+                let v: serde_json::Value = serde_json::from_str(&body).unwrap_or_default();
+                let worker_settled = v["render_worker"]["state"] != "starting";
+                if v["database"]["ready"] == true && worker_settled {
+                    if std::env::var_os("REQUIRE_GPU").is_some() {
+                        assert_eq!(code, 200, "{v}");
+                    }
+                    return (start.elapsed(), v);
+                }
+            }
+            assert!(
+                start.elapsed() < limit,
+                "server not healthy within {limit:?}"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    /// SIGKILL, and reap it.
+    pub fn sigkill(mut self) {
+        let status = Command::new("kill")
+            .args(["-KILL", &self.child.id().to_string()])
+            .status()
+            .expect("run kill");
+        assert!(status.success());
+        self.child.wait().expect("reap the server");
+    }
+
+    /// SIGTERM, then waits (60 s at most) for a successful exit.
+    pub fn sigterm_and_wait(mut self) {
+        let status = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status()
+            .expect("run kill");
+        assert!(status.success());
+        let deadline = Instant::now() + Duration::from_secs(60);
+        loop {
+            if let Some(st) = self.child.try_wait().expect("wait for the server") {
+                assert!(st.success(), "server exit status after SIGTERM: {st}");
+                return;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "server did not exit after SIGTERM"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+impl Drop for ServerProcess {
+    /// A test that fails half-way leaves no server behind.
+    fn drop(&mut self) {
+        if matches!(self.child.try_wait(), Ok(None)) {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
