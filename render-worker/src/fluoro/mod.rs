@@ -1014,10 +1014,10 @@ impl GpuFluoroRenderer {
                 o[1] + (r[1] + r[3]) as f32 * inv,
             ]
         };
-        // Only the triangles that can reach a small rectangle are drawn into it: the
-        // supersampled region's geometric pass and every displaced pass.
-        // `None`: the whole list; `Some(None)`: no triangle reaches the rectangle.
-        let geo_list = (self.culling && passes.geometry && region.n > 1)
+        // Only the triangles that can reach the target are drawn into it (the anatomy often
+        // extends beyond the image), and only those that can reach the needle's box into the
+        // displaced pass. `None`: the whole list; `Some(None)`: no triangle reaches it.
+        let geo_list = (self.culling && passes.geometry)
             .then(|| self.culled(projection, to_pixels([0, 0, size[0], size[1]])));
         let disp_list = match rect {
             Some(r) if self.culling && passes.displaced => {
