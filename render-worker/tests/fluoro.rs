@@ -4,6 +4,10 @@
 //! signature (the set of meshes each centre ray crosses) as the pixel itself. At the other
 //! pixels a triangle edge passes within a pixel of the centre, where the GPU rasteriser's
 //! fixed-point coverage and the CPU's f64 ray test may legitimately disagree about a hit.
+//! On scenes with concave meshes (the phantom) a mesh also has silhouettes inside its own
+//! projection, where a ray grazes a fold and the number of times it crosses the mesh changes
+//! while the set of meshes does not: there the neighbourhood must also cross every mesh the
+//! same number of times ([`fold_free`]).
 
 use render_worker::fluoro::{CHANNELS, GpuFluoroRenderer};
 use render_worker::gpu::context_for_tests;
@@ -29,6 +33,39 @@ fn interior_pixels(cpu: &[RayChords], w: usize, h: usize) -> Vec<usize> {
             let s = cpu[p].signature;
             (j.saturating_sub(1)..(j + 2).min(h)).all(|jj| {
                 (i.saturating_sub(1)..(i + 2).min(w)).all(|ii| cpu[jj * w + ii].signature == s)
+            })
+        })
+        .collect()
+}
+
+/// The pixels of `pixels` whose 3 x 3 neighbourhood's centre rays cross every scene entry the
+/// same number of times as the pixel's own ray (CPU f64 hits): no fold of any mesh projects
+/// within a pixel of the centre. A grazed fold is a silhouette edge inside the mesh's outline,
+/// where a sliver thinner than the rasteriser's sub-pixel grid may be hit by one side only (seen
+/// on the phantom: a 0.15 mm sliver of a vertebral body at the edge of a lobe).
+fn fold_free(pixels: &[usize], scene: &Scene, p: &Projection, w: usize, h: usize) -> Vec<usize> {
+    let mut hits = Vec::new();
+    let counts: Vec<Vec<usize>> = (0..w * h)
+        .map(|q| {
+            let ray = p.pixel_ray([(q % w) as f64 + 0.5, (q / w) as f64 + 0.5]);
+            scene
+                .entries()
+                .iter()
+                .map(|e| {
+                    e.bvh
+                        .all_hits(ray.origin_mm, ray.dir, 0.0, ray.detector_t_mm, &mut hits);
+                    hits.len()
+                })
+                .collect()
+        })
+        .collect();
+    pixels
+        .iter()
+        .copied()
+        .filter(|&q| {
+            let (i, j) = (q % w, q / w);
+            (j.saturating_sub(1)..(j + 2).min(h)).all(|jj| {
+                (i.saturating_sub(1)..(i + 2).min(w)).all(|ii| counts[jj * w + ii] == counts[q])
             })
         })
         .collect()
@@ -317,9 +354,10 @@ fn iodine_column_matches_the_exact_cpu_integral() {
 
 /// The lumbar phantom (procedural, 5 mm grid: about 184k triangles, a few seconds to build).
 ///
-/// Two comparisons, because the phantom's structures come from disjoint masks meshed and
-/// decimated separately, so neighbours touch with sub-voxel gaps and overlaps, which the
-/// L-buffer's laminar nesting counts twice where the CPU's priority rule counts them once:
+/// Two comparisons, because where two of the phantom's structures still overlap (touching
+/// structures are meshed as laminar families sharing their interfaces, but a few pairs' surfaces
+/// cross), the L-buffer's laminar nesting counts the overlap twice where the CPU's priority rule
+/// counts it once:
 /// 1. The GPU against the same linear rule evaluated on the CPU from sim-core's exact raw
 ///    per-mesh chords (`Scene::ray_entry_chords`) and the renderer's nesting: this isolates the
 ///    GPU implementation and must meet the issue's 0.1 mm / 0.5 % at every interior pixel.
@@ -348,8 +386,10 @@ fn lumbar_phantom_chords_match_the_cpu() {
     let (w, h) = (192usize, 192usize);
     let g = gpu.render_chords(&p).expect("gpu chords");
     let cpu = render_chords(&scene, &p, 0);
-    let interior = interior_pixels(&cpu, w, h);
-    assert!(interior.len() > w * h / 2);
+    let outline_interior = interior_pixels(&cpu, w, h);
+    let interior = fold_free(&outline_interior, &scene, &p, w, h);
+    // Measured: 22,951 pixels without a change of signature, 16,907 of them away from folds.
+    assert!(interior.len() > w * h / 3, "{}", interior.len());
     let cort = FluoroMaterial::Tissue(MaterialClass::CorticalBone).index();
     let canc = FluoroMaterial::Tissue(MaterialClass::Cancellous).index();
     let (mut linear_worst, mut within, mut priority_errs) = (f64::NEG_INFINITY, 0usize, Vec::new());
@@ -380,18 +420,21 @@ fn lumbar_phantom_chords_match_the_cpu() {
     let n = priority_errs.len();
     let frac = within as f64 / interior.len() as f64;
     eprintln!(
-        "phantom: {} interior pixels; GPU vs linear rule worst excess {linear_worst:.2e} mm; \
-         GPU vs priority rule: median {:.1e} mm, p99 {:.2} mm, max {:.2} mm, {:.1} % of pixels within tolerance",
+        "phantom: {} interior pixels ({} without a change of signature, less those at folds); GPU vs linear rule worst excess {linear_worst:.2e} mm; \
+         GPU vs priority rule: median {:.1e} mm, p99 {:.2} mm, max {:.2} mm, {:.2} % of pixels within tolerance",
         interior.len(),
+        outline_interior.len(),
         priority_errs[n / 2],
         priority_errs[n * 99 / 100],
         priority_errs[n - 1],
         100.0 * frac
     );
     assert!(linear_worst <= 0.0, "{linear_worst}");
-    // Measured when written: 86 % of interior pixels within tolerance on this 5 mm phantom and
-    // view (the rest see touching structures' overlaps); 80 % leaves slack for rounding only.
-    assert!(frac > 0.80, "{frac}");
+    // Measured: 99.9 % of interior pixels within tolerance on this 5 mm phantom and view (was
+    // 86 % before touching structures were meshed as laminar families sharing their interfaces;
+    // the rest see pairs of structures whose surfaces cross, listed in the build's provenance
+    // notes). 99 % leaves slack for rounding only.
+    assert!(frac > 0.99, "{frac}");
 }
 
 /// Needle supersampling: the GPU's `n x n` samples at the CPU's positions near the needle's
