@@ -113,9 +113,7 @@ fn main() {
             "| {n} | {idle_s} | {used_ms:.0} | {:.2} |",
             used_ms / (n as f64 * idle_s)
         );
-        for s in &handles {
-            let _ = h.close(&s.info.id);
-        }
+        h.shutdown();
     }
 
     // 2. A session's cost over the bare renderer, and with another modality listed.
@@ -294,6 +292,7 @@ fn main() {
             } else {
                 (host_with(n, &[], Arc::clone(&backend)), "demo-station")
             };
+            let host = h.clone();
             let (lat, fps) = rt.block_on(async move {
                 let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
                     .await
@@ -320,6 +319,9 @@ fn main() {
                 server.abort();
                 (lat, fps.iter().sum::<f64>() / fps.len() as f64)
             });
+            // Session threads release their GPU resources before the next run (and before the
+            // process exits, see `SessionHost::shutdown`).
+            host.shutdown();
             let mut lat = lat;
             println!(
                 "| {scene} | {} {} | {n} | {inputs} | {:.1} | {:.1} | {fps:.1} |",

@@ -818,6 +818,48 @@ async fn host_hands_a_session_over_from_snapshot_and_log() {
     );
 }
 
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_ends_every_session_thread_before_returning() {
+    let h = host(3);
+    let mut sessions = Vec::new();
+    for _ in 0..2 {
+        let s = h.create("demo-station").await.unwrap();
+        s.command(Envelope {
+            seq: 1,
+            command: Command::Shot,
+        })
+        .await
+        .unwrap();
+        sessions.push(s);
+    }
+    let frames: Vec<_> = sessions.iter().map(|s| s.frames()).collect();
+    let h2 = h.clone();
+    tokio::task::spawn_blocking(move || h2.shutdown())
+        .await
+        .unwrap();
+    assert_eq!(h.health().sessions, 0);
+    for (s, f) in sessions.iter().zip(&frames) {
+        // The actor thread has returned: it dropped its frame sender and its command queue.
+        assert!(f.has_changed().is_err(), "session thread still running");
+        assert!(
+            s.command(Envelope {
+                seq: 2,
+                command: Command::Shot,
+            })
+            .await
+            .is_err()
+        );
+    }
+    // The host goes on serving new sessions.
+    let s = h.create("demo-station").await.unwrap();
+    s.command(Envelope {
+        seq: 1,
+        command: Command::Shot,
+    })
+    .await
+    .unwrap();
+}
+
 async fn http(addr: std::net::SocketAddr, request: &str) -> String {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();

@@ -191,6 +191,7 @@ async fn bench_backend(
         capacity,
         SessionConfig::default(),
     );
+    let sessions_host = host.clone();
     let dispatcher = Dispatcher::new(Some(host.clone()), host, None);
     let state = AppState {
         pool: db.pool.clone(),
@@ -263,6 +264,10 @@ async fn bench_backend(
             all.last().copied().unwrap_or(f64::NAN)
         );
     }
+    // Session threads release their GPU resources before the process exits.
+    tokio::task::spawn_blocking(move || sessions_host.shutdown())
+        .await
+        .expect("session shutdown");
 }
 
 /// The server's worker status (its GPU check), shared by both renderers' servers.

@@ -80,6 +80,7 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
     if crate::dispatch::DispatchConfig::from_env(config.records.stations_dir.clone()).prepare_at_start {
         dispatcher.prepare_in_background();
     }
+    let local_sessions = dispatcher.local_host().cloned();
     state.workers = state.workers.with_dispatcher(dispatcher);
     let addr = listener.local_addr()?;
     tracing::info!(web = %show_path(&config.web_dir), "serving the web client");
@@ -91,6 +92,11 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
     }
     let served = axum::serve(listener, app(state).into_make_service_with_connect_info::<std::net::SocketAddr>()).with_graceful_shutdown(shutdown_signal()).await;
     tracing::info!("shutting down");
+    // Session threads end (and release their GPU resources) before the process exits; their
+    // commands are already stored, so they resume from their log at the next start.
+    if let Some(h) = local_sessions {
+        tokio::task::spawn_blocking(move || h.shutdown()).await?;
+    }
     pool.close().await;
     if let Some(c) = cluster {
         tokio::task::spawn_blocking(move || c.stop()).await??;

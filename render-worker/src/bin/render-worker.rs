@@ -116,10 +116,13 @@ fn main() -> ExitCode {
         let shutdown = async {
             let _ = tokio::signal::ctrl_c().await;
         };
-        match axum::serve(listener, http::router(host))
+        let sessions = host.clone();
+        let served = axum::serve(listener, http::router(host))
             .with_graceful_shutdown(shutdown)
-            .await
-        {
+            .await;
+        // Session threads release their GPU resources before the process exits.
+        let _ = tokio::task::spawn_blocking(move || sessions.shutdown()).await;
+        match served {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
                 eprintln!("render-worker: {e}");
