@@ -820,16 +820,15 @@ async fn host_hands_a_session_over_from_snapshot_and_log() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn shutdown_ends_every_session_thread_before_returning() {
+    let shot = |seq| Envelope {
+        seq,
+        command: Command::Shot,
+    };
     let h = host(3);
     let mut sessions = Vec::new();
     for _ in 0..2 {
         let s = h.create("demo-station").await.unwrap();
-        s.command(Envelope {
-            seq: 1,
-            command: Command::Shot,
-        })
-        .await
-        .unwrap();
+        s.command(shot(1)).await.unwrap();
         sessions.push(s);
     }
     let frames: Vec<_> = sessions.iter().map(|s| s.frames()).collect();
@@ -841,23 +840,11 @@ async fn shutdown_ends_every_session_thread_before_returning() {
     for (s, f) in sessions.iter().zip(&frames) {
         // The actor thread has returned: it dropped its frame sender and its command queue.
         assert!(f.has_changed().is_err(), "session thread still running");
-        assert!(
-            s.command(Envelope {
-                seq: 2,
-                command: Command::Shot,
-            })
-            .await
-            .is_err()
-        );
+        assert!(s.command(shot(2)).await.is_err());
     }
     // The host goes on serving new sessions.
     let s = h.create("demo-station").await.unwrap();
-    s.command(Envelope {
-        seq: 1,
-        command: Command::Shot,
-    })
-    .await
-    .unwrap();
+    s.command(shot(1)).await.unwrap();
 }
 
 async fn http(addr: std::net::SocketAddr, request: &str) -> String {
