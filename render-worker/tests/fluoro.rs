@@ -25,17 +25,29 @@ fn chord_tolerance_mm(cpu_mm: f64) -> f64 {
     0.1f64.max(0.005 * cpu_mm.abs())
 }
 
-/// Indices of pixels whose 3 x 3 neighbourhood has one CPU signature.
-fn interior_pixels(cpu: &[RayChords], w: usize, h: usize) -> Vec<usize> {
-    (0..w * h)
+/// The pixels of `pixels` whose 3 x 3 neighbourhood (clipped at the image border) has the same
+/// `key` as the pixel itself; `key` is indexed by pixel, row-major, `w` x `h`.
+fn uniform_neighbourhood<K: PartialEq>(
+    pixels: impl IntoIterator<Item = usize>,
+    key: &[K],
+    w: usize,
+    h: usize,
+) -> Vec<usize> {
+    pixels
+        .into_iter()
         .filter(|&p| {
             let (i, j) = (p % w, p / w);
-            let s = cpu[p].signature;
             (j.saturating_sub(1)..(j + 2).min(h)).all(|jj| {
-                (i.saturating_sub(1)..(i + 2).min(w)).all(|ii| cpu[jj * w + ii].signature == s)
+                (i.saturating_sub(1)..(i + 2).min(w)).all(|ii| key[jj * w + ii] == key[p])
             })
         })
         .collect()
+}
+
+/// Indices of pixels whose 3 x 3 neighbourhood has one CPU signature.
+fn interior_pixels(cpu: &[RayChords], w: usize, h: usize) -> Vec<usize> {
+    let signatures: Vec<u64> = cpu.iter().map(|r| r.signature).collect();
+    uniform_neighbourhood(0..w * h, &signatures, w, h)
 }
 
 /// The pixels of `pixels` whose 3 x 3 neighbourhood's centre rays cross every scene entry the
@@ -59,16 +71,7 @@ fn fold_free(pixels: &[usize], scene: &Scene, p: &Projection, w: usize, h: usize
                 .collect()
         })
         .collect();
-    pixels
-        .iter()
-        .copied()
-        .filter(|&q| {
-            let (i, j) = (q % w, q / w);
-            (j.saturating_sub(1)..(j + 2).min(h)).all(|jj| {
-                (i.saturating_sub(1)..(i + 2).min(w)).all(|ii| counts[jj * w + ii] == counts[q])
-            })
-        })
-        .collect()
+    uniform_neighbourhood(pixels.iter().copied(), &counts, w, h)
 }
 
 struct ChordReport {
