@@ -33,6 +33,12 @@ struct Params {
     rect: vec4<u32>,
 }
 
+// Pipeline constant: false builds the resolve without the iodine ray march (frames without a
+// contrast field). A SIMD implementation runs a branch whose condition is a uniform value for
+// every invocation, masked, even when no invocation takes it (lavapipe spent about a quarter of
+// the resolve there); a pipeline without the branch does not.
+override has_iodine: bool = true;
+
 @group(0) @binding(0) var<uniform> params: Params;
 // (water-basis mu_60 L, bone-basis mu_60 L, cortical L, cancellous L), mm / cm.
 @group(0) @binding(1) var lbuf: texture_2d<f32>;
@@ -141,7 +147,7 @@ fn resolve(@builtin(global_invocation_id) gid: vec3<u32>) {
     let a_bone = max(a.y + (params.mu.x - params.mu.y) * (a.w - c), 0.0) * 0.1;
     let a_iron = params.mu.z * steel * 0.1;
     var a_iod = 0.0;
-    if (params.dims.w != 0u) {
+    if (has_iodine && params.dims.w != 0u) {
         let d = params.p00.xyz + (px - 0.5) * params.step_u.xyz + (py - 0.5) * params.step_v.xyz;
         let len = length(d);
         a_iod = params.mu.w * iodine_column(d / len, len) * 0.1;
@@ -151,7 +157,18 @@ fn resolve(@builtin(global_invocation_id) gid: vec3<u32>) {
     let v = a_bone * params.lut_scale.y;
     let nw = params.lut_dims.x;
     let nb = params.lut_dims.y;
-    if (params.lut_dims.z != 0u && a_iron == 0.0 && a_iod == 0.0 && u < f32(nw - 1u) && v < f32(nb - 1u)) {
+    let in_lut = params.lut_dims.z != 0u && a_iron == 0.0 && a_iod == 0.0 && u < f32(nw - 1u) && v < f32(nb - 1u);
+    // The spectral sum's trip count is per invocation (zero where the table applies): a SIMD
+    // implementation (lavapipe runs 8 invocations per vector) then leaves the loop as soon as
+    // none of its lanes needs it. A loop bounded by the uniform bin count with an early return
+    // instead ran all bins, masked, for every pixel.
+    let bins_here = select(params.dims.z, 0u, in_lut);
+    var t = 0.0;
+    let depth = vec4<f32>(a_water, a_bone, a_iod, a_iron);
+    for (var k = 0u; k < bins_here; k++) {
+        t += bins[2u * k + 1u].x * exp2(-dot(depth, bins[2u * k]));
+    }
+    if (in_lut) {
         let i = u32(u);
         let j = u32(v);
         let fu = u - f32(i);
@@ -159,13 +176,7 @@ fn resolve(@builtin(global_invocation_id) gid: vec3<u32>) {
         let k = j * nw + i;
         let l0 = mix(lut[k], lut[k + 1u], fu);
         let l1 = mix(lut[k + nw], lut[k + nw + 1u], fu);
-        out_t[idx] = exp(mix(l0, l1, fv));
-        return;
-    }
-    let depth = vec4<f32>(a_water, a_bone, a_iod, a_iron);
-    var t = 0.0;
-    for (var k = 0u; k < params.dims.z; k++) {
-        t += bins[2u * k + 1u].x * exp2(-dot(depth, bins[2u * k]));
+        t = exp(mix(l0, l1, fv));
     }
     out_t[idx] = t;
 }
