@@ -340,7 +340,7 @@ pub struct GpuFluoroRenderer {
     /// The last displayed-frame transmission and what decided it.
     last_frame: Option<(FrameKey, GpuTransmission)>,
     /// Exposed-pixel mask of the last projection displayed.
-    exposed: Option<(Projection, Vec<bool>)>,
+    exposed: Option<(ExposureKey, Vec<bool>)>,
     /// Use the caches (default `true`; `false` renders every frame from scratch, for the
     /// benchmark's before/after rows and the cache tests).
     pub caching: bool,
@@ -1923,11 +1923,14 @@ impl GpuFluoroRenderer {
     ) -> Result<Image, FluoroGpuError> {
         let g = self.render_transmission_supersampled(projection, settings, iodine)?;
         let started = Instant::now();
+        // The collimator mask depends on the detector and the blades only, not on the C-arm's
+        // pose: kept across C-arm moves.
+        let key = ExposureKey::of(projection);
         let exposed = match &self.exposed {
-            Some((p, mask)) if p == projection => mask.clone(),
+            Some((k, mask)) if *k == key => mask.clone(),
             _ => {
                 let mask = exposed_mask(projection);
-                self.exposed = Some((*projection, mask.clone()));
+                self.exposed = Some((key, mask.clone()));
                 mask
             }
         };
@@ -2021,6 +2024,24 @@ fn union_rect(a: Option<[u32; 4]>, b: Option<[u32; 4]>) -> Option<[u32; 4]> {
 }
 
 /// Which pixels the collimator exposes (decided at pixel centres, as the CPU).
+/// What decides which pixels the beam reaches (see `Projection::is_exposed`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct ExposureKey {
+    pixels: [u32; 2],
+    pitch_mm: [f64; 2],
+    collimation: sim_core::fluoro::Collimation,
+}
+
+impl ExposureKey {
+    fn of(p: &Projection) -> ExposureKey {
+        ExposureKey {
+            pixels: p.detector_pixels,
+            pitch_mm: p.pixel_pitch_mm,
+            collimation: p.collimation,
+        }
+    }
+}
+
 fn exposed_mask(projection: &Projection) -> Vec<bool> {
     let w = projection.detector_pixels[0] as usize;
     let n = w * projection.detector_pixels[1] as usize;
