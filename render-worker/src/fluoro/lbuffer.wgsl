@@ -45,12 +45,16 @@ struct VOut {
     @location(3) @interpolate(flat) n: vec4<f32>,
 }
 
-// The same without the displaced weights (fewer values to set up per triangle).
+// The geometric pass's (it draws every anatomy triangle): no displaced weights and no
+// interpolated point, only values constant over the triangle. A software rasteriser sets up
+// every interpolated value per triangle; the distance comes from the plane and, for triangles
+// seen edge-on, from the fragment's perspective divisor (see `crossing`).
 struct GOut {
     @builtin(position) clip: vec4<f32>,
-    @location(0) rel: vec4<f32>,
     @location(1) @interpolate(flat) g: vec4<f32>,
     @location(3) @interpolate(flat) n: vec4<f32>,
+    // The mesh's reference depth, mm.
+    @location(4) @interpolate(flat) tref: f32,
 }
 
 fn project(pos: vec3<f32>, n: vec3<f32>, tref: f32) -> VOut {
@@ -74,9 +78,12 @@ struct Crossing {
 // Distance from the source along the fragment's exact pixel ray to the triangle's plane, and
 // whether the ray enters the mesh there (against the outward normal). Interpolated positions
 // lose precision on long, thin triangles seen edge-on (a needle's sides); the plane does not.
-// Degenerate triangles (zero normal) fall back to the interpolated point and the rasteriser's
-// facing.
-fn crossing(clip: vec4<f32>, rel: vec3<f32>, n: vec4<f32>, front: bool) -> Crossing {
+// Triangles seen edge-on within 1e-4 rad, or degenerate (zero normal), fall back to the
+// rasteriser's facing and to a distance from the fragment itself: the interpolated point
+// (`rel`, when `interpolated`), or else the perspective divisor: the fragment position's w is
+// 1 / w_clip, w_clip = row_w . (point - source) is exact at the fragment, and along the ray
+// t = w_clip |d| / (row_w . d).
+fn crossing(clip: vec4<f32>, rel: vec3<f32>, interpolated: bool, n: vec4<f32>, front: bool) -> Crossing {
     let px = view.region.x + clip.x * view.region.z;
     let py = view.region.y + clip.y * view.region.z;
     let d = view.p00.xyz + (px - 0.5) * view.step_u.xyz + (py - 0.5) * view.step_v.xyz;
@@ -87,7 +94,7 @@ fn crossing(clip: vec4<f32>, rel: vec3<f32>, n: vec4<f32>, front: bool) -> Cross
         c.t = n.w * len / dn;
         c.entering = dn < 0.0;
     } else {
-        c.t = length(rel);
+        c.t = select(len / (clip.w * dot(view.row_w.xyz, d)), length(rel), interpolated);
         c.entering = front;
     }
     return c;
@@ -98,9 +105,9 @@ fn vs_geometry(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2)
     let v = project(pos, n, weights[3u * mesh + 2u].x);
     var o: GOut;
     o.clip = v.clip;
-    o.rel = v.rel;
     o.g = weights[3u * mesh];
     o.n = v.n;
+    o.tref = v.rel.w;
     return o;
 }
 
@@ -123,9 +130,9 @@ fn vs_needle(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2) n
 // Geometric pass: the mesh's signed distances times its geometric weights.
 @fragment
 fn fs_anatomy(v: GOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    let c = crossing(v.clip, v.rel.xyz, v.n, front);
+    let c = crossing(v.clip, vec3<f32>(0.0), false, v.n, front);
     let s = select(1.0, -1.0, c.entering);
-    return v.g * (s * (c.t - v.rel.w));
+    return v.g * (s * (c.t - v.tref));
 }
 
 // Displaced pass (scissored to the needle's pixel box): the signed part of this crossing inside
@@ -133,7 +140,7 @@ fn fs_anatomy(v: GOut, @builtin(front_facing) front: bool) -> @location(0) vec4<
 // length of the mesh's interior the needle occupies along this ray.
 @fragment
 fn fs_displaced(v: VOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    let c = crossing(v.clip, v.rel.xyz, v.n, front);
+    let c = crossing(v.clip, v.rel.xyz, true, v.n, front);
     let s = select(1.0, -1.0, c.entering);
     let hull = textureLoad(needle_hull, vec2<i32>(v.clip.xy), 0).xy;
     let t0 = hull.x;
@@ -151,7 +158,7 @@ struct NeedleOut {
 
 @fragment
 fn fs_needle(v: VOut, @builtin(front_facing) front: bool) -> NeedleOut {
-    let c = crossing(v.clip, v.rel.xyz, v.n, front);
+    let c = crossing(v.clip, v.rel.xyz, true, v.n, front);
     let t = c.t;
     var o: NeedleOut;
     o.hull = select(vec2<f32>(NO_NEEDLE, -t), vec2<f32>(t, NO_NEEDLE), c.entering);
