@@ -494,22 +494,24 @@ pub fn exposure_centre(
 ) -> f64 {
     let (w, h) = (t.width as usize, t.height as usize);
     let floor = ln_t_floor(noise);
-    let ln_t = |p: usize| t.transmission[p].max(floor).ln();
+    // The median of ln max(T, floor) is ln of the median of max(T, floor) (ln is increasing):
+    // one logarithm instead of one per pixel.
+    let clamped = |p: usize| t.transmission[p].max(floor);
     let (rx0, rx1) = roi(w, exposure.roi_fraction);
     let (ry0, ry1) = roi(h, exposure.roi_fraction);
     let mut vals: Vec<f64> = (ry0..ry1)
         .flat_map(|j| (rx0..rx1).map(move |i| j * w + i))
         .filter(|&p| t.exposed[p])
-        .map(ln_t)
+        .map(clamped)
         .collect();
     if vals.is_empty() {
-        vals = (0..w * h).filter(|&p| t.exposed[p]).map(ln_t).collect();
+        vals = (0..w * h).filter(|&p| t.exposed[p]).map(clamped).collect();
     }
     if vals.is_empty() {
         0.0
     } else {
         let mid = vals.len() / 2;
-        *vals.select_nth_unstable_by(mid, f64::total_cmp).1
+        vals.select_nth_unstable_by(mid, f64::total_cmp).1.ln()
     }
 }
 
@@ -562,7 +564,7 @@ pub fn render_frame(
     settings: &RenderSettings,
 ) -> Result<Image, UnknownKvp> {
     let t = render_transmission(scene, iodine, projection, settings)?;
-    Ok(finish_frame(t, settings))
+    Ok(finish_frame(&t, settings))
 }
 
 /// Turns a transmission image into the displayed frame: automatic brightness metered on the
@@ -582,11 +584,11 @@ pub fn render_frame(
 /// faster: the grey of a count `k` is taken from a table over `k` built per frame (the same
 /// arithmetic on the same `k / photons`), and the rows are split over `settings.threads`
 /// workers (each pixel's noise has its own seed, so the split does not change the frame).
-pub fn finish_frame(t: TransmissionImage, settings: &RenderSettings) -> Image {
+pub fn finish_frame(t: &TransmissionImage, settings: &RenderSettings) -> Image {
     let noise = settings.noise.as_ref();
-    let centre = exposure_centre(&t, &settings.exposure, noise);
+    let centre = exposure_centre(t, &settings.exposure, noise);
     let Some(noise) = noise else {
-        return to_display_centred(&t, &settings.exposure, settings.invert, None, centre);
+        return to_display_centred(t, &settings.exposure, settings.invert, None, centre);
     };
     let (e, invert) = (&settings.exposure, settings.invert);
     let floor = ln_t_floor(Some(noise));
@@ -716,7 +718,7 @@ mod tests {
             };
             let mut noisy = t.clone();
             apply_noise(&mut noisy, &noise);
-            let img = finish_frame(t.clone(), &settings);
+            let img = finish_frame(&t, &settings);
             let e = settings.exposure;
             for (p, &g) in img.pixels.iter().enumerate() {
                 let ln_t = noisy.transmission[p].max(0.5 / photons).ln();
@@ -883,7 +885,7 @@ mod tests {
             apply_noise(&mut noisy, &noise);
             let want = to_display_centred(&noisy, &settings.exposure, invert, Some(&noise), centre);
             assert_eq!(
-                finish_frame(t.clone(), &settings),
+                finish_frame(&t, &settings),
                 want,
                 "{photons} {invert} {threads}"
             );
