@@ -340,7 +340,9 @@ pub struct GpuFluoroRenderer {
     /// The last displayed-frame transmission and what decided it.
     last_frame: Option<(FrameKey, GpuTransmission)>,
     /// Exposed-pixel mask of the last projection displayed.
-    exposed: Option<(ExposureKey, Vec<bool>)>,
+    /// The last frame's input to sim-core's finishing step, reused while the detector and the
+    /// collimator stay (its exposure mask and its storage).
+    finishing: Option<(ExposureKey, TransmissionImage)>,
     /// Use the caches (default `true`; `false` renders every frame from scratch, for the
     /// benchmark's before/after rows and the cache tests).
     pub caching: bool,
@@ -799,7 +801,7 @@ impl GpuFluoroRenderer {
             resolved: None,
             needle_generation: 0,
             last_frame: None,
-            exposed: None,
+            finishing: None,
             caching: true,
             culling: true,
             timings: FrameTimings::default(),
@@ -1924,23 +1926,32 @@ impl GpuFluoroRenderer {
         let g = self.render_transmission_supersampled(projection, settings, iodine)?;
         let started = Instant::now();
         // The collimator mask depends on the detector and the blades only, not on the C-arm's
-        // pose: kept across C-arm moves.
+        // pose: kept across C-arm moves, and so is the image's storage (a 1024 x 1024 frame's
+        // f64 transmission is 8 MB to allocate and fault in).
         let key = ExposureKey::of(projection);
-        let exposed = match &self.exposed {
-            Some((k, mask)) if *k == key => mask.clone(),
-            _ => {
-                let mask = exposed_mask(projection);
-                self.exposed = Some((key, mask.clone()));
-                mask
+        let image = match &mut self.finishing {
+            Some((k, image)) if *k == key && image.transmission.len() == g.transmission.len() => {
+                image
+            }
+            slot => {
+                let (image_w, image_h) = (g.width, g.height);
+                &mut slot
+                    .insert((
+                        key,
+                        TransmissionImage {
+                            width: image_w,
+                            height: image_h,
+                            transmission: vec![0.0; g.transmission.len()],
+                            exposed: exposed_mask(projection),
+                            supersampled_pixels: 0,
+                        },
+                    ))
+                    .1
             }
         };
-        let image = TransmissionImage {
-            width: g.width,
-            height: g.height,
-            transmission: g.transmission.iter().map(|&x| f64::from(x)).collect(),
-            exposed,
-            supersampled_pixels: 0,
-        };
+        for (out, &x) in image.transmission.iter_mut().zip(&g.transmission) {
+            *out = f64::from(x);
+        }
         let frame = sim_core::fluoro::render::finish_frame(image, settings);
         self.timings.finish_ms = started.elapsed().as_secs_f64() * 1e3;
         Ok(frame)
