@@ -303,10 +303,17 @@ fn main() {
                     .collect();
                 vs_finest = format!("{:.1e}", percentile(e, 0.5));
             }
+            // "-": the CPU reference was not run at this size (quick mode).
+            let cpu = if cpu_ms.is_nan() {
+                String::from("-")
+            } else {
+                format!("{cpu_ms:.0}")
+            };
             rows.push(format!(
-                "| {voxel} | {tris} | {n} x {n} | {gpu_ms:.1} | {frame_ms:.1} | {cpu_ms:.0} | {vs_linear} | {vs_cpu} | {grey} | {interior_n} | {vs_finest} |"
+                "| {voxel} | {tris} | {n} x {n} | {gpu_ms:.1} | {frame_ms:.1} | {cpu} | {vs_linear} | {vs_cpu} | {grey} | {interior_n} | {vs_finest} |"
             ));
-            eprintln!("{}", rows.last().expect("row"));
+            // Progress on stderr (a full run takes minutes); the tables follow on stdout.
+            eprintln!("progress: {}", rows.last().expect("row"));
         }
         if !quick || voxel == voxels[voxels.len() - 1] {
             phase_rows.extend(phase_table(&ctx, &scene, entry, tip, voxel, frames));
@@ -421,7 +428,7 @@ fn phase_table(
                 t.resolved_samples,
                 if exact { "yes" } else { "NO" }
             ));
-            eprintln!("{}", out.last().expect("row"));
+            eprintln!("progress: {}", out.last().expect("row"));
         }
     }
     out
