@@ -339,7 +339,6 @@ pub struct GpuFluoroRenderer {
     needle_generation: u64,
     /// The last displayed-frame transmission and what decided it.
     last_frame: Option<(FrameKey, GpuTransmission)>,
-    /// Exposed-pixel mask of the last projection displayed.
     /// The last frame's input to sim-core's finishing step, reused while the detector and the
     /// collimator stay (its exposure mask and its storage).
     finishing: Option<(ExposureKey, TransmissionImage)>,
@@ -2034,7 +2033,6 @@ fn union_rect(a: Option<[u32; 4]>, b: Option<[u32; 4]>) -> Option<[u32; 4]> {
     }
 }
 
-/// Which pixels the collimator exposes (decided at pixel centres, as the CPU).
 /// What decides which pixels the beam reaches (see `Projection::is_exposed`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct ExposureKey {
@@ -2053,6 +2051,7 @@ impl ExposureKey {
     }
 }
 
+/// Which pixels the collimator exposes (decided at pixel centres, as the CPU).
 fn exposed_mask(projection: &Projection) -> Vec<bool> {
     let w = projection.detector_pixels[0] as usize;
     let n = w * projection.detector_pixels[1] as usize;

@@ -384,8 +384,8 @@ impl SplitMix64 {
         let b = 0.931 + 2.53 * sqrt_mean;
         let a = -0.059 + 0.02483 * b;
         let v_r = 0.9277 - 3.6224 / (b - 2.0);
-        // Needed only when the squeeze fails (a third of draws at mean 10, a quarter at 1000):
-        // computed then, once per sample.
+        // Needed only when the squeeze does not decide (about two thirds of candidates at a
+        // mean of 10, a quarter at 1000): computed then, once per sample.
         let mut slow: Option<(f64, f64)> = None;
         loop {
             let u = self.uniform() - 0.5;
@@ -768,9 +768,9 @@ mod tests {
         // Pearson's chi-square of 20,000 draws against the exact Poisson pmf (bins with an
         // expected count of at least 5, tails pooled), at means on both sides of the switch
         // from Knuth's method to PTRS and far above it. The 99.9 % quantile of chi-square with
-        // d degrees of freedom is below d + 3.1 sqrt(2 d) + 10 for the 13 to 263 here (Wilson-Hilferty),
-        // so a correct sampler fails this with probability about 1e-3 per mean; the seeds are
-        // fixed, so the test is deterministic.
+        // d degrees of freedom is below d + 3.1 sqrt(2 d) + 10 for the 13 to 263 here
+        // (Wilson-Hilferty), so a correct sampler fails this with probability about 1e-3 per
+        // mean; the seeds are fixed, so the test is deterministic.
         let draws = 20_000usize;
         for (case, mean) in [3.7, 9.99, 10.0, 12.5, 29.5, 31.0, 150.0, 2500.0]
             .into_iter()
