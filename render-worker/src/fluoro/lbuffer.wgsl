@@ -25,7 +25,8 @@ struct View {
 }
 
 @group(0) @binding(0) var<uniform> view: View;
-// Per mesh, 3 vec4: geometric weights, displaced weights, (reference depth mm, 0, 0, 0).
+// Per mesh, 3 vec4: geometric weights, displaced weights, (reference distance from the source
+// mm, reference axial depth row_w . (centre - source) mm, 0, 0).
 @group(0) @binding(1) var<storage, read> weights: array<vec4<f32>>;
 // Needle hull per pixel: (nearest entering distance, -farthest leaving distance), mm.
 @group(0) @binding(2) var needle_hull: texture_2d<f32>;
@@ -45,16 +46,16 @@ struct VOut {
     @location(3) @interpolate(flat) n: vec4<f32>,
 }
 
-// The geometric pass's (it draws every anatomy triangle): no displaced weights and no
-// interpolated point, only values constant over the triangle. A software rasteriser sets up
-// every interpolated value per triangle; the distance comes from the plane and, for triangles
-// seen edge-on, from the fragment's perspective divisor (see `crossing`).
+// The geometric pass's (it draws every anatomy triangle): only values constant over the
+// triangle. A software rasteriser sets up every interpolated value per triangle and evaluates
+// the fragment shader per covered pixel, so both are kept minimal; the fragment's depth comes
+// from its perspective divisor (see `fs_anatomy`).
 struct GOut {
     @builtin(position) clip: vec4<f32>,
+    // The mesh's geometric weights, negated on triangles facing the source (entering).
     @location(1) @interpolate(flat) g: vec4<f32>,
-    @location(3) @interpolate(flat) n: vec4<f32>,
-    // The mesh's reference depth, mm.
-    @location(4) @interpolate(flat) tref: f32,
+    // The mesh's reference depth along the view axis (row_w), mm.
+    @location(4) @interpolate(flat) wref: f32,
 }
 
 fn project(pos: vec3<f32>, n: vec3<f32>, tref: f32) -> VOut {
@@ -76,14 +77,11 @@ struct Crossing {
 }
 
 // Distance from the source along the fragment's exact pixel ray to the triangle's plane, and
-// whether the ray enters the mesh there (against the outward normal). Interpolated positions
-// lose precision on long, thin triangles seen edge-on (a needle's sides); the plane does not.
-// Triangles seen edge-on within 1e-4 rad, or degenerate (zero normal), fall back to the
-// rasteriser's facing and to a distance from the fragment itself: the interpolated point
-// (`rel`, when `interpolated`), or else the perspective divisor: the fragment position's w is
-// 1 / w_clip, w_clip = row_w . (point - source) is exact at the fragment, and along the ray
-// t = w_clip |d| / (row_w . d).
-fn crossing(clip: vec4<f32>, rel: vec3<f32>, interpolated: bool, n: vec4<f32>, front: bool) -> Crossing {
+// whether the ray enters the mesh there (against the outward normal), for the needle and the
+// displaced pass. Interpolated positions lose precision on long, thin triangles seen edge-on (a
+// needle's sides); the plane does not. Triangles seen edge-on within 1e-4 rad, or degenerate
+// (zero normal), fall back to the rasteriser's facing and to the interpolated point `rel`.
+fn crossing(clip: vec4<f32>, rel: vec3<f32>, n: vec4<f32>, front: bool) -> Crossing {
     let px = view.region.x + clip.x * view.region.z;
     let py = view.region.y + clip.y * view.region.z;
     let d = view.p00.xyz + (px - 0.5) * view.step_u.xyz + (py - 0.5) * view.step_v.xyz;
@@ -94,7 +92,7 @@ fn crossing(clip: vec4<f32>, rel: vec3<f32>, interpolated: bool, n: vec4<f32>, f
         c.t = n.w * len / dn;
         c.entering = dn < 0.0;
     } else {
-        c.t = select(len / (clip.w * dot(view.row_w.xyz, d)), length(rel), interpolated);
+        c.t = length(rel);
         c.entering = front;
     }
     return c;
@@ -102,12 +100,11 @@ fn crossing(clip: vec4<f32>, rel: vec3<f32>, interpolated: bool, n: vec4<f32>, f
 
 @vertex
 fn vs_geometry(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2) n: vec3<f32>) -> GOut {
-    let v = project(pos, n, weights[3u * mesh + 2u].x);
+    let v = project(pos, n, 0.0);
     var o: GOut;
     o.clip = v.clip;
     o.g = weights[3u * mesh];
-    o.n = v.n;
-    o.tref = v.rel.w;
+    o.wref = weights[3u * mesh + 2u].y;
     return o;
 }
 
@@ -127,12 +124,17 @@ fn vs_needle(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2) n
     return o;
 }
 
-// Geometric pass: the mesh's signed distances times its geometric weights.
+// Geometric pass: the mesh's signed axial depths times its geometric weights. The fragment
+// position's w is 1 / w_clip, and w_clip = row_w . (point - source) is the exact axial depth of
+// the triangle's point on the sample's ray (1 / w_clip is affine in screen space, which is what
+// the rasteriser interpolates), so the pass needs one reciprocal per fragment. Summed over a
+// closed mesh, axial depths give the chord times (row_w . d) / |d|; the resolve (and
+// `render_chords`) multiplies by the ray's |d| / (row_w . d). Facing is the rasteriser's (front:
+// entering), the same decision that counts the triangle's coverage, so each closed mesh's
+// entering and leaving fragments pair up on every ray.
 @fragment
 fn fs_anatomy(v: GOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    let c = crossing(v.clip, vec3<f32>(0.0), false, v.n, front);
-    let s = select(1.0, -1.0, c.entering);
-    return v.g * (s * (c.t - v.tref));
+    return select(v.g, -v.g, front) * (1.0 / v.clip.w - v.wref);
 }
 
 // Displaced pass (scissored to the needle's pixel box): the signed part of this crossing inside
@@ -140,7 +142,7 @@ fn fs_anatomy(v: GOut, @builtin(front_facing) front: bool) -> @location(0) vec4<
 // length of the mesh's interior the needle occupies along this ray.
 @fragment
 fn fs_displaced(v: VOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    let c = crossing(v.clip, v.rel.xyz, true, v.n, front);
+    let c = crossing(v.clip, v.rel.xyz, v.n, front);
     let s = select(1.0, -1.0, c.entering);
     let hull = textureLoad(needle_hull, vec2<i32>(v.clip.xy), 0).xy;
     let t0 = hull.x;
@@ -158,7 +160,7 @@ struct NeedleOut {
 
 @fragment
 fn fs_needle(v: VOut, @builtin(front_facing) front: bool) -> NeedleOut {
-    let c = crossing(v.clip, v.rel.xyz, true, v.n, front);
+    let c = crossing(v.clip, v.rel.xyz, v.n, front);
     let t = c.t;
     var o: NeedleOut;
     o.hull = select(vec2<f32>(NO_NEEDLE, -t), vec2<f32>(t, NO_NEEDLE), c.entering);

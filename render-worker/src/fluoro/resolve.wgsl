@@ -31,6 +31,8 @@ struct Params {
     lut_dims: vec4<u32>,
     // Resolved rectangle of samples: (first column, first row, columns, rows).
     rect: vec4<u32>,
+    // The projection's depth row: w = row_w . (point - source), the L-buffer's axial depth.
+    row_w: vec4<f32>,
 }
 
 // Pipeline constant: false builds the resolve without the iodine ray march (frames without a
@@ -40,7 +42,8 @@ struct Params {
 override has_iodine: bool = true;
 
 @group(0) @binding(0) var<uniform> params: Params;
-// (water-basis mu_60 L, bone-basis mu_60 L, cortical L, cancellous L), mm / cm.
+// (water-basis mu_60 L, bone-basis mu_60 L, cortical L, cancellous L), mm / cm, in axial depth
+// (times (row_w . d) / |d| along the sample's ray d; see `fs_anatomy`).
 @group(0) @binding(1) var lbuf: texture_2d<f32>;
 @group(0) @binding(2) var needle_chord: texture_2d<f32>;
 // Per bin: (R_water, R_bone, R_iodine, R_iron) * log2(e), then (w_E, 0, 0, 0).
@@ -133,7 +136,11 @@ fn resolve(@builtin(global_invocation_id) gid: vec3<u32>) {
         out_t[idx] = 0.0;
         return;
     }
-    var a = textureLoad(lbuf, p, 0);
+    // The sample's ray (from the source to its detector point) and the geometric part's scale
+    // from axial depth to distance along it.
+    let d = params.p00.xyz + (px - 0.5) * params.step_u.xyz + (py - 0.5) * params.step_v.xyz;
+    let len = length(d);
+    var a = textureLoad(lbuf, p, 0) * (len / dot(params.row_w.xyz, d));
     var steel = 0.0;
     if (params.full.z != 0u) {
         steel = max(textureLoad(needle_chord, p, 0).x, 0.0);
@@ -148,8 +155,6 @@ fn resolve(@builtin(global_invocation_id) gid: vec3<u32>) {
     let a_iron = params.mu.z * steel * 0.1;
     var a_iod = 0.0;
     if (has_iodine && params.dims.w != 0u) {
-        let d = params.p00.xyz + (px - 0.5) * params.step_u.xyz + (py - 0.5) * params.step_v.xyz;
-        let len = length(d);
         a_iod = params.mu.w * iodine_column(d / len, len) * 0.1;
     }
     // Without steel or iodine, T depends on (A_water, A_bone) only: bilinear in the ln T table.
