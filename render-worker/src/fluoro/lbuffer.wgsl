@@ -137,6 +137,13 @@ fn fs_anatomy(v: GOut, @builtin(front_facing) front: bool) -> @location(0) vec4<
     return select(v.g, -v.g, front) * (1.0 / v.clip.w - v.wref);
 }
 
+// The same for a scalar mesh (weights in the water-basis channel only) into a one-channel
+// target (see `FMT_SCALAR`).
+@fragment
+fn fs_anatomy_scalar(v: GOut, @builtin(front_facing) front: bool) -> @location(0) f32 {
+    return select(v.g.x, -v.g.x, front) * (1.0 / v.clip.w - v.wref);
+}
+
 // Displaced pass (scissored to the needle's pixel box): the signed part of this crossing inside
 // the needle's [t0, t1], times the mesh's displaced weights. Summed over a closed mesh it is the
 // length of the mesh's interior the needle occupies along this ray.

@@ -1,11 +1,14 @@
 //! GPU fluoroscopy: per-pixel path lengths by rasterising closed meshes into an L-buffer, then one
-//! compute pass for nesting, basis depths, the iodine column and the spectral sum. The reference
+//! resolve pass for nesting, basis depths, the iodine column and the spectral sum. The reference
 //! is `sim_core::fluoro` (read its "Contract for the GPU renderer"); tests in
 //! `render-worker/tests/fluoro.rs` compare the two pixel by pixel.
 //!
 //! # Passes per frame
 //! 1. **Anatomy L-buffer, geometric part**: every anatomy triangle is drawn without depth test
-//!    or culling into one `Rgba32Float` target with additive blending. A fragment adds
+//!    or culling, with additive blending, into an `R32Float` target if its mesh is *scalar*
+//!    (soft tissue in soft tissue: it only changes the water-basis channel, see
+//!    [`DrawnMesh::is_scalar`]; about 80 % of the phantom's fragments) and into an
+//!    `Rgba32Float` target otherwise (a one-channel fragment is the cheaper blend). A fragment adds
 //!    `s (w - w_ref)` times the mesh's *geometric* weights, where `w = row_w . (point - source)`
 //!    is the axial depth of the triangle's point on the sample's ray (the reciprocal of the
 //!    fragment position's `w`, which the rasteriser interpolates exactly: `1 / w` is affine in
@@ -15,7 +18,8 @@
 //!    centre) cancels in each entering/leaving pair and keeps the summed terms small, so f32
 //!    cancellation stays near `ulp(mesh size)` instead of `ulp(source distance)`. The four
 //!    channels of a frame are the water-basis and bone-basis `sum mu_60 L`, and the cortical and
-//!    cancellous geometric chords (for the clamp). It does not depend on the needle. The
+//!    cancellous geometric chords (for the clamp); the one-channel target adds to the first. It
+//!    does not depend on the needle. The
 //!    fragment shader is one reciprocal and a multiply-add: on lavapipe the pass is fragment
 //!    bound (5 mm phantom, 1024 x 1024: 160 ms per frame with a ray-plane intersection per
 //!    fragment, 90 ms with this).
@@ -30,14 +34,20 @@
 //!    the part of each chord the needle occupies (negative weights: the channels end up net of
 //!    the needle). Only the triangles whose pixel bounding box meets the scissor box are drawn
 //!    (see `culled`).
-//! 4. **Resolve** (compute): adds the two L-buffer parts, then cancellous clamp, optical depths,
+//! 4. **Resolve** (a fragment pass over one screen-covering triangle, scissored to the resolved
+//!    rectangle, writing a storage buffer): adds the L-buffer parts, then cancellous clamp, optical depths,
 //!    iodine ray march and `T = sum_E w_E exp(-sum_b A_b R_b(E))`; on rays without steel or
 //!    iodine, `ln T` comes from a table over (water depth, bone depth) instead (see
 //!    `ensure_spectral`: < 2e-5 in `ln T`). The kernel is built twice, with and without the
 //!    iodine march (a pipeline constant), and frames without a contrast field use the second:
 //!    lavapipe executes a skipped branch masked, which cost a quarter of the resolve (512 x 512
 //!    demo frame: GPU phase 24 ms to 18 ms). Both give bit-identical transmission where the
-//!    column is zero (test in `render-worker/tests/fluoro.rs`).
+//!    column is zero (test in `render-worker/tests/fluoro.rs`). Likewise only the needle's pixel
+//!    box is resolved by a variant that reads the needle's chord and the displaced part (zero
+//!    elsewhere, so the rest is bit-identical without them; about 5 ms of a 1024 x 1024 frame).
+//!    As a fragment pass the resolve runs on lavapipe's rasteriser threads and its two variants
+//!    are two scissored draws in one pass (as a compute kernel it ran on a separate thread pool
+//!    after them; the fragment pass measured about 4 % faster per 1024 x 1024 frame).
 //!
 //! # Caches (sessions: the needle moves far more often than the C-arm)
 //! With [`GpuFluoroRenderer::caching`] (the default) the renderer keeps, between frames, the
@@ -153,6 +163,21 @@ pub struct DrawnMesh {
     centre_mm: [f64; 3],
 }
 
+impl DrawnMesh {
+    /// Whether its transmission weights (own minus its container's) touch only the water-basis
+    /// channel (soft tissue inside soft tissue): it is drawn into the one-channel target.
+    fn is_scalar(&self) -> bool {
+        let mut g = transmission_weights(self.effective).0;
+        if let Some(c) = self.container {
+            let gc = transmission_weights(c).0;
+            for k in 0..SLOTS {
+                g[k] -= gc[k];
+            }
+        }
+        g[1..].iter().all(|&x| x == 0.0)
+    }
+}
+
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 struct Vertex {
@@ -249,13 +274,18 @@ struct Chunk {
 /// Render targets of one detector size.
 struct Targets {
     size: [u32; 2],
-    /// Geometric L-buffer (needle-independent).
+    /// Geometric L-buffer (needle-independent): the non-scalar meshes in the transmission
+    /// layout, every mesh in the chord layout.
     a: wgpu::Texture,
+    /// Geometric L-buffer of the scalar meshes, transmission layout (water-basis channel).
+    s: wgpu::Texture,
     /// Displaced part (zero outside the needle's pixel box).
     d: wgpu::Texture,
     hull: wgpu::Texture,
     chord: wgpu::Texture,
     out_t: wgpu::Buffer,
+    /// The resolve's render target (its output is `out_t`; the target is never written).
+    resolve: wgpu::Texture,
     /// Kept mapped-readable copy of `out_t` (no allocation per frame).
     staging: wgpu::Buffer,
 }
@@ -321,16 +351,19 @@ pub struct GpuFluoroRenderer {
     /// Runs of [`CHUNK_TRIANGLES`] consecutive anatomy triangles with their bounding boxes, for
     /// culling on the CPU.
     chunks: Vec<Chunk>,
+    /// The scalar meshes (see [`DrawnMesh::is_scalar`]) come first: the number of their chunks.
+    scalar_chunks: usize,
     /// Each chunk's pixel bounding box under one projection (see `culled`).
     chunk_boxes: Option<(Projection, Vec<[f32; 4]>)>,
     needle: Option<Needle>,
     needle_pipeline: wgpu::RenderPipeline,
     anatomy_pipeline: wgpu::RenderPipeline,
+    anatomy_scalar_pipeline: wgpu::RenderPipeline,
     displaced_pipeline: wgpu::RenderPipeline,
-    /// The resolve without (`resolve_pipeline`) and with the iodine ray march; one bind group
-    /// layout (`resolve_layout`) serves both.
-    resolve_pipeline: wgpu::ComputePipeline,
-    resolve_iodine_pipeline: wgpu::ComputePipeline,
+    /// The resolve, `[iodine][needle]`: without and with the iodine ray march, and without
+    /// and with the needle's inputs (drawn over the needle's pixel box only); one bind group
+    /// layout (`resolve_layout`) serves all four.
+    resolve_pipelines: [[wgpu::RenderPipeline; 2]; 2],
     resolve_layout: wgpu::BindGroupLayout,
     /// Uniforms of the full image (0) and of the supersampled needle region (1).
     view_buf: [wgpu::Buffer; 2],
@@ -416,6 +449,13 @@ impl FrameTimings {
 }
 
 const FMT_A: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
+/// The scalar meshes' geometric L-buffer: the water-basis channel only. On lavapipe a fragment
+/// blended into one float channel costs about 0.6 of one blended into four (5 mm phantom,
+/// 1024 x 1024: 71 against 90 ms with every mesh in one or in four channels), and about 80 % of
+/// the phantom's fragments are soft tissue.
+const FMT_SCALAR: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
+/// The resolve pass's colour target (write mask empty: it only sets the pass's size).
+const FMT_RESOLVE: wgpu::TextureFormat = wgpu::TextureFormat::R8Unorm;
 const FMT_HULL: wgpu::TextureFormat = wgpu::TextureFormat::Rg32Float;
 const FMT_CHORD: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
 /// Marker of "no needle on this pixel" in the hull target (as in the shader).
@@ -634,46 +674,42 @@ impl GpuFluoroRenderer {
             }
             entries[best].material
         };
-        let mut meshes = Vec::new();
-        let mut vertices: Vec<Vertex> = Vec::new();
+        // Drawn meshes; those whose transmission weights (own minus container's) have only the
+        // water-basis channel (soft tissue in soft tissue) first, for the scalar pass.
+        let mut drawn: Vec<DrawnMesh> = Vec::new();
         for &m in &anatomy {
             let eff = effective(m);
             let cont = container[m].map(effective);
             if cont == Some(eff) {
                 continue; // Adds and removes the same material: invisible.
             }
-            let tris = entries[m].bvh.triangles_mm();
-            let (lo, hi) = soup_box(tris);
-            let id = meshes.len() as u32;
-            meshes.push(DrawnMesh {
+            let (lo, hi) = soup_box(entries[m].bvh.triangles_mm());
+            drawn.push(DrawnMesh {
                 entry: m,
                 name: entries[m].name.clone(),
                 effective: eff,
                 container: cont,
                 centre_mm: std::array::from_fn(|a| 0.5 * (lo[a] + hi[a])),
             });
-            vertices.extend(tris.iter().flat_map(|t| triangle_vertices(t, id)));
         }
+        drawn.sort_by_key(|d| !d.is_scalar());
+        let scalar_meshes = drawn.iter().filter(|d| d.is_scalar()).count();
+        let add = |vertices: &mut Vec<Vertex>, ids: std::ops::Range<usize>| {
+            for id in ids {
+                let tris = entries[drawn[id].entry].bvh.triangles_mm();
+                vertices.extend(tris.iter().flat_map(|t| triangle_vertices(t, id as u32)));
+            }
+        };
+        let mut vertices: Vec<Vertex> = Vec::new();
+        add(&mut vertices, 0..scalar_meshes);
+        let mut chunks = chunks_of(&vertices, 0);
+        let scalar_chunks = chunks.len();
+        let scalar_vertices = vertices.len();
+        add(&mut vertices, scalar_meshes..drawn.len());
+        // Chunks never straddle the two groups.
+        chunks.extend(chunks_of(&vertices, scalar_vertices));
+        let meshes = drawn;
         let anatomy_bufs = (!vertices.is_empty()).then(|| upload(device, &vertices));
-        let chunks = vertices
-            .chunks(3 * CHUNK_TRIANGLES)
-            .enumerate()
-            .map(|(k, vs)| {
-                let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-                for v in vs {
-                    for a in 0..3 {
-                        lo[a] = lo[a].min(v.pos[a]);
-                        hi[a] = hi[a].max(v.pos[a]);
-                    }
-                }
-                Chunk {
-                    first_vertex: (k * 3 * CHUNK_TRIANGLES) as u32,
-                    vertices: vs.len() as u32,
-                    lo,
-                    hi,
-                }
-            })
-            .collect();
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("fluoro lbuffer"),
             source: wgpu::ShaderSource::Wgsl(include_str!("lbuffer.wgsl").into()),
@@ -734,6 +770,12 @@ impl GpuFluoroRenderer {
             "fs_anatomy",
             &[target(FMT_A, additive())],
         );
+        let anatomy_scalar_pipeline = raster(
+            "fluoro anatomy, water-basis channel",
+            "vs_geometry",
+            "fs_anatomy_scalar",
+            &[target(FMT_SCALAR, additive())],
+        );
         let displaced_pipeline = raster(
             "fluoro displaced",
             "vs_anatomy",
@@ -752,21 +794,45 @@ impl GpuFluoroRenderer {
                 bind_group_layouts: &[Some(&resolve_layout)],
                 immediate_size: 0,
             });
-        let resolve_kernel = |label: &str, has_iodine: bool| {
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        let resolve_kernel = |label: &str, has_iodine: bool, has_needle: bool| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(label),
                 layout: Some(&resolve_pipeline_layout),
-                module: &resolve_module,
-                entry_point: Some("resolve"),
-                compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &[("has_iodine", f64::from(u8::from(has_iodine)))],
-                    ..Default::default()
+                vertex: wgpu::VertexState {
+                    module: &resolve_module,
+                    entry_point: Some("vs_cover"),
+                    compilation_options: Default::default(),
+                    buffers: &[],
                 },
+                primitive: wgpu::PrimitiveState::default(),
+                depth_stencil: None,
+                multisample: wgpu::MultisampleState::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &resolve_module,
+                    entry_point: Some("fs_resolve"),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: &[
+                            ("has_iodine", f64::from(u8::from(has_iodine))),
+                            ("has_needle", f64::from(u8::from(has_needle))),
+                        ],
+                        ..Default::default()
+                    },
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format: FMT_RESOLVE,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::empty(),
+                    })],
+                }),
+                multiview_mask: None,
                 cache: None,
             })
         };
-        let resolve_pipeline = resolve_kernel("fluoro resolve", false);
-        let resolve_iodine_pipeline = resolve_kernel("fluoro resolve with iodine", true);
+        let resolve_pipelines = [false, true].map(|iodine| {
+            [false, true].map(|needle| {
+                let label = format!("fluoro resolve (iodine {iodine}, needle {needle})");
+                resolve_kernel(&label, iodine, needle)
+            })
+        });
         let uniform = |label: &str, size: usize| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -790,13 +856,14 @@ impl GpuFluoroRenderer {
             meshes,
             anatomy: anatomy_bufs,
             chunks,
+            scalar_chunks,
             chunk_boxes: None,
             needle: None,
             needle_pipeline,
             anatomy_pipeline,
+            anatomy_scalar_pipeline,
             displaced_pipeline,
-            resolve_pipeline,
-            resolve_iodine_pipeline,
+            resolve_pipelines,
             resolve_layout,
             view_buf,
             resolve_buf,
@@ -917,9 +984,11 @@ impl GpuFluoroRenderer {
         self.targets[ri] = Some(Targets {
             size,
             a: tex("fluoro lbuffer", FMT_A),
+            s: tex("fluoro lbuffer, water-basis channel", FMT_SCALAR),
             d: tex("fluoro displaced lbuffer", FMT_A),
             hull: tex("fluoro needle hull", FMT_HULL),
             chord: tex("fluoro needle chord", FMT_CHORD),
+            resolve: tex("fluoro resolve target", FMT_RESOLVE),
             out_t: self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("fluoro transmission"),
                 size: u64::from(size[0]) * u64::from(size[1]) * 4,
@@ -1058,19 +1127,33 @@ impl GpuFluoroRenderer {
         // Only the triangles that can reach the target are drawn into it (the anatomy often
         // extends beyond the image), and only those that can reach the needle's box into the
         // displaced pass. `None`: the whole list; `Some(None)`: no triangle reaches it.
-        let geo_list = (self.culling && passes.geometry)
-            .then(|| self.culled(projection, to_pixels([0, 0, size[0], size[1]])));
+        // In the transmission layout the scalar meshes go to their own target.
+        let split = layout == Layout::Transmission;
+        let groups = if split {
+            [0..self.scalar_chunks, self.scalar_chunks..self.chunks.len()]
+        } else {
+            [0..0, 0..self.chunks.len()]
+        };
+        // The vertices of a run of chunks (they cover the vertex buffer in order).
+        let total = self.anatomy.as_ref().map_or(0, |b| b.index_count);
+        let vertex_at = |k: usize| self.chunks.get(k).map_or(total, |c| c.first_vertex);
+        let whole = groups.clone().map(|g| vertex_at(g.start)..vertex_at(g.end));
+        let geo_lists = (self.culling && passes.geometry).then(|| {
+            let r = to_pixels([0, 0, size[0], size[1]]);
+            groups.map(|g| self.culled(projection, r, g))
+        });
         let disp_list = match rect {
             Some(r) if self.culling && passes.displaced => {
-                Some(self.culled(projection, to_pixels(r)))
+                Some(self.culled(projection, to_pixels(r), 0..self.chunks.len()))
             }
             _ => None,
         };
         let device = &self.ctx.device;
         let t = self.targets[ri].as_ref().expect("targets");
         let view_of = |x: &wgpu::Texture| x.create_view(&wgpu::TextureViewDescriptor::default());
-        let (va, vd, vh, vc) = (
+        let (va, vs, vd, vh, vc) = (
             view_of(&t.a),
+            view_of(&t.s),
             view_of(&t.d),
             view_of(&t.hull),
             view_of(&t.chord),
@@ -1131,21 +1214,46 @@ impl GpuFluoroRenderer {
             }
         }
         if passes.geometry {
-            let bind = anatomy_bind(&self.anatomy_pipeline, false);
-            let attachments = [attach(&va, 0.0)];
-            let mut pass = encoder.begin_render_pass(&pass_desc("fluoro anatomy", &attachments));
-            if let Some(bufs) = &self.anatomy {
-                let (indices, count) = match &geo_list {
-                    Some(Some((b, c))) => (b, *c),
-                    Some(None) => (&bufs.indices, 0),
-                    None => (&bufs.indices, bufs.index_count),
+            // Scalar group (transmission layout; the target is cleared in every layout), then
+            // the rest.
+            let [scalar_list, list] = match geo_lists {
+                Some([a, b]) => [Some(a), Some(b)],
+                None => [None, None],
+            };
+            let draws = [
+                (
+                    &self.anatomy_scalar_pipeline,
+                    &vs,
+                    scalar_list,
+                    whole[0].clone(),
+                    "fluoro anatomy, water-basis channel",
+                ),
+                (
+                    &self.anatomy_pipeline,
+                    &va,
+                    list,
+                    whole[1].clone(),
+                    "fluoro anatomy",
+                ),
+            ];
+            for (pipeline, view, list, all, label) in draws {
+                let bind = anatomy_bind(pipeline, false);
+                let attachments = [attach(view, 0.0)];
+                let mut pass = encoder.begin_render_pass(&pass_desc(label, &attachments));
+                let Some(bufs) = &self.anatomy else {
+                    continue;
                 };
-                if count > 0 {
-                    pass.set_pipeline(&self.anatomy_pipeline);
+                let (indices, range) = match &list {
+                    Some(Some((b, c))) => (b, 0..*c),
+                    Some(None) => (&bufs.indices, 0..0),
+                    None => (&bufs.indices, all),
+                };
+                if !range.is_empty() {
+                    pass.set_pipeline(pipeline);
                     pass.set_bind_group(0, &bind, &[]);
                     pass.set_vertex_buffer(0, bufs.vertices.slice(..));
                     pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
-                    pass.draw_indexed(0..count, 0, 0..1);
+                    pass.draw_indexed(range, 0, 0..1);
                 }
             }
         }
@@ -1198,7 +1306,12 @@ impl GpuFluoroRenderer {
     /// image of a box in front of the source is the hull of its corners); a chunk with a corner
     /// less than 1 mm in front of the source plane always qualifies. The boxes are computed once
     /// per projection (eight points per chunk instead of three per triangle).
-    fn culled(&mut self, projection: &Projection, r: [f32; 4]) -> Option<(wgpu::Buffer, u32)> {
+    fn culled(
+        &mut self,
+        projection: &Projection,
+        r: [f32; 4],
+        chunks: std::ops::Range<usize>,
+    ) -> Option<(wgpu::Buffer, u32)> {
         if self
             .chunk_boxes
             .as_ref()
@@ -1245,7 +1358,7 @@ impl GpuFluoroRenderer {
         }
         let boxes = &self.chunk_boxes.as_ref()?.1;
         let mut indices: Vec<u32> = Vec::new();
-        for (c, b) in self.chunks.iter().zip(boxes) {
+        for (c, b) in self.chunks[chunks.clone()].iter().zip(&boxes[chunks]) {
             if b[2] >= r[0] - 1.0 && b[0] <= r[2] + 1.0 && b[3] >= r[1] - 1.0 && b[1] <= r[3] + 1.0
             {
                 indices.extend(c.first_vertex..c.first_vertex + c.vertices);
@@ -1731,20 +1844,44 @@ impl GpuFluoroRenderer {
                     binding: 7,
                     resource: wgpu::BindingResource::TextureView(&view_of(&t.d)),
                 },
+                wgpu::BindGroupEntry {
+                    binding: 8,
+                    resource: wgpu::BindingResource::TextureView(&view_of(&t.s)),
+                },
             ],
         });
         {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            let target = t
+                .resolve
+                .create_view(&wgpu::TextureViewDescriptor::default());
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("fluoro resolve"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &target,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Discard,
+                    },
+                })],
+                depth_stencil_attachment: None,
                 timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
             });
-            pass.set_pipeline(if iod_dims[3] != 0 {
-                &self.resolve_iodine_pipeline
-            } else {
-                &self.resolve_pipeline
-            });
+            // The rectangle without the needle's inputs (zero outside its box: bit-identical
+            // there), then the needle's box with them.
+            let pipelines = &self.resolve_pipelines[usize::from(iod_dims[3] != 0)];
             pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups(rect[2].div_ceil(8), rect[3].div_ceil(8), 1);
+            pass.set_pipeline(&pipelines[0]);
+            pass.set_scissor_rect(rect[0], rect[1], rect[2], rect[3]);
+            pass.draw(0..3, 0..1);
+            if let Some(r) = needle_rect.and_then(|n| intersect_rect(n, rect)) {
+                pass.set_pipeline(&pipelines[1]);
+                pass.set_scissor_rect(r[0], r[1], r[2], r[3]);
+                pass.draw(0..3, 0..1);
+            }
         }
         let row_bytes = u64::from(size[0]) * 4;
         let bytes = row_bytes * u64::from(rect[3]);
@@ -1988,10 +2125,10 @@ impl GpuFluoroRenderer {
 /// The resolve kernel's bindings (see `resolve.wgsl`): its uniforms, the L-buffer, the needle's
 /// chord, the spectral bins, the iodine grid, the transmission out, the `ln T` table and the
 /// displaced L-buffer.
-fn resolve_layout_entries() -> [wgpu::BindGroupLayoutEntry; 8] {
+fn resolve_layout_entries() -> [wgpu::BindGroupLayoutEntry; 9] {
     let entry = |binding: u32, ty: wgpu::BindingType| wgpu::BindGroupLayoutEntry {
         binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
+        visibility: wgpu::ShaderStages::FRAGMENT,
         ty,
         count: None,
     };
@@ -2018,6 +2155,7 @@ fn resolve_layout_entries() -> [wgpu::BindGroupLayoutEntry; 8] {
         ),
         entry(6, buffer(read)),
         entry(7, texture(wgpu::TextureViewDimension::D2)),
+        entry(8, texture(wgpu::TextureViewDimension::D2)),
     ]
 }
 
@@ -2049,6 +2187,13 @@ struct RegionOut {
 }
 
 /// Smallest rectangle `[x, y, w, h]` holding both (`None` if both are).
+fn intersect_rect(a: [u32; 4], b: [u32; 4]) -> Option<[u32; 4]> {
+    let (x0, y0) = (a[0].max(b[0]), a[1].max(b[1]));
+    let x1 = (a[0] + a[2]).min(b[0] + b[2]);
+    let y1 = (a[1] + a[3]).min(b[1] + b[3]);
+    (x1 > x0 && y1 > y0).then(|| [x0, y0, x1 - x0, y1 - y0])
+}
+
 fn union_rect(a: Option<[u32; 4]>, b: Option<[u32; 4]>) -> Option<[u32; 4]> {
     match (a, b) {
         (None, r) | (r, None) => r,
@@ -2101,6 +2246,29 @@ pub fn to_transmission_image(projection: &Projection, g: &GpuTransmission) -> Tr
             .collect(),
         supersampled_pixels: 0,
     }
+}
+
+/// Culling chunks of `vertices[start..]`: runs of [`CHUNK_TRIANGLES`] triangles and their boxes.
+fn chunks_of(vertices: &[Vertex], start: usize) -> Vec<Chunk> {
+    vertices[start..]
+        .chunks(3 * CHUNK_TRIANGLES)
+        .enumerate()
+        .map(|(k, vs)| {
+            let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+            for v in vs {
+                for a in 0..3 {
+                    lo[a] = lo[a].min(v.pos[a]);
+                    hi[a] = hi[a].max(v.pos[a]);
+                }
+            }
+            Chunk {
+                first_vertex: (start + k * 3 * CHUNK_TRIANGLES) as u32,
+                vertices: vs.len() as u32,
+                lo,
+                hi,
+            }
+        })
+        .collect()
 }
 
 fn upload(device: &wgpu::Device, vertices: &[Vertex]) -> MeshBuffers {

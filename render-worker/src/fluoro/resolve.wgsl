@@ -40,6 +40,9 @@ struct Params {
 // every invocation, masked, even when no invocation takes it (lavapipe spent about a quarter of
 // the resolve there); a pipeline without the branch does not.
 override has_iodine: bool = true;
+// Pipeline constant: false builds the resolve without the needle's inputs (its chord and the
+// displaced L-buffer, both zero outside the needle's pixel box), for the rest of the image.
+override has_needle: bool = true;
 
 @group(0) @binding(0) var<uniform> params: Params;
 // (water-basis mu_60 L, bone-basis mu_60 L, cortical L, cancellous L), mm / cm, in axial depth
@@ -54,6 +57,8 @@ override has_iodine: bool = true;
 @group(0) @binding(6) var<storage, read> lut: array<f32>;
 // Displaced part of the L-buffer (zero outside the needle's pixel box), added to `lbuf`.
 @group(0) @binding(7) var dbuf: texture_2d<f32>;
+// The scalar meshes' water-basis channel (axial depth, like `lbuf`), added to `lbuf.x`.
+@group(0) @binding(8) var sbuf: texture_2d<f32>;
 
 fn voxel(c: vec3<i32>) -> f32 {
     return textureLoad(iodine, c, 0).x;
@@ -115,13 +120,25 @@ fn iodine_column(dir: vec3<f32>, t_max: f32) -> f32 {
     return acc * h;
 }
 
-@compute @workgroup_size(8, 8)
-fn resolve(@builtin(global_invocation_id) gid: vec3<u32>) {
+// The resolve runs as a fragment shader over one triangle covering the region's target,
+// scissored to the resolved rectangle (or to the needle's box, for the variant with the needle's
+// inputs). Its colour output is unused (the target's write mask is empty); `out_t` is the result.
+@vertex
+fn vs_cover(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
+    let x = f32(i & 1u) * 4.0 - 1.0;
+    let y = f32(i >> 1u) * 4.0 - 1.0;
+    return vec4<f32>(x, y, 0.0, 1.0);
+}
+
+@fragment
+fn fs_resolve(@builtin(position) pos: vec4<f32>) -> @location(0) f32 {
+    resolve_sample(vec2<u32>(pos.xy));
+    return 0.0;
+}
+
+// Resolves sample `id` of the region (inside `params.rect`).
+fn resolve_sample(id: vec2<u32>) {
     let w = params.dims.x;
-    if (gid.x >= params.rect.z || gid.y >= params.rect.w) {
-        return;
-    }
-    let id = gid.xy + params.rect.xy;
     let p = vec2<i32>(id);
     let idx = id.y * w + id.x;
     // Continuous pixel coordinates of this sample; collimation is decided at its pixel's centre
@@ -140,9 +157,10 @@ fn resolve(@builtin(global_invocation_id) gid: vec3<u32>) {
     // from axial depth to distance along it.
     let d = params.p00.xyz + (px - 0.5) * params.step_u.xyz + (py - 0.5) * params.step_v.xyz;
     let len = length(d);
-    var a = textureLoad(lbuf, p, 0) * (len / dot(params.row_w.xyz, d));
+    let geometric = textureLoad(lbuf, p, 0) + vec4<f32>(textureLoad(sbuf, p, 0).x, 0.0, 0.0, 0.0);
+    var a = geometric * (len / dot(params.row_w.xyz, d));
     var steel = 0.0;
-    if (params.full.z != 0u) {
+    if (has_needle && params.full.z != 0u) {
         steel = max(textureLoad(needle_chord, p, 0).x, 0.0);
         a += textureLoad(dbuf, p, 0);
     }
