@@ -54,6 +54,8 @@ pub struct GpuContext {
     pub summary: AdapterSummary,
     /// The adapter's limits, as granted to the device.
     pub limits: wgpu::Limits,
+    /// What the adapter supports below full WebGPU (renderers check what they rely on).
+    pub downlevel: wgpu::DownlevelFlags,
 }
 
 impl GpuContext {
@@ -72,6 +74,7 @@ impl GpuContext {
                 .map_err(|second| GpuError::NoAdapter(format!("{first}; fallback: {second}")))?,
         };
         let info = adapter.get_info();
+        let downlevel = adapter.get_downlevel_capabilities().flags;
         // Ask for the adapter's own limits: storage buffers for large scenes need more than the
         // conservative WebGPU defaults, and a headless worker has no portability constraint.
         let limits = adapter.limits();
@@ -92,7 +95,7 @@ impl GpuContext {
             backend: format!("{:?}", info.backend).to_lowercase(),
             device_type: format!("{:?}", info.device_type),
         };
-        Ok(GpuContext { device: Arc::new(device), queue: Arc::new(queue), summary, limits })
+        Ok(GpuContext { device: Arc::new(device), queue: Arc::new(queue), summary, limits, downlevel })
     }
 
     /// Copies `size` bytes of a GPU buffer back to the CPU (blocking).

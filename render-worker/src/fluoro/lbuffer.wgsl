@@ -1,6 +1,7 @@
-// L-buffer passes: closed meshes rasterised without a depth test; every fragment adds its signed
-// distance from the source along the pixel's ray (+ leaving, - entering) into additive float
-// render targets. See `render_worker::fluoro` for the channel layout. The geometric pass
+// L-buffer passes: closed meshes rasterised without a depth test; every fragment adds a signed
+// depth (+ leaving, - entering) into additive float render targets: the axial depth in the
+// geometric pass, the distance from the source along the sample's ray in the others. See
+// `render_worker::fluoro` for the channel layout. The geometric pass
 // (`fs_anatomy`) does not depend on the needle, so a session keeps it while only the needle
 // moves; the displaced pass (`fs_displaced`) runs scissored to the needle's pixel box.
 
@@ -46,16 +47,18 @@ struct VOut {
     @location(3) @interpolate(flat) n: vec4<f32>,
 }
 
-// The geometric pass's (it draws every anatomy triangle): only values constant over the
-// triangle. A software rasteriser sets up every interpolated value per triangle and evaluates
-// the fragment shader per covered pixel, so both are kept minimal; the fragment's depth comes
-// from its perspective divisor (see `fs_anatomy`).
+// The geometric pass's (it draws every anatomy triangle): one interpolated value and values
+// constant over the triangle. A software rasteriser sets up every interpolated value per
+// triangle and evaluates the fragment shader per covered pixel, so both are kept minimal.
 struct GOut {
     @builtin(position) clip: vec4<f32>,
-    // The mesh's geometric weights, negated on triangles facing the source (entering).
+    // The mesh's geometric weights (the fragment shader negates them on front faces).
     @location(1) @interpolate(flat) g: vec4<f32>,
     // The mesh's reference depth along the view axis (row_w), mm.
     @location(4) @interpolate(flat) wref: f32,
+    // Axial depth w_clip = row_w . (point - source), mm, perspective-correct: exact at the
+    // fragment (see `fs_anatomy`).
+    @location(5) w: f32,
 }
 
 fn project(pos: vec3<f32>, n: vec3<f32>, tref: f32) -> VOut {
@@ -105,6 +108,7 @@ fn vs_geometry(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2)
     o.clip = v.clip;
     o.g = weights[3u * mesh];
     o.wref = weights[3u * mesh + 2u].y;
+    o.w = v.clip.w;
     return o;
 }
 
@@ -124,24 +128,27 @@ fn vs_needle(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2) n
     return o;
 }
 
-// Geometric pass: the mesh's signed axial depths times its geometric weights. The fragment
-// position's w is 1 / w_clip, and w_clip = row_w . (point - source) is the exact axial depth of
-// the triangle's point on the sample's ray (1 / w_clip is affine in screen space, which is what
-// the rasteriser interpolates), so the pass needs one reciprocal per fragment. Summed over a
-// closed mesh, axial depths give the chord times (row_w . d) / |d|; the resolve (and
-// `render_chords`) multiplies by the ray's |d| / (row_w . d). Facing is the rasteriser's (front:
+// Geometric pass: the mesh's signed axial depths times its geometric weights. Perspective-correct
+// interpolation of a vertex value a gives (sum l_i a_i / w_i) / (sum l_i / w_i) over the
+// screen-space barycentrics l_i, so for a = w it gives exactly 1 / (interpolated 1 / w): the
+// axial depth w_clip = row_w . (point - source) of the triangle's point on the sample's ray (1 / w
+// is affine in screen space). The fragment shader is then a multiply-add, with no ray-plane
+// intersection. (The fragment position's w would give the same as a reciprocal, but wgpu's D3D12
+// backend passes w_clip there instead of 1 / w_clip, gfx-rs/wgpu#4963.) Summed over a closed
+// mesh, axial depths give the chord times (row_w . d) / |d|; the resolve (and `render_chords`)
+// multiplies by the ray's |d| / (row_w . d). Facing is the rasteriser's (front:
 // entering), the same decision that counts the triangle's coverage, so each closed mesh's
 // entering and leaving fragments pair up on every ray.
 @fragment
 fn fs_anatomy(v: GOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    return select(v.g, -v.g, front) * (1.0 / v.clip.w - v.wref);
+    return select(v.g, -v.g, front) * (v.w - v.wref);
 }
 
 // The same for a scalar mesh (weights in the water-basis channel only) into a one-channel
 // target (see `FMT_SCALAR`).
 @fragment
 fn fs_anatomy_scalar(v: GOut, @builtin(front_facing) front: bool) -> @location(0) f32 {
-    return select(v.g.x, -v.g.x, front) * (1.0 / v.clip.w - v.wref);
+    return select(v.g.x, -v.g.x, front) * (v.w - v.wref);
 }
 
 // Displaced pass (scissored to the needle's pixel box): the signed part of this crossing inside

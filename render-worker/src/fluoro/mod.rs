@@ -10,8 +10,8 @@
 //!    [`DrawnMesh::is_scalar`]; about 80 % of the phantom's fragments) and into an
 //!    `Rgba32Float` target otherwise (a one-channel fragment is the cheaper blend). A fragment adds
 //!    `s (w - w_ref)` times the mesh's *geometric* weights, where `w = row_w . (point - source)`
-//!    is the axial depth of the triangle's point on the sample's ray (the reciprocal of the
-//!    fragment position's `w`, which the rasteriser interpolates exactly: `1 / w` is affine in
+//!    is the axial depth of the triangle's point on the sample's ray (the
+//!    perspective-correct interpolation of `w` itself, which is exact: `1 / w` is affine in
 //!    screen space), `s = -1` on front faces (entering) and `+1` on back faces; summed over a
 //!    closed mesh it is the mesh's chord times `(row_w . d) / |d|` for the sample's ray `d`, and
 //!    the resolve multiplies by `|d| / (row_w . d)`. `w_ref` (the axial depth of the mesh's box
@@ -19,10 +19,9 @@
 //!    cancellation stays near `ulp(mesh size)` instead of `ulp(source distance)`. The four
 //!    channels of a frame are the water-basis and bone-basis `sum mu_60 L`, and the cortical and
 //!    cancellous geometric chords (for the clamp); the one-channel target adds to the first. It
-//!    does not depend on the needle. The
-//!    fragment shader is one reciprocal and a multiply-add: on lavapipe the pass is fragment
-//!    bound (5 mm phantom, 1024 x 1024: 160 ms per frame with a ray-plane intersection per
-//!    fragment, 90 ms with this).
+//!    does not depend on the needle. The fragment shader is a multiply-add: on lavapipe the
+//!    pass is fragment bound (5 mm phantom, 1024 x 1024: 160 ms per frame with a ray-plane
+//!    intersection per fragment, 90 ms with this).
 //! 2. **Needle** (only when one is set): its triangles are drawn without depth test into a
 //!    `Rg32Float` target with `Min` blending, holding the nearest entering and the farthest leaving
 //!    distance (the needle's hull interval `[t0, t1]` on the pixel's ray), and into an `R32Float`
@@ -34,20 +33,21 @@
 //!    the part of each chord the needle occupies (negative weights: the channels end up net of
 //!    the needle). Only the triangles whose pixel bounding box meets the scissor box are drawn
 //!    (see `culled`).
-//! 4. **Resolve** (a fragment pass over one screen-covering triangle, scissored to the resolved
-//!    rectangle, writing a storage buffer): adds the L-buffer parts, then cancellous clamp, optical depths,
-//!    iodine ray march and `T = sum_E w_E exp(-sum_b A_b R_b(E))`; on rays without steel or
-//!    iodine, `ln T` comes from a table over (water depth, bone depth) instead (see
-//!    `ensure_spectral`: < 2e-5 in `ln T`). The kernel is built twice, with and without the
-//!    iodine march (a pipeline constant), and frames without a contrast field use the second:
-//!    lavapipe executes a skipped branch masked, which cost a quarter of the resolve (512 x 512
-//!    demo frame: GPU phase 24 ms to 18 ms). Both give bit-identical transmission where the
-//!    column is zero (test in `render-worker/tests/fluoro.rs`). Likewise only the needle's pixel
-//!    box is resolved by a variant that reads the needle's chord and the displaced part (zero
-//!    elsewhere, so the rest is bit-identical without them; about 5 ms of a 1024 x 1024 frame).
-//!    As a fragment pass the resolve runs on lavapipe's rasteriser threads and its two variants
-//!    are two scissored draws in one pass (as a compute kernel it ran on a separate thread pool
-//!    after them; the fragment pass measured about 4 % faster per 1024 x 1024 frame).
+//! 4. **Resolve** (a fragment pass over one screen-covering triangle, scissored, writing a
+//!    storage buffer): adds the L-buffer parts, then cancellous clamp, optical depths, iodine
+//!    ray march and `T = sum_E w_E exp(-sum_b A_b R_b(E))`; on rays without steel or iodine,
+//!    `ln T` comes from a table over (water depth, bone depth) instead (see `ensure_spectral`:
+//!    < 2e-5 in `ln T`). The shader has four variants through two pipeline constants. Without
+//!    the iodine march, for frames without a contrast field: lavapipe executes a skipped branch
+//!    masked, which cost a quarter of the resolve (512 x 512 demo frame: GPU phase 24 ms to
+//!    18 ms); both give bit-identical transmission where the column is zero (test in
+//!    `render-worker/tests/fluoro.rs`). Without the needle's inputs (its chord and the displaced
+//!    part, zero outside its pixel box), for every sample outside that box: the box is one
+//!    scissored draw with them, the rest of the rectangle up to four draws without them (about
+//!    5 ms of a 1024 x 1024 frame), and every sample is resolved by exactly one draw (storage
+//!    writes of different draws are not ordered within a pass). As a fragment pass the resolve
+//!    runs on lavapipe's rasteriser threads (as a compute kernel it ran on a separate thread
+//!    pool after them; the fragment pass measured about 4 % faster per 1024 x 1024 frame).
 //!
 //! # Caches (sessions: the needle moves far more often than the C-arm)
 //! With [`GpuFluoroRenderer::caching`] (the default) the renderer keeps, between frames, the
@@ -69,7 +69,7 @@
 //! `vertex - source` instead lost 0.02 mm on the needle's long, thin side triangles seen nearly
 //! edge-on.) The anatomy's triangles are not that thin, and its axial depths agree with the CPU
 //! as closely as the plane did (sphere and phantom chord tests: worst 1.2e-3 mm).
-
+//!
 //! # Nesting
 //! The CPU assigns each point of a ray to the highest-priority mesh containing it. An L-buffer
 //! only sees per-mesh chords, so at construction every anatomy mesh gets its *direct container*
@@ -137,12 +137,15 @@ pub enum FluoroGpuError {
         "the GPU device lacks {0:?}, needed for additive blending into 32-bit float render targets"
     )]
     MissingFeature(wgpu::Features),
+    /// The adapter cannot write storage buffers from fragment shaders (the resolve pass does).
+    #[error("the GPU adapter lacks {0:?}, needed by the resolve pass")]
+    MissingDownlevel(wgpu::DownlevelFlags),
     /// The requested tube voltage has no committed spectrum.
     #[error(transparent)]
     UnknownKvp(#[from] UnknownKvp),
 }
 
-/// Channels of the one `Rgba32Float` L-buffer target. Transmission layout: (water-basis
+/// Channels of the `Rgba32Float` L-buffer targets (the geometric one and the displaced one). Transmission layout: (water-basis
 /// `sum mu_60 L`, bone-basis `sum mu_60 L`, both net of what the needle displaces; cortical and
 /// cancellous geometric `L` for the clamp).
 const SLOTS: usize = 4;
@@ -284,7 +287,8 @@ struct Targets {
     hull: wgpu::Texture,
     chord: wgpu::Texture,
     out_t: wgpu::Buffer,
-    /// The resolve's render target (its output is `out_t`; the target is never written).
+    /// The resolve's render target: it only sizes the pass (write mask empty; cleared, one byte
+    /// per sample, and discarded); the output is `out_t`.
     resolve: wgpu::Texture,
     /// Kept mapped-readable copy of `out_t` (no allocation per frame).
     staging: wgpu::Buffer,
@@ -629,6 +633,10 @@ impl GpuFluoroRenderer {
         if !ctx.device.features().contains(needed) {
             return Err(FluoroGpuError::MissingFeature(needed));
         }
+        let needed = wgpu::DownlevelFlags::FRAGMENT_WRITABLE_STORAGE;
+        if !ctx.downlevel.contains(needed) {
+            return Err(FluoroGpuError::MissingDownlevel(needed));
+        }
         let device = &ctx.device;
         let entries = scene.entries();
         let anatomy: Vec<usize> = (0..entries.len())
@@ -692,7 +700,7 @@ impl GpuFluoroRenderer {
                 centre_mm: std::array::from_fn(|a| 0.5 * (lo[a] + hi[a])),
             });
         }
-        drawn.sort_by_key(|d| !d.is_scalar());
+        drawn.sort_by_cached_key(|d| !d.is_scalar());
         let scalar_meshes = drawn.iter().filter(|d| d.is_scalar()).count();
         let add = |vertices: &mut Vec<Vertex>, ids: std::ops::Range<usize>| {
             for id in ids {
@@ -909,7 +917,8 @@ impl GpuFluoroRenderer {
         &self.ctx.summary.name
     }
 
-    /// The drawn anatomy meshes with their nesting (what the L-buffer adds and subtracts).
+    /// The drawn anatomy meshes with their nesting (what the L-buffer adds and subtracts), the
+    /// scalar ones (see [`DrawnMesh::is_scalar`]) first.
     pub fn drawn(&self) -> &[DrawnMesh] {
         &self.meshes
     }
@@ -1497,11 +1506,15 @@ impl GpuFluoroRenderer {
         // The geometric part is in axial depth: times |d| / (row_w . d) along each pixel's ray
         // (as the resolve does on the GPU).
         let row_w = projection.projection_matrix()[2];
+        let f = projection.frame();
         let scale: Vec<f32> = (0..w * h)
             .map(|q| {
-                let ray = projection.pixel_ray([(q % w) as f64 + 0.5, (q / w) as f64 + 0.5]);
-                let axial = row_w[0] * ray.dir[0] + row_w[1] * ray.dir[1] + row_w[2] * ray.dir[2];
-                (1.0 / axial) as f32
+                let (i, j) = ((q % w) as f64, (q / w) as f64);
+                let d: [f64; 3] = std::array::from_fn(|a| {
+                    f.pixel00_mm[a] + i * f.step_u_mm[a] + j * f.step_v_mm[a] - f.source_mm[a]
+                });
+                let axial = row_w[0] * d[0] + row_w[1] * d[1] + row_w[2] * d[2];
+                (norm3(d) / axial) as f32
             })
             .collect();
         for pass in 0..CHORD_PASSES {
@@ -1870,15 +1883,18 @@ impl GpuFluoroRenderer {
                 occlusion_query_set: None,
                 multiview_mask: None,
             });
-            // The rectangle without the needle's inputs (zero outside its box: bit-identical
-            // there), then the needle's box with them.
+            // The needle's box with the needle's inputs, and the rest of the rectangle (up to
+            // four bands) without them (zero there: bit-identical). Each sample is resolved by
+            // exactly one draw: the draws' storage writes are not ordered within a pass.
             let pipelines = &self.resolve_pipelines[usize::from(iod_dims[3] != 0)];
             pass.set_bind_group(0, &bind, &[]);
-            pass.set_pipeline(&pipelines[0]);
-            pass.set_scissor_rect(rect[0], rect[1], rect[2], rect[3]);
-            pass.draw(0..3, 0..1);
-            if let Some(r) = needle_rect.and_then(|n| intersect_rect(n, rect)) {
-                pass.set_pipeline(&pipelines[1]);
+            let boxed = needle_rect.and_then(|n| intersect_rect(n, rect));
+            let draws = boxed
+                .map(|b| (1, b))
+                .into_iter()
+                .chain(subtract_rect(rect, boxed).into_iter().map(|b| (0, b)));
+            for (variant, r) in draws {
+                pass.set_pipeline(&pipelines[variant]);
                 pass.set_scissor_rect(r[0], r[1], r[2], r[3]);
                 pass.draw(0..3, 0..1);
             }
@@ -2122,9 +2138,9 @@ impl GpuFluoroRenderer {
     }
 }
 
-/// The resolve kernel's bindings (see `resolve.wgsl`): its uniforms, the L-buffer, the needle's
-/// chord, the spectral bins, the iodine grid, the transmission out, the `ln T` table and the
-/// displaced L-buffer.
+/// The resolve pass's bindings (see `resolve.wgsl`): its uniforms, the L-buffer, the needle's
+/// chord, the spectral bins, the iodine grid, the transmission out, the `ln T` table, the
+/// displaced L-buffer and the scalar meshes' L-buffer.
 fn resolve_layout_entries() -> [wgpu::BindGroupLayoutEntry; 9] {
     let entry = |binding: u32, ty: wgpu::BindingType| wgpu::BindGroupLayoutEntry {
         binding,
@@ -2186,7 +2202,7 @@ struct RegionOut {
     needle_rect: Option<[u32; 4]>,
 }
 
-/// Smallest rectangle `[x, y, w, h]` holding both (`None` if both are).
+/// Overlap of two rectangles `[x, y, w, h]` (`None` if they do not overlap).
 fn intersect_rect(a: [u32; 4], b: [u32; 4]) -> Option<[u32; 4]> {
     let (x0, y0) = (a[0].max(b[0]), a[1].max(b[1]));
     let x1 = (a[0] + a[2]).min(b[0] + b[2]);
@@ -2194,6 +2210,25 @@ fn intersect_rect(a: [u32; 4], b: [u32; 4]) -> Option<[u32; 4]> {
     (x1 > x0 && y1 > y0).then(|| [x0, y0, x1 - x0, y1 - y0])
 }
 
+/// `a` less `b` (which lies inside `a`, if given) as up to four disjoint, non-empty bands: the
+/// rows above and below `b`, and the parts of `b`'s rows left and right of it.
+fn subtract_rect(a: [u32; 4], b: Option<[u32; 4]>) -> Vec<[u32; 4]> {
+    let Some(b) = b else {
+        return vec![a];
+    };
+    let (ax1, ay1, bx1, by1) = (a[0] + a[2], a[1] + a[3], b[0] + b[2], b[1] + b[3]);
+    [
+        [a[0], a[1], a[2], b[1] - a[1]],
+        [a[0], by1, a[2], ay1 - by1],
+        [a[0], b[1], b[0] - a[0], b[3]],
+        [bx1, b[1], ax1 - bx1, b[3]],
+    ]
+    .into_iter()
+    .filter(|r| r[2] > 0 && r[3] > 0)
+    .collect()
+}
+
+/// Smallest rectangle `[x, y, w, h]` holding both (`None` if both are).
 fn union_rect(a: Option<[u32; 4]>, b: Option<[u32; 4]>) -> Option<[u32; 4]> {
     match (a, b) {
         (None, r) | (r, None) => r,
@@ -2308,4 +2343,51 @@ fn iodine_texture(ctx: &GpuContext, dims: [usize; 3], data: &[f32]) -> wgpu::Tex
         wgpu::util::TextureDataOrder::LayerMajor,
         bytemuck::cast_slice(data),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every sample of `a` is covered exactly once by `b` (if any, inside `a`) and the bands
+    /// `subtract_rect` returns, for every placement of `b` on a small grid.
+    #[test]
+    fn the_needle_box_and_the_bands_cover_the_rectangle_once() {
+        let a = [2, 3, 7, 5];
+        let mut boxes = vec![None];
+        for x in 2..9 {
+            for y in 3..8 {
+                for w in 1..=9 - x {
+                    for h in 1..=8 - y {
+                        boxes.push(Some([x, y, w, h]));
+                    }
+                }
+            }
+        }
+        for b in boxes {
+            let mut count = [[0u8; 12]; 12];
+            for r in b.into_iter().chain(subtract_rect(a, b)) {
+                assert!(r[2] > 0 && r[3] > 0, "{b:?}: empty band {r:?}");
+                for y in r[1]..r[1] + r[3] {
+                    for x in r[0]..r[0] + r[2] {
+                        count[y as usize][x as usize] += 1;
+                    }
+                }
+            }
+            for (y, row) in count.iter().enumerate() {
+                for (x, &c) in row.iter().enumerate() {
+                    let inside = (2..9).contains(&x) && (3..8).contains(&y);
+                    assert_eq!(
+                        c,
+                        u8::from(inside),
+                        "{b:?}: sample ({x}, {y}) covered {c} times"
+                    );
+                }
+            }
+            assert_eq!(intersect_rect(a, a), Some(a));
+            if let Some(b) = b {
+                assert_eq!(intersect_rect(a, b), Some(b));
+            }
+        }
+    }
 }

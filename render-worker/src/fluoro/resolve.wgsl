@@ -29,7 +29,8 @@ struct Params {
     // Whole detector (columns, rows, needle present, 0).
     full: vec4<u32>,
     lut_dims: vec4<u32>,
-    // Resolved rectangle of samples: (first column, first row, columns, rows).
+    // Resolved rectangle of samples: (first column, first row, columns, rows). Unread here (the
+    // pass's scissor rectangles select the samples); kept for the layout.
     rect: vec4<u32>,
     // The projection's depth row: w = row_w . (point - source), the L-buffer's axial depth.
     row_w: vec4<f32>,
