@@ -47,18 +47,30 @@ struct VOut {
     @location(3) @interpolate(flat) n: vec4<f32>,
 }
 
-// The geometric pass's (it draws every anatomy triangle): one interpolated value and values
-// constant over the triangle. A software rasteriser sets up every interpolated value per
-// triangle and evaluates the fragment shader per covered pixel, so both are kept minimal.
+// The geometric pass's (it draws every anatomy triangle): values constant over the triangle
+// only. A software rasteriser sets up every interpolated value per triangle and evaluates the
+// fragment shader per covered pixel, so both are kept minimal: the depth comes from the
+// fragment position, which the rasteriser interpolates anyway.
 struct GOut {
     @builtin(position) clip: vec4<f32>,
     // The mesh's geometric weights (the fragment shader negates them on front faces).
     @location(1) @interpolate(flat) g: vec4<f32>,
     // The mesh's reference depth along the view axis (row_w), mm.
     @location(4) @interpolate(flat) wref: f32,
-    // Axial depth w_clip = row_w . (point - source), mm, perspective-correct: exact at the
-    // fragment (see `fs_anatomy`).
-    @location(5) w: f32,
+}
+
+// Pipeline constant: whether the fragment position's w is 1 / w_clip, as WGSL defines it.
+// wgpu's D3D12 backend passes w_clip itself (gfx-rs/wgpu#4963, open for the pinned wgpu); the
+// renderer sets this from the device's backend.
+override position_w_is_reciprocal: bool = true;
+
+// Axial depth w_clip = row_w . (point - source) of a fragment, mm, from its position's w: exact,
+// since 1 / w_clip is affine in screen space and is what the rasteriser interpolates.
+fn axial_depth(clip: vec4<f32>) -> f32 {
+    if (position_w_is_reciprocal) {
+        return 1.0 / clip.w;
+    }
+    return clip.w;
 }
 
 fn project(pos: vec3<f32>, n: vec3<f32>, tref: f32) -> VOut {
@@ -108,7 +120,6 @@ fn vs_geometry(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2)
     o.clip = v.clip;
     o.g = weights[3u * mesh];
     o.wref = weights[3u * mesh + 2u].y;
-    o.w = v.clip.w;
     return o;
 }
 
@@ -128,27 +139,22 @@ fn vs_needle(@location(0) pos: vec3<f32>, @location(1) mesh: u32, @location(2) n
     return o;
 }
 
-// Geometric pass: the mesh's signed axial depths times its geometric weights. Perspective-correct
-// interpolation of a vertex value a gives (sum l_i a_i / w_i) / (sum l_i / w_i) over the
-// screen-space barycentrics l_i, so for a = w it gives exactly 1 / (interpolated 1 / w): the
-// axial depth w_clip = row_w . (point - source) of the triangle's point on the sample's ray (1 / w
-// is affine in screen space). The fragment shader is then a multiply-add, with no ray-plane
-// intersection. (The fragment position's w would give the same as a reciprocal, but wgpu's D3D12
-// backend passes w_clip there instead of 1 / w_clip, gfx-rs/wgpu#4963.) Summed over a closed
-// mesh, axial depths give the chord times (row_w . d) / |d|; the resolve (and `render_chords`)
-// multiplies by the ray's |d| / (row_w . d). Facing is the rasteriser's (front:
+// Geometric pass: the mesh's signed axial depths (see `axial_depth`) times its geometric weights:
+// a reciprocal and a multiply-add per fragment, with no ray-plane intersection. Summed over a
+// closed mesh, axial depths give the chord times (row_w . d) / |d|; the resolve (and
+// `render_chords`) multiplies by the ray's |d| / (row_w . d). Facing is the rasteriser's (front:
 // entering), the same decision that counts the triangle's coverage, so each closed mesh's
 // entering and leaving fragments pair up on every ray.
 @fragment
 fn fs_anatomy(v: GOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    return select(v.g, -v.g, front) * (v.w - v.wref);
+    return select(v.g, -v.g, front) * (axial_depth(v.clip) - v.wref);
 }
 
 // The same for a scalar mesh (weights in the water-basis channel only) into a one-channel
 // target (see `FMT_SCALAR`).
 @fragment
 fn fs_anatomy_scalar(v: GOut, @builtin(front_facing) front: bool) -> @location(0) f32 {
-    return select(v.g.x, -v.g.x, front) * (v.w - v.wref);
+    return select(v.g.x, -v.g.x, front) * (axial_depth(v.clip) - v.wref);
 }
 
 // Displaced pass (scissored to the needle's pixel box): the signed part of this crossing inside

@@ -731,6 +731,9 @@ impl GpuFluoroRenderer {
             step_mode: wgpu::VertexStepMode::Vertex,
             attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32, 2 => Float32x3],
         };
+        // WGSL's fragment position w is 1 / w_clip; wgpu's D3D12 backend passes w_clip
+        // (gfx-rs/wgpu#4963), so the geometric pass is told which it gets.
+        let position_w_is_reciprocal = ctx.summary.backend != "dx12";
         let raster =
             |label: &str, vs: &str, fs: &str, targets: &[Option<wgpu::ColorTargetState>]| {
                 device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
@@ -759,7 +762,13 @@ impl GpuFluoroRenderer {
                     fragment: Some(wgpu::FragmentState {
                         module: &module,
                         entry_point: Some(fs),
-                        compilation_options: Default::default(),
+                        compilation_options: wgpu::PipelineCompilationOptions {
+                            constants: &[(
+                                "position_w_is_reciprocal",
+                                f64::from(u8::from(position_w_is_reciprocal)),
+                            )],
+                            ..Default::default()
+                        },
                         targets,
                     }),
                     multiview_mask: None,
