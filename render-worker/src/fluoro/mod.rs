@@ -10,8 +10,8 @@
 //!    [`DrawnMesh::is_scalar`]; about 80 % of the phantom's fragments) and into an
 //!    `Rgba32Float` target otherwise (a one-channel fragment is the cheaper blend). A fragment adds
 //!    `s (w - w_ref)` times the mesh's *geometric* weights, where `w = row_w . (point - source)`
-//!    is the axial depth of the triangle's point on the sample's ray (the
-//!    perspective-correct interpolation of `w` itself, which is exact: `1 / w` is affine in
+//!    is the axial depth of the triangle's point on the sample's ray (the reciprocal of the
+//!    fragment position's `w`, which the rasteriser interpolates exactly: `1 / w` is affine in
 //!    screen space), `s = -1` on front faces (entering) and `+1` on back faces; summed over a
 //!    closed mesh it is the mesh's chord times `(row_w . d) / |d|` for the sample's ray `d`, and
 //!    the resolve multiplies by `|d| / (row_w . d)`. `w_ref` (the axial depth of the mesh's box
@@ -145,9 +145,9 @@ pub enum FluoroGpuError {
     UnknownKvp(#[from] UnknownKvp),
 }
 
-/// Channels of the `Rgba32Float` L-buffer targets (the geometric one and the displaced one). Transmission layout: (water-basis
-/// `sum mu_60 L`, bone-basis `sum mu_60 L`, both net of what the needle displaces; cortical and
-/// cancellous geometric `L` for the clamp).
+/// Channels of the `Rgba32Float` L-buffer targets (the geometric one and the displaced one).
+/// Transmission layout: (water-basis `sum mu_60 L`, bone-basis `sum mu_60 L`, both net of what
+/// the needle displaces; cortical and cancellous geometric `L` for the clamp).
 const SLOTS: usize = 4;
 
 /// One anatomy mesh as the GPU draws it: its raw chord is added to `effective` and subtracted
@@ -167,17 +167,26 @@ pub struct DrawnMesh {
 }
 
 impl DrawnMesh {
-    /// Whether its transmission weights (own minus its container's) touch only the water-basis
-    /// channel (soft tissue inside soft tissue): it is drawn into the one-channel target.
-    fn is_scalar(&self) -> bool {
-        let mut g = transmission_weights(self.effective).0;
+    /// Its geometric and displaced weights in `layout`: its own material's minus its
+    /// container's (see the module doc's "Nesting").
+    fn net_weights(&self, layout: Layout) -> ([f32; SLOTS], [f32; SLOTS]) {
+        let (mut g, mut d) = slot_weights(self.effective, layout);
         if let Some(c) = self.container {
-            let gc = transmission_weights(c).0;
+            let (gc, dc) = slot_weights(c, layout);
             for k in 0..SLOTS {
                 g[k] -= gc[k];
+                d[k] -= dc[k];
             }
         }
-        g[1..].iter().all(|&x| x == 0.0)
+        (g, d)
+    }
+
+    /// Whether its transmission weights touch only the water-basis channel (soft tissue inside
+    /// soft tissue): it is drawn into the one-channel target.
+    fn is_scalar(&self) -> bool {
+        self.net_weights(Layout::Transmission).0[1..]
+            .iter()
+            .all(|&x| x == 0.0)
     }
 }
 
@@ -701,7 +710,7 @@ impl GpuFluoroRenderer {
             });
         }
         drawn.sort_by_cached_key(|d| !d.is_scalar());
-        let scalar_meshes = drawn.iter().filter(|d| d.is_scalar()).count();
+        let scalar_meshes = drawn.partition_point(DrawnMesh::is_scalar);
         let add = |vertices: &mut Vec<Vertex>, ids: std::ops::Range<usize>| {
             for id in ids {
                 let tris = entries[drawn[id].entry].bvh.triangles_mm();
@@ -799,8 +808,8 @@ impl GpuFluoroRenderer {
             "fs_displaced",
             &[target(FMT_A, additive())],
         );
-        // Two specialisations of one kernel sharing one layout: with and without the iodine ray
-        // march (see `has_iodine` in the shader).
+        // Four specialisations of one shader sharing one layout: with and without the iodine
+        // ray march and the needle's inputs (`has_iodine`, `has_needle` in the shader).
         let resolve_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("fluoro resolve"),
             entries: &resolve_layout_entries(),
@@ -1104,14 +1113,7 @@ impl GpuFluoroRenderer {
         queue.write_buffer(&self.view_buf[ri], 0, bytemuck::bytes_of(&view));
         let mut w: Vec<[f32; 4]> = Vec::with_capacity(self.meshes.len() * 3);
         for mesh in &self.meshes {
-            let (mut g, mut d) = slot_weights(mesh.effective, layout);
-            if let Some(c) = mesh.container {
-                let (gc, dc) = slot_weights(c, layout);
-                for k in 0..SLOTS {
-                    g[k] -= gc[k];
-                    d[k] -= dc[k];
-                }
-            }
+            let (g, d) = mesh.net_weights(layout);
             let tref = norm3(sub3(mesh.centre_mm, src)) as f32;
             let c = mesh.centre_mm;
             let wref = (m[2][0] * c[0] + m[2][1] * c[1] + m[2][2] * c[2] + m[2][3]) as f32;
