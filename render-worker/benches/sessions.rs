@@ -49,14 +49,14 @@ fn config(px: u32) -> SessionConfig {
 }
 
 fn host(capacity: usize, extra: &[&str]) -> SessionHost {
-    host_with(capacity, extra, Arc::new(CpuFluoroBackend { threads: 0 }))
+    host_with(capacity, extra, Backends::cpu(0))
 }
 
-fn host_with(capacity: usize, extra: &[&str], backend: Arc<dyn FluoroBackend>) -> SessionHost {
+fn host_with(capacity: usize, extra: &[&str], backends: Backends) -> SessionHost {
     SessionHost::with_regions(
         vec![demo_station(extra)],
         vec![Arc::new(demo_region())],
-        backend,
+        backends,
         capacity,
         config(512),
     )
@@ -134,8 +134,10 @@ fn main() {
     let mut bare = Vec::new();
     for _ in 0..reps {
         let t = Instant::now();
-        let img = sim_core::fluoro::render_frame(&region.scene, None, &projection, &settings)
-            .expect("render");
+        let img: ViewImage =
+            sim_core::fluoro::render_frame(&region.scene, None, &projection, &settings)
+                .expect("render")
+                .into();
         let _ = render_worker::session::frame::encode_jpeg(&img).expect("jpeg");
         bare.push(t.elapsed().as_secs_f64() * 1000.0);
     }
@@ -147,11 +149,11 @@ fn main() {
     for extra in [&[][..], &["ultrasound"][..]] {
         let (station, sha) = demo_station(extra);
         let mut s = Session::new(
-            SessionEnv {
-                station: Arc::new(StationContext::new(station, sha, &region)),
-                region: Arc::clone(&region),
-                backend: Arc::new(CpuFluoroBackend { threads: 0 }),
-            },
+            SessionEnv::new(
+                Arc::new(StationContext::new(station, sha, &region)),
+                Arc::clone(&region),
+                Backends::cpu(0),
+            ),
             config(512),
         );
         let visible: BTreeSet<ViewId> = [ViewId::Fluoroscopy].into();
@@ -187,8 +189,10 @@ fn main() {
         );
     }
 
-    let img = sim_core::fluoro::render_frame(&region.scene, None, &projection, &settings)
-        .expect("render");
+    let img: ViewImage =
+        sim_core::fluoro::render_frame(&region.scene, None, &projection, &settings)
+            .expect("render")
+            .into();
     let mut jpeg = Vec::new();
     for _ in 0..reps {
         let t = Instant::now();
@@ -202,9 +206,9 @@ fn main() {
     );
 
     // 3. Concurrent streamed sessions over loopback websockets.
-    let mut backends: Vec<Arc<dyn FluoroBackend>> = vec![Arc::new(CpuFluoroBackend { threads: 0 })];
+    let mut backends: Vec<Backends> = vec![Backends::cpu(0)];
     match render_worker::gpu::GpuContext::new_headless() {
-        Ok(ctx) => backends.push(Arc::new(GpuFluoroBackend { ctx })),
+        Ok(ctx) => backends.push(Backends::gpu(ctx)),
         Err(e) => println!("\n(no GPU adapter, GPU rows skipped: {e})"),
     }
     // The phantom region: 4 mm grid in quick mode, 2 mm otherwise (the default asset is 1.5 mm;
@@ -233,13 +237,13 @@ fn main() {
     println!("| renderer | per-session renderer set-up (ms) | frame median (ms) |");
     println!("|---|---:|---:|");
     for b in &backends {
-        if quick && b.profile().kind == "cpu-reference" {
+        if quick && b.fluoro.profile().kind == "cpu-reference" {
             // About 6 s per frame on 2 loaded cores: full mode only.
             println!("| cpu-reference cpu | (full mode only) | |");
             continue;
         }
         let t = Instant::now();
-        let mut r = b.renderer(&phantom).expect("renderer");
+        let mut r = b.fluoro.renderer(&phantom).expect("renderer");
         let setup_ms = t.elapsed().as_secs_f64() * 1000.0;
         let p = sim_core::fluoro::Projection {
             isocentre_mm: phantom.landmarks["L4_body_centre"],
@@ -251,7 +255,7 @@ fn main() {
             let _ = r.render(None, &p, &settings).expect("frame");
             times.push(t.elapsed().as_secs_f64() * 1000.0);
         }
-        let profile = b.profile();
+        let profile = b.fluoro.profile();
         println!(
             "| {} {} | {setup_ms:.0} | {:.1} |",
             profile.kind,
@@ -267,30 +271,30 @@ fn main() {
     let counts: &[usize] = if quick { &[1, 4] } else { &[1, 2, 4, 8] };
     let inputs = if quick { 5 } else { 30 };
     let gpu = backends.get(1).cloned();
-    let mut runs: Vec<(&str, Arc<dyn FluoroBackend>, &[usize])> = backends
+    let mut runs: Vec<(&str, Backends, &[usize])> = backends
         .iter()
-        .map(|b| ("demo boxes", Arc::clone(b), counts))
+        .map(|b| ("demo boxes", b.clone(), counts))
         .collect();
     // The CPU reference on the phantom takes seconds per frame here: one session, full mode only.
     match gpu {
         Some(g) => runs.push(("phantom", g, counts)),
-        None if !quick => runs.push(("phantom", Arc::clone(&backends[0]), &[1])),
+        None if !quick => runs.push(("phantom", backends[0].clone(), &[1])),
         None => println!("(no GPU: phantom sessions on the CPU run in full mode only)"),
     }
     for (scene, backend, counts) in runs {
-        let profile = backend.profile();
+        let profile = backend.fluoro.profile();
         for &n in counts {
             let (h, station_id) = if scene == "phantom" {
                 let h = SessionHost::with_regions(
                     vec![facet.clone()],
                     vec![Arc::clone(&phantom)],
-                    Arc::clone(&backend),
+                    backend.clone(),
                     n,
                     config(512),
                 );
                 (h, "l4-l5-left-facet")
             } else {
-                (host_with(n, &[], Arc::clone(&backend)), "demo-station")
+                (host_with(n, &[], backend.clone()), "demo-station")
             };
             let host = h.clone();
             let (lat, fps) = rt.block_on(async move {

@@ -2,4 +2,5 @@
 mod fluoro;
 mod fluoro_cache;
 mod gpu;
+mod modality_seam;
 mod sessions;

@@ -21,7 +21,7 @@ use render_worker::gpu::GpuContext;
 use render_worker::session::demo::{demo_region, demo_station, demo_station_toml};
 use render_worker::session::frame::EncodedFrame;
 use render_worker::session::{
-    CpuFluoroBackend, FluoroBackend, GpuFluoroBackend, SessionConfig, SessionHost,
+    Backends, SessionConfig, SessionHost,
 };
 use serde_json::{Value, json};
 use server::dispatch::Dispatcher;
@@ -158,10 +158,10 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[((p / 100.0) * (sorted.len() - 1) as f64).round() as usize]
 }
 
-/// Runs the rows of one renderer: a server whose in-process worker renders with `backend`.
+/// Runs the rows of one renderer: a server whose in-process worker renders with `backends`.
 async fn bench_backend(
     name: &str,
-    backend: Arc<dyn FluoroBackend>,
+    backends: Backends,
     counts: &[usize],
     run_for: Duration,
 ) {
@@ -187,7 +187,7 @@ async fn bench_backend(
     let host = SessionHost::with_regions(
         vec![demo_station(&[])],
         vec![Arc::new(demo_region())],
-        backend,
+        backends,
         capacity,
         SessionConfig::default(),
     );
@@ -302,11 +302,11 @@ fn main() {
         match GpuContext::new_headless() {
             Ok(ctx) => {
                 let name = format!("gpu: {}", ctx.summary.name);
-                bench_backend(&name, Arc::new(GpuFluoroBackend { ctx }), gpu_counts, run_for).await;
+                bench_backend(&name, Backends::gpu(ctx), gpu_counts, run_for).await;
             }
             Err(e) => println!("| gpu | - | - | - | - | - | - | no adapter: {e} |"),
         }
-        bench_backend("cpu-reference", Arc::new(CpuFluoroBackend { threads: 0 }), cpu_counts, run_for).await;
+        bench_backend("cpu-reference", Backends::cpu(0), cpu_counts, run_for).await;
         println!(
             "\nLatency covers relay, queueing, rendering, JPEG encoding and delivery; a pose superseded before it was rendered counts until the frame that reflects a later one arrives."
         );

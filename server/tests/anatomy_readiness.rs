@@ -10,13 +10,12 @@
 
 use std::net::SocketAddr;
 use std::path::Path;
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use render_worker::cluster::request_with_headers;
 use render_worker::session::region::Region;
 use render_worker::session::{
-    CpuFluoroBackend, HostConfig, SessionConfig, SessionHost, sha256_hex,
+    Backends, HostConfig, SessionConfig, SessionHost, sha256_hex,
 };
 use serde_json::{Value, json};
 use server::dispatch::Dispatcher;
@@ -125,7 +124,7 @@ async fn first_session_request_answers_at_once_while_the_phantom_builds() {
             .map_err(|e| e.to_string())?;
             Ok(Region::from_asset(&asset))
         },
-        Arc::new(CpuFluoroBackend { threads: 0 }),
+        Backends::cpu(0),
         4,
         SessionConfig::default(),
     );
@@ -219,7 +218,7 @@ async fn a_region_that_cannot_be_prepared_is_reported_with_the_reason() {
             capacity: 4,
             session: SessionConfig::default(),
         },
-        Arc::new(CpuFluoroBackend { threads: 0 }),
+        Backends::cpu(0),
         None,
     )
     .unwrap();

@@ -14,7 +14,7 @@ use std::time::Duration;
 use futures::{SinkExt, StreamExt};
 use render_worker::cluster::{Registration, register_forever, request_with_headers};
 use render_worker::session::demo::{demo_region, demo_station, demo_station_toml};
-use render_worker::session::{CpuFluoroBackend, SessionConfig, SessionHost};
+use render_worker::session::{Backends, SessionConfig, SessionHost};
 use serde_json::{Value, json};
 use server::dispatch::Dispatcher;
 use server::records::config::Argon2Cost;
@@ -42,7 +42,7 @@ pub fn demo_host(capacity: usize) -> SessionHost {
     SessionHost::with_regions(
         vec![demo_station(&[])],
         vec![Arc::new(demo_region())],
-        Arc::new(CpuFluoroBackend { threads: 0 }),
+        Backends::cpu(0),
         capacity,
         SessionConfig::default(),
     )

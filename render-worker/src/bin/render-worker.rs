@@ -12,12 +12,8 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::Arc;
 
-use render_worker::gpu::{GpuContext, saxpy};
-use render_worker::session::{
-    CpuFluoroBackend, FluoroBackend, GpuFluoroBackend, HostConfig, SessionConfig, SessionHost, http,
-};
+use render_worker::session::{Backends, HostConfig, SessionConfig, SessionHost, http};
 
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
@@ -34,41 +30,18 @@ fn main() -> ExitCode {
         .ok()
         .and_then(|c| c.parse().ok())
         .unwrap_or(8);
-    // Sessions render on the GPU when one opens, passes its self-test and has the float blending
-    // the fluoroscopy L-buffer needs; otherwise on the CPU reference (a worker without an adapter
-    // still serves, more slowly).
-    let (backend, adapter): (Arc<dyn FluoroBackend>, _) = match GpuContext::new_headless() {
-        Ok(ctx) => {
-            let x: Vec<f32> = (0..256).map(|i| i as f32).collect();
-            let ok = saxpy(&ctx, 2.0, &x, 1.0)
-                .is_ok_and(|y| y.iter().zip(&x).all(|(y, x)| *y == 2.0 * x + 1.0));
-            let blendable = ctx
-                .device
-                .features()
-                .contains(wgpu::Features::FLOAT32_BLENDABLE);
-            let summary = serde_json::to_value(&ctx.summary).ok();
-            if ok && blendable {
-                (Arc::new(GpuFluoroBackend { ctx }), summary)
-            } else {
-                tracing::warn!(
-                    "GPU {} unusable for fluoroscopy (self-test {ok}, float blending {blendable}); using the CPU renderer",
-                    ctx.summary.name
-                );
-                (Arc::new(CpuFluoroBackend { threads: 0 }), summary)
-            }
-        }
-        Err(e) => {
-            tracing::warn!("no GPU ({e}); using the CPU renderer");
-            (Arc::new(CpuFluoroBackend { threads: 0 }), None)
-        }
-    };
+    // Sessions render on the GPU when one opens, passes its self-test and has what the
+    // renderers need; otherwise on the CPU references (a worker without an adapter still
+    // serves, more slowly). The choice is `Backends::open`, shared with the server.
+    let (backends, adapter) = Backends::open();
+    let adapter = adapter.and_then(|a| serde_json::to_value(a).ok());
     let config = HostConfig {
         stations_dir: assets.join("stations"),
         assets_root: assets,
         capacity,
         session: SessionConfig::default(),
     };
-    let host = match SessionHost::new(config, backend, adapter) {
+    let host = match SessionHost::new(config, backends, adapter) {
         Ok(h) => h,
         Err(e) => {
             eprintln!("render-worker: {e}");
@@ -107,7 +80,9 @@ fn main() -> ExitCode {
                 renderer: serde_json::to_value(&health.renderer).unwrap_or_default(),
                 adapter: health.adapter,
             };
-            tokio::spawn(render_worker::cluster::register_forever(register, token, me));
+            tokio::spawn(render_worker::cluster::register_forever(
+                register, token, me,
+            ));
         }
         println!(
             "render-worker ready at http://{addr}/healthz (stations: {})",

@@ -125,6 +125,10 @@ pub enum Command {
         /// Rate, ml/s.
         rate_ml_per_s: f64,
     },
+    /// Let simulated time pass: the clock moves to the moment the command is applied and
+    /// nothing else changes, so a modality that evolves over time (contrast spreading) steps to
+    /// it. Logged like every command, so replay steps the same way.
+    Tick,
     /// End the attempt and score it.
     Submit,
 }
@@ -151,7 +155,7 @@ pub enum CommandClass {
     Contrast,
     /// The needle (an instrument, shared by every modality).
     Needle,
-    /// Submit.
+    /// Submit and tick.
     Session,
 }
 
@@ -170,7 +174,7 @@ impl Command {
             | Command::NeedleFeed { .. }
             | Command::NeedleRoll { .. }
             | Command::NeedleWithdraw { .. } => CommandClass::Needle,
-            Command::Submit => CommandClass::Session,
+            Command::Tick | Command::Submit => CommandClass::Session,
         }
     }
 
@@ -189,6 +193,7 @@ impl Command {
             Command::ProbePose { .. } => "probe_pose",
             Command::ProbeSettings { .. } => "probe_settings",
             Command::Inject { .. } => "inject",
+            Command::Tick => "tick",
             Command::Submit => "submit",
         }
     }
@@ -244,7 +249,7 @@ impl Command {
                 }
                 range("command.ma", *ma, MA_RANGE.0, MA_RANGE.1)
             }
-            Command::Shot | Command::Live { .. } | Command::Submit => Ok(()),
+            Command::Shot | Command::Live { .. } | Command::Tick | Command::Submit => Ok(()),
             Command::NeedlePlace {
                 instrument,
                 entry_mm,

@@ -15,9 +15,9 @@
 //! | 34..36 | height, pixels                                         |
 //! | 36..40 | reserved (0)                                           |
 
-use sim_core::fluoro::Image;
+use super::image::ViewImage as Image;
 
-use super::modality::ViewId;
+use super::image::ViewId;
 
 /// Header length, bytes.
 pub const HEADER_BYTES: usize = 40;

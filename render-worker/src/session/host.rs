@@ -18,9 +18,10 @@ use sim_core::rubric::{Station, load_station_dir};
 use tokio::sync::{mpsc, oneshot, watch};
 
 use super::command::{CommandError, Envelope, ErrorCode, LogEntry};
-use super::fluoro::{BackendProfile, FluoroBackend};
+use super::devices::Backends;
 use super::frame::EncodedFrame;
-use super::modality::ViewId;
+use super::image::ViewId;
+use super::modalities::fluoro::BackendProfile;
 use super::region::Region;
 use super::world::StationContext;
 use super::{Ack, Session, SessionConfig, SessionEnv, SessionSnapshot, SubmitResult, sha256_hex};
@@ -339,7 +340,7 @@ struct Inner {
     /// Threads of the session actors not yet known to have finished (see
     /// [`SessionHost::shutdown`]).
     actors: Mutex<Vec<std::thread::JoinHandle<()>>>,
-    backend: Arc<dyn FluoroBackend>,
+    backends: Backends,
     capacity: usize,
     session_config: SessionConfig,
     adapter: Option<serde_json::Value>,
@@ -364,7 +365,7 @@ impl SessionHost {
     /// first use, from `config.assets_root`.
     pub fn new(
         config: HostConfig,
-        backend: Arc<dyn FluoroBackend>,
+        backends: Backends,
         adapter: Option<serde_json::Value>,
     ) -> Result<SessionHost, HostError> {
         let files = load_station_dir(&config.stations_dir)
@@ -382,7 +383,7 @@ impl SessionHost {
         Ok(SessionHost::from_parts(
             stations,
             Box::new(move |name, progress| Region::load_with_progress(&root, name, progress)),
-            backend,
+            backends,
             config.capacity,
             config.session,
             adapter,
@@ -394,7 +395,7 @@ impl SessionHost {
     pub fn with_regions(
         stations: Vec<(Station, String)>,
         regions: Vec<Arc<Region>>,
-        backend: Arc<dyn FluoroBackend>,
+        backends: Backends,
         capacity: usize,
         session_config: SessionConfig,
     ) -> SessionHost {
@@ -404,7 +405,7 @@ impl SessionHost {
                 .map(|(s, h)| (s.id.clone(), (s, h)))
                 .collect(),
             Box::new(|name, _| Err(format!("region {name} is not loaded in this host"))),
-            backend,
+            backends,
             capacity,
             session_config,
             None,
@@ -420,7 +421,7 @@ impl SessionHost {
     fn from_parts(
         stations: BTreeMap<String, (Station, String)>,
         loader: Box<RegionLoader>,
-        backend: Arc<dyn FluoroBackend>,
+        backends: Backends,
         capacity: usize,
         session_config: SessionConfig,
         adapter: Option<serde_json::Value>,
@@ -434,7 +435,7 @@ impl SessionHost {
                 loader,
                 sessions: Mutex::new(BTreeMap::new()),
                 actors: Mutex::new(Vec::new()),
-                backend,
+                backends,
                 capacity,
                 session_config,
                 adapter,
@@ -452,7 +453,7 @@ impl SessionHost {
         let sessions = self.inner.sessions.lock().map_or(0, |s| s.len());
         Health {
             status: "ok".into(),
-            renderer: self.inner.backend.profile(),
+            renderer: self.inner.backends.fluoro.profile(),
             adapter: self.inner.adapter.clone(),
             capacity: self.inner.capacity,
             sessions,
@@ -470,7 +471,7 @@ impl SessionHost {
         + Send
         + Sync
         + 'static,
-        backend: Arc<dyn FluoroBackend>,
+        backends: Backends,
         capacity: usize,
         session_config: SessionConfig,
     ) -> SessionHost {
@@ -480,7 +481,7 @@ impl SessionHost {
                 .map(|(s, h)| (s.id.clone(), (s, h)))
                 .collect(),
             Box::new(loader),
-            backend,
+            backends,
             capacity,
             session_config,
             None,
@@ -696,11 +697,11 @@ impl SessionHost {
             .cloned()
             .ok_or_else(|| HostError::UnknownStation(station_id.to_string()))?;
         let region = self.region_blocking(&station.region)?;
-        Ok(SessionEnv {
-            station: Arc::new(StationContext::new(station, sha, &region)),
+        Ok(SessionEnv::new(
+            Arc::new(StationContext::new(station, sha, &region)),
             region,
-            backend: Arc::clone(&self.inner.backend),
-        })
+            self.inner.backends.clone(),
+        ))
     }
 
     /// Creates a session at a station (blocking while a region loads the first time; call from
@@ -730,7 +731,8 @@ impl SessionHost {
     ) -> Result<SessionHandle, HostError> {
         self.check_capacity()?;
         let env = self.env_for(&snapshot.station_id)?;
-        let s = Session::restore(env, snapshot, log).map_err(HostError::Restore)?;
+        let s =
+            Session::restore(env, snapshot, log).map_err(|e| HostError::Restore(e.to_string()))?;
         Ok(self.spawn(s))
     }
 

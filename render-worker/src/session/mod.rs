@@ -3,24 +3,30 @@
 //!
 //! # Pieces
 //! - [`Session`]: the state machine. It owns the shared [`world::World`] (anatomy, station, clock,
-//!   needle) and one [`modality::Modality`] per imaging modality the station lists. Commands
-//!   ([`command::Command`]) are validated once, routed by class, applied, acknowledged and logged.
-//!   A station without ultrasound never builds ultrasound resources; a view is rendered only when
-//!   its content changed and it is visible.
-//! - [`fluoro`]: the fluoroscopy modality over a [`fluoro::FluoroBackend`] (the CPU reference
-//!   `sim_core::fluoro::render_frame`, or a GPU renderer with the same output).
-//! - [`scoring`]: measurements from live state, the rubric result and the reproducibility record.
-//! - [`frame`]: JPEG frames with a small binary header.
+//!   needle, injections) and one [`modalities::Modality`] per imaging modality the station lists,
+//!   built by the [`modalities::ModalityFactory`]. Commands ([`command::Command`]) are validated
+//!   once, routed by class, applied, acknowledged and logged. A station without ultrasound never
+//!   builds ultrasound resources; a view is rendered only when its content changed and it is
+//!   visible.
+//! - [`modalities`]: the modality seam and one folder per modality ([`modalities::fluoro`]: the
+//!   C-arm over a [`modalities::fluoro::FluoroBackend`], the CPU reference or the GPU renderer).
+//! - [`devices`]: the renderers of a device, chosen once ([`devices::Backends`]).
+//! - [`anatomy`]: targets, sides and structure geometry that scorers of every modality share.
+//! - [`scoring`]: needle measurements, the rubric result and the reproducibility record.
+//! - [`image`] and [`frame`]: the modality-neutral grey image and its JPEG frame with a small
+//!   binary header.
 //! - [`host`]: [`host::SessionHost`], the in-process API (one actor thread per session, which
 //!   sleeps while no input arrives), and [`protocol`]: the websocket protocol over any
 //!   `Sink`/`Stream` of messages, with latest-frame-wins delivery.
 //!
 //! # Determinism
 //! Everything a session does is a function of its initial snapshot and its log: the clock only
-//! advances with accepted commands (each log entry carries its simulation time), noise seeds are
-//! derived from the session seed and the image number, and sim-core's models are deterministic.
-//! [`Session::restore`] from any snapshot plus the log therefore reaches the same state bytes and,
-//! with the same renderer, the same frame bytes. Scores never depend on rendering.
+//! advances with accepted commands (each log entry carries its simulation time; `tick` moves it
+//! with nothing else), modalities step their time-dependent models only on those advances, noise
+//! seeds are derived from the session seed and the image number, and sim-core's models are
+//! deterministic. [`Session::restore`] from any snapshot plus the log therefore reaches the same
+//! state bytes and, with the same renderer, the same frame bytes. Scores never depend on
+//! rendering.
 //!
 //! ```
 //! # use std::sync::Arc;
@@ -34,13 +40,16 @@
 //! # }
 //! ```
 
+pub mod anatomy;
 pub mod command;
 pub mod demo;
-pub mod fluoro;
+pub mod devices;
+pub mod error;
 pub mod frame;
 pub mod host;
 pub mod http;
-pub mod modality;
+pub mod image;
+pub mod modalities;
 pub mod protocol;
 pub mod region;
 pub mod scoring;
@@ -54,16 +63,19 @@ use sha2::{Digest, Sha256};
 use sim_core::rubric::{Measurements, Modality as StationModality};
 
 pub use command::{Agent, Command, CommandClass, CommandError, Envelope, ErrorCode, LogEntry};
-pub use fluoro::{
+pub use devices::Backends;
+pub use error::SessionError;
+pub use frame::EncodedFrame;
+pub use host::{HostConfig, HostError, SessionHandle, SessionHost, SessionInfo};
+pub use image::{ViewId, ViewImage};
+pub use modalities::fluoro::{
     BackendProfile, CpuFluoroBackend, FluoroBackend, FluoroConfig, FluoroModality, FluoroRenderer,
     GpuFluoroBackend,
 };
-pub use frame::EncodedFrame;
-pub use host::{HostConfig, HostError, SessionHandle, SessionHost, SessionInfo};
-pub use modality::{Modality, ViewId, WorldChange};
+pub use modalities::{Modality, ModalityContext, ModalityError, ModalityFactory};
 pub use region::Region;
 pub use scoring::{ReproducibilityRecord, SubmitResult};
-pub use world::{NeedleInstrument, StationContext, World};
+pub use world::{Injection, NeedleInstrument, StationContext, World, WorldChange};
 
 /// Version of the snapshot format.
 pub const SNAPSHOT_FORMAT: u32 = 1;
@@ -86,15 +98,34 @@ impl Default for SessionConfig {
     }
 }
 
-/// What a session runs against: station, anatomy and renderer (shared, read-only).
+/// What a session runs against: station, anatomy, the device's renderers and the modalities
+/// this worker implements (shared, read-only).
 #[derive(Clone)]
 pub struct SessionEnv {
     /// Station with resolved targets.
     pub station: Arc<StationContext>,
     /// Anatomy.
     pub region: Arc<Region>,
-    /// Fluoroscopy renderer.
-    pub backend: Arc<dyn FluoroBackend>,
+    /// The renderers of this device.
+    pub backends: Backends,
+    /// Builds the station's modalities.
+    pub modalities: ModalityFactory,
+}
+
+impl SessionEnv {
+    /// A station in a region, with `backends` and every modality this worker implements.
+    pub fn new(
+        station: Arc<StationContext>,
+        region: Arc<Region>,
+        backends: Backends,
+    ) -> SessionEnv {
+        SessionEnv {
+            station,
+            region,
+            backends,
+            modalities: ModalityFactory::standard(),
+        }
+    }
 }
 
 impl std::fmt::Debug for SessionEnv {
@@ -102,8 +133,17 @@ impl std::fmt::Debug for SessionEnv {
         f.debug_struct("SessionEnv")
             .field("station", &self.station.station.id)
             .field("region", &self.region.name)
-            .field("backend", &self.backend.profile())
+            .field("backends", &self.backends)
+            .field("modalities", &self.modalities)
             .finish()
+    }
+}
+
+/// The name a station uses for its modality, the key of the modality factory.
+pub fn station_modality_name(m: StationModality) -> &'static str {
+    match m {
+        StationModality::Fluoroscopy => "fluoroscopy",
+        StationModality::Ultrasound => "ultrasound",
     }
 }
 
@@ -135,6 +175,9 @@ pub struct SessionSnapshot {
     pub needle: Option<NeedleInstrument>,
     /// Needle geometry version.
     pub needle_version: u64,
+    /// Injections so far (absent from the JSON while there are none).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub injections: Vec<Injection>,
     /// State of each modality by name.
     pub modalities: BTreeMap<String, serde_json::Value>,
     /// The result, once the attempt was submitted.
@@ -155,10 +198,7 @@ impl SessionSnapshot {
     }
 }
 
-/// SHA-256, lower-case hex.
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    hex::encode(Sha256::digest(bytes))
-}
+pub use sim_core::anatomy::asset::sha256_hex;
 
 /// One SHA-256 over a region's file hashes (file name and hash, in name order).
 pub fn region_fingerprint(region: &Region) -> String {
@@ -184,6 +224,10 @@ pub struct Ack {
     pub duplicate: bool,
     /// What happened (needle outcome, exposure so far, annotation error, ...).
     pub outcome: serde_json::Value,
+    /// The technical result, on the acknowledgement of a submit (and only there): the one typed
+    /// form in which a result leaves the worker.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub result: Option<Box<SubmitResult>>,
 }
 
 /// A rendered (not yet encoded) view.
@@ -196,7 +240,7 @@ pub struct RenderedView {
     /// Simulation time, ms.
     pub t_ms: u64,
     /// The image.
-    pub image: sim_core::fluoro::Image,
+    pub image: ViewImage,
 }
 
 /// One station attempt.
@@ -223,27 +267,22 @@ impl std::fmt::Debug for Session {
 }
 
 impl Session {
-    /// A fresh session: C-arm in AP at the L4 body centre (or the first target), no needle.
+    /// A fresh session: every modality the station lists that this worker implements, in their
+    /// initial state (the C-arm in AP at the L4 body centre or the first target), no needle.
     pub fn new(env: SessionEnv, config: SessionConfig) -> Session {
-        let station = &env.station.station;
-        let isocentre = env
-            .region
-            .landmarks
-            .get("L4_body_centre")
-            .copied()
-            .or_else(|| fluoro::primary_target(&env.station))
-            .unwrap_or([0.0; 3]);
         let mut modalities: Vec<Box<dyn Modality>> = Vec::new();
         let mut unavailable = Vec::new();
-        for m in &station.modalities {
-            match m {
-                StationModality::Fluoroscopy => modalities.push(Box::new(FluoroModality::new(
-                    config.fluoro,
-                    isocentre,
-                    config.seed,
-                    Arc::clone(&env.backend),
-                ))),
-                StationModality::Ultrasound => unavailable.push("ultrasound".to_string()),
+        let ctx = ModalityContext {
+            config: &config,
+            station: &env.station,
+            region: &env.region,
+            backends: &env.backends,
+        };
+        for &m in &env.station.station.modalities {
+            let name = station_modality_name(m);
+            match env.modalities.build(name, &ctx) {
+                Some(built) => modalities.push(built),
+                None => unavailable.push(name.to_string()),
             }
         }
         let world = World {
@@ -252,6 +291,7 @@ impl Session {
             clock_ms: 0,
             needle: None,
             needle_version: 0,
+            injections: Vec::new(),
         };
         let mut s = Session {
             env,
@@ -275,49 +315,48 @@ impl Session {
         env: SessionEnv,
         snapshot: &SessionSnapshot,
         log: &[LogEntry],
-    ) -> Result<Session, String> {
+    ) -> Result<Session, SessionError> {
         if snapshot.format != SNAPSHOT_FORMAT {
-            return Err(format!(
-                "snapshot format {} is not {SNAPSHOT_FORMAT}",
-                snapshot.format
-            ));
+            return Err(SessionError::SnapshotFormat {
+                found: snapshot.format,
+                expected: SNAPSHOT_FORMAT,
+            });
         }
         let st = &env.station;
         if snapshot.station_id != st.station.id
             || snapshot.station_revision != st.station.revision
             || snapshot.station_sha256 != st.station_sha256
         {
-            return Err(format!(
-                "snapshot is of station {} revision {}, not the loaded {} revision {}",
-                snapshot.station_id, snapshot.station_revision, st.station.id, st.station.revision
-            ));
+            return Err(SessionError::StationMismatch {
+                snapshot_station: snapshot.station_id.clone(),
+                snapshot_revision: snapshot.station_revision,
+                loaded_station: st.station.id.clone(),
+                loaded_revision: st.station.revision,
+            });
         }
         if snapshot.region != env.region.name
             || snapshot.region_fingerprint != region_fingerprint(&env.region)
         {
-            return Err(format!(
-                "snapshot is of another build of region {}",
-                snapshot.region
-            ));
+            return Err(SessionError::RegionMismatch(snapshot.region.clone()));
         }
         if log.len() < snapshot.log_len {
-            return Err(format!(
-                "log has {} entries, the snapshot already reflects {}",
-                log.len(),
-                snapshot.log_len
-            ));
+            return Err(SessionError::LogTooShort {
+                log: log.len(),
+                reflected: snapshot.log_len,
+            });
         }
         let mut s = Session::new(env, snapshot.config);
         s.world.clock_ms = snapshot.clock_ms;
         s.world.needle = snapshot.needle.clone();
         s.world.needle_version = snapshot.needle_version;
+        s.world.injections = snapshot.injections.clone();
         s.last_seq = snapshot.last_seq;
         s.initial_sha256 = snapshot.initial_sha256.clone();
         for m in &mut s.modalities {
             let state = snapshot
                 .modalities
                 .get(m.name())
-                .ok_or_else(|| format!("snapshot has no state for {}", m.name()))?;
+                .ok_or_else(|| SessionError::MissingModalityState(m.name().to_string()))?;
             m.restore(state.clone())?;
         }
         s.log = log[..snapshot.log_len].to_vec();
@@ -328,7 +367,10 @@ impl Session {
                 command: entry.command.clone(),
             };
             s.apply(env, entry.t_ms)
-                .map_err(|e| format!("log entry seq {} no longer applies: {e}", entry.seq))?;
+                .map_err(|error| SessionError::LogEntry {
+                    seq: entry.seq,
+                    error,
+                })?;
         }
         Ok(s)
     }
@@ -348,6 +390,7 @@ impl Session {
             log_len: self.log.len(),
             needle: self.world.needle.clone(),
             needle_version: self.world.needle_version,
+            injections: self.world.injections.clone(),
             modalities: self
                 .modalities
                 .iter()
@@ -419,6 +462,7 @@ impl Session {
                         t_ms: e.t_ms,
                         duplicate: true,
                         outcome: serde_json::Value::Null,
+                        result: None,
                     });
                 }
             }
@@ -441,8 +485,16 @@ impl Session {
         env.command.validate()?;
         let before = self.world.clock_ms;
         self.world.clock_ms = before.max(t_ms);
+        if self.world.clock_ms > before {
+            for m in &mut self.modalities {
+                m.advance(before, &self.world);
+            }
+        }
         match self.dispatch(&env.command) {
             Ok(outcome) => {
+                let result = (env.command == Command::Submit)
+                    .then(|| self.submitted.clone().map(Box::new))
+                    .flatten();
                 self.last_seq = env.seq;
                 self.log.push(LogEntry {
                     seq: env.seq,
@@ -454,6 +506,7 @@ impl Session {
                     t_ms: self.world.clock_ms,
                     duplicate: false,
                     outcome,
+                    result,
                 })
             }
             Err(e) => {
@@ -466,13 +519,14 @@ impl Session {
     fn dispatch(&mut self, command: &Command) -> Result<serde_json::Value, CommandError> {
         match command.class() {
             CommandClass::Needle => self.apply_needle(command),
+            CommandClass::Session if *command == Command::Tick => {
+                Ok(serde_json::json!({ "t_ms": self.world.clock_ms }))
+            }
             CommandClass::Session => {
-                let result = self.score();
-                let value = serde_json::to_value(&result).unwrap_or_default();
-                self.submitted = Some(result);
                 // The submit itself is logged by the caller; the record's log hash covers the
-                // commands before it.
-                Ok(value)
+                // commands before it. The result travels typed in the acknowledgement.
+                self.submitted = Some(self.score());
+                Ok(serde_json::Value::Null)
             }
             class => {
                 let Some(m) = self
@@ -496,8 +550,42 @@ impl Session {
                         format!("modality not available at this station: {what} {why}"),
                     ));
                 };
-                m.apply(command, &self.world)
+                let outcome = m.apply(command, &self.world)?;
+                if let Command::Inject {
+                    agent,
+                    volume_ml,
+                    rate_ml_per_s,
+                } = *command
+                {
+                    self.record_injection(agent, volume_ml, rate_ml_per_s);
+                }
+                Ok(outcome)
             }
+        }
+    }
+
+    /// Adds an injection the contrast modality accepted to the world's ledger and tells every
+    /// modality.
+    fn record_injection(&mut self, agent: Agent, volume_ml: f64, rate_ml_per_s: f64) {
+        let tip_mm = self
+            .world
+            .needle
+            .as_ref()
+            .map_or([0.0; 3], |n| n.state.tip_mm().to_array());
+        let injection = Injection {
+            t_ms: self.world.clock_ms,
+            agent,
+            volume_ml,
+            rate_ml_per_s,
+            tip_mm,
+        };
+        self.world.injections.push(injection.clone());
+        self.notify(&WorldChange::FluidInjected(injection));
+    }
+
+    fn notify(&mut self, change: &WorldChange) {
+        for m in &mut self.modalities {
+            m.world_changed(change, &self.world);
         }
     }
 
@@ -608,9 +696,7 @@ impl Session {
             }
         };
         self.world.needle_version += 1;
-        for m in &mut self.modalities {
-            m.world_changed(WorldChange::Needle, &self.world);
-        }
+        self.notify(&WorldChange::Needle);
         Ok(outcome)
     }
 
@@ -644,7 +730,7 @@ impl Session {
             region: self.env.region.name.clone(),
             region_source: self.env.region.source.clone(),
             asset_sha256: self.env.region.asset_sha256.clone(),
-            renderer: self.env.backend.profile(),
+            renderer: self.env.backends.fluoro.profile(),
             modalities: self
                 .modalities
                 .iter()
@@ -667,7 +753,7 @@ impl Session {
     pub fn render_dirty(
         &mut self,
         visible: &BTreeSet<ViewId>,
-    ) -> Result<Vec<RenderedView>, String> {
+    ) -> Result<Vec<RenderedView>, SessionError> {
         let mut out = Vec::new();
         for m in &mut self.modalities {
             for view in m.dirty_views() {
@@ -712,14 +798,15 @@ pub fn replay_attempt(
     env: SessionEnv,
     initial: &SessionSnapshot,
     log: &[LogEntry],
-) -> Result<Replay, String> {
+) -> Result<Replay, SessionError> {
     let mut s = Session::restore(env, initial, log)?;
     let views: BTreeSet<ViewId> = s.views().into_iter().collect();
     let final_frames = s
         .render_dirty(&views)?
         .into_iter()
         .map(|v| EncodedFrame::new(v.view, 0, v.input_seq, v.t_ms, &v.image))
-        .collect::<Result<_, _>>()?;
+        .collect::<Result<_, _>>()
+        .map_err(SessionError::Encode)?;
     Ok(Replay {
         final_state: s.snapshot(),
         result: s.result().cloned(),

@@ -26,7 +26,7 @@ use tokio::sync::mpsc;
 use super::Ack;
 use super::command::{Command, CommandError, Envelope, ErrorCode};
 use super::host::{FrameSet, Reply, SessionHandle, SessionInfo};
-use super::modality::ViewId;
+use super::image::ViewId;
 
 /// A websocket message, independent of the websocket library.
 #[derive(Debug, Clone, PartialEq, Eq)]

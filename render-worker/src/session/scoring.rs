@@ -10,7 +10,7 @@
 //! - `dural_puncture_bool`: 1 when the tip has been inside the `dural_sac` structure after any
 //!   needle command (the tip and the buried channel sampled every millimetre are checked).
 //!
-//! Fluoroscopy (see `fluoro.rs`):
+//! Fluoroscopy (see `modalities/fluoro/`):
 //! - `fluoro_acquisitions_count` (shots plus live runs) and `fluoro_exposure_s`.
 //! - `ap_endplate_tilt_deg`: the smallest angle between the central ray and the L4 inferior
 //!   endplate plane over the AP-like acquisitions (|orbital| <= 10 degrees). The endplate normal
@@ -38,7 +38,8 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use sim_core::rubric::{Measurements, RubricResult};
 
-use super::fluoro::BackendProfile;
+use super::anatomy::{primary_target, target_side};
+use super::modalities::fluoro::BackendProfile;
 use super::world::World;
 
 /// Revision of the code that produced a result: the crate version and, when the build saw a git
@@ -58,7 +59,7 @@ pub fn measure_needle(world: &World, out: &mut Measurements) {
     };
     let tip = n.state.tip_mm();
     out.insert("needle_depth_mm".into(), n.state.buried_mm());
-    if let Some(t) = super::fluoro::primary_target(&world.station) {
+    if let Some(t) = primary_target(&world.station) {
         out.insert(
             "tip_to_target_mm".into(),
             tip.distance(DVec3::from_array(t)),
@@ -74,7 +75,7 @@ pub fn measure_needle(world: &World, out: &mut Measurements) {
         .and_then(|c| c.target.as_ref())
         .and_then(|t| world.station.targets.get(t))
     {
-        let side = super::fluoro::target_side(&world.region, *ped);
+        let side = target_side(&world.region, *ped);
         // Medial is towards the midline: -x for a right-sided point, +x for a left-sided one.
         out.insert("tip_medial_to_pedicle_mm".into(), -side * (tip.x - ped[0]));
     }

@@ -1,5 +1,6 @@
-//! What every part of a session shares: the anatomy, the station, the simulation clock and the
-//! needle (an instrument seen by every modality).
+//! What every part of a session shares: the anatomy, the station, the simulation clock, the
+//! needle (an instrument seen by every modality) and the ledger of injected fluid; and the
+//! changes of it that modalities react to ([`WorldChange`]).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
@@ -9,6 +10,7 @@ use serde::{Deserialize, Serialize};
 use sim_core::needle::{InitialResponse, InstrumentProfile, NeedleState};
 use sim_core::rubric::Station;
 
+use super::command::Agent;
 use super::region::Region;
 
 /// Largest feed substep of session needles, mm. Simulator choice: half a millimetre resolves
@@ -114,6 +116,31 @@ pub fn new_needle(
     .map_err(|e| e.to_string())
 }
 
+/// One injection through the needle, as the session recorded it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Injection {
+    /// Simulation time the injection started, ms.
+    pub t_ms: u64,
+    /// What was injected.
+    pub agent: Agent,
+    /// Volume, ml.
+    pub volume_ml: f64,
+    /// Rate, ml/s.
+    pub rate_ml_per_s: f64,
+    /// The needle tip (the outlet) at that moment, model frame, mm.
+    pub tip_mm: [f64; 3],
+}
+
+/// What changed in the shared world after a command, so every modality can react (a live
+/// fluoroscopy view re-renders when the needle moves; a still image does not).
+#[derive(Debug, Clone, PartialEq)]
+pub enum WorldChange {
+    /// The needle moved or was placed.
+    Needle,
+    /// Fluid left the needle (the entry just added to [`World::injections`]).
+    FluidInjected(Injection),
+}
+
 /// Shared session state.
 #[derive(Debug, Clone)]
 pub struct World {
@@ -127,4 +154,6 @@ pub struct World {
     pub needle: Option<NeedleInstrument>,
     /// Bumped whenever the needle geometry changes.
     pub needle_version: u64,
+    /// Every injection so far, oldest first.
+    pub injections: Vec<Injection>,
 }

@@ -38,11 +38,11 @@ mod routes;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-use render_worker::session::fluoro::FluoroRenderer;
+use render_worker::session::modalities::fluoro::FluoroRenderer;
 use render_worker::session::region::Region;
 use render_worker::session::host::RegionReadiness;
 use render_worker::session::{
-    BackendProfile, CpuFluoroBackend, FluoroBackend, GpuFluoroBackend, HostConfig, HostError,
+    BackendProfile, Backends, FluoroBackend, HostConfig, HostError,
     LogEntry, SessionConfig, SessionHost, SessionSnapshot,
 };
 use uuid::Uuid;
@@ -232,11 +232,8 @@ struct InProcessBackend {
 }
 
 impl InProcessBackend {
-    fn current(&self) -> Box<dyn FluoroBackend> {
-        match self.workers.gpu() {
-            Some(ctx) => Box::new(GpuFluoroBackend { ctx }),
-            None => Box::new(CpuFluoroBackend { threads: 0 }),
-        }
+    fn current(&self) -> Arc<dyn FluoroBackend> {
+        Backends::for_device(self.workers.gpu()).fluoro
     }
 }
 
@@ -328,10 +325,10 @@ impl Dispatcher {
     }
 
     /// The default: an in-process host over `config`'s stations and regions (regions load on
-    /// first use) rendering with `backend`.
+    /// first use) rendering with `backends`.
     pub fn from_config(
         config: &DispatchConfig,
-        backend: Arc<dyn FluoroBackend>,
+        backends: Backends,
     ) -> Result<Dispatcher, String> {
         let host = SessionHost::new(
             HostConfig {
@@ -340,7 +337,7 @@ impl Dispatcher {
                 capacity: config.in_process_capacity,
                 session: SessionConfig::default(),
             },
-            backend,
+            backends,
             None,
         )
         .map_err(|e| e.to_string())?;
@@ -359,15 +356,17 @@ impl Dispatcher {
             return d;
         }
         let config = DispatchConfig::from_env(state.config.records.stations_dir.clone());
-        let backend = Arc::new(InProcessBackend {
-            workers: state.workers.clone(),
-        });
-        Dispatcher::from_config(&config, backend).unwrap_or_else(|e| {
+        let backends = Backends {
+            fluoro: Arc::new(InProcessBackend {
+                workers: state.workers.clone(),
+            }),
+        };
+        Dispatcher::from_config(&config, backends).unwrap_or_else(|e| {
             tracing::error!("no in-process sessions: {e}");
             let empty = SessionHost::with_regions(
                 Vec::new(),
                 Vec::new(),
-                Arc::new(CpuFluoroBackend { threads: 0 }),
+                Backends::cpu(0),
                 0,
                 SessionConfig::default(),
             );

@@ -100,7 +100,9 @@ fn activity_of(command: &Command) -> Option<ActivityKind> {
         | Command::NeedleRoll { .. }
         | Command::NeedleWithdraw { .. } => ActivityKind::NeedleAdjusted,
         Command::Inject { .. } => ActivityKind::Injection,
-        Command::Live { on: false } | Command::Annotate { .. } | Command::Submit => return None,
+        Command::Live { on: false } | Command::Annotate { .. } | Command::Tick | Command::Submit => {
+            return None;
+        }
     })
 }
 
@@ -294,7 +296,7 @@ pub async fn relay(
                                         if !writer.wait_durable(needs).await {
                                             break 'connection;
                                         }
-                                        result_message = Some(store_result(&records, &session, &placement, &ack.outcome).await);
+                                        result_message = Some(store_result(&records, &session, &placement, ack.result.as_deref()).await);
                                     }
                                     needs
                                 } else {
@@ -448,15 +450,12 @@ async fn store_result(
     records: &RecordsState,
     session: &LiveSession,
     placement: &Placement,
-    outcome: &serde_json::Value,
+    result: Option<&SubmitResult>,
 ) -> serde_json::Value {
-    let result: SubmitResult = match serde_json::from_value(outcome.clone()) {
-        Ok(r) => r,
-        Err(e) => {
-            return json!({ "type": "technical_result_error", "message": format!("the worker's result could not be read: {e}") });
-        }
+    let Some(result) = result else {
+        return json!({ "type": "technical_result_error", "message": "the worker acknowledged the submit without a result" });
     };
-    let req = new_result(&result, session.id, &placement.worker_label());
+    let req = new_result(result, session.id, &placement.worker_label());
     match submit_result_for(
         records,
         session.learner_id,

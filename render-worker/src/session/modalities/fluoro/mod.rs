@@ -9,21 +9,27 @@
 //! technique, the needle shaft, the noise seed), so a frame rendered later (after the client
 //! caught up, or after a restore) is exactly the image of that moment.
 
+mod backend;
+
 use std::sync::Arc;
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
-use sim_core::fluoro::{
-    Collimation, EnergyModel, FluoroMaterial, Image, Projection, QuantumNoise, RenderSettings,
-    Scene,
-};
-use sim_core::geom::{capped_cylinder, equal_area_vertex_radius};
+use sim_core::fluoro::{Collimation, EnergyModel, Projection, QuantumNoise, RenderSettings};
 use sim_core::rubric::Measurements;
 
-use super::command::{Command, CommandClass, CommandError, ErrorCode};
-use super::modality::{Modality, ViewId, WorldChange};
-use super::region::Region;
-use super::world::{StationContext, World};
+pub use backend::{
+    BackendProfile, CpuFluoroBackend, FluoroBackend, FluoroRenderer, GpuFluoroBackend,
+    NEEDLE_FACETS, NeedleShaft, needle_meshes,
+};
+
+use super::{Modality, ModalityContext, ModalityError};
+use crate::session::anatomy::{
+    angle_to_plane_deg, endplate_normal, facet_joint_normal, primary_target, target_side,
+};
+use crate::session::command::{Command, CommandClass, CommandError, ErrorCode};
+use crate::session::image::{ViewId, ViewImage};
+use crate::session::world::{World, WorldChange};
 
 /// Fluoroscopy time booked for one single-shot acquisition, ms. Simulator choice: C-arms display
 /// fluoroscopy time in 0.1 s steps, and a single pulse-and-hold shot books one step.
@@ -36,176 +42,6 @@ pub const PHOTONS_PER_PIXEL_PER_MA: f64 = 1500.0;
 pub const AP_MAX_OBLIQUITY_DEG: f64 = 10.0;
 /// An acquisition counts as an oblique view from this orbital rotation on (same choice).
 pub const OBLIQUE_MIN_DEG: f64 = 10.0;
-/// Facets of the needle prism. Simulator choice: with the equal-area radius, 8 facets keep the
-/// mean chord of the round shaft exactly and its silhouette within 4% of the radius.
-pub const NEEDLE_FACETS: u32 = 8;
-
-/// Makes fluoroscopy renderers: the CPU reference, or the GPU renderer (same output type).
-/// Shared by every session of a worker; each session gets its own [`FluoroRenderer`], created on
-/// its first exposure (a session that never takes an image allocates nothing).
-pub trait FluoroBackend: Send + Sync {
-    /// What renders (e.g. `cpu-reference`, or the GPU adapter's name), for records and health.
-    fn profile(&self) -> BackendProfile;
-    /// A renderer of `region` for one session.
-    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String>;
-}
-
-/// One session's renderer (may hold per-session resources, such as uploaded meshes).
-pub trait FluoroRenderer: Send {
-    /// One frame of the region (no iodine yet) with the needle, if any, through `projection`.
-    fn render(
-        &mut self,
-        needle: Option<&NeedleShaft>,
-        projection: &Projection,
-        settings: &RenderSettings,
-    ) -> Result<Image, String>;
-}
-
-/// Which renderer made a frame.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct BackendProfile {
-    /// Renderer kind: `cpu-reference` or `gpu`.
-    pub kind: String,
-    /// Device or adapter (`cpu` for the reference).
-    pub device: String,
-}
-
-/// The f64 CPU reference renderer of `sim_core::fluoro`.
-#[derive(Debug, Clone, Copy)]
-pub struct CpuFluoroBackend {
-    /// Render threads per frame (0: all cores).
-    pub threads: usize,
-}
-
-impl FluoroBackend for CpuFluoroBackend {
-    fn profile(&self) -> BackendProfile {
-        BackendProfile {
-            kind: "cpu-reference".to_string(),
-            device: "cpu".to_string(),
-        }
-    }
-
-    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String> {
-        Ok(Box::new(CpuRenderer {
-            region: Arc::clone(region),
-            threads: self.threads,
-            cache: None,
-        }))
-    }
-}
-
-/// The CPU renderer of one session: the region's scene plus the needle's prisms, rebuilt only
-/// when the needle moved.
-struct CpuRenderer {
-    region: Arc<Region>,
-    threads: usize,
-    cache: Option<(NeedleShaft, Scene)>,
-}
-
-impl FluoroRenderer for CpuRenderer {
-    fn render(
-        &mut self,
-        needle: Option<&NeedleShaft>,
-        projection: &Projection,
-        settings: &RenderSettings,
-    ) -> Result<Image, String> {
-        let settings = RenderSettings {
-            threads: self.threads,
-            ..*settings
-        };
-        let scene = match needle {
-            None => &self.region.scene,
-            Some(n) => {
-                if self.cache.as_ref().is_none_or(|(c, _)| c != n) {
-                    let mut scene = self.region.scene.clone();
-                    for (k, mesh) in needle_meshes(n).iter().enumerate() {
-                        scene.add(format!("needle_{k}"), FluoroMaterial::Steel, mesh);
-                    }
-                    self.cache = Some((n.clone(), scene));
-                }
-                match &self.cache {
-                    Some((_, s)) => s,
-                    None => &self.region.scene,
-                }
-            }
-        };
-        sim_core::fluoro::render_frame(scene, None, projection, &settings)
-            .map_err(|e| e.to_string())
-    }
-}
-
-/// The GPU renderer of `render_worker::fluoro` on a worker's device.
-#[derive(Debug, Clone)]
-pub struct GpuFluoroBackend {
-    /// The device shared by every session.
-    pub ctx: crate::gpu::GpuContext,
-}
-
-impl FluoroBackend for GpuFluoroBackend {
-    fn profile(&self) -> BackendProfile {
-        BackendProfile {
-            kind: "gpu".to_string(),
-            device: format!("{} ({})", self.ctx.summary.name, self.ctx.summary.backend),
-        }
-    }
-
-    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String> {
-        let r = crate::fluoro::GpuFluoroRenderer::new(&self.ctx, &region.scene)
-            .map_err(|e| e.to_string())?;
-        Ok(Box::new(GpuRenderer {
-            renderer: r,
-            needle: None,
-        }))
-    }
-}
-
-struct GpuRenderer {
-    renderer: crate::fluoro::GpuFluoroRenderer,
-    needle: Option<NeedleShaft>,
-}
-
-impl FluoroRenderer for GpuRenderer {
-    fn render(
-        &mut self,
-        needle: Option<&NeedleShaft>,
-        projection: &Projection,
-        settings: &RenderSettings,
-    ) -> Result<Image, String> {
-        if self.needle.as_ref() != needle {
-            match needle {
-                // One mesh of all segments: exact for a straight shaft (one convex prism); a bent
-                // shaft's segments overlap at the joints by a fraction of its radius.
-                Some(n) => {
-                    let mut mesh = sim_core::mesh::TriMesh {
-                        vertices_mm: Vec::new(),
-                        triangles: Vec::new(),
-                    };
-                    for m in needle_meshes(n) {
-                        mesh.append(&m);
-                    }
-                    self.renderer.update_needle(&mesh);
-                }
-                None => self.renderer.clear_needle(),
-            }
-            self.needle = needle.cloned();
-        }
-        self.renderer
-            .render_frame(projection, settings, None)
-            .map_err(|e| e.to_string())
-    }
-}
-
-/// The needle's closed prisms, one per polyline segment (equal-area radius, [`NEEDLE_FACETS`]).
-pub fn needle_meshes(needle: &NeedleShaft) -> Vec<sim_core::mesh::TriMesh> {
-    let r = equal_area_vertex_radius(needle.radius_mm, NEEDLE_FACETS);
-    needle
-        .points_mm
-        .windows(2)
-        .filter(|w| (0..3).map(|a| (w[1][a] - w[0][a]).powi(2)).sum::<f64>() > 1e-12)
-        .map(|w| capped_cylinder(w[0], w[1], r, NEEDLE_FACETS))
-        .collect()
-}
-
 /// Fixed settings of a session's C-arm.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct FluoroConfig {
@@ -228,15 +64,6 @@ impl Default for FluoroConfig {
             noise: true,
         }
     }
-}
-
-/// The needle shaft as imaged: a polyline (hub first) and its radius.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct NeedleShaft {
-    /// Points, mm.
-    pub points_mm: Vec<[f64; 3]>,
-    /// Outer radius, mm.
-    pub radius_mm: f64,
 }
 
 /// Everything that decides one image's pixels.
@@ -444,6 +271,24 @@ fn simplify_polyline(points: &[[f64; 3]]) -> Vec<[f64; 3]> {
     out
 }
 
+/// The factory's builder: a C-arm in AP centred on the L4 body centre (else the station's
+/// primary target), rendering with the device's fluoroscopy backend.
+pub fn build(ctx: &ModalityContext<'_>) -> Box<dyn Modality> {
+    let isocentre = ctx
+        .region
+        .landmarks
+        .get("L4_body_centre")
+        .copied()
+        .or_else(|| primary_target(ctx.station))
+        .unwrap_or([0.0; 3]);
+    Box::new(FluoroModality::new(
+        ctx.config.fluoro,
+        isocentre,
+        ctx.config.seed,
+        Arc::clone(&ctx.backends.fluoro),
+    ))
+}
+
 /// SplitMix64 finaliser (Steele, Lea and Flood 2014): decorrelates per-image seeds.
 fn splitmix(x: u64) -> u64 {
     let mut z = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
@@ -551,13 +396,16 @@ impl Modality for FluoroModality {
         }))
     }
 
-    fn world_changed(&mut self, change: WorldChange, world: &World) {
+    fn world_changed(&mut self, change: &WorldChange, world: &World) {
         match change {
             WorldChange::Needle => {
                 if self.state.live_since_ms.is_some() {
                     self.acquire(world, true);
                 }
             }
+            // Injected fluid shows through the contrast modality's iodine field, which makes
+            // its own world change when it does.
+            WorldChange::FluidInjected(_) => {}
         }
     }
 
@@ -570,7 +418,7 @@ impl Modality for FluoroModality {
         }
     }
 
-    fn render(&mut self, _view: ViewId, world: &World) -> Result<Option<Image>, String> {
+    fn render(&mut self, _view: ViewId, world: &World) -> Result<Option<ViewImage>, ModalityError> {
         let Some(image) = self.state.images.last().cloned() else {
             return Ok(None);
         };
@@ -584,15 +432,21 @@ impl Modality for FluoroModality {
             }),
             ..RenderSettings::default()
         };
+        let failed = |message: String| ModalityError::Render {
+            modality: "fluoroscopy",
+            message,
+        };
         if self.renderer.is_none() {
-            self.renderer = Some(self.backend.renderer(&world.region)?);
+            self.renderer = Some(self.backend.renderer(&world.region).map_err(failed)?);
         }
         let Some(renderer) = self.renderer.as_mut() else {
             return Ok(None);
         };
-        let frame = renderer.render(image.needle.as_ref(), &image.projection, &settings)?;
+        let frame = renderer
+            .render(image.needle.as_ref(), &image.projection, &settings)
+            .map_err(failed)?;
         self.rendered = Some(image.index);
-        Ok(Some(frame))
+        Ok(Some(frame.into()))
     }
 
     fn measure(&self, world: &World, out: &mut Measurements) {
@@ -683,9 +537,11 @@ impl Modality for FluoroModality {
         serde_json::to_value(&self.state).unwrap_or(serde_json::Value::Null)
     }
 
-    fn restore(&mut self, state: serde_json::Value) -> Result<(), String> {
-        self.state =
-            serde_json::from_value(state).map_err(|e| format!("fluoroscopy state: {e}"))?;
+    fn restore(&mut self, state: serde_json::Value) -> Result<(), ModalityError> {
+        self.state = serde_json::from_value(state).map_err(|e| ModalityError::State {
+            modality: "fluoroscopy",
+            message: e.to_string(),
+        })?;
         self.rendered = None;
         Ok(())
     }
@@ -694,43 +550,6 @@ impl Modality for FluoroModality {
 /// Unit vector of the central ray (source to detector).
 pub fn beam_direction(p: &Projection) -> DVec3 {
     DVec3::from_array(p.frame().normal)
-}
-
-/// Angle between a line and a plane (given by its normal), degrees in 0..=90.
-pub fn angle_to_plane_deg(line: DVec3, plane_normal: DVec3) -> f64 {
-    line.normalize()
-        .dot(plane_normal.normalize())
-        .abs()
-        .min(1.0)
-        .asin()
-        .to_degrees()
-}
-
-/// The target that the station's `tip_to_target_mm` criterion names, else its first target.
-pub fn primary_target(station: &StationContext) -> Option<[f64; 3]> {
-    let named = station
-        .station
-        .rubric
-        .criteria
-        .iter()
-        .find(|c| c.measurement == "tip_to_target_mm")
-        .and_then(|c| c.target.as_ref())
-        .and_then(|t| station.targets.get(t));
-    named
-        .or_else(|| {
-            station
-                .station
-                .targets
-                .first()
-                .and_then(|t| station.targets.get(&t.name))
-        })
-        .copied()
-}
-
-/// -1 for a target left of the midline (x below the L4 body centre's), +1 for right.
-pub fn target_side(region: &Region, target: [f64; 3]) -> f64 {
-    let mid = region.landmarks.get("L4_body_centre").map_or(0.0, |c| c[0]);
-    if target[0] < mid { -1.0 } else { 1.0 }
 }
 
 /// Error of an annotation whose label names a target or landmark: the distance from that point
@@ -743,74 +562,4 @@ pub fn annotation_error_mm(a: Option<&Annotation>, world: &World) -> Option<f64>
     let d = DVec3::from_array(ray.dir);
     let v = p - o;
     Some((v - d * v.dot(d)).length())
-}
-
-/// Outward normal of the inferior endplate of vertebra `upper`, estimated from its cortical mesh:
-/// a 5 x 5 bundle of rays (12 mm wide, well inside a 35 mm endplate) leaves the body centre
-/// towards the next body centre; the mean of the surface normals where they first meet the
-/// cortex (turned to point caudally, along the rays) is the endplate normal. `None` when the region lacks the structures or landmarks.
-pub fn endplate_normal(region: &Region, upper: &str, lower: &str) -> Option<DVec3> {
-    let c = DVec3::from_array(*region.landmarks.get(&format!("{upper}_body_centre"))?);
-    let l = DVec3::from_array(*region.landmarks.get(&format!("{lower}_body_centre"))?);
-    let bone = region.entry(&format!("{upper}_cortical"))?;
-    let axis = (l - c).normalize();
-    let e1 = axis.any_orthonormal_vector();
-    let e2 = axis.cross(e1);
-    let mut sum = DVec3::ZERO;
-    for i in -2..=2 {
-        for j in -2..=2 {
-            let o = c + e1 * (3.0 * f64::from(i)) + e2 * (3.0 * f64::from(j));
-            if let Some(h) = region.first_hit(bone, o.to_array(), axis.to_array(), 60.0) {
-                // A solid bone mesh is left here (outward normal along the ray); a cortical
-                // shell (the phantom's cortex is a mask of its own around the marrow) is entered
-                // through its inner surface, parallel to the endplate, normal against the ray.
-                sum += h.normal * h.normal.dot(axis).signum();
-            }
-        }
-    }
-    (sum.length() > 0.0).then(|| sum.normalize())
-}
-
-/// Normal of the facet joint plane nearest to `target`, estimated from the bone meshes around
-/// the joint landmark (`*_facet_joint_left/right`): of 2000 directions (a Fibonacci sphere),
-/// the one along which bone lies closest on both sides (the joint gap is the thinnest
-/// direction); then the mean of the two facing surface normals there. `None` without a facet
-/// joint landmark within 40 mm or without bone on both sides.
-pub fn facet_joint_normal(region: &Region, target: [f64; 3]) -> Option<DVec3> {
-    let t = DVec3::from_array(target);
-    let (_, centre) = region
-        .landmarks
-        .iter()
-        .filter(|(k, _)| k.contains("facet_joint"))
-        .map(|(k, p)| (k, DVec3::from_array(*p)))
-        .min_by(|a, b| a.1.distance(t).total_cmp(&b.1.distance(t)))?;
-    if centre.distance(t) > 40.0 {
-        return None;
-    }
-    let bones = region.bones();
-    use sim_core::needle::BoneSurface;
-    const N: usize = 2000;
-    const REACH_MM: f64 = 8.0;
-    let mut best: Option<(f64, DVec3, DVec3, DVec3)> = None;
-    for k in 0..N {
-        // Fibonacci sphere, upper half only (a line and its reverse are the same probe).
-        let z = 1.0 - (k as f64 + 0.5) / N as f64;
-        let r = (1.0 - z * z).sqrt();
-        let phi = k as f64 * std::f64::consts::PI * (3.0 - 5f64.sqrt());
-        let d = DVec3::new(r * phi.cos(), r * phi.sin(), z);
-        let (Some(a), Some(b)) = (
-            bones.first_hit(centre, d, REACH_MM),
-            bones.first_hit(centre, -d, REACH_MM),
-        ) else {
-            continue;
-        };
-        let width = a.t_mm + b.t_mm;
-        if best.is_none_or(|(w, ..)| width < w) {
-            best = Some((width, d, a.normal, b.normal));
-        }
-    }
-    let (_, d, na, nb) = best?;
-    // Surfaces facing the gap have outward normals against the probe: -na along d, nb along -d.
-    let n = (nb - na).normalize_or_zero();
-    if n == DVec3::ZERO { Some(d) } else { Some(n) }
 }

@@ -1,0 +1,132 @@
+//! The renderers a device offers, chosen once per device in one place: the `render-worker`
+//! binary and the server's in-process worker both call [`open_gpu`] and [`Backends::for_device`].
+//!
+//! A GPU is used when it opens, passes a compute self-test and has what the renderers rely on
+//! (float blending for the fluoroscopy L-buffer); otherwise every modality renders on its CPU
+//! reference (slower, same output within the stated tolerances).
+
+use std::sync::Arc;
+
+use crate::gpu::{AdapterSummary, GpuContext, saxpy};
+
+use super::modalities::fluoro::{CpuFluoroBackend, FluoroBackend, GpuFluoroBackend};
+
+/// Why a GPU is not used.
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    /// No adapter or no device.
+    #[error(transparent)]
+    Open(#[from] crate::gpu::GpuError),
+    /// The compute self-test failed or returned wrong values.
+    #[error("GPU self-test failed on {}: {message}", adapter.name)]
+    SelfTest {
+        /// The adapter.
+        adapter: AdapterSummary,
+        /// What went wrong.
+        message: String,
+    },
+    /// The adapter lacks a feature a renderer needs.
+    #[error("GPU {} lacks {feature}, which the fluoroscopy L-buffer needs", adapter.name)]
+    MissingFeature {
+        /// The adapter.
+        adapter: AdapterSummary,
+        /// The feature.
+        feature: &'static str,
+    },
+}
+
+/// Opens the best adapter headless and proves it: a SAXPY kernel whose results are exact in f32
+/// for small integers, and the float blending the fluoroscopy L-buffer accumulates with.
+pub fn open_gpu() -> Result<GpuContext, DeviceError> {
+    let ctx = GpuContext::new_headless()?;
+    let x: Vec<f32> = (0..256).map(|i| i as f32).collect();
+    let y = saxpy(&ctx, 2.0, &x, 1.0).map_err(|e| DeviceError::SelfTest {
+        adapter: ctx.summary.clone(),
+        message: e.to_string(),
+    })?;
+    // Exact in f32 for these small integers.
+    if y.iter().zip(&x).any(|(y, x)| *y != 2.0 * x + 1.0) {
+        return Err(DeviceError::SelfTest {
+            adapter: ctx.summary.clone(),
+            message: "wrong values".into(),
+        });
+    }
+    if !ctx
+        .device
+        .features()
+        .contains(wgpu::Features::FLOAT32_BLENDABLE)
+    {
+        return Err(DeviceError::MissingFeature {
+            adapter: ctx.summary.clone(),
+            feature: "FLOAT32_BLENDABLE",
+        });
+    }
+    Ok(ctx)
+}
+
+/// The renderer of each modality on one device, shared by every session there.
+#[derive(Clone)]
+pub struct Backends {
+    /// Fluoroscopy.
+    pub fluoro: Arc<dyn FluoroBackend>,
+}
+
+impl std::fmt::Debug for Backends {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Backends")
+            .field("fluoro", &self.fluoro.profile())
+            .finish()
+    }
+}
+
+impl DeviceError {
+    /// The adapter that opened but is not used, if any.
+    pub fn adapter(&self) -> Option<&AdapterSummary> {
+        match self {
+            DeviceError::Open(_) => None,
+            DeviceError::SelfTest { adapter, .. } | DeviceError::MissingFeature { adapter, .. } => {
+                Some(adapter)
+            }
+        }
+    }
+}
+
+impl Backends {
+    /// The GPU renderers on `gpu` (a context from [`open_gpu`]), else the CPU references.
+    pub fn for_device(gpu: Option<GpuContext>) -> Backends {
+        match gpu {
+            Some(ctx) => Backends::gpu(ctx),
+            None => Backends::cpu(0),
+        }
+    }
+
+    /// The GPU renderers on `ctx`.
+    pub fn gpu(ctx: GpuContext) -> Backends {
+        Backends {
+            fluoro: Arc::new(GpuFluoroBackend { ctx }),
+        }
+    }
+
+    /// The CPU references, with `threads` render threads per frame (0: all cores).
+    pub fn cpu(threads: usize) -> Backends {
+        Backends {
+            fluoro: Arc::new(CpuFluoroBackend { threads }),
+        }
+    }
+
+    /// Opens this machine's GPU with [`open_gpu`] and chooses: the GPU renderers when it is
+    /// usable, else the CPU references with a warning. Also returns the summary of the adapter
+    /// that opened, used or not.
+    pub fn open() -> (Backends, Option<AdapterSummary>) {
+        match open_gpu() {
+            Ok(ctx) => {
+                let summary = ctx.summary.clone();
+                (Backends::gpu(ctx), Some(summary))
+            }
+            Err(e) => {
+                tracing::warn!("GPU not used ({e}); rendering on the CPU references");
+                (Backends::cpu(0), e.adapter().cloned())
+            }
+        }
+    }
+}

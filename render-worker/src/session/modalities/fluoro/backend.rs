@@ -1,0 +1,189 @@
+//! Fluoroscopy renderers: the f64 CPU reference of `sim_core::fluoro` and the GPU renderer of
+//! `render_worker::fluoro`, behind one trait, with the same output type.
+
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+use sim_core::fluoro::{FluoroMaterial, Image, Projection, RenderSettings, Scene};
+use sim_core::geom::{capped_cylinder, equal_area_vertex_radius};
+
+use crate::session::region::Region;
+
+/// Facets of the needle prism. Simulator choice: with the equal-area radius, 8 facets keep the
+/// mean chord of the round shaft exactly and its silhouette within 4% of the radius.
+pub const NEEDLE_FACETS: u32 = 8;
+
+/// Makes fluoroscopy renderers: the CPU reference, or the GPU renderer (same output type).
+/// Shared by every session of a worker; each session gets its own [`FluoroRenderer`], created on
+/// its first exposure (a session that never takes an image allocates nothing).
+pub trait FluoroBackend: Send + Sync {
+    /// What renders (e.g. `cpu-reference`, or the GPU adapter's name), for records and health.
+    fn profile(&self) -> BackendProfile;
+    /// A renderer of `region` for one session.
+    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String>;
+}
+
+/// One session's renderer (may hold per-session resources, such as uploaded meshes).
+pub trait FluoroRenderer: Send {
+    /// One frame of the region (no iodine yet) with the needle, if any, through `projection`.
+    fn render(
+        &mut self,
+        needle: Option<&NeedleShaft>,
+        projection: &Projection,
+        settings: &RenderSettings,
+    ) -> Result<Image, String>;
+}
+
+/// Which renderer made a frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BackendProfile {
+    /// Renderer kind: `cpu-reference` or `gpu`.
+    pub kind: String,
+    /// Device or adapter (`cpu` for the reference).
+    pub device: String,
+}
+
+/// The f64 CPU reference renderer of `sim_core::fluoro`.
+#[derive(Debug, Clone, Copy)]
+pub struct CpuFluoroBackend {
+    /// Render threads per frame (0: all cores).
+    pub threads: usize,
+}
+
+impl FluoroBackend for CpuFluoroBackend {
+    fn profile(&self) -> BackendProfile {
+        BackendProfile {
+            kind: "cpu-reference".to_string(),
+            device: "cpu".to_string(),
+        }
+    }
+
+    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String> {
+        Ok(Box::new(CpuRenderer {
+            region: Arc::clone(region),
+            threads: self.threads,
+            cache: None,
+        }))
+    }
+}
+
+/// The CPU renderer of one session: the region's scene plus the needle's prisms, rebuilt only
+/// when the needle moved.
+struct CpuRenderer {
+    region: Arc<Region>,
+    threads: usize,
+    cache: Option<(NeedleShaft, Scene)>,
+}
+
+impl FluoroRenderer for CpuRenderer {
+    fn render(
+        &mut self,
+        needle: Option<&NeedleShaft>,
+        projection: &Projection,
+        settings: &RenderSettings,
+    ) -> Result<Image, String> {
+        let settings = RenderSettings {
+            threads: self.threads,
+            ..*settings
+        };
+        let scene = match needle {
+            None => &self.region.scene,
+            Some(n) => {
+                if self.cache.as_ref().is_none_or(|(c, _)| c != n) {
+                    let mut scene = self.region.scene.clone();
+                    for (k, mesh) in needle_meshes(n).iter().enumerate() {
+                        scene.add(format!("needle_{k}"), FluoroMaterial::Steel, mesh);
+                    }
+                    self.cache = Some((n.clone(), scene));
+                }
+                match &self.cache {
+                    Some((_, s)) => s,
+                    None => &self.region.scene,
+                }
+            }
+        };
+        sim_core::fluoro::render_frame(scene, None, projection, &settings)
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// The GPU renderer of `render_worker::fluoro` on a worker's device.
+#[derive(Debug, Clone)]
+pub struct GpuFluoroBackend {
+    /// The device shared by every session.
+    pub ctx: crate::gpu::GpuContext,
+}
+
+impl FluoroBackend for GpuFluoroBackend {
+    fn profile(&self) -> BackendProfile {
+        BackendProfile {
+            kind: "gpu".to_string(),
+            device: format!("{} ({})", self.ctx.summary.name, self.ctx.summary.backend),
+        }
+    }
+
+    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String> {
+        let r = crate::fluoro::GpuFluoroRenderer::new(&self.ctx, &region.scene)
+            .map_err(|e| e.to_string())?;
+        Ok(Box::new(GpuRenderer {
+            renderer: r,
+            needle: None,
+        }))
+    }
+}
+
+struct GpuRenderer {
+    renderer: crate::fluoro::GpuFluoroRenderer,
+    needle: Option<NeedleShaft>,
+}
+
+impl FluoroRenderer for GpuRenderer {
+    fn render(
+        &mut self,
+        needle: Option<&NeedleShaft>,
+        projection: &Projection,
+        settings: &RenderSettings,
+    ) -> Result<Image, String> {
+        if self.needle.as_ref() != needle {
+            match needle {
+                // One mesh of all segments: exact for a straight shaft (one convex prism); a bent
+                // shaft's segments overlap at the joints by a fraction of its radius.
+                Some(n) => {
+                    let mut mesh = sim_core::mesh::TriMesh {
+                        vertices_mm: Vec::new(),
+                        triangles: Vec::new(),
+                    };
+                    for m in needle_meshes(n) {
+                        mesh.append(&m);
+                    }
+                    self.renderer.update_needle(&mesh);
+                }
+                None => self.renderer.clear_needle(),
+            }
+            self.needle = needle.cloned();
+        }
+        self.renderer
+            .render_frame(projection, settings, None)
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// The needle's closed prisms, one per polyline segment (equal-area radius, [`NEEDLE_FACETS`]).
+pub fn needle_meshes(needle: &NeedleShaft) -> Vec<sim_core::mesh::TriMesh> {
+    let r = equal_area_vertex_radius(needle.radius_mm, NEEDLE_FACETS);
+    needle
+        .points_mm
+        .windows(2)
+        .filter(|w| (0..3).map(|a| (w[1][a] - w[0][a]).powi(2)).sum::<f64>() > 1e-12)
+        .map(|w| capped_cylinder(w[0], w[1], r, NEEDLE_FACETS))
+        .collect()
+}
+
+/// The needle shaft as imaged: a polyline (hub first) and its radius.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NeedleShaft {
+    /// Points, mm.
+    pub points_mm: Vec<[f64; 3]>,
+    /// Outer radius, mm.
+    pub radius_mm: f64,
+}
