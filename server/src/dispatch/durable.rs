@@ -1,5 +1,6 @@
 //! The durable half of the server's copy of a session: every acknowledged command is a row of
-//! `live_session_commands`, written before its acknowledgement reaches the browser.
+//! `live_session_commands` (through [`super::store`]), written before its acknowledgement
+//! reaches the browser.
 //!
 //! # The rule
 //! The relay passes no text message (acknowledgement, error, hello, notice, result) to the
@@ -21,62 +22,11 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use render_worker::session::LogEntry;
 use sqlx::PgPool;
 use tokio::sync::{mpsc, watch};
-use uuid::Uuid;
 
 use super::LiveSession;
-
-/// Writes `entries` (consecutive, in order) of session `id`. Idempotent: a row that is already
-/// there (written by another connection's writer) is kept as it is.
-pub async fn append(pool: &PgPool, id: Uuid, entries: &[LogEntry]) -> Result<(), String> {
-    if entries.is_empty() {
-        return Ok(());
-    }
-    let mut seqs = Vec::with_capacity(entries.len());
-    let mut times = Vec::with_capacity(entries.len());
-    let mut commands = Vec::with_capacity(entries.len());
-    for e in entries {
-        seqs.push(i64::try_from(e.seq).map_err(|_| format!("seq {} out of range", e.seq))?);
-        times.push(i64::try_from(e.t_ms).map_err(|_| format!("t_ms {} out of range", e.t_ms))?);
-        commands.push(serde_json::to_value(&e.command).map_err(|e| e.to_string())?);
-    }
-    sqlx::query(
-        "INSERT INTO live_session_commands (session_id, seq, t_ms, command)
-         SELECT $1, s, t, c FROM UNNEST($2::bigint[], $3::bigint[], $4::jsonb[]) AS u(s, t, c)
-         ON CONFLICT (session_id, seq) DO NOTHING",
-    )
-    .bind(id)
-    .bind(seqs)
-    .bind(times)
-    .bind(commands)
-    .execute(pool)
-    .await
-    .map_err(|e| e.to_string())?;
-    Ok(())
-}
-
-/// The logged commands of session `id`, in order.
-pub async fn load(pool: &PgPool, id: Uuid) -> Result<Vec<LogEntry>, String> {
-    let rows: Vec<(i64, i64, serde_json::Value)> = sqlx::query_as(
-        "SELECT seq, t_ms, command FROM live_session_commands WHERE session_id = $1 ORDER BY seq",
-    )
-    .bind(id)
-    .fetch_all(pool)
-    .await
-    .map_err(|e| e.to_string())?;
-    rows.into_iter()
-        .map(|(seq, t_ms, command)| {
-            Ok(LogEntry {
-                seq: u64::try_from(seq).map_err(|_| format!("stored seq {seq}"))?,
-                t_ms: u64::try_from(t_ms).map_err(|_| format!("stored t_ms {t_ms}"))?,
-                command: serde_json::from_value(command)
-                    .map_err(|e| format!("stored command {seq}: {e}"))?,
-            })
-        })
-        .collect()
-}
+use super::store;
 
 /// First wait after a failed write; doubled on each failure up to [`RETRY_MAX`]. Simulator
 /// choice: a database restart or failover takes seconds, and the relay meanwhile only holds
@@ -163,7 +113,7 @@ async fn flush(pool: &PgPool, session: &LiveSession, durable_tx: &watch::Sender<
         if batch.is_empty() {
             return;
         }
-        match append(pool, session.id, &batch).await {
+        match store::append_commands(pool, session.id, &batch).await {
             Ok(()) => {
                 let mut st = session.state.lock().await;
                 st.durable_len = st.durable_len.max(from + batch.len());

@@ -31,7 +31,10 @@
 //! is checked against the stored result: same score, same final state hash, same final frame.
 
 mod durable;
-mod proxy;
+mod relay;
+mod results;
+mod store;
+mod upstream;
 mod registry;
 mod routes;
 

@@ -19,7 +19,7 @@ use serde_json::json;
 use sha2::{Digest, Sha256};
 use uuid::Uuid;
 
-use super::{Dispatcher, LiveSession, PlaceError, Placement, SessionRecord, proxy};
+use super::{Dispatcher, LiveSession, PlaceError, Placement, SessionRecord, relay, store};
 use crate::ApiError;
 use crate::records::RecordsState;
 use crate::records::attempts::{ActivityKind, record_activity};
@@ -124,13 +124,7 @@ async fn start_session(
     }
     // A session of this attempt that the server no longer holds (it restarted, or the session
     // was closed): continue it from its recorded snapshot and log.
-    let stored: Option<(Uuid, serde_json::Value)> = sqlx::query_as(
-        "SELECT id, initial_snapshot FROM live_sessions
-         WHERE attempt_id = $1 AND result_id IS NULL ORDER BY created_at DESC LIMIT 1",
-    )
-    .bind(attempt_id)
-    .fetch_optional(&state.records.pool)
-    .await?;
+    let stored = store::resumable_session(&state.records.pool, attempt_id).await?;
     if let Err(e) = state.dispatcher.check_local_ready(&station_id) {
         return Ok(not_placed(attempt_id, e));
     }
@@ -172,14 +166,7 @@ async fn start_session(
         Err(e) => return Ok(not_placed(attempt_id, e)),
     };
     let id = Uuid::new_v4();
-    sqlx::query("INSERT INTO live_sessions (id, attempt_id, learner_id, station_id, initial_snapshot) VALUES ($1, $2, $3, $4, $5)")
-        .bind(id)
-        .bind(attempt_id)
-        .bind(user.id)
-        .bind(&station_id)
-        .bind(serde_json::to_value(&initial).map_err(|e| ApiError::Internal(e.to_string()))?)
-        .execute(&state.records.pool)
-        .await?;
+    store::insert_session(&state.records.pool, id, attempt_id, user.id, &station_id, &initial).await?;
     let worker = placement.worker_label();
     let record = SessionRecord {
         placement,
@@ -303,7 +290,7 @@ async fn session_ws(
     let s = owned_session(&state, &user, session_id).await?;
     let generation = s.generation.fetch_add(1, Ordering::SeqCst) + 1;
     let (dispatcher, records) = (state.dispatcher.clone(), state.records.clone());
-    Ok(upgrade.on_upgrade(move |socket| proxy::relay(dispatcher, records, s, socket, generation)))
+    Ok(upgrade.on_upgrade(move |socket| relay::relay(dispatcher, records, s, socket, generation)))
 }
 
 /// `POST /api/workers`: a render worker announces itself (bearer: the cluster token).
@@ -351,33 +338,16 @@ async fn list_workers(
     ))
 }
 
-type ReplayRow = (
-    Uuid,
-    String,
-    serde_json::Value,
-    Option<Uuid>,
-    Option<String>,
-    Option<String>,
-    Option<f64>,
-    Option<String>,
-);
-
 /// The newest recorded session of a visible attempt (submitted ones first).
 async fn recorded_session(
     state: &DispatchState,
     user: &CurrentUser,
     attempt_id: Uuid,
-) -> Result<ReplayRow, ApiError> {
+) -> Result<store::RecordedSession, ApiError> {
     visible_attempt(state, user, attempt_id).await?;
-    sqlx::query_as(
-        "SELECT s.id, s.station_id, s.initial_snapshot, s.result_id, s.final_state_sha256, s.final_frame_sha256, r.score, r.outcome
-         FROM live_sessions s LEFT JOIN technical_results r ON r.id = s.result_id
-         WHERE s.attempt_id = $1 ORDER BY (s.result_id IS NOT NULL) DESC, s.created_at DESC LIMIT 1",
-    )
-    .bind(attempt_id)
-    .fetch_optional(&state.records.pool)
-    .await?
-    .ok_or_else(|| ApiError::NotFound("recorded session".into()))
+    store::newest_recorded(&state.records.pool, attempt_id)
+        .await?
+        .ok_or_else(|| ApiError::NotFound("recorded session".into()))
 }
 
 /// Replays `log` from `initial` on the replay host: the session and its displayed image.
@@ -422,7 +392,7 @@ async fn parse_recorded(
 ) -> Result<(SessionSnapshot, Vec<LogEntry>), ApiError> {
     let initial = serde_json::from_value(initial)
         .map_err(|e| ApiError::Internal(format!("stored snapshot: {e}")))?;
-    let log = super::durable::load(&state.records.pool, session_id)
+    let log = store::load_commands(&state.records.pool, session_id)
         .await
         .map_err(|e| ApiError::Internal(format!("stored log: {e}")))?;
     Ok((initial, log))

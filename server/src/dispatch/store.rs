@@ -1,0 +1,162 @@
+//! Every SQL statement on `live_sessions` and `live_session_commands`: the server's durable copy
+//! of each session (its initial snapshot, its acknowledged commands, and what it ended with).
+//! Nothing else in the server names these tables.
+
+use render_worker::session::{LogEntry, SessionSnapshot};
+use sqlx::PgPool;
+use uuid::Uuid;
+
+/// Records a new session of an attempt with its initial snapshot.
+pub async fn insert_session(
+    pool: &PgPool,
+    id: Uuid,
+    attempt_id: Uuid,
+    learner_id: Uuid,
+    station_id: &str,
+    initial: &SessionSnapshot,
+) -> Result<(), sqlx::Error> {
+    let initial = serde_json::to_value(initial).map_err(|e| sqlx::Error::Encode(Box::new(e)))?;
+    sqlx::query(
+        "INSERT INTO live_sessions (id, attempt_id, learner_id, station_id, initial_snapshot)
+         VALUES ($1, $2, $3, $4, $5)",
+    )
+    .bind(id)
+    .bind(attempt_id)
+    .bind(learner_id)
+    .bind(station_id)
+    .bind(initial)
+    .execute(pool)
+    .await?;
+    Ok(())
+}
+
+/// The newest session of an attempt that was not submitted (to resume), with its stored
+/// initial snapshot.
+pub async fn resumable_session(
+    pool: &PgPool,
+    attempt_id: Uuid,
+) -> Result<Option<(Uuid, serde_json::Value)>, sqlx::Error> {
+    sqlx::query_as(
+        "SELECT id, initial_snapshot FROM live_sessions
+         WHERE attempt_id = $1 AND result_id IS NULL ORDER BY created_at DESC LIMIT 1",
+    )
+    .bind(attempt_id)
+    .fetch_optional(pool)
+    .await
+}
+
+/// A recorded session with what it ended with: id, station, initial snapshot, result id, final
+/// state and frame hashes, and the stored result's score and outcome.
+pub type RecordedSession = (
+    Uuid,
+    String,
+    serde_json::Value,
+    Option<Uuid>,
+    Option<String>,
+    Option<String>,
+    Option<f64>,
+    Option<String>,
+);
+
+/// The newest recorded session of an attempt, submitted ones first.
+pub async fn newest_recorded(
+    pool: &PgPool,
+    attempt_id: Uuid,
+) -> Result<Option<RecordedSession>, sqlx::Error> {
+    sqlx::query_as(
+        "SELECT s.id, s.station_id, s.initial_snapshot, s.result_id, s.final_state_sha256, s.final_frame_sha256, r.score, r.outcome
+         FROM live_sessions s LEFT JOIN technical_results r ON r.id = s.result_id
+         WHERE s.attempt_id = $1 ORDER BY (s.result_id IS NOT NULL) DESC, s.created_at DESC LIMIT 1",
+    )
+    .bind(attempt_id)
+    .fetch_optional(pool)
+    .await
+}
+
+/// Saves the hash of the last frame the browser was sent (kept when `frame` is `None`).
+pub async fn save_frame_hash(
+    pool: &PgPool,
+    id: Uuid,
+    frame: Option<&str>,
+) -> Result<(), sqlx::Error> {
+    sqlx::query(
+        "UPDATE live_sessions SET final_frame_sha256 = COALESCE($2, final_frame_sha256),
+         updated_at = now() WHERE id = $1",
+    )
+    .bind(id)
+    .bind(frame)
+    .execute(pool)
+    .await?;
+    Ok(())
+}
+
+/// Marks a session submitted: its stored result, final state and last frame.
+pub async fn save_submitted(
+    pool: &PgPool,
+    id: Uuid,
+    result_id: Uuid,
+    final_state_sha256: &str,
+    frame: Option<&str>,
+) -> Result<(), sqlx::Error> {
+    sqlx::query(
+        "UPDATE live_sessions SET result_id = $2, final_state_sha256 = $3,
+         final_frame_sha256 = $4, updated_at = now() WHERE id = $1",
+    )
+    .bind(id)
+    .bind(result_id)
+    .bind(final_state_sha256)
+    .bind(frame)
+    .execute(pool)
+    .await?;
+    Ok(())
+}
+
+/// Writes `entries` (consecutive, in order) of session `id`. Idempotent: a row that is already
+/// there (written by another connection's writer) is kept as it is.
+pub async fn append_commands(pool: &PgPool, id: Uuid, entries: &[LogEntry]) -> Result<(), String> {
+    if entries.is_empty() {
+        return Ok(());
+    }
+    let mut seqs = Vec::with_capacity(entries.len());
+    let mut times = Vec::with_capacity(entries.len());
+    let mut commands = Vec::with_capacity(entries.len());
+    for e in entries {
+        seqs.push(i64::try_from(e.seq).map_err(|_| format!("seq {} out of range", e.seq))?);
+        times.push(i64::try_from(e.t_ms).map_err(|_| format!("t_ms {} out of range", e.t_ms))?);
+        commands.push(serde_json::to_value(&e.command).map_err(|e| e.to_string())?);
+    }
+    sqlx::query(
+        "INSERT INTO live_session_commands (session_id, seq, t_ms, command)
+         SELECT $1, s, t, c FROM UNNEST($2::bigint[], $3::bigint[], $4::jsonb[]) AS u(s, t, c)
+         ON CONFLICT (session_id, seq) DO NOTHING",
+    )
+    .bind(id)
+    .bind(seqs)
+    .bind(times)
+    .bind(commands)
+    .execute(pool)
+    .await
+    .map_err(|e| e.to_string())?;
+    Ok(())
+}
+
+/// The logged commands of session `id`, in order.
+pub async fn load_commands(pool: &PgPool, id: Uuid) -> Result<Vec<LogEntry>, String> {
+    let rows: Vec<(i64, i64, serde_json::Value)> = sqlx::query_as(
+        "SELECT seq, t_ms, command FROM live_session_commands WHERE session_id = $1 ORDER BY seq",
+    )
+    .bind(id)
+    .fetch_all(pool)
+    .await
+    .map_err(|e| e.to_string())?;
+    rows.into_iter()
+        .map(|(seq, t_ms, command)| {
+            Ok(LogEntry {
+                seq: u64::try_from(seq).map_err(|_| format!("stored seq {seq}"))?,
+                t_ms: u64::try_from(t_ms).map_err(|_| format!("stored t_ms {t_ms}"))?,
+                command: serde_json::from_value(command)
+                    .map_err(|e| format!("stored command {seq}: {e}"))?,
+            })
+        })
+        .collect()
+}

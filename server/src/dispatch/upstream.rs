@@ -1,0 +1,73 @@
+//! The worker side of a relayed session: the in-process host's session through channels, or a
+//! registered worker's session socket, both as one `Sink`/`Stream` of protocol messages.
+
+use std::pin::Pin;
+
+use futures::{Sink, SinkExt, Stream, StreamExt};
+use render_worker::session::protocol::{WsMessage, serve_connection};
+use tokio_tungstenite::tungstenite::Message as TMessage;
+
+use super::{Dispatcher, Placement};
+
+/// Messages towards the worker.
+pub type UpSink = Pin<Box<dyn Sink<WsMessage, Error = String> + Send>>;
+/// Messages from the worker.
+pub type UpStream = Pin<Box<dyn Stream<Item = Result<WsMessage, String>> + Send>>;
+
+/// Opens the worker side of a session.
+pub async fn connect(
+    dispatcher: &Dispatcher,
+    placement: &Placement,
+) -> Result<(UpSink, UpStream), String> {
+    match placement {
+        Placement::Local { worker_session } => {
+            let host = dispatcher.local_host().ok_or("no in-process worker")?;
+            let handle = host
+                .session(worker_session)
+                .ok_or("the in-process session has ended")?;
+            // Bounded towards the relay: when the browser is slow, the session's connection waits
+            // here and, its frames being a latest-only watch, skips superseded frames.
+            let (to_relay, from_worker) = futures::channel::mpsc::channel::<WsMessage>(2);
+            let (to_worker, from_relay) = futures::channel::mpsc::channel::<WsMessage>(64);
+            tokio::spawn(async move {
+                if let Err(e) =
+                    serve_connection(handle, to_relay, from_relay.map(Ok::<_, String>)).await
+                {
+                    tracing::debug!("in-process session connection ended: {e}");
+                }
+            });
+            Ok((
+                Box::pin(to_worker.sink_map_err(|e| e.to_string())),
+                Box::pin(from_worker.map(Ok)),
+            ))
+        }
+        Placement::Remote {
+            worker_url,
+            worker_session,
+        } => {
+            let (authority, _) = render_worker::cluster::split_url(worker_url)?;
+            let url = format!("ws://{authority}/sessions/{worker_session}/ws");
+            let (ws, _) = tokio_tungstenite::connect_async(&url)
+                .await
+                .map_err(|e| format!("{url}: {e}"))?;
+            let (sink, stream) = ws.split();
+            let sink = sink.sink_map_err(|e| e.to_string()).with(|m: WsMessage| {
+                futures::future::ready(Ok::<TMessage, String>(match m {
+                    WsMessage::Text(t) => TMessage::text(t),
+                    WsMessage::Binary(b) => TMessage::binary(b),
+                    WsMessage::Close => TMessage::Close(None),
+                }))
+            });
+            let stream = stream.filter_map(|m| {
+                futures::future::ready(match m {
+                    Ok(TMessage::Text(t)) => Some(Ok(WsMessage::Text(t.to_string()))),
+                    Ok(TMessage::Binary(b)) => Some(Ok(WsMessage::Binary(b.to_vec()))),
+                    Ok(TMessage::Close(_)) => Some(Ok(WsMessage::Close)),
+                    Ok(_) => None,
+                    Err(e) => Some(Err(e.to_string())),
+                })
+            });
+            Ok((Box::pin(sink), Box::pin(stream)))
+        }
+    }
+}
