@@ -109,7 +109,7 @@ async fn sigkill_mid_session_loses_no_acknowledged_command() {
         demo_station_toml(&[]),
     )
     .unwrap();
-    // No region folders: the demo region is built in memory (render_worker::session::Region::load).
+    // No region folders: the demo region is built in memory (render_worker::session::loader::load_region).
     let assets = tempfile::tempdir().unwrap();
     let data = tempfile::tempdir().unwrap();
     let stations_dir = stations.path().display().to_string();

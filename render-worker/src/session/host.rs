@@ -24,7 +24,10 @@ use super::image::ViewId;
 use super::modalities::fluoro::BackendProfile;
 use super::region::Region;
 use super::world::StationContext;
-use super::{Ack, Session, SessionConfig, SessionEnv, SessionSnapshot, SubmitResult, sha256_hex};
+use super::config::SessionConfig;
+use super::machine::{Ack, Session, SessionEnv, SessionSnapshot};
+use super::scoring::SubmitResult;
+use sim_core::anatomy::asset::sha256_hex;
 
 /// Worker settings.
 #[derive(Debug, Clone)]
@@ -382,7 +385,7 @@ impl SessionHost {
         let root = config.assets_root.clone();
         Ok(SessionHost::from_parts(
             stations,
-            Box::new(move |name, progress| Region::load_with_progress(&root, name, progress)),
+            Box::new(move |name, progress| super::loader::load_region(&root, name, progress)),
             backends,
             config.capacity,
             config.session,

@@ -20,7 +20,7 @@ use axum::{Json, Router};
 use futures::{SinkExt, StreamExt};
 use serde::Deserialize;
 
-use super::SessionSnapshot;
+use super::machine::SessionSnapshot;
 use super::command::LogEntry;
 use super::host::{HostError, SessionHandle, SessionHost};
 use super::protocol::{WsMessage, serve_connection};

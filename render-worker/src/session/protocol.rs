@@ -23,7 +23,7 @@ use futures::{Sink, SinkExt, Stream, StreamExt};
 use serde::{Deserialize, Serialize};
 use tokio::sync::mpsc;
 
-use super::Ack;
+use super::machine::Ack;
 use super::command::{Command, CommandError, Envelope, ErrorCode};
 use super::host::{FrameSet, Reply, SessionHandle, SessionInfo};
 use super::image::ViewId;

@@ -1,12 +1,10 @@
 //! The anatomy a session runs in, loaded once per worker and shared (read-only) by its sessions.
 
 use std::collections::BTreeMap;
-use std::path::Path;
 
 use glam::DVec3;
 use sim_core::anatomy::asset::{RegionAsset, Source, StructureAsset};
 use sim_core::anatomy::phantom;
-use sim_core::anatomy::pipeline::Progress;
 use sim_core::fluoro::{FluoroMaterial, Scene};
 use sim_core::material::MaterialClass;
 use sim_core::needle::{BoneSurface, RayHit};
@@ -88,34 +86,6 @@ impl Region {
             asset.provenance.files_sha256.clone(),
             source,
         )
-    }
-
-    /// Loads `assets_root/<name>`; the phantom region is built there first if missing or stale.
-    /// The analytic demo region ([`super::demo::DEMO_REGION_NAME`], boxes of known geometry) is
-    /// built in memory when no folder of that name exists, so whole-process tests (the real
-    /// server binary) can run sessions that render in milliseconds.
-    pub fn load(assets_root: &Path, name: &str) -> Result<Region, String> {
-        Region::load_with_progress(assets_root, name, &mut |_| {})
-    }
-
-    /// [`Region::load`], reporting the phantom build's stages to `progress` (a region that is
-    /// cached or read from files reports nothing).
-    pub fn load_with_progress(
-        assets_root: &Path,
-        name: &str,
-        progress: &mut dyn FnMut(&Progress),
-    ) -> Result<Region, String> {
-        let dir = assets_root.join(name);
-        if name == super::demo::DEMO_REGION_NAME && !dir.exists() {
-            return Ok(super::demo::demo_region());
-        }
-        let asset = if name == phantom::REGION_NAME {
-            phantom::ensure_built_with(&dir, &phantom::PhantomParams::default(), progress)
-        } else {
-            RegionAsset::load(&dir)
-        }
-        .map_err(|e| format!("region {name}: {e}"))?;
-        Ok(Region::from_asset(&asset))
     }
 
     /// Entry index of a structure by name.

@@ -18,7 +18,7 @@ use std::sync::Arc;
 
 use sim_core::rubric::Measurements;
 
-use super::SessionConfig;
+use super::config::SessionConfig;
 use super::command::{Command, CommandClass, CommandError};
 use super::devices::Backends;
 use super::image::{ViewId, ViewImage};

@@ -1,0 +1,34 @@
+//! Where a worker's regions come from: a folder of `assets_root` per region, the procedural
+//! phantom built (and cached) there on first use, or the analytic demo region.
+
+use std::path::Path;
+
+use sim_core::anatomy::asset::RegionAsset;
+use sim_core::anatomy::phantom;
+use sim_core::anatomy::pipeline::Progress;
+
+use super::demo::{DEMO_REGION_NAME, demo_region};
+use super::region::Region;
+
+/// Loads `assets_root/<name>`, reporting the phantom build's stages to `progress` (a region that
+/// is cached or read from files reports nothing). The phantom region is built there first if
+/// missing or stale. The analytic demo region ([`DEMO_REGION_NAME`], boxes of known geometry) is
+/// built in memory when no folder of that name exists, so whole-process tests (the real server
+/// binary) can run sessions that render in milliseconds.
+pub fn load_region(
+    assets_root: &Path,
+    name: &str,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<Region, String> {
+    let dir = assets_root.join(name);
+    if name == DEMO_REGION_NAME && !dir.exists() {
+        return Ok(demo_region());
+    }
+    let asset = if name == phantom::REGION_NAME {
+        phantom::ensure_built_with(&dir, &phantom::PhantomParams::default(), progress)
+    } else {
+        RegionAsset::load(&dir)
+    }
+    .map_err(|e| format!("region {name}: {e}"))?;
+    Ok(Region::from_asset(&asset))
+}

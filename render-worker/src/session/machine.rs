@@ -1,0 +1,739 @@
+//! The session state machine: the world, the station's modalities, the ordered log of accepted
+//! commands, snapshots and exact replay (see the module doc of [`crate::session`]).
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use sim_core::anatomy::asset::sha256_hex;
+use sim_core::rubric::{Measurements, Modality as StationModality};
+
+use super::command::{Agent, Command, CommandClass, CommandError, Envelope, ErrorCode, LogEntry};
+use super::config::SessionConfig;
+use super::devices::Backends;
+use super::error::SessionError;
+use super::frame::EncodedFrame;
+use super::image::{ViewId, ViewImage};
+use super::modalities::{Modality, ModalityContext, ModalityFactory};
+use super::region::Region;
+use super::scoring::{self, ReproducibilityRecord, SubmitResult};
+use super::world::{self, Injection, NeedleInstrument, StationContext, World, WorldChange};
+
+/// Version of the snapshot format.
+pub const SNAPSHOT_FORMAT: u32 = 1;
+
+/// What a session runs against: station, anatomy, the device's renderers and the modalities
+/// this worker implements (shared, read-only).
+#[derive(Clone)]
+pub struct SessionEnv {
+    /// Station with resolved targets.
+    pub station: Arc<StationContext>,
+    /// Anatomy.
+    pub region: Arc<Region>,
+    /// The renderers of this device.
+    pub backends: Backends,
+    /// Builds the station's modalities.
+    pub modalities: ModalityFactory,
+}
+
+impl SessionEnv {
+    /// A station in a region, with `backends` and every modality this worker implements.
+    pub fn new(
+        station: Arc<StationContext>,
+        region: Arc<Region>,
+        backends: Backends,
+    ) -> SessionEnv {
+        SessionEnv {
+            station,
+            region,
+            backends,
+            modalities: ModalityFactory::standard(),
+        }
+    }
+}
+
+impl std::fmt::Debug for SessionEnv {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SessionEnv")
+            .field("station", &self.station.station.id)
+            .field("region", &self.region.name)
+            .field("backends", &self.backends)
+            .field("modalities", &self.modalities)
+            .finish()
+    }
+}
+
+/// The name a station uses for its modality, the key of the modality factory.
+pub fn station_modality_name(m: StationModality) -> &'static str {
+    match m {
+        StationModality::Fluoroscopy => "fluoroscopy",
+        StationModality::Ultrasound => "ultrasound",
+    }
+}
+
+/// Serializable session state: with the log, everything needed to continue the session
+/// anywhere.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SessionSnapshot {
+    /// [`SNAPSHOT_FORMAT`].
+    pub format: u32,
+    /// Station id.
+    pub station_id: String,
+    /// Station revision.
+    pub station_revision: u32,
+    /// SHA-256 of the station file.
+    pub station_sha256: String,
+    /// Region name.
+    pub region: String,
+    /// SHA-256 over the region's file hashes (see [`region_fingerprint`]).
+    pub region_fingerprint: String,
+    /// Fixed settings.
+    pub config: SessionConfig,
+    /// Simulation time, ms.
+    pub clock_ms: u64,
+    /// Last accepted sequence number.
+    pub last_seq: u64,
+    /// Number of log entries already reflected in this state.
+    pub log_len: usize,
+    /// The needle.
+    pub needle: Option<NeedleInstrument>,
+    /// Needle geometry version.
+    pub needle_version: u64,
+    /// Injections so far (absent from the JSON while there are none).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub injections: Vec<Injection>,
+    /// State of each modality by name.
+    pub modalities: BTreeMap<String, serde_json::Value>,
+    /// The result, once the attempt was submitted.
+    pub result: Option<SubmitResult>,
+    /// SHA-256 of the session's initial snapshot (for records).
+    pub initial_sha256: String,
+}
+
+impl SessionSnapshot {
+    /// Canonical bytes (JSON): equal states give equal bytes.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        serde_json::to_vec(self).unwrap_or_default()
+    }
+
+    /// SHA-256 of [`SessionSnapshot::to_bytes`], hex.
+    pub fn sha256(&self) -> String {
+        sha256_hex(&self.to_bytes())
+    }
+}
+
+
+/// One SHA-256 over a region's file hashes (file name and hash, in name order).
+pub fn region_fingerprint(region: &Region) -> String {
+    let mut h = Sha256::new();
+    for (k, v) in &region.asset_sha256 {
+        h.update(k.as_bytes());
+        h.update(b"=");
+        h.update(v.as_bytes());
+        h.update(b"\n");
+    }
+    hex::encode(h.finalize())
+}
+
+/// An acknowledgement of an accepted command.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Ack {
+    /// The command's sequence number.
+    pub seq: u64,
+    /// Simulation time it was applied at, ms.
+    pub t_ms: u64,
+    /// True when this sequence number had already been accepted (a re-send); nothing was applied.
+    #[serde(default)]
+    pub duplicate: bool,
+    /// What happened (needle outcome, exposure so far, annotation error, ...).
+    pub outcome: serde_json::Value,
+    /// The technical result, on the acknowledgement of a submit (and only there): the one typed
+    /// form in which a result leaves the worker.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub result: Option<Box<SubmitResult>>,
+}
+
+/// A rendered (not yet encoded) view.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RenderedView {
+    /// Which view.
+    pub view: ViewId,
+    /// Last accepted input sequence reflected.
+    pub input_seq: u64,
+    /// Simulation time, ms.
+    pub t_ms: u64,
+    /// The image.
+    pub image: ViewImage,
+}
+
+/// One station attempt.
+pub struct Session {
+    env: SessionEnv,
+    config: SessionConfig,
+    world: World,
+    modalities: Vec<Box<dyn Modality>>,
+    log: Vec<LogEntry>,
+    last_seq: u64,
+    submitted: Option<SubmitResult>,
+    unavailable: Vec<String>,
+    initial_sha256: String,
+}
+
+impl std::fmt::Debug for Session {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Session")
+            .field("env", &self.env)
+            .field("last_seq", &self.last_seq)
+            .field("log_len", &self.log.len())
+            .finish()
+    }
+}
+
+impl Session {
+    /// A fresh session: every modality the station lists that this worker implements, in their
+    /// initial state (the C-arm in AP at the L4 body centre or the first target), no needle.
+    pub fn new(env: SessionEnv, config: SessionConfig) -> Session {
+        let mut modalities: Vec<Box<dyn Modality>> = Vec::new();
+        let mut unavailable = Vec::new();
+        let ctx = ModalityContext {
+            config: &config,
+            station: &env.station,
+            region: &env.region,
+            backends: &env.backends,
+        };
+        for &m in &env.station.station.modalities {
+            let name = station_modality_name(m);
+            match env.modalities.build(name, &ctx) {
+                Some(built) => modalities.push(built),
+                None => unavailable.push(name.to_string()),
+            }
+        }
+        let world = World {
+            region: Arc::clone(&env.region),
+            station: Arc::clone(&env.station),
+            clock_ms: 0,
+            needle: None,
+            needle_version: 0,
+            injections: Vec::new(),
+        };
+        let mut s = Session {
+            env,
+            config,
+            world,
+            modalities,
+            log: Vec::new(),
+            last_seq: 0,
+            submitted: None,
+            unavailable,
+            initial_sha256: String::new(),
+        };
+        s.initial_sha256 = s.snapshot().sha256();
+        s
+    }
+
+    /// Restores a session from `snapshot` and the full `log` since the session began: the state
+    /// of the snapshot is taken as is, and the entries after its `log_len` are applied again at
+    /// their logged times.
+    pub fn restore(
+        env: SessionEnv,
+        snapshot: &SessionSnapshot,
+        log: &[LogEntry],
+    ) -> Result<Session, SessionError> {
+        if snapshot.format != SNAPSHOT_FORMAT {
+            return Err(SessionError::SnapshotFormat {
+                found: snapshot.format,
+                expected: SNAPSHOT_FORMAT,
+            });
+        }
+        let st = &env.station;
+        if snapshot.station_id != st.station.id
+            || snapshot.station_revision != st.station.revision
+            || snapshot.station_sha256 != st.station_sha256
+        {
+            return Err(SessionError::StationMismatch {
+                snapshot_station: snapshot.station_id.clone(),
+                snapshot_revision: snapshot.station_revision,
+                loaded_station: st.station.id.clone(),
+                loaded_revision: st.station.revision,
+            });
+        }
+        if snapshot.region != env.region.name
+            || snapshot.region_fingerprint != region_fingerprint(&env.region)
+        {
+            return Err(SessionError::RegionMismatch(snapshot.region.clone()));
+        }
+        if log.len() < snapshot.log_len {
+            return Err(SessionError::LogTooShort {
+                log: log.len(),
+                reflected: snapshot.log_len,
+            });
+        }
+        let mut s = Session::new(env, snapshot.config);
+        s.world.clock_ms = snapshot.clock_ms;
+        s.world.needle = snapshot.needle.clone();
+        s.world.needle_version = snapshot.needle_version;
+        s.world.injections = snapshot.injections.clone();
+        s.last_seq = snapshot.last_seq;
+        s.initial_sha256 = snapshot.initial_sha256.clone();
+        for m in &mut s.modalities {
+            let state = snapshot
+                .modalities
+                .get(m.name())
+                .ok_or_else(|| SessionError::MissingModalityState(m.name().to_string()))?;
+            m.restore(state.clone())?;
+        }
+        s.log = log[..snapshot.log_len].to_vec();
+        s.submitted = snapshot.result.clone();
+        for entry in &log[snapshot.log_len..] {
+            let env = Envelope {
+                seq: entry.seq,
+                command: entry.command.clone(),
+            };
+            s.apply(env, entry.t_ms)
+                .map_err(|error| SessionError::LogEntry {
+                    seq: entry.seq,
+                    error,
+                })?;
+        }
+        Ok(s)
+    }
+
+    /// The serializable state.
+    pub fn snapshot(&self) -> SessionSnapshot {
+        SessionSnapshot {
+            format: SNAPSHOT_FORMAT,
+            station_id: self.env.station.station.id.clone(),
+            station_revision: self.env.station.station.revision,
+            station_sha256: self.env.station.station_sha256.clone(),
+            region: self.env.region.name.clone(),
+            region_fingerprint: region_fingerprint(&self.env.region),
+            config: self.config,
+            clock_ms: self.world.clock_ms,
+            last_seq: self.last_seq,
+            log_len: self.log.len(),
+            needle: self.world.needle.clone(),
+            needle_version: self.world.needle_version,
+            injections: self.world.injections.clone(),
+            modalities: self
+                .modalities
+                .iter()
+                .map(|m| (m.name().to_string(), m.state()))
+                .collect(),
+            result: self.submitted.clone(),
+            initial_sha256: self.initial_sha256.clone(),
+        }
+    }
+
+    /// The ordered log of accepted commands.
+    pub fn log(&self) -> &[LogEntry] {
+        &self.log
+    }
+
+    /// Last accepted sequence number (0 before any).
+    pub fn last_seq(&self) -> u64 {
+        self.last_seq
+    }
+
+    /// The shared world (read-only).
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+
+    /// The station's views this session renders.
+    pub fn views(&self) -> Vec<ViewId> {
+        self.modalities
+            .iter()
+            .flat_map(|m| m.views().iter().copied())
+            .collect()
+    }
+
+    /// Modality names this session runs.
+    pub fn modality_names(&self) -> Vec<&'static str> {
+        self.modalities.iter().map(|m| m.name()).collect()
+    }
+
+    /// Station modalities this worker cannot provide.
+    pub fn unavailable_modalities(&self) -> &[String] {
+        &self.unavailable
+    }
+
+    /// The result, once submitted.
+    pub fn result(&self) -> Option<&SubmitResult> {
+        self.submitted.as_ref()
+    }
+
+    /// The environment (station, region, renderer).
+    pub fn env(&self) -> &SessionEnv {
+        &self.env
+    }
+
+    /// Applies one command at simulation time `t_ms` (ms since the session began; the clock
+    /// never goes back, so an earlier time is taken as "now"). Accepted commands are logged.
+    pub fn apply(&mut self, env: Envelope, t_ms: u64) -> Result<Ack, CommandError> {
+        if env.seq == 0 {
+            return Err(CommandError::field(
+                "seq",
+                ErrorCode::Sequence,
+                "sequence numbers start at 1",
+            ));
+        }
+        if env.seq <= self.last_seq {
+            if let Some(e) = self.log.iter().find(|e| e.seq == env.seq) {
+                if e.command == env.command {
+                    return Ok(Ack {
+                        seq: env.seq,
+                        t_ms: e.t_ms,
+                        duplicate: true,
+                        outcome: serde_json::Value::Null,
+                        result: None,
+                    });
+                }
+            }
+            return Err(CommandError::field(
+                "seq",
+                ErrorCode::Sequence,
+                format!(
+                    "sequence {} is not above the last accepted {}",
+                    env.seq, self.last_seq
+                ),
+            ));
+        }
+        if self.submitted.is_some() {
+            return Err(CommandError::field(
+                "command.type",
+                ErrorCode::State,
+                "the attempt was submitted; the session is read-only",
+            ));
+        }
+        env.command.validate()?;
+        let before = self.world.clock_ms;
+        self.world.clock_ms = before.max(t_ms);
+        if self.world.clock_ms > before {
+            for m in &mut self.modalities {
+                m.advance(before, &self.world);
+            }
+        }
+        match self.dispatch(&env.command) {
+            Ok(outcome) => {
+                let result = (env.command == Command::Submit)
+                    .then(|| self.submitted.clone().map(Box::new))
+                    .flatten();
+                self.last_seq = env.seq;
+                self.log.push(LogEntry {
+                    seq: env.seq,
+                    t_ms: self.world.clock_ms,
+                    command: env.command,
+                });
+                Ok(Ack {
+                    seq: env.seq,
+                    t_ms: self.world.clock_ms,
+                    duplicate: false,
+                    outcome,
+                    result,
+                })
+            }
+            Err(e) => {
+                self.world.clock_ms = before;
+                Err(e)
+            }
+        }
+    }
+
+    fn dispatch(&mut self, command: &Command) -> Result<serde_json::Value, CommandError> {
+        match command.class() {
+            CommandClass::Needle => self.apply_needle(command),
+            CommandClass::Session if *command == Command::Tick => {
+                Ok(serde_json::json!({ "t_ms": self.world.clock_ms }))
+            }
+            CommandClass::Session => {
+                // The submit itself is logged by the caller; the record's log hash covers the
+                // commands before it. The result travels typed in the acknowledgement.
+                self.submitted = Some(self.score());
+                Ok(serde_json::Value::Null)
+            }
+            class => {
+                let Some(m) = self
+                    .modalities
+                    .iter_mut()
+                    .find(|m| m.accepts().contains(&class))
+                else {
+                    let what = match class {
+                        CommandClass::Ultrasound => "ultrasound",
+                        CommandClass::Contrast => "contrast injection",
+                        _ => "fluoroscopy",
+                    };
+                    let why = if self.unavailable.iter().any(|u| u == what) {
+                        "is listed by this station but not implemented by this worker yet"
+                    } else {
+                        "is not available at this station"
+                    };
+                    return Err(CommandError::field(
+                        "command.type",
+                        ErrorCode::ModalityUnavailable,
+                        format!("modality not available at this station: {what} {why}"),
+                    ));
+                };
+                let outcome = m.apply(command, &self.world)?;
+                if let Command::Inject {
+                    agent,
+                    volume_ml,
+                    rate_ml_per_s,
+                } = *command
+                {
+                    self.record_injection(agent, volume_ml, rate_ml_per_s);
+                }
+                Ok(outcome)
+            }
+        }
+    }
+
+    /// Adds an injection the contrast modality accepted to the world's ledger and tells every
+    /// modality.
+    fn record_injection(&mut self, agent: Agent, volume_ml: f64, rate_ml_per_s: f64) {
+        let tip_mm = self
+            .world
+            .needle
+            .as_ref()
+            .map_or([0.0; 3], |n| n.state.tip_mm().to_array());
+        let injection = Injection {
+            t_ms: self.world.clock_ms,
+            agent,
+            volume_ml,
+            rate_ml_per_s,
+            tip_mm,
+        };
+        self.world.injections.push(injection.clone());
+        self.notify(&WorldChange::FluidInjected(injection));
+    }
+
+    fn notify(&mut self, change: &WorldChange) {
+        for m in &mut self.modalities {
+            m.world_changed(change, &self.world);
+        }
+    }
+
+    fn apply_needle(&mut self, command: &Command) -> Result<serde_json::Value, CommandError> {
+        let outcome = match command {
+            Command::NeedlePlace {
+                instrument,
+                entry_mm,
+                direction,
+                bevel_reference,
+            } => {
+                let station = &self.env.station.station;
+                let Some(item) = station.instruments.iter().find(|i| &i.id == instrument) else {
+                    return Err(CommandError::field(
+                        "command.instrument",
+                        ErrorCode::InstrumentUnavailable,
+                        format!("{instrument} is not on this station's tray"),
+                    ));
+                };
+                let Some(profile) = world::profile_for_kind(&item.kind) else {
+                    return Err(CommandError::field(
+                        "command.instrument",
+                        ErrorCode::InstrumentUnavailable,
+                        format!("{instrument} ({}) is not a needle", item.kind),
+                    ));
+                };
+                if self
+                    .world
+                    .needle
+                    .as_ref()
+                    .is_some_and(|n| n.state.buried_mm() > 0.0)
+                {
+                    return Err(CommandError::field(
+                        "command.type",
+                        ErrorCode::State,
+                        "the needle is in tissue: withdraw it fully before placing again",
+                    ));
+                }
+                use sim_core::needle::BoneSurface;
+                if self
+                    .env
+                    .region
+                    .bones()
+                    .contains(glam::DVec3::from_array(*entry_mm))
+                {
+                    return Err(CommandError::field(
+                        "command.entry_mm",
+                        ErrorCode::Invalid,
+                        "the entry point lies inside bone",
+                    ));
+                }
+                let state = world::new_needle(profile, *entry_mm, *direction, *bevel_reference)
+                    .map_err(|e| CommandError::field("command.direction", ErrorCode::Invalid, e))?;
+                self.world.needle = Some(NeedleInstrument {
+                    instrument: instrument.clone(),
+                    state,
+                    entered: BTreeSet::new(),
+                });
+                serde_json::json!({ "placed": instrument })
+            }
+            _ => {
+                let Some(cmd) = command.needle_command() else {
+                    return Err(CommandError::field(
+                        "command.type",
+                        ErrorCode::Invalid,
+                        "not a needle command",
+                    ));
+                };
+                let region = Arc::clone(&self.env.region);
+                let Some(n) = self.world.needle.as_mut() else {
+                    return Err(CommandError::field(
+                        "command.type",
+                        ErrorCode::State,
+                        "no needle placed: send needle_place first",
+                    ));
+                };
+                let outcome = match cmd {
+                    sim_core::needle::NeedleCommand::Feed { mm } => {
+                        serde_json::to_value(n.state.feed(mm, &region.bones()))
+                    }
+                    sim_core::needle::NeedleCommand::Roll { deg } => {
+                        serde_json::to_value(n.state.roll(deg))
+                    }
+                    sim_core::needle::NeedleCommand::Withdraw { mm } => {
+                        serde_json::to_value(n.state.withdraw(mm))
+                    }
+                }
+                .unwrap_or_default();
+                // Watched structures: the tip and the buried channel every millimetre.
+                let mut points = n.state.tract.polyline(n.state.buried_mm(), 1.0);
+                points.push(n.state.tip_mm());
+                for name in world::WATCHED_STRUCTURES {
+                    if n.entered.contains(name) {
+                        continue;
+                    }
+                    if points
+                        .iter()
+                        .any(|p| region.contains(name, p.to_array()) == Some(true))
+                    {
+                        n.entered.insert(name.to_string());
+                    }
+                }
+                serde_json::json!({
+                    "outcome": outcome,
+                    "tip_mm": n.state.tip_mm().to_array(),
+                    "depth_mm": n.state.buried_mm(),
+                })
+            }
+        };
+        self.world.needle_version += 1;
+        self.notify(&WorldChange::Needle);
+        Ok(outcome)
+    }
+
+    /// Every measurement the session can make now (also ones no rubric reads).
+    pub fn measurements(&self) -> Measurements {
+        let mut out = Measurements::new();
+        scoring::measure_needle(&self.world, &mut out);
+        for m in &self.modalities {
+            m.measure(&self.world, &mut out);
+        }
+        out
+    }
+
+    /// Scores the current state against the station's rubric (what a submit returns).
+    pub fn score(&self) -> SubmitResult {
+        let measurements = self.measurements();
+        let station = &self.env.station.station;
+        let read: Measurements = measurements
+            .iter()
+            .filter(|(k, _)| station.rubric.criteria.iter().any(|c| &c.measurement == *k))
+            .map(|(k, v)| (k.clone(), *v))
+            .collect();
+        let rubric = station.evaluate(&read);
+        let log_bytes = serde_json::to_vec(&self.log).unwrap_or_default();
+        let record = ReproducibilityRecord {
+            code_revision: scoring::code_revision(),
+            station_id: station.id.clone(),
+            station_revision: station.revision,
+            rubric_revision: station.rubric.revision,
+            station_sha256: self.env.station.station_sha256.clone(),
+            region: self.env.region.name.clone(),
+            region_source: self.env.region.source.clone(),
+            asset_sha256: self.env.region.asset_sha256.clone(),
+            renderer: self.env.backends.fluoro.profile(),
+            modalities: self
+                .modalities
+                .iter()
+                .map(|m| (m.name().to_string(), m.record()))
+                .collect(),
+            unavailable_modalities: self.unavailable.clone(),
+            log_len: self.log.len(),
+            log_sha256: sha256_hex(&log_bytes),
+            initial_state_sha256: self.initial_sha256.clone(),
+            final_state_sha256: self.snapshot().sha256(),
+        };
+        SubmitResult {
+            measurements,
+            rubric,
+            record,
+        }
+    }
+
+    /// Renders every dirty view in `visible` (nothing when nothing changed).
+    pub fn render_dirty(
+        &mut self,
+        visible: &BTreeSet<ViewId>,
+    ) -> Result<Vec<RenderedView>, SessionError> {
+        let mut out = Vec::new();
+        for m in &mut self.modalities {
+            for view in m.dirty_views() {
+                if !visible.contains(&view) {
+                    continue;
+                }
+                if let Some(image) = m.render(view, &self.world)? {
+                    out.push(RenderedView {
+                        view,
+                        input_seq: self.last_seq,
+                        t_ms: self.world.clock_ms,
+                        image,
+                    });
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Whether any visible view needs rendering.
+    pub fn has_dirty(&self, visible: &BTreeSet<ViewId>) -> bool {
+        self.modalities
+            .iter()
+            .any(|m| m.dirty_views().iter().any(|v| visible.contains(v)))
+    }
+}
+
+/// What a faculty review of a recorded attempt gets back.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Replay {
+    /// The replayed session (state at the end of the log; step through `log()` for a timeline).
+    pub final_state: SessionSnapshot,
+    /// The result, when the log ends with a submit.
+    pub result: Option<SubmitResult>,
+    /// The last image of each view, encoded as it was streamed (frame sequence 0).
+    pub final_frames: Vec<EncodedFrame>,
+}
+
+/// Replays a recorded attempt from its initial snapshot and full log: the same state, score and
+/// (with the same renderer) the same final frame bytes as the live session.
+pub fn replay_attempt(
+    env: SessionEnv,
+    initial: &SessionSnapshot,
+    log: &[LogEntry],
+) -> Result<Replay, SessionError> {
+    let mut s = Session::restore(env, initial, log)?;
+    let views: BTreeSet<ViewId> = s.views().into_iter().collect();
+    let final_frames = s
+        .render_dirty(&views)?
+        .into_iter()
+        .map(|v| EncodedFrame::new(v.view, 0, v.input_seq, v.t_ms, &v.image))
+        .collect::<Result<_, _>>()
+        .map_err(SessionError::Encode)?;
+    Ok(Replay {
+        final_state: s.snapshot(),
+        result: s.result().cloned(),
+        final_frames,
+    })
+}
