@@ -19,5 +19,6 @@ pub mod geom;
 pub mod material;
 pub mod mesh;
 pub mod needle;
+pub mod rng;
 pub mod rubric;
 pub mod volume;

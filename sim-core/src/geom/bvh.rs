@@ -435,6 +435,7 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rng::SplitMix64;
 
     /// Brute-force reference: every triangle tested.
     fn brute(mesh: &TriMesh, o: [f64; 3], d: [f64; 3]) -> Vec<Hit> {
@@ -459,24 +460,19 @@ mod tests {
         v
     }
 
-    /// A small deterministic generator (SplitMix64) for test rays.
-    fn rng(state: &mut u64) -> f64 {
-        *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = *state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
-
     #[test]
     fn bvh_agrees_with_brute_force_on_random_rays() {
         let mesh = TriMesh::icosphere([3.0, -2.0, 1.0], 10.0, 3);
         let bvh = Bvh::new(&mesh);
-        let mut s = 7u64;
+        let mut s = SplitMix64::new(7);
         let mut hits = Vec::new();
         for _ in 0..500 {
-            let o = [rng(&mut s) * 40.0 - 20.0, rng(&mut s) * 40.0 - 20.0, -30.0];
-            let d = [rng(&mut s) - 0.5, rng(&mut s) - 0.5, 1.0];
+            let o = [
+                s.next_f64() * 40.0 - 20.0,
+                s.next_f64() * 40.0 - 20.0,
+                -30.0,
+            ];
+            let d = [s.next_f64() - 0.5, s.next_f64() - 0.5, 1.0];
             bvh.all_hits(o, d, 0.0, f64::INFINITY, &mut hits);
             assert_eq!(hits, brute(&mesh, o, d));
             let first = bvh.first_hit(o, d, 0.0, f64::INFINITY).map(|h| h.hit);
