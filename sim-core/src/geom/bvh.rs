@@ -1,5 +1,6 @@
 //! A binned-SAH bounding-volume hierarchy over one triangle mesh.
 
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use super::triangle::{RayPrecomp, intersect_triangle};
@@ -392,11 +393,9 @@ impl Bvh {
             t_max
         });
         let (t, k, entering) = best?;
-        let tri = &self.tris[k];
-        let e1 = sub(tri[1], tri[0]);
-        let e2 = sub(tri[2], tri[0]);
-        let n = cross(e1, e2);
-        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        let [a, b, c] = self.tris[k].map(DVec3::from);
+        let n = (b - a).cross(c - a);
+        let len = n.length();
         Some(SurfaceHit {
             hit: Hit {
                 t_mm: t,
@@ -404,7 +403,9 @@ impl Bvh {
                 entering,
             },
             point_mm: std::array::from_fn(|a| origin_mm[a] + t * dir[a]),
-            normal: n.map(|x| x / len),
+            // Divided by the length, as before glam was used here (`normalize` multiplies by
+            // the reciprocal).
+            normal: (n / len).to_array(),
         })
     }
 
@@ -418,18 +419,6 @@ impl Bvh {
         let net: i64 = hits.iter().map(|h| if h.entering { -1 } else { 1 }).sum();
         net > 0
     }
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 #[cfg(test)]
@@ -498,7 +487,7 @@ mod tests {
         for (i, p) in targets.iter().enumerate() {
             // Origin outside, direction towards the target and through the sphere's interior.
             let o = [-25.0 + (i % 7) as f64, 3.0 - (i % 5) as f64, -20.0];
-            let d = sub(*p, o);
+            let d = (DVec3::from(*p) - DVec3::from(o)).to_array();
             bvh.all_hits(o, d, 0.0, f64::INFINITY, &mut hits);
             assert_eq!(hits.len() % 2, 0, "target {i}: {hits:?}");
             for pair in hits.chunks(2) {
