@@ -16,6 +16,7 @@
 pub mod anatomy;
 pub mod fluoro;
 pub mod geom;
+pub mod hash;
 pub mod material;
 pub mod mesh;
 pub mod needle;
