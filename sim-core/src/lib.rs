@@ -16,8 +16,10 @@
 pub mod anatomy;
 pub mod fluoro;
 pub mod geom;
+pub mod hash;
 pub mod material;
 pub mod mesh;
 pub mod needle;
+pub mod rng;
 pub mod rubric;
 pub mod volume;

@@ -6,6 +6,7 @@
 
 use std::collections::HashMap;
 
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 /// An indexed triangle mesh with vertex positions in millimetres.
@@ -53,14 +54,11 @@ impl TriMesh {
     pub fn signed_volume_mm3(&self) -> f64 {
         // Sum of signed tetrahedra against the centroid of the vertices, which keeps the
         // cancellation error small for meshes far from the origin.
-        let c = self.centroid_of_vertices();
+        let c = DVec3::from(self.centroid_of_vertices());
         let mut six_v = 0.0;
         for i in 0..self.triangles.len() {
-            let [a, b, d] = self.triangle(i);
-            let a = sub(a, c);
-            let b = sub(b, c);
-            let d = sub(d, c);
-            six_v += dot(a, cross(b, d));
+            let [a, b, d] = self.triangle(i).map(|p| DVec3::from(p) - c);
+            six_v += a.dot(b.cross(d));
         }
         six_v / 6.0
     }
@@ -69,8 +67,8 @@ impl TriMesh {
     pub fn area_mm2(&self) -> f64 {
         (0..self.triangles.len())
             .map(|i| {
-                let [a, b, c] = self.triangle(i);
-                0.5 * norm(cross(sub(b, a), sub(c, a)))
+                let [a, b, c] = self.triangle(i).map(DVec3::from);
+                0.5 * (b - a).cross(c - a).length()
             })
             .sum()
     }
@@ -181,7 +179,7 @@ impl TriMesh {
             [-phi, 0.0, 1.0],
         ];
         for v in &mut verts {
-            *v = normalize(*v);
+            *v = unit_by_division(DVec3::from(*v));
         }
         let mut tris: Vec<[u32; 3]> = vec![
             [0, 11, 5],
@@ -211,7 +209,7 @@ impl TriMesh {
             let mut mid = |a: u32, b: u32, verts: &mut Vec<[f64; 3]>| -> u32 {
                 *midpoint.entry((a.min(b), a.max(b))).or_insert_with(|| {
                     let (p, q) = (verts[a as usize], verts[b as usize]);
-                    verts.push(normalize([p[0] + q[0], p[1] + q[1], p[2] + q[2]]));
+                    verts.push(unit_by_division(DVec3::from(p) + DVec3::from(q)));
                     (verts.len() - 1) as u32
                 })
             };
@@ -255,25 +253,11 @@ pub fn directed_edge_uses(triangles: &[[u32; 3]]) -> HashMap<(u32, u32), (u32, u
     edges
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-
-fn norm(a: [f64; 3]) -> f64 {
-    dot(a, a).sqrt()
-}
-
-fn normalize(a: [f64; 3]) -> [f64; 3] {
-    let n = norm(a);
-    [a[0] / n, a[1] / n, a[2] / n]
+/// `v / |v|` as an array. Divides by the length rather than multiplying by its reciprocal, as
+/// glam's `normalize` does: the icosphere's vertices (and every mesh and hash built on them) keep
+/// the values they had before glam was used here.
+fn unit_by_division(v: DVec3) -> [f64; 3] {
+    (v / v.length()).to_array()
 }
 
 #[cfg(test)]

@@ -16,6 +16,7 @@ use sim_core::fluoro::scene::{ChordScratch, Scene};
 use sim_core::fluoro::{FluoroMaterial, MaterialChords};
 use sim_core::material::MaterialClass;
 use sim_core::mesh::TriMesh;
+use sim_core::rng::SplitMix64;
 use sim_core::volume::{Volume, VolumeGrid};
 
 /// Chord agreement between the priority rule and the linear sum on a laminar family, mm. Both
@@ -26,18 +27,6 @@ use sim_core::volume::{Volume, VolumeGrid};
 /// independent decimation makes (its error bound is 0.2 mm here; measured overlaps are 0.01 mm
 /// and up).
 const LAMINAR_TOLERANCE_MM: f64 = 1e-6;
-
-/// A reproducible uniform deviate in `[0, 1)` (SplitMix64).
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
 
 fn source() -> SourceInfo {
     SourceInfo {
@@ -96,13 +85,13 @@ fn worst_ray_difference(scene: &mut Scene, envelope: Option<usize>, fan: &RayFan
         rays,
         seed,
     } = *fan;
-    let mut rng = Rng(seed);
+    let mut rng = SplitMix64::new(seed);
     let mut scratch = ChordScratch::default();
     let (mut worst, mut bad) = (0.0f64, 0usize);
     for _ in 0..rays {
         let (u, v) = (
-            2.0 * rng.next() - 1.0,
-            2.0 * std::f64::consts::PI * rng.next(),
+            2.0 * rng.next_f64() - 1.0,
+            2.0 * std::f64::consts::PI * rng.next_f64(),
         );
         let r = (1.0 - u * u).sqrt();
         let o = [
@@ -110,7 +99,7 @@ fn worst_ray_difference(scene: &mut Scene, envelope: Option<usize>, fan: &RayFan
             centre[1] + radius_mm * r * v.sin(),
             centre[2] + radius_mm * u,
         ];
-        let target: [f64; 3] = std::array::from_fn(|a| lo[a] + (hi[a] - lo[a]) * rng.next());
+        let target: [f64; 3] = std::array::from_fn(|a| lo[a] + (hi[a] - lo[a]) * rng.next_f64());
         let d: [f64; 3] = std::array::from_fn(|a| target[a] - o[a]);
         let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
         let dir = d.map(|x| x / len);

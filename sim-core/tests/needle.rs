@@ -11,6 +11,7 @@ use sim_core::needle::{
     NeedleCommand, NeedleState, NoBone, PathModel, PlacementConfig, PlacementFailure, RayHit,
     SegmentKind, SphereBone, place_toward,
 };
+use sim_core::rng::SplitMix64;
 
 /// A needle at the origin travelling along +z with its bevel toward +x.
 fn needle_at_origin(
@@ -677,21 +678,8 @@ fn auto_placement_reports_why_not() {
 // Soak and replay
 // ---------------------------------------------------------------------------------------------
 
-/// SplitMix64: a tiny deterministic generator, enough for reproducible random commands.
-struct SplitMix(u64);
-
-impl SplitMix {
-    fn next_f64(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
-fn random_command(rng: &mut SplitMix) -> NeedleCommand {
+/// A random command drawn from `rng` (SplitMix64: enough for reproducible random commands).
+fn random_command(rng: &mut SplitMix64) -> NeedleCommand {
     let u = rng.next_f64();
     let x = rng.next_f64();
     if u < 0.37 {
@@ -755,7 +743,7 @@ fn soak_of_100k_random_commands() {
     };
     let bones: Vec<&dyn BoneSurface> = vec![&wall, &ball, &vertebra, &side];
     let mut needle = Needle::new(flexible(1.0, InitialResponse::Relaxed));
-    let mut rng = SplitMix(0x5EED_0005);
+    let mut rng = SplitMix64::new(0x5EED_0005);
     let mut expected_buried = 0.0;
     let (mut arrests, mut slides, mut branches) = (0, 0, 0);
     for k in 0..100_000 {
@@ -824,7 +812,7 @@ fn command_log_replays_to_bit_identical_state() {
     };
     let bones: Vec<&dyn BoneSurface> = vec![&wall, &ball];
     let mut needle = Needle::new(flexible(0.8, InitialResponse::Relaxed));
-    let mut rng = SplitMix(42);
+    let mut rng = SplitMix64::new(42);
     for _ in 0..3000 {
         needle.apply(random_command(&mut rng), &bones).unwrap();
     }

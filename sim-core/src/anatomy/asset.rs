@@ -23,7 +23,6 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
 
 use super::error::AnatomyError;
 use super::glb;
@@ -31,6 +30,9 @@ use super::pipeline::PipelineParams;
 use crate::material::MaterialClass;
 use crate::mesh::TriMesh;
 use crate::volume::{Volume, VolumeGrid};
+
+// The digest of every asset file; it lives in `crate::hash`, shared with the other crates.
+pub use crate::hash::sha256_hex;
 
 /// Version of the folder layout; bump when a file changes meaning.
 pub const FORMAT_VERSION: u32 = 1;
@@ -185,11 +187,6 @@ struct StructureManifest {
 
 /// A file of the region folder: name and content.
 type NamedFile = (&'static str, Vec<u8>);
-
-/// SHA-256 of a byte string, lower-case hex.
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    hex::encode(Sha256::digest(bytes))
-}
 
 /// SHA-256 of a file, lower-case hex.
 pub fn sha256_file(path: &Path) -> Result<String, AnatomyError> {

@@ -37,6 +37,8 @@
 
 use std::collections::{BTreeMap, HashMap};
 
+use glam::DVec3;
+
 use super::decimate::{DecimationParams, acceptable, defective_vertices};
 use super::error::AnatomyError;
 pub use super::mesher::EdgeCrossing;
@@ -571,48 +573,33 @@ fn decimate_patch(
     (tris, err)
 }
 
-fn sub3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
 /// Whether two triangles cross: their intersection is a segment of positive length. Touching
 /// (a vertex or an edge lying in the other triangle's plane) and coplanar pairs do not count.
 /// Interval-overlap test after T. Moeller, "A fast triangle-triangle intersection test",
 /// J. Graphics Tools 2(2), 1997.
 fn triangles_cross(p: [[f64; 3]; 3], q: [[f64; 3]; 3]) -> bool {
+    let (p, q) = (p.map(DVec3::from), q.map(DVec3::from));
     let side = |d: [f64; 3]| {
         d.iter().all(|&x| x > 0.0) || d.iter().all(|&x| x < 0.0) || d.iter().all(|&x| x == 0.0)
     };
-    let nq = cross3(sub3(q[1], q[0]), sub3(q[2], q[0]));
-    let dp = p.map(|v| dot3(nq, sub3(v, q[0])));
+    let nq = (q[1] - q[0]).cross(q[2] - q[0]);
+    let dp = p.map(|v| nq.dot(v - q[0]));
     if side(dp) {
         return false;
     }
-    let np = cross3(sub3(p[1], p[0]), sub3(p[2], p[0]));
-    let dq = q.map(|v| dot3(np, sub3(v, p[0])));
+    let np = (p[1] - p[0]).cross(p[2] - p[0]);
+    let dq = q.map(|v| np.dot(v - p[0]));
     if side(dq) {
         return false;
     }
-    let line = cross3(np, nq);
-    let scale = dot3(line, line).sqrt();
+    let line = np.cross(nq);
+    let scale = line.length();
     if scale == 0.0 {
         return false;
     }
     // The stretch of the line of the two planes that each triangle covers.
-    let interval = |v: [[f64; 3]; 3], d: [f64; 3]| {
-        let proj = v.map(|x| dot3(line, x));
+    let interval = |v: [DVec3; 3], d: [f64; 3]| {
+        let proj = v.map(|x| line.dot(x));
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
         for i in 0..3 {
             let j = (i + 1) % 3;
@@ -767,8 +754,9 @@ fn mean_edge_mm(source: &[Vec<[u32; 3]>], positions: &[[f64; 3]]) -> f64 {
     let (mut sum, mut n) = (0.0, 0usize);
     for t in source.iter().flatten() {
         for k in 0..3 {
-            let d = sub3(positions[t[k] as usize], positions[t[(k + 1) % 3] as usize]);
-            sum += dot3(d, d).sqrt();
+            let d = DVec3::from(positions[t[k] as usize])
+                - DVec3::from(positions[t[(k + 1) % 3] as usize]);
+            sum += d.length();
             n += 1;
         }
     }

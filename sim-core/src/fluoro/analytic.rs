@@ -2,6 +2,7 @@
 //! nesting as [`super::Scene`]: the ground truth that mesh chords (CPU and GPU) are validated
 //! against.
 
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use super::attenuation::{FluoroMaterial, MaterialChords};
@@ -39,15 +40,9 @@ impl Solid {
     pub fn convex_hull_of(mesh: &TriMesh) -> Solid {
         let planes = (0..mesh.triangle_count())
             .map(|i| {
-                let [a, b, c] = mesh.triangle(i);
-                let e1 = sub(b, a);
-                let e2 = sub(c, a);
-                let n = [
-                    e1[1] * e2[2] - e1[2] * e2[1],
-                    e1[2] * e2[0] - e1[0] * e2[2],
-                    e1[0] * e2[1] - e1[1] * e2[0],
-                ];
-                (n, dot(n, a))
+                let [a, b, c] = mesh.triangle(i).map(DVec3::from);
+                let n = (b - a).cross(c - a);
+                (n.to_array(), n.dot(a))
             })
             .collect();
         Solid::Convex { planes }
@@ -55,15 +50,16 @@ impl Solid {
 
     /// The parameter interval `[t0, t1]` where `origin + t dir` is inside, if any.
     pub fn interval(&self, o: [f64; 3], d: [f64; 3]) -> Option<(f64, f64)> {
+        let (o, d) = (DVec3::from(o), DVec3::from(d));
         match self {
             Solid::Sphere {
                 center_mm,
                 radius_mm,
             } => {
-                let oc = sub(o, *center_mm);
-                let a = dot(d, d);
-                let b = dot(d, oc);
-                let c = dot(oc, oc) - radius_mm * radius_mm;
+                let oc = o - DVec3::from(*center_mm);
+                let a = d.dot(d);
+                let b = d.dot(oc);
+                let c = oc.dot(oc) - radius_mm * radius_mm;
                 let disc = b * b - a * c;
                 if disc <= 0.0 {
                     return None;
@@ -79,12 +75,13 @@ impl Solid {
                 tip_mm,
                 radius_mm,
             } => {
-                let axis = sub(*tip_mm, *base_mm);
-                let len = dot(axis, axis).sqrt();
-                let w = axis.map(|x| x / len);
-                let ob = sub(o, *base_mm);
+                let base = DVec3::from(*base_mm);
+                let axis = DVec3::from(*tip_mm) - base;
+                let len = axis.length();
+                let w = axis / len;
+                let ob = o - base;
                 // Caps: 0 <= (o + t d - base) . w <= len.
-                let (dw, ow) = (dot(d, w), dot(ob, w));
+                let (dw, ow) = (d.dot(w), ob.dot(w));
                 let (mut t0, mut t1) = if dw == 0.0 {
                     if ow < 0.0 || ow > len {
                         return None;
@@ -95,11 +92,11 @@ impl Solid {
                     (ta.min(tb), ta.max(tb))
                 };
                 // Side: |perp(o + t d - base)|^2 <= r^2.
-                let dp = sub(d, w.map(|x| x * dw));
-                let op = sub(ob, w.map(|x| x * ow));
-                let a = dot(dp, dp);
-                let b = dot(dp, op);
-                let c = dot(op, op) - radius_mm * radius_mm;
+                let dp = d - w * dw;
+                let op = ob - w * ow;
+                let a = dp.dot(dp);
+                let b = dp.dot(op);
+                let c = op.dot(op) - radius_mm * radius_mm;
                 if a == 0.0 {
                     if c > 0.0 {
                         return None;
@@ -118,8 +115,9 @@ impl Solid {
             Solid::Convex { planes } => {
                 let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
                 for &(n, dist) in planes {
-                    let nd = dot(n, d);
-                    let slack = dist - dot(n, o);
+                    let n = DVec3::from(n);
+                    let nd = n.dot(d);
+                    let slack = dist - n.dot(o);
                     if nd == 0.0 {
                         if slack < 0.0 {
                             return None;
@@ -328,14 +326,6 @@ pub fn neg_log_t_errors(
             (te > 0.0).then(|| (tm - te).abs() / te)
         })
         .collect()
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 #[cfg(test)]

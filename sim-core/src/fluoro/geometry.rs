@@ -27,6 +27,7 @@
 //! *Table translation*: moving the table by `d` moves the patient by `d` relative to the C-arm, so
 //! a point `p` is imaged where `p + d` would be with the table at zero.
 
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 /// Source to isocentre, mm (methods page: "a nominal source 730 mm from isocentre").
@@ -248,15 +249,15 @@ impl Projection {
     /// not in front of the source.
     pub fn project_point(&self, p_mm: [f64; 3]) -> Option<[f64; 2]> {
         let f = self.frame();
-        let q: [f64; 3] = std::array::from_fn(|a| p_mm[a] - f.source_mm[a]);
-        let depth = dot(q, f.normal);
+        let q = DVec3::from(p_mm) - DVec3::from(f.source_mm);
+        let depth = q.dot(f.normal.into());
         if depth <= 0.0 {
             return None;
         }
         let s = self.source_to_detector_mm() / depth;
         Some([
-            dot(q, f.u) * s / self.pixel_pitch_mm[0] + self.detector_pixels[0] as f64 / 2.0,
-            dot(q, f.v) * s / self.pixel_pitch_mm[1] + self.detector_pixels[1] as f64 / 2.0,
+            q.dot(f.u.into()) * s / self.pixel_pitch_mm[0] + self.detector_pixels[0] as f64 / 2.0,
+            q.dot(f.v.into()) * s / self.pixel_pitch_mm[1] + self.detector_pixels[1] as f64 / 2.0,
         ])
     }
 
@@ -272,7 +273,7 @@ impl Projection {
         let row_y: [f64; 3] =
             std::array::from_fn(|a| f.v[a] * sid / self.pixel_pitch_mm[1] + cy * f.normal[a]);
         let row_w = f.normal;
-        let t = |r: [f64; 3]| [r[0], r[1], r[2], -dot(r, f.source_mm)];
+        let t = |r: [f64; 3]| [r[0], r[1], r[2], -DVec3::from(r).dot(f.source_mm.into())];
         [t(row_x), t(row_y), t(row_w)]
     }
 
@@ -301,16 +302,15 @@ pub(crate) fn ray_through(f: &DetectorFrame, p: &Projection, px: [f64; 2]) -> Ra
     let [x, y] = p.pixel_to_detector_offset_mm(px);
     let d: [f64; 3] =
         std::array::from_fn(|a| f.detector_centre_mm[a] + x * f.u[a] + y * f.v[a] - f.source_mm[a]);
-    let len = dot(d, d).sqrt();
+    let d = DVec3::from(d);
+    let len = d.length();
     Ray {
         origin_mm: f.source_mm,
-        dir: d.map(|c| c / len),
+        // Divided by the length, not multiplied by its reciprocal (glam's `normalize`): the rays,
+        // and so every frame, keep the values they had before glam was used here.
+        dir: (d / len).to_array(),
         detector_t_mm: len,
     }
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 #[cfg(test)]

@@ -12,6 +12,7 @@ use super::contrast::IodineField;
 use super::geometry::{DetectorFrame, Projection, ray_through};
 use super::scene::{ChordScratch, RayChords, Scene};
 use super::spectrum::UnknownKvp;
+use crate::rng::SplitMix64;
 
 /// Automatic brightness: how transmission becomes grey.
 ///
@@ -342,75 +343,57 @@ pub fn mark_projected_edges(
     }
 }
 
-/// SplitMix64 (Steele, Lea and Flood 2014): a small, well-mixed generator, seeded per pixel.
-struct SplitMix64(u64);
-
-impl SplitMix64 {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
+/// Poisson sample drawn from `rng` (a SplitMix64 seeded per pixel), exact: Knuth's product method
+/// below a mean of [`PTRS_MIN_MEAN`], above it Hörmann's transformed rejection with squeeze
+/// (PTRS; W. Hörmann, "The transformed rejection method for generating Poisson random
+/// variables", Insurance: Mathematics and Economics 12, 1993, 39-45; constants from its Table 1):
+/// two uniforms and two divisions per candidate, plus two logarithms when the squeeze does not
+/// decide (about 65 % of candidates at a mean of 10, 25 % at 1000). (It replaced the normal
+/// approximation above a mean of 30 and Knuth's method up to 30, which drew up to 30 uniforms per
+/// pixel and was most of a frame's CPU time.)
+fn poisson(rng: &mut SplitMix64, mean: f64) -> f64 {
+    if mean <= 0.0 {
+        return 0.0;
     }
-
-    /// Uniform in (0, 1].
-    fn uniform(&mut self) -> f64 {
-        ((self.next_u64() >> 11) + 1) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Poisson sample, exact: Knuth's product method below a mean of [`PTRS_MIN_MEAN`], above it
-    /// Hörmann's transformed rejection with squeeze (PTRS; W. Hörmann, "The transformed
-    /// rejection method for generating Poisson random variables", Insurance: Mathematics and
-    /// Economics 12, 1993, 39-45; constants from its Table 1): two uniforms and two divisions
-    /// per candidate, plus two logarithms when the squeeze does not decide (about 65 % of
-    /// candidates at a mean of 10, 25 % at 1000). (It replaced the
-    /// normal approximation above a mean of 30 and Knuth's method up to 30, which drew up to 30
-    /// uniforms per pixel and was most of a frame's CPU time.)
-    fn poisson(&mut self, mean: f64) -> f64 {
-        if mean <= 0.0 {
-            return 0.0;
+    if mean < PTRS_MIN_MEAN {
+        let limit = (-mean).exp();
+        let (mut k, mut p) = (0.0, rng.next_f64_nonzero());
+        while p > limit {
+            k += 1.0;
+            p *= rng.next_f64_nonzero();
         }
-        if mean < PTRS_MIN_MEAN {
-            let limit = (-mean).exp();
-            let (mut k, mut p) = (0.0, self.uniform());
-            while p > limit {
-                k += 1.0;
-                p *= self.uniform();
-            }
+        return k;
+    }
+    let sqrt_mean = mean.sqrt();
+    let b = 0.931 + 2.53 * sqrt_mean;
+    let a = -0.059 + 0.02483 * b;
+    let v_r = 0.9277 - 3.6224 / (b - 2.0);
+    // Needed only when the squeeze does not decide (about two thirds of candidates at a
+    // mean of 10, a quarter at 1000): computed then, once per sample.
+    let mut slow: Option<(f64, f64)> = None;
+    loop {
+        let u = rng.next_f64_nonzero() - 0.5;
+        let v = rng.next_f64_nonzero();
+        let us = 0.5 - u.abs();
+        let x = (2.0 * a / us + b) * u + mean + 0.43;
+        if x < 0.0 {
+            // k < 0: rejected (the squeeze region has x > 0).
+            continue;
+        }
+        // floor(x) for x >= 0 by truncation (a conversion instruction, not a libm call).
+        let k = x as u64 as f64;
+        if us >= 0.07 && v <= v_r {
             return k;
         }
-        let sqrt_mean = mean.sqrt();
-        let b = 0.931 + 2.53 * sqrt_mean;
-        let a = -0.059 + 0.02483 * b;
-        let v_r = 0.9277 - 3.6224 / (b - 2.0);
-        // Needed only when the squeeze does not decide (about two thirds of candidates at a
-        // mean of 10, a quarter at 1000): computed then, once per sample.
-        let mut slow: Option<(f64, f64)> = None;
-        loop {
-            let u = self.uniform() - 0.5;
-            let v = self.uniform();
-            let us = 0.5 - u.abs();
-            let x = (2.0 * a / us + b) * u + mean + 0.43;
-            if x < 0.0 {
-                // k < 0: rejected (the squeeze region has x > 0).
-                continue;
-            }
-            // floor(x) for x >= 0 by truncation (a conversion instruction, not a libm call).
-            let k = x as u64 as f64;
-            if us >= 0.07 && v <= v_r {
-                return k;
-            }
-            if us < 0.013 && v > us {
-                continue;
-            }
-            let (inv_alpha, ln_mean) =
-                *slow.get_or_insert_with(|| (1.1239 + 1.1328 / (b - 3.4), mean.ln()));
-            // ln v + ln alpha^-1 - ln(a / us^2 + b), as one logarithm.
-            let lhs = (v * inv_alpha / (a / (us * us) + b)).ln();
-            if lhs <= -mean + k * ln_mean - ln_factorial(k) {
-                return k;
-            }
+        if us < 0.013 && v > us {
+            continue;
+        }
+        let (inv_alpha, ln_mean) =
+            *slow.get_or_insert_with(|| (1.1239 + 1.1328 / (b - 3.4), mean.ln()));
+        // ln v + ln alpha^-1 - ln(a / us^2 + b), as one logarithm.
+        let lhs = (v * inv_alpha / (a / (us * us) + b)).ln();
+        if lhs <= -mean + k * ln_mean - ln_factorial(k) {
+            return k;
         }
     }
 }
@@ -455,8 +438,8 @@ fn ln_factorial(k: f64) -> f64 {
 
 /// The noisy count of pixel `p` (mean `photons_per_pixel x t`), from its own seeded generator.
 fn noisy_count(noise: &QuantumNoise, p: usize, t: f64) -> f64 {
-    let mut rng = SplitMix64(noise.seed ^ (p as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
-    rng.poisson(noise.photons_per_pixel * t)
+    let mut rng = SplitMix64::new(noise.seed ^ (p as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
+    poisson(&mut rng, noise.photons_per_pixel * t)
 }
 
 /// Applies quantum noise (if any) to a transmission image, in place.

@@ -1,5 +1,6 @@
 //! A binned-SAH bounding-volume hierarchy over one triangle mesh.
 
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use super::triangle::{RayPrecomp, intersect_triangle};
@@ -392,11 +393,9 @@ impl Bvh {
             t_max
         });
         let (t, k, entering) = best?;
-        let tri = &self.tris[k];
-        let e1 = sub(tri[1], tri[0]);
-        let e2 = sub(tri[2], tri[0]);
-        let n = cross(e1, e2);
-        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        let [a, b, c] = self.tris[k].map(DVec3::from);
+        let n = (b - a).cross(c - a);
+        let len = n.length();
         Some(SurfaceHit {
             hit: Hit {
                 t_mm: t,
@@ -404,7 +403,9 @@ impl Bvh {
                 entering,
             },
             point_mm: std::array::from_fn(|a| origin_mm[a] + t * dir[a]),
-            normal: n.map(|x| x / len),
+            // Divided by the length, as before glam was used here (`normalize` multiplies by
+            // the reciprocal).
+            normal: (n / len).to_array(),
         })
     }
 
@@ -420,21 +421,10 @@ impl Bvh {
     }
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rng::SplitMix64;
 
     /// Brute-force reference: every triangle tested.
     fn brute(mesh: &TriMesh, o: [f64; 3], d: [f64; 3]) -> Vec<Hit> {
@@ -459,24 +449,19 @@ mod tests {
         v
     }
 
-    /// A small deterministic generator (SplitMix64) for test rays.
-    fn rng(state: &mut u64) -> f64 {
-        *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = *state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
-
     #[test]
     fn bvh_agrees_with_brute_force_on_random_rays() {
         let mesh = TriMesh::icosphere([3.0, -2.0, 1.0], 10.0, 3);
         let bvh = Bvh::new(&mesh);
-        let mut s = 7u64;
+        let mut s = SplitMix64::new(7);
         let mut hits = Vec::new();
         for _ in 0..500 {
-            let o = [rng(&mut s) * 40.0 - 20.0, rng(&mut s) * 40.0 - 20.0, -30.0];
-            let d = [rng(&mut s) - 0.5, rng(&mut s) - 0.5, 1.0];
+            let o = [
+                s.next_f64() * 40.0 - 20.0,
+                s.next_f64() * 40.0 - 20.0,
+                -30.0,
+            ];
+            let d = [s.next_f64() - 0.5, s.next_f64() - 0.5, 1.0];
             bvh.all_hits(o, d, 0.0, f64::INFINITY, &mut hits);
             assert_eq!(hits, brute(&mesh, o, d));
             let first = bvh.first_hit(o, d, 0.0, f64::INFINITY).map(|h| h.hit);
@@ -502,7 +487,7 @@ mod tests {
         for (i, p) in targets.iter().enumerate() {
             // Origin outside, direction towards the target and through the sphere's interior.
             let o = [-25.0 + (i % 7) as f64, 3.0 - (i % 5) as f64, -20.0];
-            let d = sub(*p, o);
+            let d = (DVec3::from(*p) - DVec3::from(o)).to_array();
             bvh.all_hits(o, d, 0.0, f64::INFINITY, &mut hits);
             assert_eq!(hits.len() % 2, 0, "target {i}: {hits:?}");
             for pair in hits.chunks(2) {

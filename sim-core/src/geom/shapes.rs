@@ -1,5 +1,7 @@
 //! Closed meshes of simple solids used by instruments and analytic test scenes.
 
+use glam::DVec3;
+
 use crate::mesh::TriMesh;
 
 /// A closed, capped cylinder (a regular prism) from `base_mm` to `tip_mm`, outward wound.
@@ -22,34 +24,32 @@ pub fn capped_cylinder(
 ) -> TriMesh {
     assert!(segments >= 3, "a prism needs at least 3 sides");
     assert!(vertex_radius_mm > 0.0, "radius must be positive");
-    let axis = [
-        tip_mm[0] - base_mm[0],
-        tip_mm[1] - base_mm[1],
-        tip_mm[2] - base_mm[2],
-    ];
-    let len = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
+    let (base, tip) = (DVec3::from(base_mm), DVec3::from(tip_mm));
+    let axis = tip - base;
+    let len = axis.length();
     assert!(len > 0.0, "base and tip coincide");
-    let w = axis.map(|x| x / len);
+    // Unit vectors here divide by the length (glam's `normalize` multiplies by its reciprocal),
+    // which keeps the vertices they had before glam was used here.
+    let w = axis / len;
     // A right-handed frame (e1, e2, w): e1 is perpendicular to w, built from the axis least
     // aligned with w.
-    let helper = if w[0].abs() <= w[1].abs() && w[0].abs() <= w[2].abs() {
-        [1.0, 0.0, 0.0]
-    } else if w[1].abs() <= w[2].abs() {
-        [0.0, 1.0, 0.0]
+    let helper = if w.x.abs() <= w.y.abs() && w.x.abs() <= w.z.abs() {
+        DVec3::X
+    } else if w.y.abs() <= w.z.abs() {
+        DVec3::Y
     } else {
-        [0.0, 0.0, 1.0]
+        DVec3::Z
     };
-    let e1 = normalize(cross(helper, w));
-    let e2 = cross(w, e1);
+    let e1 = helper.cross(w);
+    let e1 = e1 / e1.length();
+    let e2 = w.cross(e1);
     let n = segments as usize;
     let mut vertices_mm = Vec::with_capacity(2 * n + 2);
-    for end in [base_mm, tip_mm] {
+    for end in [base, tip] {
         for k in 0..n {
             let th = std::f64::consts::TAU * k as f64 / n as f64;
             let (s, c) = th.sin_cos();
-            vertices_mm.push(std::array::from_fn(|a| {
-                end[a] + vertex_radius_mm * (c * e1[a] + s * e2[a])
-            }));
+            vertices_mm.push((end + vertex_radius_mm * (c * e1 + s * e2)).to_array());
         }
     }
     vertices_mm.push(base_mm);
@@ -75,19 +75,6 @@ pub fn equal_area_vertex_radius(radius_mm: f64, segments: u32) -> f64 {
     let n = segments as f64;
     let polygon_area_per_r2 = 0.5 * n * (std::f64::consts::TAU / n).sin();
     radius_mm * (std::f64::consts::PI / polygon_area_per_r2).sqrt()
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-fn normalize(a: [f64; 3]) -> [f64; 3] {
-    let n = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
-    a.map(|x| x / n)
 }
 
 #[cfg(test)]

@@ -228,7 +228,7 @@ impl PhantomParams {
     /// SHA-256 (hex) of the generator name, pipeline version and parameters: the cache key.
     pub fn hash_hex(&self) -> String {
         let json = serde_json::to_string(self).unwrap_or_default();
-        super::asset::sha256_hex(format!("{GENERATOR}\n{}\n{json}", pipeline_version()).as_bytes())
+        crate::hash::sha256_hex(format!("{GENERATOR}\n{}\n{json}", pipeline_version()).as_bytes())
     }
 }
 

@@ -10,6 +10,7 @@
 use glam::DVec3;
 
 use super::sdf::Sdf;
+use crate::rng::{splitmix64, unit_f64, unit_f64_nonzero};
 use crate::volume::{Volume, VolumeGrid};
 
 /// Edge of the culling blocks, in voxels.
@@ -321,17 +322,11 @@ pub fn partial_volumes(
 /// A reproducible standard-normal deviate for voxel `index` under `seed` (SplitMix64 hashing and
 /// the Box-Muller transform): the same on every platform and independent of threading.
 pub fn voxel_gaussian(seed: u64, index: u64) -> f64 {
-    fn mix(mut z: u64) -> u64 {
-        z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    let a = mix(seed ^ mix(index.wrapping_mul(2)));
-    let b = mix(seed ^ mix(index.wrapping_mul(2).wrapping_add(1)));
+    let a = splitmix64(seed ^ splitmix64(index.wrapping_mul(2)));
+    let b = splitmix64(seed ^ splitmix64(index.wrapping_mul(2).wrapping_add(1)));
     // Uniform in (0, 1]: never zero, so the logarithm is finite.
-    let u1 = ((a >> 11) as f64 + 1.0) / (1u64 << 53) as f64;
-    let u2 = (b >> 11) as f64 / (1u64 << 53) as f64;
+    let u1 = unit_f64_nonzero(a);
+    let u2 = unit_f64(b);
     (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
 }
 

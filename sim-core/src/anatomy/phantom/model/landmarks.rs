@@ -1,0 +1,146 @@
+//! The named landmarks of the phantom: body centres, interlaminar windows, facet joints, foramina
+//! and injection targets.
+
+use glam::DVec3;
+
+use super::sacrum::{sacral_canal_point, sacral_foramina};
+use super::{LEFT, Landmark, RIGHT, Spine};
+
+/// Collects landmarks in order.
+#[derive(Default)]
+struct Landmarks(Vec<Landmark>);
+
+impl Landmarks {
+    fn add(&mut self, name: &str, pos: DVec3, description: &str, inside: Option<&str>) {
+        self.0.push(Landmark {
+            name: name.to_string(),
+            position_mm: pos.to_array(),
+            description: description.to_string(),
+            inside_structure: inside.map(str::to_string),
+        });
+    }
+}
+
+/// All landmarks: per lumbar level first, then joints, foramina and targets.
+pub(super) fn landmarks(spine: &Spine) -> Vec<Landmark> {
+    let mut out = Landmarks::default();
+    level_landmarks(&mut out, spine);
+    joint_and_target_landmarks(&mut out, spine);
+    out.0
+}
+
+/// Body centre of each lumbar vertebra and, for each lumbar interspace, the interlaminar window
+/// centre and the posterior epidural space in front of it.
+fn level_landmarks(out: &mut Landmarks, spine: &Spine) {
+    let v = &spine.lumbar;
+    for (i, vert) in v.iter().enumerate() {
+        out.add(
+            &format!("{}_body_centre", vert.dims.name),
+            vert.frame.translation,
+            "centre of the vertebral body",
+            Some(&format!("{}_cancellous", vert.dims.name)),
+        );
+        if i < 4 {
+            let lo = &v[i + 1];
+            let (_, zb) = vert.lamina_z();
+            let (zt, _) = lo.lamina_z();
+            let a = vert.w(0.0, vert.canal_back_y(), zb);
+            let b = lo.w(0.0, lo.canal_back_y(), zt);
+            out.add(
+                &format!(
+                    "{}_{}_interlaminar_window_centre",
+                    vert.dims.name, lo.dims.name
+                ),
+                0.5 * (a + b) + vert.frame.rotation.y_axis * -2.5,
+                "midline centre of the interlaminar window, in the ligamentum flavum",
+                Some("ligamentum_flavum"),
+            );
+            out.add(
+                &format!(
+                    "{}_{}_posterior_epidural_space",
+                    vert.dims.name, lo.dims.name
+                ),
+                0.5 * (a + b) + vert.frame.rotation.y_axis * 1.5,
+                "midline posterior epidural space just in front of the ligamentum flavum",
+                Some("epidural_space"),
+            );
+        }
+    }
+}
+
+/// L5-S1 and L4-L5 facet joint centres, S1 anterior foramina, L4 transforaminal targets, the
+/// sacral hiatus and the L5 spinous tip.
+fn joint_and_target_landmarks(out: &mut Landmarks, spine: &Spine) {
+    let joints = &spine.facets;
+    let sf = &spine.sacral;
+    let l4 = &spine.lumbar[3];
+    let l5 = &spine.lumbar[4];
+    let l5s1 = [joints[4][0], joints[4][1]];
+    out.add(
+        "L5_S1_facet_joint_left",
+        l5s1[0].centre,
+        "centre of the left L5-S1 facet joint space",
+        None,
+    );
+    out.add(
+        "L5_S1_facet_joint_right",
+        l5s1[1].centre,
+        "centre of the right L5-S1 facet joint space",
+        None,
+    );
+    out.add(
+        "L4_L5_facet_joint_left",
+        joints[3][0].centre,
+        "centre of the left L4-L5 facet joint space",
+        None,
+    );
+    out.add(
+        "L4_L5_facet_joint_right",
+        joints[3][1].centre,
+        "centre of the right L4-L5 facet joint space",
+        None,
+    );
+    let foramina = sacral_foramina();
+    for (k, side) in [(0, "left"), (1, "right")] {
+        let (a, b, _) = foramina[k];
+        out.add(
+            &format!("S1_anterior_foramen_{side}"),
+            sf.to_world(0.5 * (a + b)),
+            "middle of the S1 anterior sacral foramen",
+            None,
+        );
+    }
+    // Transforaminal target: the "safe triangle" just below the 6 o'clock position of the L4
+    // pedicle, posterolateral to the exiting L4 root.
+    let d4 = l4.dims;
+    let zp = l4.pedicle_z() - 0.5 * d4.pedicle_height;
+    out.add(
+        "L4_transforaminal_target_left",
+        l4.w(LEFT * (l4.pedicle_x() + 2.0), l4.canal_y() - 0.5, zp - 3.0),
+        "left L4 transforaminal target below the pedicle (safe triangle)",
+        None,
+    );
+    out.add(
+        "L4_transforaminal_target_right",
+        l4.w(RIGHT * (l4.pedicle_x() + 2.0), l4.canal_y() - 0.5, zp - 3.0),
+        "right L4 transforaminal target below the pedicle (safe triangle)",
+        None,
+    );
+    let hiatus = sf.to_world(sacral_canal_point(4) + DVec3::new(0.0, -4.0, 0.0));
+    out.add(
+        "sacral_hiatus",
+        hiatus,
+        "sacral hiatus opening at S4-S5 (caudal epidural entry)",
+        None,
+    );
+    out.add(
+        "L5_spinous_tip",
+        l5.w(
+            0.0,
+            l5.canal_back_y() - l5.dims.sp_length - 0.5,
+            0.5 * (l5.lamina_z().0 + l5.lamina_z().1) - 6.0,
+        ),
+        "tip of the L5 spinous process, half a millimetre inside the bone",
+        None,
+    );
+}
