@@ -18,16 +18,16 @@ use sim_core::rubric::{Station, load_station_dir};
 use tokio::sync::{mpsc, oneshot, watch};
 
 use super::command::{CommandError, Envelope, ErrorCode, LogEntry};
+use super::config::SessionConfig;
 use super::devices::Backends;
 use super::frame::EncodedFrame;
 use super::image::ViewId;
+use super::machine::{Ack, Session, SessionEnv, SessionSnapshot};
 use super::modalities::fluoro::BackendProfile;
 use super::region::Region;
-use super::world::StationContext;
-use super::config::SessionConfig;
-use super::machine::{Ack, Session, SessionEnv, SessionSnapshot};
 use super::scoring::SubmitResult;
-use sim_core::anatomy::asset::sha256_hex;
+use super::world::StationContext;
+use sim_core::hash::sha256_hex;
 
 /// Worker settings.
 #[derive(Debug, Clone)]

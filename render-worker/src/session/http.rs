@@ -20,9 +20,9 @@ use axum::{Json, Router};
 use futures::{SinkExt, StreamExt};
 use serde::Deserialize;
 
-use super::machine::SessionSnapshot;
 use super::command::LogEntry;
 use super::host::{HostError, SessionHandle, SessionHost};
+use super::machine::SessionSnapshot;
 use super::protocol::{WsMessage, serve_connection};
 
 /// The router over a host.

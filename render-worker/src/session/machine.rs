@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
-use sim_core::anatomy::asset::sha256_hex;
+use sim_core::hash::sha256_hex;
 use sim_core::rubric::{Measurements, Modality as StationModality};
 
 use super::command::{Agent, Command, CommandClass, CommandError, Envelope, ErrorCode, LogEntry};
@@ -122,7 +122,6 @@ impl SessionSnapshot {
         sha256_hex(&self.to_bytes())
     }
 }
-
 
 /// One SHA-256 over a region's file hashes (file name and hash, in name order).
 pub fn region_fingerprint(region: &Region) -> String {

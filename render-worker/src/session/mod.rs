@@ -76,5 +76,5 @@ pub use modalities::fluoro::{
 pub use modalities::{Modality, ModalityContext, ModalityError, ModalityFactory};
 pub use region::Region;
 pub use scoring::{ReproducibilityRecord, SubmitResult};
-pub use sim_core::anatomy::asset::sha256_hex;
+pub use sim_core::hash::sha256_hex;
 pub use world::{Injection, NeedleInstrument, StationContext, World, WorldChange};

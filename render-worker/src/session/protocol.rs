@@ -23,10 +23,10 @@ use futures::{Sink, SinkExt, Stream, StreamExt};
 use serde::{Deserialize, Serialize};
 use tokio::sync::mpsc;
 
-use super::machine::Ack;
 use super::command::{Command, CommandError, Envelope, ErrorCode};
 use super::host::{FrameSet, Reply, SessionHandle, SessionInfo};
 use super::image::ViewId;
+use super::machine::Ack;
 
 /// A websocket message, independent of the websocket library.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -18,8 +18,8 @@ use std::sync::Arc;
 
 use sim_core::rubric::Measurements;
 
-use super::config::SessionConfig;
 use super::command::{Command, CommandClass, CommandError};
+use super::config::SessionConfig;
 use super::devices::Backends;
 use super::image::{ViewId, ViewImage};
 use super::region::Region;

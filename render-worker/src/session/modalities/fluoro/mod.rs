@@ -242,7 +242,9 @@ impl FluoroModality {
             ma: self.state.ma,
             live,
             needle,
-            noise_seed: splitmix(self.state.seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15)),
+            noise_seed: sim_core::rng::splitmix64(
+                self.state.seed ^ index.wrapping_mul(sim_core::rng::GOLDEN_GAMMA),
+            ),
         });
     }
 }
@@ -287,14 +289,6 @@ pub fn build(ctx: &ModalityContext<'_>) -> Box<dyn Modality> {
         ctx.config.seed,
         Arc::clone(&ctx.backends.fluoro),
     ))
-}
-
-/// SplitMix64 finaliser (Steele, Lea and Flood 2014): decorrelates per-image seeds.
-fn splitmix(x: u64) -> u64 {
-    let mut z = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
 }
 
 impl Modality for FluoroModality {
