@@ -12,99 +12,12 @@
 //! [`ModalityFactory::with`].
 
 pub mod fluoro;
+mod modality;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use sim_core::rubric::Measurements;
-
-use super::command::{Command, CommandClass, CommandError};
-use super::config::SessionConfig;
-use super::devices::Backends;
-use super::image::{ViewId, ViewImage};
-use super::region::Region;
-use super::world::{StationContext, World, WorldChange};
-
-/// Why a modality could not render or restore.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum ModalityError {
-    /// The renderer failed (device lost, out of memory, a scene it cannot draw).
-    #[error("{modality} rendering failed: {message}")]
-    Render {
-        /// Modality name.
-        modality: &'static str,
-        /// The renderer's reason.
-        message: String,
-    },
-    /// A snapshot's state for this modality does not parse.
-    #[error("{modality} state: {message}")]
-    State {
-        /// Modality name.
-        modality: &'static str,
-        /// The parser's reason.
-        message: String,
-    },
-}
-
-/// One modality of a session.
-pub trait Modality: Send {
-    /// Stable name, used as the key of its state in snapshots (`"fluoroscopy"`); the same as the
-    /// station's modality name.
-    fn name(&self) -> &'static str;
-
-    /// Command classes this modality handles.
-    fn accepts(&self) -> &'static [CommandClass];
-
-    /// Views it can render.
-    fn views(&self) -> &'static [ViewId];
-
-    /// Applies a validated command of an accepted class at simulation time `world.clock_ms`;
-    /// returns a JSON outcome for the acknowledgement.
-    fn apply(
-        &mut self,
-        command: &Command,
-        world: &World,
-    ) -> Result<serde_json::Value, CommandError>;
-
-    /// Simulated time moved from `from_ms` to `world.clock_ms` (before the command that moved
-    /// it is applied). A modality that evolves over time (contrast spreading) steps its model
-    /// here; because every clock value comes from a logged command, replay takes the same steps.
-    fn advance(&mut self, _from_ms: u64, _world: &World) {}
-
-    /// Reacts to a change of the shared world made by another part of the session.
-    fn world_changed(&mut self, change: &WorldChange, world: &World);
-
-    /// Views whose content is newer than their last render.
-    fn dirty_views(&self) -> Vec<ViewId>;
-
-    /// Renders `view` (called only for dirty, visible views); marks it clean.
-    fn render(&mut self, view: ViewId, world: &World) -> Result<Option<ViewImage>, ModalityError>;
-
-    /// Adds this modality's measurements (rubric keys) computed from live state.
-    fn measure(&self, world: &World, out: &mut Measurements);
-
-    /// Settings worth recording with a result (C-arm pose and technique, ...).
-    fn record(&self) -> serde_json::Value;
-
-    /// Serializable state (everything that decides its future and its frames).
-    fn state(&self) -> serde_json::Value;
-
-    /// Replaces the state with one from [`Modality::state`].
-    fn restore(&mut self, state: serde_json::Value) -> Result<(), ModalityError>;
-}
-
-/// What a modality is built from.
-#[derive(Clone, Copy)]
-pub struct ModalityContext<'a> {
-    /// The session's fixed settings.
-    pub config: &'a SessionConfig,
-    /// Station and resolved targets.
-    pub station: &'a Arc<StationContext>,
-    /// Anatomy.
-    pub region: &'a Arc<Region>,
-    /// The renderers this device offers.
-    pub backends: &'a Backends,
-}
+pub use modality::{Modality, ModalityContext, ModalityError};
 
 /// Builds one modality for a session.
 pub type ModalityBuilder = dyn Fn(&ModalityContext<'_>) -> Box<dyn Modality> + Send + Sync;

@@ -18,12 +18,13 @@ use serde::{Deserialize, Serialize};
 use sim_core::fluoro::{Collimation, EnergyModel, Projection, QuantumNoise, RenderSettings};
 use sim_core::rubric::Measurements;
 
+pub use crate::session::config::FluoroConfig;
 pub use backend::{
     BackendProfile, CpuFluoroBackend, FluoroBackend, FluoroRenderer, GpuFluoroBackend,
     NEEDLE_FACETS, NeedleShaft, needle_meshes,
 };
 
-use super::{Modality, ModalityContext, ModalityError};
+use super::modality::{Modality, ModalityContext, ModalityError};
 use crate::session::anatomy::{
     angle_to_plane_deg, endplate_normal, facet_joint_normal, primary_target, target_side,
 };
@@ -42,30 +43,6 @@ pub const PHOTONS_PER_PIXEL_PER_MA: f64 = 1500.0;
 pub const AP_MAX_OBLIQUITY_DEG: f64 = 10.0;
 /// An acquisition counts as an oblique view from this orbital rotation on (same choice).
 pub const OBLIQUE_MIN_DEG: f64 = 10.0;
-/// Fixed settings of a session's C-arm.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct FluoroConfig {
-    /// Square detector size, pixels.
-    pub detector_pixels: u32,
-    /// Detector side, mm (300: a 30 cm flat panel, as `Projection::default`).
-    pub detector_mm: f64,
-    /// Supersampling of silhouette pixels (`n x n`). Simulator choice for live use: 2.
-    pub supersample: u32,
-    /// Quantum noise on (seeded per image).
-    pub noise: bool,
-}
-
-impl Default for FluoroConfig {
-    fn default() -> Self {
-        FluoroConfig {
-            detector_pixels: 512,
-            detector_mm: 300.0,
-            supersample: 2,
-            noise: true,
-        }
-    }
-}
-
 /// Everything that decides one image's pixels.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AcquiredImage {
