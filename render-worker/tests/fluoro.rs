@@ -382,7 +382,12 @@ fn the_resolve_without_iodine_equals_the_one_with_an_empty_iodine_field() {
         &sim_core::mesh::TriMesh::icosphere([5.0, 0.0, 0.0], 20.0, 3),
     );
     let mut gpu = GpuFluoroRenderer::new(&ctx, &scene).expect("renderer");
-    gpu.update_needle(&capped_cylinder([-50.0, -40.0, 0.0], [0.0, 0.0, 0.0], 0.36, 16));
+    gpu.update_needle(&capped_cylinder(
+        [-50.0, -40.0, 0.0],
+        [0.0, 0.0, 0.0],
+        0.36,
+        16,
+    ));
     let p = Projection {
         orbital_deg: 15.0,
         detector_pixels: [64, 64],

@@ -4,7 +4,9 @@ use render_worker::gpu::{context_for_tests, saxpy};
 
 #[test]
 fn compute_shader_matches_cpu_bit_for_bit() {
-    let Some(ctx) = context_for_tests() else { return };
+    let Some(ctx) = context_for_tests() else {
+        return;
+    };
     eprintln!("adapter: {:?}", ctx.summary);
     // 1000 elements span 16 workgroups of 64 with a partial last one, so the bounds check in the
     // shader is exercised. Small integers times 3 plus 0.5 are exact in f32.

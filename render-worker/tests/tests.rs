@@ -3,4 +3,5 @@ mod fluoro;
 mod fluoro_cache;
 mod gpu;
 mod modality_seam;
+mod session_host;
 mod sessions;

@@ -1,0 +1,290 @@
+//! The session host and the wire: the websocket protocol over channels, hand-over from snapshot
+//! and log, shutdown, and one real socket (split from `sessions.rs`, which keeps the session
+//! state machine's tests).
+
+use std::sync::Arc;
+
+use futures::{SinkExt, StreamExt};
+use render_worker::session::demo::{demo_region, demo_station};
+use render_worker::session::frame::EncodedFrame;
+use render_worker::session::protocol::{ServerMessage, WsMessage, serve_connection};
+use render_worker::session::*;
+
+use crate::sessions::{config, pose, script};
+
+fn host(capacity: usize) -> SessionHost {
+    SessionHost::with_regions(
+        vec![demo_station(&[])],
+        vec![Arc::new(demo_region())],
+        Backends::cpu(1),
+        capacity,
+        config(),
+    )
+}
+
+fn cmd_text(seq: u64, command: &Command) -> WsMessage {
+    WsMessage::Text(
+        serde_json::to_string(
+            &serde_json::json!({ "type": "command", "seq": seq, "command": command }),
+        )
+        .unwrap(),
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn protocol_over_channels_acknowledges_every_input_and_keeps_only_the_newest_frame() {
+    let host = host(4);
+    let h = host.create("demo-station").await.unwrap();
+    assert!(matches!(
+        host.create("no-such-station").await,
+        Err(HostError::UnknownStation(_))
+    ));
+    // Client -> worker: unbounded. Worker -> client: room for one message, so a client that
+    // does not read blocks the worker's sends (a slow client).
+    let (mut to_worker, from_client) =
+        futures::channel::mpsc::unbounded::<Result<WsMessage, String>>();
+    let (to_client, mut from_worker) = futures::channel::mpsc::channel::<WsMessage>(1);
+    let task = tokio::spawn(serve_connection(h.clone(), to_client, from_client));
+    let text = |m: WsMessage| match m {
+        WsMessage::Text(t) => serde_json::from_str::<ServerMessage>(&t).unwrap(),
+        other => panic!("expected text, got {other:?}"),
+    };
+    assert!(matches!(
+        text(from_worker.next().await.unwrap()),
+        ServerMessage::Hello { last_seq: 0, .. }
+    ));
+    // 1: live on; then 2..=12: C-arm moves, each a live frame; one bad command in between.
+    to_worker
+        .send(Ok(cmd_text(1, &Command::Live { on: true })))
+        .await
+        .unwrap();
+    for k in 2..=12u64 {
+        to_worker
+            .send(Ok(cmd_text(k, &pose(k as f64, 0.0))))
+            .await
+            .unwrap();
+    }
+    to_worker
+        .send(Ok(cmd_text(13, &pose(f64::from(500), 0.0))))
+        .await
+        .unwrap();
+    // Read everything until the 12 acks and the error have arrived.
+    let (mut acks, mut errors, mut frames) = (Vec::new(), Vec::new(), Vec::new());
+    while acks.len() < 12 || errors.is_empty() {
+        match tokio::time::timeout(std::time::Duration::from_secs(20), from_worker.next())
+            .await
+            .unwrap()
+            .unwrap()
+        {
+            WsMessage::Binary(b) => frames.push(EncodedFrame::parse(&b).unwrap()),
+            m => match text(m) {
+                ServerMessage::Ack(a) => acks.push(a.seq),
+                ServerMessage::Error { seq, error } => errors.push((seq, error)),
+                ServerMessage::Hello { .. } => panic!("second hello"),
+            },
+        }
+    }
+    assert_eq!(
+        acks,
+        (1..=12).collect::<Vec<_>>(),
+        "every input acknowledged, in order"
+    );
+    assert_eq!(errors[0].0, Some(13));
+    assert_eq!(errors[0].1.field, "command.orbital_deg");
+    // Wait for the frame that reflects input 12.
+    while frames.last().is_none_or(|f| f.input_seq < 12) {
+        match tokio::time::timeout(std::time::Duration::from_secs(20), from_worker.next())
+            .await
+            .unwrap()
+            .unwrap()
+        {
+            WsMessage::Binary(b) => frames.push(EncodedFrame::parse(&b).unwrap()),
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+    assert!(
+        frames.windows(2).all(|w| w[0].frame_seq < w[1].frame_seq),
+        "frames arrive newest-last"
+    );
+    // Inputs never dropped: the session's log has all twelve.
+    let (snap, log) = h.snapshot().await.unwrap();
+    assert_eq!((snap.last_seq, log.len()), (12, 12));
+
+    // A client that stops reading: eleven more live frames are made while it sleeps; when it
+    // reads again it gets at most the frame the worker was blocked on and then the newest one.
+    for k in 13..=23u64 {
+        h.command(Envelope {
+            seq: k,
+            command: pose(k as f64, 0.0),
+        })
+        .await
+        .unwrap();
+    }
+    // Let the session thread render the last one (it renders after acknowledging).
+    let mut rx = h.frames();
+    while rx
+        .borrow_and_update()
+        .get(&ViewId::Fluoroscopy)
+        .is_none_or(|f| f.input_seq < 23)
+    {
+        rx.changed().await.unwrap();
+    }
+    let mut late = Vec::new();
+    while late.last().is_none_or(|f: &EncodedFrame| f.input_seq < 23) {
+        match tokio::time::timeout(std::time::Duration::from_secs(20), from_worker.next())
+            .await
+            .unwrap()
+            .unwrap()
+        {
+            WsMessage::Binary(b) => late.push(EncodedFrame::parse(&b).unwrap()),
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+    // At most: the two slots of the channel (buffer 1 + 1 per sender), the frame whose send was
+    // blocked, and the newest one.
+    assert!(
+        late.len() <= 4,
+        "stale frames were skipped: got {} for 11 renders",
+        late.len()
+    );
+    to_worker.send(Ok(WsMessage::Close)).await.unwrap();
+    task.await.unwrap().unwrap();
+    host.close(&h.info.id).unwrap();
+    assert_eq!(host.health().sessions, 0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn host_hands_a_session_over_from_snapshot_and_log() {
+    let a = host(2);
+    let b = host(2);
+    let h = a.create("demo-station").await.unwrap();
+    for (k, (_, c)) in script().into_iter().enumerate() {
+        h.command(Envelope {
+            seq: k as u64 + 1,
+            command: c,
+        })
+        .await
+        .unwrap();
+    }
+    let (snap, log) = h.snapshot().await.unwrap();
+    let moved = b.restore_blocking(&snap, &log).unwrap();
+    let (snap2, log2) = moved.snapshot().await.unwrap();
+    assert_eq!((snap2.to_bytes(), log2), (snap.to_bytes(), log));
+    // The client re-sends its last input after reconnecting: acknowledged as a duplicate.
+    let last = script().pop().unwrap().1;
+    let ack = moved
+        .command(Envelope {
+            seq: snap.last_seq,
+            command: last,
+        })
+        .await
+        .unwrap();
+    assert!(ack.duplicate);
+    // Capacity is enforced.
+    b.create("demo-station").await.unwrap();
+    assert_eq!(
+        b.create("demo-station").await.unwrap_err(),
+        HostError::Full(2)
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_ends_every_session_thread_before_returning() {
+    let shot = |seq| Envelope {
+        seq,
+        command: Command::Shot,
+    };
+    let h = host(3);
+    let mut sessions = Vec::new();
+    for _ in 0..2 {
+        let s = h.create("demo-station").await.unwrap();
+        s.command(shot(1)).await.unwrap();
+        sessions.push(s);
+    }
+    let frames: Vec<_> = sessions.iter().map(|s| s.frames()).collect();
+    let h2 = h.clone();
+    tokio::task::spawn_blocking(move || h2.shutdown())
+        .await
+        .unwrap();
+    assert_eq!(h.health().sessions, 0);
+    for (s, f) in sessions.iter().zip(&frames) {
+        // The actor thread has returned: it dropped its frame sender and its command queue.
+        assert!(f.has_changed().is_err(), "session thread still running");
+        assert!(s.command(shot(2)).await.is_err());
+    }
+    // The host goes on serving new sessions.
+    let s = h.create("demo-station").await.unwrap();
+    s.command(shot(1)).await.unwrap();
+}
+
+async fn http(addr: std::net::SocketAddr, request: &str) -> String {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    s.write_all(request.as_bytes()).await.unwrap();
+    let mut out = String::new();
+    s.read_to_string(&mut out).await.unwrap();
+    out
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn real_websocket_creates_a_session_takes_a_shot_and_streams_a_jpeg() {
+    use tokio_tungstenite::tungstenite::Message;
+    let host = host(2);
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    tokio::spawn(async move { axum::serve(listener, http::router(host)).await });
+    let health = http(
+        addr,
+        "GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n",
+    )
+    .await;
+    assert!(health.starts_with("HTTP/1.1 200"), "{health}");
+    assert!(
+        health.contains("\"capacity\":2") && health.contains("cpu-reference"),
+        "{health}"
+    );
+    let body = r#"{"station_id":"demo-station"}"#;
+    let created = http(
+        addr,
+        &format!(
+            "POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+            body.len()
+        ),
+    )
+    .await;
+    assert!(created.starts_with("HTTP/1.1 201"), "{created}");
+    let json: serde_json::Value =
+        serde_json::from_str(created.split("\r\n\r\n").nth(1).unwrap()).unwrap();
+    let ws_path = json["ws"].as_str().unwrap();
+    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}{ws_path}"))
+        .await
+        .unwrap();
+    let hello = ws.next().await.unwrap().unwrap();
+    assert!(hello.to_text().unwrap().contains("\"hello\""));
+    ws.send(Message::Text(
+        r#"{"type":"command","seq":1,"command":{"type":"shot"}}"#.into(),
+    ))
+    .await
+    .unwrap();
+    let (mut acked, mut frame) = (false, None);
+    while !acked || frame.is_none() {
+        match tokio::time::timeout(std::time::Duration::from_secs(20), ws.next())
+            .await
+            .unwrap()
+            .unwrap()
+            .unwrap()
+        {
+            Message::Text(t) => {
+                let m: ServerMessage = serde_json::from_str(&t).unwrap();
+                assert!(matches!(m, ServerMessage::Ack(ref a) if a.seq == 1), "{t}");
+                acked = true;
+            }
+            Message::Binary(b) => frame = Some(EncodedFrame::parse(&b).unwrap()),
+            _ => {}
+        }
+    }
+    let f = frame.unwrap();
+    assert_eq!((f.input_seq, f.width, f.height), (1, 128, 128));
+    assert_eq!(&f.jpeg[..2], &[0xFF, 0xD8]);
+    ws.close(None).await.unwrap();
+}
