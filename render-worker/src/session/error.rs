@@ -2,6 +2,7 @@
 //! [`CommandError`]s (they name a field and go to the client); these go to the host.
 
 use super::command::CommandError;
+use super::frame::FrameError;
 use super::modalities::ModalityError;
 
 /// A session-level failure.
@@ -55,6 +56,6 @@ pub enum SessionError {
     #[error(transparent)]
     Modality(#[from] ModalityError),
     /// A frame could not be encoded.
-    #[error("frame encoding failed: {0}")]
-    Encode(String),
+    #[error(transparent)]
+    Encode(#[from] FrameError),
 }

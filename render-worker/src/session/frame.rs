@@ -27,6 +27,28 @@ pub const MAGIC: &[u8; 4] = b"SIMF";
 /// 30 to 60 kB per frame.
 pub const JPEG_QUALITY: u8 = 85;
 
+/// Why a frame could not be encoded or parsed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum FrameError {
+    /// JPEG (and the header) hold at most 65,535 pixels per side.
+    #[error("image of {width} x {height} pixels is too large for a JPEG frame")]
+    TooLarge {
+        /// Width, pixels.
+        width: u32,
+        /// Height, pixels.
+        height: u32,
+    },
+    /// The JPEG encoder failed.
+    #[error("JPEG encoding failed: {0}")]
+    Jpeg(String),
+    /// Not a version-1 frame.
+    #[error("not a version-1 SIMF frame")]
+    NotAFrame,
+    /// A view code this build does not know.
+    #[error("unknown view code {0}")]
+    UnknownView(u8),
+}
+
 /// One frame ready to send.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct EncodedFrame {
@@ -47,13 +69,17 @@ pub struct EncodedFrame {
 }
 
 /// Grey JPEG of an image.
-pub fn encode_jpeg(image: &Image) -> Result<Vec<u8>, String> {
-    let w = u16::try_from(image.width).map_err(|_| "image too wide for JPEG".to_string())?;
-    let h = u16::try_from(image.height).map_err(|_| "image too tall for JPEG".to_string())?;
+pub fn encode_jpeg(image: &Image) -> Result<Vec<u8>, FrameError> {
+    let too_large = || FrameError::TooLarge {
+        width: image.width,
+        height: image.height,
+    };
+    let w = u16::try_from(image.width).map_err(|_| too_large())?;
+    let h = u16::try_from(image.height).map_err(|_| too_large())?;
     let mut out = Vec::new();
     jpeg_encoder::Encoder::new(&mut out, JPEG_QUALITY)
         .encode(&image.pixels, w, h, jpeg_encoder::ColorType::Luma)
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| FrameError::Jpeg(e.to_string()))?;
     Ok(out)
 }
 
@@ -65,7 +91,7 @@ impl EncodedFrame {
         input_seq: u64,
         t_ms: u64,
         image: &Image,
-    ) -> Result<EncodedFrame, String> {
+    ) -> Result<EncodedFrame, FrameError> {
         Ok(EncodedFrame {
             view,
             frame_seq,
@@ -95,14 +121,14 @@ impl EncodedFrame {
     }
 
     /// Parses a binary message.
-    pub fn parse(b: &[u8]) -> Result<EncodedFrame, String> {
+    pub fn parse(b: &[u8]) -> Result<EncodedFrame, FrameError> {
         if b.len() < HEADER_BYTES || &b[0..4] != MAGIC || b[4] != 1 {
-            return Err("not a version-1 SIMF frame".to_string());
+            return Err(FrameError::NotAFrame);
         }
         let u64_at = |i: usize| u64::from_le_bytes(b[i..i + 8].try_into().unwrap_or([0; 8]));
         let u16_at = |i: usize| u16::from_le_bytes([b[i], b[i + 1]]);
         Ok(EncodedFrame {
-            view: ViewId::from_code(b[5]).ok_or_else(|| format!("unknown view code {}", b[5]))?,
+            view: ViewId::from_code(b[5]).ok_or(FrameError::UnknownView(b[5]))?,
             frame_seq: u64_at(8),
             input_seq: u64_at(16),
             t_ms: u64_at(24),

@@ -728,8 +728,7 @@ pub fn replay_attempt(
         .render_dirty(&views)?
         .into_iter()
         .map(|v| EncodedFrame::new(v.view, 0, v.input_seq, v.t_ms, &v.image))
-        .collect::<Result<_, _>>()
-        .map_err(SessionError::Encode)?;
+        .collect::<Result<_, _>>()?;
     Ok(Replay {
         final_state: s.snapshot(),
         result: s.result().cloned(),

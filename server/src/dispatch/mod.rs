@@ -41,7 +41,7 @@ mod routes;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-use render_worker::session::modalities::fluoro::FluoroRenderer;
+use render_worker::session::modalities::fluoro::{FluoroRenderError, FluoroRenderer};
 use render_worker::session::region::Region;
 use render_worker::session::host::RegionReadiness;
 use render_worker::session::{
@@ -245,7 +245,7 @@ impl FluoroBackend for InProcessBackend {
         self.current().profile()
     }
 
-    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String> {
+    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, FluoroRenderError> {
         self.current().renderer(region)
     }
 }

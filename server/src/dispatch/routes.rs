@@ -374,7 +374,7 @@ async fn replay_to(
             .map_err(|e| ApiError::Internal(format!("replay render: {e}")))?;
         let jpeg = match views.into_iter().find(|v| v.view == ViewId::Fluoroscopy) {
             Some(v) => Some(
-                render_worker::session::frame::encode_jpeg(&v.image).map_err(ApiError::Internal)?,
+                render_worker::session::frame::encode_jpeg(&v.image).map_err(|e| ApiError::Internal(e.to_string()))?,
             ),
             None => None,
         };

@@ -13,6 +13,17 @@ use crate::session::region::Region;
 /// mean chord of the round shaft exactly and its silhouette within 4% of the radius.
 pub const NEEDLE_FACETS: u32 = 8;
 
+/// Why a fluoroscopy renderer could not be made or could not render.
+#[derive(Debug, thiserror::Error)]
+pub enum FluoroRenderError {
+    /// The CPU reference has no spectrum for the tube voltage.
+    #[error(transparent)]
+    Cpu(#[from] sim_core::fluoro::spectrum::UnknownKvp),
+    /// The GPU renderer failed (missing feature, device lost, scene too large).
+    #[error(transparent)]
+    Gpu(#[from] crate::fluoro::FluoroGpuError),
+}
+
 /// Makes fluoroscopy renderers: the CPU reference, or the GPU renderer (same output type).
 /// Shared by every session of a worker; each session gets its own [`FluoroRenderer`], created on
 /// its first exposure (a session that never takes an image allocates nothing).
@@ -20,7 +31,7 @@ pub trait FluoroBackend: Send + Sync {
     /// What renders (e.g. `cpu-reference`, or the GPU adapter's name), for records and health.
     fn profile(&self) -> BackendProfile;
     /// A renderer of `region` for one session.
-    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String>;
+    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, FluoroRenderError>;
 }
 
 /// One session's renderer (may hold per-session resources, such as uploaded meshes).
@@ -31,7 +42,7 @@ pub trait FluoroRenderer: Send {
         needle: Option<&NeedleShaft>,
         projection: &Projection,
         settings: &RenderSettings,
-    ) -> Result<Image, String>;
+    ) -> Result<Image, FluoroRenderError>;
 }
 
 /// Which renderer made a frame.
@@ -58,7 +69,7 @@ impl FluoroBackend for CpuFluoroBackend {
         }
     }
 
-    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String> {
+    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, FluoroRenderError> {
         Ok(Box::new(CpuRenderer {
             region: Arc::clone(region),
             threads: self.threads,
@@ -81,7 +92,7 @@ impl FluoroRenderer for CpuRenderer {
         needle: Option<&NeedleShaft>,
         projection: &Projection,
         settings: &RenderSettings,
-    ) -> Result<Image, String> {
+    ) -> Result<Image, FluoroRenderError> {
         let settings = RenderSettings {
             threads: self.threads,
             ..*settings
@@ -102,8 +113,9 @@ impl FluoroRenderer for CpuRenderer {
                 }
             }
         };
-        sim_core::fluoro::render_frame(scene, None, projection, &settings)
-            .map_err(|e| e.to_string())
+        Ok(sim_core::fluoro::render_frame(
+            scene, None, projection, &settings,
+        )?)
     }
 }
 
@@ -122,9 +134,8 @@ impl FluoroBackend for GpuFluoroBackend {
         }
     }
 
-    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, String> {
-        let r = crate::fluoro::GpuFluoroRenderer::new(&self.ctx, &region.scene)
-            .map_err(|e| e.to_string())?;
+    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, FluoroRenderError> {
+        let r = crate::fluoro::GpuFluoroRenderer::new(&self.ctx, &region.scene)?;
         Ok(Box::new(GpuRenderer {
             renderer: r,
             needle: None,
@@ -143,7 +154,7 @@ impl FluoroRenderer for GpuRenderer {
         needle: Option<&NeedleShaft>,
         projection: &Projection,
         settings: &RenderSettings,
-    ) -> Result<Image, String> {
+    ) -> Result<Image, FluoroRenderError> {
         if self.needle.as_ref() != needle {
             match needle {
                 // One mesh of all segments: exact for a straight shaft (one convex prism); a bent
@@ -162,9 +173,7 @@ impl FluoroRenderer for GpuRenderer {
             }
             self.needle = needle.cloned();
         }
-        self.renderer
-            .render_frame(projection, settings, None)
-            .map_err(|e| e.to_string())
+        Ok(self.renderer.render_frame(projection, settings, None)?)
     }
 }
 

@@ -20,8 +20,8 @@ use sim_core::rubric::Measurements;
 
 pub use crate::session::config::FluoroConfig;
 pub use backend::{
-    BackendProfile, CpuFluoroBackend, FluoroBackend, FluoroRenderer, GpuFluoroBackend,
-    NEEDLE_FACETS, NeedleShaft, needle_meshes,
+    BackendProfile, CpuFluoroBackend, FluoroBackend, FluoroRenderError, FluoroRenderer,
+    GpuFluoroBackend, NEEDLE_FACETS, NeedleShaft, needle_meshes,
 };
 
 use super::modality::{Modality, ModalityContext, ModalityError};
@@ -403,9 +403,9 @@ impl Modality for FluoroModality {
             }),
             ..RenderSettings::default()
         };
-        let failed = |message: String| ModalityError::Render {
+        let failed = |e: FluoroRenderError| ModalityError::Render {
             modality: "fluoroscopy",
-            message,
+            message: e.to_string(),
         };
         if self.renderer.is_none() {
             self.renderer = Some(self.backend.renderer(&world.region).map_err(failed)?);
