@@ -218,6 +218,10 @@ pub fn saxpy(ctx: &GpuContext, a: f32, x: &[f32], b: f32) -> Result<Vec<f32>, Gp
 ///
 /// With `REQUIRE_GPU=1` in the environment (CI sets it, and installs lavapipe) a missing adapter
 /// is a failure instead of a skip, so GPU tests can never pass silently by not running.
+///
+/// Only with the `test-support` feature (the crate's own tests enable it through a
+/// dev-dependency on itself): a production build has no test helpers.
+#[cfg(feature = "test-support")]
 pub fn context_for_tests() -> Option<GpuContext> {
     match GpuContext::new_headless() {
         Ok(ctx) => Some(ctx),
