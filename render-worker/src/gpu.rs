@@ -27,7 +27,24 @@ pub enum GpuError {
     },
     /// Reading back a GPU buffer failed.
     #[error("reading back a GPU buffer failed: {0}")]
-    Readback(String),
+    Readback(#[from] ReadbackError),
+}
+
+/// Why reading a GPU buffer back failed.
+#[derive(Debug, Error)]
+pub enum ReadbackError {
+    /// Waiting for the device to finish failed.
+    #[error("waiting for the device failed: {0}")]
+    Poll(#[from] wgpu::PollError),
+    /// The buffer could not be mapped.
+    #[error(transparent)]
+    Map(#[from] wgpu::BufferAsyncError),
+    /// The mapping callback was dropped without reporting.
+    #[error("the buffer-mapping callback was dropped without reporting")]
+    CallbackDropped(#[from] std::sync::mpsc::RecvError),
+    /// The mapped range could not be viewed.
+    #[error(transparent)]
+    MappedRange(#[from] wgpu::MapRangeError),
 }
 
 /// Which kind of adapter a context runs on (reported in health checks and benchmarks).
@@ -114,11 +131,11 @@ impl GpuContext {
             // The receiver lives until recv() below returns, so a send error cannot happen.
             let _ = tx.send(r);
         });
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Readback(e.to_string()))?;
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(ReadbackError::from)?;
         rx.recv()
-            .map_err(|e| GpuError::Readback(e.to_string()))?
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let bytes = staging.get_mapped_range(..).map_err(|e| GpuError::Readback(e.to_string()))?.to_vec();
+            .map_err(ReadbackError::from)?
+            .map_err(ReadbackError::from)?;
+        let bytes = staging.get_mapped_range(..).map_err(ReadbackError::from)?.to_vec();
         staging.unmap();
         Ok(bytes)
     }
@@ -201,6 +218,10 @@ pub fn saxpy(ctx: &GpuContext, a: f32, x: &[f32], b: f32) -> Result<Vec<f32>, Gp
 ///
 /// With `REQUIRE_GPU=1` in the environment (CI sets it, and installs lavapipe) a missing adapter
 /// is a failure instead of a skip, so GPU tests can never pass silently by not running.
+///
+/// Only with the `test-support` feature (the crate's own tests enable it through a
+/// dev-dependency on itself): a production build has no test helpers.
+#[cfg(feature = "test-support")]
 pub fn context_for_tests() -> Option<GpuContext> {
     match GpuContext::new_headless() {
         Ok(ctx) => Some(ctx),

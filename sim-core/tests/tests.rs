@@ -5,3 +5,4 @@ mod rubric;
 mod phantom;
 mod laminar;
 mod needle;
+mod nesting;

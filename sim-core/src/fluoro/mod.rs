@@ -35,11 +35,14 @@
 //! - Reference outputs: [`render_chords`] (per-pixel chords, no supersampling),
 //!   [`render_transmission`] and [`render_frame`]; [`analytic`] has the sphere phantom and exact
 //!   reference chords.
+//! - Nesting for an L-buffer: [`nesting::nesting_plan`] gives each mesh's direct container and
+//!   the effective materials its chord adds to and removes from.
 
 pub mod analytic;
 pub mod attenuation;
 pub mod contrast;
 pub mod geometry;
+pub mod nesting;
 pub mod render;
 pub mod scene;
 pub mod spectrum;

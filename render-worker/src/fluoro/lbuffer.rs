@@ -1,0 +1,720 @@
+//! The L-buffer passes (see the module map in `fluoro`): the anatomy's vertex buffer and culling
+//! chunks, the per-mesh slot weights of each layout, and the recording of the passes.
+//!
+//! - Geometric part: every anatomy triangle is drawn without depth test or culling, with
+//!   additive blending, into an `R32Float` target if its mesh only changes the water-basis
+//!   channel (soft tissue in soft tissue: a one-channel blend is the cheaper fragment) and into
+//!   an `Rgba32Float` target otherwise. A fragment adds `s (w - w_ref)` times the mesh's
+//!   *geometric* weights, where `w = row_w . (point - source)` is the axial depth of the
+//!   triangle's point on the sample's ray (the reciprocal of the fragment position's `w`, which
+//!   the rasteriser interpolates exactly: `1 / w` is affine in screen space), `s = -1` on front
+//!   faces (entering) and `+1` on back faces. Summed over a closed mesh it is the mesh's chord
+//!   times `(row_w . d) / |d|` for the sample's ray `d`; the resolve multiplies by
+//!   `|d| / (row_w . d)`. `w_ref` (the axial depth of the mesh's box centre) cancels in each
+//!   entering/leaving pair and keeps the summed terms small, so f32 cancellation stays near
+//!   `ulp(mesh size)` instead of `ulp(source distance)`. The fragment shader is a multiply-add:
+//!   on lavapipe the pass is fragment bound.
+//! - Needle: its triangles go into an `Rg32Float` target with `Min` blending (nearest entering
+//!   and farthest leaving distance: its hull interval `[t0, t1]` on the pixel's ray) and into an
+//!   `R32Float` target with additive blending (its exact chord).
+//! - Displaced part (only with a needle): the anatomy again, scissored to the needle's pixel
+//!   box and culled to the chunks that reach it, into a second `Rgba32Float` target: a fragment
+//!   adds `s (clamp(t, t0, t1) - t0)` times the mesh's *displaced* (negative) weights, the part
+//!   of each chord the needle occupies. This is exact when the needle is convex along each ray.
+//!
+//! In the needle and displaced passes `t` is the exact distance along the ray: the fragment's
+//! pixel ray (sim-core's [`Projection::gpu_ray_frame`]) meets the triangle's plane (outward unit
+//! normal from an f64 cross product, passed flat) at `t = n.(v - s) |d| / n.d`, in f32, and the
+//! sign of `n.d` says entering or leaving. (Interpolating `vertex - source` instead lost
+//! 0.02 mm on the needle's long, thin side triangles seen nearly edge-on.) The anatomy's
+//! triangles are not that thin, and its axial depths agree with the CPU as closely as the plane
+//! did (the sphere and phantom chord tests in `tests/fluoro.rs`).
+use bytemuck::{Pod, Zeroable};
+use glam::DVec3;
+use sim_core::fluoro::nesting::{NestedMesh, soup_box, triangle_cross};
+use sim_core::fluoro::{FluoroMaterial, Projection, Scene};
+use sim_core::material::MaterialClass;
+use wgpu::util::DeviceExt;
+
+use super::pipelines::NO_NEEDLE;
+use super::{CHANNELS, GpuFluoroRenderer, PixelRect};
+
+/// Channels of the `Rgba32Float` L-buffer targets (the geometric one and the displaced one).
+/// Transmission layout: (water-basis `sum mu_60 L`, bone-basis `sum mu_60 L`, both net of what
+/// the needle displaces; cortical and cancellous geometric `L` for the clamp).
+pub(super) const SLOTS: usize = 4;
+
+/// A mesh's geometric and displaced weights in `layout`: its own material's minus its
+/// container's (see sim-core's `fluoro::nesting`).
+pub(super) fn net_weights(mesh: &NestedMesh, layout: Layout) -> ([f32; SLOTS], [f32; SLOTS]) {
+    let (mut g, mut d) = slot_weights(mesh.effective, layout);
+    if let Some(c) = mesh.container {
+        let (gc, dc) = slot_weights(c, layout);
+        for k in 0..SLOTS {
+            g[k] -= gc[k];
+            d[k] -= dc[k];
+        }
+    }
+    (g, d)
+}
+
+/// Whether a mesh's transmission weights touch only the water-basis channel (soft tissue inside
+/// soft tissue): it is drawn into the one-channel target. The renderer orders its meshes with
+/// sim-core's [`NestedMesh::water_basis_only`], which a unit test shows to be the same
+/// decision.
+#[cfg(test)]
+fn is_scalar(mesh: &NestedMesh) -> bool {
+    net_weights(mesh, Layout::Transmission).0[1..]
+        .iter()
+        .all(|&x| x == 0.0)
+}
+
+/// The anatomy as drawn: one vertex buffer (the scalar meshes' triangles first, then the rest,
+/// each mesh's in its BVH's order) and its culling chunks.
+pub(super) struct AnatomyBuffers {
+    /// `None` when no mesh is drawn.
+    pub(super) bufs: Option<MeshBuffers>,
+    /// Runs of [`CHUNK_TRIANGLES`] consecutive anatomy triangles with their bounding boxes, for
+    /// culling on the CPU.
+    pub(super) chunks: Vec<Chunk>,
+    /// The scalar meshes come first: the number of their chunks.
+    pub(super) scalar_chunks: usize,
+}
+
+impl AnatomyBuffers {
+    /// Uploads the triangles of `meshes` (the scalar ones first, as the renderer orders them).
+    pub(super) fn upload(
+        device: &wgpu::Device,
+        scene: &Scene,
+        meshes: &[NestedMesh],
+    ) -> AnatomyBuffers {
+        let entries = scene.entries();
+        let scalar_meshes = meshes.partition_point(NestedMesh::water_basis_only);
+        let add = |vertices: &mut Vec<Vertex>, ids: std::ops::Range<usize>| {
+            for id in ids {
+                let tris = entries[meshes[id].entry].bvh.triangles_mm();
+                vertices.extend(tris.iter().flat_map(|t| triangle_vertices(t, id as u32)));
+            }
+        };
+        let mut vertices: Vec<Vertex> = Vec::new();
+        add(&mut vertices, 0..scalar_meshes);
+        let mut chunks = chunks_of(&vertices, 0);
+        let scalar_chunks = chunks.len();
+        let scalar_vertices = vertices.len();
+        add(&mut vertices, scalar_meshes..meshes.len());
+        // Chunks never straddle the two groups.
+        chunks.extend(chunks_of(&vertices, scalar_vertices));
+        AnatomyBuffers {
+            bufs: (!vertices.is_empty()).then(|| upload(device, &vertices)),
+            chunks,
+            scalar_chunks,
+        }
+    }
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub(super) struct Vertex {
+    pos: [f32; 3],
+    mesh: u32,
+    /// Outward unit normal of the vertex's triangle (f64 cross product; zero if degenerate).
+    normal: [f32; 3],
+    pad: u32,
+}
+
+/// The three vertices of a triangle with its unit normal.
+fn triangle_vertices(t: &[[f64; 3]; 3], mesh: u32) -> [Vertex; 3] {
+    let c = triangle_cross(*t);
+    let len = c.length();
+    let normal = if len > 0.0 {
+        (c / len).to_array().map(|x| x as f32)
+    } else {
+        [0.0; 3]
+    };
+    t.map(|v| Vertex {
+        pos: v.map(|x| x as f32),
+        mesh,
+        normal,
+        pad: 0,
+    })
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub(super) struct ViewUniform {
+    row_x: [f32; 4],
+    row_y: [f32; 4],
+    row_w: [f32; 4],
+    source: [f32; 4],
+    size: [f32; 4],
+    needle_box: [f32; 4],
+    p00: [f32; 4],
+    step_u: [f32; 4],
+    step_v: [f32; 4],
+    region: [f32; 4],
+}
+
+pub(super) struct Needle {
+    bufs: MeshBuffers,
+    centre_mm: [f64; 3],
+    pub(super) vertices_mm: Vec<[f64; 3]>,
+}
+
+pub(super) struct MeshBuffers {
+    vertices: wgpu::Buffer,
+    indices: wgpu::Buffer,
+    index_count: u32,
+}
+
+/// Triangles per culling chunk. Simulator choice: 32 keeps the per-projection box work at
+/// 8 corners per 32 triangles while a needle box still draws only nearby chunks.
+const CHUNK_TRIANGLES: usize = 32;
+
+/// A run of consecutive anatomy triangles (in drawing order) and its bounding box, mm.
+pub(super) struct Chunk {
+    first_vertex: u32,
+    vertices: u32,
+    lo: [f32; 3],
+    hi: [f32; 3],
+}
+
+/// Per-material weights of the transmission layout: `g` multiplies the signed distance, `d`
+/// the signed part inside the needle (so each channel accumulates `w (L - L_displaced)`).
+fn transmission_weights(m: FluoroMaterial) -> ([f32; SLOTS], [f32; SLOTS]) {
+    let (mut g, mut d) = ([0.0; SLOTS], [0.0; SLOTS]);
+    let mu = m.mu_60kev_per_cm() as f32;
+    match m {
+        FluoroMaterial::Steel => {}
+        FluoroMaterial::Tissue(MaterialClass::CorticalBone) => {
+            (g[1], d[1], g[2]) = (mu, -mu, 1.0);
+        }
+        FluoroMaterial::Tissue(MaterialClass::Cancellous) => {
+            (g[1], d[1], g[3]) = (mu, -mu, 1.0);
+        }
+        FluoroMaterial::Tissue(_) => {
+            (g[0], d[0]) = (mu, -mu);
+        }
+    }
+    (g, d)
+}
+
+/// Chord-layout channels: 0..11, tissue `i`'s chord net of the needle (for the two bone
+/// classes: geometric); 11 and 12, the cortical and cancellous parts the needle displaces.
+pub(super) const CHORD_CHANNELS: usize = CHANNELS + 1;
+/// L-buffer passes for [`GpuFluoroRenderer::render_chords`], four channels each.
+pub(super) const CHORD_PASSES: usize = CHORD_CHANNELS.div_ceil(SLOTS);
+pub(super) const CORTICAL: FluoroMaterial = FluoroMaterial::Tissue(MaterialClass::CorticalBone);
+pub(super) const CANCELLOUS: FluoroMaterial = FluoroMaterial::Tissue(MaterialClass::Cancellous);
+
+fn chord_weights(m: FluoroMaterial, pass: usize) -> ([f32; SLOTS], [f32; SLOTS]) {
+    let (mut gc, mut dc) = ([0.0f32; CHORD_CHANNELS], [0.0f32; CHORD_CHANNELS]);
+    if m != FluoroMaterial::Steel {
+        let i = m.index();
+        gc[i] = 1.0;
+        if m == CORTICAL {
+            dc[CHANNELS - 1] = 1.0;
+        } else if m == CANCELLOUS {
+            dc[CHANNELS] = 1.0;
+        } else {
+            dc[i] = -1.0;
+        }
+    }
+    let (mut g, mut d) = ([0.0; SLOTS], [0.0; SLOTS]);
+    for k in 0..SLOTS {
+        let c = pass * SLOTS + k;
+        if c < CHORD_CHANNELS {
+            g[k] = gc[c];
+            d[k] = dc[c];
+        }
+    }
+    (g, d)
+}
+
+/// Which passes [`GpuFluoroRenderer::encode_lbuffer`] records.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Passes {
+    pub(super) geometry: bool,
+    pub(super) needle: bool,
+    pub(super) displaced: bool,
+}
+
+impl Passes {
+    pub(super) const ALL: Passes = Passes {
+        geometry: true,
+        needle: true,
+        displaced: true,
+    };
+}
+
+/// The slot layout of one pass.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Layout {
+    Transmission,
+    Chords(usize),
+}
+
+fn slot_weights(m: FluoroMaterial, layout: Layout) -> ([f32; SLOTS], [f32; SLOTS]) {
+    match layout {
+        Layout::Transmission => transmission_weights(m),
+        Layout::Chords(pass) => chord_weights(m, pass),
+    }
+}
+
+impl GpuFluoroRenderer {
+    pub(super) fn set_needle_soup(&mut self, tris: &[[[f64; 3]; 3]]) {
+        self.needle_generation += 1;
+        if tris.is_empty() {
+            self.needle = None;
+            return;
+        }
+        let (lo, hi) = soup_box(tris);
+        let vertices: Vec<Vertex> = tris.iter().flat_map(|t| triangle_vertices(t, 0)).collect();
+        self.needle = Some(Needle {
+            bufs: upload(&self.ctx.device, &vertices),
+            centre_mm: std::array::from_fn(|a| 0.5 * (lo[a] + hi[a])),
+            vertices_mm: tris.iter().flatten().copied().collect(),
+        });
+    }
+
+    /// Records into `encoder`: the geometric anatomy pass with `layout` (if `passes.geometry`),
+    /// and with a needle its pass (if `passes.needle`) and the displaced anatomy pass scissored
+    /// to its pixel box (if `passes.displaced`; the target is cleared even when the box is off
+    /// the image). Returns that box in region samples, clipped (`None` without a needle or off
+    /// the image).
+    pub(super) fn encode_lbuffer(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        projection: &Projection,
+        layout: Layout,
+        passes: Passes,
+        region: PixelRect,
+    ) -> Option<[u32; 4]> {
+        let ri = region.index();
+        let size = region.size;
+        self.ensure_targets(ri, size);
+        let frame = projection.frame();
+        let rays = projection.gpu_ray_frame();
+        let v4 = |v: [f32; 3]| [v[0], v[1], v[2], 0.0];
+        let m = projection.projection_matrix();
+        // Rectangle sample coordinates: n (px - x0), n (py - y0).
+        let n = f64::from(region.n);
+        let (x0, y0) = (f64::from(region.origin[0]), f64::from(region.origin[1]));
+        let row = |r: [f64; 4], o: f64| {
+            [
+                (n * (r[0] - o * m[2][0])) as f32,
+                (n * (r[1] - o * m[2][1])) as f32,
+                (n * (r[2] - o * m[2][2])) as f32,
+                0.0,
+            ]
+        };
+        let src = frame.source_mm;
+        let needle_ref = self
+            .needle
+            .as_ref()
+            .map_or(0.0, |n| DVec3::from(n.centre_mm).distance(DVec3::from(src)));
+        // Pixel box of the needle's projection, two pixels wider (rasterisation rounding); the
+        // whole image if a vertex is not in front of the source.
+        let needle_box = self.needle.as_ref().map_or([1.0, 1.0, -1.0, -1.0], |nd| {
+            let mut b = [
+                f32::INFINITY,
+                f32::INFINITY,
+                f32::NEG_INFINITY,
+                f32::NEG_INFINITY,
+            ];
+            for &v in &nd.vertices_mm {
+                match projection.project_point(v) {
+                    Some([x, y]) => {
+                        let (x, y) = (n * (x - x0), n * (y - y0));
+                        b = [
+                            b[0].min(x as f32 - 2.0),
+                            b[1].min(y as f32 - 2.0),
+                            b[2].max(x as f32 + 2.0),
+                            b[3].max(y as f32 + 2.0),
+                        ];
+                    }
+                    None => return [-1e30, -1e30, 1e30, 1e30],
+                }
+            }
+            b
+        });
+        let view = ViewUniform {
+            row_x: row(m[0], x0),
+            row_y: row(m[1], y0),
+            row_w: [m[2][0] as f32, m[2][1] as f32, m[2][2] as f32, 0.0],
+            source: [src[0] as f32, src[1] as f32, src[2] as f32, 0.0],
+            size: [size[0] as f32, size[1] as f32, needle_ref as f32, 0.0],
+            needle_box,
+            p00: v4(rays.pixel00_from_source_mm),
+            step_u: v4(rays.step_u_mm),
+            step_v: v4(rays.step_v_mm),
+            region: [
+                region.origin[0] as f32,
+                region.origin[1] as f32,
+                1.0 / n as f32,
+                0.0,
+            ],
+        };
+        let queue = &self.ctx.queue;
+        queue.write_buffer(&self.view_buf[ri], 0, bytemuck::bytes_of(&view));
+        let mut w: Vec<[f32; 4]> = Vec::with_capacity(self.meshes.len() * 3);
+        for mesh in &self.meshes {
+            let (g, d) = net_weights(mesh, layout);
+            let tref = DVec3::from(mesh.centre_mm).distance(DVec3::from(src)) as f32;
+            let c = mesh.centre_mm;
+            let wref = (m[2][0] * c[0] + m[2][1] * c[1] + m[2][2] * c[2] + m[2][3]) as f32;
+            w.push(g);
+            w.push(d);
+            w.push([tref, wref, 0.0, 0.0]);
+        }
+        if !w.is_empty() {
+            queue.write_buffer(&self.weights_buf, 0, bytemuck::cast_slice(&w));
+        }
+        // The needle's pixel box in whole samples, clipped to the target.
+        let clip = |lo: f32, hi: f32, n: u32| {
+            let lo = lo.floor().clamp(0.0, n as f32) as u32;
+            let hi = hi.ceil().clamp(0.0, n as f32) as u32;
+            (lo, hi)
+        };
+        let (bx0, bx1) = clip(needle_box[0], needle_box[2], size[0]);
+        let (by0, by1) = clip(needle_box[1], needle_box[3], size[1]);
+        let rect = (self.needle.is_some() && bx1 > bx0 && by1 > by0)
+            .then(|| [bx0, by0, bx1 - bx0, by1 - by0]);
+        // Rectangle samples to full-image pixel coordinates.
+        let to_pixels = |r: [u32; 4]| {
+            let (inv, o) = (1.0 / n as f32, region.origin.map(|x| x as f32));
+            [
+                o[0] + r[0] as f32 * inv,
+                o[1] + r[1] as f32 * inv,
+                o[0] + (r[0] + r[2]) as f32 * inv,
+                o[1] + (r[1] + r[3]) as f32 * inv,
+            ]
+        };
+        // Only the triangles that can reach the target are drawn into it (the anatomy often
+        // extends beyond the image), and only those that can reach the needle's box into the
+        // displaced pass. `None`: the whole list; `Some(None)`: no triangle reaches it.
+        // In the transmission layout the scalar meshes go to their own target.
+        let split = layout == Layout::Transmission;
+        let (scalar, chunks) = (self.anatomy.scalar_chunks, self.anatomy.chunks.len());
+        let groups = if split {
+            [0..scalar, scalar..chunks]
+        } else {
+            [0..0, 0..chunks]
+        };
+        // The vertices of a run of chunks (they cover the vertex buffer in order).
+        let total = self.anatomy.bufs.as_ref().map_or(0, |b| b.index_count);
+        let vertex_at = |k: usize| self.anatomy.chunks.get(k).map_or(total, |c| c.first_vertex);
+        let whole = groups.clone().map(|g| vertex_at(g.start)..vertex_at(g.end));
+        let geo_lists = (self.culling && passes.geometry).then(|| {
+            let r = to_pixels([0, 0, size[0], size[1]]);
+            groups.map(|g| self.culled(projection, r, g))
+        });
+        let disp_list = match rect {
+            Some(r) if self.culling && passes.displaced => {
+                Some(self.culled(projection, to_pixels(r), 0..chunks))
+            }
+            _ => None,
+        };
+        let device = &self.ctx.device;
+        let t = self.targets[ri].as_ref().expect("targets");
+        let view_of = |x: &wgpu::Texture| x.create_view(&wgpu::TextureViewDescriptor::default());
+        let (va, vs, vd, vh, vc) = (
+            view_of(&t.a),
+            view_of(&t.s),
+            view_of(&t.d),
+            view_of(&t.hull),
+            view_of(&t.chord),
+        );
+        fn attach(
+            v: &wgpu::TextureView,
+            clear: f64,
+        ) -> Option<wgpu::RenderPassColorAttachment<'_>> {
+            Some(wgpu::RenderPassColorAttachment {
+                view: v,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color {
+                        r: clear,
+                        g: clear,
+                        b: clear,
+                        a: clear,
+                    }),
+                    store: wgpu::StoreOp::Store,
+                },
+            })
+        }
+        let anatomy_bind = |pipeline: &wgpu::RenderPipeline, with_hull: bool| {
+            let mut entries = vec![
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: self.view_buf[ri].as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: self.weights_buf.as_entire_binding(),
+                },
+            ];
+            if with_hull {
+                entries.push(wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::TextureView(&vh),
+                });
+            }
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("fluoro anatomy"),
+                layout: &pipeline.get_bind_group_layout(0),
+                entries: &entries,
+            })
+        };
+        fn pass_desc<'a>(
+            label: &'a str,
+            attachments: &'a [Option<wgpu::RenderPassColorAttachment<'a>>],
+        ) -> wgpu::RenderPassDescriptor<'a> {
+            wgpu::RenderPassDescriptor {
+                label: Some(label),
+                color_attachments: attachments,
+                depth_stencil_attachment: None,
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            }
+        }
+        if passes.geometry {
+            // Scalar group (transmission layout; the target is cleared in every layout), then
+            // the rest.
+            let [scalar_list, list] = match geo_lists {
+                Some([a, b]) => [Some(a), Some(b)],
+                None => [None, None],
+            };
+            let draws = [
+                (
+                    &self.pipelines.anatomy_scalar,
+                    &vs,
+                    scalar_list,
+                    whole[0].clone(),
+                    "fluoro anatomy, water-basis channel",
+                ),
+                (
+                    &self.pipelines.anatomy,
+                    &va,
+                    list,
+                    whole[1].clone(),
+                    "fluoro anatomy",
+                ),
+            ];
+            for (pipeline, view, list, all, label) in draws {
+                let bind = anatomy_bind(pipeline, false);
+                let attachments = [attach(view, 0.0)];
+                let mut pass = encoder.begin_render_pass(&pass_desc(label, &attachments));
+                let Some(bufs) = &self.anatomy.bufs else {
+                    continue;
+                };
+                let (indices, range) = match &list {
+                    Some(Some((b, c))) => (b, 0..*c),
+                    Some(None) => (&bufs.indices, 0..0),
+                    None => (&bufs.indices, all),
+                };
+                if !range.is_empty() {
+                    pass.set_pipeline(pipeline);
+                    pass.set_bind_group(0, &bind, &[]);
+                    pass.set_vertex_buffer(0, bufs.vertices.slice(..));
+                    pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
+                    pass.draw_indexed(range, 0, 0..1);
+                }
+            }
+        }
+        let needle = self.needle.as_ref()?;
+        if passes.needle {
+            let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("fluoro needle"),
+                layout: &self.pipelines.needle.get_bind_group_layout(0),
+                entries: &[wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: self.view_buf[ri].as_entire_binding(),
+                }],
+            });
+            let attachments = [attach(&vh, NO_NEEDLE), attach(&vc, 0.0)];
+            let mut pass = encoder.begin_render_pass(&pass_desc("fluoro needle", &attachments));
+            pass.set_pipeline(&self.pipelines.needle);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.set_vertex_buffer(0, needle.bufs.vertices.slice(..));
+            pass.set_index_buffer(needle.bufs.indices.slice(..), wgpu::IndexFormat::Uint32);
+            pass.draw_indexed(0..needle.bufs.index_count, 0, 0..1);
+        }
+        if passes.displaced {
+            let bind = anatomy_bind(&self.pipelines.displaced, true);
+            let attachments = [attach(&vd, 0.0)];
+            let mut pass = encoder.begin_render_pass(&pass_desc("fluoro displaced", &attachments));
+            if let (Some(bufs), Some([x, y, w, h])) = (&self.anatomy.bufs, rect) {
+                let (indices, count) = match &disp_list {
+                    Some(Some((b, c))) => (b, *c),
+                    Some(None) => (&bufs.indices, 0),
+                    None => (&bufs.indices, bufs.index_count),
+                };
+                if count > 0 {
+                    pass.set_pipeline(&self.pipelines.displaced);
+                    pass.set_bind_group(0, &bind, &[]);
+                    pass.set_scissor_rect(x, y, w, h);
+                    pass.set_vertex_buffer(0, bufs.vertices.slice(..));
+                    pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
+                    pass.draw_indexed(0..count, 0, 0..1);
+                }
+            }
+        }
+        rect
+    }
+
+    /// An index buffer of the anatomy triangles of every chunk whose pixel bounding box,
+    /// widened by one pixel, meets the rectangle `r` (`x0, y0, x1, y1`, continuous full-image
+    /// pixel coordinates), in drawing order: every pixel of `r` then blends the same fragments
+    /// in the same order as with the whole list, so the result is bit-identical. `None` if no
+    /// chunk does. A chunk's pixel box is the box of its eight projected 3-D box corners (the
+    /// image of a box in front of the source is the hull of its corners); a chunk with a corner
+    /// less than 1 mm in front of the source plane always qualifies. The boxes are computed once
+    /// per projection (eight points per chunk instead of three per triangle).
+    pub(super) fn culled(
+        &mut self,
+        projection: &Projection,
+        r: [f32; 4],
+        chunks: std::ops::Range<usize>,
+    ) -> Option<(wgpu::Buffer, u32)> {
+        if self
+            .chunk_boxes
+            .as_ref()
+            .is_none_or(|(p, _)| p != projection)
+        {
+            let m = projection.projection_matrix();
+            let dot =
+                |row: [f64; 4], v: [f64; 3]| row[0] * v[0] + row[1] * v[1] + row[2] * v[2] + row[3];
+            let everywhere = [
+                f32::NEG_INFINITY,
+                f32::NEG_INFINITY,
+                f32::INFINITY,
+                f32::INFINITY,
+            ];
+            let boxes = self
+                .anatomy
+                .chunks
+                .iter()
+                .map(|c| {
+                    let mut b = [
+                        f32::INFINITY,
+                        f32::INFINITY,
+                        f32::NEG_INFINITY,
+                        f32::NEG_INFINITY,
+                    ];
+                    for corner in 0..8 {
+                        let v: [f64; 3] = std::array::from_fn(|a| {
+                            f64::from(if corner & (1 << a) == 0 {
+                                c.lo[a]
+                            } else {
+                                c.hi[a]
+                            })
+                        });
+                        let w = dot(m[2], v);
+                        if w < 1.0 {
+                            return everywhere;
+                        }
+                        let (x, y) = ((dot(m[0], v) / w) as f32, (dot(m[1], v) / w) as f32);
+                        b = [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)];
+                    }
+                    b
+                })
+                .collect();
+            self.chunk_boxes = Some((*projection, boxes));
+        }
+        let boxes = &self.chunk_boxes.as_ref()?.1;
+        let mut indices: Vec<u32> = Vec::new();
+        for (c, b) in self.anatomy.chunks[chunks.clone()]
+            .iter()
+            .zip(&boxes[chunks])
+        {
+            if b[2] >= r[0] - 1.0 && b[0] <= r[2] + 1.0 && b[3] >= r[1] - 1.0 && b[1] <= r[3] + 1.0
+            {
+                indices.extend(c.first_vertex..c.first_vertex + c.vertices);
+            }
+        }
+        (!indices.is_empty()).then(|| {
+            let buffer = self
+                .ctx
+                .device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("fluoro culled indices"),
+                    contents: bytemuck::cast_slice(&indices),
+                    usage: wgpu::BufferUsages::INDEX,
+                });
+            (buffer, indices.len() as u32)
+        })
+    }
+}
+
+/// Culling chunks of `vertices[start..]`: runs of [`CHUNK_TRIANGLES`] triangles and their boxes.
+fn chunks_of(vertices: &[Vertex], start: usize) -> Vec<Chunk> {
+    vertices[start..]
+        .chunks(3 * CHUNK_TRIANGLES)
+        .enumerate()
+        .map(|(k, vs)| {
+            let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+            for v in vs {
+                for a in 0..3 {
+                    lo[a] = lo[a].min(v.pos[a]);
+                    hi[a] = hi[a].max(v.pos[a]);
+                }
+            }
+            Chunk {
+                first_vertex: (start + k * 3 * CHUNK_TRIANGLES) as u32,
+                vertices: vs.len() as u32,
+                lo,
+                hi,
+            }
+        })
+        .collect()
+}
+
+fn upload(device: &wgpu::Device, vertices: &[Vertex]) -> MeshBuffers {
+    let indices: Vec<u32> = (0..vertices.len() as u32).collect();
+    MeshBuffers {
+        vertices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("fluoro vertices"),
+            contents: bytemuck::cast_slice(vertices),
+            usage: wgpu::BufferUsages::VERTEX,
+        }),
+        indices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("fluoro indices"),
+            contents: bytemuck::cast_slice(&indices),
+            usage: wgpu::BufferUsages::INDEX,
+        }),
+        index_count: indices.len() as u32,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The renderer orders its meshes by sim-core's `water_basis_only`; the one-channel target
+    /// is right for exactly the meshes whose net transmission weights touch only channel 0, for
+    /// every pair of tissue materials a plan can hold (an effective material never equals its
+    /// container's, and neither is steel).
+    #[test]
+    fn water_basis_only_is_the_scalar_decision() {
+        let tissues = MaterialClass::ALL.map(FluoroMaterial::Tissue);
+        for effective in tissues {
+            let containers = tissues.into_iter().filter(|&c| c != effective).map(Some);
+            for container in std::iter::once(None).chain(containers) {
+                let mesh = NestedMesh {
+                    entry: 0,
+                    name: String::new(),
+                    effective,
+                    container,
+                    centre_mm: [0.0; 3],
+                };
+                assert_eq!(
+                    mesh.water_basis_only(),
+                    is_scalar(&mesh),
+                    "{effective:?} in {container:?}"
+                );
+            }
+        }
+    }
+}

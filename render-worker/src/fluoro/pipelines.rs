@@ -1,0 +1,279 @@
+//! The render pipelines of the passes (see the module map in `fluoro`), their target
+//! formats and the per-size render targets.
+
+use super::GpuFluoroRenderer;
+use super::lbuffer::Vertex;
+use super::resolve::resolve_layout_entries;
+use crate::gpu::GpuContext;
+
+const FMT_A: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
+/// The scalar meshes' geometric L-buffer: the water-basis channel only. On lavapipe a fragment
+/// blended into one float channel is markedly cheaper than one blended into four, and most of
+/// the phantom's fragments are soft tissue.
+const FMT_SCALAR: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
+/// The resolve pass's colour target (write mask empty: it only sets the pass's size).
+const FMT_RESOLVE: wgpu::TextureFormat = wgpu::TextureFormat::R8Unorm;
+const FMT_HULL: wgpu::TextureFormat = wgpu::TextureFormat::Rg32Float;
+const FMT_CHORD: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
+/// Marker of "no needle on this pixel" in the hull target (as in the shader).
+pub(super) const NO_NEEDLE: f64 = 1.0e30;
+
+fn additive() -> wgpu::BlendState {
+    let c = wgpu::BlendComponent {
+        src_factor: wgpu::BlendFactor::One,
+        dst_factor: wgpu::BlendFactor::One,
+        operation: wgpu::BlendOperation::Add,
+    };
+    wgpu::BlendState { color: c, alpha: c }
+}
+
+fn minimum() -> wgpu::BlendState {
+    let c = wgpu::BlendComponent {
+        src_factor: wgpu::BlendFactor::One,
+        dst_factor: wgpu::BlendFactor::One,
+        operation: wgpu::BlendOperation::Min,
+    };
+    wgpu::BlendState { color: c, alpha: c }
+}
+
+fn target(format: wgpu::TextureFormat, blend: wgpu::BlendState) -> Option<wgpu::ColorTargetState> {
+    Some(wgpu::ColorTargetState {
+        format,
+        blend: Some(blend),
+        write_mask: wgpu::ColorWrites::ALL,
+    })
+}
+
+/// Every pipeline of the renderer, built once per device.
+pub(super) struct Pipelines {
+    /// The needle's hull and chord pass.
+    pub(super) needle: wgpu::RenderPipeline,
+    /// The geometric anatomy pass into the four-channel L-buffer.
+    pub(super) anatomy: wgpu::RenderPipeline,
+    /// The geometric anatomy pass into the one-channel (water-basis) L-buffer.
+    pub(super) anatomy_scalar: wgpu::RenderPipeline,
+    /// The displaced anatomy pass.
+    pub(super) displaced: wgpu::RenderPipeline,
+    /// The resolve, `[iodine][needle]`: without and with the iodine ray march, and without
+    /// and with the needle's inputs (drawn over the needle's pixel box only); one bind group
+    /// layout (`resolve_layout`) serves all four.
+    pub(super) resolve: [[wgpu::RenderPipeline; 2]; 2],
+    pub(super) resolve_layout: wgpu::BindGroupLayout,
+}
+
+impl Pipelines {
+    pub(super) fn new(ctx: &GpuContext) -> Pipelines {
+        let device = &ctx.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("fluoro lbuffer"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("lbuffer.wgsl").into()),
+        });
+        let resolve_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("fluoro resolve"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("resolve.wgsl").into()),
+        });
+        let vertex_layout = wgpu::VertexBufferLayout {
+            array_stride: std::mem::size_of::<Vertex>() as u64,
+            step_mode: wgpu::VertexStepMode::Vertex,
+            attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32, 2 => Float32x3],
+        };
+        // WGSL's fragment position w is 1 / w_clip; wgpu's D3D12 backend passes w_clip
+        // (gfx-rs/wgpu#4963), so the geometric pass is told which it gets.
+        let position_w_is_reciprocal = ctx.summary.backend != "dx12";
+        let raster =
+            |label: &str, vs: &str, fs: &str, targets: &[Option<wgpu::ColorTargetState>]| {
+                device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                    label: Some(label),
+                    layout: None,
+                    vertex: wgpu::VertexState {
+                        module: &module,
+                        entry_point: Some(vs),
+                        compilation_options: Default::default(),
+                        buffers: &[Some(vertex_layout.clone())],
+                    },
+                    primitive: wgpu::PrimitiveState {
+                        topology: wgpu::PrimitiveTopology::TriangleList,
+                        strip_index_format: None,
+                        // Outward-wound (CCW seen from outside) triangles facing the source appear
+                        // clockwise in clip space, because the detector's (u, up) frame has
+                        // u x up = +n, pointing away from the source.
+                        front_face: wgpu::FrontFace::Cw,
+                        cull_mode: None,
+                        unclipped_depth: false,
+                        polygon_mode: wgpu::PolygonMode::Fill,
+                        conservative: false,
+                    },
+                    depth_stencil: None,
+                    multisample: wgpu::MultisampleState::default(),
+                    fragment: Some(wgpu::FragmentState {
+                        module: &module,
+                        entry_point: Some(fs),
+                        compilation_options: wgpu::PipelineCompilationOptions {
+                            constants: &[(
+                                "position_w_is_reciprocal",
+                                f64::from(u8::from(position_w_is_reciprocal)),
+                            )],
+                            ..Default::default()
+                        },
+                        targets,
+                    }),
+                    multiview_mask: None,
+                    cache: None,
+                })
+            };
+        let needle_pipeline = raster(
+            "fluoro needle",
+            "vs_needle",
+            "fs_needle",
+            &[target(FMT_HULL, minimum()), target(FMT_CHORD, additive())],
+        );
+        let anatomy_pipeline = raster(
+            "fluoro anatomy",
+            "vs_geometry",
+            "fs_anatomy",
+            &[target(FMT_A, additive())],
+        );
+        let anatomy_scalar_pipeline = raster(
+            "fluoro anatomy, water-basis channel",
+            "vs_geometry",
+            "fs_anatomy_scalar",
+            &[target(FMT_SCALAR, additive())],
+        );
+        let displaced_pipeline = raster(
+            "fluoro displaced",
+            "vs_anatomy",
+            "fs_displaced",
+            &[target(FMT_A, additive())],
+        );
+        // Four specialisations of one shader sharing one layout: with and without the iodine
+        // ray march and the needle's inputs (`has_iodine`, `has_needle` in the shader).
+        let resolve_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("fluoro resolve"),
+            entries: &resolve_layout_entries(),
+        });
+        let resolve_pipeline_layout =
+            device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("fluoro resolve"),
+                bind_group_layouts: &[Some(&resolve_layout)],
+                immediate_size: 0,
+            });
+        let resolve_kernel = |label: &str, has_iodine: bool, has_needle: bool| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(label),
+                layout: Some(&resolve_pipeline_layout),
+                vertex: wgpu::VertexState {
+                    module: &resolve_module,
+                    entry_point: Some("vs_cover"),
+                    compilation_options: Default::default(),
+                    buffers: &[],
+                },
+                primitive: wgpu::PrimitiveState::default(),
+                depth_stencil: None,
+                multisample: wgpu::MultisampleState::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &resolve_module,
+                    entry_point: Some("fs_resolve"),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: &[
+                            ("has_iodine", f64::from(u8::from(has_iodine))),
+                            ("has_needle", f64::from(u8::from(has_needle))),
+                        ],
+                        ..Default::default()
+                    },
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format: FMT_RESOLVE,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::empty(),
+                    })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let resolve_pipelines = [false, true].map(|iodine| {
+            [false, true].map(|needle| {
+                let label = format!("fluoro resolve (iodine {iodine}, needle {needle})");
+                resolve_kernel(&label, iodine, needle)
+            })
+        });
+        Pipelines {
+            needle: needle_pipeline,
+            anatomy: anatomy_pipeline,
+            anatomy_scalar: anatomy_scalar_pipeline,
+            displaced: displaced_pipeline,
+            resolve: resolve_pipelines,
+            resolve_layout,
+        }
+    }
+}
+
+/// Render targets of one detector size.
+pub(super) struct Targets {
+    pub(super) size: [u32; 2],
+    /// Geometric L-buffer (needle-independent): the non-scalar meshes in the transmission
+    /// layout, every mesh in the chord layout.
+    pub(super) a: wgpu::Texture,
+    /// Geometric L-buffer of the scalar meshes, transmission layout (water-basis channel).
+    pub(super) s: wgpu::Texture,
+    /// Displaced part (zero outside the needle's pixel box).
+    pub(super) d: wgpu::Texture,
+    pub(super) hull: wgpu::Texture,
+    pub(super) chord: wgpu::Texture,
+    pub(super) out_t: wgpu::Buffer,
+    /// The resolve's render target: it only sizes the pass (write mask empty; cleared, one byte
+    /// per sample, and discarded); the output is `out_t`.
+    pub(super) resolve: wgpu::Texture,
+    /// Kept mapped-readable copy of `out_t` (no allocation per frame).
+    pub(super) staging: wgpu::Buffer,
+}
+
+impl GpuFluoroRenderer {
+    pub(super) fn ensure_targets(&mut self, ri: usize, size: [u32; 2]) {
+        if self.targets[ri].as_ref().is_some_and(|t| t.size == size) {
+            return;
+        }
+        let tex = |label: &str, format| {
+            self.ctx.device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d {
+                    width: size[0],
+                    height: size[1],
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                    | wgpu::TextureUsages::TEXTURE_BINDING
+                    | wgpu::TextureUsages::COPY_SRC,
+                view_formats: &[],
+            })
+        };
+        if ri == 0 {
+            self.geo_key = None;
+            self.resolved = None;
+        }
+        self.targets[ri] = Some(Targets {
+            size,
+            a: tex("fluoro lbuffer", FMT_A),
+            s: tex("fluoro lbuffer, water-basis channel", FMT_SCALAR),
+            d: tex("fluoro displaced lbuffer", FMT_A),
+            hull: tex("fluoro needle hull", FMT_HULL),
+            chord: tex("fluoro needle chord", FMT_CHORD),
+            resolve: tex("fluoro resolve target", FMT_RESOLVE),
+            out_t: self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("fluoro transmission"),
+                size: u64::from(size[0]) * u64::from(size[1]) * 4,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            }),
+            staging: self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("fluoro transmission readback"),
+                size: u64::from(size[0]) * u64::from(size[1]) * 4,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+        });
+    }
+}
