@@ -37,6 +37,9 @@ pub struct AppState {
     pub embedded_db: bool,
     /// Render workers.
     pub workers: workers::Workers,
+    /// Session dispatch chosen at start-up (or by a test); `None`: [`app`] builds the default
+    /// from the configuration (see [`dispatch::Dispatcher::for_app`]).
+    pub dispatcher: Option<dispatch::Dispatcher>,
     /// Configuration in force.
     pub config: Config,
 }
