@@ -16,6 +16,7 @@ pub mod records;
 pub mod routes;
 pub mod startup;
 pub mod telemetry;
+#[cfg(feature = "test-support")]
 pub mod test_support;
 pub mod workers;
 
