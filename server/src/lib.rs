@@ -7,6 +7,7 @@
 //! The router is built by a function, [`app`], from an [`AppState`], so tests drive exactly the
 //! router production uses.
 
+pub mod cli;
 pub mod config;
 pub mod db;
 pub mod dispatch;

@@ -18,9 +18,8 @@ use tokio_tungstenite::tungstenite::Message as TMessage;
 use super::durable::LogWriter;
 use super::{Dispatcher, LiveSession, Placement};
 use crate::records::RecordsState;
-use crate::records::attempts::{
-    ActivityKind, NewResult, Reproducibility, ResultSource, record_activity, submit_result_for,
-};
+use crate::records::activity::{ActivityKind, record_activity};
+use crate::records::results::{NewResult, Reproducibility, ResultSource, submit_result_for};
 
 type UpSink = Pin<Box<dyn Sink<WsMessage, Error = String> + Send>>;
 type UpStream = Pin<Box<dyn Stream<Item = Result<WsMessage, String>> + Send>>;
