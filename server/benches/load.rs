@@ -196,7 +196,8 @@ async fn bench_backend(
     let state = AppState {
         pool: db.pool.clone(),
         embedded_db: true,
-        workers: workers().with_dispatcher(dispatcher),
+        workers: workers(),
+        dispatcher: Some(dispatcher),
         config,
     };
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();

@@ -12,19 +12,7 @@
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
-use thiserror::Error;
-
-/// A configuration value that could not be used.
-#[derive(Debug, Error)]
-#[error("invalid configuration: {variable}={value:?}: {reason}")]
-pub struct ConfigError {
-    /// The environment variable.
-    pub variable: &'static str,
-    /// Its value.
-    pub value: String,
-    /// Why it was rejected.
-    pub reason: String,
-}
+pub use crate::error::ConfigError;
 
 /// Server configuration.
 #[derive(Debug, Clone)]
@@ -40,7 +28,7 @@ pub struct Config {
     /// Largest accepted request body in bytes.
     pub max_body_bytes: usize,
     /// Learning-records settings (sessions, passwords, TOTP, stations); see `records::config`.
-    pub records: crate::records::RecordsConfig,
+    pub records: crate::records::config::RecordsConfig,
 }
 
 impl Config {
@@ -71,7 +59,7 @@ impl Config {
                 .map(PathBuf::from)
                 .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../web-client"))),
             max_body_bytes,
-            records: crate::records::RecordsConfig::from_lookup(&lookup)?,
+            records: crate::records::config::RecordsConfig::from_lookup(&lookup)?,
         })
     }
 }

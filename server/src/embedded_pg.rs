@@ -13,7 +13,8 @@
 //!   unprivileged account (`postgres` by default, `PAINSIM_PG_USER` to override), which owns the
 //!   cluster directory.
 //!
-//! The same helper gives every test its own database (see [`crate::test_support`]).
+//! The same helper gives every test its own database (`test_support`, compiled only with the
+//! `test-support` feature).
 
 use std::fs;
 use std::io::{Read, Seek, SeekFrom};

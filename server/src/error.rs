@@ -1,13 +1,29 @@
-//! The one error type of the HTTP boundary, and its JSON body.
+//! The one error type of the HTTP boundary, and its JSON body; and the configuration error.
 //!
 //! Every failure a client sees is `{"error": {"code": "...", "message": "..."}}` with a fitting
 //! status. Database and other internal errors are logged with their detail and reach the client
 //! only as a generic `internal` error: SQL, table names and driver messages never leave the server.
+//!
+//! Architecture invariant: this module imports no other module of the crate, so every module
+//! (the learning records' configuration included) can use its errors without a cycle.
 
 use axum::Json;
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use serde::Serialize;
+
+/// A configuration value that could not be used (of the server's or the learning records'
+/// configuration).
+#[derive(Debug, thiserror::Error)]
+#[error("invalid configuration: {variable}={value:?}: {reason}")]
+pub struct ConfigError {
+    /// The environment variable.
+    pub variable: &'static str,
+    /// Its value.
+    pub value: String,
+    /// Why it was rejected.
+    pub reason: String,
+}
 
 /// Errors returned by HTTP handlers.
 #[derive(Debug, thiserror::Error)]

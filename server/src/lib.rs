@@ -7,6 +7,7 @@
 //! The router is built by a function, [`app`], from an [`AppState`], so tests drive exactly the
 //! router production uses.
 
+pub mod cli;
 pub mod config;
 pub mod db;
 pub mod dispatch;
@@ -16,6 +17,7 @@ pub mod records;
 pub mod routes;
 pub mod startup;
 pub mod telemetry;
+#[cfg(feature = "test-support")]
 pub mod test_support;
 pub mod workers;
 
@@ -37,6 +39,9 @@ pub struct AppState {
     pub embedded_db: bool,
     /// Render workers.
     pub workers: workers::Workers,
+    /// Session dispatch chosen at start-up (or by a test); `None`: [`app`] builds the default
+    /// from the configuration (see [`dispatch::Dispatcher::for_app`]).
+    pub dispatcher: Option<dispatch::Dispatcher>,
     /// Configuration in force.
     pub config: Config,
 }

@@ -7,7 +7,7 @@ fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     match args.first().map(String::as_str) {
         None | Some("serve") => {}
-        Some("create-admin") => return server::records::cli::create_admin_main(&args[1..]),
+        Some("create-admin") => return server::cli::create_admin_main(&args[1..]),
         Some("-h" | "--help" | "help") => {
             println!("usage: server [serve | create-admin --email ADDRESS]\n\nConfiguration comes from the environment; see server/src/config.rs.");
             return ExitCode::SUCCESS;

@@ -73,7 +73,7 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
     let workers = Workers::start_in_process();
     let Database { pool, cluster } = open_database(&config).await?;
     let demo_notice = crate::records::prepare(&pool, &config.records, cluster.is_some()).await?;
-    let mut state = AppState { pool: pool.clone(), embedded_db: cluster.is_some(), workers, config: config.clone() };
+    let mut state = AppState { pool: pool.clone(), embedded_db: cluster.is_some(), workers, dispatcher: None, config: config.clone() };
     // One dispatcher for the router and /healthz; its anatomy (the phantom: tens of seconds the
     // first time) starts loading now, so the first session does not wait for it in its request.
     let dispatcher = crate::dispatch::Dispatcher::for_app(&state);
@@ -81,7 +81,7 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
         dispatcher.prepare_in_background();
     }
     let local_sessions = dispatcher.local_host().cloned();
-    state.workers = state.workers.with_dispatcher(dispatcher);
+    state.dispatcher = Some(dispatcher);
     let addr = listener.local_addr()?;
     tracing::info!(web = %show_path(&config.web_dir), "serving the web client");
     println!("pain-sim is running at http://{addr}/  (health: http://{addr}/healthz)");

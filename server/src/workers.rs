@@ -36,12 +36,13 @@ pub struct WorkerStatus {
 }
 
 /// The render workers available to this server.
+///
+/// Architecture invariant: this module knows nothing of session dispatch, which builds on it
+/// (its in-process renderer asks [`Workers::gpu`]); the dispatcher in use travels in the
+/// application state (`AppState::dispatcher`).
 #[derive(Debug, Clone)]
 pub struct Workers {
     state: Arc<RwLock<WorkerState>>,
-    /// Session dispatch chosen at start-up (or by a test); `None`: [`crate::app`] builds the
-    /// default from the configuration.
-    dispatcher: Option<crate::dispatch::Dispatcher>,
 }
 
 impl Workers {
@@ -65,18 +66,7 @@ impl Workers {
                 *shared.write().unwrap_or_else(|p| p.into_inner()) = next;
             })
             .expect("spawning a thread at start-up");
-        Workers { state, dispatcher: None }
-    }
-
-    /// Uses `dispatcher` for sessions (instead of the default built from the configuration).
-    pub fn with_dispatcher(mut self, dispatcher: crate::dispatch::Dispatcher) -> Workers {
-        self.dispatcher = Some(dispatcher);
-        self
-    }
-
-    /// The dispatcher attached with [`Workers::with_dispatcher`].
-    pub fn dispatcher(&self) -> Option<crate::dispatch::Dispatcher> {
-        self.dispatcher.clone()
+        Workers { state }
     }
 
     /// The in-process worker's GPU, once it is open and passed its self-test.

@@ -38,7 +38,8 @@ async fn server_with(host: SessionHost, stations_dir: &Path) -> (SocketAddr, Tes
     let state = AppState {
         pool: db.pool.clone(),
         embedded_db: true,
-        workers: base_workers().with_dispatcher(dispatcher),
+        workers: base_workers(),
+        dispatcher: Some(dispatcher),
         config,
     };
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();

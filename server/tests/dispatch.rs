@@ -93,7 +93,8 @@ pub async fn demo_server(in_process: bool, worker_token: Option<&str>) -> DemoSe
     let state = AppState {
         pool: db.pool.clone(),
         embedded_db: true,
-        workers: base_workers().with_dispatcher(dispatcher.clone()),
+        workers: base_workers(),
+        dispatcher: Some(dispatcher.clone()),
         config,
     };
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0")

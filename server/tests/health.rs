@@ -19,7 +19,7 @@ async fn healthz_reports_database_and_worker() {
     sqlx::query("INSERT INTO installation (id) VALUES (gen_random_uuid())").execute(&db.pool).await.unwrap();
     let config = Config::from_lookup(|_| None).unwrap();
     let workers = Workers::start_in_process();
-    let state = AppState { pool: db.pool.clone(), embedded_db: true, workers: workers.clone(), config };
+    let state = AppState { pool: db.pool.clone(), embedded_db: true, workers: workers.clone(), dispatcher: None, config };
     // Wait for the worker's GPU self-test (lavapipe compiles the shader on first use).
     let w = workers.clone();
     tokio::task::spawn_blocking(move || w.wait_until_settled(std::time::Duration::from_secs(60))).await.unwrap();
@@ -49,7 +49,7 @@ async fn healthz_reports_database_and_worker() {
 async fn web_client_is_served() {
     let db = test_db().await;
     let workers = Workers::start_in_process();
-    let state = AppState { pool: db.pool, embedded_db: true, workers: workers.clone(), config: Config::from_lookup(|_| None).unwrap() };
+    let state = AppState { pool: db.pool, embedded_db: true, workers: workers.clone(), dispatcher: None, config: Config::from_lookup(|_| None).unwrap() };
     let resp = app(state).oneshot(Request::get("/").body(Body::empty()).unwrap()).await.unwrap();
     assert_eq!(resp.status(), StatusCode::OK);
     let bytes = axum::body::to_bytes(resp.into_body(), 1 << 20).await.unwrap();

@@ -73,6 +73,7 @@ impl TestApp {
             pool: db.pool.clone(),
             embedded_db: false,
             workers: workers(),
+            dispatcher: None,
             config,
         };
         TestApp {

@@ -351,12 +351,12 @@ impl Dispatcher {
         ))
     }
 
-    /// The dispatcher of [`crate::app`]: the one attached to `state.workers`, else the default
+    /// The dispatcher of [`crate::app`]: `state.dispatcher` when set, else the default
     /// from the environment and the learning records' stations folder. A station folder that
     /// does not load leaves an in-process host without stations (start-up reports the folder).
     pub fn for_app(state: &crate::AppState) -> Dispatcher {
-        if let Some(d) = state.workers.dispatcher() {
-            return d;
+        if let Some(d) = &state.dispatcher {
+            return d.clone();
         }
         let config = DispatchConfig::from_env(state.config.records.stations_dir.clone());
         let backends = Backends {

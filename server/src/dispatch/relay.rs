@@ -23,7 +23,7 @@ use super::durable::LogWriter;
 use super::upstream::{UpSink, connect};
 use super::{Dispatcher, LiveSession, Placement, results, store};
 use crate::records::RecordsState;
-use crate::records::attempts::{ActivityKind, record_activity};
+use crate::records::activity::{ActivityKind, record_activity};
 
 /// How many times in a row one connection tries to move its session before giving up.
 /// Simulator choice: two dead workers in a row is already exceptional.

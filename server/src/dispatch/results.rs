@@ -9,7 +9,7 @@ use serde_json::json;
 
 use super::{LiveSession, Placement, store};
 use crate::records::RecordsState;
-use crate::records::attempts::{NewResult, Reproducibility, ResultSource, submit_result_for};
+use crate::records::results::{NewResult, Reproducibility, ResultSource, submit_result_for};
 
 /// The learning-records form of a session's submit.
 pub fn new_result(result: &SubmitResult, session_id: uuid::Uuid, worker: &str) -> NewResult {

@@ -22,7 +22,7 @@ use uuid::Uuid;
 use super::{Dispatcher, LiveSession, PlaceError, Placement, SessionRecord, relay, store};
 use crate::ApiError;
 use crate::records::RecordsState;
-use crate::records::attempts::{ActivityKind, record_activity};
+use crate::records::activity::{ActivityKind, record_activity};
 use crate::records::auth::{CurrentUser, Role};
 use crate::records::authz::attempt_visible;
 use crate::records::extract::ApiPath;

@@ -16,7 +16,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use crate::config::ConfigError;
+use crate::error::ConfigError;
 
 /// argon2id cost parameters for new password hashes. Verification always uses the parameters
 /// stored in the hash itself.

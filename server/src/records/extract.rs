@@ -7,8 +7,8 @@ use axum::extract::FromRequestParts;
 use axum::extract::rejection::{JsonRejection, PathRejection, QueryRejection};
 use axum::http::StatusCode;
 
-use super::RecordsState;
-use crate::ApiError;
+use super::state::RecordsState;
+use crate::error::ApiError;
 
 /// `axum::Json` with [`ApiError`] rejections (naming the body limit when it is exceeded).
 #[derive(Debug, Clone, Copy, Default)]

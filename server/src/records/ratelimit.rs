@@ -1,7 +1,7 @@
 //! A per-client token bucket for the authentication endpoints.
 //!
 //! In memory and per process: it blunts password spraying from one client; the per-account
-//! throttle in the database ([`super::auth`]) covers attacks spread over many clients.
+//! throttle in the database (the `login` module) covers attacks spread over many clients.
 
 use std::collections::HashMap;
 use std::sync::Mutex;

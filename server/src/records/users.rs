@@ -7,12 +7,13 @@ use sqlx::PgPool;
 use utoipa::ToSchema;
 use uuid::Uuid;
 
-use super::RecordsState;
-use super::auth::{CurrentUser, Role, UserInfo, audit};
+use super::auth::{CurrentUser, Role, UserInfo};
 use super::config::Argon2Cost;
 use super::extract::ApiJson;
+use super::history::audit;
 use super::password;
-use crate::ApiError;
+use super::state::RecordsState;
+use crate::error::ApiError;
 
 /// Why an account could not be created.
 #[derive(Debug, thiserror::Error)]

@@ -64,7 +64,7 @@ pub async fn healthz(State(state): State<AppState>) -> (StatusCode, Json<Health>
     };
     let database = DatabaseStatus { ready: installation_id.is_some(), embedded: state.embedded_db, installation_id };
     let render_worker = state.workers.status();
-    let anatomy = state.workers.dispatcher().filter(|d| d.local_host().is_some()).map(|d| {
+    let anatomy = state.dispatcher.clone().filter(|d| d.local_host().is_some()).map(|d| {
         let regions = d.anatomy();
         AnatomyStatus { ready: regions.values().all(|r| matches!(r, RegionReadiness::Ready { .. })), regions }
     });

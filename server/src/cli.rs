@@ -8,8 +8,8 @@
 use std::io::BufRead;
 use std::process::ExitCode;
 
-use super::users::{CreateUserError, create_admin};
 use crate::Config;
+use crate::records::users::{CreateUserError, create_admin};
 
 /// Parses `--email ADDRESS` (or `--email=ADDRESS`).
 pub fn parse_email(args: &[String]) -> Result<String, String> {

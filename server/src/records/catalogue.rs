@@ -1,17 +1,20 @@
-//! Courses (cohorts) and memberships.
+//! What can be attempted, and where: courses (cohorts) with their memberships, and the stations
+//! of the catalog (loaded by [`super::stations`]).
 
 use axum::extract::State;
 use axum::http::StatusCode;
 use serde::{Deserialize, Serialize};
+use sim_core::rubric::Modality;
 use time::OffsetDateTime;
 use utoipa::ToSchema;
 use uuid::Uuid;
 
-use super::RecordsState;
-use super::auth::{CurrentUser, Role, audit};
+use super::auth::{CurrentUser, Role};
 use super::authz::course_visible;
 use super::extract::{ApiJson, ApiPath};
-use crate::ApiError;
+use super::history::audit;
+use super::state::RecordsState;
+use crate::error::ApiError;
 
 /// A role within a course.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
@@ -269,4 +272,85 @@ pub async fn put_member(
         display_name,
         role: req.role.as_str().into(),
     }))
+}
+
+/// A station in the catalog listing.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct StationSummary {
+    /// Station id.
+    pub id: String,
+    /// Station revision.
+    pub revision: u32,
+    /// Rubric revision.
+    pub rubric_revision: u32,
+    /// Title.
+    pub title: String,
+    /// Anatomy region.
+    pub region: String,
+    /// Modalities (`fluoroscopy`, `ultrasound`).
+    pub modalities: Vec<String>,
+    /// Pass threshold of the weighted score.
+    pub pass_threshold: f64,
+    /// Number of criteria.
+    pub criteria: usize,
+    /// Number of critical criteria.
+    pub critical_criteria: usize,
+    /// SHA-256 of the station file.
+    pub file_sha256: String,
+}
+
+fn modality_name(m: Modality) -> String {
+    match m {
+        Modality::Fluoroscopy => "fluoroscopy".into(),
+        Modality::Ultrasound => "ultrasound".into(),
+    }
+}
+
+/// Every station (current revisions).
+#[utoipa::path(get, path = "/api/stations", tag = "stations",
+    responses((status = 200, body = Vec<StationSummary>), (status = 401)))]
+pub async fn list_stations(
+    State(state): State<RecordsState>,
+    _user: CurrentUser,
+) -> axum::Json<Vec<StationSummary>> {
+    axum::Json(
+        state
+            .stations
+            .stations
+            .values()
+            .map(|c| {
+                let s = &c.station;
+                StationSummary {
+                    id: s.id.clone(),
+                    revision: s.revision,
+                    rubric_revision: s.rubric.revision,
+                    title: s.title.clone(),
+                    region: s.region.clone(),
+                    modalities: s.modalities.iter().map(|m| modality_name(*m)).collect(),
+                    pass_threshold: s.rubric.pass_threshold,
+                    criteria: s.rubric.criteria.len(),
+                    critical_criteria: s.rubric.criteria.iter().filter(|c| c.critical).count(),
+                    file_sha256: c.sha256.clone(),
+                }
+            })
+            .collect(),
+    )
+}
+
+/// One station's full definition (targets, instruments, rubric).
+#[utoipa::path(get, path = "/api/stations/{station_id}", tag = "stations",
+    params(("station_id" = String, Path, description = "Station id")),
+    responses((status = 200, description = "The station definition (see assets/stations/README.md)", body = Object), (status = 401), (status = 404)))]
+pub async fn get_station(
+    State(state): State<RecordsState>,
+    _user: CurrentUser,
+    ApiPath(station_id): ApiPath<String>,
+) -> Result<axum::Json<serde_json::Value>, ApiError> {
+    let c = state
+        .stations
+        .get(&station_id)
+        .ok_or_else(|| ApiError::NotFound(format!("station {station_id:?}")))?;
+    let mut v = serde_json::to_value(&c.station).map_err(|e| ApiError::Internal(e.to_string()))?;
+    v["file_sha256"] = c.sha256.clone().into();
+    Ok(axum::Json(v))
 }

@@ -1,0 +1,114 @@
+//! The attempt as listed: the summary every attempt and review handler returns, the one query
+//! shape that produces it, and the visibility-checked fetch of one attempt.
+
+use serde::{Deserialize, Serialize};
+use time::OffsetDateTime;
+use utoipa::ToSchema;
+use uuid::Uuid;
+
+use super::auth::CurrentUser;
+use super::authz::attempt_visible;
+use super::state::RecordsState;
+use crate::error::ApiError;
+
+/// An attempt as listed.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct AttemptSummary {
+    /// Id.
+    pub id: Uuid,
+    /// Learner id.
+    pub learner_id: Uuid,
+    /// Learner e-mail.
+    pub learner_email: String,
+    /// Learner name.
+    pub learner_name: String,
+    /// Course id.
+    pub course_id: Uuid,
+    /// Course code.
+    pub course_code: String,
+    /// Station id.
+    pub station_id: String,
+    /// Station revision in force when the attempt was opened.
+    pub station_revision: i32,
+    /// Rubric revision in force when the attempt was opened.
+    pub rubric_revision: i32,
+    /// `in_progress`, `submitted` (awaiting review), `returned` (to the learner) or `approved`.
+    pub state: String,
+    /// Technical outcome of the latest result (`met`, `not_met`, `incomplete`), if any.
+    pub latest_outcome: Option<String>,
+    /// Score of the latest result, if any.
+    pub latest_score: Option<f64>,
+    /// Opened.
+    #[serde(with = "time::serde::rfc3339")]
+    #[schema(value_type = String, format = DateTime)]
+    pub created_at: OffsetDateTime,
+    /// Last change of state.
+    #[serde(with = "time::serde::rfc3339")]
+    #[schema(value_type = String, format = DateTime)]
+    pub updated_at: OffsetDateTime,
+}
+
+/// SELECT list producing an [`AttemptSummary`] from `attempts a`.
+pub(crate) const SUMMARY_COLUMNS: &str = "a.id, a.learner_id, u.email, u.display_name, a.course_id, c.code, a.station_id,
+    a.station_revision, a.rubric_revision, a.state,
+    (SELECT r.outcome FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1),
+    (SELECT r.score FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1),
+    a.created_at, a.updated_at";
+/// FROM clause matching [`SUMMARY_COLUMNS`].
+pub(crate) const SUMMARY_FROM: &str =
+    "attempts a JOIN users u ON u.id = a.learner_id JOIN courses c ON c.id = a.course_id";
+
+pub(crate) type SummaryRow = (
+    Uuid,
+    Uuid,
+    String,
+    String,
+    Uuid,
+    String,
+    String,
+    i32,
+    i32,
+    String,
+    Option<String>,
+    Option<f64>,
+    OffsetDateTime,
+    OffsetDateTime,
+);
+
+pub(crate) fn summary(r: SummaryRow) -> AttemptSummary {
+    AttemptSummary {
+        id: r.0,
+        learner_id: r.1,
+        learner_email: r.2,
+        learner_name: r.3,
+        course_id: r.4,
+        course_code: r.5,
+        station_id: r.6,
+        station_revision: r.7,
+        rubric_revision: r.8,
+        state: r.9,
+        latest_outcome: r.10,
+        latest_score: r.11,
+        created_at: r.12,
+        updated_at: r.13,
+    }
+}
+
+/// Fetches a visible attempt's summary or 404.
+pub(crate) async fn visible_attempt(
+    state: &RecordsState,
+    user: &CurrentUser,
+    attempt_id: Uuid,
+) -> Result<AttemptSummary, ApiError> {
+    let row: Option<SummaryRow> = sqlx::query_as(&format!(
+        "SELECT {SUMMARY_COLUMNS} FROM {SUMMARY_FROM} WHERE a.id = $3 AND {}",
+        attempt_visible(1, 2)
+    ))
+    .bind(user.id)
+    .bind(user.is_admin())
+    .bind(attempt_id)
+    .fetch_optional(&state.pool)
+    .await?;
+    row.map(summary)
+        .ok_or_else(|| ApiError::NotFound("attempt".into()))
+}
