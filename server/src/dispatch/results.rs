@@ -77,7 +77,9 @@ pub async fn store_result(
         session.learner_id,
         session.attempt_id,
         req,
-        ResultSource::Server,
+        ResultSource::Session {
+            worker_rubric: &result.rubric,
+        },
     )
     .await
     {

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use axum::extract::State;
 use axum::http::StatusCode;
 use serde::{Deserialize, Serialize};
-use sim_core::rubric::{Measurements, Station, TECHNICAL_RESULT_NOTICE};
+use sim_core::rubric::{Measurements, RubricResult, Station, TECHNICAL_RESULT_NOTICE};
 use time::OffsetDateTime;
 use utoipa::ToSchema;
 use uuid::Uuid;
@@ -91,7 +91,7 @@ pub struct Reproducibility {
 }
 
 /// Measurements to score.
-#[derive(Debug, Deserialize, ToSchema)]
+#[derive(Debug, Clone, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct NewResult {
     /// Measurement key (e.g. `tip_to_target_mm`) to value. Yes/no observations are 1 or 0.
@@ -211,13 +211,19 @@ fn check_reproducibility(r: &Reproducibility) -> Result<(), ApiError> {
     Ok(())
 }
 
-/// Who submits: a client on the learner's behalf, or server-side code.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ResultSource {
-    /// Measurements reported by an authenticated client.
+/// Who submits: a client on the learner's behalf, or the simulation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ResultSource<'a> {
+    /// Measurements reported by an authenticated client (checked with the rules for client
+    /// input).
     Client,
-    /// Measurements computed by the server's own simulation session.
-    Server,
+    /// Measurements computed by a simulation session from its log. The server's evaluation of
+    /// the stored station's rubric is the authority; the worker's own evaluation
+    /// (`worker_rubric`) must equal it, else nothing is stored.
+    Session {
+        /// The rubric result the worker computed at submit.
+        worker_rubric: &'a RubricResult,
+    },
 }
 
 /// Scores measurements for an attempt of `learner_id` and stores the technical result; moves the
@@ -227,9 +233,11 @@ pub async fn submit_result_for(
     learner_id: Uuid,
     attempt_id: Uuid,
     req: NewResult,
-    source: ResultSource,
+    source: ResultSource<'_>,
 ) -> Result<TechnicalResultView, ApiError> {
-    check_reproducibility(&req.reproducibility)?;
+    if source == ResultSource::Client {
+        check_reproducibility(&req.reproducibility)?;
+    }
     if req.measurements.len() > 200
         || req
             .measurements
@@ -270,8 +278,22 @@ pub async fn submit_result_for(
     }
     let station: Station = serde_json::from_value(definition)
         .map_err(|e| ApiError::Internal(format!("stored station {station_id}: {e}")))?;
-    let measurements: Measurements = req.measurements.clone();
+    let mut measurements: Measurements = req.measurements.clone();
+    if let ResultSource::Session { .. } = source {
+        // A session reports every measurement it can make; those no criterion reads are kept
+        // with the result but are not typos to flag, so the rubric sees what it reads (as the
+        // worker's evaluation did).
+        measurements.retain(|k, _| station.rubric.criteria.iter().any(|c| &c.measurement == k));
+    }
     let result = station.evaluate(&measurements);
+    if let ResultSource::Session { worker_rubric } = source {
+        if *worker_rubric != result {
+            tracing::error!(attempt = %attempt_id, worker = ?worker_rubric, server = ?result, "the worker's rubric result differs from the server's");
+            return Err(ApiError::Internal(
+                "the worker's rubric result differs from the server's evaluation of the same measurements".into(),
+            ));
+        }
+    }
     let (upto, count): (Option<i64>, i64) =
         sqlx::query_as("SELECT max(id), count(*) FROM activity_events WHERE attempt_id = $1")
             .bind(attempt_id)
@@ -299,7 +321,7 @@ pub async fn submit_result_for(
     .bind(learner_id)
     .bind(match source {
         ResultSource::Client => "client",
-        ResultSource::Server => "server",
+        ResultSource::Session { .. } => "server",
     })
     .bind(result.outcome.as_str())
     .bind(result.score)
