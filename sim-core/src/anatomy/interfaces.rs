@@ -1129,7 +1129,7 @@ pub fn mesh_family(
             &mut |_| {},
         );
         for (m, mesh) in meshes.iter().enumerate() {
-            super::pipeline::check_solid(&names[m], mesh, after)?;
+            super::solid::check_solid(&names[m], mesh, after)?;
         }
         Ok(meshes)
     }
