@@ -36,10 +36,11 @@ pub fn render_frame(
 /// image, and the GPU frame (same transmission within 0.005 in the median) differed from the
 /// CPU's everywhere (render-worker's `gpu_session_oblique_view_with_needle_matches_the_cpu`).
 ///
-/// With noise the result equals [`apply_noise`] then [`to_display_centred`] bit for bit, but
-/// faster: the grey of a count `k` is taken from a table over `k` built per frame (the same
-/// arithmetic on the same `k / photons`), and the rows are split over `settings.threads`
-/// workers (each pixel's noise has its own seed, so the split does not change the frame).
+/// With noise the result equals [`apply_noise`](super::noise::apply_noise) then
+/// [`to_display_centred`] bit for bit, but faster: the grey of a count `k` is taken from a table
+/// over `k` built per frame (the same arithmetic on the same `k / photons`), and the rows are
+/// split over `settings.threads` workers (each pixel's noise has its own seed, so the split does
+/// not change the frame).
 pub fn finish_frame(t: &TransmissionImage, settings: &RenderSettings) -> Image {
     let noise = settings.noise.as_ref();
     let centre = exposure_centre(t, &settings.exposure, noise);
