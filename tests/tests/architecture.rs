@@ -140,7 +140,6 @@ const TEMPORARY_CYCLE_ALLOWANCE: &[&str] = &[
      workers",
     "server: records, records::attempts, records::auth, records::courses, records::demo, \
      records::extract, records::reviews, records::stations, records::users",
-    "sim-core: anatomy::asset, anatomy::glb, anatomy::interfaces, anatomy::labels, anatomy::pipeline",
 ];
 
 /// Architecture invariant: no import cycles between the modules of a crate. Every lib and bin
@@ -206,18 +205,6 @@ const OVERSIZED_FILES: &[(&str, &str)] = &[
     (
         "render-worker/tests/sessions.rs",
         "TEMPORARY (issue 14): every session test in one area module",
-    ),
-    (
-        "sim-core/src/anatomy/interfaces.rs",
-        "TEMPORARY (issue 14): weld, smoothing, decimation and crossing checks",
-    ),
-    (
-        "sim-core/src/anatomy/phantom/model.rs",
-        "TEMPORARY (issue 14): cited dimensions plus every solid's builder",
-    ),
-    (
-        "sim-core/src/fluoro/render.rs",
-        "TEMPORARY (issue 14): transmission, noise and display mapping together",
     ),
 ];
 

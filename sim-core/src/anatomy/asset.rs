@@ -26,9 +26,9 @@ use serde::{Deserialize, Serialize};
 
 use super::error::AnatomyError;
 use super::glb;
-use super::pipeline::PipelineParams;
+use super::params::PipelineParams;
+pub use super::structure::StructureAsset;
 use crate::material::MaterialClass;
-use crate::mesh::TriMesh;
 use crate::volume::{Volume, VolumeGrid};
 
 // The digest of every asset file; it lives in `crate::hash`, shared with the other crates.
@@ -70,20 +70,6 @@ pub fn encode_hu(hu: f64) -> u8 {
 /// The HU value a window level stands for (the centre of its 3.92 HU bin).
 pub fn decode_level(level: u8) -> f64 {
     CT_WINDOW_MIN_HU + f64::from(level) * CT_HU_PER_LEVEL
-}
-
-/// One anatomical structure: a closed, outward-wound surface tagged with its tissue class.
-#[derive(Debug, Clone, PartialEq)]
-pub struct StructureAsset {
-    /// Unique name within the region (e.g. `vertebrae_L3`, `aorta`).
-    pub name: String,
-    /// Tissue class of the solid the mesh bounds.
-    pub material: MaterialClass,
-    /// Surface in millimetres in the region's model frame (CCW seen from outside).
-    pub mesh: TriMesh,
-    /// Volume of the source mask (sum of occupancies times voxel volume), mm^3: the reference the
-    /// mesh volume is checked against.
-    pub mask_volume_mm3: f64,
 }
 
 /// Where a region came from.

@@ -12,8 +12,8 @@ use std::path::Path;
 
 use serde_json::json;
 
-use super::asset::StructureAsset;
 use super::error::AnatomyError;
+use super::structure::StructureAsset;
 use crate::material::MaterialClass;
 use crate::mesh::TriMesh;
 

@@ -23,7 +23,7 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
 use super::error::AnatomyError;
-use super::pipeline::{StructureMask, mask_offset};
+use super::mask::{StructureMask, mask_offset};
 use crate::material::MaterialClass;
 use crate::volume::{Volume, VolumeGrid};
 

@@ -21,11 +21,15 @@ pub mod error;
 mod glb;
 pub mod interfaces;
 pub mod labels;
+pub mod mask;
 pub mod mesher;
 pub mod nifti_import;
+pub mod params;
 pub mod phantom;
 pub mod pipeline;
 pub mod smooth;
+pub mod solid;
+pub mod structure;
 pub mod totalseg;
 
 pub use error::AnatomyError;

@@ -41,18 +41,20 @@
 //! assert!((mesh.signed_volume_mm3() - 216.0).abs() < 216.0 * 0.1);
 //! ```
 
-use serde::{Deserialize, Serialize};
-
 use super::asset::{Provenance, RegionAsset, Source, StructureAsset, encode_hu};
-use super::decimate::DecimationParams;
 use super::error::AnatomyError;
 use super::interfaces::{ExtractedSurface, lattice_edge_key, mesh_family, par_map};
 use super::labels::label_volume;
+use super::mask::{mask_offset, nonzero_box};
 use super::mesher::{ScalarField, extract_isosurface_keyed};
-use super::smooth::TaubinParams;
-use crate::material::MaterialClass;
 use crate::mesh::TriMesh;
 use crate::volume::{Volume, VolumeGrid};
+
+// The per-structure input, the knobs and the final mesh checks live in modules of their own (the
+// asset format and the labelling need them too); they stay reachable here, where callers look.
+pub use super::mask::StructureMask;
+pub use super::params::PipelineParams;
+pub use super::solid::check_solid;
 
 /// Where the input came from, and under which terms the derived asset may be shared.
 #[derive(Debug, Clone, PartialEq)]
@@ -81,106 +83,6 @@ pub fn pipeline_version() -> String {
     )
 }
 
-/// One structure to mesh: a name, its tissue class and its occupancy mask.
-#[derive(Debug, Clone, PartialEq)]
-pub struct StructureMask {
-    /// Unique structure name (becomes the mesh and node name), e.g. `vertebrae_L3`.
-    pub name: String,
-    /// Tissue class of the structure.
-    pub material: MaterialClass,
-    /// Occupancy in `0..=1` per voxel (binary masks are 0/1; partial-volume fractions give
-    /// sub-voxel accuracy). The grid must have the CT grid's spacing and lie on the CT lattice
-    /// inside the CT grid; it may be a sub-box (see [`StructureMask::cropped`]) to save memory.
-    pub mask: Volume<f32>,
-}
-
-impl StructureMask {
-    /// The same mask cropped to the box of its non-zero voxels (`None` if it has none).
-    pub fn cropped(&self) -> Option<StructureMask> {
-        let (lo, hi) = nonzero_box(&self.mask)?;
-        let g = self.mask.grid;
-        let dims = [hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1];
-        let grid = VolumeGrid {
-            dims,
-            spacing_mm: g.spacing_mm,
-            origin_mm: g.voxel_center_mm(lo[0], lo[1], lo[2]),
-        };
-        let mut data = Vec::with_capacity(grid.len());
-        for k in lo[2]..=hi[2] {
-            for j in lo[1]..=hi[1] {
-                for i in lo[0]..=hi[0] {
-                    data.push(self.mask.get(i, j, k));
-                }
-            }
-        }
-        Some(StructureMask {
-            name: self.name.clone(),
-            material: self.material,
-            mask: Volume { grid, data },
-        })
-    }
-
-    /// Mask volume in mm^3: the sum of occupancies (clamped to `0..=1`) times the voxel volume.
-    pub fn volume_mm3(&self) -> f64 {
-        let s: f64 = self
-            .mask
-            .data
-            .iter()
-            .map(|&v| f64::from(v.clamp(0.0, 1.0)))
-            .sum();
-        s * self.mask.grid.voxel_volume_mm3()
-    }
-}
-
-/// Inclusive index box of the voxels with a value above zero.
-pub(crate) fn nonzero_box(v: &Volume<f32>) -> Option<([usize; 3], [usize; 3])> {
-    let mut lo = [usize::MAX; 3];
-    let mut hi = [0usize; 3];
-    let mut any = false;
-    for (idx, &x) in v.data.iter().enumerate() {
-        if x > 0.0 {
-            let ijk = v.grid.ijk(idx);
-            for a in 0..3 {
-                lo[a] = lo[a].min(ijk[a]);
-                hi[a] = hi[a].max(ijk[a]);
-            }
-            any = true;
-        }
-    }
-    any.then_some((lo, hi))
-}
-
-/// Knobs of the pipeline; all are recorded in the provenance.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PipelineParams {
-    /// Up-sampling factor before extraction (1 = none). Trilinear, voxel-centre exact.
-    pub upsample: u32,
-    /// Occupancy level of the surface. 0.5 puts the surface of a binary mask half-way between
-    /// inside and outside voxel centres, i.e. on the voxel faces.
-    pub iso_level: f32,
-    /// Optional Taubin smoothing.
-    pub smoothing: Option<TaubinParams>,
-    /// Optional quadric-error decimation.
-    pub decimation: Option<DecimationParams>,
-    /// Nominal cortical shell thickness used to split a bone mask into cortical and cancellous
-    /// labels, mm. 1.8 mm is the nominal shell of the methods page of the system that inspired us;
-    /// real vertebral cortex is thinner (0.2-0.5 mm, Silva et al. 1994, Spine 19:1445), but a
-    /// shell thinner than a voxel cannot be represented in the label volume.
-    pub cortical_shell_mm: f64,
-}
-
-impl Default for PipelineParams {
-    fn default() -> Self {
-        PipelineParams {
-            upsample: 1,
-            iso_level: 0.5,
-            smoothing: None,
-            decimation: None,
-            cortical_shell_mm: 1.8,
-        }
-    }
-}
-
 /// A progress report from [`build_region`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct Progress {
@@ -192,50 +94,6 @@ pub struct Progress {
     pub total: usize,
     /// The item being worked on (a structure name), if any.
     pub item: String,
-}
-
-/// Checks a mask lies on the CT lattice and returns its voxel offset in the CT grid.
-pub(crate) fn mask_offset(
-    ct: &VolumeGrid,
-    mask: &StructureMask,
-) -> Result<[usize; 3], AnatomyError> {
-    let g = mask.mask.grid;
-    if mask.mask.data.len() != g.len() {
-        return Err(AnatomyError::invalid(
-            &mask.name,
-            "mask data length does not match its grid",
-        ));
-    }
-    let mut off = [0usize; 3];
-    for (a, off_a) in off.iter_mut().enumerate() {
-        if (g.spacing_mm[a] - ct.spacing_mm[a]).abs() > 1e-6 * ct.spacing_mm[a] {
-            return Err(AnatomyError::invalid(
-                &mask.name,
-                format!(
-                    "mask spacing {:?} mm differs from CT spacing {:?} mm",
-                    g.spacing_mm, ct.spacing_mm
-                ),
-            ));
-        }
-        let x = (g.origin_mm[a] - ct.origin_mm[a]) / ct.spacing_mm[a];
-        if !x.is_finite() || (x - x.round()).abs() > 1e-3 || x.round() < 0.0 {
-            return Err(AnatomyError::invalid(
-                &mask.name,
-                format!("mask origin {:?} mm is not on the CT lattice", g.origin_mm),
-            ));
-        }
-        *off_a = x.round() as usize;
-        if *off_a + g.dims[a] > ct.dims[a] {
-            return Err(AnatomyError::invalid(
-                &mask.name,
-                format!(
-                    "mask grid {:?} extends beyond the CT grid {:?}",
-                    g.dims, ct.dims
-                ),
-            ));
-        }
-    }
-    Ok(off)
 }
 
 /// Empty voxels padded around each structure's non-zero box before extraction, so that a
@@ -327,32 +185,6 @@ pub fn mesh_structure(
         params.decimation.as_ref(),
     )?;
     Ok(out.meshes.remove(0))
-}
-
-/// The checks every stored mesh passes: closed, consistently wound, no degenerate triangles,
-/// positive signed volume.
-pub fn check_solid(name: &str, mesh: &TriMesh, after: &str) -> Result<(), AnatomyError> {
-    let t = mesh.topology_report();
-    if mesh.triangles.is_empty() {
-        return Err(AnatomyError::Mesh {
-            structure: name.into(),
-            message: format!("no triangles after {after}"),
-        });
-    }
-    if !t.is_closed_and_consistent() {
-        return Err(AnatomyError::Mesh {
-            structure: name.into(),
-            message: format!("not a closed consistent surface after {after}: {t:?}"),
-        });
-    }
-    let v = mesh.signed_volume_mm3();
-    if v.is_nan() || v <= 0.0 {
-        return Err(AnatomyError::Mesh {
-            structure: name.into(),
-            message: format!("signed volume {v} mm^3 after {after}"),
-        });
-    }
-    Ok(())
 }
 
 /// Builds a region: validates the inputs, derives the label volume and the 8-bit CT underlay,

@@ -3,8 +3,10 @@
 
 use glam::DVec3;
 
+use super::dims::{LEFT, RIGHT};
+use super::parts::Parts;
 use super::sacrum::{sacral_canal_point, sacral_foramina};
-use super::{LEFT, Parts, Placed, RIGHT, Spine};
+use super::spine::{Placed, Spine};
 use crate::anatomy::phantom::sdf::{Rigid, Sdf};
 use crate::material::MaterialClass;
 

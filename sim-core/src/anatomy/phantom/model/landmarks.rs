@@ -2,9 +2,25 @@
 //! and injection targets.
 
 use glam::DVec3;
+use serde::{Deserialize, Serialize};
 
+/// A named point of interest for stations and scorers.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Landmark {
+    /// Stable snake_case name.
+    pub name: String,
+    /// Position in the model frame, mm.
+    pub position_mm: [f64; 3],
+    /// What the point is, in words.
+    pub description: String,
+    /// The structure the point is expected to lie in (`None` for a point that is defined by
+    /// surrounding structures, such as a joint space or a foramen).
+    pub inside_structure: Option<String>,
+}
+
+use super::dims::{LEFT, RIGHT};
 use super::sacrum::{sacral_canal_point, sacral_foramina};
-use super::{LEFT, Landmark, RIGHT, Spine};
+use super::spine::Spine;
 
 /// Collects landmarks in order.
 #[derive(Default)]

@@ -3,17 +3,10 @@
 
 use glam::DVec3;
 
+use super::dims::{LEFT, RIGHT};
+use super::spine::Spine;
 use super::vertebra::{articular_block, joint_keepout};
-use super::{LEFT, Placed, RIGHT, Spine};
 use crate::anatomy::phantom::sdf::{Rigid, Sdf};
-
-/// Sacral frame: origin at the centre of the S1 superior endplate, z along its normal.
-pub(super) fn sacral_frame(s1: &Placed) -> Rigid {
-    Rigid {
-        rotation: s1.frame.rotation,
-        translation: s1.w(0.0, 0.0, 0.5 * s1.dims.body_height),
-    }
-}
 
 /// Sacral levels S1..S5 and the apex in the sacral frame: centre-line point (body centre),
 /// half-width of the lateral masses, body radius. The sacrum curves anteriorly as it descends

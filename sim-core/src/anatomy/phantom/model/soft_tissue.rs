@@ -3,7 +3,9 @@
 
 use glam::DVec3;
 
-use super::{AnatomyParams, BODY_CENTRE_Y_MM, LEFT, Parts, Placed, RIGHT, Spine};
+use super::dims::{AnatomyParams, BODY_CENTRE_Y_MM, LEFT, RIGHT};
+use super::parts::Parts;
+use super::spine::{Placed, Spine};
 use crate::anatomy::phantom::sdf::Sdf;
 use crate::material::MaterialClass;
 

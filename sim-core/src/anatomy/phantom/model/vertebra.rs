@@ -3,45 +3,11 @@
 
 use glam::DVec3;
 
-use super::{DISC_HEIGHT_MM, FACET_ANGLE_DEG, LEFT, Parts, Placed, RIGHT, Spine, rot_x};
+use super::dims::{LEFT, RIGHT};
+use super::parts::Parts;
+use super::spine::{Joint, Placed, Spine, rot_x};
 use crate::anatomy::phantom::sdf::{Rigid, Sdf};
 use crate::material::MaterialClass;
-
-/// Where the articular processes of a motion segment meet, side `s`: joint centre and the unit
-/// normal pointing from the lower vertebra's superior process to the upper one's inferior process.
-fn facet_joint(
-    upper: &Placed,
-    lower: &Placed,
-    disc_mm: f64,
-    angle_deg: f64,
-    s: f64,
-) -> (DVec3, DVec3) {
-    let j_lower = lower.w(
-        s * (0.5 * lower.dims.canal_width + 5.0),
-        lower.canal_y() - 0.25 * lower.dims.canal_depth,
-        0.5 * lower.dims.body_height + 0.5 * disc_mm + 2.0,
-    );
-    let j_upper = upper.w(
-        s * (0.5 * upper.dims.canal_width + 5.0),
-        upper.canal_y() - 0.25 * upper.dims.canal_depth,
-        -0.5 * upper.dims.body_height - 0.5 * disc_mm + 2.0,
-    );
-    let centre = 0.5 * (j_lower + j_upper);
-    let a = angle_deg.to_radians();
-    // In the axial plane the joint line runs from anteromedial to posterolateral; the inferior
-    // process of the upper vertebra lies posteromedial to the superior process of the lower one.
-    let local_n = DVec3::new(-s * a.cos(), -a.sin(), 0.0);
-    let rot = rot_x(0.5 * (upper.dims.tilt_deg + lower.dims.tilt_deg));
-    (centre, (rot * local_n).normalize())
-}
-
-/// The joint geometry shared by the two articular processes of one facet joint.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct Joint {
-    pub(super) centre: DVec3,
-    pub(super) normal: DVec3,
-    pub(super) up: DVec3,
-}
 
 /// Articular-process block on one side of a joint: `sign` -1 for the superior process (below the
 /// plane along -normal), +1 for the inferior process.
@@ -166,25 +132,6 @@ pub(super) fn lumbar_canal(v: &Placed) -> Sdf {
     }
     .at(DVec3::new(0.0, v.canal_y(), 0.0))
     .placed(v.frame)
-}
-
-/// Both facet joints (left, right) of each motion segment L1-L2 .. L5-S1; `below[i]` is the lower
-/// vertebra of segment `i` (S1 for the last).
-pub(super) fn facet_joints(v: &[Placed], below: &[Placed]) -> Vec<[Joint; 2]> {
-    let mut joints: Vec<[Joint; 2]> = Vec::new();
-    for i in 0..5 {
-        let (up, lo) = (&v[i], &below[i]);
-        let make = |s: f64| {
-            let (c, n) = facet_joint(up, lo, DISC_HEIGHT_MM[i], FACET_ANGLE_DEG[i], s);
-            Joint {
-                centre: c,
-                normal: n,
-                up: (up.up() + lo.up()).normalize(),
-            }
-        };
-        joints.push([make(LEFT), make(RIGHT)]);
-    }
-    joints
 }
 
 /// Lumbar vertebra `i` (0 = L1) with its articular processes: the superior ones meet the

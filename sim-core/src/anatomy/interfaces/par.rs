@@ -1,0 +1,37 @@
+//! An ordered parallel map over indices on scoped threads (no thread-pool dependency).
+
+/// Runs `f(0..n)` on up to one thread per core (each thread taking the next index) and returns
+/// the results in index order; `done(i)` is called on the calling thread as each one finishes.
+pub(crate) fn par_map<T: Send>(
+    n: usize,
+    f: &(dyn Fn(usize) -> T + Sync),
+    done: &mut dyn FnMut(usize),
+) -> Vec<T> {
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .clamp(1, n.max(1));
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let mut out: Vec<Option<T>> = (0..n).map(|_| None).collect();
+    std::thread::scope(|scope| {
+        let (tx, rx) = std::sync::mpsc::channel::<(usize, T)>();
+        for _ in 0..threads {
+            let (tx, next) = (tx.clone(), &next);
+            scope.spawn(move || {
+                loop {
+                    let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    if i >= n || tx.send((i, f(i))).is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        drop(tx);
+        for (i, r) in rx.iter() {
+            done(i);
+            out[i] = Some(r);
+        }
+    });
+    out.into_iter()
+        .map(|r| r.expect("every index is taken by exactly one worker"))
+        .collect()
+}
