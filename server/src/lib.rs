@@ -16,6 +16,7 @@ pub mod error;
 pub mod records;
 pub mod routes;
 pub mod startup;
+pub mod state;
 pub mod telemetry;
 #[cfg(feature = "test-support")]
 pub mod test_support;
@@ -23,28 +24,13 @@ pub mod workers;
 
 use axum::Router;
 use axum::routing::get;
-use sqlx::PgPool;
 use tower_http::services::{ServeDir, ServeFile};
 use tower_http::trace::TraceLayer;
 
 pub use config::Config;
 pub use error::ApiError;
 
-/// Everything a request handler may need. Cheap to clone.
-#[derive(Clone)]
-pub struct AppState {
-    /// Database pool.
-    pub pool: PgPool,
-    /// True when the database is the embedded private cluster.
-    pub embedded_db: bool,
-    /// Render workers.
-    pub workers: workers::Workers,
-    /// Session dispatch chosen at start-up (or by a test); `None`: [`app`] builds the default
-    /// from the configuration (see [`dispatch::Dispatcher::for_app`]).
-    pub dispatcher: Option<dispatch::Dispatcher>,
-    /// Configuration in force.
-    pub config: Config,
-}
+pub use state::AppState;
 
 /// The complete HTTP application.
 pub fn app(state: AppState) -> Router {
@@ -53,9 +39,19 @@ pub fn app(state: AppState) -> Router {
     Router::new()
         .route("/healthz", get(routes::health::healthz))
         .merge(records::router(records_state.clone()).0)
-        .merge(dispatch::router(records_state, dispatch::Dispatcher::for_app(&state)))
+        .merge(dispatch::router(records_state, dispatcher_for(&state)))
         .fallback_service(web)
         .layer(axum::extract::DefaultBodyLimit::max(state.config.max_body_bytes))
         .layer(TraceLayer::new_for_http())
         .with_state(state)
+}
+
+/// The dispatcher attached to `state`, else the default from the environment and the learning
+/// records' stations folder.
+fn dispatcher_for(state: &AppState) -> dispatch::Dispatcher {
+    dispatch::Dispatcher::for_app(
+        state.dispatcher.as_ref(),
+        &state.workers,
+        state.config.records.stations_dir.clone(),
+    )
 }

@@ -76,7 +76,11 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
     let mut state = AppState { pool: pool.clone(), embedded_db: cluster.is_some(), workers, dispatcher: None, config: config.clone() };
     // One dispatcher for the router and /healthz; its anatomy (the phantom: tens of seconds the
     // first time) starts loading now, so the first session does not wait for it in its request.
-    let dispatcher = crate::dispatch::Dispatcher::for_app(&state);
+    let dispatcher = crate::dispatch::Dispatcher::for_app(
+        state.dispatcher.as_ref(),
+        &state.workers,
+        state.config.records.stations_dir.clone(),
+    );
     if crate::dispatch::DispatchConfig::from_env(config.records.stations_dir.clone()).prepare_at_start {
         dispatcher.prepare_in_background();
     }

@@ -132,8 +132,8 @@ pub async fn relay(
         loop {
             let flow = tokio::select! {
                 biased;
-                m = up_rx.next() => r.from_worker(m, &placement).await,
-                m = browser_rx.next() => r.from_browser(m, &mut up_tx).await,
+                m = up_rx.next() => r.on_worker_message(m, &placement).await,
+                m = browser_rx.next() => r.on_browser_message(m, &mut up_tx).await,
                 changed = r.writer.durable.changed() => r.log_became_durable(changed.is_ok()).await,
                 _ = tick.tick() => r.on_timer(&mut up_tx).await,
             };
@@ -149,7 +149,7 @@ pub async fn relay(
 
 impl Relay {
     /// One message (or the end) of the worker's stream.
-    async fn from_worker(
+    async fn on_worker_message(
         &mut self,
         m: Option<Result<WsMessage, String>>,
         placement: &Placement,
@@ -266,7 +266,7 @@ impl Relay {
     }
 
     /// One message (or the end) of the browser's socket.
-    async fn from_browser(
+    async fn on_browser_message(
         &mut self,
         m: Option<Result<Message, axum::Error>>,
         up_tx: &mut UpSink,

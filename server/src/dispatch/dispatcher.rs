@@ -1,0 +1,563 @@
+//! The dispatcher: where each live session runs (in-process or on a registered worker), the
+//! server's copy of each session, placement, failover and closing (see [`super`]).
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+use render_worker::session::modalities::fluoro::{FluoroRenderError, FluoroRenderer};
+use render_worker::session::region::Region;
+use render_worker::session::host::RegionReadiness;
+use super::registry::{self, WorkerView};
+use render_worker::session::{
+    BackendProfile, Backends, FluoroBackend, HostConfig, HostError,
+    LogEntry, SessionConfig, SessionHost, SessionSnapshot,
+};
+use uuid::Uuid;
+
+
+/// Where a session runs now.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Placement {
+    /// On the in-process host, under the host's session id.
+    Local {
+        /// Id of the session in the host.
+        worker_session: String,
+    },
+    /// On a registered worker.
+    Remote {
+        /// Worker base URL.
+        worker_url: String,
+        /// Id of the session on that worker.
+        worker_session: String,
+    },
+}
+
+impl Placement {
+    /// `in-process` or the worker URL.
+    pub fn worker_label(&self) -> String {
+        match self {
+            Placement::Local { .. } => "in-process".into(),
+            Placement::Remote { worker_url, .. } => worker_url.clone(),
+        }
+    }
+}
+
+/// A live session as the server sees it.
+#[derive(Debug)]
+pub struct LiveSession {
+    /// Server-side session id (stable across failover).
+    pub id: Uuid,
+    /// The attempt it belongs to.
+    pub attempt_id: Uuid,
+    /// The learner who drives it.
+    pub learner_id: Uuid,
+    /// Station id.
+    pub station_id: String,
+    /// Placement, initial snapshot and the log of acknowledged commands.
+    pub state: tokio::sync::Mutex<SessionRecord>,
+    /// Increases with every new browser connection; an older connection ends when it sees a
+    /// newer one (one driver at a time: a reloaded page takes over).
+    pub generation: std::sync::atomic::AtomicU64,
+    /// Open browser connections.
+    pub connections: std::sync::atomic::AtomicUsize,
+    /// When the last connection ended (or the session was created).
+    pub last_active: Mutex<std::time::Instant>,
+}
+
+impl LiveSession {
+    /// A session just created or resumed.
+    pub fn new(
+        id: Uuid,
+        attempt_id: Uuid,
+        learner_id: Uuid,
+        station_id: String,
+        record: SessionRecord,
+    ) -> LiveSession {
+        LiveSession {
+            id,
+            attempt_id,
+            learner_id,
+            station_id,
+            state: tokio::sync::Mutex::new(record),
+            generation: std::sync::atomic::AtomicU64::new(0),
+            connections: std::sync::atomic::AtomicUsize::new(0),
+            last_active: Mutex::new(std::time::Instant::now()),
+        }
+    }
+}
+
+/// How long a session with no browser connected stays on its worker. Simulator choice: a
+/// learner who steps away for a few minutes comes back to a running session; after that the
+/// worker's capacity is freed, and opening the attempt again resumes the session from its
+/// recorded log.
+pub const IDLE_CLOSE: std::time::Duration = std::time::Duration::from_secs(20 * 60);
+
+/// The server's copy of a session.
+#[derive(Debug, Clone)]
+pub struct SessionRecord {
+    /// Where it runs.
+    pub placement: Placement,
+    /// Its initial state.
+    pub initial: SessionSnapshot,
+    /// Every acknowledged command, in order.
+    pub log: Vec<LogEntry>,
+    /// How many of `log`'s first entries are in `live_session_commands` (see `durable`).
+    pub durable_len: usize,
+    /// SHA-256 of the newest frame's JPEG sent to the browser.
+    pub last_frame_sha256: Option<String>,
+    /// Set once the submit was stored.
+    pub result_id: Option<Uuid>,
+    /// How many times it was restored on another worker.
+    pub failovers: u32,
+}
+
+/// Why a session could not be placed.
+#[derive(Debug, Clone)]
+pub enum PlaceError {
+    /// The station's anatomy is still being prepared: ask again after `retry_after_s`.
+    Preparing {
+        /// Region name.
+        region: String,
+        /// Its state.
+        readiness: RegionReadiness,
+        /// Seconds to wait.
+        retry_after_s: u64,
+    },
+    /// The anatomy could not be prepared.
+    AnatomyFailed(String),
+    /// No worker could take it.
+    Failed(String),
+}
+
+impl From<HostError> for PlaceError {
+    fn from(e: HostError) -> PlaceError {
+        match e {
+            HostError::Preparing {
+                region,
+                readiness,
+                retry_after_s,
+            } => PlaceError::Preparing {
+                region,
+                readiness,
+                retry_after_s,
+            },
+            HostError::Region(reason) => PlaceError::AnatomyFailed(reason),
+            other => PlaceError::Failed(other.to_string()),
+        }
+    }
+}
+
+/// Settings of dispatch.
+#[derive(Debug, Clone)]
+pub struct DispatchConfig {
+    /// Region folders (`assets/`).
+    pub assets_root: std::path::PathBuf,
+    /// Station files (`assets/stations/`).
+    pub stations_dir: std::path::PathBuf,
+    /// Sessions the in-process worker takes.
+    pub in_process_capacity: usize,
+    /// Token workers present to register; `None` refuses registrations.
+    pub worker_token: Option<String>,
+    /// Whether the server starts loading (building) the stations' anatomy at start-up.
+    pub prepare_at_start: bool,
+}
+
+impl DispatchConfig {
+    /// From the environment: `PAINSIM_ASSETS_DIR` (default: the repository's `assets/`),
+    /// `PAINSIM_IN_PROCESS_SESSIONS` (default 8), `PAINSIM_WORKER_TOKEN` (unset: no remote
+    /// workers), `PAINSIM_PREPARE_ANATOMY` (default on; `0`/`false`/`off` leaves the anatomy to
+    /// the first session), with the stations folder of the learning records.
+    pub fn from_env(stations_dir: std::path::PathBuf) -> DispatchConfig {
+        DispatchConfig {
+            assets_root: std::env::var("PAINSIM_ASSETS_DIR")
+                .map(Into::into)
+                .unwrap_or_else(|_| concat!(env!("CARGO_MANIFEST_DIR"), "/../assets").into()),
+            stations_dir,
+            in_process_capacity: std::env::var("PAINSIM_IN_PROCESS_SESSIONS")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(8),
+            worker_token: std::env::var("PAINSIM_WORKER_TOKEN")
+                .ok()
+                .filter(|t| t.len() >= 16),
+            prepare_at_start: std::env::var("PAINSIM_PREPARE_ANATOMY")
+                .map(|v| !matches!(v.trim(), "0" | "false" | "off" | "no"))
+                .unwrap_or(true),
+        }
+    }
+}
+
+/// The in-process worker's renderer: the GPU renderer once the server's GPU is open and passed
+/// its self-test (a real adapter or lavapipe), the CPU reference before that or without one.
+/// A session keeps the renderer it got at its first exposure; a session that began in the
+/// first seconds after start-up, before the GPU was ready, may therefore render on the CPU
+/// while its record (read at submit) names the GPU.
+struct InProcessBackend {
+    workers: crate::workers::Workers,
+}
+
+impl InProcessBackend {
+    pub(super) fn current(&self) -> Arc<dyn FluoroBackend> {
+        Backends::for_device(self.workers.gpu()).fluoro
+    }
+}
+
+impl FluoroBackend for InProcessBackend {
+    fn profile(&self) -> BackendProfile {
+        self.current().profile()
+    }
+
+    fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, FluoroRenderError> {
+        self.current().renderer(region)
+    }
+}
+
+pub(super) struct Inner {
+    pub(super) local: Option<SessionHost>,
+    pub(super) replay: SessionHost,
+    pub(super) remote: registry::Registry,
+    pub(super) sessions: Mutex<HashMap<Uuid, Arc<LiveSession>>>,
+    pub(super) worker_token: Option<String>,
+}
+
+/// Session dispatch: the in-process host, registered workers, and the live sessions.
+#[derive(Clone)]
+pub struct Dispatcher {
+    pub(super) inner: Arc<Inner>,
+}
+
+impl std::fmt::Debug for Dispatcher {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Dispatcher")
+            .field("in_process", &self.inner.local.is_some())
+            .finish()
+    }
+}
+
+impl Dispatcher {
+    /// A dispatcher over an in-process host (`local`, `None` for remote-only), a host used for
+    /// replays, and the cluster token.
+    pub fn new(
+        local: Option<SessionHost>,
+        replay: SessionHost,
+        worker_token: Option<String>,
+    ) -> Dispatcher {
+        let d = Dispatcher {
+            inner: Arc::new(Inner {
+                local,
+                replay,
+                remote: registry::Registry::default(),
+                sessions: Mutex::new(HashMap::new()),
+                worker_token,
+            }),
+        };
+        d.inner.remote.start_polling();
+        d.start_reaper(IDLE_CLOSE);
+        d
+    }
+
+    /// Closes, every `idle / 4`, the sessions no browser has been connected to for `idle`.
+    pub fn start_reaper(&self, idle: std::time::Duration) {
+        let Ok(rt) = tokio::runtime::Handle::try_current() else {
+            return;
+        };
+        let weak = Arc::downgrade(&self.inner);
+        rt.spawn(async move {
+            loop {
+                tokio::time::sleep(idle / 4).await;
+                let Some(inner) = weak.upgrade() else { return };
+                let d = Dispatcher { inner };
+                let idle_ids: Vec<Uuid> = d
+                    .inner
+                    .sessions
+                    .lock()
+                    .map(|m| {
+                        m.values()
+                            .filter(|s| {
+                                s.connections.load(std::sync::atomic::Ordering::SeqCst) == 0
+                                    && s.last_active.lock().is_ok_and(|t| t.elapsed() >= idle)
+                            })
+                            .map(|s| s.id)
+                            .collect()
+                    })
+                    .unwrap_or_default();
+                for id in idle_ids {
+                    tracing::info!(session = %id, "closing an idle session (it resumes from its log)");
+                    d.close(id).await;
+                }
+            }
+        });
+    }
+
+    /// The default: an in-process host over `config`'s stations and regions (regions load on
+    /// first use) rendering with `backends`.
+    pub fn from_config(
+        config: &DispatchConfig,
+        backends: Backends,
+    ) -> Result<Dispatcher, String> {
+        let host = SessionHost::new(
+            HostConfig {
+                assets_root: config.assets_root.clone(),
+                stations_dir: config.stations_dir.clone(),
+                capacity: config.in_process_capacity,
+                session: SessionConfig::default(),
+            },
+            backends,
+            None,
+        )
+        .map_err(|e| e.to_string())?;
+        Ok(Dispatcher::new(
+            Some(host.clone()),
+            host,
+            config.worker_token.clone(),
+        ))
+    }
+
+    /// The dispatcher of [`crate::app`]: `state.dispatcher` when set, else the default
+    /// from the environment and the learning records' stations folder. A station folder that
+    /// does not load leaves an in-process host without stations (start-up reports the folder).
+    pub fn for_app(
+        attached: Option<&Dispatcher>,
+        workers: &crate::workers::Workers,
+        stations_dir: std::path::PathBuf,
+    ) -> Dispatcher {
+        if let Some(d) = attached {
+            return d.clone();
+        }
+        let config = DispatchConfig::from_env(stations_dir);
+        let backends = Backends {
+            fluoro: Arc::new(InProcessBackend {
+                workers: workers.clone(),
+            }),
+        };
+        Dispatcher::from_config(&config, backends).unwrap_or_else(|e| {
+            tracing::error!("no in-process sessions: {e}");
+            let empty = SessionHost::with_regions(
+                Vec::new(),
+                Vec::new(),
+                Backends::cpu(0),
+                0,
+                SessionConfig::default(),
+            );
+            Dispatcher::new(None, empty, config.worker_token)
+        })
+    }
+
+    /// The in-process host, if any.
+    pub fn local_host(&self) -> Option<&SessionHost> {
+        self.inner.local.as_ref()
+    }
+
+    /// Registered workers as reported by `GET /api/workers`.
+    pub fn workers(&self) -> Vec<WorkerView> {
+        self.inner.remote.views(&self.sessions_by_worker())
+    }
+
+    pub(super) fn sessions_by_worker(&self) -> HashMap<String, usize> {
+        let mut by = HashMap::new();
+        let list: Vec<Arc<LiveSession>> = self
+            .inner
+            .sessions
+            .lock()
+            .map(|m| m.values().cloned().collect())
+            .unwrap_or_default();
+        for s in list {
+            if let Ok(st) = s.state.try_lock() {
+                *by.entry(st.placement.worker_label()).or_insert(0) += 1;
+            }
+        }
+        by
+    }
+
+    /// A live session by id.
+    pub fn session(&self, id: Uuid) -> Option<Arc<LiveSession>> {
+        self.inner.sessions.lock().ok()?.get(&id).cloned()
+    }
+
+    /// The live, not yet submitted session of an attempt, if one exists.
+    pub async fn session_of_attempt(&self, attempt_id: Uuid) -> Option<Arc<LiveSession>> {
+        let list: Vec<Arc<LiveSession>> = self
+            .inner
+            .sessions
+            .lock()
+            .ok()?
+            .values()
+            .filter(|s| s.attempt_id == attempt_id)
+            .cloned()
+            .collect();
+        for s in list {
+            if s.state.lock().await.result_id.is_none() {
+                return Some(s);
+            }
+        }
+        None
+    }
+
+    /// Whether a session of `station_id` can start (or resume) on the in-process worker now.
+    /// Only asked when that is where it would go: with a live registered worker it is placed
+    /// there. Starts preparing the station's region in the background if nobody has.
+    pub(super) fn check_local_ready(&self, station_id: &str) -> Result<(), PlaceError> {
+        let Some(host) = &self.inner.local else {
+            return Ok(());
+        };
+        if !self
+            .inner
+            .remote
+            .by_load(&self.sessions_by_worker(), None)
+            .is_empty()
+        {
+            return Ok(());
+        }
+        host.check_ready(station_id).map_err(PlaceError::from)
+    }
+
+    /// Starts loading (building, for the phantom) the in-process worker's regions in the
+    /// background (see [`SessionHost::prepare_in_background`]).
+    pub fn prepare_in_background(&self) {
+        if let Some(h) = &self.inner.local {
+            h.prepare_in_background();
+        }
+    }
+
+    /// Readiness of the in-process worker's regions (empty without one).
+    pub fn anatomy(&self) -> std::collections::BTreeMap<String, RegionReadiness> {
+        self.inner
+            .local
+            .as_ref()
+            .map(SessionHost::regions_readiness)
+            .unwrap_or_default()
+    }
+
+    /// Creates a session for a station on the least loaded worker (excluding `avoid`), returning
+    /// its placement and initial snapshot.
+    pub(super) async fn place_new(
+        &self,
+        station_id: &str,
+    ) -> Result<(Placement, SessionSnapshot), PlaceError> {
+        let mut errors = Vec::new();
+        for url in self.inner.remote.by_load(&self.sessions_by_worker(), None) {
+            match registry::create_remote(&url, station_id).await {
+                Ok((worker_session, snapshot)) => {
+                    return Ok((
+                        Placement::Remote {
+                            worker_url: url,
+                            worker_session,
+                        },
+                        snapshot,
+                    ));
+                }
+                Err(e) => {
+                    tracing::warn!(worker = %url, "session creation failed: {e}");
+                    errors.push(e);
+                }
+            }
+        }
+        let Some(host) = &self.inner.local else {
+            return Err(PlaceError::Failed(if errors.is_empty() {
+                "no render worker is registered".into()
+            } else {
+                errors.join("; ")
+            }));
+        };
+        let h = host.create(station_id).await?;
+        let (snapshot, _) = h
+            .snapshot()
+            .await
+            .ok_or_else(|| PlaceError::Failed("the new session ended at once".into()))?;
+        Ok((
+            Placement::Local {
+                worker_session: h.info.id.clone(),
+            },
+            snapshot,
+        ))
+    }
+
+    /// Restores a recorded session on a live registered worker by least load, else in-process.
+    pub(super) async fn restore_anywhere(&self, record: &SessionRecord) -> Result<Placement, String> {
+        let nowhere = Placement::Local {
+            worker_session: String::new(),
+        };
+        self.restore_elsewhere(&nowhere, record).await
+    }
+
+    /// Restores `record`'s session on a worker other than the failed one: a live registered
+    /// worker by least load, else the in-process host.
+    pub(super) async fn restore_elsewhere(
+        &self,
+        failed: &Placement,
+        record: &SessionRecord,
+    ) -> Result<Placement, String> {
+        if let Placement::Remote { worker_url, .. } = failed {
+            self.inner.remote.mark_dead(worker_url);
+        }
+        let avoid = match failed {
+            Placement::Remote { worker_url, .. } => Some(worker_url.as_str()),
+            Placement::Local { .. } => None,
+        };
+        let mut errors = Vec::new();
+        for url in self.inner.remote.by_load(&self.sessions_by_worker(), avoid) {
+            match registry::restore_remote(&url, &record.initial, &record.log).await {
+                Ok(worker_session) => {
+                    return Ok(Placement::Remote {
+                        worker_url: url,
+                        worker_session,
+                    });
+                }
+                Err(e) => errors.push(e),
+            }
+        }
+        if let Some(host) = &self.inner.local {
+            let (h, initial, log) = (host.clone(), record.initial.clone(), record.log.clone());
+            let handle = tokio::task::spawn_blocking(move || h.restore_blocking(&initial, &log))
+                .await
+                .map_err(|e| e.to_string())?
+                .map_err(|e| e.to_string())?;
+            return Ok(Placement::Local {
+                worker_session: handle.info.id.clone(),
+            });
+        }
+        Err(format!(
+            "no worker could take the session over: {}",
+            errors.join("; ")
+        ))
+    }
+
+    pub(super) fn insert(&self, s: Arc<LiveSession>) {
+        if let Ok(mut m) = self.inner.sessions.lock() {
+            m.insert(s.id, s);
+        }
+    }
+
+    /// Ends a session on its worker and forgets it.
+    pub async fn close(&self, id: Uuid) {
+        let Some(s) = self
+            .inner
+            .sessions
+            .lock()
+            .ok()
+            .and_then(|mut m| m.remove(&id))
+        else {
+            return;
+        };
+        let placement = s.state.lock().await.placement.clone();
+        match placement {
+            Placement::Local { worker_session } => {
+                if let Some(h) = &self.inner.local {
+                    let _ = h.close(&worker_session);
+                }
+            }
+            Placement::Remote {
+                worker_url,
+                worker_session,
+            } => {
+                let _ = render_worker::cluster::request(
+                    "DELETE",
+                    &format!("{worker_url}/sessions/{worker_session}"),
+                    None,
+                    None,
+                )
+                .await;
+            }
+        }
+    }
+}
