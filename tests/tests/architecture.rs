@@ -127,20 +127,6 @@ fn wgpu_is_pinned_exactly() {
     assert!(line.contains("\"="), "wgpu must be pinned with `=`: {line}");
 }
 
-/// TEMPORARY (issue 14): the module cycles present on `main` when the cycle test was written,
-/// each named exactly (`<crate target>: <modules of one strongly connected component>`). They
-/// are being removed in other branches; delete each entry with its cycle. The list must match
-/// what is found exactly: a cycle that changes or disappears fails the test until its entry is
-/// updated or removed, so the list cannot go stale. Never add to it.
-const TEMPORARY_CYCLE_ALLOWANCE: &[&str] = &[
-    "render-worker: session, session::demo, session::fluoro, session::frame, session::modality, \
-     session::region, session::scoring, session::world",
-    "server: config, records::config",
-    "server: crate, dispatch, dispatch::durable, dispatch::proxy, dispatch::routes, routes::health, \
-     workers",
-    "server: records, records::attempts, records::auth, records::courses, records::demo, \
-     records::extract, records::reviews, records::stations, records::users",
-];
 
 /// Architecture invariant: no import cycles between the modules of a crate. Every lib and bin
 /// target of every workspace crate is scanned (`src/**/*.rs` reached through `mod`
@@ -171,22 +157,12 @@ fn no_import_cycles_between_modules() {
     for cycle in &found {
         println!("{}", cycle.report);
     }
-    let unexpected: Vec<&str> = found
-        .iter()
-        .filter(|c| !TEMPORARY_CYCLE_ALLOWANCE.contains(&c.key.as_str()))
-        .map(|c| c.report.as_str())
-        .collect();
-    let stale: Vec<&&str> = TEMPORARY_CYCLE_ALLOWANCE
-        .iter()
-        .filter(|k| !found.iter().any(|c| c.key == **k))
-        .collect();
+    let reports: Vec<&str> = found.iter().map(|c| c.report.as_str()).collect();
     assert!(
-        unexpected.is_empty() && stale.is_empty(),
-        "module cycles not in TEMPORARY_CYCLE_ALLOWANCE (break each by moving what both sides \
-         need into a module of its own, or by passing it in):\n{}\nstale entries of \
-         TEMPORARY_CYCLE_ALLOWANCE (that cycle is gone or changed: remove or update the entry): \
-         {stale:#?}",
-        unexpected.join("\n"),
+        reports.is_empty(),
+        "module cycles (break each by moving what both sides need into a module of its own, or \
+         by passing it in):\n{}",
+        reports.join("\n"),
     );
 }
 
@@ -195,18 +171,8 @@ const LINE_LIMIT: usize = 1_000;
 
 /// Files allowed over [`LINE_LIMIT`], relative to the workspace root, each with its reason. A
 /// listed file that is back under the limit (or gone) fails the test, so the list stays honest.
-/// Entries marked TEMPORARY were over the limit on `main` when the test was written and are to
-/// be split (issue 14); never add one.
-const OVERSIZED_FILES: &[(&str, &str)] = &[
-    (
-        "render-worker/src/fluoro/mod.rs",
-        "TEMPORARY (issue 14): GPU renderer, passes and tiling in one file",
-    ),
-    (
-        "render-worker/tests/sessions.rs",
-        "TEMPORARY (issue 14): every session test in one area module",
-    ),
-];
+/// Empty since issue 14 split the last ones; an entry needs a reason a reviewer accepts.
+const OVERSIZED_FILES: &[(&str, &str)] = &[];
 
 /// Every `*.rs` file in a crate's folder (not `target/` or hidden folders).
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
