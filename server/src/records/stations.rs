@@ -5,7 +5,6 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use anyhow::Context;
-use sha2::{Digest, Sha256};
 use sim_core::rubric::{Station, load_station_dir};
 use sqlx::PgPool;
 
@@ -68,7 +67,7 @@ impl StationCatalog {
         let stations = files
             .into_iter()
             .map(|f| {
-                let sha256 = hex::encode(Sha256::digest(f.text.as_bytes()));
+                let sha256 = sim_core::hash::sha256_hex(f.text.as_bytes());
                 (
                     f.station.id.clone(),
                     CatalogStation {
