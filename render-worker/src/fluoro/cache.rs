@@ -9,33 +9,9 @@
 //! costs only the CPU's noise and display) and the exposure mask ([`ExposureKey`]). Each cached
 //! frame is bit-identical to a frame from scratch, and so is culling (tests in
 //! `render-worker/tests/fluoro_cache.rs`).
-use sim_core::fluoro::{EnergyModel, IodineField, Projection, SpectralModel};
+use sim_core::fluoro::{IodineField, Projection, SpectralModel};
 
-use super::lbuffer::{Layout, Passes};
-use super::resolve::{Pending, PixelRectOut};
-use super::{GpuFluoroRenderer, PixelRect};
-
-/// The full-image transmission of the last resolve: for which projection and energy model, the
-/// needle's pixel rectangle then (where the displaced pass and the steel wrote), and the values.
-/// Outside the union of that rectangle and the next frame's, every input of the resolve is the
-/// same (same geometric L-buffer, no displaced part, no steel), so only that union is resolved
-/// and read back again, and the result is bit-identical to a frame from scratch.
-pub(super) struct Resolved {
-    projection: Projection,
-    model: EnergyModel,
-    needle_rect: Option<[u32; 4]>,
-    transmission: Vec<f32>,
-}
-
-/// Everything that decides [`GpuFluoroRenderer::render_transmission_supersampled`] without
-/// iodine.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) struct FrameKey {
-    pub(super) projection: Projection,
-    pub(super) energy: EnergyModel,
-    pub(super) supersample: u32,
-    pub(super) needle_generation: u64,
-}
+use super::types::*;
 
 impl GpuFluoroRenderer {
     /// Records the full image's passes and resolve into `enc`, from the caches where they
@@ -120,16 +96,6 @@ impl GpuFluoroRenderer {
     }
 }
 
-/// The full image between [`GpuFluoroRenderer::begin_full`] and
-/// [`GpuFluoroRenderer::end_full`].
-pub(super) struct FullFrame {
-    pub(super) pending: Pending,
-    key: (Projection, Layout),
-    model: EnergyModel,
-    previous: Option<Resolved>,
-    width: usize,
-}
-
 /// Overlap of two rectangles `[x, y, w, h]` (`None` if they do not overlap).
 pub(super) fn intersect_rect(a: [u32; 4], b: [u32; 4]) -> Option<[u32; 4]> {
     let (x0, y0) = (a[0].max(b[0]), a[1].max(b[1]));
@@ -165,24 +131,6 @@ pub(super) fn union_rect(a: Option<[u32; 4]>, b: Option<[u32; 4]>) -> Option<[u3
             let x1 = (a[0] + a[2]).max(b[0] + b[2]);
             let y1 = (a[1] + a[3]).max(b[1] + b[3]);
             Some([x0, y0, x1 - x0, y1 - y0])
-        }
-    }
-}
-
-/// What decides which pixels the beam reaches (see `Projection::is_exposed`).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) struct ExposureKey {
-    pixels: [u32; 2],
-    pitch_mm: [f64; 2],
-    collimation: sim_core::fluoro::Collimation,
-}
-
-impl ExposureKey {
-    pub(super) fn of(p: &Projection) -> ExposureKey {
-        ExposureKey {
-            pixels: p.detector_pixels,
-            pitch_mm: p.pixel_pitch_mm,
-            collimation: p.collimation,
         }
     }
 }

@@ -4,8 +4,7 @@
 use glam::DVec3;
 use sim_core::fluoro::{FluoroMaterial, Projection};
 
-use super::lbuffer::{CANCELLOUS, CHORD_CHANNELS, CHORD_PASSES, CORTICAL, Layout, Passes, SLOTS};
-use super::{CHANNELS, FluoroGpuError, GpuFluoroRenderer, PixelRect};
+use super::types::*;
 use crate::gpu::GpuError;
 
 impl GpuFluoroRenderer {

@@ -29,20 +29,13 @@
 //! 0.02 mm on the needle's long, thin side triangles seen nearly edge-on.) The anatomy's
 //! triangles are not that thin, and its axial depths agree with the CPU as closely as the plane
 //! did (the sphere and phantom chord tests in `tests/fluoro.rs`).
-use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 use sim_core::fluoro::nesting::{NestedMesh, soup_box, triangle_cross};
 use sim_core::fluoro::{FluoroMaterial, Projection, Scene};
 use sim_core::material::MaterialClass;
 use wgpu::util::DeviceExt;
 
-use super::pipelines::NO_NEEDLE;
-use super::{CHANNELS, GpuFluoroRenderer, PixelRect};
-
-/// Channels of the `Rgba32Float` L-buffer targets (the geometric one and the displaced one).
-/// Transmission layout: (water-basis `sum mu_60 L`, bone-basis `sum mu_60 L`, both net of what
-/// the needle displaces; cortical and cancellous geometric `L` for the clamp).
-pub(super) const SLOTS: usize = 4;
+use super::types::*;
 
 /// A mesh's geometric and displaced weights in `layout`: its own material's minus its
 /// container's (see sim-core's `fluoro::nesting`).
@@ -67,18 +60,6 @@ fn is_scalar(mesh: &NestedMesh) -> bool {
     net_weights(mesh, Layout::Transmission).0[1..]
         .iter()
         .all(|&x| x == 0.0)
-}
-
-/// The anatomy as drawn: one vertex buffer (the scalar meshes' triangles first, then the rest,
-/// each mesh's in its BVH's order) and its culling chunks.
-pub(super) struct AnatomyBuffers {
-    /// `None` when no mesh is drawn.
-    pub(super) bufs: Option<MeshBuffers>,
-    /// Runs of [`CHUNK_TRIANGLES`] consecutive anatomy triangles with their bounding boxes, for
-    /// culling on the CPU.
-    pub(super) chunks: Vec<Chunk>,
-    /// The scalar meshes come first: the number of their chunks.
-    pub(super) scalar_chunks: usize,
 }
 
 impl AnatomyBuffers {
@@ -112,16 +93,6 @@ impl AnatomyBuffers {
     }
 }
 
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-pub(super) struct Vertex {
-    pos: [f32; 3],
-    mesh: u32,
-    /// Outward unit normal of the vertex's triangle (f64 cross product; zero if degenerate).
-    normal: [f32; 3],
-    pad: u32,
-}
-
 /// The three vertices of a triangle with its unit normal.
 fn triangle_vertices(t: &[[f64; 3]; 3], mesh: u32) -> [Vertex; 3] {
     let c = triangle_cross(*t);
@@ -139,44 +110,9 @@ fn triangle_vertices(t: &[[f64; 3]; 3], mesh: u32) -> [Vertex; 3] {
     })
 }
 
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-pub(super) struct ViewUniform {
-    row_x: [f32; 4],
-    row_y: [f32; 4],
-    row_w: [f32; 4],
-    source: [f32; 4],
-    size: [f32; 4],
-    needle_box: [f32; 4],
-    p00: [f32; 4],
-    step_u: [f32; 4],
-    step_v: [f32; 4],
-    region: [f32; 4],
-}
-
-pub(super) struct Needle {
-    bufs: MeshBuffers,
-    centre_mm: [f64; 3],
-    pub(super) vertices_mm: Vec<[f64; 3]>,
-}
-
-pub(super) struct MeshBuffers {
-    vertices: wgpu::Buffer,
-    indices: wgpu::Buffer,
-    index_count: u32,
-}
-
 /// Triangles per culling chunk. Simulator choice: 32 keeps the per-projection box work at
 /// 8 corners per 32 triangles while a needle box still draws only nearby chunks.
 const CHUNK_TRIANGLES: usize = 32;
-
-/// A run of consecutive anatomy triangles (in drawing order) and its bounding box, mm.
-pub(super) struct Chunk {
-    first_vertex: u32,
-    vertices: u32,
-    lo: [f32; 3],
-    hi: [f32; 3],
-}
 
 /// Per-material weights of the transmission layout: `g` multiplies the signed distance, `d`
 /// the signed part inside the needle (so each channel accumulates `w (L - L_displaced)`).
@@ -197,14 +133,6 @@ fn transmission_weights(m: FluoroMaterial) -> ([f32; SLOTS], [f32; SLOTS]) {
     }
     (g, d)
 }
-
-/// Chord-layout channels: 0..11, tissue `i`'s chord net of the needle (for the two bone
-/// classes: geometric); 11 and 12, the cortical and cancellous parts the needle displaces.
-pub(super) const CHORD_CHANNELS: usize = CHANNELS + 1;
-/// L-buffer passes for [`GpuFluoroRenderer::render_chords`], four channels each.
-pub(super) const CHORD_PASSES: usize = CHORD_CHANNELS.div_ceil(SLOTS);
-pub(super) const CORTICAL: FluoroMaterial = FluoroMaterial::Tissue(MaterialClass::CorticalBone);
-pub(super) const CANCELLOUS: FluoroMaterial = FluoroMaterial::Tissue(MaterialClass::Cancellous);
 
 fn chord_weights(m: FluoroMaterial, pass: usize) -> ([f32; SLOTS], [f32; SLOTS]) {
     let (mut gc, mut dc) = ([0.0f32; CHORD_CHANNELS], [0.0f32; CHORD_CHANNELS]);
@@ -228,29 +156,6 @@ fn chord_weights(m: FluoroMaterial, pass: usize) -> ([f32; SLOTS], [f32; SLOTS])
         }
     }
     (g, d)
-}
-
-/// Which passes [`GpuFluoroRenderer::encode_lbuffer`] records.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct Passes {
-    pub(super) geometry: bool,
-    pub(super) needle: bool,
-    pub(super) displaced: bool,
-}
-
-impl Passes {
-    pub(super) const ALL: Passes = Passes {
-        geometry: true,
-        needle: true,
-        displaced: true,
-    };
-}
-
-/// The slot layout of one pass.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum Layout {
-    Transmission,
-    Chords(usize),
 }
 
 fn slot_weights(m: FluoroMaterial, layout: Layout) -> ([f32; SLOTS], [f32; SLOTS]) {

@@ -4,10 +4,13 @@
 //! compares the two pixel by pixel, `tests/fluoro_cache.rs` checks every cache bit for bit.
 //!
 //! # Map
+//! - Types (`types.rs`): the renderer and every type and constant the passes share, below all of
+//!   them, so the pass modules form no import cycle (each implements its part of
+//!   [`GpuFluoroRenderer`] and imports only `types` and functions further down).
 //! - Construction, [`GpuFluoroRenderer::new`]: sim-core's [`nesting_plan`] decides which mesh
 //!   adds its chord to which material and subtracts it from which container (CPU geometry,
-//!   tested in sim-core); `lbuffer::AnatomyBuffers` uploads the drawn triangles, the meshes
-//!   that only touch the water-basis channel first; `pipelines::Pipelines` builds every pass.
+//!   tested in sim-core); `AnatomyBuffers` (`lbuffer.rs`) uploads the drawn triangles, the meshes
+//!   that only touch the water-basis channel first; `Pipelines` (`pipelines.rs`) builds every pass.
 //! - Pass 1, geometric anatomy L-buffer (`lbuffer.rs`, `encode_lbuffer`; `lbuffer.wgsl`
 //!   `fs_anatomy`, `fs_anatomy_scalar`): signed axial depths times per-mesh weights, additive
 //!   blending, no depth test; independent of the needle.
@@ -42,9 +45,9 @@ mod chords;
 mod lbuffer;
 mod pipelines;
 mod resolve;
+mod types;
 
 use sim_core::fluoro::nesting::{NestedMesh, nesting_plan};
-use sim_core::fluoro::spectrum::UnknownKvp;
 use sim_core::fluoro::{
     EnergyModel, FluoroMaterial, Image, IodineField, Projection, RenderSettings, Scene,
     SpectralModel, TransmissionImage,
@@ -52,147 +55,22 @@ use sim_core::fluoro::{
 use sim_core::mesh::TriMesh;
 use std::time::Instant;
 
-use thiserror::Error;
 
-use crate::gpu::{GpuContext, GpuError};
-use cache::{ExposureKey, FrameKey, Resolved, exposed_mask};
-use lbuffer::{AnatomyBuffers, Layout, Needle, Passes, ViewUniform};
-use pipelines::{Pipelines, Targets};
-use resolve::{ResolveUniform, SpectralTables, iodine_texture};
+use crate::gpu::GpuContext;
+use cache::exposed_mask;
 
-/// Number of per-pixel chord channels [`GpuFluoroRenderer::render_chords`] returns (one per
-/// [`FluoroMaterial`], in [`FluoroMaterial::index`] order).
-pub const CHANNELS: usize = FluoroMaterial::COUNT;
+use resolve::iodine_texture;
+use types::*;
 
-/// Why the GPU renderer could not be built or could not render.
-#[derive(Debug, Error)]
-pub enum FluoroGpuError {
-    /// Device-level failure (no adapter, readback).
-    #[error(transparent)]
-    Gpu(#[from] GpuError),
-    /// The device lacks a feature the L-buffer needs.
-    #[error(
-        "the GPU device lacks {0:?}, needed for additive blending into 32-bit float render targets"
-    )]
-    MissingFeature(wgpu::Features),
-    /// The adapter cannot write storage buffers from fragment shaders (the resolve pass does).
-    #[error("the GPU adapter lacks {0:?}, needed by the resolve pass")]
-    MissingDownlevel(wgpu::DownlevelFlags),
-    /// The requested tube voltage has no committed spectrum.
-    #[error(transparent)]
-    UnknownKvp(#[from] UnknownKvp),
-}
+pub use types::{CHANNELS, FluoroGpuError, FrameTimings, GpuFluoroRenderer, GpuTransmission};
 
-/// A rectangle of the detector sampled `n x n` per pixel: sample `(i, j)` of it lies at
-/// continuous pixel coordinates `origin + ((i, j) + 0.5) / n` (the CPU's stratified sub-pixel
-/// positions). The full image is `origin 0, n 1`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct PixelRect {
-    origin: [u32; 2],
-    n: u32,
-    /// Samples per axis (pixels x n).
-    size: [u32; 2],
-}
 
-impl PixelRect {
-    fn full(p: &Projection) -> PixelRect {
-        PixelRect {
-            origin: [0, 0],
-            n: 1,
-            size: p.detector_pixels,
-        }
-    }
 
-    /// Which set of targets and uniforms it uses.
-    fn index(&self) -> usize {
-        usize::from(self.n > 1)
-    }
-}
 
-/// What [`GpuFluoroRenderer::render_transmission`] returns: the per-pixel transmission (pixel
-/// centres, 0 behind the collimator), row-major.
-#[derive(Debug, Clone, PartialEq)]
-pub struct GpuTransmission {
-    /// Columns.
-    pub width: u32,
-    /// Rows.
-    pub height: u32,
-    /// Transmission per pixel.
-    pub transmission: Vec<f32>,
-}
 
-/// The GPU fluoroscopy renderer of one scene: static anatomy uploaded once, a needle that can
-/// move every frame.
-pub struct GpuFluoroRenderer {
-    ctx: GpuContext,
-    /// The nesting plan, in drawing order: the meshes that add to the water-basis channel only
-    /// first (drawn into the one-channel target).
-    meshes: Vec<NestedMesh>,
-    anatomy: AnatomyBuffers,
-    /// Each anatomy chunk's pixel bounding box under one projection (see `culled`).
-    chunk_boxes: Option<(Projection, Vec<[f32; 4]>)>,
-    needle: Option<Needle>,
-    pipelines: Pipelines,
-    /// Uniforms of the full image (0) and of the supersampled needle region (1).
-    view_buf: [wgpu::Buffer; 2],
-    resolve_buf: [wgpu::Buffer; 2],
-    weights_buf: wgpu::Buffer,
-    empty_iodine: wgpu::Texture,
-    targets: [Option<Targets>; 2],
-    spectral: Option<SpectralTables>,
-    cortical_shell_mm: f64,
-    /// What the full-image geometric L-buffer (`targets[0].a`) holds, if anything.
-    geo_key: Option<(Projection, Layout)>,
-    /// The last full-image transmission resolve without iodine (see [`Resolved`]).
-    resolved: Option<Resolved>,
-    /// Bumped whenever the needle changes.
-    needle_generation: u64,
-    /// The last displayed-frame transmission and what decided it.
-    last_frame: Option<(FrameKey, GpuTransmission)>,
-    /// The last frame's input to sim-core's finishing step, reused while the detector and the
-    /// collimator stay (its exposure mask and its storage).
-    finishing: Option<(ExposureKey, TransmissionImage)>,
-    /// Use the caches (default `true`; `false` renders every frame from scratch, for the
-    /// benchmark's before/after rows and the cache tests).
-    pub caching: bool,
-    /// Draw only the anatomy triangles that can reach the needle's pixel box or the
-    /// supersampled region into them (default `true`; bit-identical either way, see
-    /// `culled`).
-    pub culling: bool,
-    timings: FrameTimings,
-    /// Iodine ray-march step as a fraction of the smallest voxel spacing (default 0.25).
-    pub iodine_step_fraction: f64,
-}
 
-/// Wall-clock phases of the last frame rendered by [`GpuFluoroRenderer::render_frame`] (or the
-/// transmission calls), ms. GPU work is measured from submit to the end of the wait for the
-/// read-back (lavapipe runs it on the CPU); `cpu_*` are work on the calling thread.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct FrameTimings {
-    /// Recording passes and uploading uniforms.
-    pub encode_ms: f64,
-    /// Submit until the read-back buffer is mapped (rasterising, resolve, copy).
-    pub gpu_ms: f64,
-    /// Copying the mapped read-back into the frame.
-    pub readback_ms: f64,
-    /// Needle-edge flags and averaging the supersampled region.
-    pub supersample_ms: f64,
-    /// sim-core's finishing step (noise, brightness, tone map, shutters).
-    pub finish_ms: f64,
-    /// Transmission samples resolved on the GPU (full image and supersampled region).
-    pub resolved_samples: u64,
-    /// Whether the full-image geometric L-buffer was reused.
-    pub geometry_reused: bool,
-    /// Whether the whole transmission was reused (nothing changed).
-    pub frame_reused: bool,
-}
 
-impl FrameTimings {
-    /// Sum of the phases, ms.
-    pub fn total_ms(&self) -> f64 {
-        self.encode_ms + self.gpu_ms + self.readback_ms + self.supersample_ms + self.finish_ms
-    }
-}
+
 
 impl GpuFluoroRenderer {
     /// Uploads a scene: every non-steel entry is anatomy (nesting resolved once, here, by

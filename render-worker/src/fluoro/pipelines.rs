@@ -1,9 +1,8 @@
 //! The render pipelines of the passes (see the module map in `fluoro`), their target
 //! formats and the per-size render targets.
 
-use super::GpuFluoroRenderer;
-use super::lbuffer::Vertex;
 use super::resolve::resolve_layout_entries;
+use super::types::*;
 use crate::gpu::GpuContext;
 
 const FMT_A: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
@@ -15,8 +14,6 @@ const FMT_SCALAR: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
 const FMT_RESOLVE: wgpu::TextureFormat = wgpu::TextureFormat::R8Unorm;
 const FMT_HULL: wgpu::TextureFormat = wgpu::TextureFormat::Rg32Float;
 const FMT_CHORD: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
-/// Marker of "no needle on this pixel" in the hull target (as in the shader).
-pub(super) const NO_NEEDLE: f64 = 1.0e30;
 
 fn additive() -> wgpu::BlendState {
     let c = wgpu::BlendComponent {
@@ -42,23 +39,6 @@ fn target(format: wgpu::TextureFormat, blend: wgpu::BlendState) -> Option<wgpu::
         blend: Some(blend),
         write_mask: wgpu::ColorWrites::ALL,
     })
-}
-
-/// Every pipeline of the renderer, built once per device.
-pub(super) struct Pipelines {
-    /// The needle's hull and chord pass.
-    pub(super) needle: wgpu::RenderPipeline,
-    /// The geometric anatomy pass into the four-channel L-buffer.
-    pub(super) anatomy: wgpu::RenderPipeline,
-    /// The geometric anatomy pass into the one-channel (water-basis) L-buffer.
-    pub(super) anatomy_scalar: wgpu::RenderPipeline,
-    /// The displaced anatomy pass.
-    pub(super) displaced: wgpu::RenderPipeline,
-    /// The resolve, `[iodine][needle]`: without and with the iodine ray march, and without
-    /// and with the needle's inputs (drawn over the needle's pixel box only); one bind group
-    /// layout (`resolve_layout`) serves all four.
-    pub(super) resolve: [[wgpu::RenderPipeline; 2]; 2],
-    pub(super) resolve_layout: wgpu::BindGroupLayout,
 }
 
 impl Pipelines {
@@ -205,26 +185,6 @@ impl Pipelines {
             resolve_layout,
         }
     }
-}
-
-/// Render targets of one detector size.
-pub(super) struct Targets {
-    pub(super) size: [u32; 2],
-    /// Geometric L-buffer (needle-independent): the non-scalar meshes in the transmission
-    /// layout, every mesh in the chord layout.
-    pub(super) a: wgpu::Texture,
-    /// Geometric L-buffer of the scalar meshes, transmission layout (water-basis channel).
-    pub(super) s: wgpu::Texture,
-    /// Displaced part (zero outside the needle's pixel box).
-    pub(super) d: wgpu::Texture,
-    pub(super) hull: wgpu::Texture,
-    pub(super) chord: wgpu::Texture,
-    pub(super) out_t: wgpu::Buffer,
-    /// The resolve's render target: it only sizes the pass (write mask empty; cleared, one byte
-    /// per sample, and discarded); the output is `out_t`.
-    pub(super) resolve: wgpu::Texture,
-    /// Kept mapped-readable copy of `out_t` (no allocation per frame).
-    pub(super) staging: wgpu::Buffer,
 }
 
 impl GpuFluoroRenderer {

@@ -22,46 +22,14 @@
 //! inset); weaker otherwise. In transmission frames the needle is removed from the bone before
 //! the clamp's excess moves to cortex, which differs from the CPU only where the clamp binds on a
 //! ray through the needle (`render_chords` follows the CPU's order exactly).
-use bytemuck::{Pod, Zeroable};
-use sim_core::fluoro::{EnergyModel, FluoroMaterial, IodineField, Projection, SpectralModel};
+use sim_core::fluoro::{FluoroMaterial, IodineField, Projection, SpectralModel};
 use sim_core::material::MaterialClass;
 use std::time::Instant;
 use wgpu::util::DeviceExt;
 
 use super::cache::{intersect_rect, subtract_rect, union_rect};
-use super::lbuffer::{Layout, Passes};
-use super::{FluoroGpuError, GpuFluoroRenderer, PixelRect};
+use super::types::*;
 use crate::gpu::{GpuContext, GpuError, ReadbackError};
-
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-pub(super) struct ResolveUniform {
-    p00: [f32; 4],
-    step_u: [f32; 4],
-    step_v: [f32; 4],
-    source: [f32; 4],
-    blades: [f32; 4],
-    misc: [f32; 4],
-    dims: [u32; 4],
-    mu: [f32; 4],
-    iod_origin: [f32; 4],
-    iod_inv_spacing: [f32; 4],
-    iod_dims: [u32; 4],
-    lut_scale: [f32; 4],
-    region: [f32; 4],
-    full: [u32; 4],
-    lut_dims: [u32; 4],
-    rect: [u32; 4],
-    row_w: [f32; 4],
-}
-
-/// Spectral bins and the `ln T` table of one energy model, kept until the model changes.
-pub(super) struct SpectralTables {
-    model: EnergyModel,
-    bins: wgpu::Buffer,
-    lut: wgpu::Buffer,
-    lut_enabled: bool,
-}
 
 /// Size of the `ln T(A_water, A_bone)` table (columns, rows).
 const LUT_DIMS: [usize; 2] = [512, 256];
@@ -442,23 +410,6 @@ pub(super) fn resolve_layout_entries() -> [wgpu::BindGroupLayoutEntry; 9] {
         entry(7, texture(wgpu::TextureViewDimension::D2)),
         entry(8, texture(wgpu::TextureViewDimension::D2)),
     ]
-}
-
-/// A [`PixelRect`] recorded for resolve and read-back.
-#[derive(Debug, Clone)]
-pub(super) struct Pending {
-    ri: usize,
-    rows: std::ops::Range<u32>,
-    /// Bytes to read back (0: nothing was resolved).
-    bytes: u64,
-    needle_rect: Option<[u32; 4]>,
-}
-
-/// Resolved rows of one [`PixelRect`].
-pub(super) struct PixelRectOut {
-    pub(super) rows: std::ops::Range<u32>,
-    pub(super) data: Vec<f32>,
-    pub(super) needle_rect: Option<[u32; 4]>,
 }
 
 /// A 3-D `R32Float` texture of an iodine concentration grid (x fastest).
