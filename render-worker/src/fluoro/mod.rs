@@ -198,7 +198,7 @@ impl GpuFluoroRenderer {
     /// pass, then a read-back. With [`GpuFluoroRenderer::caching`], the geometric pass is kept
     /// while the projection stays, and without iodine only the rows the needle covers now or
     /// covered in the previous frame are resolved and read back (bit-identical to a frame from
-    /// scratch, see [`Resolved`]).
+    /// scratch, see `types::Resolved`).
     pub fn render_transmission(
         &mut self,
         projection: &Projection,

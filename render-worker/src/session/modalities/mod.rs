@@ -2,10 +2,10 @@
 //! the ones a station lists.
 //!
 //! A modality owns its state, the commands of the classes it accepts, its views and renderer,
-//! and its scorers. The session routes each command by [`CommandClass`](crate::session::command::CommandClass) to the one modality that
-//! accepts it, tells every modality about changes of the shared [`World`] (the needle moved,
-//! fluid was injected) and about simulated time passing, and asks only dirty, visible views to
-//! render. A station without a modality never constructs it, so it costs nothing there.
+//! and its scorers. The session routes each command by
+//! [`CommandClass`](crate::session::command::CommandClass) to the one modality that accepts it,
+//! tells every modality about changes of the shared `World` (the needle moved, fluid was
+//! injected) and about simulated time passing, and asks only dirty, visible views to render. A station without a modality never constructs it, so it costs nothing there.
 //!
 //! Adding a modality is a folder here (its state, commands, renderer, scorers) and one line in
 //! [`ModalityFactory::standard`]. Tests and embedders can register their own with
