@@ -23,7 +23,7 @@ pub mod test_support;
 pub mod workers;
 
 use axum::Router;
-use axum::routing::get;
+use axum::routing::{any, get};
 use tower_http::services::{ServeDir, ServeFile};
 use tower_http::trace::TraceLayer;
 
@@ -36,12 +36,17 @@ pub use state::AppState;
 pub fn app(state: AppState) -> Router {
     let web = ServeDir::new(&state.config.web_dir).fallback(ServeFile::new(state.config.web_dir.join("index.html")));
     let records_state = records::RecordsState::from_parts(state.pool.clone(), state.config.records.clone());
+    let tls = routes::headers::Tls(state.config.records.cookie_secure);
     Router::new()
         .route("/healthz", get(routes::health::healthz))
         .merge(records::router(records_state.clone()).0)
         .merge(dispatch::router(records_state, dispatcher_for(&state)))
+        .route("/api/{*rest}", any(routes::headers::api_not_found))
+        .route("/api", any(routes::headers::api_not_found))
+        .route("/api/", any(routes::headers::api_not_found))
         .fallback_service(web)
         .layer(axum::extract::DefaultBodyLimit::max(state.config.max_body_bytes))
+        .layer(axum::middleware::from_fn_with_state(tls, routes::headers::security_headers))
         .layer(TraceLayer::new_for_http())
         .with_state(state)
 }

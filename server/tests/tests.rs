@@ -14,4 +14,5 @@ mod records_results;
 mod records_sigkill;
 mod records_support;
 mod server_process;
+mod security_headers;
 mod session_sigkill;

@@ -23,6 +23,19 @@ if (!base) {
 const DEMO_PASSWORD = process.env.E2E_PASSWORD || 'demo-password-not-secret';
 const STEP_TIMEOUT_MS = 60_000;
 
+// Polls `predicate(arg)` in the page until it is true. Not page.waitForFunction: that compiles
+// its predicate inside the page, which the server's Content-Security-Policy (no 'unsafe-eval')
+// rightly refuses; page.evaluate goes through the DevTools protocol instead.
+async function waitUntil(page, predicate, arg = null, options = {}) {
+  const timeout = options.timeout ?? STEP_TIMEOUT_MS;
+  const deadline = Date.now() + timeout;
+  for (;;) {
+    if (await page.evaluate(predicate, arg)) return;
+    if (Date.now() > deadline) throw new Error(`timed out after ${timeout} ms waiting for ${predicate}`);
+    await new Promise((r) => setTimeout(r, 25));
+  }
+}
+
 /** RFC 6238 TOTP (HMAC-SHA1, 6 digits, 30 s), from a base32 secret. */
 function totp(secretBase32, unixS = Date.now() / 1000) {
   const alphabet = 'ABCDEFGHIJKLMNOPQRSTUVWXYZ234567';
@@ -87,9 +100,9 @@ async function acksSoFar(page) {
 async function act(page, action) {
   const before = await framesSoFar(page);
   await action();
-  await page.waitForFunction((n) => window.__sim.stats.frames > n && window.__sim.live.pending.size === 0, before, { timeout: STEP_TIMEOUT_MS });
+  await waitUntil(page, (n) => window.__sim.stats.frames > n && window.__sim.live.pending.size === 0, before, { timeout: STEP_TIMEOUT_MS });
   // The frame event draws after decoding; wait for the draw of this frame.
-  await page.waitForFunction(() => Number(document.getElementById('frame-count').textContent) === window.__sim.stats.frames, null, { timeout: STEP_TIMEOUT_MS });
+  await waitUntil(page, () => Number(document.getElementById('frame-count').textContent) === window.__sim.stats.frames, null, { timeout: STEP_TIMEOUT_MS });
 }
 
 async function capture(page, name) {
@@ -136,7 +149,7 @@ try {
   report.station = await stationButton.getAttribute('data-station');
   await stationButton.click();
   await page.waitForSelector('#session-view:not([hidden])');
-  await page.waitForFunction(() => document.getElementById('conn').textContent === 'live');
+  await waitUntil(page, () => document.getElementById('conn').textContent === 'live');
   report.steps.push('session open');
   report.accessible = await page.evaluate(() => ({
     canvas_label: document.getElementById('fluoro').getAttribute('aria-label') || '',
@@ -147,7 +160,7 @@ try {
   const acksBefore = await acksSoFar(page);
   await page.fill('#ma', '20');
   await page.dispatchEvent('#ma', 'change');
-  await page.waitForFunction((n) => window.__sim.stats.acks > n, acksBefore);
+  await waitUntil(page, (n) => window.__sim.stats.acks > n, acksBefore);
   await act(page, () => page.click('#shot'));
   const first = await capture(page, '1-first-shot');
   report.steps.push('shot');
@@ -172,7 +185,7 @@ try {
   const acks0 = await acksSoFar(page);
   await page.click('#needle-place');
   for (let i = 0; i < 3; i++) await page.click('#feed-5');
-  await page.waitForFunction((n) => window.__sim.stats.acks >= n + 4 && window.__sim.live.pending.size === 0, acks0);
+  await waitUntil(page, (n) => window.__sim.stats.acks >= n + 4 && window.__sim.live.pending.size === 0, acks0);
   report.depth_text = await page.textContent('#depth');
   await act(page, () => page.click('#shot'));
   const needle = await capture(page, '3-needle');
@@ -218,14 +231,14 @@ try {
   report.queue_rows = await page.locator('#queue tbody tr').count();
   await page.locator('#queue tbody button').first().click();
   await page.waitForSelector('#review:not([hidden])');
-  await page.waitForFunction(() => document.getElementById('replay-check').textContent.length > 0);
+  await waitUntil(page, () => document.getElementById('replay-check').textContent.length > 0);
   report.replay_check = await page.textContent('#replay-check');
   report.timeline_steps = await page.locator('#timeline-list li').count();
-  await page.waitForFunction(() => { const i = document.getElementById('replay-frame'); return i.complete && i.naturalWidth > 0; });
+  await waitUntil(page, () => { const i = document.getElementById('replay-frame'); return i.complete && i.naturalWidth > 0; });
   report.replay_frame_width = await page.evaluate(() => document.getElementById('replay-frame').naturalWidth);
   await page.fill('#review-comment', 'Approved in the end-to-end test.');
   await page.click('#approve');
-  await page.waitForFunction(() => document.getElementById('message').textContent === 'Approved.');
+  await waitUntil(page, () => document.getElementById('message').textContent === 'Approved.');
   report.steps.push('approved');
   report.console_errors = consoleErrors;
   report.ok = true;
