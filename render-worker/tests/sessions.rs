@@ -896,3 +896,53 @@ fn frames_of_a_scripted_session_are_pinned() {
         }
     }
 }
+
+/// What the server's log cannot store is refused before it is acknowledged (issue 20, point 3):
+/// NUL in text fields, and sequence numbers above a PostgreSQL `bigint`.
+#[test]
+fn commands_the_log_cannot_store_are_refused_naming_the_field() {
+    let mut s = Session::new(env(), config());
+    let cases = [
+        (u64::MAX, Command::Shot, "seq", ErrorCode::Sequence),
+        (
+            (i64::MAX as u64) + 1,
+            Command::Shot,
+            "seq",
+            ErrorCode::Sequence,
+        ),
+        (
+            1,
+            Command::Annotate {
+                pixel: [1.0, 1.0],
+                label: "tar\0get".into(),
+            },
+            "command.label",
+            ErrorCode::Invalid,
+        ),
+        (
+            1,
+            Command::NeedlePlace {
+                instrument: "spinal\0".into(),
+                entry_mm: [12.0, -100.0, 0.0],
+                direction: [0.0, 1.0, 0.0],
+                bevel_reference: [1.0, 0.0, 0.0],
+            },
+            "command.instrument",
+            ErrorCode::Invalid,
+        ),
+    ];
+    for (seq, command, field, code) in cases {
+        let e = s.apply(Envelope { seq, command }, 0).unwrap_err();
+        assert_eq!((e.field.as_str(), e.code), (field, code), "{e}");
+    }
+    assert!(s.log().is_empty());
+    // The largest storable sequence number is accepted.
+    s.apply(
+        Envelope {
+            seq: i64::MAX as u64,
+            command: Command::Shot,
+        },
+        0,
+    )
+    .unwrap();
+}

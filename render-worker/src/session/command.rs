@@ -256,6 +256,7 @@ impl Command {
                 direction,
                 bevel_reference,
             } => {
+                no_nul("command.instrument", instrument)?;
                 if instrument.is_empty() {
                     return Err(CommandError::field(
                         "command.instrument",
@@ -277,6 +278,7 @@ impl Command {
                 for (a, v) in pixel.iter().enumerate() {
                     finite(&format!("command.pixel[{a}]"), *v)?;
                 }
+                no_nul("command.label", label)?;
                 if label.trim().is_empty() || label.chars().count() > MAX_LABEL_CHARS {
                     return Err(CommandError::field(
                         "command.label",
@@ -396,6 +398,22 @@ pub struct LogEntry {
     /// The command.
     pub command: Command,
 }
+
+/// Refuses text holding a NUL: the server's copy of the log (PostgreSQL text and jsonb) cannot
+/// store one, so such a command must never be acknowledged.
+fn no_nul(field: &str, text: &str) -> Result<(), CommandError> {
+    if text.contains('\0') {
+        return Err(CommandError::field(
+            field,
+            ErrorCode::Invalid,
+            "must not contain NUL characters (U+0000)",
+        ));
+    }
+    Ok(())
+}
+
+/// Largest sequence number, the largest the server's log stores (a PostgreSQL `bigint`).
+pub const MAX_SEQ: u64 = i64::MAX as u64;
 
 /// Machine-readable reason of a rejection.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

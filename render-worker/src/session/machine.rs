@@ -9,7 +9,9 @@ use sha2::{Digest, Sha256};
 use sim_core::hash::sha256_hex;
 use sim_core::rubric::{Measurements, Modality as StationModality};
 
-use super::command::{Agent, Command, CommandClass, CommandError, Envelope, ErrorCode, LogEntry};
+use super::command::{
+    Agent, Command, CommandClass, CommandError, Envelope, ErrorCode, LogEntry, MAX_SEQ,
+};
 use super::config::SessionConfig;
 use super::devices::Backends;
 use super::error::SessionError;
@@ -375,6 +377,13 @@ impl Session {
                 "seq",
                 ErrorCode::Sequence,
                 "sequence numbers start at 1",
+            ));
+        }
+        if env.seq > MAX_SEQ {
+            return Err(CommandError::field(
+                "seq",
+                ErrorCode::Sequence,
+                format!("sequence numbers end at {MAX_SEQ} (2^63 - 1)"),
             ));
         }
         if env.seq <= self.last_seq {

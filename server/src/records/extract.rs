@@ -21,6 +21,27 @@ impl<T: serde::de::DeserializeOwned> FromRequest<RecordsState> for ApiJson<T> {
         req: axum::extract::Request,
         state: &RecordsState,
     ) -> Result<Self, ApiError> {
+        // PostgreSQL stores no NUL in text or jsonb: a body with one is refused here, naming
+        // the field, instead of failing at the database (a 500 before). JSON can only carry a
+        // NUL as the escape `\u0000`, so bodies without that sequence skip the search.
+        let (parts, body) = req.into_parts();
+        let headers = parts.headers.clone();
+        let bytes =
+            axum::body::Bytes::from_request(axum::extract::Request::from_parts(parts, body), state)
+                .await
+                .map_err(|r| match r.status() {
+                    StatusCode::PAYLOAD_TOO_LARGE => {
+                        ApiError::PayloadTooLarge(state.config.max_body_bytes)
+                    }
+                    _ => ApiError::BadRequest(format!("invalid body: {}", r.body_text())),
+                })?;
+        if let Some(field) = nul_field(&bytes) {
+            return Err(ApiError::BadRequest(format!(
+                "{field}: must not contain NUL characters (U+0000)"
+            )));
+        }
+        let mut req = axum::extract::Request::new(axum::body::Body::from(bytes));
+        *req.headers_mut() = headers;
         match axum::Json::<T>::from_request(req, state).await {
             Ok(axum::Json(v)) => Ok(ApiJson(v)),
             Err(r) if r.status() == StatusCode::PAYLOAD_TOO_LARGE => {
@@ -29,6 +50,44 @@ impl<T: serde::de::DeserializeOwned> FromRequest<RecordsState> for ApiJson<T> {
             Err(r) => Err(r.into()),
         }
     }
+}
+
+/// The path of the first string (key or value) holding a NUL in a JSON body, `None` when there
+/// is none (or the body is not JSON: the JSON extractor reports that).
+pub fn nul_field(body: &[u8]) -> Option<String> {
+    if !body.windows(6).any(|w| w.eq_ignore_ascii_case(b"\\u0000")) {
+        return None;
+    }
+    let value: serde_json::Value = serde_json::from_slice(body).ok()?;
+    fn walk(v: &serde_json::Value, path: &str) -> Option<String> {
+        let here = || {
+            if path.is_empty() {
+                "body".to_string()
+            } else {
+                path.to_string()
+            }
+        };
+        match v {
+            serde_json::Value::String(s) => s.contains('\0').then(here),
+            serde_json::Value::Array(items) => items
+                .iter()
+                .enumerate()
+                .find_map(|(i, x)| walk(x, &format!("{}[{i}]", here()))),
+            serde_json::Value::Object(map) => map.iter().find_map(|(k, x)| {
+                let p = if path.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{path}.{k}")
+                };
+                if k.contains('\0') {
+                    return Some(format!("{} (a key)", p.replace('\0', "\\u0000")));
+                }
+                walk(x, &p)
+            }),
+            _ => None,
+        }
+    }
+    walk(&value, "")
 }
 
 impl<T: serde::Serialize> axum::response::IntoResponse for ApiJson<T> {
@@ -68,5 +127,31 @@ impl From<PathRejection> for ApiError {
 impl From<QueryRejection> for ApiError {
     fn from(r: QueryRejection) -> ApiError {
         ApiError::BadRequest(format!("invalid query parameter: {}", r.body_text()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::nul_field;
+
+    #[test]
+    fn nul_is_found_in_values_keys_and_arrays_and_only_there() {
+        assert_eq!(
+            nul_field(br#"{"email": "a\u0000b"}"#).as_deref(),
+            Some("email")
+        );
+        assert_eq!(
+            nul_field(br#"{"detail": {"notes": ["ok", "x\u0000"]}}"#).as_deref(),
+            Some("detail.notes[1]")
+        );
+        assert_eq!(
+            nul_field(br#"{"detail": {"k\u0000": 1}}"#).as_deref(),
+            Some("detail.k\\u0000 (a key)")
+        );
+        assert_eq!(nul_field(br#""\u0000""#).as_deref(), Some("body"));
+        // An escaped backslash followed by "u0000" is six ordinary characters, not a NUL.
+        assert_eq!(nul_field(br#"{"text": "\\u0000"}"#), None);
+        assert_eq!(nul_field(br#"{"text": "plain"}"#), None);
+        assert_eq!(nul_field(b"not json \\u0000"), None);
     }
 }
