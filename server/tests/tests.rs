@@ -10,6 +10,7 @@ mod records_approval;
 mod records_auth;
 mod records_authz;
 mod records_bad_input;
+mod records_demo;
 mod records_nul;
 mod records_results;
 mod records_sigkill;

@@ -2,6 +2,7 @@
 //!
 //! | variable | default | meaning |
 //! |---|---|---|
+//! | `PAINSIM_DEMO_ACCOUNTS` | `auto` | create the demo accounts (published passwords): `true`, `false`, or `auto` = only when `PAINSIM_BIND` is a loopback address and the database is the embedded one |
 //! | `PAINSIM_COOKIE_SECURE` | `auto` | `Secure` cookie attribute: `true`, `false`, or `auto` = secure unless `PAINSIM_BIND` is a loopback address (plain-http local runs) |
 //! | `PAINSIM_SESSION_IDLE_SECS` | `1800` | a session unused this long expires |
 //! | `PAINSIM_SESSION_ABSOLUTE_SECS` | `43200` | a session expires this long after login, used or not |
@@ -70,6 +71,12 @@ pub struct RecordsConfig {
     pub stations_dir: PathBuf,
     /// Largest request body (the server-wide `PAINSIM_MAX_BODY_BYTES`), named in 413 errors.
     pub max_body_bytes: usize,
+    /// `PAINSIM_DEMO_ACCOUNTS`: create the demo accounts (whose passwords are published in the
+    /// README) at start-up: `Some(true)` always, `Some(false)` never, `None` (auto) only with the
+    /// embedded database on a loopback bind.
+    pub demo_accounts: Option<bool>,
+    /// Whether `PAINSIM_BIND` is a loopback address.
+    pub loopback_bind: bool,
 }
 
 fn parse<T: std::str::FromStr>(
@@ -138,6 +145,8 @@ impl RecordsConfig {
         let r = Argon2Cost::RECOMMENDED;
         Ok(RecordsConfig {
             cookie_secure: parse_bool(&lookup, "PAINSIM_COOKIE_SECURE")?.unwrap_or(!loopback_bind),
+            demo_accounts: parse_bool(&lookup, "PAINSIM_DEMO_ACCOUNTS")?,
+            loopback_bind,
             session_idle: secs("PAINSIM_SESSION_IDLE_SECS", 1800)?,
             session_absolute: secs("PAINSIM_SESSION_ABSOLUTE_SECS", 12 * 3600)?,
             argon2: Argon2Cost {
