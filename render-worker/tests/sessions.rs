@@ -946,3 +946,43 @@ fn commands_the_log_cannot_store_are_refused_naming_the_field() {
     )
     .unwrap();
 }
+
+/// Unknown fields are refused, naming them (issue 20, point 8), in the envelope and in every
+/// command, unit commands included (serde alone ignores those).
+#[test]
+fn unknown_fields_in_messages_and_commands_are_refused() {
+    for (text, field) in [
+        (
+            r#"{"type":"command","seq":1,"command":{"type":"shot"},"extra":1}"#,
+            "extra",
+        ),
+        (
+            r#"{"type":"command","seq":1,"command":{"type":"shot","x":1}}"#,
+            "command.x",
+        ),
+        (
+            r#"{"type":"command","seq":1,"command":{"type":"submit","score":1}}"#,
+            "command.score",
+        ),
+        (
+            r#"{"type":"command","seq":1,"command":{"type":"carm_pose","orbital_deg":0,"angular_deg":0,"zoom":2}}"#,
+            "command.zoom",
+        ),
+        (
+            r#"{"type":"views","visible":["fluoroscopy"],"all":true}"#,
+            "all",
+        ),
+    ] {
+        let (_, e) = parse_client_message(text).unwrap_err();
+        assert_eq!(e.field, field, "{text}: {e}");
+        assert_eq!(e.code, ErrorCode::Malformed);
+    }
+    // The same messages without the extra field parse.
+    for text in [
+        r#"{"type":"command","seq":1,"command":{"type":"shot"}}"#,
+        r#"{"type":"command","seq":1,"command":{"type":"carm_pose","orbital_deg":0,"angular_deg":0}}"#,
+        r#"{"type":"views","visible":["fluoroscopy"]}"#,
+    ] {
+        assert!(parse_client_message(text).is_ok(), "{text}");
+    }
+}

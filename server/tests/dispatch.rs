@@ -775,3 +775,44 @@ async fn idle_sessions_are_closed_only_without_a_connection_and_then_resume() {
         "{resumed}"
     );
 }
+
+/// A browser message over the relay's limit closes the socket with 1009 and a reason (issue 20,
+/// point 8; the library default accepted 64 MiB), nothing of it is applied, and a reconnect
+/// carries on with the same session.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_oversized_message_closes_the_socket_with_1009_and_the_session_goes_on() {
+    let srv = demo_server(true, None).await;
+    let learner = Client::login(srv.addr, "learner@demo.invalid").await;
+    let (_attempt, session) = learner.start_demo_attempt().await;
+    let ws_path = session["ws"].as_str().unwrap().to_string();
+    let mut ws = learner.websocket(&ws_path).await;
+    let mut got = Received::default();
+    ws.until(&mut got, |r| !r.texts.is_empty()).await;
+    let label = "x".repeat(server::dispatch::MAX_CLIENT_MESSAGE_BYTES);
+    let big = json!({ "type": "command", "seq": 1, "command": { "type": "annotate", "pixel": [1, 1], "label": label } });
+    ws.ws
+        .send(Message::Text(big.to_string().into()))
+        .await
+        .expect("send");
+    let close = loop {
+        let m = tokio::time::timeout(Duration::from_secs(30), ws.ws.next())
+            .await
+            .expect("an answer within 30 s");
+        match m {
+            Some(Ok(Message::Close(frame))) => break frame,
+            Some(Ok(_)) => continue,
+            other => panic!("expected a close frame, got {other:?}"),
+        }
+    };
+    let frame = close.expect("a close frame with a code");
+    assert_eq!(u16::from(frame.code), 1009, "{frame:?}");
+    assert!(frame.reason.contains("too large"), "{frame:?}");
+    // The session is intact: a new connection greets with nothing applied and takes commands.
+    let mut ws = learner.websocket(&ws_path).await;
+    let mut got = Received::default();
+    ws.until(&mut got, |r| !r.texts.is_empty()).await;
+    assert_eq!(got.texts[0]["type"], "hello");
+    assert_eq!(got.texts[0]["last_seq"], 0);
+    ws.send(1, json!({ "type": "shot" })).await;
+    ws.until(&mut got, |r| acked(r) == vec![1]).await;
+}

@@ -139,8 +139,15 @@ async fn ws(
     let Some(h) = host.session(&id) else {
         return error(&HostError::NoSession(id));
     };
-    upgrade.on_upgrade(move |socket| serve_socket(h, socket))
+    upgrade
+        .max_message_size(MAX_CLIENT_MESSAGE_BYTES)
+        .max_frame_size(MAX_CLIENT_MESSAGE_BYTES)
+        .on_upgrade(move |socket| serve_socket(h, socket))
 }
+
+/// Largest message (and frame) a client of a session socket may send, bytes. Simulator choice:
+/// commands are well under 1 KiB of JSON; the library default was 64 MiB.
+pub const MAX_CLIENT_MESSAGE_BYTES: usize = 64 * 1024;
 
 async fn serve_socket(h: SessionHandle, socket: WebSocket) {
     let (sink, stream) = socket.split();

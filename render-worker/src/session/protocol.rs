@@ -88,6 +88,25 @@ pub fn parse_client_message(text: &str) -> Result<ClientMessage, (Option<u64>, C
         )
     })?;
     let kind = value.get("type").and_then(|t| t.as_str()).unwrap_or("");
+    let allowed: &[&str] = match kind {
+        "command" => &["type", "seq", "command"],
+        "views" => &["type", "visible"],
+        _ => &[],
+    };
+    if let Some(extra) = value.as_object().and_then(|o| {
+        o.keys()
+            .find(|k| !allowed.is_empty() && !allowed.contains(&k.as_str()))
+    }) {
+        let seq = value.get("seq").and_then(serde_json::Value::as_u64);
+        return Err((
+            seq,
+            CommandError::field(
+                extra,
+                ErrorCode::Malformed,
+                format!("unknown field `{extra}` (expected {allowed:?})"),
+            ),
+        ));
+    }
     match kind {
         "command" => {
             let seq = value
@@ -131,6 +150,21 @@ pub fn parse_client_message(text: &str) -> Result<ClientMessage, (Option<u64>, C
                     },
                 )
             })?;
+            // serde ignores unknown fields of unit variants (`shot`) in an internally tagged
+            // enum: every field sent must be one the command has.
+            let known = serde_json::to_value(&command).unwrap_or_default();
+            if let (Some(sent), Some(known)) = (raw.as_object(), known.as_object()) {
+                if let Some(extra) = sent.keys().find(|k| !known.contains_key(*k)) {
+                    return Err((
+                        Some(seq),
+                        CommandError::field(
+                            &format!("command.{extra}"),
+                            ErrorCode::Malformed,
+                            format!("unknown field `{extra}` of {}", command.name()),
+                        ),
+                    ));
+                }
+            }
             Ok(ClientMessage::Command { seq, command })
         }
         "views" => serde_json::from_value(value).map_err(|e| {

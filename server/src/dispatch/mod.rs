@@ -40,5 +40,6 @@ mod store;
 mod upstream;
 
 pub use dispatcher::*;
+pub use relay::MAX_CLIENT_MESSAGE_BYTES;
 pub use registry::{RemoteWorker, WorkerView};
 pub use routes::router;

@@ -31,6 +31,12 @@ const MAX_FAILOVERS_IN_A_ROW: u32 = 3;
 
 type BrowserTx = SplitSink<WebSocket, Message>;
 
+/// Largest websocket message (and frame) a browser may send, bytes. Simulator choice: the
+/// largest command (a needle placement or an annotation with a 64-character label) is well under
+/// 1 KiB as JSON; 64 KiB leaves room without letting one message cost megabytes (the library
+/// default was 64 MiB).
+pub const MAX_CLIENT_MESSAGE_BYTES: usize = 64 * 1024;
+
 /// The engagement event a command stands for, if any.
 fn activity_of(command: &Command) -> Option<ActivityKind> {
     Some(match command {
@@ -287,7 +293,28 @@ impl Relay {
                 Flow::Stay
             }
             Some(Ok(Message::Ping(_) | Message::Pong(_))) => Flow::Stay,
-            Some(Ok(Message::Close(_))) | Some(Err(_)) | None => {
+            Some(Err(e)) => {
+                // Too large a frame or message (the limits of `routes::session_socket`), or a
+                // protocol violation: say which, with the RFC 6455 close code, then end.
+                let text = e.to_string();
+                let (code, reason) = if text.contains("too long") || text.contains("too big") {
+                    (
+                        1009,
+                        format!("message too large: at most {MAX_CLIENT_MESSAGE_BYTES} bytes"),
+                    )
+                } else {
+                    (1002, "websocket protocol error".to_string())
+                };
+                tracing::info!(session = %self.session.id, "closing the browser socket: {text}");
+                let frame = axum::extract::ws::CloseFrame {
+                    code,
+                    reason: reason.into(),
+                };
+                let _ = self.browser_tx.send(Message::Close(Some(frame))).await;
+                let _ = up_tx.send(WsMessage::Close).await;
+                Flow::End
+            }
+            Some(Ok(Message::Close(_))) | None => {
                 let _ = up_tx.send(WsMessage::Close).await;
                 Flow::End
             }

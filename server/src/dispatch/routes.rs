@@ -290,7 +290,10 @@ async fn session_ws(
     let s = owned_session(&state, &user, session_id).await?;
     let generation = s.generation.fetch_add(1, Ordering::SeqCst) + 1;
     let (dispatcher, records) = (state.dispatcher.clone(), state.records.clone());
-    Ok(upgrade.on_upgrade(move |socket| relay::relay(dispatcher, records, s, socket, generation)))
+    Ok(upgrade
+        .max_message_size(relay::MAX_CLIENT_MESSAGE_BYTES)
+        .max_frame_size(relay::MAX_CLIENT_MESSAGE_BYTES)
+        .on_upgrade(move |socket| relay::relay(dispatcher, records, s, socket, generation)))
 }
 
 /// `POST /api/workers`: a render worker announces itself (bearer: the cluster token).
