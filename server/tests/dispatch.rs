@@ -173,6 +173,13 @@ impl Client {
 
     /// Opens an attempt at the demo station in the demo course and its session.
     pub async fn start_demo_attempt(&self) -> (String, Value) {
+        let (id, (s, session)) = self.try_demo_attempt().await;
+        assert_eq!(s, 201, "{session}");
+        (id, session)
+    }
+
+    /// Opens a demo attempt and asks for its session: the attempt id, the status and the body.
+    pub async fn try_demo_attempt(&self) -> (String, (u16, Value)) {
         let (s, courses) = self.call("GET", "/api/courses", None).await;
         assert_eq!(s, 200);
         let course = courses
@@ -191,11 +198,10 @@ impl Client {
             .await;
         assert_eq!(s, 201, "{attempt}");
         let id = attempt["id"].as_str().unwrap().to_string();
-        let (s, session) = self
+        let answer = self
             .call("POST", &format!("/api/attempts/{id}/session"), None)
             .await;
-        assert_eq!(s, 201, "{session}");
-        (id, session)
+        (id, answer)
     }
 
     /// Opens the session's websocket through the server.
@@ -815,4 +821,43 @@ async fn an_oversized_message_closes_the_socket_with_1009_and_the_session_goes_o
     assert_eq!(got.texts[0]["last_seq"], 0);
     ws.send(1, json!({ "type": "shot" })).await;
     ws.until(&mut got, |r| acked(r) == vec![1]).await;
+}
+
+/// One learner cannot take the render worker from everyone (issue 20, point 2): a third live
+/// session is refused with 429 naming the limit, the running ones are still returned, another
+/// learner still gets a session, and `/healthz` reports the free slots.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_user_holds_at_most_the_per_user_limit_of_sessions() {
+    let srv = demo_server(true, None).await;
+    let learner = Client::login(srv.addr, "learner@demo.invalid").await;
+    let (first, _) = learner.start_demo_attempt().await;
+    learner.start_demo_attempt().await;
+    let (_, (status, body)) = learner.try_demo_attempt().await;
+    assert_eq!(status, 429, "{body}");
+    assert_eq!(body["error"]["code"], "session_limit");
+    assert_eq!(body["error"]["limit"], 2);
+    assert!(
+        body["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("at most 2")
+    );
+    // Asking again for a running session is not a new one.
+    let (s, again) = learner
+        .call("POST", &format!("/api/attempts/{first}/session"), None)
+        .await;
+    assert_eq!(s, 200, "{again}");
+    // Everyone else is unaffected.
+    let other = Client::login(srv.addr, "learner2@demo.invalid").await;
+    other.start_demo_attempt().await;
+    // (The per-test database has no installation row, so the status itself is 503 here.)
+    let (_, health) = learner.call("GET", "/healthz", None).await;
+    let sessions = &health["sessions"];
+    assert_eq!(sessions["live"], 3, "{health}");
+    assert_eq!(
+        sessions["free"].as_u64().unwrap() + 3,
+        sessions["capacity"].as_u64().unwrap(),
+        "{health}"
+    );
+    assert_eq!(sessions["per_user_limit"], 2);
 }

@@ -218,6 +218,21 @@ pub(super) struct Inner {
     pub(super) remote: registry::Registry,
     pub(super) sessions: Mutex<HashMap<Uuid, Arc<LiveSession>>>,
     pub(super) worker_token: Option<String>,
+    pub(super) sessions_per_user: usize,
+}
+
+/// Default most live (unsubmitted) sessions one user holds at once. Simulator choice: a learner
+/// works one attempt at a time; two leaves room for a second tab or a resumed attempt while no
+/// single learner can fill an in-process worker (capacity 8).
+pub const DEFAULT_SESSIONS_PER_USER: usize = 2;
+
+/// `PAINSIM_SESSIONS_PER_USER` (at least 1), else [`DEFAULT_SESSIONS_PER_USER`].
+pub fn sessions_per_user_from_env() -> usize {
+    std::env::var("PAINSIM_SESSIONS_PER_USER")
+        .ok()
+        .and_then(|v| v.trim().parse::<usize>().ok())
+        .filter(|n| *n >= 1)
+        .unwrap_or(DEFAULT_SESSIONS_PER_USER)
 }
 
 /// Session dispatch: the in-process host, registered workers, and the live sessions.
@@ -249,6 +264,7 @@ impl Dispatcher {
                 remote: registry::Registry::default(),
                 sessions: Mutex::new(HashMap::new()),
                 worker_token,
+                sessions_per_user: sessions_per_user_from_env(),
             }),
         };
         d.inner.remote.start_polling();
@@ -417,6 +433,36 @@ impl Dispatcher {
         if let Some(h) = &self.inner.local {
             h.prepare_in_background();
         }
+    }
+
+    /// Most live sessions one user may hold.
+    pub fn sessions_per_user(&self) -> usize {
+        self.inner.sessions_per_user
+    }
+
+    /// Live (not submitted) sessions of `user`.
+    pub async fn live_sessions_of(&self, user: Uuid) -> usize {
+        let list: Vec<Arc<LiveSession>> = self
+            .inner
+            .sessions
+            .lock()
+            .map(|m| m.values().filter(|s| s.learner_id == user).cloned().collect())
+            .unwrap_or_default();
+        let mut n = 0;
+        for s in list {
+            if s.state.lock().await.result_id.is_none() {
+                n += 1;
+            }
+        }
+        n
+    }
+
+    /// Sessions the in-process worker holds and could hold (`None` without one).
+    pub fn local_capacity(&self) -> Option<(usize, usize)> {
+        self.inner.local.as_ref().map(|h| {
+            let health = h.health();
+            (health.sessions, health.capacity)
+        })
     }
 
     /// Readiness of the in-process worker's regions (empty without one).

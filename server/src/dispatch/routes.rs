@@ -125,6 +125,17 @@ async fn start_session(
     // A session of this attempt that the server no longer holds (it restarted, or the session
     // was closed): continue it from its recorded snapshot and log.
     let stored = store::resumable_session(&state.records.pool, attempt_id).await?;
+    // One user cannot take the render workers from everyone: a new or resumed session needs
+    // the user under the per-user limit (the running one above is always returned).
+    let limit = state.dispatcher.sessions_per_user();
+    if state.dispatcher.live_sessions_of(user.id).await >= limit {
+        let body = json!({ "error": {
+            "code": "session_limit",
+            "message": format!("at most {limit} live sessions per user (PAINSIM_SESSIONS_PER_USER): submit or leave one (an idle one closes after {} min) before opening another", super::IDLE_CLOSE.as_secs() / 60),
+            "limit": limit,
+        } });
+        return Ok((StatusCode::TOO_MANY_REQUESTS, axum::Json(body)).into_response());
+    }
     if let Err(e) = state.dispatcher.check_local_ready(&station_id) {
         return Ok(not_placed(attempt_id, e));
     }

@@ -35,6 +35,21 @@ pub struct Health {
     pub render_worker: WorkerStatus,
     /// The in-process worker's anatomy (absent when the server has no in-process worker).
     pub anatomy: Option<AnatomyStatus>,
+    /// The in-process worker's session slots (absent without one).
+    pub sessions: Option<SessionCapacity>,
+}
+
+/// Session slots of the in-process worker.
+#[derive(Debug, Serialize)]
+pub struct SessionCapacity {
+    /// Sessions it holds now.
+    pub live: usize,
+    /// Most sessions it holds.
+    pub capacity: usize,
+    /// `capacity - live`: new sessions it can take.
+    pub free: usize,
+    /// Most live sessions one user may hold.
+    pub per_user_limit: usize,
 }
 
 /// Anatomy part of the health report. Not part of `status`: the server serves while the anatomy
@@ -68,7 +83,15 @@ pub async fn healthz(State(state): State<AppState>) -> (StatusCode, Json<Health>
         let regions = d.anatomy();
         AnatomyStatus { ready: regions.values().all(|r| matches!(r, RegionReadiness::Ready { .. })), regions }
     });
+    let sessions = state.dispatcher.as_ref().and_then(|d| {
+        d.local_capacity().map(|(live, capacity)| SessionCapacity {
+            live,
+            capacity,
+            free: capacity.saturating_sub(live),
+            per_user_limit: d.sessions_per_user(),
+        })
+    });
     let ok = database.ready && render_worker.ready;
     let status = if ok { StatusCode::OK } else { StatusCode::SERVICE_UNAVAILABLE };
-    (status, Json(Health { status: if ok { "ok" } else { "unavailable" }, version: env!("CARGO_PKG_VERSION"), database, render_worker, anatomy }))
+    (status, Json(Health { status: if ok { "ok" } else { "unavailable" }, version: env!("CARGO_PKG_VERSION"), database, render_worker, anatomy, sessions }))
 }
