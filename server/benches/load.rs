@@ -193,6 +193,8 @@ async fn bench_backend(
     );
     let sessions_host = host.clone();
     let dispatcher = Dispatcher::new(Some(host.clone()), host, None);
+    // Every simulated learner logs in as the same demo account.
+    dispatcher.set_sessions_per_user(capacity);
     let state = AppState {
         pool: db.pool.clone(),
         embedded_db: true,

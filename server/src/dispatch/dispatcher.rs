@@ -218,7 +218,7 @@ pub(super) struct Inner {
     pub(super) remote: registry::Registry,
     pub(super) sessions: Mutex<HashMap<Uuid, Arc<LiveSession>>>,
     pub(super) worker_token: Option<String>,
-    pub(super) sessions_per_user: usize,
+    pub(super) sessions_per_user: std::sync::atomic::AtomicUsize,
 }
 
 /// Default most live (unsubmitted) sessions one user holds at once. Simulator choice: a learner
@@ -264,7 +264,7 @@ impl Dispatcher {
                 remote: registry::Registry::default(),
                 sessions: Mutex::new(HashMap::new()),
                 worker_token,
-                sessions_per_user: sessions_per_user_from_env(),
+                sessions_per_user: std::sync::atomic::AtomicUsize::new(sessions_per_user_from_env()),
             }),
         };
         d.inner.remote.start_polling();
@@ -437,7 +437,17 @@ impl Dispatcher {
 
     /// Most live sessions one user may hold.
     pub fn sessions_per_user(&self) -> usize {
-        self.inner.sessions_per_user
+        self.inner
+            .sessions_per_user
+            .load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Sets the per-user limit (at least 1), instead of `PAINSIM_SESSIONS_PER_USER`: for the
+    /// load bench, whose simulated learners share one account.
+    pub fn set_sessions_per_user(&self, limit: usize) {
+        self.inner
+            .sessions_per_user
+            .store(limit.max(1), std::sync::atomic::Ordering::Relaxed);
     }
 
     /// Live (not submitted) sessions of `user`.
