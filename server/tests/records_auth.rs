@@ -373,3 +373,56 @@ async fn an_edited_published_station_revision_is_refused() {
     .unwrap();
     assert_eq!(revisions, 2);
 }
+
+/// Failures are throttled per client and account together (issue 20, point 5): a client that
+/// guesses wrong is throttled for that account, but the real user on another client still logs
+/// in, and the attacker is not throttled on other accounts either.
+#[tokio::test]
+async fn one_client_guessing_cannot_lock_a_user_out() {
+    use axum::extract::ConnectInfo;
+    use tower::ServiceExt;
+    let app = TestApp::new(&[("PAINSIM_LOGIN_MAX_FAILURES", "3")]).await;
+    app.user("victim@example.org", Role::Learner).await;
+    let login = |peer: &'static str, pw: &'static str| {
+        let router = app.router.clone();
+        async move {
+            let mut req = axum::http::Request::builder()
+                .method(Method::POST)
+                .uri("/api/auth/login")
+                .header("content-type", "application/json")
+                .body(axum::body::Body::from(
+                    json!({ "email": "victim@example.org", "password": pw }).to_string(),
+                ))
+                .unwrap();
+            let addr: std::net::SocketAddr = peer.parse().unwrap();
+            req.extensions_mut().insert(ConnectInfo(addr));
+            router.oneshot(req).await.unwrap().status()
+        }
+    };
+    for _ in 0..3 {
+        assert_eq!(
+            login("203.0.113.7:40000", "wrong-password-000").await,
+            StatusCode::UNAUTHORIZED
+        );
+    }
+    // The guessing client is throttled, even with the right password...
+    assert_eq!(
+        login("203.0.113.7:40001", PASSWORD).await,
+        StatusCode::TOO_MANY_REQUESTS
+    );
+    // ...the real user elsewhere is not.
+    assert_eq!(login("198.51.100.20:50000", PASSWORD).await, StatusCode::OK);
+    // A distributed attack (many clients, many failures) throttles the account everywhere.
+    let max_all = 3 * server::records::login::ACCOUNT_WIDE_FACTOR;
+    sqlx::query(
+        "INSERT INTO login_failures (email, client) SELECT 'victim@example.org', 'bot-' || g FROM generate_series(1, $1::int) g",
+    )
+    .bind(max_all as i32)
+    .execute(app.pool())
+    .await
+    .unwrap();
+    assert_eq!(
+        login("198.51.100.20:50000", PASSWORD).await,
+        StatusCode::TOO_MANY_REQUESTS
+    );
+}
