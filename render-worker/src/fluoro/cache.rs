@@ -1,90 +1,167 @@
-//! The frame caches (sessions: the needle moves far more often than the C-arm) and the
-//! pixel-rectangle arithmetic of the partial resolve.
+//! The frame caches (sessions: the needle moves far more often than the C-arm).
 //!
-//! With [`GpuFluoroRenderer::caching`] (the default) the renderer keeps, between frames, the
-//! geometric L-buffer of the last projection (pass 1 is skipped while the C-arm stays), the last
-//! full-image transmission without iodine ([`Resolved`]: only the union of the needle's old and
-//! new pixel rectangles is resolved and read back, since outside it every input of the resolve
-//! is unchanged), the last displayed transmission ([`FrameKey`]: a shot with nothing changed
-//! costs only the CPU's noise and display) and the exposure mask ([`ExposureKey`]). Each cached
-//! frame is bit-identical to a frame from scratch, and so is culling (tests in
-//! `render-worker/tests/fluoro_cache.rs`).
-use sim_core::fluoro::{IodineField, Projection, SpectralModel};
+//! With `GpuFluoroRenderer::caching` (the default) the renderer keeps in its [`FrameCache`],
+//! between frames, the geometric L-buffer of the last projection (pass 1 is skipped while the
+//! C-arm stays), the last full-image transmission without iodine ([`Resolved`]: only the union
+//! of the needle's old and new pixel rectangles is resolved and read back, since outside it
+//! every input of the resolve is unchanged), the last displayed transmission ([`FrameKey`]: a
+//! shot with nothing changed costs only the CPU's noise and display) and the exposure mask
+//! ([`ExposureKey`]). Each cached frame is bit-identical to a frame from scratch, and so is
+//! culling (tests in `render-worker/tests/fluoro_cache.rs`). The pixel-rectangle arithmetic of
+//! the partial resolve is in `types.rs`.
 
-use super::types::*;
+use sim_core::fluoro::{EnergyModel, Projection, TransmissionImage};
 
-impl GpuFluoroRenderer {
-    /// Records the full image's passes and resolve into `enc`, from the caches where they
-    /// apply; [`GpuFluoroRenderer::end_full`] completes it after the read-back.
-    pub(super) fn begin_full(
+use super::types::{GpuTransmission, Layout, Passes, PixelRectOut};
+
+/// The full-image transmission of the last resolve: for which projection and energy model, the
+/// needle's pixel rectangle then (where the displaced pass and the steel wrote), and the values.
+/// Outside the union of that rectangle and the next frame's, every input of the resolve is the
+/// same (same geometric L-buffer, no displaced part, no steel), so only that union is resolved
+/// and read back again, and the result is bit-identical to a frame from scratch.
+pub(super) struct Resolved {
+    pub(super) projection: Projection,
+    pub(super) model: EnergyModel,
+    pub(super) needle_rect: Option<[u32; 4]>,
+    pub(super) transmission: Vec<f32>,
+}
+
+/// Everything that decides `GpuFluoroRenderer::render_transmission_supersampled` without
+/// iodine.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct FrameKey {
+    pub(super) projection: Projection,
+    pub(super) energy: EnergyModel,
+    pub(super) supersample: u32,
+    pub(super) needle_generation: u64,
+}
+
+/// What decides which pixels the beam reaches (see `Projection::is_exposed`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct ExposureKey {
+    pub(super) pixels: [u32; 2],
+    pub(super) pitch_mm: [f64; 2],
+    pub(super) collimation: sim_core::fluoro::Collimation,
+}
+
+impl ExposureKey {
+    pub(super) fn of(p: &Projection) -> ExposureKey {
+        ExposureKey {
+            pixels: p.detector_pixels,
+            pitch_mm: p.pixel_pitch_mm,
+            collimation: p.collimation,
+        }
+    }
+}
+
+/// What the renderer keeps between frames (see the module doc). Each method says which cache it
+/// reads or fills; the renderer decides when (`caching`) and records the passes.
+#[derive(Default)]
+pub(super) struct FrameCache {
+    /// What the full-image geometric L-buffer (`Targets::a` of region 0) holds, if anything.
+    geometry: Option<(Projection, Layout)>,
+    /// The last full-image transmission resolve without iodine (see [`Resolved`]).
+    resolved: Option<Resolved>,
+    /// The last displayed-frame transmission and what decided it.
+    last_frame: Option<(FrameKey, GpuTransmission)>,
+    /// The last frame's input to sim-core's finishing step, reused while the detector and the
+    /// collimator stay (its exposure mask and its storage).
+    finishing: Option<(ExposureKey, TransmissionImage)>,
+}
+
+/// How the full image of one frame is rendered: from scratch, or on the kept geometric
+/// L-buffer and (without iodine) resolving only around the needle's old and new rectangles.
+pub(super) struct FullPlan {
+    /// Whether the geometric pass must be recorded.
+    pub(super) geometry: bool,
+    key: (Projection, Layout),
+    model: EnergyModel,
+    previous: Option<Resolved>,
+}
+
+impl FullPlan {
+    /// The passes to record.
+    pub(super) fn passes(&self) -> Passes {
+        Passes {
+            geometry: self.geometry,
+            ..Passes::ALL
+        }
+    }
+
+    /// The needle rectangle of the kept resolve, if only the rectangles are to be resolved.
+    pub(super) fn previous_needle_rect(&self) -> Option<Option<[u32; 4]>> {
+        self.previous.as_ref().map(|p| p.needle_rect)
+    }
+}
+
+impl FrameCache {
+    /// The full-image targets were replaced: nothing they held is kept.
+    pub(super) fn targets_replaced(&mut self) {
+        self.geometry = None;
+        self.resolved = None;
+    }
+
+    /// The geometric L-buffer now holds `key` (the chord passes record it directly).
+    pub(super) fn geometry_holds(&mut self, key: (Projection, Layout)) {
+        self.geometry = Some(key);
+    }
+
+    /// Plans the full image of a frame, taking what the caches hold for it (nothing without
+    /// `caching`); [`FrameCache::end_full`] completes it after the read-back.
+    pub(super) fn plan_full(
         &mut self,
-        enc: &mut wgpu::CommandEncoder,
+        caching: bool,
         projection: &Projection,
-        model: &SpectralModel,
-        iodine: Option<&IodineField>,
-    ) -> FullFrame {
-        let full = PixelRect::full(projection);
-        self.ensure_targets(0, full.size);
+        model: EnergyModel,
+        iodine: bool,
+    ) -> FullPlan {
         let key = (*projection, Layout::Transmission);
-        let geometry = !(self.caching && self.geo_key == Some(key));
-        self.timings.geometry_reused = !geometry;
-        let previous = if !geometry && iodine.is_none() {
+        let geometry = !(caching && self.geometry == Some(key));
+        let previous = if !geometry && !iodine {
             self.resolved
                 .take()
-                .filter(|r| r.projection == *projection && r.model == model.model)
+                .filter(|r| r.projection == *projection && r.model == model)
         } else {
             None
         };
         self.resolved = None;
-        let passes = Passes {
-            geometry,
-            ..Passes::ALL
-        };
         // Invalidated until the frame is read back: a failure leaves no stale key behind.
-        self.geo_key = None;
-        let pending = self.encode_region(
-            enc,
-            projection,
-            model,
-            iodine,
-            full,
-            passes,
-            previous.as_ref().map(|p| p.needle_rect),
-        );
-        FullFrame {
-            pending,
+        self.geometry = None;
+        FullPlan {
+            geometry,
             key,
-            model: model.model,
+            model,
             previous,
-            width: full.size[0] as usize,
         }
     }
 
-    /// The full-image transmission from its read-back `out`, kept for the next frame.
+    /// The full-image transmission (`width` pixels a row) from its read-back `out`, kept for the
+    /// next frame.
     pub(super) fn end_full(
         &mut self,
-        frame: FullFrame,
+        caching: bool,
+        plan: FullPlan,
         out: PixelRectOut,
-        iodine: Option<&IodineField>,
+        width: usize,
+        iodine: bool,
     ) -> Vec<f32> {
-        let FullFrame {
+        let FullPlan {
             key,
             model,
             previous,
-            width: w,
             ..
-        } = frame;
+        } = plan;
         let projection = &key.0;
-        self.geo_key = Some(key);
+        self.geometry = Some(key);
         let transmission = match previous {
             Some(mut p) => {
-                let start = out.rows.start as usize * w;
+                let start = out.rows.start as usize * width;
                 p.transmission[start..start + out.data.len()].copy_from_slice(&out.data);
                 p.transmission
             }
             None => out.data,
         };
-        if self.caching && iodine.is_none() {
+        if caching && !iodine {
             self.resolved = Some(Resolved {
                 projection: *projection,
                 model,
@@ -94,99 +171,61 @@ impl GpuFluoroRenderer {
         }
         transmission
     }
-}
 
-/// Overlap of two rectangles `[x, y, w, h]` (`None` if they do not overlap).
-pub(super) fn intersect_rect(a: [u32; 4], b: [u32; 4]) -> Option<[u32; 4]> {
-    let (x0, y0) = (a[0].max(b[0]), a[1].max(b[1]));
-    let x1 = (a[0] + a[2]).min(b[0] + b[2]);
-    let y1 = (a[1] + a[3]).min(b[1] + b[3]);
-    (x1 > x0 && y1 > y0).then(|| [x0, y0, x1 - x0, y1 - y0])
-}
+    /// The kept displayed-frame transmission, if it was rendered for `key`.
+    pub(super) fn frame(&self, key: &FrameKey) -> Option<&GpuTransmission> {
+        self.last_frame
+            .as_ref()
+            .filter(|(k, _)| k == key)
+            .map(|(_, t)| t)
+    }
 
-/// `a` less `b` (which lies inside `a`, if given) as up to four disjoint, non-empty bands: the
-/// rows above and below `b`, and the parts of `b`'s rows left and right of it.
-pub(super) fn subtract_rect(a: [u32; 4], b: Option<[u32; 4]>) -> Vec<[u32; 4]> {
-    let Some(b) = b else {
-        return vec![a];
-    };
-    let (ax1, ay1, bx1, by1) = (a[0] + a[2], a[1] + a[3], b[0] + b[2], b[1] + b[3]);
-    [
-        [a[0], a[1], a[2], b[1] - a[1]],
-        [a[0], by1, a[2], ay1 - by1],
-        [a[0], b[1], b[0] - a[0], b[3]],
-        [bx1, b[1], ax1 - bx1, b[3]],
-    ]
-    .into_iter()
-    .filter(|r| r[2] > 0 && r[3] > 0)
-    .collect()
-}
+    /// Forgets the kept displayed-frame transmission.
+    pub(super) fn forget_frame(&mut self) {
+        self.last_frame = None;
+    }
 
-/// Smallest rectangle `[x, y, w, h]` holding both (`None` if both are).
-pub(super) fn union_rect(a: Option<[u32; 4]>, b: Option<[u32; 4]>) -> Option<[u32; 4]> {
-    match (a, b) {
-        (None, r) | (r, None) => r,
-        (Some(a), Some(b)) => {
-            let (x0, y0) = (a[0].min(b[0]), a[1].min(b[1]));
-            let x1 = (a[0] + a[2]).max(b[0] + b[2]);
-            let y1 = (a[1] + a[3]).max(b[1] + b[3]);
-            Some([x0, y0, x1 - x0, y1 - y0])
+    /// Keeps a displayed-frame transmission for `key`.
+    pub(super) fn keep_frame(&mut self, key: FrameKey, t: GpuTransmission) {
+        self.last_frame = Some((key, t));
+    }
+
+    /// The finishing step's input for `projection`, `width x height` pixels: the kept one while
+    /// the detector and the collimator stay (its transmission still to be overwritten), else a
+    /// new one with the exposure mask.
+    pub(super) fn finishing_image(
+        &mut self,
+        projection: &Projection,
+        width: u32,
+        height: u32,
+        len: usize,
+    ) -> &mut TransmissionImage {
+        let key = ExposureKey::of(projection);
+        let kept = matches!(
+            &self.finishing,
+            Some((k, image)) if *k == key && image.transmission.len() == len
+        );
+        if !kept {
+            self.finishing = Some((
+                key,
+                TransmissionImage {
+                    width,
+                    height,
+                    transmission: vec![0.0; len],
+                    exposed: exposed_mask(projection),
+                    supersampled_pixels: 0,
+                },
+            ));
         }
+        &mut self.finishing.as_mut().expect("finishing image").1
     }
 }
 
 /// Which pixels the collimator exposes (decided at pixel centres, as the CPU).
-pub(super) fn exposed_mask(projection: &Projection) -> Vec<bool> {
+fn exposed_mask(projection: &Projection) -> Vec<bool> {
     let w = projection.detector_pixels[0] as usize;
     let n = w * projection.detector_pixels[1] as usize;
     (0..n)
         .map(|p| projection.is_exposed([(p % w) as f64 + 0.5, (p / w) as f64 + 0.5]))
         .collect()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Every sample of `a` is covered exactly once by `b` (if any, inside `a`) and the bands
-    /// `subtract_rect` returns, for every placement of `b` on a small grid.
-    #[test]
-    fn the_needle_box_and_the_bands_cover_the_rectangle_once() {
-        let a = [2, 3, 7, 5];
-        let mut boxes = vec![None];
-        for x in 2..9 {
-            for y in 3..8 {
-                for w in 1..=9 - x {
-                    for h in 1..=8 - y {
-                        boxes.push(Some([x, y, w, h]));
-                    }
-                }
-            }
-        }
-        for b in boxes {
-            let mut count = [[0u8; 12]; 12];
-            for r in b.into_iter().chain(subtract_rect(a, b)) {
-                assert!(r[2] > 0 && r[3] > 0, "{b:?}: empty band {r:?}");
-                for y in r[1]..r[1] + r[3] {
-                    for x in r[0]..r[0] + r[2] {
-                        count[y as usize][x as usize] += 1;
-                    }
-                }
-            }
-            for (y, row) in count.iter().enumerate() {
-                for (x, &c) in row.iter().enumerate() {
-                    let inside = (2..9).contains(&x) && (3..8).contains(&y);
-                    assert_eq!(
-                        c,
-                        u8::from(inside),
-                        "{b:?}: sample ({x}, {y}) covered {c} times"
-                    );
-                }
-            }
-            assert_eq!(intersect_rect(a, a), Some(a));
-            if let Some(b) = b {
-                assert_eq!(intersect_rect(a, b), Some(b));
-            }
-        }
-    }
 }

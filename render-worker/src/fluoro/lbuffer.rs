@@ -29,13 +29,136 @@
 //! 0.02 mm on the needle's long, thin side triangles seen nearly edge-on.) The anatomy's
 //! triangles are not that thin, and its axial depths agree with the CPU as closely as the plane
 //! did (the sphere and phantom chord tests in `tests/fluoro.rs`).
+use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 use sim_core::fluoro::nesting::{NestedMesh, soup_box, triangle_cross};
 use sim_core::fluoro::{FluoroMaterial, Projection, Scene};
 use sim_core::material::MaterialClass;
 use wgpu::util::DeviceExt;
 
-use super::types::*;
+use super::pipelines::{Pipelines, Targets};
+use super::types::{
+    CANCELLOUS, CHANNELS, CHORD_CHANNELS, CORTICAL, Layout, NO_NEEDLE, Passes, PixelRect, SLOTS,
+    Vertex,
+};
+use crate::gpu::GpuContext;
+
+/// The L-buffer passes' state: the anatomy as drawn (uploaded once), the needle (replaced
+/// whenever it moves), the per-region view uniforms and the per-mesh slot weights.
+pub(super) struct LBuffer {
+    /// The nesting plan, in drawing order: the meshes that add to the water-basis channel only
+    /// first (drawn into the one-channel target).
+    pub(super) meshes: Vec<NestedMesh>,
+    anatomy: AnatomyBuffers,
+    /// Each anatomy chunk's pixel bounding box under one projection (see `culled`).
+    chunk_boxes: Option<(Projection, Vec<[f32; 4]>)>,
+    needle: Option<Needle>,
+    /// Uniforms of the full image (0) and of the supersampled needle region (1).
+    view_buf: [wgpu::Buffer; 2],
+    weights_buf: wgpu::Buffer,
+}
+
+/// The anatomy as drawn: one vertex buffer (the scalar meshes' triangles first, then the rest,
+/// each mesh's in its BVH's order) and its culling chunks.
+struct AnatomyBuffers {
+    /// `None` when no mesh is drawn.
+    bufs: Option<MeshBuffers>,
+    /// Runs of [`CHUNK_TRIANGLES`] consecutive anatomy triangles with their bounding boxes, for
+    /// culling on the CPU.
+    chunks: Vec<Chunk>,
+    /// The scalar meshes come first: the number of their chunks.
+    scalar_chunks: usize,
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct ViewUniform {
+    row_x: [f32; 4],
+    row_y: [f32; 4],
+    row_w: [f32; 4],
+    source: [f32; 4],
+    size: [f32; 4],
+    needle_box: [f32; 4],
+    p00: [f32; 4],
+    step_u: [f32; 4],
+    step_v: [f32; 4],
+    region: [f32; 4],
+}
+
+struct Needle {
+    bufs: MeshBuffers,
+    centre_mm: [f64; 3],
+    vertices_mm: Vec<[f64; 3]>,
+}
+
+struct MeshBuffers {
+    vertices: wgpu::Buffer,
+    indices: wgpu::Buffer,
+    index_count: u32,
+}
+
+/// A run of consecutive anatomy triangles (in drawing order) and its bounding box, mm.
+struct Chunk {
+    first_vertex: u32,
+    vertices: u32,
+    lo: [f32; 3],
+    hi: [f32; 3],
+}
+
+impl LBuffer {
+    /// Uploads the anatomy of `meshes` (the nesting plan of `scene`, the scalar meshes first);
+    /// no needle yet.
+    pub(super) fn new(device: &wgpu::Device, scene: &Scene, meshes: Vec<NestedMesh>) -> LBuffer {
+        let anatomy = AnatomyBuffers::upload(device, scene, &meshes);
+        let view_buf = [0, 1].map(|_| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("fluoro view"),
+                size: std::mem::size_of::<ViewUniform>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        });
+        let weights_buf = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("fluoro weights"),
+            size: (meshes.len().max(1) * 3 * 16) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        LBuffer {
+            meshes,
+            anatomy,
+            chunk_boxes: None,
+            needle: None,
+            view_buf,
+            weights_buf,
+        }
+    }
+
+    /// Whether a needle is drawn.
+    pub(super) fn has_needle(&self) -> bool {
+        self.needle.is_some()
+    }
+
+    /// The needle's triangles' vertices, mm, three per triangle (none without a needle).
+    pub(super) fn needle_vertices_mm(&self) -> &[[f64; 3]] {
+        self.needle.as_ref().map_or(&[], |n| &n.vertices_mm)
+    }
+
+    /// Replaces the needle by a triangle soup (none if empty).
+    pub(super) fn set_needle(&mut self, device: &wgpu::Device, tris: &[[[f64; 3]; 3]]) {
+        if tris.is_empty() {
+            self.needle = None;
+            return;
+        }
+        let (lo, hi) = soup_box(tris);
+        let vertices: Vec<Vertex> = tris.iter().flat_map(|t| triangle_vertices(t, 0)).collect();
+        self.needle = Some(Needle {
+            bufs: upload(device, &vertices),
+            centre_mm: std::array::from_fn(|a| 0.5 * (lo[a] + hi[a])),
+            vertices_mm: tris.iter().flatten().copied().collect(),
+        });
+    }
+}
 
 /// A mesh's geometric and displaced weights in `layout`: its own material's minus its
 /// container's (see sim-core's `fluoro::nesting`).
@@ -165,38 +288,29 @@ fn slot_weights(m: FluoroMaterial, layout: Layout) -> ([f32; SLOTS], [f32; SLOTS
     }
 }
 
-impl GpuFluoroRenderer {
-    pub(super) fn set_needle_soup(&mut self, tris: &[[[f64; 3]; 3]]) {
-        self.needle_generation += 1;
-        if tris.is_empty() {
-            self.needle = None;
-            return;
-        }
-        let (lo, hi) = soup_box(tris);
-        let vertices: Vec<Vertex> = tris.iter().flat_map(|t| triangle_vertices(t, 0)).collect();
-        self.needle = Some(Needle {
-            bufs: upload(&self.ctx.device, &vertices),
-            centre_mm: std::array::from_fn(|a| 0.5 * (lo[a] + hi[a])),
-            vertices_mm: tris.iter().flatten().copied().collect(),
-        });
-    }
-
+impl LBuffer {
     /// Records into `encoder`: the geometric anatomy pass with `layout` (if `passes.geometry`),
     /// and with a needle its pass (if `passes.needle`) and the displaced anatomy pass scissored
     /// to its pixel box (if `passes.displaced`; the target is cleared even when the box is off
     /// the image). Returns that box in region samples, clipped (`None` without a needle or off
-    /// the image).
-    pub(super) fn encode_lbuffer(
+    /// the image). `t` are the targets of `region` (sized for it); with `culling`, only the
+    /// anatomy triangles that can reach the target or the needle's box are drawn into them.
+    #[expect(clippy::too_many_arguments, reason = "one private recording step")]
+    pub(super) fn encode(
         &mut self,
+        ctx: &GpuContext,
+        pipelines: &Pipelines,
+        t: &Targets,
         encoder: &mut wgpu::CommandEncoder,
         projection: &Projection,
         layout: Layout,
         passes: Passes,
         region: PixelRect,
+        culling: bool,
     ) -> Option<[u32; 4]> {
         let ri = region.index();
         let size = region.size;
-        self.ensure_targets(ri, size);
+        debug_assert_eq!(t.size, size, "targets sized for the region");
         let frame = projection.frame();
         let rays = projection.gpu_ray_frame();
         let v4 = |v: [f32; 3]| [v[0], v[1], v[2], 0.0];
@@ -259,7 +373,7 @@ impl GpuFluoroRenderer {
                 0.0,
             ],
         };
-        let queue = &self.ctx.queue;
+        let queue = &ctx.queue;
         queue.write_buffer(&self.view_buf[ri], 0, bytemuck::bytes_of(&view));
         let mut w: Vec<[f32; 4]> = Vec::with_capacity(self.meshes.len() * 3);
         for mesh in &self.meshes {
@@ -309,18 +423,17 @@ impl GpuFluoroRenderer {
         let total = self.anatomy.bufs.as_ref().map_or(0, |b| b.index_count);
         let vertex_at = |k: usize| self.anatomy.chunks.get(k).map_or(total, |c| c.first_vertex);
         let whole = groups.clone().map(|g| vertex_at(g.start)..vertex_at(g.end));
-        let geo_lists = (self.culling && passes.geometry).then(|| {
+        let geo_lists = (culling && passes.geometry).then(|| {
             let r = to_pixels([0, 0, size[0], size[1]]);
-            groups.map(|g| self.culled(projection, r, g))
+            groups.map(|g| self.culled(&ctx.device, projection, r, g))
         });
         let disp_list = match rect {
-            Some(r) if self.culling && passes.displaced => {
-                Some(self.culled(projection, to_pixels(r), 0..chunks))
+            Some(r) if culling && passes.displaced => {
+                Some(self.culled(&ctx.device, projection, to_pixels(r), 0..chunks))
             }
             _ => None,
         };
-        let device = &self.ctx.device;
-        let t = self.targets[ri].as_ref().expect("targets");
+        let device = &ctx.device;
         let view_of = |x: &wgpu::Texture| x.create_view(&wgpu::TextureViewDescriptor::default());
         let (va, vs, vd, vh, vc) = (
             view_of(&t.a),
@@ -393,14 +506,14 @@ impl GpuFluoroRenderer {
             };
             let draws = [
                 (
-                    &self.pipelines.anatomy_scalar,
+                    &pipelines.anatomy_scalar,
                     &vs,
                     scalar_list,
                     whole[0].clone(),
                     "fluoro anatomy, water-basis channel",
                 ),
                 (
-                    &self.pipelines.anatomy,
+                    &pipelines.anatomy,
                     &va,
                     list,
                     whole[1].clone(),
@@ -432,7 +545,7 @@ impl GpuFluoroRenderer {
         if passes.needle {
             let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("fluoro needle"),
-                layout: &self.pipelines.needle.get_bind_group_layout(0),
+                layout: &pipelines.needle.get_bind_group_layout(0),
                 entries: &[wgpu::BindGroupEntry {
                     binding: 0,
                     resource: self.view_buf[ri].as_entire_binding(),
@@ -440,14 +553,14 @@ impl GpuFluoroRenderer {
             });
             let attachments = [attach(&vh, NO_NEEDLE), attach(&vc, 0.0)];
             let mut pass = encoder.begin_render_pass(&pass_desc("fluoro needle", &attachments));
-            pass.set_pipeline(&self.pipelines.needle);
+            pass.set_pipeline(&pipelines.needle);
             pass.set_bind_group(0, &bind, &[]);
             pass.set_vertex_buffer(0, needle.bufs.vertices.slice(..));
             pass.set_index_buffer(needle.bufs.indices.slice(..), wgpu::IndexFormat::Uint32);
             pass.draw_indexed(0..needle.bufs.index_count, 0, 0..1);
         }
         if passes.displaced {
-            let bind = anatomy_bind(&self.pipelines.displaced, true);
+            let bind = anatomy_bind(&pipelines.displaced, true);
             let attachments = [attach(&vd, 0.0)];
             let mut pass = encoder.begin_render_pass(&pass_desc("fluoro displaced", &attachments));
             if let (Some(bufs), Some([x, y, w, h])) = (&self.anatomy.bufs, rect) {
@@ -457,7 +570,7 @@ impl GpuFluoroRenderer {
                     None => (&bufs.indices, bufs.index_count),
                 };
                 if count > 0 {
-                    pass.set_pipeline(&self.pipelines.displaced);
+                    pass.set_pipeline(&pipelines.displaced);
                     pass.set_bind_group(0, &bind, &[]);
                     pass.set_scissor_rect(x, y, w, h);
                     pass.set_vertex_buffer(0, bufs.vertices.slice(..));
@@ -477,8 +590,9 @@ impl GpuFluoroRenderer {
     /// image of a box in front of the source is the hull of its corners); a chunk with a corner
     /// less than 1 mm in front of the source plane always qualifies. The boxes are computed once
     /// per projection (eight points per chunk instead of three per triangle).
-    pub(super) fn culled(
+    fn culled(
         &mut self,
+        device: &wgpu::Device,
         projection: &Projection,
         r: [f32; 4],
         chunks: std::ops::Range<usize>,
@@ -540,14 +654,11 @@ impl GpuFluoroRenderer {
             }
         }
         (!indices.is_empty()).then(|| {
-            let buffer = self
-                .ctx
-                .device
-                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("fluoro culled indices"),
-                    contents: bytemuck::cast_slice(&indices),
-                    usage: wgpu::BufferUsages::INDEX,
-                });
+            let buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("fluoro culled indices"),
+                contents: bytemuck::cast_slice(&indices),
+                usage: wgpu::BufferUsages::INDEX,
+            });
             (buffer, indices.len() as u32)
         })
     }

@@ -4,26 +4,30 @@
 //! compares the two pixel by pixel, `tests/fluoro_cache.rs` checks every cache bit for bit.
 //!
 //! # Map
-//! - Types (`types.rs`): the renderer and every type and constant the passes share, below all of
-//!   them, so the pass modules form no import cycle (each implements its part of
-//!   [`GpuFluoroRenderer`] and imports only `types` and functions further down).
+//! The modules form a DAG: `types` (shared constants, formats, pixel rectangles, errors) at the
+//! bottom; `pipelines` (pipelines, target formats, per-size targets) on it; the passes
+//! `lbuffer`, `resolve`, `cache` and `chords` on those, each owning its state in its own struct
+//! with methods taking explicit inputs; this module's [`GpuFluoroRenderer`] on top, composing
+//! them and orchestrating a frame.
 //! - Construction, [`GpuFluoroRenderer::new`]: sim-core's [`nesting_plan`] decides which mesh
 //!   adds its chord to which material and subtracts it from which container (CPU geometry,
-//!   tested in sim-core); `AnatomyBuffers` (`lbuffer.rs`) uploads the drawn triangles, the meshes
-//!   that only touch the water-basis channel first; `Pipelines` (`pipelines.rs`) builds every pass.
-//! - Pass 1, geometric anatomy L-buffer (`lbuffer.rs`, `encode_lbuffer`; `lbuffer.wgsl`
+//!   tested in sim-core); `LBuffer::new` (`lbuffer.rs`) uploads the drawn triangles, the meshes
+//!   that only touch the water-basis channel first; `Pipelines::new` (`pipelines.rs`) builds
+//!   every pass.
+//! - Pass 1, geometric anatomy L-buffer (`lbuffer.rs`, `LBuffer::encode`; `lbuffer.wgsl`
 //!   `fs_anatomy`, `fs_anatomy_scalar`): signed axial depths times per-mesh weights, additive
 //!   blending, no depth test; independent of the needle.
-//! - Pass 2, needle (`encode_lbuffer`; `fs_needle`): the needle's hull interval and exact chord
-//!   per pixel.
-//! - Pass 3, displaced anatomy (`encode_lbuffer`, `culled`; `fs_displaced`): the part of each
+//! - Pass 2, needle (`LBuffer::encode`; `fs_needle`): the needle's hull interval and exact
+//!   chord per pixel.
+//! - Pass 3, displaced anatomy (`LBuffer::encode`, `culled`; `fs_displaced`): the part of each
 //!   chord the needle occupies, scissored to the needle's pixel box.
-//! - Pass 4, resolve (`resolve.rs`, `encode_region`; `resolve.wgsl`): sums the parts, clamps
-//!   cancellous bone, adds iodine, and evaluates `T` (or reads the `ln T` table built by
-//!   `ensure_spectral`); then `submit_and_read` reads the rows back.
-//! - Caches (`cache.rs`, `begin_full` / `end_full`): between frames the geometric L-buffer, the
-//!   last transmission (only the needle's old and new pixel rectangles are resolved again) and
-//!   the last displayed frame are kept while what decides them stays.
+//! - Pass 4, resolve (`resolve.rs`, `ResolvePass::encode`; `resolve.wgsl`): sums the parts,
+//!   clamps cancellous bone, adds iodine, and evaluates `T` (or reads the `ln T` table built by
+//!   `ensure_spectral`); then `submit_and_read` reads the rows back. `encode_region` here
+//!   records passes 1 to 4 for one region.
+//! - Caches (`cache.rs`, `FrameCache`; `begin_full` / `end_full` here): between frames the
+//!   geometric L-buffer, the last transmission (only the needle's old and new pixel rectangles
+//!   are resolved again) and the last displayed frame are kept while what decides them stays.
 //! - Validation (`chords.rs`, [`GpuFluoroRenderer::render_chords`]): the same passes in a
 //!   per-material layout, resolved on the CPU.
 //! - Display ([`GpuFluoroRenderer::render_frame`]): supersampling near the needle's edges
@@ -55,22 +59,50 @@ use sim_core::fluoro::{
 use sim_core::mesh::TriMesh;
 use std::time::Instant;
 
-
 use crate::gpu::GpuContext;
-use cache::exposed_mask;
+use cache::{FrameCache, FrameKey, FullPlan};
+use lbuffer::LBuffer;
+use pipelines::{Pipelines, Targets};
+use resolve::{ResolveInput, ResolvePass};
+use types::{
+    CHORD_CHANNELS, CHORD_PASSES, Layout, Passes, Pending, PixelRect, PixelRectOut, union_rect,
+};
 
-use resolve::iodine_texture;
-use types::*;
+pub use types::{CHANNELS, FluoroGpuError, FrameTimings, GpuTransmission};
 
-pub use types::{CHANNELS, FluoroGpuError, FrameTimings, GpuFluoroRenderer, GpuTransmission};
+/// The GPU fluoroscopy renderer of one scene: static anatomy uploaded once, a needle that can
+/// move every frame.
+pub struct GpuFluoroRenderer {
+    ctx: GpuContext,
+    /// The L-buffer passes' state: the drawn anatomy, the needle, their uniforms.
+    lbuffer: LBuffer,
+    pipelines: Pipelines,
+    /// Targets of the full image (0) and of the supersampled needle region (1).
+    targets: [Option<Targets>; 2],
+    resolve: ResolvePass,
+    cache: FrameCache,
+    cortical_shell_mm: f64,
+    /// Bumped whenever the needle changes.
+    needle_generation: u64,
+    /// Use the caches (default `true`; `false` renders every frame from scratch, for the
+    /// benchmark's before/after rows and the cache tests).
+    pub caching: bool,
+    /// Draw only the anatomy triangles that can reach the needle's pixel box or the
+    /// supersampled region into them (default `true`; bit-identical either way, see
+    /// `LBuffer::culled`).
+    pub culling: bool,
+    timings: FrameTimings,
+    /// Iodine ray-march step as a fraction of the smallest voxel spacing (default 0.25).
+    pub iodine_step_fraction: f64,
+}
 
-
-
-
-
-
-
-
+/// The full image between [`GpuFluoroRenderer::begin_full`] and
+/// [`GpuFluoroRenderer::end_full`].
+struct FullFrame {
+    pending: Pending,
+    plan: FullPlan,
+    width: usize,
+}
 
 impl GpuFluoroRenderer {
     /// Uploads a scene: every non-steel entry is anatomy (nesting resolved once, here, by
@@ -85,49 +117,19 @@ impl GpuFluoroRenderer {
         if !ctx.downlevel.contains(needed) {
             return Err(FluoroGpuError::MissingDownlevel(needed));
         }
-        let device = &ctx.device;
         // The meshes that add to the water-basis channel only (soft tissue in soft tissue) come
         // first, for the scalar pass (a stable sort: entry order within each group).
         let mut meshes = nesting_plan(scene);
         meshes.sort_by_cached_key(|d| !d.water_basis_only());
-        let anatomy = AnatomyBuffers::upload(device, scene, &meshes);
-        let uniform = |label: &str, size: usize| {
-            device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: size as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            })
-        };
-        let view_buf = [0, 1].map(|_| uniform("fluoro view", std::mem::size_of::<ViewUniform>()));
-        let resolve_buf =
-            [0, 1].map(|_| uniform("fluoro resolve", std::mem::size_of::<ResolveUniform>()));
-        let weights_buf = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("fluoro weights"),
-            size: (meshes.len().max(1) * 3 * 16) as u64,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let empty_iodine = iodine_texture(ctx, [1, 1, 1], &[0.0]);
         let mut r = GpuFluoroRenderer {
             ctx: ctx.clone(),
-            meshes,
-            anatomy,
-            chunk_boxes: None,
-            needle: None,
+            lbuffer: LBuffer::new(&ctx.device, scene, meshes),
             pipelines: Pipelines::new(ctx),
-            view_buf,
-            resolve_buf,
-            weights_buf,
-            empty_iodine,
             targets: [None, None],
-            spectral: None,
+            resolve: ResolvePass::new(ctx),
+            cache: FrameCache::default(),
             cortical_shell_mm: scene.cortical_shell_mm,
-            geo_key: None,
-            resolved: None,
             needle_generation: 0,
-            last_frame: None,
-            finishing: None,
             caching: true,
             culling: true,
             timings: FrameTimings::default(),
@@ -164,12 +166,12 @@ impl GpuFluoroRenderer {
     /// The drawn anatomy meshes with their nesting (what the L-buffer adds and subtracts), the
     /// ones that add to the water-basis channel only ([`NestedMesh::water_basis_only`]) first.
     pub fn drawn(&self) -> &[NestedMesh] {
-        &self.meshes
+        &self.lbuffer.meshes
     }
 
     /// Number of anatomy meshes drawn (meshes that add nothing after nesting are dropped).
     pub fn drawn_meshes(&self) -> usize {
-        self.meshes.len()
+        self.lbuffer.meshes.len()
     }
 
     /// Replaces the needle (a closed, outward-wound steel mesh; convex along each ray for an
@@ -184,8 +186,13 @@ impl GpuFluoroRenderer {
 
     /// Removes the needle.
     pub fn clear_needle(&mut self) {
-        self.needle = None;
+        self.lbuffer.set_needle(&self.ctx.device, &[]);
         self.needle_generation += 1;
+    }
+
+    fn set_needle_soup(&mut self, tris: &[[[f64; 3]; 3]]) {
+        self.needle_generation += 1;
+        self.lbuffer.set_needle(&self.ctx.device, tris);
     }
 
     /// Phases of the last frame.
@@ -198,7 +205,7 @@ impl GpuFluoroRenderer {
     /// pass, then a read-back. With [`GpuFluoroRenderer::caching`], the geometric pass is kept
     /// while the projection stays, and without iodine only the rows the needle covers now or
     /// covered in the previous frame are resolved and read back (bit-identical to a frame from
-    /// scratch, see `types::Resolved`).
+    /// scratch, see `cache::Resolved`).
     pub fn render_transmission(
         &mut self,
         projection: &Projection,
@@ -230,9 +237,10 @@ impl GpuFluoroRenderer {
     pub fn needle_edge_pixels(&self, projection: &Projection) -> Vec<bool> {
         let [w, h] = projection.detector_pixels.map(|x| x as usize);
         let mut flag = vec![false; w * h];
-        if let Some(needle) = &self.needle {
-            let triangles = needle
-                .vertices_mm
+        if self.lbuffer.has_needle() {
+            let triangles = self
+                .lbuffer
+                .needle_vertices_mm()
                 .chunks_exact(3)
                 .map(|t| [t[0], t[1], t[2]]);
             sim_core::fluoro::render::mark_projected_edges(projection, triangles, &mut flag, w, h);
@@ -263,15 +271,13 @@ impl GpuFluoroRenderer {
             needle_generation: self.needle_generation,
         };
         if self.caching && iodine.is_none() {
-            if let Some((k, t)) = &self.last_frame {
-                if *k == key {
-                    self.timings.frame_reused = true;
-                    self.timings.geometry_reused = true;
-                    return Ok(t.clone());
-                }
+            if let Some(t) = self.cache.frame(&key) {
+                self.timings.frame_reused = true;
+                self.timings.geometry_reused = true;
+                return Ok(t.clone());
             }
         }
-        self.last_frame = None;
+        self.cache.forget_frame();
         let full = PixelRect::full(projection);
         let started = Instant::now();
         let w = full.size[0] as usize;
@@ -338,7 +344,7 @@ impl GpuFluoroRenderer {
             transmission: t,
         };
         if self.caching && iodine.is_none() {
-            self.last_frame = Some((key, out.clone()));
+            self.cache.keep_frame(key, out.clone());
         }
         Ok(out)
     }
@@ -357,33 +363,195 @@ impl GpuFluoroRenderer {
         // The collimator mask depends on the detector and the blades only, not on the C-arm's
         // pose: kept across C-arm moves, and so is the image's storage (a 1024 x 1024 frame's
         // f64 transmission is 8 MB to allocate and fault in).
-        let key = ExposureKey::of(projection);
-        let image = match &mut self.finishing {
-            Some((k, image)) if *k == key && image.transmission.len() == g.transmission.len() => {
-                image
-            }
-            slot => {
-                let (image_w, image_h) = (g.width, g.height);
-                &mut slot
-                    .insert((
-                        key,
-                        TransmissionImage {
-                            width: image_w,
-                            height: image_h,
-                            transmission: vec![0.0; g.transmission.len()],
-                            exposed: exposed_mask(projection),
-                            supersampled_pixels: 0,
-                        },
-                    ))
-                    .1
-            }
-        };
+        let image = self
+            .cache
+            .finishing_image(projection, g.width, g.height, g.transmission.len());
         for (out, &x) in image.transmission.iter_mut().zip(&g.transmission) {
             *out = f64::from(x);
         }
         let frame = sim_core::fluoro::render::finish_frame(image, settings);
         self.timings.finish_ms = started.elapsed().as_secs_f64() * 1e3;
         Ok(frame)
+    }
+}
+
+/// Recording a frame: the passes of one region, the caches of the full image, the chords.
+impl GpuFluoroRenderer {
+    /// Makes `targets[ri]` `size` samples; replacing the full image's drops what the caches
+    /// kept of it.
+    fn ensure_targets(&mut self, ri: usize, size: [u32; 2]) {
+        if self.targets[ri].as_ref().is_some_and(|t| t.size == size) {
+            return;
+        }
+        if ri == 0 {
+            self.cache.targets_replaced();
+        }
+        self.targets[ri] = Some(Targets::new(&self.ctx.device, size));
+    }
+
+    /// Records the passes of `passes`, then the resolve over one region, or (with `previous`,
+    /// the needle rectangle of the previous frame in the same targets) only over the union of
+    /// that rectangle and the needle's new one, and the copy of the resolved rows (whole rows
+    /// of the region) to the region's read-back buffer.
+    #[expect(clippy::too_many_arguments, reason = "one private recording step")]
+    fn encode_region(
+        &mut self,
+        enc: &mut wgpu::CommandEncoder,
+        projection: &Projection,
+        model: &SpectralModel,
+        iodine: Option<&IodineField>,
+        region: PixelRect,
+        passes: Passes,
+        previous: Option<Option<[u32; 4]>>,
+    ) -> Pending {
+        let started = Instant::now();
+        let ri = region.index();
+        let size = region.size;
+        self.ensure_targets(ri, size);
+        let t = self.targets[ri].as_ref().expect("targets");
+        let needle_rect = self.lbuffer.encode(
+            &self.ctx,
+            &self.pipelines,
+            t,
+            enc,
+            projection,
+            Layout::Transmission,
+            passes,
+            region,
+            self.culling,
+        );
+        let rect = match previous {
+            None => [0, 0, size[0], size[1]],
+            Some(old) => match union_rect(old, needle_rect) {
+                Some(r) => r,
+                // No needle then or now: nothing to resolve.
+                None => {
+                    return Pending {
+                        ri,
+                        rows: 0..0,
+                        bytes: 0,
+                        needle_rect,
+                    };
+                }
+            },
+        };
+        let input = ResolveInput {
+            projection,
+            model,
+            iodine,
+            region,
+            rect,
+            needle_rect,
+            has_needle: self.lbuffer.has_needle(),
+            cortical_shell_mm: self.cortical_shell_mm,
+            iodine_step_fraction: self.iodine_step_fraction,
+        };
+        let bytes = self
+            .resolve
+            .encode(&self.ctx, &self.pipelines, t, enc, &input);
+        self.timings.resolved_samples += u64::from(rect[2]) * u64::from(rect[3]);
+        self.timings.encode_ms += started.elapsed().as_secs_f64() * 1e3;
+        Pending {
+            ri,
+            rows: rect[1]..rect[1] + rect[3],
+            bytes,
+            needle_rect,
+        }
+    }
+
+    /// Submits `enc` once, waits, and reads back every pending region.
+    fn submit_and_read(
+        &mut self,
+        enc: wgpu::CommandEncoder,
+        pending: &[Pending],
+    ) -> Result<Vec<PixelRectOut>, FluoroGpuError> {
+        resolve::submit_and_read(&self.ctx, &self.targets, enc, pending, &mut self.timings)
+    }
+
+    /// Records the full image's passes and resolve into `enc`, from the caches where they
+    /// apply; [`GpuFluoroRenderer::end_full`] completes it after the read-back.
+    fn begin_full(
+        &mut self,
+        enc: &mut wgpu::CommandEncoder,
+        projection: &Projection,
+        model: &SpectralModel,
+        iodine: Option<&IodineField>,
+    ) -> FullFrame {
+        let full = PixelRect::full(projection);
+        self.ensure_targets(0, full.size);
+        let plan = self
+            .cache
+            .plan_full(self.caching, projection, model.model, iodine.is_some());
+        self.timings.geometry_reused = !plan.geometry;
+        let pending = self.encode_region(
+            enc,
+            projection,
+            model,
+            iodine,
+            full,
+            plan.passes(),
+            plan.previous_needle_rect(),
+        );
+        FullFrame {
+            pending,
+            plan,
+            width: full.size[0] as usize,
+        }
+    }
+
+    /// The full-image transmission from its read-back `out`, kept for the next frame.
+    fn end_full(
+        &mut self,
+        frame: FullFrame,
+        out: PixelRectOut,
+        iodine: Option<&IodineField>,
+    ) -> Vec<f32> {
+        self.cache
+            .end_full(self.caching, frame.plan, out, frame.width, iodine.is_some())
+    }
+
+    /// Per-pixel chord length per material, mm, at pixel centres (row-major, channels in
+    /// [`FluoroMaterial::index`] order): the GPU counterpart of `sim_core::fluoro::render_chords`.
+    /// Validation path: four L-buffer passes (13 channels: 9 soft-tissue chords net of the
+    /// needle, cortical and cancellous geometric chords and their displaced parts), read back and
+    /// resolved on the CPU in the CPU reference's order (clamp, then remove the needle).
+    pub fn render_chords(
+        &mut self,
+        projection: &Projection,
+    ) -> Result<Vec<[f32; CHANNELS]>, FluoroGpuError> {
+        let [w, h] = projection.detector_pixels.map(|x| x as usize);
+        let mut raw = vec![[0f32; CHORD_CHANNELS]; w * h];
+        let mut steel = Vec::new();
+        // The geometric part is in axial depth: times |d| / (row_w . d) along each pixel's ray
+        // (as the resolve does on the GPU).
+        let scale = chords::axial_to_chord(projection);
+        for pass in 0..CHORD_PASSES {
+            let mut enc = self.encoder();
+            let full = PixelRect::full(projection);
+            let passes = Passes {
+                needle: pass == 0,
+                ..Passes::ALL
+            };
+            self.ensure_targets(0, full.size);
+            let t = self.targets[0].as_ref().expect("targets");
+            self.lbuffer.encode(
+                &self.ctx,
+                &self.pipelines,
+                t,
+                &mut enc,
+                projection,
+                Layout::Chords(pass),
+                passes,
+                full,
+                self.culling,
+            );
+            self.cache
+                .geometry_holds((*projection, Layout::Chords(pass)));
+            self.ctx.queue.submit([enc.finish()]);
+            let has_needle = self.lbuffer.has_needle();
+            chords::read_pass(&self.ctx, t, pass, has_needle, &scale, &mut raw, &mut steel)?;
+        }
+        Ok(chords::resolve_chords(&raw, &steel, self.cortical_shell_mm))
     }
 }
 

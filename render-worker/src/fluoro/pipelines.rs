@@ -1,9 +1,46 @@
 //! The render pipelines of the passes (see the module map in `fluoro`), their target
-//! formats and the per-size render targets.
+//! formats, the resolve pass's bind group layout and the per-size render targets: what the
+//! L-buffer and resolve passes record with.
 
-use super::resolve::resolve_layout_entries;
-use super::types::*;
+use super::types::Vertex;
 use crate::gpu::GpuContext;
+
+/// Every pipeline of the renderer, built once per device.
+pub(super) struct Pipelines {
+    /// The needle's hull and chord pass.
+    pub(super) needle: wgpu::RenderPipeline,
+    /// The geometric anatomy pass into the four-channel L-buffer.
+    pub(super) anatomy: wgpu::RenderPipeline,
+    /// The geometric anatomy pass into the one-channel (water-basis) L-buffer.
+    pub(super) anatomy_scalar: wgpu::RenderPipeline,
+    /// The displaced anatomy pass.
+    pub(super) displaced: wgpu::RenderPipeline,
+    /// The resolve, `[iodine][needle]`: without and with the iodine ray march, and without
+    /// and with the needle's inputs (drawn over the needle's pixel box only); one bind group
+    /// layout (`resolve_layout`) serves all four.
+    pub(super) resolve: [[wgpu::RenderPipeline; 2]; 2],
+    pub(super) resolve_layout: wgpu::BindGroupLayout,
+}
+
+/// Render targets of one detector size.
+pub(super) struct Targets {
+    pub(super) size: [u32; 2],
+    /// Geometric L-buffer (needle-independent): the non-scalar meshes in the transmission
+    /// layout, every mesh in the chord layout.
+    pub(super) a: wgpu::Texture,
+    /// Geometric L-buffer of the scalar meshes, transmission layout (water-basis channel).
+    pub(super) s: wgpu::Texture,
+    /// Displaced part (zero outside the needle's pixel box).
+    pub(super) d: wgpu::Texture,
+    pub(super) hull: wgpu::Texture,
+    pub(super) chord: wgpu::Texture,
+    pub(super) out_t: wgpu::Buffer,
+    /// The resolve's render target: it only sizes the pass (write mask empty; cleared, one byte
+    /// per sample, and discarded); the output is `out_t`.
+    pub(super) resolve: wgpu::Texture,
+    /// Kept mapped-readable copy of `out_t` (no allocation per frame).
+    pub(super) staging: wgpu::Buffer,
+}
 
 const FMT_A: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 /// The scalar meshes' geometric L-buffer: the water-basis channel only. On lavapipe a fragment
@@ -187,13 +224,11 @@ impl Pipelines {
     }
 }
 
-impl GpuFluoroRenderer {
-    pub(super) fn ensure_targets(&mut self, ri: usize, size: [u32; 2]) {
-        if self.targets[ri].as_ref().is_some_and(|t| t.size == size) {
-            return;
-        }
+impl Targets {
+    /// Every target and buffer of one region size.
+    pub(super) fn new(device: &wgpu::Device, size: [u32; 2]) -> Targets {
         let tex = |label: &str, format| {
-            self.ctx.device.create_texture(&wgpu::TextureDescriptor {
+            device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),
                 size: wgpu::Extent3d {
                     width: size[0],
@@ -210,11 +245,7 @@ impl GpuFluoroRenderer {
                 view_formats: &[],
             })
         };
-        if ri == 0 {
-            self.geo_key = None;
-            self.resolved = None;
-        }
-        self.targets[ri] = Some(Targets {
+        Targets {
             size,
             a: tex("fluoro lbuffer", FMT_A),
             s: tex("fluoro lbuffer, water-basis channel", FMT_SCALAR),
@@ -222,18 +253,55 @@ impl GpuFluoroRenderer {
             hull: tex("fluoro needle hull", FMT_HULL),
             chord: tex("fluoro needle chord", FMT_CHORD),
             resolve: tex("fluoro resolve target", FMT_RESOLVE),
-            out_t: self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            out_t: device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("fluoro transmission"),
                 size: u64::from(size[0]) * u64::from(size[1]) * 4,
                 usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
                 mapped_at_creation: false,
             }),
-            staging: self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            staging: device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("fluoro transmission readback"),
                 size: u64::from(size[0]) * u64::from(size[1]) * 4,
                 usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             }),
-        });
+        }
     }
+}
+
+/// The resolve pass's bindings (see `resolve.wgsl`): its uniforms, the L-buffer, the needle's
+/// chord, the spectral bins, the iodine grid, the transmission out, the `ln T` table, the
+/// displaced L-buffer and the scalar meshes' L-buffer.
+fn resolve_layout_entries() -> [wgpu::BindGroupLayoutEntry; 9] {
+    let entry = |binding: u32, ty: wgpu::BindingType| wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::FRAGMENT,
+        ty,
+        count: None,
+    };
+    let buffer = |ty: wgpu::BufferBindingType| wgpu::BindingType::Buffer {
+        ty,
+        has_dynamic_offset: false,
+        min_binding_size: None,
+    };
+    let texture = |view_dimension: wgpu::TextureViewDimension| wgpu::BindingType::Texture {
+        sample_type: wgpu::TextureSampleType::Float { filterable: false },
+        view_dimension,
+        multisampled: false,
+    };
+    let read = wgpu::BufferBindingType::Storage { read_only: true };
+    [
+        entry(0, buffer(wgpu::BufferBindingType::Uniform)),
+        entry(1, texture(wgpu::TextureViewDimension::D2)),
+        entry(2, texture(wgpu::TextureViewDimension::D2)),
+        entry(3, buffer(read)),
+        entry(4, texture(wgpu::TextureViewDimension::D3)),
+        entry(
+            5,
+            buffer(wgpu::BufferBindingType::Storage { read_only: false }),
+        ),
+        entry(6, buffer(read)),
+        entry(7, texture(wgpu::TextureViewDimension::D2)),
+        entry(8, texture(wgpu::TextureViewDimension::D2)),
+    ]
 }

@@ -22,13 +22,16 @@
 //! inset); weaker otherwise. In transmission frames the needle is removed from the bone before
 //! the clamp's excess moves to cortex, which differs from the CPU only where the clamp binds on a
 //! ray through the needle (`render_chords` follows the CPU's order exactly).
-use sim_core::fluoro::{FluoroMaterial, IodineField, Projection, SpectralModel};
+use bytemuck::{Pod, Zeroable};
+use sim_core::fluoro::{EnergyModel, FluoroMaterial, IodineField, Projection, SpectralModel};
 use sim_core::material::MaterialClass;
 use std::time::Instant;
 use wgpu::util::DeviceExt;
 
-use super::cache::{intersect_rect, subtract_rect, union_rect};
-use super::types::*;
+use super::pipelines::{Pipelines, Targets};
+use super::types::{
+    FluoroGpuError, FrameTimings, Pending, PixelRect, PixelRectOut, intersect_rect, subtract_rect,
+};
 use crate::gpu::{GpuContext, GpuError, ReadbackError};
 
 /// Size of the `ln T(A_water, A_bone)` table (columns, rows).
@@ -37,7 +40,78 @@ const LUT_DIMS: [usize; 2] = [512, 256];
 /// cortical bone); deeper pixels take the exact sum.
 const LUT_MAX_DEPTH: [f64; 2] = [16.0, 8.0];
 
-impl GpuFluoroRenderer {
+/// The resolve pass's state: its uniforms per region, the spectral tables of the last energy
+/// model, and the empty iodine grid bound when a frame has none.
+pub(super) struct ResolvePass {
+    /// Uniforms of the full image (0) and of the supersampled needle region (1).
+    uniforms: [wgpu::Buffer; 2],
+    spectral: Option<SpectralTables>,
+    empty_iodine: wgpu::Texture,
+}
+
+/// What one resolve reads besides the L-buffer targets.
+pub(super) struct ResolveInput<'a> {
+    pub(super) projection: &'a Projection,
+    pub(super) model: &'a SpectralModel,
+    pub(super) iodine: Option<&'a IodineField>,
+    pub(super) region: PixelRect,
+    /// The rectangle to resolve, `[x, y, w, h]` in region samples.
+    pub(super) rect: [u32; 4],
+    /// The needle's pixel box in region samples (where its inputs are read).
+    pub(super) needle_rect: Option<[u32; 4]>,
+    pub(super) has_needle: bool,
+    pub(super) cortical_shell_mm: f64,
+    /// Iodine ray-march step as a fraction of the smallest voxel spacing.
+    pub(super) iodine_step_fraction: f64,
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct ResolveUniform {
+    p00: [f32; 4],
+    step_u: [f32; 4],
+    step_v: [f32; 4],
+    source: [f32; 4],
+    blades: [f32; 4],
+    misc: [f32; 4],
+    dims: [u32; 4],
+    mu: [f32; 4],
+    iod_origin: [f32; 4],
+    iod_inv_spacing: [f32; 4],
+    iod_dims: [u32; 4],
+    lut_scale: [f32; 4],
+    region: [f32; 4],
+    full: [u32; 4],
+    lut_dims: [u32; 4],
+    rect: [u32; 4],
+    row_w: [f32; 4],
+}
+
+/// Spectral bins and the `ln T` table of one energy model, kept until the model changes.
+struct SpectralTables {
+    model: EnergyModel,
+    bins: wgpu::Buffer,
+    lut: wgpu::Buffer,
+    lut_enabled: bool,
+}
+
+impl ResolvePass {
+    pub(super) fn new(ctx: &GpuContext) -> ResolvePass {
+        let uniforms = [0, 1].map(|_| {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("fluoro resolve"),
+                size: std::mem::size_of::<ResolveUniform>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        });
+        ResolvePass {
+            uniforms,
+            spectral: None,
+            empty_iodine: iodine_texture(ctx, [1, 1, 1], &[0.0]),
+        }
+    }
+
     /// Uploads the spectral bins and, for polychromatic models, the `ln T` table.
     ///
     /// Without steel or iodine on a ray, `T` depends on the water and bone depths only; the
@@ -45,7 +119,7 @@ impl GpuFluoroRenderer {
     /// `[0, 16] x [0, 8]` (steps of 0.031) instead of summing ~75 exponentials. The error is
     /// `h^2 / 8` times the curvature of `ln T`, the variance of `R_b(E)` under the transmitted
     /// spectrum (below 0.1 at 80 kVp): under `1.2e-5` in `ln T` per axis.
-    pub(super) fn ensure_spectral(&mut self, model: &SpectralModel) {
+    fn ensure_spectral(&mut self, device: &wgpu::Device, model: &SpectralModel) {
         if self
             .spectral
             .as_ref()
@@ -80,7 +154,6 @@ impl GpuFluoroRenderer {
         } else {
             vec![0.0]
         };
-        let device = &self.ctx.device;
         let buf = |label: &str, data: &[u8]| {
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(label),
@@ -96,55 +169,35 @@ impl GpuFluoroRenderer {
         });
     }
 
-    /// Records the passes of `passes`, then the resolve over one region, or (with `previous`,
-    /// the needle rectangle of the previous frame in the same targets) only over the union of
-    /// that rectangle and the needle's new one, and the copy of the resolved rows (whole rows
-    /// of the region) to the region's read-back buffer.
-    #[expect(clippy::too_many_arguments, reason = "one private recording step")]
-    pub(super) fn encode_region(
+    /// Records the resolve of `input.rect` of one region into `enc`, then the copy of the
+    /// resolved rows (whole rows of the region) to the region's read-back buffer; returns the
+    /// bytes to read back. `t` are the region's targets, holding its L-buffer.
+    pub(super) fn encode(
         &mut self,
+        ctx: &GpuContext,
+        pipelines: &Pipelines,
+        t: &Targets,
         enc: &mut wgpu::CommandEncoder,
-        projection: &Projection,
-        model: &SpectralModel,
-        iodine: Option<&IodineField>,
-        region: PixelRect,
-        passes: Passes,
-        previous: Option<Option<[u32; 4]>>,
-    ) -> Pending {
-        let started = Instant::now();
+        input: &ResolveInput<'_>,
+    ) -> u64 {
+        let (projection, model, region, rect) =
+            (input.projection, input.model, input.region, input.rect);
         let ri = region.index();
         let size = region.size;
-        let needle_rect =
-            self.encode_lbuffer(enc, projection, Layout::Transmission, passes, region);
-        let rect = match previous {
-            None => [0, 0, size[0], size[1]],
-            Some(old) => match union_rect(old, needle_rect) {
-                Some(r) => r,
-                // No needle then or now: nothing to resolve.
-                None => {
-                    return Pending {
-                        ri,
-                        rows: 0..0,
-                        bytes: 0,
-                        needle_rect,
-                    };
-                }
-            },
-        };
-        self.ensure_spectral(model);
-        let device = &self.ctx.device;
+        self.ensure_spectral(&ctx.device, model);
+        let device = &ctx.device;
         let tables = self.spectral.as_ref().expect("spectral tables");
         let frame = projection.gpu_ray_frame();
         let v4 = |v: [f32; 3], w: f32| [v[0], v[1], v[2], w];
         let col = projection.collimation;
         let clampf = |x: f64| x.clamp(-1e30, 1e30) as f32;
-        let (iod_tex, iod_origin, iod_inv, iod_dims) = match iodine {
+        let (iod_tex, iod_origin, iod_inv, iod_dims) = match input.iodine {
             Some(f) if !f.volume.grid.is_empty() => {
                 let g = &f.volume.grid;
-                let step = self.iodine_step_fraction
+                let step = input.iodine_step_fraction
                     * g.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min);
                 (
-                    iodine_texture(&self.ctx, g.dims, &f.volume.data),
+                    iodine_texture(ctx, g.dims, &f.volume.data),
                     [
                         g.origin_mm[0] as f32,
                         g.origin_mm[1] as f32,
@@ -178,7 +231,7 @@ impl GpuFluoroRenderer {
                 col.iris_radius_mm.map_or(-1.0, |r| (r * r) as f32),
                 projection.pixel_pitch_mm[0] as f32,
                 projection.pixel_pitch_mm[1] as f32,
-                self.cortical_shell_mm as f32,
+                input.cortical_shell_mm as f32,
             ],
             dims: [size[0], size[1], model.weights.len() as u32, iod_dims[3]],
             lut_scale: [
@@ -196,7 +249,7 @@ impl GpuFluoroRenderer {
             full: [
                 projection.detector_pixels[0],
                 projection.detector_pixels[1],
-                u32::from(self.needle.is_some()),
+                u32::from(input.has_needle),
                 0,
             ],
             lut_dims: [
@@ -220,19 +273,17 @@ impl GpuFluoroRenderer {
                 [r[0] as f32, r[1] as f32, r[2] as f32, 0.0]
             },
         };
-        self.ctx
-            .queue
-            .write_buffer(&self.resolve_buf[ri], 0, bytemuck::bytes_of(&params));
-        let t = self.targets[ri].as_ref().expect("targets");
+        ctx.queue
+            .write_buffer(&self.uniforms[ri], 0, bytemuck::bytes_of(&params));
         let view_of = |x: &wgpu::Texture| x.create_view(&wgpu::TextureViewDescriptor::default());
         let iod_view = iod_tex.create_view(&wgpu::TextureViewDescriptor::default());
         let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("fluoro resolve"),
-            layout: &self.pipelines.resolve_layout,
+            layout: &pipelines.resolve_layout,
             entries: &[
                 wgpu::BindGroupEntry {
                     binding: 0,
-                    resource: self.resolve_buf[ri].as_entire_binding(),
+                    resource: self.uniforms[ri].as_entire_binding(),
                 },
                 wgpu::BindGroupEntry {
                     binding: 1,
@@ -291,9 +342,9 @@ impl GpuFluoroRenderer {
             // The needle's box with the needle's inputs, and the rest of the rectangle (up to
             // four bands) without them (zero there: bit-identical). Each sample is resolved by
             // exactly one draw: the draws' storage writes are not ordered within a pass.
-            let pipelines = &self.pipelines.resolve[usize::from(iod_dims[3] != 0)];
+            let pipelines = &pipelines.resolve[usize::from(iod_dims[3] != 0)];
             pass.set_bind_group(0, &bind, &[]);
-            let boxed = needle_rect.and_then(|n| intersect_rect(n, rect));
+            let boxed = input.needle_rect.and_then(|n| intersect_rect(n, rect));
             let draws = boxed
                 .map(|b| (1, b))
                 .into_iter()
@@ -313,103 +364,61 @@ impl GpuFluoroRenderer {
             0,
             bytes,
         );
-        self.timings.resolved_samples += u64::from(rect[2]) * u64::from(rect[3]);
-        self.timings.encode_ms += started.elapsed().as_secs_f64() * 1e3;
-        Pending {
-            ri,
-            rows: rect[1]..rect[1] + rect[3],
-            bytes,
-            needle_rect,
-        }
-    }
-
-    /// Submits `enc` once, waits, and reads back every pending region.
-    pub(super) fn submit_and_read(
-        &mut self,
-        enc: wgpu::CommandEncoder,
-        pending: &[Pending],
-    ) -> Result<Vec<PixelRectOut>, FluoroGpuError> {
-        let started = Instant::now();
-        self.ctx.queue.submit([enc.finish()]);
-        let mut receivers = Vec::new();
-        for p in pending.iter().filter(|p| p.bytes > 0) {
-            let (tx, rx) = std::sync::mpsc::channel();
-            let t = self.targets[p.ri].as_ref().expect("targets");
-            t.staging
-                .map_async(wgpu::MapMode::Read, ..p.bytes, move |r| {
-                    // The receiver lives until recv() below returns, so a send error cannot happen.
-                    let _ = tx.send(r);
-                });
-            receivers.push(rx);
-        }
-        self.ctx
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(readback)?;
-        for rx in receivers {
-            rx.recv().map_err(readback)?.map_err(readback)?;
-        }
-        self.timings.gpu_ms += started.elapsed().as_secs_f64() * 1e3;
-        let started = Instant::now();
-        let mut outs = Vec::with_capacity(pending.len());
-        for p in pending {
-            let data = if p.bytes > 0 {
-                let t = self.targets[p.ri].as_ref().expect("targets");
-                let data = {
-                    let view = t.staging.get_mapped_range(..p.bytes).map_err(readback)?;
-                    bytemuck::cast_slice::<u8, f32>(&view).to_vec()
-                };
-                t.staging.unmap();
-                data
-            } else {
-                Vec::new()
-            };
-            outs.push(PixelRectOut {
-                rows: p.rows.clone(),
-                data,
-                needle_rect: p.needle_rect,
-            });
-        }
-        self.timings.readback_ms += started.elapsed().as_secs_f64() * 1e3;
-        Ok(outs)
+        bytes
     }
 }
 
-/// The resolve pass's bindings (see `resolve.wgsl`): its uniforms, the L-buffer, the needle's
-/// chord, the spectral bins, the iodine grid, the transmission out, the `ln T` table, the
-/// displaced L-buffer and the scalar meshes' L-buffer.
-pub(super) fn resolve_layout_entries() -> [wgpu::BindGroupLayoutEntry; 9] {
-    let entry = |binding: u32, ty: wgpu::BindingType| wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::FRAGMENT,
-        ty,
-        count: None,
-    };
-    let buffer = |ty: wgpu::BufferBindingType| wgpu::BindingType::Buffer {
-        ty,
-        has_dynamic_offset: false,
-        min_binding_size: None,
-    };
-    let texture = |view_dimension: wgpu::TextureViewDimension| wgpu::BindingType::Texture {
-        sample_type: wgpu::TextureSampleType::Float { filterable: false },
-        view_dimension,
-        multisampled: false,
-    };
-    let read = wgpu::BufferBindingType::Storage { read_only: true };
-    [
-        entry(0, buffer(wgpu::BufferBindingType::Uniform)),
-        entry(1, texture(wgpu::TextureViewDimension::D2)),
-        entry(2, texture(wgpu::TextureViewDimension::D2)),
-        entry(3, buffer(read)),
-        entry(4, texture(wgpu::TextureViewDimension::D3)),
-        entry(
-            5,
-            buffer(wgpu::BufferBindingType::Storage { read_only: false }),
-        ),
-        entry(6, buffer(read)),
-        entry(7, texture(wgpu::TextureViewDimension::D2)),
-        entry(8, texture(wgpu::TextureViewDimension::D2)),
-    ]
+/// Submits `enc` once, waits, and reads back every pending region from its targets (`targets`,
+/// by region index), adding the wait and the copy to `timings`.
+pub(super) fn submit_and_read(
+    ctx: &GpuContext,
+    targets: &[Option<Targets>; 2],
+    enc: wgpu::CommandEncoder,
+    pending: &[Pending],
+    timings: &mut FrameTimings,
+) -> Result<Vec<PixelRectOut>, FluoroGpuError> {
+    let started = Instant::now();
+    ctx.queue.submit([enc.finish()]);
+    let mut receivers = Vec::new();
+    for p in pending.iter().filter(|p| p.bytes > 0) {
+        let (tx, rx) = std::sync::mpsc::channel();
+        let t = targets[p.ri].as_ref().expect("targets");
+        t.staging
+            .map_async(wgpu::MapMode::Read, ..p.bytes, move |r| {
+                // The receiver lives until recv() below returns, so a send error cannot happen.
+                let _ = tx.send(r);
+            });
+        receivers.push(rx);
+    }
+    ctx.device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(readback)?;
+    for rx in receivers {
+        rx.recv().map_err(readback)?.map_err(readback)?;
+    }
+    timings.gpu_ms += started.elapsed().as_secs_f64() * 1e3;
+    let started = Instant::now();
+    let mut outs = Vec::with_capacity(pending.len());
+    for p in pending {
+        let data = if p.bytes > 0 {
+            let t = targets[p.ri].as_ref().expect("targets");
+            let data = {
+                let view = t.staging.get_mapped_range(..p.bytes).map_err(readback)?;
+                bytemuck::cast_slice::<u8, f32>(&view).to_vec()
+            };
+            t.staging.unmap();
+            data
+        } else {
+            Vec::new()
+        };
+        outs.push(PixelRectOut {
+            rows: p.rows.clone(),
+            data,
+            needle_rect: p.needle_rect,
+        });
+    }
+    timings.readback_ms += started.elapsed().as_secs_f64() * 1e3;
+    Ok(outs)
 }
 
 /// A 3-D `R32Float` texture of an iodine concentration grid (x fastest).

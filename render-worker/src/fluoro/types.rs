@@ -1,19 +1,18 @@
-//! The renderer's types and constants, below every pass: the passes (`lbuffer`, `resolve`,
-//! `cache`, `pipelines`, `chords`) implement their part of [`GpuFluoroRenderer`] on these and
-//! import nothing from one another but functions further down (`resolve` uses `cache`'s
-//! rectangle helpers, `pipelines` the resolve pass's layout).
+//! The renderer's shared vocabulary, below every pass: constants, the slot layouts, the vertex
+//! format, pixel rectangles and their arithmetic, the error and the public result types. It
+//! imports nothing from the passes.
 
 use bytemuck::{Pod, Zeroable};
-use sim_core::fluoro::nesting::NestedMesh;
 use sim_core::fluoro::spectrum::UnknownKvp;
-use sim_core::fluoro::{EnergyModel, FluoroMaterial, Projection, TransmissionImage};
+use sim_core::fluoro::{FluoroMaterial, Projection};
 use sim_core::material::MaterialClass;
 use thiserror::Error;
 
-use crate::gpu::{GpuContext, GpuError};
+use crate::gpu::GpuError;
 
-/// Number of per-pixel chord channels [`GpuFluoroRenderer::render_chords`] returns (one per
-/// [`FluoroMaterial`], in [`FluoroMaterial::index`] order).
+/// Number of per-pixel chord channels
+/// [`GpuFluoroRenderer::render_chords`](super::GpuFluoroRenderer::render_chords) returns (one
+/// per [`FluoroMaterial`], in [`FluoroMaterial::index`] order).
 pub const CHANNELS: usize = FluoroMaterial::COUNT;
 
 /// Why the GPU renderer could not be built or could not render.
@@ -61,8 +60,9 @@ impl PixelRect {
     }
 }
 
-/// What [`GpuFluoroRenderer::render_transmission`] returns: the per-pixel transmission (pixel
-/// centres, 0 behind the collimator), row-major.
+/// What
+/// [`GpuFluoroRenderer::render_transmission`](super::GpuFluoroRenderer::render_transmission)
+/// returns: the per-pixel transmission (pixel centres, 0 behind the collimator), row-major.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GpuTransmission {
     /// Columns.
@@ -73,50 +73,8 @@ pub struct GpuTransmission {
     pub transmission: Vec<f32>,
 }
 
-/// The GPU fluoroscopy renderer of one scene: static anatomy uploaded once, a needle that can
-/// move every frame.
-pub struct GpuFluoroRenderer {
-    pub(super) ctx: GpuContext,
-    /// The nesting plan, in drawing order: the meshes that add to the water-basis channel only
-    /// first (drawn into the one-channel target).
-    pub(super) meshes: Vec<NestedMesh>,
-    pub(super) anatomy: AnatomyBuffers,
-    /// Each anatomy chunk's pixel bounding box under one projection (see `culled`).
-    pub(super) chunk_boxes: Option<(Projection, Vec<[f32; 4]>)>,
-    pub(super) needle: Option<Needle>,
-    pub(super) pipelines: Pipelines,
-    /// Uniforms of the full image (0) and of the supersampled needle region (1).
-    pub(super) view_buf: [wgpu::Buffer; 2],
-    pub(super) resolve_buf: [wgpu::Buffer; 2],
-    pub(super) weights_buf: wgpu::Buffer,
-    pub(super) empty_iodine: wgpu::Texture,
-    pub(super) targets: [Option<Targets>; 2],
-    pub(super) spectral: Option<SpectralTables>,
-    pub(super) cortical_shell_mm: f64,
-    /// What the full-image geometric L-buffer (`targets[0].a`) holds, if anything.
-    pub(super) geo_key: Option<(Projection, Layout)>,
-    /// The last full-image transmission resolve without iodine (see [`Resolved`]).
-    pub(super) resolved: Option<Resolved>,
-    /// Bumped whenever the needle changes.
-    pub(super) needle_generation: u64,
-    /// The last displayed-frame transmission and what decided it.
-    pub(super) last_frame: Option<(FrameKey, GpuTransmission)>,
-    /// The last frame's input to sim-core's finishing step, reused while the detector and the
-    /// collimator stay (its exposure mask and its storage).
-    pub(super) finishing: Option<(ExposureKey, TransmissionImage)>,
-    /// Use the caches (default `true`; `false` renders every frame from scratch, for the
-    /// benchmark's before/after rows and the cache tests).
-    pub caching: bool,
-    /// Draw only the anatomy triangles that can reach the needle's pixel box or the
-    /// supersampled region into them (default `true`; bit-identical either way, see
-    /// `culled`).
-    pub culling: bool,
-    pub(super) timings: FrameTimings,
-    /// Iodine ray-march step as a fraction of the smallest voxel spacing (default 0.25).
-    pub iodine_step_fraction: f64,
-}
-
-/// Wall-clock phases of the last frame rendered by [`GpuFluoroRenderer::render_frame`] (or the
+/// Wall-clock phases of the last frame rendered by
+/// [`GpuFluoroRenderer::render_frame`](super::GpuFluoroRenderer::render_frame) (or the
 /// transmission calls), ms. GPU work is measured from submit to the end of the wait for the
 /// read-back (lavapipe runs it on the CPU); `cpu_*` are work on the calling thread.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -151,18 +109,6 @@ impl FrameTimings {
 /// the needle displaces; cortical and cancellous geometric `L` for the clamp).
 pub(super) const SLOTS: usize = 4;
 
-/// The anatomy as drawn: one vertex buffer (the scalar meshes' triangles first, then the rest,
-/// each mesh's in its BVH's order) and its culling chunks.
-pub(super) struct AnatomyBuffers {
-    /// `None` when no mesh is drawn.
-    pub(super) bufs: Option<MeshBuffers>,
-    /// Runs of [`CHUNK_TRIANGLES`] consecutive anatomy triangles with their bounding boxes, for
-    /// culling on the CPU.
-    pub(super) chunks: Vec<Chunk>,
-    /// The scalar meshes come first: the number of their chunks.
-    pub(super) scalar_chunks: usize,
-}
-
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub(super) struct Vertex {
@@ -173,53 +119,18 @@ pub(super) struct Vertex {
     pub(super) pad: u32,
 }
 
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-pub(super) struct ViewUniform {
-    pub(super) row_x: [f32; 4],
-    pub(super) row_y: [f32; 4],
-    pub(super) row_w: [f32; 4],
-    pub(super) source: [f32; 4],
-    pub(super) size: [f32; 4],
-    pub(super) needle_box: [f32; 4],
-    pub(super) p00: [f32; 4],
-    pub(super) step_u: [f32; 4],
-    pub(super) step_v: [f32; 4],
-    pub(super) region: [f32; 4],
-}
-
-pub(super) struct Needle {
-    pub(super) bufs: MeshBuffers,
-    pub(super) centre_mm: [f64; 3],
-    pub(super) vertices_mm: Vec<[f64; 3]>,
-}
-
-pub(super) struct MeshBuffers {
-    pub(super) vertices: wgpu::Buffer,
-    pub(super) indices: wgpu::Buffer,
-    pub(super) index_count: u32,
-}
-
-/// A run of consecutive anatomy triangles (in drawing order) and its bounding box, mm.
-pub(super) struct Chunk {
-    pub(super) first_vertex: u32,
-    pub(super) vertices: u32,
-    pub(super) lo: [f32; 3],
-    pub(super) hi: [f32; 3],
-}
-
 /// Chord-layout channels: 0..11, tissue `i`'s chord net of the needle (for the two bone
 /// classes: geometric); 11 and 12, the cortical and cancellous parts the needle displaces.
 pub(super) const CHORD_CHANNELS: usize = CHANNELS + 1;
 
-/// L-buffer passes for [`GpuFluoroRenderer::render_chords`], four channels each.
+/// L-buffer passes for `GpuFluoroRenderer::render_chords`, four channels each.
 pub(super) const CHORD_PASSES: usize = CHORD_CHANNELS.div_ceil(SLOTS);
 
 pub(super) const CORTICAL: FluoroMaterial = FluoroMaterial::Tissue(MaterialClass::CorticalBone);
 
 pub(super) const CANCELLOUS: FluoroMaterial = FluoroMaterial::Tissue(MaterialClass::Cancellous);
 
-/// Which passes [`GpuFluoroRenderer::encode_lbuffer`] records.
+/// Which passes `LBuffer::encode` records.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Passes {
     pub(super) geometry: bool,
@@ -245,123 +156,6 @@ pub(super) enum Layout {
 /// Marker of "no needle on this pixel" in the hull target (as in the shader).
 pub(super) const NO_NEEDLE: f64 = 1.0e30;
 
-/// Every pipeline of the renderer, built once per device.
-pub(super) struct Pipelines {
-    /// The needle's hull and chord pass.
-    pub(super) needle: wgpu::RenderPipeline,
-    /// The geometric anatomy pass into the four-channel L-buffer.
-    pub(super) anatomy: wgpu::RenderPipeline,
-    /// The geometric anatomy pass into the one-channel (water-basis) L-buffer.
-    pub(super) anatomy_scalar: wgpu::RenderPipeline,
-    /// The displaced anatomy pass.
-    pub(super) displaced: wgpu::RenderPipeline,
-    /// The resolve, `[iodine][needle]`: without and with the iodine ray march, and without
-    /// and with the needle's inputs (drawn over the needle's pixel box only); one bind group
-    /// layout (`resolve_layout`) serves all four.
-    pub(super) resolve: [[wgpu::RenderPipeline; 2]; 2],
-    pub(super) resolve_layout: wgpu::BindGroupLayout,
-}
-
-/// Render targets of one detector size.
-pub(super) struct Targets {
-    pub(super) size: [u32; 2],
-    /// Geometric L-buffer (needle-independent): the non-scalar meshes in the transmission
-    /// layout, every mesh in the chord layout.
-    pub(super) a: wgpu::Texture,
-    /// Geometric L-buffer of the scalar meshes, transmission layout (water-basis channel).
-    pub(super) s: wgpu::Texture,
-    /// Displaced part (zero outside the needle's pixel box).
-    pub(super) d: wgpu::Texture,
-    pub(super) hull: wgpu::Texture,
-    pub(super) chord: wgpu::Texture,
-    pub(super) out_t: wgpu::Buffer,
-    /// The resolve's render target: it only sizes the pass (write mask empty; cleared, one byte
-    /// per sample, and discarded); the output is `out_t`.
-    pub(super) resolve: wgpu::Texture,
-    /// Kept mapped-readable copy of `out_t` (no allocation per frame).
-    pub(super) staging: wgpu::Buffer,
-}
-
-/// The full-image transmission of the last resolve: for which projection and energy model, the
-/// needle's pixel rectangle then (where the displaced pass and the steel wrote), and the values.
-/// Outside the union of that rectangle and the next frame's, every input of the resolve is the
-/// same (same geometric L-buffer, no displaced part, no steel), so only that union is resolved
-/// and read back again, and the result is bit-identical to a frame from scratch.
-pub(super) struct Resolved {
-    pub(super) projection: Projection,
-    pub(super) model: EnergyModel,
-    pub(super) needle_rect: Option<[u32; 4]>,
-    pub(super) transmission: Vec<f32>,
-}
-
-/// Everything that decides [`GpuFluoroRenderer::render_transmission_supersampled`] without
-/// iodine.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) struct FrameKey {
-    pub(super) projection: Projection,
-    pub(super) energy: EnergyModel,
-    pub(super) supersample: u32,
-    pub(super) needle_generation: u64,
-}
-
-/// The full image between [`GpuFluoroRenderer::begin_full`] and
-/// [`GpuFluoroRenderer::end_full`].
-pub(super) struct FullFrame {
-    pub(super) pending: Pending,
-    pub(super) key: (Projection, Layout),
-    pub(super) model: EnergyModel,
-    pub(super) previous: Option<Resolved>,
-    pub(super) width: usize,
-}
-
-/// What decides which pixels the beam reaches (see `Projection::is_exposed`).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) struct ExposureKey {
-    pub(super) pixels: [u32; 2],
-    pub(super) pitch_mm: [f64; 2],
-    pub(super) collimation: sim_core::fluoro::Collimation,
-}
-
-impl ExposureKey {
-    pub(super) fn of(p: &Projection) -> ExposureKey {
-        ExposureKey {
-            pixels: p.detector_pixels,
-            pitch_mm: p.pixel_pitch_mm,
-            collimation: p.collimation,
-        }
-    }
-}
-
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-pub(super) struct ResolveUniform {
-    pub(super) p00: [f32; 4],
-    pub(super) step_u: [f32; 4],
-    pub(super) step_v: [f32; 4],
-    pub(super) source: [f32; 4],
-    pub(super) blades: [f32; 4],
-    pub(super) misc: [f32; 4],
-    pub(super) dims: [u32; 4],
-    pub(super) mu: [f32; 4],
-    pub(super) iod_origin: [f32; 4],
-    pub(super) iod_inv_spacing: [f32; 4],
-    pub(super) iod_dims: [u32; 4],
-    pub(super) lut_scale: [f32; 4],
-    pub(super) region: [f32; 4],
-    pub(super) full: [u32; 4],
-    pub(super) lut_dims: [u32; 4],
-    pub(super) rect: [u32; 4],
-    pub(super) row_w: [f32; 4],
-}
-
-/// Spectral bins and the `ln T` table of one energy model, kept until the model changes.
-pub(super) struct SpectralTables {
-    pub(super) model: EnergyModel,
-    pub(super) bins: wgpu::Buffer,
-    pub(super) lut: wgpu::Buffer,
-    pub(super) lut_enabled: bool,
-}
-
 /// A [`PixelRect`] recorded for resolve and read-back.
 #[derive(Debug, Clone)]
 pub(super) struct Pending {
@@ -377,4 +171,90 @@ pub(super) struct PixelRectOut {
     pub(super) rows: std::ops::Range<u32>,
     pub(super) data: Vec<f32>,
     pub(super) needle_rect: Option<[u32; 4]>,
+}
+
+/// Overlap of two rectangles `[x, y, w, h]` (`None` if they do not overlap).
+pub(super) fn intersect_rect(a: [u32; 4], b: [u32; 4]) -> Option<[u32; 4]> {
+    let (x0, y0) = (a[0].max(b[0]), a[1].max(b[1]));
+    let x1 = (a[0] + a[2]).min(b[0] + b[2]);
+    let y1 = (a[1] + a[3]).min(b[1] + b[3]);
+    (x1 > x0 && y1 > y0).then(|| [x0, y0, x1 - x0, y1 - y0])
+}
+
+/// `a` less `b` (which lies inside `a`, if given) as up to four disjoint, non-empty bands: the
+/// rows above and below `b`, and the parts of `b`'s rows left and right of it.
+pub(super) fn subtract_rect(a: [u32; 4], b: Option<[u32; 4]>) -> Vec<[u32; 4]> {
+    let Some(b) = b else {
+        return vec![a];
+    };
+    let (ax1, ay1, bx1, by1) = (a[0] + a[2], a[1] + a[3], b[0] + b[2], b[1] + b[3]);
+    [
+        [a[0], a[1], a[2], b[1] - a[1]],
+        [a[0], by1, a[2], ay1 - by1],
+        [a[0], b[1], b[0] - a[0], b[3]],
+        [bx1, b[1], ax1 - bx1, b[3]],
+    ]
+    .into_iter()
+    .filter(|r| r[2] > 0 && r[3] > 0)
+    .collect()
+}
+
+/// Smallest rectangle `[x, y, w, h]` holding both (`None` if both are).
+pub(super) fn union_rect(a: Option<[u32; 4]>, b: Option<[u32; 4]>) -> Option<[u32; 4]> {
+    match (a, b) {
+        (None, r) | (r, None) => r,
+        (Some(a), Some(b)) => {
+            let (x0, y0) = (a[0].min(b[0]), a[1].min(b[1]));
+            let x1 = (a[0] + a[2]).max(b[0] + b[2]);
+            let y1 = (a[1] + a[3]).max(b[1] + b[3]);
+            Some([x0, y0, x1 - x0, y1 - y0])
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every sample of `a` is covered exactly once by `b` (if any, inside `a`) and the bands
+    /// `subtract_rect` returns, for every placement of `b` on a small grid.
+    #[test]
+    fn the_needle_box_and_the_bands_cover_the_rectangle_once() {
+        let a = [2, 3, 7, 5];
+        let mut boxes = vec![None];
+        for x in 2..9 {
+            for y in 3..8 {
+                for w in 1..=9 - x {
+                    for h in 1..=8 - y {
+                        boxes.push(Some([x, y, w, h]));
+                    }
+                }
+            }
+        }
+        for b in boxes {
+            let mut count = [[0u8; 12]; 12];
+            for r in b.into_iter().chain(subtract_rect(a, b)) {
+                assert!(r[2] > 0 && r[3] > 0, "{b:?}: empty band {r:?}");
+                for y in r[1]..r[1] + r[3] {
+                    for x in r[0]..r[0] + r[2] {
+                        count[y as usize][x as usize] += 1;
+                    }
+                }
+            }
+            for (y, row) in count.iter().enumerate() {
+                for (x, &c) in row.iter().enumerate() {
+                    let inside = (2..9).contains(&x) && (3..8).contains(&y);
+                    assert_eq!(
+                        c,
+                        u8::from(inside),
+                        "{b:?}: sample ({x}, {y}) covered {c} times"
+                    );
+                }
+            }
+            assert_eq!(intersect_rect(a, a), Some(a));
+            if let Some(b) = b {
+                assert_eq!(intersect_rect(a, b), Some(b));
+            }
+        }
+    }
 }
