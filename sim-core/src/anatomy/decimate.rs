@@ -10,7 +10,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::smooth::vertex_neighbours;
+use super::smooth::{grow_rings, vertex_neighbours};
 use crate::mesh::{TriMesh, directed_edge_uses, is_degenerate};
 
 /// Parameters of [`decimate`].
@@ -153,15 +153,7 @@ pub fn decimate(mesh: &TriMesh, params: &DecimationParams) -> (TriMesh, String) 
                     max_error *= 0.5;
                 } else {
                     // Lock the defect's vertices and two rings around them in the input mesh.
-                    let mut ring: Vec<u32> = defects;
-                    for _ in 0..2 {
-                        let mut next = ring.clone();
-                        for &v in &ring {
-                            next.extend_from_slice(&neighbours[v as usize]);
-                        }
-                        ring = next;
-                    }
-                    for v in ring {
+                    for v in grow_rings(defects, &neighbours, 2) {
                         locks[v as usize] = true;
                     }
                 }

@@ -49,8 +49,16 @@ impl Default for TaubinParams {
 
 /// Vertex neighbour lists (each undirected mesh edge once per endpoint).
 pub(crate) fn vertex_neighbours(mesh: &TriMesh) -> Vec<Vec<u32>> {
-    let mut nb: Vec<Vec<u32>> = vec![Vec::new(); mesh.vertices_mm.len()];
-    for t in &mesh.triangles {
+    neighbours_of(mesh.vertices_mm.len(), &mesh.triangles)
+}
+
+/// Neighbour lists of `vertices` vertices over `triangles` (sorted, each neighbour once).
+pub(crate) fn neighbours_of<'a>(
+    vertices: usize,
+    triangles: impl IntoIterator<Item = &'a [u32; 3]>,
+) -> Vec<Vec<u32>> {
+    let mut nb: Vec<Vec<u32>> = vec![Vec::new(); vertices];
+    for t in triangles {
         for k in 0..3 {
             let (a, b) = (t[k], t[(k + 1) % 3]);
             nb[a as usize].push(b);
@@ -64,11 +72,31 @@ pub(crate) fn vertex_neighbours(mesh: &TriMesh) -> Vec<Vec<u32>> {
     nb
 }
 
-fn laplacian_step(pos: &[[f64; 3]], nb: &[Vec<u32>], w: f64) -> Vec<[f64; 3]> {
+/// `seed` grown by `rings` rings of neighbours (vertices may repeat).
+pub(crate) fn grow_rings(mut seed: Vec<u32>, neighbours: &[Vec<u32>], rings: usize) -> Vec<u32> {
+    for _ in 0..rings {
+        let mut next = seed.clone();
+        for &v in &seed {
+            next.extend_from_slice(&neighbours[v as usize]);
+        }
+        seed = next;
+    }
+    seed
+}
+
+/// One umbrella-operator step `p + w (mean of neighbours - p)` of every vertex with neighbours
+/// whose `movable` entry is true (all of them when `movable` is `None`).
+pub(crate) fn laplacian_step(
+    pos: &[[f64; 3]],
+    nb: &[Vec<u32>],
+    movable: Option<&[bool]>,
+    w: f64,
+) -> Vec<[f64; 3]> {
     pos.iter()
         .zip(nb)
-        .map(|(p, n)| {
-            if n.is_empty() {
+        .enumerate()
+        .map(|(i, (p, n))| {
+            if n.is_empty() || movable.is_some_and(|m| !m[i]) {
                 return *p;
             }
             let mut avg = [0.0; 3];
@@ -101,8 +129,8 @@ pub fn taubin_smooth(
     let mut capped = 0usize;
     let mut stopped = false;
     for _ in 0..params.iterations {
-        let step = laplacian_step(&current.vertices_mm, &nb, params.lambda);
-        let mut step = laplacian_step(&step, &nb, params.mu);
+        let step = laplacian_step(&current.vertices_mm, &nb, None, params.lambda);
+        let mut step = laplacian_step(&step, &nb, None, params.mu);
         for (p, o) in step.iter_mut().zip(&original) {
             let d = [p[0] - o[0], p[1] - o[1], p[2] - o[2]];
             let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();

@@ -128,7 +128,7 @@ pub fn mesh_family(
                 break;
             }
             passes += 1;
-            let mut ring: Vec<u32> = cross
+            let crossing: Vec<u32> = cross
                 .iter()
                 .flat_map(|&((pa, ta), (pb, tb))| {
                     input[pa as usize][ta as usize]
@@ -136,14 +136,7 @@ pub fn mesh_family(
                         .chain(input[pb as usize][tb as usize])
                 })
                 .collect();
-            for _ in 0..2 {
-                let mut next = ring.clone();
-                for &v in &ring {
-                    next.extend_from_slice(&neighbours[v as usize]);
-                }
-                ring = next;
-            }
-            for v in ring {
+            for v in crate::anatomy::smooth::grow_rings(crossing, &neighbours, 2) {
                 let v = v as usize;
                 if fam.positions[v] != extracted_positions[v] {
                     fam.positions[v] = extracted_positions[v];

@@ -3,27 +3,7 @@
 
 use super::surface::ExtractedSurface;
 use super::weld::Family;
-use crate::anatomy::smooth::TaubinParams;
-
-fn laplacian(pos: &[[f64; 3]], nb: &[Vec<u32>], movable: &[bool], w: f64) -> Vec<[f64; 3]> {
-    pos.iter()
-        .zip(nb)
-        .zip(movable)
-        .map(|((p, n), &mv)| {
-            if !mv || n.is_empty() {
-                return *p;
-            }
-            let mut avg = [0.0; 3];
-            for &q in n {
-                let q = pos[q as usize];
-                for a in 0..3 {
-                    avg[a] += q[a];
-                }
-            }
-            std::array::from_fn(|a| p[a] + w * (avg[a] / n.len() as f64 - p[a]))
-        })
-        .collect()
-}
+use crate::anatomy::smooth::{TaubinParams, laplacian_step};
 
 /// Taubin smoothing of the whole family (see the module doc); returns one note per mesh.
 pub(super) fn smooth_family(
@@ -76,8 +56,8 @@ pub(super) fn smooth_family(
         if stopped.iter().all(|&s| s) {
             break;
         }
-        let step = laplacian(&current, &nb, &movable, params.lambda);
-        let mut step = laplacian(&step, &nb, &movable, params.mu);
+        let step = laplacian_step(&current, &nb, Some(&movable), params.lambda);
+        let mut step = laplacian_step(&step, &nb, Some(&movable), params.mu);
         let mut capped_now = vec![false; original.len()];
         for (g, (p, o)) in step.iter_mut().zip(&original).enumerate() {
             let d = [p[0] - o[0], p[1] - o[1], p[2] - o[2]];

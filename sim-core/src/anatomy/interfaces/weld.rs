@@ -203,19 +203,10 @@ impl Family {
 
     /// Neighbour lists of the whole complex (each shared triangle counted once).
     pub(super) fn neighbours(&self) -> Vec<Vec<u32>> {
-        let mut nb: Vec<Vec<u32>> = vec![Vec::new(); self.positions.len()];
-        for t in self.patches.iter().flat_map(|p| &p.triangles) {
-            for k in 0..3 {
-                let (a, b) = (t[k], t[(k + 1) % 3]);
-                nb[a as usize].push(b);
-                nb[b as usize].push(a);
-            }
-        }
-        for n in &mut nb {
-            n.sort_unstable();
-            n.dedup();
-        }
-        nb
+        crate::anatomy::smooth::neighbours_of(
+            self.positions.len(),
+            self.patches.iter().flat_map(|p| &p.triangles),
+        )
     }
 
     /// Per junction vertex, its neighbours along junction curves (edges whose triangles lie in
