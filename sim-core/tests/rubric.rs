@@ -725,3 +725,62 @@ fn station_directory_rules_file_name_and_unique_ids() {
     std::fs::write(dir.path().join("l4-l5-left-facet.toml"), &one).unwrap();
     assert_eq!(load_station_dir(dir.path()).unwrap().len(), 1);
 }
+
+/// Physically impossible values are refused by the engine itself, never scored: a negative
+/// distance (or -1e308) must not earn the credit of a perfect placement, whatever the tolerance.
+#[test]
+fn impossible_measurements_are_refused_not_scored() {
+    let s = Station::from_toml_str(&station_toml(
+        0.5,
+        &[
+            crit("d", 1.0, true, "tip_to_target_mm", "mm", r#"{ law = "lower_is_better", pass_within = 2.0, fail_beyond = 5.0 }"#),
+            crit("m", 1.0, false, "tip_medial_to_pedicle_mm", "mm", r#"{ law = "lower_is_better", pass_within = 0.0, fail_beyond = 3.0 }"#),
+            crit("a", 1.0, false, "beam_to_joint_plane_deg", "deg", r#"{ law = "lower_is_better", pass_within = 5.0, fail_beyond = 15.0 }"#),
+            crit("n", 1.0, false, "fluoro_acquisitions_count", "count", r#"{ law = "lower_is_better", pass_within = 10.0, fail_beyond = 20.0 }"#),
+            crit("f", 1.0, false, "needle_in_plane_fraction", "fraction", r#"{ law = "higher_is_better", pass_from = 0.8, fail_below = 0.2 }"#),
+            crit("t", 1.0, false, "fluoro_exposure_s", "s", r#"{ law = "lower_is_better", pass_within = 30.0, fail_beyond = 60.0 }"#),
+        ]
+        .concat(),
+    ))
+    .unwrap();
+    let good = [
+        ("tip_to_target_mm", 1.0),
+        ("tip_medial_to_pedicle_mm", -2.0), // signed: lateral of the pedicle
+        ("beam_to_joint_plane_deg", 3.0),
+        ("fluoro_acquisitions_count", 4.0),
+        ("needle_in_plane_fraction", 0.9),
+        ("fluoro_exposure_s", 12.5),
+    ];
+    let r = s.evaluate(&measure(&good));
+    assert_eq!(r.outcome, Outcome::Met, "{r:?}");
+    assert!(sim_core::rubric::check_measurements(&measure(&good)).is_ok());
+    for (key, bad) in [
+        ("tip_to_target_mm", -1e308),
+        ("tip_to_target_mm", -0.001),
+        ("tip_to_target_mm", 1e308),
+        ("tip_to_target_mm", f64::NAN),
+        ("tip_medial_to_pedicle_mm", -1e308),
+        ("beam_to_joint_plane_deg", -3.0),
+        ("beam_to_joint_plane_deg", 181.0),
+        ("fluoro_acquisitions_count", -1.0),
+        ("fluoro_acquisitions_count", 2.5),
+        ("needle_in_plane_fraction", 1.5),
+        ("fluoro_exposure_s", -1.0),
+        ("fluoro_exposure_s", f64::INFINITY),
+    ] {
+        let mut m = measure(&good);
+        m.insert(key.into(), bad);
+        let r = s.evaluate(&m);
+        let c = r.criteria.iter().find(|c| c.measurement == key).unwrap();
+        assert_eq!(c.status, CriterionStatus::Invalid, "{key} = {bad}");
+        assert_eq!(c.credit, None, "{key} = {bad}");
+        assert_ne!(r.outcome, Outcome::Met, "{key} = {bad}");
+        assert!(r.incomplete_criteria.contains(&c.id), "{key} = {bad}");
+        let e = sim_core::rubric::check_measurements(&m).unwrap_err();
+        assert!(e.contains(key), "{e}");
+    }
+    // Keys no criterion reads are checked by their suffix as well.
+    let mut m = measure(&good);
+    m.insert("needle_depth_mm".into(), 5000.0);
+    assert!(sim_core::rubric::check_measurements(&m).unwrap_err().contains("needle_depth_mm"));
+}

@@ -63,8 +63,9 @@ pub enum CriterionStatus {
     NotMet,
     /// No measurement was supplied.
     Missing,
-    /// A measurement was supplied but cannot be scored (not finite, or a yes/no value that is
-    /// neither 1 nor 0). Treated like a missing one: reported, never counted as zero.
+    /// A measurement was supplied but cannot be scored (not finite, outside its physical range
+    /// as `range::check_value` states it, or a yes/no value that is neither 1 nor 0). Treated
+    /// like a missing one: reported, never counted as zero.
     Invalid,
 }
 
@@ -141,7 +142,12 @@ impl Station {
         for c in &rubric.criteria {
             total_weight += c.weight;
             let value = measurements.get(&c.measurement).copied();
-            let (credit, status, note) = match value.map(|v| c.tolerance.credit(v)) {
+            // A physically impossible value is refused before the tolerance sees it.
+            let scored = value.map(|v| {
+                super::range::check_value(&c.measurement, c.unit, v)
+                    .and_then(|()| c.tolerance.credit(v))
+            });
+            let (credit, status, note) = match scored {
                 None => (None, CriterionStatus::Missing, None),
                 Some(Err(why)) => (None, CriterionStatus::Invalid, Some(why)),
                 Some(Ok(credit)) => {

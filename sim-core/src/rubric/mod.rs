@@ -51,11 +51,16 @@
 //! ```
 
 mod engine;
+mod range;
 mod station;
 
 pub use engine::{
     CriterionResult, CriterionStatus, Measurements, Outcome, RubricResult, SCORE_TIE_EPSILON,
     TECHNICAL_RESULT_NOTICE,
+};
+pub use range::{
+    MAX_ABS_DEG, MAX_ABS_MM, MAX_COUNT, MAX_SECONDS, SIGNED_KEYS, check_measurements, check_value,
+    is_magnitude_key, unit_of_key,
 };
 pub use station::{
     Criterion, Instrument, Modality, Rubric, Station, StationError, StationFile, Target, Tolerance,
