@@ -343,7 +343,8 @@ async function facultyHome() {
       b.setAttribute('aria-label', `Review the attempt of ${a.learner_name} at ${a.station_id}`);
       b.addEventListener('click', () => openReview(a));
       return el('tr', {}, el('td', { textContent: a.learner_name }), el('td', { textContent: a.station_id }),
-        el('td', { textContent: a.state }), el('td', { textContent: `${outcomeWords(a.latest_outcome)} (${fmt(a.latest_score)})` }), el('td', {}, b));
+        el('td', { textContent: a.state }), el('td', { textContent: `${outcomeWords(a.latest_outcome)} (${fmt(a.latest_score)})` }),
+        el('td', { textContent: provenanceWords(a.latest_source, a.latest_replay_check) }), el('td', {}, b));
     }));
   } catch (e) {
     say(e.message);
@@ -368,6 +369,19 @@ $('totp-confirm').addEventListener('click', async () => {
     say('Authenticator set up. Future logins ask for a code.');
   } catch (e) { say(e.message); }
 });
+
+// Where a technical result came from and what replaying its log showed, in words for faculty.
+const SOURCE_WORDS = { server: 'computed by the simulation', client: 'reported by a client (legacy, not replayable)' };
+const CHECK_WORDS = {
+  pending: 'replay check pending',
+  identical: 'replay reproduces it exactly',
+  differs: 'REPLAY DIFFERS: do not trust this result',
+  unavailable: 'no log to replay',
+};
+function provenanceWords(source, check) {
+  if (!source) return '—';
+  return `${SOURCE_WORDS[source] || source}; ${CHECK_WORDS[check] || check || 'replay check pending'}`;
+}
 
 function setStep(k) {
   if (!reviewing) return;
@@ -394,11 +408,14 @@ async function openReview(a) {
       return el('li', {}, b);
     }));
     $('replay-check').textContent = replay.identical
-      ? 'Replay reproduces the recorded score, final state and final image exactly.'
+      ? 'Replay reproduces the recorded measurements, score, final state and final image exactly.'
       : 'Replay differs from the record (see the server log).';
     const r = detail.results[detail.results.length - 1];
     $('review-result').replaceChildren(el('p', { textContent: r ? `Technical result: ${outcomeWords(r.outcome)}, score ${fmt(r.score)}.` : 'No technical result.' }),
       el('p', { className: 'notice', textContent: detail.notice || '' }));
+    $('review-provenance').textContent = r
+      ? `Source: ${provenanceWords(r.source, r.replay_check && r.replay_check.verdict)}.`
+      : '';
     setStep(replay.timeline.length);
     $('review-title').focus();
   } catch (e) {

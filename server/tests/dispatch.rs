@@ -437,6 +437,41 @@ async fn in_process_session_records_activity_result_and_replays_exactly() {
         "{replay}"
     );
     assert_eq!(replay["identical"], true, "{replay}");
+    // The stored measurements are exactly those of the replay (every one, bit for bit).
+    assert!(replay["recorded"]["measurements"].as_object().is_some_and(|m| !m.is_empty()), "{replay}");
+    assert_eq!(replay["recorded"]["measurements"], replay["replayed"]["measurements"]);
+    assert_eq!(replay["recorded"]["measurements"], result["measurements"]);
+    assert_eq!(replay["differing_measurements"], json!([]));
+    // The background checker replays the stored result on its own and records the verdict,
+    // which travels with the result: detail, review queue and CSV export show source and check.
+    let mut verdict = serde_json::Value::Null;
+    for _ in 0..600 {
+        let (_, d) = faculty.call("GET", &format!("/api/attempts/{attempt}"), None).await;
+        verdict = d["results"][0]["replay_check"].clone();
+        if verdict["verdict"] != "pending" {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert_eq!(verdict["verdict"], "identical", "{verdict}");
+    assert_eq!(verdict["detail"]["measurements"]["differing_keys"], json!([]), "{verdict}");
+    let (_, d) = faculty.call("GET", &format!("/api/attempts/{attempt}"), None).await;
+    assert_eq!(d["results"][0]["source"], "server");
+    let (s, queue) = faculty.call("GET", "/api/reviews?state=submitted", None).await;
+    assert_eq!(s, 200, "{queue}");
+    let row = queue.as_array().unwrap().iter().find(|a| a["id"] == attempt.to_string().as_str()).expect("queued");
+    assert_eq!((row["latest_source"].as_str(), row["latest_replay_check"].as_str()), (Some("server"), Some("identical")), "{row}");
+    let r = request_with_headers(
+        "GET",
+        &format!("http://{}/api/reviews/export.csv?state=submitted", srv.addr),
+        None,
+        &[("Cookie", &faculty.cookie)],
+    )
+    .await
+    .unwrap();
+    let csv = String::from_utf8_lossy(&r.body).into_owned();
+    assert!(csv.lines().next().unwrap().contains("result_source,replay_check"), "{csv}");
+    assert!(csv.contains("\"server\",\"identical\""), "{csv}");
     let r = request_with_headers(
         "GET",
         &format!(

@@ -153,6 +153,13 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
         report["replay_check"].as_str().unwrap().contains("exactly"),
         "{report:#}"
     );
+    // Faculty see where the result came from (the simulation, never a client).
+    for key in ["provenance", "queue_provenance"] {
+        assert!(
+            report[key].as_str().unwrap().contains("computed by the simulation"),
+            "{report:#}"
+        );
+    }
     assert_eq!(report["replay_frame_width"], 512);
     assert_eq!(report["accessible"]["unlabeled_buttons"], 0);
     assert!(

@@ -7,7 +7,7 @@ use serde_json::json;
 use server::records::auth::Role;
 use server::records::totp;
 
-use crate::records_support::{Session, TestApp, facet_measurements_met, reproducibility};
+use crate::records_support::{Session, TestApp, facet_measurements_met};
 
 #[tokio::test]
 async fn attempt_result_return_resubmit_approve_with_audit_trail() {
@@ -66,14 +66,7 @@ async fn attempt_result_return_resubmit_approve_with_audit_trail() {
         .as_object_mut()
         .unwrap()
         .remove("intra_articular_spread_bool");
-    let r = app
-        .send(
-            Method::POST,
-            &format!("/api/attempts/{attempt}/results"),
-            Some(&ls),
-            Some(json!({ "measurements": partial, "reproducibility": reproducibility() })),
-        )
-        .await;
+    let r = app.submit(learner, &attempt, partial).await;
     assert_eq!(r.status, StatusCode::CREATED, "{}", r.text);
     assert_eq!(r.json["outcome"], "incomplete");
     assert_eq!(r.json["score"], 1.0);
@@ -94,7 +87,7 @@ async fn attempt_result_return_resubmit_approve_with_audit_trail() {
     );
     let first_result = r.json["id"].as_str().unwrap().to_owned();
     // Submitted: no second submission until reviewed.
-    let r = app.send(Method::POST, &format!("/api/attempts/{attempt}/results"), Some(&ls), Some(json!({ "measurements": facet_measurements_met(), "reproducibility": reproducibility() }))).await;
+    let r = app.submit(learner, &attempt, facet_measurements_met()).await;
     assert_eq!(r.status, StatusCode::CONFLICT);
 
     // 3. The learner cannot approve (their own attempt, and not a reviewer).
@@ -191,7 +184,7 @@ async fn attempt_result_return_resubmit_approve_with_audit_trail() {
     );
 
     // 6. The learner resubmits with every measurement: technical "met" -- still not approved.
-    let r = app.send(Method::POST, &format!("/api/attempts/{attempt}/results"), Some(&ls), Some(json!({ "measurements": facet_measurements_met(), "reproducibility": reproducibility() }))).await;
+    let r = app.submit(learner, &attempt, facet_measurements_met()).await;
     assert_eq!(r.status, StatusCode::CREATED, "{}", r.text);
     assert_eq!(
         (r.json["outcome"].as_str(), r.json["seq"].as_i64()),
@@ -372,7 +365,7 @@ async fn nobody_approves_their_own_attempt_and_bulk_approval_is_all_or_nothing()
             )
             .await;
         let id = r.json["id"].as_str().unwrap().to_owned();
-        let r = app.send(Method::POST, &format!("/api/attempts/{id}/results"), Some(&ls), Some(json!({ "measurements": { "tip_to_target_mm": 2.0 }, "reproducibility": reproducibility() }))).await;
+        let r = app.submit(learner, &id, json!({ "tip_to_target_mm": 2.0 })).await;
         assert_eq!(r.status, StatusCode::CREATED, "{}", r.text);
         attempts.push(id);
     }
@@ -394,14 +387,7 @@ async fn nobody_approves_their_own_attempt_and_bulk_approval_is_all_or_nothing()
         )
         .await;
     let own = r.json["id"].as_str().unwrap().to_owned();
-    let r = app
-        .send(
-            Method::POST,
-            &format!("/api/attempts/{own}/results"),
-            Some(&as_),
-            Some(json!({ "measurements": {}, "reproducibility": reproducibility() })),
-        )
-        .await;
+    let r = app.submit(admin, &own, json!({})).await;
     assert_eq!(r.status, StatusCode::CREATED, "{}", r.text);
     let r = app
         .send(

@@ -9,7 +9,7 @@ use axum::http::{Method, StatusCode};
 use serde_json::{Value, json};
 
 use crate::records_support::{
-    PASSWORD, ROLES, TestApp, World, facet_measurements_met, reproducibility,
+    PASSWORD, ROLES, TestApp, World,
 };
 
 /// What a cell's request needs from the world.
@@ -192,19 +192,6 @@ fn rows() -> Vec<Row> {
                 )
             },
             [401, 200, 404, 200, 404, 200],
-        ),
-        r(
-            M::POST,
-            "/api/attempts/{attempt_id}/results",
-            |w| {
-                (
-                    format!("/api/attempts/{}/results", w.attempt_open),
-                    Some(
-                        json!({ "measurements": facet_measurements_met(), "reproducibility": reproducibility() }),
-                    ),
-                )
-            },
-            [401, 201, 404, 403, 404, 403],
         ),
         r(
             M::POST,

@@ -222,6 +222,55 @@ impl TestApp {
         r.json["id"].as_str().unwrap().parse().unwrap()
     }
 
+    /// Stores a technical result for `learner`'s `attempt` the way a simulation session does
+    /// (`store_session_result` with the worker's evaluation of the same station's rubric): the
+    /// records tests exercise review and approval, not the session that made the measurements
+    /// (that is `dispatch.rs`). Clients cannot post results at all.
+    pub async fn store_result(
+        &self,
+        learner: Uuid,
+        attempt: Uuid,
+        measurements: Value,
+    ) -> Result<server::records::results::TechnicalResultView, server::ApiError> {
+        let station_id: String = sqlx::query_scalar("SELECT station_id FROM attempts WHERE id = $1")
+            .bind(attempt)
+            .fetch_one(self.pool())
+            .await
+            .unwrap();
+        let text = std::fs::read_to_string(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join(format!("../assets/stations/{station_id}.toml")),
+        )
+        .unwrap();
+        let station = sim_core::rubric::Station::from_toml_str(&text).unwrap();
+        let req: server::records::results::NewResult = serde_json::from_value(
+            json!({ "measurements": measurements, "reproducibility": reproducibility() }),
+        )
+        .unwrap();
+        let mut read = req.measurements.clone();
+        read.retain(|k, _| station.rubric.criteria.iter().any(|c| &c.measurement == k));
+        let worker_rubric = station.evaluate(&read);
+        let state = server::records::RecordsState::from_parts(self.pool().clone(), self.config.clone());
+        server::records::results::store_session_result(&state, learner, attempt, req, &worker_rubric).await
+    }
+
+    /// [`TestApp::store_result`] as a response: 201 with the stored result, or the error the
+    /// session relay would have got.
+    pub async fn submit(&self, learner: Uuid, attempt: impl std::fmt::Display, measurements: Value) -> Response {
+        use axum::response::IntoResponse;
+        let attempt: Uuid = attempt.to_string().parse().expect("an attempt id");
+        let (status, headers, text) = match self.store_result(learner, attempt, measurements).await {
+            Ok(view) => (StatusCode::CREATED, HeaderMap::new(), serde_json::to_string(&view).unwrap()),
+            Err(e) => {
+                let r = e.into_response();
+                let (parts, body) = r.into_parts();
+                let bytes = axum::body::to_bytes(body, usize::MAX).await.unwrap();
+                (parts.status, parts.headers, String::from_utf8_lossy(&bytes).into_owned())
+            }
+        };
+        Response { status, headers, json: serde_json::from_str(&text).unwrap_or(Value::String(text.clone())), text }
+    }
+
     /// Row counts of every learning-records table, and every attempt's state (to show that
     /// nothing stored changed).
     pub async fn counts(&self) -> Vec<(String, String)> {
@@ -235,6 +284,7 @@ impl TestApp {
             "attempts",
             "activity_events",
             "technical_results",
+            "result_replay_checks",
             "reviews",
             "audit_events",
         ] {
@@ -397,15 +447,9 @@ impl World {
         let ls = sessions[1].as_ref().unwrap();
         let attempt_open = app.open_attempt(ls, course_a, "l4-l5-left-facet").await;
         let attempt_submitted = app.open_attempt(ls, course_a, "l4-l5-left-facet").await;
-        let r = app
-            .send(
-                Method::POST,
-                &format!("/api/attempts/{attempt_submitted}/results"),
-                Some(ls),
-                Some(json!({ "measurements": facet_measurements_met(), "reproducibility": reproducibility() })),
-            )
-            .await;
-        assert_eq!(r.status, StatusCode::CREATED, "{}", r.text);
+        app.store_result(learner, attempt_submitted, facet_measurements_met())
+            .await
+            .expect("a session result is stored");
         World {
             course_a,
             course_b,

@@ -233,6 +233,9 @@ try {
   await page.waitForSelector('#review:not([hidden])');
   await waitUntil(page, () => document.getElementById('replay-check').textContent.length > 0);
   report.replay_check = await page.textContent('#replay-check');
+  await waitUntil(page, () => document.getElementById('review-provenance').textContent.length > 0);
+  report.provenance = await page.textContent('#review-provenance');
+  report.queue_provenance = await page.textContent('#queue tbody tr td:nth-child(5)');
   report.timeline_steps = await page.locator('#timeline-list li').count();
   await waitUntil(page, () => { const i = document.getElementById('replay-frame'); return i.complete && i.naturalWidth > 0; });
   report.replay_frame_width = await page.evaluate(() => document.getElementById('replay-frame').naturalWidth);

@@ -28,7 +28,10 @@
 //! `GET /api/attempts/{id}/replay` gives faculty of the course (and the learner) the recorded
 //! log; `.../replay/frame?step=k` renders the image on screen after the first `k` commands, by
 //! restoring the session from its initial snapshot and that prefix of the log. The full replay
-//! is checked against the stored result: same score, same final state hash, same final frame.
+//! is checked against the stored result: same measurements, score, outcome, final state hash and
+//! final frame. `verify` runs that check in the background for every stored result and appends
+//! its verdict to the records (`result_replay_checks`), so faculty see it in the queue, the
+//! review screen and the CSV export.
 
 mod dispatcher;
 mod durable;
@@ -38,6 +41,7 @@ mod results;
 mod routes;
 mod store;
 mod upstream;
+mod verify;
 
 pub use dispatcher::*;
 pub use relay::MAX_CLIENT_MESSAGE_BYTES;

@@ -9,7 +9,7 @@ use serde_json::json;
 
 use super::{LiveSession, Placement, store};
 use crate::records::RecordsState;
-use crate::records::results::{NewResult, Reproducibility, ResultSource, submit_result_for};
+use crate::records::results::{NewResult, Reproducibility, store_session_result};
 
 /// The learning-records form of a session's submit.
 pub fn new_result(result: &SubmitResult, session_id: uuid::Uuid, worker: &str) -> NewResult {
@@ -72,14 +72,12 @@ pub async fn store_result(
         return json!({ "type": "technical_result_error", "message": "the worker acknowledged the submit without a result" });
     };
     let req = new_result(result, session.id, &placement.worker_label());
-    match submit_result_for(
+    match store_session_result(
         records,
         session.learner_id,
         session.attempt_id,
         req,
-        ResultSource::Session {
-            worker_rubric: &result.rubric,
-        },
+        &result.rubric,
     )
     .await
     {

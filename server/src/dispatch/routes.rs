@@ -1,6 +1,5 @@
 //! HTTP routes of dispatch: start a session, its websocket, worker registration, replay.
 
-use std::collections::BTreeSet;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
@@ -13,19 +12,20 @@ use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use render_worker::cluster::Registration;
-use render_worker::session::{LogEntry, Session, SessionSnapshot, ViewId};
+use render_worker::session::{LogEntry, Session, SessionSnapshot};
 use serde::Deserialize;
 use serde_json::json;
 use sha2::{Digest, Sha256};
 use uuid::Uuid;
 
-use super::{Dispatcher, LiveSession, PlaceError, Placement, SessionRecord, relay, store};
+use super::{Dispatcher, LiveSession, PlaceError, Placement, SessionRecord, relay, store, verify};
 use crate::ApiError;
 use crate::records::RecordsState;
 use crate::records::activity::{ActivityKind, record_activity};
 use crate::records::auth::{CurrentUser, Role};
 use crate::records::authz::attempt_visible;
 use crate::records::extract::ApiPath;
+use crate::records::results::ReplayVerdict;
 
 /// State of the dispatch routes.
 #[derive(Clone)]
@@ -62,9 +62,12 @@ pub fn router<S: Clone + Send + Sync + 'static>(
         .route("/api/sessions/{session_id}", get(session_info))
         .route("/api/sessions/{session_id}/ws", get(session_ws))
         .route("/api/workers", post(register_worker).get(list_workers))
-        .with_state(DispatchState {
-            records,
-            dispatcher,
+        .with_state({
+            verify::start_verifier(records.clone(), &dispatcher, verify::VERIFY_EVERY);
+            DispatchState {
+                records,
+                dispatcher,
+            }
         })
 }
 
@@ -371,31 +374,7 @@ async fn replay_to(
     initial: SessionSnapshot,
     log: Vec<LogEntry>,
 ) -> Result<(Session, Option<Vec<u8>>), ApiError> {
-    let host = state.dispatcher.inner.replay.clone();
-    // Never hold a request for an anatomy build: say when to come back instead.
-    if let Err(render_worker::session::HostError::Preparing { .. }) = host.check_ready(&station_id) {
-        return Err(ApiError::Unavailable("anatomy (being prepared; retry shortly)"));
-    }
-    tokio::task::spawn_blocking(move || {
-        let env = host
-            .env_for(&station_id)
-            .map_err(|e| ApiError::Internal(e.to_string()))?;
-        let mut s = Session::restore(env, &initial, &log)
-            .map_err(|e| ApiError::Internal(format!("replay: {e}")))?;
-        let visible: BTreeSet<ViewId> = s.views().into_iter().collect();
-        let views = s
-            .render_dirty(&visible)
-            .map_err(|e| ApiError::Internal(format!("replay render: {e}")))?;
-        let jpeg = match views.into_iter().find(|v| v.view == ViewId::Fluoroscopy) {
-            Some(v) => Some(
-                render_worker::session::frame::encode_jpeg(&v.image).map_err(|e| ApiError::Internal(e.to_string()))?,
-            ),
-            None => None,
-        };
-        Ok((s, jpeg))
-    })
-    .await
-    .map_err(|e| ApiError::Internal(e.to_string()))?
+    verify::replay_on(state.dispatcher.inner.replay.clone(), station_id, initial, log).await
 }
 
 /// A recorded session's initial snapshot (stored JSON) and its logged commands.
@@ -424,19 +403,31 @@ async fn replay(
         recorded_session(&state, &user, attempt_id).await?;
     let (initial, log) = parse_recorded(&state, session_id, initial).await?;
     let (s, jpeg) = replay_to(&state, station_id.clone(), initial, log.clone()).await?;
-    let replayed = s.result().cloned();
-    let replayed_frame = jpeg.as_deref().map(render_worker::session::sha256_hex);
-    let replayed_state = replayed
-        .as_ref()
-        .map(|r| r.record.final_state_sha256.clone());
-    let replayed_score = replayed.as_ref().and_then(|r| r.rubric.score);
+    let measurements: Option<serde_json::Value> = match result_id {
+        Some(id) => {
+            sqlx::query_scalar("SELECT measurements FROM technical_results WHERE id = $1")
+                .bind(id)
+                .fetch_optional(&state.records.pool)
+                .await?
+        }
+        None => None,
+    };
+    let recorded = verify::Recorded {
+        measurements: measurements.unwrap_or(serde_json::Value::Null),
+        score,
+        outcome: outcome.clone(),
+        final_state_sha256: final_state.clone(),
+        final_frame_sha256: final_frame.clone(),
+    };
+    let (verdict, detail) = verify::compare(&recorded, &s, jpeg.as_deref());
     Ok(axum::Json(json!({
         "session_id": session_id,
         "station_id": station_id,
         "timeline": log,
-        "recorded": { "result_id": result_id, "score": score, "outcome": outcome, "final_state_sha256": final_state, "final_frame_sha256": final_frame },
-        "replayed": { "score": replayed_score, "outcome": replayed.as_ref().map(|r| r.rubric.outcome.as_str()), "final_state_sha256": replayed_state, "final_frame_sha256": replayed_frame },
-        "identical": result_id.is_some() && replayed_state == final_state && replayed_frame == final_frame && replayed_score == score,
+        "recorded": { "result_id": result_id, "measurements": recorded.measurements, "score": score, "outcome": outcome, "final_state_sha256": final_state, "final_frame_sha256": final_frame },
+        "replayed": { "measurements": detail["measurements"]["replayed"], "score": detail["score"]["replayed"], "outcome": detail["outcome"]["replayed"], "final_state_sha256": detail["final_state_sha256"]["replayed"], "final_frame_sha256": detail["final_frame_sha256"]["replayed"] },
+        "differing_measurements": detail["measurements"]["differing_keys"],
+        "identical": result_id.is_some() && verdict == ReplayVerdict::Identical,
     })))
 }
 

@@ -1,12 +1,16 @@
-//! Technical results: submitting measurements runs the rubric engine (`sim_core::rubric`)
-//! against the station revision the attempt was opened with, stores the technical result with
-//! its reproducibility record, records `submission`, and puts the attempt in the review queue.
-//! None of this is approval: that is a faculty decision ([`super::reviews`]).
+//! Technical results: measurements a simulation session computed from its log are scored by the
+//! rubric engine (`sim_core::rubric`) against the station revision the attempt was opened with,
+//! stored with their reproducibility record, recorded as `submission`, and the attempt joins the
+//! review queue. None of this is approval: that is a faculty decision ([`super::reviews`]).
+//!
+//! Architecture invariant: technical results come only from the simulation. No route accepts
+//! measurements from a client; [`store_session_result`] is called by the session relay with the
+//! worker's own rubric evaluation, and every stored result is later re-checked by replaying its
+//! logged session ([`record_replay_check`]; the verdict travels with the result everywhere it is
+//! shown: detail, review queue, CSV export).
 
 use std::collections::BTreeMap;
 
-use axum::extract::State;
-use axum::http::StatusCode;
 use serde::{Deserialize, Serialize};
 use sim_core::rubric::{Measurements, RubricResult, Station, TECHNICAL_RESULT_NOTICE};
 use time::OffsetDateTime;
@@ -14,11 +18,8 @@ use utoipa::ToSchema;
 use uuid::Uuid;
 
 use super::activity::{ActivityKind, insert_activity};
-use super::auth::CurrentUser;
-use super::extract::{ApiJson, ApiPath};
 use super::history::audit;
 use super::state::RecordsState;
-use super::summary::visible_attempt;
 use crate::error::ApiError;
 
 /// A stored technical result.
@@ -28,8 +29,11 @@ pub struct TechnicalResultView {
     pub id: Uuid,
     /// 1 for the first submission of the attempt, 2 for the next, ...
     pub seq: i32,
-    /// `client` (reported by an authenticated client) or `server` (computed by a server session).
+    /// `server` (computed by a simulation session from its log, the only source now) or `client`
+    /// (reported by a client before results came only from the simulation; never replayable).
     pub source: String,
+    /// The newest replay check of this result.
+    pub replay_check: ReplayCheck,
     /// `met`, `not_met` or `incomplete`: a technical outcome, not a competency judgement.
     pub outcome: String,
     /// Weighted score over measured criteria.
@@ -90,7 +94,64 @@ pub struct Reproducibility {
     pub activity_event_count: Option<i64>,
 }
 
-/// Measurements to score.
+/// The outcome of replaying a result's logged session.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct ReplayCheck {
+    /// `pending` (not checked yet), `identical` (the replay reproduced the stored measurements,
+    /// score, outcome, final state and final image exactly), `differs`, or `unavailable` (no log
+    /// to replay).
+    #[schema(example = "identical")]
+    pub verdict: String,
+    /// When it was checked (absent while pending).
+    #[serde(default, with = "time::serde::rfc3339::option")]
+    #[schema(value_type = Option<String>, format = DateTime)]
+    pub checked_at: Option<OffsetDateTime>,
+    /// What was compared, and what differed.
+    #[schema(value_type = Object)]
+    pub detail: serde_json::Value,
+}
+
+/// The verdicts a replay check can store ([`ReplayCheck::verdict`] is also `pending`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReplayVerdict {
+    /// Reproduced exactly.
+    Identical,
+    /// Not reproduced.
+    Differs,
+    /// Nothing to replay.
+    Unavailable,
+}
+
+impl ReplayVerdict {
+    /// The stored word.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ReplayVerdict::Identical => "identical",
+            ReplayVerdict::Differs => "differs",
+            ReplayVerdict::Unavailable => "unavailable",
+        }
+    }
+}
+
+/// Appends a replay check of `result_id` (the newest check is the result's verdict).
+pub async fn record_replay_check(
+    pool: &sqlx::PgPool,
+    result_id: Uuid,
+    verdict: ReplayVerdict,
+    detail: &serde_json::Value,
+) -> Result<(), sqlx::Error> {
+    sqlx::query(
+        "INSERT INTO result_replay_checks (result_id, verdict, detail) VALUES ($1, $2, $3)",
+    )
+    .bind(result_id)
+    .bind(verdict.as_str())
+    .bind(detail)
+    .execute(pool)
+    .await?;
+    Ok(())
+}
+
+/// Measurements a simulation session computed, to score.
 #[derive(Debug, Clone, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct NewResult {
@@ -124,12 +185,18 @@ pub(super) struct ResultRow {
     activity_upto_event_id: Option<i64>,
     activity_event_count: i64,
     created_at: OffsetDateTime,
+    replay_verdict: Option<String>,
+    replay_checked_at: Option<OffsetDateTime>,
+    replay_detail: Option<serde_json::Value>,
 }
 
 /// The columns of [`ResultRow`].
 pub(super) const RESULT_COLUMNS: &str = "id, seq, source, outcome, score, measured_weight_fraction, station_id, station_revision,
     rubric_revision, station_sha256, measurements, detail, code_revision, server_version, asset_hashes, device_profile,
-    imaging_settings, interaction_log_ref, activity_upto_event_id, activity_event_count, created_at";
+    imaging_settings, interaction_log_ref, activity_upto_event_id, activity_event_count, created_at,
+    (SELECT c.verdict FROM result_replay_checks c WHERE c.result_id = technical_results.id ORDER BY c.id DESC LIMIT 1) AS replay_verdict,
+    (SELECT c.checked_at FROM result_replay_checks c WHERE c.result_id = technical_results.id ORDER BY c.id DESC LIMIT 1) AS replay_checked_at,
+    (SELECT c.detail FROM result_replay_checks c WHERE c.result_id = technical_results.id ORDER BY c.id DESC LIMIT 1) AS replay_detail";
 
 /// The API view of a stored result.
 pub(super) fn result_view(r: ResultRow) -> TechnicalResultView {
@@ -137,6 +204,11 @@ pub(super) fn result_view(r: ResultRow) -> TechnicalResultView {
         id: r.id,
         seq: r.seq,
         source: r.source,
+        replay_check: ReplayCheck {
+            verdict: r.replay_verdict.unwrap_or_else(|| "pending".into()),
+            checked_at: r.replay_checked_at,
+            detail: r.replay_detail.unwrap_or_else(|| serde_json::json!({})),
+        },
         outcome: r.outcome,
         score: r.score,
         measured_weight_fraction: r.measured_weight_fraction,
@@ -161,83 +233,18 @@ pub(super) fn result_view(r: ResultRow) -> TechnicalResultView {
     }
 }
 
-fn check_reproducibility(r: &Reproducibility) -> Result<(), ApiError> {
-    let bad = |m: String| Err(ApiError::BadRequest(format!("reproducibility: {m}")));
-    if r.code_revision.trim().is_empty() || r.code_revision.len() > 100 {
-        return bad("code_revision needs 1 to 100 characters".into());
-    }
-    if r.asset_hashes.is_empty() || r.asset_hashes.len() > 200 {
-        return bad("asset_hashes needs 1 to 200 entries".into());
-    }
-    for (name, h) in &r.asset_hashes {
-        if name.is_empty()
-            || name.len() > 200
-            || h.len() != 64
-            || !h
-                .bytes()
-                .all(|b| b.is_ascii_hexdigit() && !b.is_ascii_uppercase())
-        {
-            return bad(format!(
-                "asset_hashes[{name:?}] must be a lower-case hex SHA-256"
-            ));
-        }
-    }
-    for (field, v) in [
-        ("device_profile", &r.device_profile),
-        ("imaging_settings", &r.imaging_settings),
-    ] {
-        if !v.is_object() {
-            return bad(format!("{field} must be a JSON object"));
-        }
-        if v.to_string().len() > 16 * 1024 {
-            return bad(format!("{field} must be at most 16 KiB of JSON"));
-        }
-    }
-    if r.interaction_log_ref
-        .as_ref()
-        .is_some_and(|s| s.is_empty() || s.len() > 500)
-    {
-        return bad("interaction_log_ref needs 1 to 500 characters when given".into());
-    }
-    if r.server_version.is_some()
-        || r.activity_upto_event_id.is_some()
-        || r.activity_event_count.is_some()
-    {
-        return bad(
-            "server_version, activity_upto_event_id and activity_event_count are set by the server"
-                .into(),
-        );
-    }
-    Ok(())
-}
-
-/// Who submits: a client on the learner's behalf, or the simulation.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum ResultSource<'a> {
-    /// Measurements reported by an authenticated client (checked with the rules for client
-    /// input).
-    Client,
-    /// Measurements computed by a simulation session from its log. The server's evaluation of
-    /// the stored station's rubric is the authority; the worker's own evaluation
-    /// (`worker_rubric`) must equal it, else nothing is stored.
-    Session {
-        /// The rubric result the worker computed at submit.
-        worker_rubric: &'a RubricResult,
-    },
-}
-
-/// Scores measurements for an attempt of `learner_id` and stores the technical result; moves the
-/// attempt to `submitted`. Used by the HTTP handler and by server-side sessions.
-pub async fn submit_result_for(
+/// Scores measurements that a simulation session computed from its log for an attempt of
+/// `learner_id`, stores the technical result and moves the attempt to `submitted`. The server's
+/// evaluation of the stored station's rubric is the authority; the worker's own evaluation
+/// (`worker_rubric`) must equal it, else nothing is stored. Measurements outside their physical
+/// range are refused (`sim_core::rubric::check_measurements`).
+pub async fn store_session_result(
     state: &RecordsState,
     learner_id: Uuid,
     attempt_id: Uuid,
     req: NewResult,
-    source: ResultSource<'_>,
+    worker_rubric: &RubricResult,
 ) -> Result<TechnicalResultView, ApiError> {
-    if source == ResultSource::Client {
-        check_reproducibility(&req.reproducibility)?;
-    }
     if req.measurements.len() > 200
         || req
             .measurements
@@ -248,6 +255,8 @@ pub async fn submit_result_for(
             "measurements: at most 200 keys of 1 to 100 characters".into(),
         ));
     }
+    sim_core::rubric::check_measurements(&req.measurements)
+        .map_err(|e| ApiError::BadRequest(format!("measurements: {e}")))?;
     let mut tx = state.pool.begin().await?;
     let row: Option<(Uuid, String, String, i32, i32, serde_json::Value, String)> = sqlx::query_as(
         "SELECT a.learner_id, a.state, a.station_id, a.station_revision, a.rubric_revision, s.definition, s.file_sha256
@@ -279,20 +288,16 @@ pub async fn submit_result_for(
     let station: Station = serde_json::from_value(definition)
         .map_err(|e| ApiError::Internal(format!("stored station {station_id}: {e}")))?;
     let mut measurements: Measurements = req.measurements.clone();
-    if let ResultSource::Session { .. } = source {
-        // A session reports every measurement it can make; those no criterion reads are kept
-        // with the result but are not typos to flag, so the rubric sees what it reads (as the
-        // worker's evaluation did).
-        measurements.retain(|k, _| station.rubric.criteria.iter().any(|c| &c.measurement == k));
-    }
+    // A session reports every measurement it can make; those no criterion reads are kept with
+    // the result but are not typos to flag, so the rubric sees what it reads (as the worker's
+    // evaluation did).
+    measurements.retain(|k, _| station.rubric.criteria.iter().any(|c| &c.measurement == k));
     let result = station.evaluate(&measurements);
-    if let ResultSource::Session { worker_rubric } = source {
-        if *worker_rubric != result {
-            tracing::error!(attempt = %attempt_id, worker = ?worker_rubric, server = ?result, "the worker's rubric result differs from the server's");
-            return Err(ApiError::Internal(
-                "the worker's rubric result differs from the server's evaluation of the same measurements".into(),
-            ));
-        }
+    if *worker_rubric != result {
+        tracing::error!(attempt = %attempt_id, worker = ?worker_rubric, server = ?result, "the worker's rubric result differs from the server's");
+        return Err(ApiError::Internal(
+            "the worker's rubric result differs from the server's evaluation of the same measurements".into(),
+        ));
     }
     let (upto, count): (Option<i64>, i64) =
         sqlx::query_as("SELECT max(id), count(*) FROM activity_events WHERE attempt_id = $1")
@@ -319,10 +324,7 @@ pub async fn submit_result_for(
     .bind(attempt_id)
     .bind(seq)
     .bind(learner_id)
-    .bind(match source {
-        ResultSource::Client => "client",
-        ResultSource::Session { .. } => "server",
-    })
+    .bind("server")
     .bind(result.outcome.as_str())
     .bind(result.score)
     .bind(result.measured_weight_fraction)
@@ -366,25 +368,4 @@ pub async fn submit_result_for(
     .await?;
     tx.commit().await?;
     Ok(result_view(row))
-}
-
-/// Submit measurements for one's own attempt: runs the rubric engine, stores the technical
-/// result, and queues the attempt for faculty review.
-#[utoipa::path(post, path = "/api/attempts/{attempt_id}/results", tag = "attempts", request_body = NewResult,
-    params(("attempt_id" = Uuid, Path, description = "Attempt id")),
-    responses((status = 201, body = TechnicalResultView), (status = 400), (status = 401), (status = 403, description = "Not the attempt's learner"), (status = 404), (status = 409, description = "Attempt submitted or approved")))]
-pub async fn submit_result(
-    State(state): State<RecordsState>,
-    user: CurrentUser,
-    ApiPath(attempt_id): ApiPath<Uuid>,
-    ApiJson(req): ApiJson<NewResult>,
-) -> Result<(StatusCode, axum::Json<TechnicalResultView>), ApiError> {
-    let attempt = visible_attempt(&state, &user, attempt_id).await?;
-    if attempt.learner_id != user.id {
-        return Err(ApiError::Forbidden(
-            "only the attempt's learner submits results for it".into(),
-        ));
-    }
-    let view = submit_result_for(&state, user.id, attempt_id, req, ResultSource::Client).await?;
-    Ok((StatusCode::CREATED, axum::Json(view)))
 }

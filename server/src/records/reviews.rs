@@ -372,7 +372,8 @@ pub async fn export_csv(
     let rows = queue_rows(&state, &user, &f).await?;
     let mut out = String::from(
         "attempt_id,learner_email,learner_name,course_code,station_id,station_revision,rubric_revision,state,\
-         technical_outcome,technical_score,updated_at,last_decision,last_reviewer,last_review_at,last_comment\r\n",
+         technical_outcome,technical_score,result_source,replay_check,updated_at,last_decision,last_reviewer,\
+         last_review_at,last_comment\r\n",
     );
     // The latest review of every listed attempt, in one query.
     let ids: Vec<Uuid> = rows.iter().map(|a| a.id).collect();
@@ -410,6 +411,8 @@ pub async fn export_csv(
             a.latest_score
                 .map(|s| format!("{s:.4}"))
                 .unwrap_or_default(),
+            a.latest_source.unwrap_or_default(),
+            a.latest_replay_check.unwrap_or_default(),
             rfc(a.updated_at),
             decision,
             reviewer,

@@ -10,7 +10,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::state::RecordsState;
-use super::{activity, attempts, catalogue, detail, history, login, results, reviews, users};
+use super::{activity, attempts, catalogue, detail, history, login, reviews, users};
 
 #[derive(OpenApi)]
 #[openapi(
@@ -50,7 +50,6 @@ pub fn router<S: Clone + Send + Sync + 'static>(
         .routes(routes!(attempts::create_attempt, attempts::list_attempts))
         .routes(routes!(detail::get_attempt))
         .routes(routes!(activity::post_activity, activity::list_activity))
-        .routes(routes!(results::submit_result))
         .routes(routes!(reviews::review_attempt))
         .routes(routes!(reviews::review_queue))
         .routes(routes!(reviews::export_csv))

@@ -38,6 +38,12 @@ pub struct AttemptSummary {
     pub latest_outcome: Option<String>,
     /// Score of the latest result, if any.
     pub latest_score: Option<f64>,
+    /// Where the latest result came from (`server`: a simulation session; `client`: reported by
+    /// a client before results came only from the simulation), if any.
+    pub latest_source: Option<String>,
+    /// The latest result's replay check (`pending`, `identical`, `differs`, `unavailable`), if
+    /// there is a result.
+    pub latest_replay_check: Option<String>,
     /// Opened.
     #[serde(with = "time::serde::rfc3339")]
     #[schema(value_type = String, format = DateTime)]
@@ -53,6 +59,9 @@ pub(crate) const SUMMARY_COLUMNS: &str = "a.id, a.learner_id, u.email, u.display
     a.station_revision, a.rubric_revision, a.state,
     (SELECT r.outcome FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1),
     (SELECT r.score FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1),
+    (SELECT r.source FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1),
+    (SELECT COALESCE((SELECT c.verdict FROM result_replay_checks c WHERE c.result_id = r.id ORDER BY c.id DESC LIMIT 1), 'pending')
+       FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1),
     a.created_at, a.updated_at";
 /// FROM clause matching [`SUMMARY_COLUMNS`].
 pub(crate) const SUMMARY_FROM: &str =
@@ -71,6 +80,8 @@ pub(crate) type SummaryRow = (
     String,
     Option<String>,
     Option<f64>,
+    Option<String>,
+    Option<String>,
     OffsetDateTime,
     OffsetDateTime,
 );
@@ -89,8 +100,10 @@ pub(crate) fn summary(r: SummaryRow) -> AttemptSummary {
         state: r.9,
         latest_outcome: r.10,
         latest_score: r.11,
-        created_at: r.12,
-        updated_at: r.13,
+        latest_source: r.12,
+        latest_replay_check: r.13,
+        created_at: r.14,
+        updated_at: r.15,
     }
 }
 
