@@ -60,6 +60,48 @@ fn rows() -> Vec<Row> {
             |_| ("/api/auth/me".into(), None),
             [401, 200, 200, 200, 200, 200],
         ),
+        // Everyone with a session may change their own password (with the current one).
+        r(
+            M::POST,
+            "/api/auth/password",
+            |_| {
+                (
+                    "/api/auth/password".into(),
+                    Some(json!({ "current_password": PASSWORD, "new_password": "another-password-456" })),
+                )
+            },
+            [401, 204, 204, 204, 204, 204],
+        ),
+        // Open to all; a token nobody issued is refused for everyone alike.
+        r(
+            M::POST,
+            "/api/auth/password-reset",
+            |_| {
+                (
+                    "/api/auth/password-reset".into(),
+                    Some(json!({ "reset_token": "ab".repeat(32), "new_password": "another-password-456" })),
+                )
+            },
+            [401, 401, 401, 401, 401, 401],
+        ),
+        r(
+            M::POST,
+            "/api/users/{user_id}/disable",
+            |w| (format!("/api/users/{}/disable", w.other_learner), None),
+            [401, 403, 403, 403, 403, 200],
+        ),
+        r(
+            M::POST,
+            "/api/users/{user_id}/enable",
+            |w| (format!("/api/users/{}/enable", w.other_learner), None),
+            [401, 403, 403, 403, 403, 200],
+        ),
+        r(
+            M::POST,
+            "/api/users/{user_id}/password-reset",
+            |w| (format!("/api/users/{}/password-reset", w.other_learner), None),
+            [401, 403, 403, 403, 403, 201],
+        ),
         // Faculty and admins of the fixture already have TOTP: 409 is "already enabled".
         r(
             M::POST,

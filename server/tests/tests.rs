@@ -6,6 +6,7 @@ mod e2e_browser;
 mod embedded;
 mod health;
 mod process;
+mod records_accounts;
 mod records_approval;
 mod records_auth;
 mod records_authz;

@@ -38,6 +38,7 @@ mod durable;
 mod registry;
 mod relay;
 mod results;
+mod revoke;
 mod routes;
 mod store;
 mod upstream;

@@ -18,7 +18,7 @@ use serde_json::json;
 use sha2::{Digest, Sha256};
 use uuid::Uuid;
 
-use super::{Dispatcher, LiveSession, PlaceError, Placement, SessionRecord, relay, store, verify};
+use super::{Dispatcher, LiveSession, PlaceError, Placement, SessionRecord, relay, revoke, store, verify};
 use crate::ApiError;
 use crate::records::RecordsState;
 use crate::records::activity::{ActivityKind, record_activity};
@@ -64,6 +64,7 @@ pub fn router<S: Clone + Send + Sync + 'static>(
         .route("/api/workers", post(register_worker).get(list_workers))
         .with_state({
             verify::start_verifier(records.clone(), &dispatcher, verify::VERIFY_EVERY);
+            revoke::start_listener(records.revocations.subscribe(), &dispatcher);
             DispatchState {
                 records,
                 dispatcher,

@@ -142,6 +142,7 @@ impl FromRequestParts<RecordsState> for CurrentUser {
             "UPDATE auth_sessions s SET last_seen_at = now()
              FROM users u
              WHERE s.token_sha256 = $1 AND u.id = s.user_id
+               AND u.disabled_at IS NULL
                AND s.expires_at > now()
                AND s.last_seen_at > now() - make_interval(secs => $2)
              RETURNING u.id, u.email, u.display_name, u.role, u.is_demo, s.mfa, s.csrf_token",
@@ -193,4 +194,7 @@ pub struct UserInfo {
     pub role: Role,
     /// A demo account of the embedded-default run (not a real person).
     pub is_demo: bool,
+    /// Disabled by an admin: cannot log in, and every session was revoked.
+    #[serde(default)]
+    pub disabled: bool,
 }

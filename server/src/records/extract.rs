@@ -2,8 +2,12 @@
 //! bodies and bad path or query parameters get the same JSON error body as every other failure
 //! (axum's own rejections answer in plain text).
 
+use std::net::SocketAddr;
+
 use axum::extract::FromRequest;
 use axum::extract::FromRequestParts;
+use axum::extract::ConnectInfo;
+use axum::http::request::Parts;
 use axum::extract::rejection::{JsonRejection, PathRejection, QueryRejection};
 use axum::http::StatusCode;
 
@@ -128,6 +132,30 @@ impl From<QueryRejection> for ApiError {
     fn from(r: QueryRejection) -> ApiError {
         ApiError::BadRequest(format!("invalid query parameter: {}", r.body_text()))
     }
+}
+
+/// The client key for rate limiting: the peer address when the server was started with connect
+/// info, else one shared key (the limiter then bounds all clients together).
+pub struct ClientKey(pub String);
+
+impl<S: Send + Sync> FromRequestParts<S> for ClientKey {
+    type Rejection = std::convert::Infallible;
+
+    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, Self::Rejection> {
+        let ip = parts
+            .extensions
+            .get::<ConnectInfo<SocketAddr>>()
+            .map(|c| c.0.ip().to_string());
+        Ok(ClientKey(ip.unwrap_or_else(|| "unknown-peer".into())))
+    }
+}
+
+/// Passes the authentication endpoints' per-client token bucket, or 429.
+pub fn limit(state: &RecordsState, key: &ClientKey) -> Result<(), ApiError> {
+    state
+        .auth_limiter
+        .check(&key.0)
+        .map_err(ApiError::TooManyRequests)
 }
 
 #[cfg(test)]

@@ -10,17 +10,14 @@
 //!   on one account from all clients together, throttles the account everywhere. All
 //!   `/api/auth/*` requests also pass a per-client token bucket.
 
-use std::net::SocketAddr;
-
 /// An account is throttled for every client once all clients together failed this many times
 /// its per-client limit within the window. Simulator choice: a distributed guesser is slowed
 /// (with the default of 5, after 100 failures in 15 minutes) while one client's mistakes never
 /// lock a real user out.
 pub const ACCOUNT_WIDE_FACTOR: i64 = 20;
 
-use axum::extract::{ConnectInfo, FromRequestParts, State};
+use axum::extract::State;
 use axum::http::header::SET_COOKIE;
-use axum::http::request::Parts;
 use axum::http::{HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use serde::{Deserialize, Serialize};
@@ -30,34 +27,11 @@ use uuid::Uuid;
 use super::auth::{
     CSRF_COOKIE, CurrentUser, Role, SESSION_COOKIE, UserInfo, cookie_value, random_token, sha256,
 };
-use super::extract::ApiJson;
+use super::extract::{ApiJson, ClientKey, limit};
 use super::history::audit;
 use super::state::RecordsState;
 use super::{password, totp};
 use crate::error::ApiError;
-
-/// The client key for rate limiting: the peer address when the server was started with connect
-/// info, else one shared key (the limiter then bounds all clients together).
-pub struct ClientKey(pub String);
-
-impl<S: Send + Sync> FromRequestParts<S> for ClientKey {
-    type Rejection = std::convert::Infallible;
-
-    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, Self::Rejection> {
-        let ip = parts
-            .extensions
-            .get::<ConnectInfo<SocketAddr>>()
-            .map(|c| c.0.ip().to_string());
-        Ok(ClientKey(ip.unwrap_or_else(|| "unknown-peer".into())))
-    }
-}
-
-fn limit(state: &RecordsState, key: &ClientKey) -> Result<(), ApiError> {
-    state
-        .auth_limiter
-        .check(&key.0)
-        .map_err(ApiError::TooManyRequests)
-}
 
 /// Login request.
 #[derive(Debug, Deserialize, ToSchema)]
@@ -121,6 +95,7 @@ type LoginRow = (
     bool,
     Option<Vec<u8>>,
     Option<i64>,
+    bool,
 );
 
 /// Log in: returns the session and sets the session and CSRF cookies.
@@ -167,7 +142,8 @@ pub async fn login(
         ));
     }
     let row: Option<LoginRow> = sqlx::query_as(
-        "SELECT id, display_name, role, password_hash, is_demo, totp_secret, totp_last_step FROM users WHERE email = $1",
+        "SELECT id, display_name, role, password_hash, is_demo, totp_secret, totp_last_step, disabled_at IS NOT NULL
+         FROM users WHERE email = $1",
     )
     .bind(&email)
     .fetch_optional(&state.pool)
@@ -190,11 +166,17 @@ pub async fn login(
             .await?;
         Err::<Response, ApiError>(ApiError::InvalidCredentials(message.into()))
     };
-    let Some((id, display_name, role, _, is_demo, totp_secret, totp_last_step)) =
+    let Some((id, display_name, role, _, is_demo, totp_secret, totp_last_step, disabled)) =
         row.filter(|_| ok)
     else {
         return fail(state, email, "wrong e-mail or password").await;
     };
+    // Said only to someone who knows the password (no account enumeration).
+    if disabled {
+        return Err(ApiError::Forbidden(
+            "this account is disabled; ask an administrator".into(),
+        ));
+    }
     let mut mfa = false;
     if let Some(secret) = totp_secret {
         let Some(code) = req.totp_code.as_deref() else {
@@ -268,6 +250,7 @@ pub async fn login(
             display_name,
             role,
             is_demo,
+            disabled: false,
         },
         csrf_token: csrf.clone(),
         mfa,
@@ -320,6 +303,7 @@ pub async fn me(
             display_name: user.display_name,
             role: user.role,
             is_demo: user.is_demo,
+            disabled: false,
         },
         csrf_token: user.csrf_token,
         mfa: user.mfa,

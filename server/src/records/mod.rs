@@ -26,7 +26,7 @@
 //! 2. `state` ([`RecordsState`]), then the shared extractors `extract` and `auth`
 //!    ([`auth::CurrentUser`]);
 //! 3. `history` (the audit writer and its readers) and `summary` (the attempt as listed);
-//! 4. the handlers: `login`, `users`, `catalogue`, `attempts`, `activity`, `results`,
+//! 4. the handlers: `login`, `accounts`, `users`, `catalogue`, `attempts`, `activity`, `results`,
 //!    `reviews`, and `detail` (one attempt with everything recorded about it); `demo` and
 //!    `startup` (start-up work);
 //! 5. `routes`: the router and OpenAPI document.
@@ -35,6 +35,7 @@
 //! the rest of the server but its error types (`crate::error`): dispatch, start-up and future
 //! integrations (LTI, xAPI) build on them, never the reverse.
 
+pub mod accounts;
 pub mod activity;
 pub mod attempts;
 pub mod auth;

@@ -10,7 +10,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::state::RecordsState;
-use super::{activity, attempts, catalogue, detail, history, login, reviews, users};
+use super::{accounts, activity, attempts, catalogue, detail, history, login, reviews, users};
 
 #[derive(OpenApi)]
 #[openapi(
@@ -41,7 +41,12 @@ pub fn router<S: Clone + Send + Sync + 'static>(
         .routes(routes!(login::me))
         .routes(routes!(login::totp_enroll))
         .routes(routes!(login::totp_confirm))
+        .routes(routes!(accounts::change_password))
+        .routes(routes!(accounts::complete_password_reset))
         .routes(routes!(users::create_user_handler, users::list_users))
+        .routes(routes!(accounts::disable_user))
+        .routes(routes!(accounts::enable_user))
+        .routes(routes!(accounts::start_password_reset))
         .routes(routes!(catalogue::create_course, catalogue::list_courses))
         .routes(routes!(catalogue::get_course))
         .routes(routes!(catalogue::put_member))

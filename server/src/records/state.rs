@@ -4,6 +4,7 @@
 use std::sync::Arc;
 
 use sqlx::PgPool;
+use uuid::Uuid;
 
 use super::config::RecordsConfig;
 use super::ratelimit;
@@ -23,6 +24,10 @@ pub struct RecordsState {
     /// Hash verified against when a login names an unknown e-mail (made once, on first need, so
     /// that unknown and known e-mails cost the same single verification).
     pub decoy_hash: Arc<std::sync::OnceLock<String>>,
+    /// Accounts whose access was just revoked (disabled, or their password reset): whoever holds
+    /// something open for a user (live simulation sessions) subscribes and closes it. The
+    /// records never learn who listens.
+    pub revocations: tokio::sync::broadcast::Sender<Uuid>,
 }
 
 impl RecordsState {
@@ -43,6 +48,7 @@ impl RecordsState {
             stations: Arc::new(stations),
             auth_limiter: Arc::new(auth_limiter),
             decoy_hash: Arc::default(),
+            revocations: tokio::sync::broadcast::channel(64).0,
         }
     }
 }

@@ -105,6 +105,7 @@ pub async fn create_user(
         display_name,
         role,
         is_demo,
+        disabled: false,
     })
 }
 
@@ -191,19 +192,21 @@ pub async fn list_users(
     user: CurrentUser,
 ) -> Result<axum::Json<Vec<UserInfo>>, ApiError> {
     user.require(&[Role::Admin])?;
-    let rows: Vec<(Uuid, String, String, String, bool)> =
-        sqlx::query_as("SELECT id, email, display_name, role, is_demo FROM users ORDER BY email")
-            .fetch_all(&state.pool)
-            .await?;
+    let rows: Vec<(Uuid, String, String, String, bool, bool)> = sqlx::query_as(
+        "SELECT id, email, display_name, role, is_demo, disabled_at IS NOT NULL FROM users ORDER BY email",
+    )
+    .fetch_all(&state.pool)
+    .await?;
     Ok(axum::Json(
         rows.into_iter()
-            .filter_map(|(id, email, display_name, role, is_demo)| {
+            .filter_map(|(id, email, display_name, role, is_demo, disabled)| {
                 Some(UserInfo {
                     id,
                     email,
                     display_name,
                     role: Role::parse(&role)?,
                     is_demo,
+                    disabled,
                 })
             })
             .collect(),

@@ -1,0 +1,50 @@
+//! Revoked accounts lose their live sessions: when the learning records revoke an account
+//! (disabled by an admin, or its password reset), every live simulation session of that learner
+//! is closed on its worker, which ends an open websocket relay; a reconnect then fails
+//! authentication, since the account's login sessions were revoked with it.
+
+use tokio::sync::broadcast::{Receiver, error::RecvError};
+use uuid::Uuid;
+
+use super::Dispatcher;
+
+/// Closes the live sessions of every account announced on `revocations`, until the dispatcher is
+/// dropped or the records' sender is gone. Does nothing outside a tokio runtime.
+pub(super) fn start_listener(mut revocations: Receiver<Uuid>, dispatcher: &Dispatcher) {
+    let Ok(rt) = tokio::runtime::Handle::try_current() else {
+        return;
+    };
+    let weak = std::sync::Arc::downgrade(&dispatcher.inner);
+    rt.spawn(async move {
+        loop {
+            let user = match revocations.recv().await {
+                Ok(user) => Some(user),
+                // Missed announcements cannot be recovered here. Their login sessions are revoked
+                // regardless, so a reconnect fails, and idle sessions close on their own.
+                Err(RecvError::Lagged(n)) => {
+                    tracing::warn!(missed = n, "missed account revocations");
+                    None
+                }
+                Err(RecvError::Closed) => return,
+            };
+            let Some(inner) = weak.upgrade() else { return };
+            let d = Dispatcher { inner };
+            let Some(user) = user else { continue };
+            let ids: Vec<Uuid> = d
+                .inner
+                .sessions
+                .lock()
+                .map(|m| {
+                    m.values()
+                        .filter(|s| s.learner_id == user)
+                        .map(|s| s.id)
+                        .collect()
+                })
+                .unwrap_or_default();
+            for id in ids {
+                tracing::info!(session = %id, user = %user, "closing the session of a revoked account");
+                d.close(id).await;
+            }
+        }
+    });
+}
