@@ -410,24 +410,60 @@ fn initdb(bins: &PgBinaries, data_dir: &Path, owner: Option<RunAs>) -> Result<()
     fs::rename(&scratch, data_dir).map_err(io_err(format!("moving the new cluster to {}", data_dir.display())))
 }
 
-/// A postmaster from a previous run that was killed may still be finishing its shutdown; give it
-/// time rather than failing on its lock file.
+/// How long orphaned processes of a killed postmaster (its backends and auxiliary processes, which
+/// notice their parent's death on their own within about a second) get before they are killed.
+/// Our choice: well above that, well below a start-up a person would give up on.
+const ORPHAN_GRACE: Duration = Duration::from_secs(5);
+
+/// The processes running in `data_dir` (every postgres process of a cluster, the postmaster, its
+/// backends and auxiliary processes, has the data folder as its working directory).
+fn cluster_processes(data_dir: &Path) -> Vec<u32> {
+    let Ok(dir) = data_dir.canonicalize() else { return Vec::new() };
+    let me = std::process::id();
+    let Ok(entries) = fs::read_dir("/proc") else { return Vec::new() };
+    entries
+        .flatten()
+        .filter_map(|e| e.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|&pid| pid != me)
+        .filter(|pid| fs::read_link(format!("/proc/{pid}/cwd")).is_ok_and(|cwd| cwd == dir))
+        .filter(|pid| fs::read(format!("/proc/{pid}/cmdline")).is_ok_and(|c| c.windows(8).any(|w| w == b"postgres")))
+        .collect()
+}
+
+/// Makes the data folder startable after a previous run ended badly: waits for a postmaster that
+/// is still shutting down; when the postmaster is gone but processes of its cluster linger (a
+/// SIGKILL of the postmaster, or of the server and PostgreSQL together, orphans its backends,
+/// which keep the shared memory attached and make postgres refuse to start), kills them after
+/// [`ORPHAN_GRACE`]; and removes a `postmaster.pid` whose process is gone, since postgres itself
+/// refuses one whose pid now belongs to another live process.
 fn wait_for_previous_postmaster(data_dir: &Path) -> Result<(), EmbeddedPgError> {
     let pid_file = data_dir.join("postmaster.pid");
-    let deadline = Instant::now() + Duration::from_secs(30);
+    let started = Instant::now();
+    let deadline = started + Duration::from_secs(30);
     loop {
-        let Some(pid) = fs::read_to_string(&pid_file).ok().and_then(|t| t.lines().next()?.trim().parse::<u32>().ok()) else {
+        let recorded = fs::read_to_string(&pid_file).ok().and_then(|t| t.lines().next()?.trim().parse::<u32>().ok());
+        let left = cluster_processes(data_dir);
+        if left.is_empty() {
+            if recorded.is_some() {
+                tracing::warn!(data = %data_dir.display(), "removing the lock file of a postmaster that was killed");
+                fs::remove_file(&pid_file).map_err(io_err(format!("removing the stale {}", pid_file.display())))?;
+            }
             return Ok(());
-        };
-        let alive = fs::read_to_string(format!("/proc/{pid}/cmdline")).is_ok_and(|c| c.contains("postgres"));
-        if !alive {
-            // A stale lock file: postgres removes it itself on start.
-            return Ok(());
+        }
+        let postmaster_alive = recorded.is_some_and(|pid| left.contains(&pid));
+        if !postmaster_alive && started.elapsed() >= ORPHAN_GRACE {
+            tracing::warn!(data = %data_dir.display(), orphans = ?left, "killing processes left behind by a killed postmaster");
+            for pid in &left {
+                send_signal(*pid, libc::SIGKILL);
+            }
         }
         if Instant::now() > deadline {
             return Err(EmbeddedPgError::Start {
                 dir: data_dir.to_owned(),
-                reason: format!("another postgres (pid {pid}) is still running on this data folder"),
+                reason: match recorded {
+                    Some(pid) if postmaster_alive => format!("another postgres (pid {pid}) is still running on this data folder"),
+                    _ => format!("processes of a previous cluster ({left:?}) are still running on this data folder"),
+                },
                 log: data_dir.join("../postgres.log"),
                 log_tail: String::new(),
             });
@@ -468,7 +504,8 @@ fn set_parent_death_signal(cmd: &mut Command) {
 
 #[expect(unsafe_code, reason = "kill(2) has no safe wrapper in std")]
 fn send_signal(pid: u32, signal: libc::c_int) {
-    // SAFETY: kill(2) with a pid we spawned and still wait on, so it cannot have been reused.
+    // SAFETY: kill(2) on a pid we spawned and still wait on (it cannot have been reused), or on a
+    // process just seen running postgres in our private data folder.
     unsafe {
         libc::kill(pid as libc::pid_t, signal);
     }

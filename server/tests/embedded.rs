@@ -49,3 +49,64 @@ fn missing_binaries_give_a_clear_error() {
     let found = server::embedded_pg::PgBinaries::locate().expect("initdb and postgres are installed");
     assert!(found.initdb.ends_with("initdb") && found.postgres.ends_with("postgres"));
 }
+
+#[expect(unsafe_code, reason = "kill(2) has no safe wrapper in std")]
+fn signal(pid: u32, sig: i32) {
+    // SAFETY: kill(2) on processes of this test's own private cluster.
+    unsafe {
+        libc::kill(pid as libc::pid_t, sig);
+    }
+}
+
+/// After the postmaster is killed with a backend left behind (stopped, so it cannot exit on its
+/// own and keeps the shared memory attached), and with a lock file naming a live process that is
+/// not postgres, the next start recovers by itself and keeps the data.
+#[test]
+fn a_killed_cluster_restarts_despite_orphans_and_a_stale_lock_file() {
+    let dir = tempfile::Builder::new().prefix("painsim-embedded").tempdir_in(std::env::temp_dir()).unwrap();
+    std::fs::set_permissions(dir.path(), std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+    let root = dir.path().join("pg");
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+
+    let first = PrivateCluster::start(&root).expect("first start");
+    let postmaster = first.pid();
+    let (_conn, backend) = rt.block_on(async {
+        let mut c = sqlx::PgConnection::connect_with(&first.connect_options("postgres")).await.unwrap();
+        sqlx::query("CREATE TABLE kept (v TEXT)").execute(&mut c).await.unwrap();
+        sqlx::query("INSERT INTO kept VALUES ('survives a kill')").execute(&mut c).await.unwrap();
+        let pid: i32 = sqlx::query_scalar("SELECT pg_backend_pid()").fetch_one(&mut c).await.unwrap();
+        (c, pid as u32)
+    });
+    signal(backend, libc::SIGSTOP);
+    signal(postmaster, libc::SIGKILL);
+    for _ in 0..100 {
+        if !process_alive(postmaster) {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    assert!(!process_alive(postmaster));
+    assert!(process_alive(backend), "the orphaned backend is still there");
+    let data = first.data_dir().to_owned();
+    drop(first);
+
+    let second = PrivateCluster::start(&root).expect("restart after a SIGKILL with an orphan left behind");
+    assert!(!process_alive(backend), "the orphan was cleaned up");
+    let v: String = rt.block_on(async {
+        let mut c = sqlx::PgConnection::connect_with(&second.connect_options("postgres")).await.unwrap();
+        sqlx::query_scalar("SELECT v FROM kept").fetch_one(&mut c).await.unwrap()
+    });
+    assert_eq!(v, "survives a kill");
+    signal(second.pid(), libc::SIGKILL);
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    drop(second);
+
+    // A lock file whose pid now belongs to another live process (pid 1 here): postgres alone
+    // refuses to start on it.
+    let lock = data.join("postmaster.pid");
+    let text = std::fs::read_to_string(&lock).unwrap_or_default();
+    let rest: Vec<&str> = text.lines().skip(1).collect();
+    std::fs::write(&lock, format!("1\n{}\n", rest.join("\n"))).unwrap();
+    let third = PrivateCluster::start(&root).expect("restart over a stale lock file");
+    third.stop().unwrap();
+}
