@@ -175,6 +175,8 @@ async fn bench_backend(
     let mut config = Config::from_lookup(|k| match k {
         "PAINSIM_STATIONS_DIR" => Some(dir.clone()),
         "PAINSIM_AUTH_RATE_PER_MINUTE" | "PAINSIM_AUTH_BURST" => Some("100000".into()),
+        // The simulated learners share one account: lift its write limit too.
+        "PAINSIM_WRITE_RATE_PER_MINUTE" | "PAINSIM_WRITE_BURST" => Some("1000000".into()),
         _ => None,
     })
     .expect("configuration");

@@ -349,3 +349,51 @@ async fn an_admin_started_reset_sets_a_new_password_once_with_its_token() {
         "{actions:?}"
     );
 }
+
+/// Authenticated writes are limited per account: a script posting activity as fast as it can
+/// gets 429 with Retry-After after the burst, while reads and other accounts go on.
+#[tokio::test]
+async fn authenticated_writes_are_rate_limited_per_account() {
+    let app = TestApp::new(&[
+        ("PAINSIM_WRITE_RATE_PER_MINUTE", "60"),
+        ("PAINSIM_WRITE_BURST", "20"),
+    ])
+    .await;
+    let w = crate::records_support::World::build(&app, "rate").await;
+    let learner = w.sessions[1].clone().unwrap();
+    let other = w.sessions[2].clone().unwrap();
+    let path = format!("/api/attempts/{}/activity", w.attempt_open);
+    let mut statuses = Vec::new();
+    for _ in 0..250 {
+        let r = app
+            .send(
+                Method::POST,
+                &path,
+                Some(&learner),
+                Some(json!({ "kind": "view_changed" })),
+            )
+            .await;
+        if r.status == StatusCode::TOO_MANY_REQUESTS {
+            assert!(r.headers.contains_key("retry-after"), "{:?}", r.headers);
+        }
+        statuses.push(r.status);
+    }
+    let created = statuses
+        .iter()
+        .filter(|s| **s == StatusCode::CREATED)
+        .count();
+    let limited = statuses
+        .iter()
+        .filter(|s| **s == StatusCode::TOO_MANY_REQUESTS)
+        .count();
+    // The burst of 20 less the fixture's own writes as this learner (opening two attempts), plus
+    // at most a few tokens refilled (1/s) while the loop ran.
+    assert!((15..=30).contains(&created), "{created} writes accepted");
+    assert_eq!(created + limited, 250, "{statuses:?}");
+    // Reads are not writes; another account has its own bucket.
+    assert_eq!(me_status(&app, &learner).await, StatusCode::OK);
+    let r = app
+        .send(Method::POST, "/api/auth/logout", Some(&other), None)
+        .await;
+    assert_eq!(r.status, StatusCode::NO_CONTENT, "{}", r.text);
+}

@@ -38,6 +38,8 @@ pub fn test_config(overrides: &[(&str, &str)]) -> Config {
         ("PAINSIM_AUTH_RATE_PER_MINUTE", "100000"),
         ("PAINSIM_AUTH_BURST", "100000"),
         ("PAINSIM_LOGIN_MAX_FAILURES", "1000"),
+        ("PAINSIM_WRITE_RATE_PER_MINUTE", "1000000"),
+        ("PAINSIM_WRITE_BURST", "1000000"),
     ]
     .iter()
     .map(|(k, v)| (k.to_string(), v.to_string()))

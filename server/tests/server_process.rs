@@ -57,6 +57,8 @@ pub fn fast_auth_env() -> Vec<(&'static str, String)> {
         ("PAINSIM_ARGON2_ITERATIONS", "1".into()),
         ("PAINSIM_AUTH_RATE_PER_MINUTE", "100000".into()),
         ("PAINSIM_AUTH_BURST", "100000".into()),
+        ("PAINSIM_WRITE_RATE_PER_MINUTE", "1000000".into()),
+        ("PAINSIM_WRITE_BURST", "1000000".into()),
     ]
 }
 

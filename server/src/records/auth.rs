@@ -167,6 +167,11 @@ impl FromRequestParts<RecordsState> for CurrentUser {
                     "missing or wrong CSRF token: send the session's token in the X-CSRF-Token header".into(),
                 ));
             }
+            // Writes are bounded per account, whichever route they go to (429 with Retry-After).
+            state
+                .write_limiter
+                .check(&id.to_string())
+                .map_err(ApiError::TooManyRequests)?;
         }
         Ok(CurrentUser {
             id,

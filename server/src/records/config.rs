@@ -10,6 +10,7 @@
 //! | `PAINSIM_LOGIN_MAX_FAILURES` | `5` | failed logins per e-mail within the window before login is refused |
 //! | `PAINSIM_LOGIN_FAILURE_WINDOW_SECS` | `900` | the throttling window |
 //! | `PAINSIM_AUTH_RATE_PER_MINUTE` / `PAINSIM_AUTH_BURST` | `30` / `10` | per-client token bucket on `/api/auth/*` |
+//! | `PAINSIM_WRITE_RATE_PER_MINUTE` / `PAINSIM_WRITE_BURST` | `600` / `100` | per-account token bucket on authenticated writes (POST, PUT, PATCH, DELETE) |
 //! | `PAINSIM_REQUIRE_TOTP_FOR_APPROVAL` | `true` | reviewers must have logged in with a TOTP code to approve or return |
 //! | `PAINSIM_STATIONS_DIR` | the repository's `assets/stations/` | station definitions |
 
@@ -65,6 +66,10 @@ pub struct RecordsConfig {
     pub auth_rate_per_minute: u32,
     /// Burst of the per-client auth limiter.
     pub auth_burst: u32,
+    /// Sustained rate of the per-account limiter of authenticated writes.
+    pub write_rate_per_minute: u32,
+    /// Burst of the per-account limiter of authenticated writes.
+    pub write_burst: u32,
     /// Approving or returning needs a TOTP-verified session.
     pub require_totp_for_approval: bool,
     /// Station definitions.
@@ -164,6 +169,11 @@ impl RecordsConfig {
             login_failure_window: secs("PAINSIM_LOGIN_FAILURE_WINDOW_SECS", 900)?,
             auth_rate_per_minute: positive("PAINSIM_AUTH_RATE_PER_MINUTE", 30)?,
             auth_burst: positive("PAINSIM_AUTH_BURST", 10)?,
+            // Our choice: a learner's client writes a few times a minute (opening attempts,
+            // reported activity); 10 per second sustained and 100 at once is far above any
+            // person and far below a script (about 250 activity events/s were accepted before).
+            write_rate_per_minute: positive("PAINSIM_WRITE_RATE_PER_MINUTE", 600)?,
+            write_burst: positive("PAINSIM_WRITE_BURST", 100)?,
             require_totp_for_approval: parse_bool(&lookup, "PAINSIM_REQUIRE_TOTP_FOR_APPROVAL")?
                 .unwrap_or(true),
             stations_dir: lookup("PAINSIM_STATIONS_DIR")

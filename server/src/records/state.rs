@@ -21,6 +21,8 @@ pub struct RecordsState {
     pub stations: Arc<StationCatalog>,
     /// Per-client limiter of the authentication endpoints.
     pub auth_limiter: Arc<ratelimit::RateLimiter>,
+    /// Per-account limiter of authenticated writes (checked by the `CurrentUser` extractor).
+    pub write_limiter: Arc<ratelimit::RateLimiter>,
     /// Hash verified against when a login names an unknown e-mail (made once, on first need, so
     /// that unknown and known e-mails cost the same single verification).
     pub decoy_hash: Arc<std::sync::OnceLock<String>>,
@@ -42,11 +44,14 @@ impl RecordsState {
         });
         let auth_limiter =
             ratelimit::RateLimiter::new(config.auth_rate_per_minute, config.auth_burst);
+        let write_limiter =
+            ratelimit::RateLimiter::new(config.write_rate_per_minute, config.write_burst);
         RecordsState {
             pool,
             config: Arc::new(config),
             stations: Arc::new(stations),
             auth_limiter: Arc::new(auth_limiter),
+            write_limiter: Arc::new(write_limiter),
             decoy_hash: Arc::default(),
             revocations: tokio::sync::broadcast::channel(64).0,
         }
