@@ -490,3 +490,162 @@ fn bad_input_is_refused_with_the_field_named() {
     assert!(m.advance(f64::NAN).is_err() && m.advance(-1.0).is_err());
     assert!(m.start_injection(&ok_outlet, &ok).is_ok());
 }
+
+mod patterns {
+    use sim_core::anatomy::phantom::{self, PhantomParams};
+    use sim_core::contrast::classify::{Pattern, PatternReport, classify};
+    use sim_core::contrast::domains::{crop_grid, phantom_grid, phantom_levels};
+    use sim_core::contrast::{
+        Agent, ContrastGrid, ContrastModel, Domain, Injection, ModelConfig, NeedleOutlet,
+    };
+
+    /// The phantom around L4 at 1 mm cells: the canal, both foramina and the paraspinal muscles.
+    fn l4_grid() -> (ContrastGrid, [f64; 3]) {
+        let params = PhantomParams::default();
+        let c = phantom::landmark(&params, "L4_L5_posterior_epidural_space")
+            .map(|l| l.position_mm)
+            .unwrap_or([0.0; 3]);
+        let lo = [c[0] - 22.0, c[1] - 24.0, c[2] - 24.0];
+        let hi = [c[0] + 22.0, c[1] + 24.0, c[2] + 24.0];
+        (phantom_grid(&params, crop_grid(lo, hi, 1.0)), c)
+    }
+
+    /// The cell of `domain` nearest `near` whose neighbours within `pure` cells along the needle
+    /// axis (a grid axis) and within `across` cells across it are all of the same domain.
+    fn site(
+        g: &ContrastGrid,
+        domain: Domain,
+        near: [f64; 3],
+        axis: usize,
+        pure: i64,
+        across: i64,
+    ) -> [f64; 3] {
+        let d = g.grid.dims;
+        let mut best = (f64::INFINITY, [0.0; 3]);
+        for idx in 0..g.len() {
+            if g.domain[idx] != Some(domain) {
+                continue;
+            }
+            let ijk = g.grid.ijk(idx);
+            let ok = (-pure..=pure).all(|s| {
+                (-across..=across).all(|t| {
+                    (0..3).filter(|&a| a != axis).all(|a| {
+                        let mut q = ijk.map(|v| v as i64);
+                        q[axis] += s;
+                        q[a] += t;
+                        (0..3).all(|b| q[b] >= 0 && q[b] < d[b] as i64)
+                            && g.domain[g.grid.index(q[0] as usize, q[1] as usize, q[2] as usize)]
+                                == Some(domain)
+                    })
+                })
+            });
+            if !ok {
+                continue;
+            }
+            let p = g.grid.voxel_center_mm(ijk[0], ijk[1], ijk[2]);
+            let dist = (0..3).map(|a| (p[a] - near[a]).powi(2)).sum::<f64>();
+            if dist < best.0 {
+                best = (dist, p);
+            }
+        }
+        assert!(best.0.is_finite(), "no {domain:?} site");
+        best.1
+    }
+
+    fn inject(
+        g: &ContrastGrid,
+        tip: [f64; 3],
+        axis: usize,
+        volume_ml: f64,
+    ) -> (ContrastModel, PatternReport) {
+        let mut m = ContrastModel::new(g.clone(), ModelConfig::default());
+        let mut dir = [0.0; 3];
+        dir[axis] = 1.0;
+        let inj = Injection {
+            agent: Agent::CONTRAST,
+            volume_ml,
+            rate_ml_s: 0.5,
+        };
+        m.start_injection(&NeedleOutlet::spinal(tip, dir), &inj)
+            .unwrap_or_else(|e| panic!("{e}"));
+        m.advance(volume_ml / 0.5 + 0.5)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let report = classify(&m, &phantom_levels(&PhantomParams::default()));
+        assert!(m.ledger().balance_error(m.retained_mm3()) < 1e-9);
+        (m, report)
+    }
+
+    #[test]
+    fn each_compartment_gives_its_pattern() {
+        let (g, c) = l4_grid();
+        let count = |d: Domain| g.domain.iter().filter(|&&x| x == Some(d)).count();
+        println!("cells: {:?}", Domain::ALL.map(|d| (d.name(), count(d))));
+        for d in Domain::ALL {
+            assert!(count(d) > 0, "no {d:?} cells");
+        }
+        // (domain, needle axis, purity along and across it, volume mL, expected pattern).
+        let cases = [
+            (Domain::Epidural, 1, 2, 1, 0.5, Pattern::Epidural),
+            (Domain::Intrathecal, 1, 2, 1, 0.5, Pattern::Intrathecal),
+            (Domain::Subdural, 2, 1, 0, 0.2, Pattern::Subdural),
+            (Domain::Vascular, 2, 1, 0, 0.3, Pattern::Vascular),
+            (Domain::Pooling, 1, 3, 1, 0.5, Pattern::Intramuscular),
+        ];
+        for (domain, axis, pure, across, vol, want) in cases {
+            let near = match domain {
+                Domain::Pooling => [c[0] + 15.0, c[1] - 18.0, c[2]],
+                Domain::Intrathecal => [c[0], c[1] + 10.0, c[2]],
+                _ => c,
+            };
+            let tip = site(&g, domain, near, axis, pure, across);
+            let (m, r) = inject(&g, tip, axis, vol);
+            println!(
+                "{domain:?} at {tip:?}: {:?} entered {:?} levels {:?} extent {:?} steps {} solves {} ({:.2} s solve, {:.2} s transport)",
+                r.dominant,
+                r.entered_fraction,
+                r.epidural_levels,
+                r.epidural_extent_mm,
+                m.counters.steps,
+                m.counters.solves,
+                m.counters.solve_seconds,
+                m.counters.transport_seconds
+            );
+            assert_eq!(r.dominant, want, "{domain:?}");
+            assert_eq!(
+                r.intrathecal,
+                want == Pattern::Intrathecal,
+                "{domain:?} intrathecal flag"
+            );
+            assert_eq!(
+                r.vascular,
+                want == Pattern::Vascular,
+                "{domain:?} vascular flag"
+            );
+            assert!(!r.intraneural, "{domain:?} intraneural flag");
+            if want == Pattern::Epidural {
+                assert!(!r.epidural_levels.is_empty(), "{r:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_dural_puncture_lets_an_epidural_injection_reach_the_csf() {
+        let (g, c) = l4_grid();
+        let tip = site(&g, Domain::Epidural, c, 1, 2, 1);
+        let mut m = ContrastModel::new(g, ModelConfig::default());
+        // The needle went through the dura into the sac and was pulled back 4 mm.
+        let through = NeedleOutlet::spinal([tip[0], tip[1] + 10.0, tip[2]], [0.0, 1.0, 0.0]);
+        assert!(m.puncture(&through, 14.0).unwrap_or(0) > 0);
+        let inj = Injection {
+            agent: Agent::CONTRAST,
+            volume_ml: 1.0,
+            rate_ml_s: 0.5,
+        };
+        m.start_injection(&NeedleOutlet::spinal(tip, [0.0, 1.0, 0.0]), &inj)
+            .unwrap_or_else(|e| panic!("{e}"));
+        m.advance(2.5).unwrap_or_else(|e| panic!("{e}"));
+        let r = classify(&m, &phantom_levels(&PhantomParams::default()));
+        println!("puncture: entered {:?}", r.entered_fraction);
+        assert!(r.intrathecal, "{r:?}");
+    }
+}

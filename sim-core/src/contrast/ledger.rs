@@ -17,6 +17,12 @@ pub struct Ledger {
     pub cleared: f64,
     /// Net iodine moved from domain `a` to domain `b` (`exchanged[a][b] = -exchanged[b][a]`).
     pub exchanged: [[f64; Domain::COUNT]; Domain::COUNT],
+    /// Iodine injected into each domain.
+    pub injected_by_domain: [f64; Domain::COUNT],
+    /// Iodine escaped from each domain.
+    pub escaped_by_domain: [f64; Domain::COUNT],
+    /// Iodine cleared from each domain.
+    pub cleared_by_domain: [f64; Domain::COUNT],
     /// Fluid injected (contrast and saline), mm^3.
     pub fluid_injected_mm3: f64,
     /// Fluid that left through drains, mm^3.
@@ -40,6 +46,17 @@ impl Ledger {
         }
     }
 
+    /// Iodine that entered domain `d` so far: injected into it plus net inflow from each other
+    /// domain (positive parts only), stock-equivalent mm^3.
+    pub fn entered(&self, d: Domain) -> f64 {
+        let i = d.index();
+        self.injected_by_domain[i]
+            + (0..Domain::COUNT)
+                .filter(|&e| e != i)
+                .map(|e| self.exchanged[e][i].max(0.0))
+                .sum::<f64>()
+    }
+
     /// Adds another ledger's totals.
     pub fn add(&mut self, o: &Ledger) {
         self.injected += o.injected;
@@ -48,6 +65,9 @@ impl Ledger {
         self.fluid_injected_mm3 += o.fluid_injected_mm3;
         self.fluid_escaped_mm3 += o.fluid_escaped_mm3;
         for a in 0..Domain::COUNT {
+            self.injected_by_domain[a] += o.injected_by_domain[a];
+            self.escaped_by_domain[a] += o.escaped_by_domain[a];
+            self.cleared_by_domain[a] += o.cleared_by_domain[a];
             for b in 0..Domain::COUNT {
                 self.exchanged[a][b] += o.exchanged[a][b];
             }

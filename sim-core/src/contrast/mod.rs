@@ -1,5 +1,7 @@
 //! Contrast and saline transport in the spinal compartments: the f64 CPU reference.
 
+pub mod classify;
+pub mod domains;
 pub mod grid;
 pub mod ledger;
 pub mod model;

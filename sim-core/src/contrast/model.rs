@@ -87,6 +87,10 @@ pub struct SolverCounters {
     pub iterations: u64,
     /// The last solve.
     pub last: Option<SolveStats>,
+    /// Wall time in pressure solves (setup included), s (timing only; never feeds results).
+    pub solve_seconds: f64,
+    /// Wall time in transport updates, s (timing only).
+    pub transport_seconds: f64,
 }
 
 /// What one call of [`ContrastModel::advance`] did.
@@ -115,7 +119,7 @@ pub struct ContrastModel {
     time_s: f64,
     dt_try: f64,
     version: u64,
-    cache: Option<Cached>,
+    cache: Vec<Cached>,
     /// Numerical settings.
     pub config: ModelConfig,
     /// Solver counters.
@@ -140,7 +144,7 @@ impl ContrastModel {
             time_s: 0.0,
             dt_try: config.dt_max_s,
             version: 0,
-            cache: None,
+            cache: Vec::new(),
             config,
             counters: SolverCounters::default(),
         }
@@ -277,9 +281,6 @@ impl ContrastModel {
         let mut left = dt_s;
         while left > 0.0 {
             let mut dt = self.dt_try.min(left);
-            if let Some(r) = &self.injection {
-                dt = dt.min(r.remaining_mm3 / r.rate_mm3_s);
-            }
             let ledger = loop {
                 if let Some(l) = self.try_step(dt) {
                     break l;
@@ -295,7 +296,7 @@ impl ContrastModel {
             self.time_s += dt;
             self.ledger.add(&ledger);
             if let Some(r) = &mut self.injection {
-                r.remaining_mm3 -= r.rate_mm3_s * dt;
+                r.remaining_mm3 -= r.rate_mm3_s.min(r.remaining_mm3 / dt) * dt;
                 if r.remaining_mm3 <= 1e-9 * r.rate_mm3_s {
                     self.stop_injection();
                 }
@@ -308,36 +309,44 @@ impl ContrastModel {
     /// The pressure solve for a step of `dt`, warm-started from the last pressure.
     fn solve(&mut self, dt: f64) -> Vec<f64> {
         let n = self.grid.len();
-        let fresh = !matches!(&self.cache, Some(c) if c.dt == dt && c.version == self.version);
-        if fresh {
-            let vc = self.grid.grid.voxel_volume_mm3();
-            let mut extra: Vec<f64> = (0..n)
-                .map(|i| self.faces.sink[i] + self.grid.props[i].compliance * vc / dt)
-                .collect();
-            if let Some(r) = &self.injection {
-                for &(c, g) in &r.node.contacts {
-                    extra[c] += g;
+        // Operators (and multigrid hierarchies) of the last few step sizes are kept: steps are
+        // halved and doubled, so the same few sizes recur.
+        self.cache.retain(|c| c.version == self.version);
+        let hit = self.cache.iter().position(|c| c.dt == dt);
+        let slot = match hit {
+            Some(i) => i,
+            None => {
+                let vc = self.grid.grid.voxel_volume_mm3();
+                let mut extra: Vec<f64> = (0..n)
+                    .map(|i| self.faces.sink[i] + self.grid.props[i].compliance * vc / dt)
+                    .collect();
+                if let Some(r) = &self.injection {
+                    for &(c, g) in &r.node.contacts {
+                        extra[c] += g;
+                    }
                 }
+                let active = self.grid.domain.iter().map(Option::is_some).collect();
+                let stencil = Stencil::from_couplings(
+                    self.grid.grid.dims,
+                    self.faces.conductance.clone(),
+                    &extra,
+                    active,
+                );
+                let mg = (self.config.preconditioner == Preconditioner::Multigrid)
+                    .then(|| Multigrid::new(&stencil));
+                if self.cache.len() >= 4 {
+                    self.cache.remove(0);
+                }
+                self.cache.push(Cached {
+                    dt,
+                    version: self.version,
+                    stencil,
+                    mg,
+                });
+                self.cache.len() - 1
             }
-            let active = self.grid.domain.iter().map(Option::is_some).collect();
-            let stencil = Stencil::from_couplings(
-                self.grid.grid.dims,
-                self.faces.conductance.clone(),
-                &extra,
-                active,
-            );
-            let mg = (self.config.preconditioner == Preconditioner::Multigrid)
-                .then(|| Multigrid::new(&stencil));
-            self.cache = Some(Cached {
-                dt,
-                version: self.version,
-                stencil,
-                mg,
-            });
-        }
-        let Some(cache) = self.cache.as_mut() else {
-            return vec![0.0; n];
         };
+        let cache = &mut self.cache[slot];
         let node = self.injection.as_ref().map(|r| &r.node);
         let sys = System {
             stencil: &cache.stencil,
@@ -353,7 +362,8 @@ impl ContrastModel {
             })
             .collect();
         if let Some(r) = &self.injection {
-            b.push(r.rate_mm3_s);
+            // The last step of an injection delivers what is left at a lower mean rate.
+            b.push(r.rate_mm3_s.min(r.remaining_mm3 / dt));
         }
         let mut x = self.pressure.clone();
         x.resize(b.len(), 0.0);
@@ -366,8 +376,13 @@ impl ContrastModel {
 
     /// One step of `dt`, or `None` if it would break the step bound (nothing changed then).
     fn try_step(&mut self, dt: f64) -> Option<Ledger> {
+        let t0 = std::time::Instant::now();
         let p = self.solve(dt);
-        let out = super::transport::step(self, &p, dt)?;
+        let t1 = std::time::Instant::now();
+        let out = super::transport::step(self, &p, dt);
+        self.counters.solve_seconds += (t1 - t0).as_secs_f64();
+        self.counters.transport_seconds += t1.elapsed().as_secs_f64();
+        let out = out?;
         self.pressure = p;
         // Grow the step again once it is comfortably inside the bound.
         if out.max_ratio < 0.25 * self.config.cfl {

@@ -127,11 +127,13 @@ pub(super) fn step(model: &mut ContrastModel, p: &[f64], dt: f64) -> Option<Step
             iodine[c] -= m;
             fluid[c] -= dt * f;
             led.escaped += m;
+            led.escaped_by_domain[dom(c)] += m;
             led.fluid_escaped_mm3 += dt * f;
         }
         let cleared = dt * g.props[c].clearance_per_s * parts.iodine[c];
         iodine[c] -= cleared;
         led.cleared += cleared;
+        led.cleared_by_domain[dom(c)] += cleared;
     }
     if let Some((contacts, stock)) = parts.contacts {
         let pn = p[n];
@@ -141,12 +143,14 @@ pub(super) fn step(model: &mut ContrastModel, p: &[f64], dt: f64) -> Option<Step
                 let m = dt * f * stock;
                 iodine[c] += m;
                 led.injected += m;
+                led.injected_by_domain[dom(c)] += m;
                 led.fluid_injected_mm3 += dt * f;
             } else {
                 // Backflow into the needle leaves the tissue.
                 let m = -dt * f * conc[c];
                 iodine[c] -= m;
                 led.escaped += m;
+                led.escaped_by_domain[dom(c)] += m;
                 led.fluid_escaped_mm3 -= dt * f;
             }
             fluid[c] += dt * f;
@@ -154,9 +158,10 @@ pub(super) fn step(model: &mut ContrastModel, p: &[f64], dt: f64) -> Option<Step
     }
     // Round-off can leave -1e-20 where a cell was emptied exactly; the bound guarantees the exact
     // value is >= 0, so clamp those (and book the difference as cleared to keep the balance).
-    for m in iodine.iter_mut() {
+    for (c, m) in iodine.iter_mut().enumerate() {
         if *m < 0.0 {
             led.cleared += *m;
+            led.cleared_by_domain[dom(c)] += *m;
             *m = 0.0;
         }
     }
