@@ -248,7 +248,7 @@ fn check_state(m: &ContrastModel, what: &str) {
         let c = m.concentration(i);
         // Stock is 1; the bound is exact up to the rounding of one division (1e-12 margin).
         assert!(
-            c.is_finite() && c >= 0.0 && c <= 1.0 + 1e-12,
+            c.is_finite() && (0.0..=1.0 + 1e-12).contains(&c),
             "{what}: cell {i} c = {c}"
         );
         assert!(m.iodine_mm3()[i] >= 0.0 && m.fluid_mm3()[i].is_finite());
@@ -310,7 +310,7 @@ fn soak_random_injections_flushes_punctures_and_moves_conserve_and_bound() {
         m.advance(0.001 + 0.02 * rng.next_f64())
             .unwrap_or_else(|e| panic!("{e}"));
         calls += 1;
-        if calls % 2000 == 0 {
+        if calls.is_multiple_of(2000) {
             check_state(&m, &format!("call {calls}"));
         }
     }

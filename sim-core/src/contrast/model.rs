@@ -281,6 +281,9 @@ impl ContrastModel {
         let mut left = dt_s;
         while left > 0.0 {
             let mut dt = self.dt_try.min(left);
+            if let Some(r) = &self.injection {
+                dt = dt.min(r.remaining_mm3 / r.rate_mm3_s);
+            }
             let ledger = loop {
                 if let Some(l) = self.try_step(dt) {
                     break l;
@@ -296,7 +299,7 @@ impl ContrastModel {
             self.time_s += dt;
             self.ledger.add(&ledger);
             if let Some(r) = &mut self.injection {
-                r.remaining_mm3 -= r.rate_mm3_s.min(r.remaining_mm3 / dt) * dt;
+                r.remaining_mm3 -= r.rate_mm3_s * dt;
                 if r.remaining_mm3 <= 1e-9 * r.rate_mm3_s {
                     self.stop_injection();
                 }
@@ -362,8 +365,7 @@ impl ContrastModel {
             })
             .collect();
         if let Some(r) = &self.injection {
-            // The last step of an injection delivers what is left at a lower mean rate.
-            b.push(r.rate_mm3_s.min(r.remaining_mm3 / dt));
+            b.push(r.rate_mm3_s);
         }
         let mut x = self.pressure.clone();
         x.resize(b.len(), 0.0);

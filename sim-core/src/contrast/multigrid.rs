@@ -50,7 +50,6 @@ fn coarsen(a: &Stencil) -> Stencil {
     let mut extra = vec![0.0; cn];
     let mut off = [vec![0.0; cn], vec![0.0; cn], vec![0.0; cn]];
     let mut active = vec![false; cn];
-    let cs = [1, cd[0], cd[0] * cd[1]];
     let fs = a.strides();
     for k in 0..nz {
         for j in 0..ny {
@@ -83,7 +82,6 @@ fn coarsen(a: &Stencil) -> Stencil {
     }
     // Faces internal to a block cancel in P^T A P; crossing faces are now coarse couplings, and
     // `from_couplings` adds them back to both diagonals.
-    let _ = cs;
     Stencil::from_couplings(cd, off, &extra, active)
 }
 
@@ -93,10 +91,10 @@ fn cholesky(a: &Stencil) -> Vec<f64> {
     let s = a.strides();
     for i in 0..n {
         m[i * n + i] = a.diag[i];
-        for ax in 0..3 {
-            let g = a.off[ax][i];
+        for (off, stride) in a.off.iter().zip(s) {
+            let g = off[i];
             if g != 0.0 {
-                let j = i + s[ax];
+                let j = i + stride;
                 m[i * n + j] = -g;
                 m[j * n + i] = -g;
             }

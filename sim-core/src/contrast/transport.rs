@@ -77,16 +77,17 @@ pub(super) fn step(model: &mut ContrastModel, p: &[f64], dt: f64) -> Option<Step
         }
     }
     let mut max_ratio: f64 = 0.0;
-    for c in 0..n {
-        if out_rate[c] > 0.0 {
-            let fl = parts.fluid[c];
-            if !(fl > 0.0) {
+    for (&rate, &fl) in out_rate.iter().zip(parts.fluid) {
+        if rate > 0.0 {
+            // A cell without fluid cannot lose any (NaN fails this test too).
+            if fl.is_nan() || fl <= 0.0 {
                 return None;
             }
-            max_ratio = max_ratio.max(dt * out_rate[c] / fl);
+            max_ratio = max_ratio.max(dt * rate / fl);
         }
     }
-    if !(max_ratio <= parts.cfl) {
+    // NaN (from a failed solve) rejects the step as well.
+    if max_ratio.is_nan() || max_ratio > parts.cfl {
         return None;
     }
     let mut led = Ledger::default();
