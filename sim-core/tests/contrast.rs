@@ -323,8 +323,9 @@ fn soak_random_injections_flushes_punctures_and_moves_conserve_and_bound() {
     assert!(injections > 100 && punctures > 10 && m.ledger().injected > 1.0);
 }
 
-#[test]
-fn saline_after_contrast_keeps_iodine_and_dilutes_where_it_goes() {
+/// A closed 24 x 3 x 3 mm epidural channel with storage and no clearance: nothing escapes or
+/// clears, so iodine must stay exactly.
+fn closed_channel() -> ContrastModel {
     let grid = VolumeGrid {
         dims: [24, 3, 3],
         spacing_mm: [1.0; 3],
@@ -332,9 +333,13 @@ fn saline_after_contrast_keeps_iodine_and_dilutes_where_it_goes() {
     };
     let mut p = Domain::Epidural.default_props();
     p.clearance_per_s = 0.0;
-    // A closed channel with storage: nothing escapes or clears, so iodine must stay exactly.
     let g = ContrastGrid::uniform(grid, Domain::Epidural, p);
-    let mut m = ContrastModel::new(g, ModelConfig::default());
+    ContrastModel::new(g, ModelConfig::default())
+}
+
+#[test]
+fn saline_after_contrast_keeps_iodine_and_dilutes_where_it_goes() {
+    let mut m = closed_channel();
     let out = NeedleOutlet::tuohy([3.0, 1.0, 1.0], [1.0, 0.0, 0.0]);
     let contrast = Injection {
         agent: Agent::CONTRAST,
@@ -378,17 +383,7 @@ fn saline_after_contrast_keeps_iodine_and_dilutes_where_it_goes() {
 #[test]
 fn repeated_injections_accumulate_persist_and_replay_bit_identically() {
     let run = || {
-        let grid = VolumeGrid {
-            dims: [24, 3, 3],
-            spacing_mm: [1.0; 3],
-            origin_mm: [0.0; 3],
-        };
-        let mut p = Domain::Epidural.default_props();
-        p.clearance_per_s = 0.0;
-        let mut m = ContrastModel::new(
-            ContrastGrid::uniform(grid, Domain::Epidural, p),
-            ModelConfig::default(),
-        );
+        let mut m = closed_channel();
         let dose = Injection {
             agent: Agent::CONTRAST,
             volume_ml: 0.01,
