@@ -43,6 +43,7 @@ pub mod multigrid;
 pub mod outlet;
 pub mod pressure;
 mod transport;
+mod window;
 
 pub use grid::{CellProps, ContrastGrid, Domain, Faces, harmonic_face};
 pub use ledger::Ledger;

@@ -22,6 +22,7 @@ use super::ledger::Ledger;
 use super::multigrid::Multigrid;
 use super::outlet::{self, Injection, NeedleOutlet};
 use super::pressure::{self, OutletNode, SolveStats, Stencil, StopRule, System};
+use super::window::{Components, Window};
 use crate::volume::Volume;
 
 /// Which preconditioner the pressure solve uses.
@@ -70,7 +71,10 @@ struct Running {
 struct Cached {
     dt: f64,
     version: u64,
+    window: Window,
     stencil: Stencil,
+    /// The outlet node with contacts in window indices.
+    node: Option<OutletNode>,
     mg: Option<Multigrid>,
 }
 
@@ -109,6 +113,8 @@ pub struct StepReport {
 pub struct ContrastModel {
     grid: ContrastGrid,
     faces: Faces,
+    components: Components,
+    window: Option<Window>,
     opened: Vec<(usize, usize)>,
     iodine: Vec<f64>,
     fluid: Vec<f64>,
@@ -132,6 +138,8 @@ impl ContrastModel {
         let faces = Faces::new(&grid, &[]);
         let pore0: Vec<f64> = (0..grid.len()).map(|i| grid.pore_volume_mm3(i)).collect();
         ContrastModel {
+            components: Components::new(&grid, &faces),
+            window: None,
             faces,
             opened: Vec::new(),
             iodine: vec![0.0; grid.len()],
@@ -261,6 +269,7 @@ impl ContrastModel {
         }
         if added > 0 {
             self.faces = Faces::new(&self.grid, &self.opened);
+            self.components = Components::new(&self.grid, &self.faces);
             self.version += 1;
         }
         Ok(added)
@@ -309,32 +318,76 @@ impl ContrastModel {
         Ok(report)
     }
 
-    /// The pressure solve for a step of `dt`, warm-started from the last pressure.
+    /// The pressure solve for a step of `dt` on the live window (see [`super::window`]),
+    /// warm-started from the last pressure; zero outside the window.
     fn solve(&mut self, dt: f64) -> Vec<f64> {
         let n = self.grid.len();
-        // Operators (and multigrid hierarchies) of the last few step sizes are kept: steps are
-        // halved and doubled, so the same few sizes recur.
+        let node_len = usize::from(self.injection.is_some());
+        let contacts = self
+            .injection
+            .iter()
+            .flat_map(|r| r.node.contacts.iter().map(|c| c.0));
+        let seeds = (0..n)
+            .filter(|&i| self.iodine[i] != 0.0 || self.fluid[i] != self.pore0[i])
+            .chain(contacts);
+        self.window = Window::of_seeds(&self.components, self.grid.grid.dims, seeds);
+        let Some(w) = self.window.clone() else {
+            return vec![0.0; n + node_len];
+        };
+        let wd = w.dims();
+        let wn = wd[0] * wd[1] * wd[2];
+        let to_window = |c: usize| -> usize {
+            let [i, j, k] = self.grid.grid.ijk(c);
+            (i - w.lo[0]) + wd[0] * ((j - w.lo[1]) + wd[1] * (k - w.lo[2]))
+        };
+        // Operators (and multigrid hierarchies) of the last few step sizes and windows are kept:
+        // steps are halved and doubled, so the same few recur.
         self.cache.retain(|c| c.version == self.version);
-        let hit = self.cache.iter().position(|c| c.dt == dt);
+        let hit = self.cache.iter().position(|c| c.dt == dt && c.window == w);
         let slot = match hit {
             Some(i) => i,
             None => {
                 let vc = self.grid.grid.voxel_volume_mm3();
-                let mut extra: Vec<f64> = (0..n)
-                    .map(|i| self.faces.sink[i] + self.grid.props[i].compliance * vc / dt)
-                    .collect();
-                if let Some(r) = &self.injection {
-                    for &(c, g) in &r.node.contacts {
+                let mut extra = vec![0.0; wn];
+                let mut active = vec![false; wn];
+                let mut off = [vec![0.0; wn], vec![0.0; wn], vec![0.0; wn]];
+                for k in 0..wd[2] {
+                    for j in 0..wd[1] {
+                        for i in 0..wd[0] {
+                            let c = w.full_index(i, j, k);
+                            if !w.is_live(&self.components, c) {
+                                continue;
+                            }
+                            let wi = i + wd[0] * (j + wd[1] * k);
+                            active[wi] = true;
+                            extra[wi] =
+                                self.faces.sink[c] + self.grid.props[c].compliance * vc / dt;
+                            let ijk = [i, j, k];
+                            for a in 0..3 {
+                                // Live cells couple only to live cells, all inside the window.
+                                if ijk[a] + 1 < wd[a] {
+                                    off[a][wi] = self.faces.conductance[a][c];
+                                } else {
+                                    debug_assert!(self.faces.conductance[a][c] == 0.0);
+                                }
+                            }
+                        }
+                    }
+                }
+                let node = self.injection.as_ref().map(|r| OutletNode {
+                    contacts: r
+                        .node
+                        .contacts
+                        .iter()
+                        .map(|&(c, g)| (to_window(c), g))
+                        .collect(),
+                });
+                if let Some(o) = &node {
+                    for &(c, g) in &o.contacts {
                         extra[c] += g;
                     }
                 }
-                let active = self.grid.domain.iter().map(Option::is_some).collect();
-                let stencil = Stencil::from_couplings(
-                    self.grid.grid.dims,
-                    self.faces.conductance.clone(),
-                    &extra,
-                    active,
-                );
+                let stencil = Stencil::from_couplings(wd, off, &extra, active);
                 let mg = (self.config.preconditioner == Preconditioner::Multigrid)
                     .then(|| Multigrid::new(&stencil));
                 if self.cache.len() >= 4 {
@@ -343,37 +396,56 @@ impl ContrastModel {
                 self.cache.push(Cached {
                     dt,
                     version: self.version,
+                    window: w.clone(),
                     stencil,
+                    node,
                     mg,
                 });
                 self.cache.len() - 1
             }
         };
         let cache = &mut self.cache[slot];
-        let node = self.injection.as_ref().map(|r| &r.node);
         let sys = System {
             stencil: &cache.stencil,
-            outlet: node,
+            outlet: cache.node.as_ref(),
         };
-        let mut b: Vec<f64> = (0..n)
-            .map(|i| {
-                if self.grid.domain[i].is_some() && self.grid.props[i].compliance > 0.0 {
-                    (self.fluid[i] - self.pore0[i]) / dt
-                } else {
-                    0.0
+        let mut b = vec![0.0; wn];
+        let mut x = vec![0.0; wn];
+        for k in 0..wd[2] {
+            for j in 0..wd[1] {
+                for i in 0..wd[0] {
+                    let c = w.full_index(i, j, k);
+                    if !cache.stencil.active[i + wd[0] * (j + wd[1] * k)] {
+                        continue;
+                    }
+                    let wi = i + wd[0] * (j + wd[1] * k);
+                    if self.grid.props[c].compliance > 0.0 {
+                        b[wi] = (self.fluid[c] - self.pore0[c]) / dt;
+                    }
+                    x[wi] = self.pressure.get(c).copied().unwrap_or(0.0);
                 }
-            })
-            .collect();
+            }
+        }
         if let Some(r) = &self.injection {
             b.push(r.rate_mm3_s);
+            x.push(self.pressure.get(n).copied().unwrap_or(0.0));
         }
-        let mut x = self.pressure.clone();
-        x.resize(b.len(), 0.0);
         let stats = solve_system(&sys, cache.mg.as_mut(), &b, &mut x, self.config.stop);
         self.counters.solves += 1;
         self.counters.iterations += stats.iterations as u64;
         self.counters.last = Some(stats);
-        x
+        let mut p = vec![0.0; n + node_len];
+        for k in 0..wd[2] {
+            for j in 0..wd[1] {
+                for i in 0..wd[0] {
+                    p[w.full_index(i, j, k)] = x[i + wd[0] * (j + wd[1] * k)];
+                }
+            }
+        }
+        if node_len == 1 {
+            p[n] = x[wn];
+        }
+        p
     }
 
     /// One step of `dt`, or `None` if it would break the step bound (nothing changed then).
@@ -399,6 +471,11 @@ impl ContrastModel {
             faces: &self.faces,
             iodine: &self.iodine,
             fluid: &self.fluid,
+            live: self
+                .window
+                .as_ref()
+                .map(|w| w.live_cells(&self.components).collect())
+                .unwrap_or_default(),
             contacts: self
                 .injection
                 .as_ref()

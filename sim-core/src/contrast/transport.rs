@@ -12,6 +12,8 @@ pub(super) struct Parts<'a> {
     pub(super) faces: &'a Faces,
     pub(super) iodine: &'a [f64],
     pub(super) fluid: &'a [f64],
+    /// The cells of the live components (nothing else can change).
+    pub(super) live: Vec<usize>,
     /// Outlet contacts and the injected stock fraction.
     pub(super) contacts: Option<(&'a [(usize, f64)], f64)>,
     pub(super) cfl: f64,
@@ -32,21 +34,18 @@ pub(super) fn step(model: &mut ContrastModel, p: &[f64], dt: f64) -> Option<Step
     let n = g.len();
     let [nx, ny, _] = g.grid.dims;
     let strides = [1, nx, nx * ny];
-    let conc: Vec<f64> = (0..n)
-        .map(|i| {
-            if parts.fluid[i] > 0.0 {
-                parts.iodine[i] / parts.fluid[i]
-            } else {
-                0.0
-            }
-        })
-        .collect();
+    let mut conc = vec![0.0; n];
+    for &i in &parts.live {
+        if parts.fluid[i] > 0.0 {
+            conc[i] = parts.iodine[i] / parts.fluid[i];
+        }
+    }
     // Outgoing transport rate per cell (fluid-volume units per second).
     let mut out_rate = vec![0.0; n];
     for (a, &s) in strides.iter().enumerate() {
         let gc = &parts.faces.conductance[a];
         let tc = &parts.faces.transmissibility[a];
-        for c in 0..n {
+        for &c in &parts.live {
             if gc[c] == 0.0 && tc[c] == 0.0 {
                 continue;
             }
@@ -60,10 +59,7 @@ pub(super) fn step(model: &mut ContrastModel, p: &[f64], dt: f64) -> Option<Step
             out_rate[c + s] += tc[c];
         }
     }
-    for c in 0..n {
-        if g.domain[c].is_none() {
-            continue;
-        }
+    for &c in &parts.live {
         out_rate[c] +=
             parts.faces.sink[c] * p[c].max(0.0) + g.props[c].clearance_per_s * parts.fluid[c];
     }
@@ -97,7 +93,7 @@ pub(super) fn step(model: &mut ContrastModel, p: &[f64], dt: f64) -> Option<Step
     for (a, &s) in strides.iter().enumerate() {
         let gc = &parts.faces.conductance[a];
         let tc = &parts.faces.transmissibility[a];
-        for c in 0..n {
+        for &c in &parts.live {
             if gc[c] == 0.0 && tc[c] == 0.0 {
                 continue;
             }
@@ -117,10 +113,7 @@ pub(super) fn step(model: &mut ContrastModel, p: &[f64], dt: f64) -> Option<Step
             }
         }
     }
-    for c in 0..n {
-        if g.domain[c].is_none() {
-            continue;
-        }
+    for &c in &parts.live {
         let f = parts.faces.sink[c] * p[c];
         if f != 0.0 {
             // Outflow carries the cell's iodine; inflow from a drain is plain fluid.
