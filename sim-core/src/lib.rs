@@ -14,6 +14,7 @@
 //! ```
 
 pub mod anatomy;
+pub mod contrast;
 pub mod fluoro;
 pub mod geom;
 pub mod hash;

@@ -1,8 +1,9 @@
 //! Integration tests of sim-core, one module per area.
 mod anatomy;
+mod contrast;
 mod fluoro;
-mod rubric;
-mod phantom;
 mod laminar;
 mod needle;
 mod nesting;
+mod phantom;
+mod rubric;
