@@ -2,6 +2,7 @@
 
 mod anatomy_readiness;
 mod dispatch;
+mod dispatch_hardening;
 mod e2e_browser;
 mod embedded;
 mod health;
