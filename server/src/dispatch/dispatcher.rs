@@ -132,7 +132,8 @@ impl LiveSession {
 /// How long a session with no browser connected stays on its worker. Simulator choice: a
 /// learner who steps away for a few minutes comes back to a running session; after that the
 /// worker's capacity is freed, and opening the attempt again resumes the session from its
-/// recorded log.
+/// recorded log. A session without commands closes sooner, at [`Dispatcher::session_idle`]
+/// (default [`DEFAULT_SESSION_IDLE`]), whether a browser is connected or not.
 pub const IDLE_CLOSE: std::time::Duration = std::time::Duration::from_secs(20 * 60);
 
 /// Default longest time a session stays open without a command, connected or not. Simulator

@@ -490,11 +490,12 @@ impl Relay {
             .unwrap_or_else(|| "the session's log writer stopped".into());
         tracing::error!(session = %self.session.id, "ending the session: its log cannot be stored: {reason}");
         let message = "the session's log cannot be stored; the session is closed (open the attempt again to resume from its last stored command)";
-        self.session.end(CLOSE_LOG_REFUSED, message);
+        let short = "the session's log cannot be stored; the session is closed (reopen the attempt to resume)";
+        self.session.end(CLOSE_LOG_REFUSED, &close_reason(short));
         let durable = self.writer.durable_len();
         let note = json!({ "type": "notice", "code": "log_refused", "message": message });
         let _ = self.browser.text(note.to_string());
-        self.close_with = Some((CLOSE_LOG_REFUSED, close_reason(message)));
+        self.close_with = Some((CLOSE_LOG_REFUSED, close_reason(short)));
         let detail = json!({ "attempt_id": self.session.attempt_id, "reason": reason, "durable_commands": durable });
         self.dispatcher
             .end_session(
