@@ -130,6 +130,27 @@ async fn audit_actions(srv: &DemoServer, id: &str) -> Vec<(String, Value)> {
     .expect("audit entries")
 }
 
+/// Makes the test's database refuse a logged command `when` (SQL over `NEW`) with `errcode`,
+/// standing for a database that refuses a write, for good or for a while.
+async fn refuse_log_writes(srv: &DemoServer, when: &str, errcode: &str) {
+    for sql in [
+        format!(
+            "CREATE FUNCTION refuse_write() RETURNS trigger LANGUAGE plpgsql AS $$
+             BEGIN
+                 IF {when} THEN
+                     RAISE EXCEPTION 'refused by the test' USING ERRCODE = '{errcode}';
+                 END IF;
+                 RETURN NEW;
+             END $$"
+        ),
+        "CREATE TRIGGER refuse_write BEFORE INSERT ON live_session_commands
+         FOR EACH ROW EXECUTE FUNCTION refuse_write()"
+            .to_string(),
+    ] {
+        sqlx::query(&sql).execute(&srv.db.pool).await.expect(&sql);
+    }
+}
+
 /// Issue 20, point 3: 10,000 commands sent in one go without reading (before: about 80 applied,
 /// then the connection stalled), then read: every command is answered, in order (acknowledged,
 /// or refused naming the field), in bounded time, and the session takes another command.
@@ -222,19 +243,12 @@ async fn a_burst_of_10000_commands_read_while_sending_is_answered_in_order() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_log_write_refused_for_good_ends_the_session_with_a_reason_and_an_audit_entry() {
     let srv = demo_server(true, None).await;
-    for sql in [
-        "CREATE FUNCTION refuse_poison() RETURNS trigger LANGUAGE plpgsql AS $$
-         BEGIN
-             IF NEW.command ->> 'label' = 'poison' THEN
-                 RAISE EXCEPTION 'refused by the test' USING ERRCODE = 'check_violation';
-             END IF;
-             RETURN NEW;
-         END $$",
-        "CREATE TRIGGER refuse_poison BEFORE INSERT ON live_session_commands
-         FOR EACH ROW EXECUTE FUNCTION refuse_poison()",
-    ] {
-        sqlx::query(sql).execute(&srv.db.pool).await.expect(sql);
-    }
+    refuse_log_writes(
+        &srv,
+        "NEW.command ->> 'label' = 'poison'",
+        "check_violation",
+    )
+    .await;
     let (learner, attempt, session, mut ws) = open_session(&srv, "learner@demo.invalid").await;
     let id: uuid::Uuid = session["session_id"].as_str().unwrap().parse().unwrap();
     let mut got = Received::default();
@@ -270,6 +284,34 @@ async fn a_log_write_refused_for_good_ends_the_session_with_a_reason_and_an_audi
     let mut got = Received::default();
     ws.send(2, json!({ "type": "shot" })).await;
     ws.until(&mut got, |r| acked(r) == [2]).await;
+}
+
+/// The other side of the rule above: a transient refusal (here a serialization failure the test's
+/// database raises twice) is retried, and the command is acknowledged once it is stored.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_transient_log_write_failure_is_retried_and_then_acknowledged() {
+    let srv = demo_server(true, None).await;
+    sqlx::query("CREATE SEQUENCE flaky_writes")
+        .execute(&srv.db.pool)
+        .await
+        .unwrap();
+    let when = "NEW.command ->> 'label' = 'flaky' AND nextval('flaky_writes') <= 2";
+    refuse_log_writes(&srv, when, "serialization_failure").await;
+    let (_, _, _, mut ws) = open_session(&srv, "learner@demo.invalid").await;
+    let mut got = Received::default();
+    ws.send(1, json!({ "type": "shot" })).await;
+    ws.send(
+        2,
+        json!({ "type": "annotate", "pixel": [10, 10], "label": "flaky" }),
+    )
+    .await;
+    ws.send(3, json!({ "type": "shot" })).await;
+    ws.until(&mut got, |r| acked(r) == [1, 2, 3]).await;
+    let retried: i64 = sqlx::query_scalar("SELECT last_value FROM flaky_writes")
+        .fetch_one(&srv.db.pool)
+        .await
+        .unwrap();
+    assert!(retried >= 3, "refused twice, then stored: {retried}");
 }
 
 /// Issue 20, point 3: after a submit, a client that has gone does not keep the relay and its

@@ -129,6 +129,11 @@ impl LiveSession {
     }
 }
 
+/// Close code when the session's log cannot be stored (RFC 6455: internal error).
+pub const CLOSE_LOG_REFUSED: u16 = 1011;
+/// Close code when the session was closed for want of commands (application range 4000-4999).
+pub const CLOSE_IDLE: u16 = 4001;
+
 /// How long a session with no browser connected stays on its worker. Simulator choice: a
 /// learner who steps away for a few minutes comes back to a running session; after that the
 /// worker's capacity is freed, and opening the attempt again resumes the session from its
@@ -360,7 +365,7 @@ impl Dispatcher {
 
     /// Closes, every quarter of the shorter limit, the sessions no browser has been connected
     /// to for `idle`, and the sessions that got no command for [`Dispatcher::session_idle`]
-    /// (connected or not: their browsers get close code [`super::relay::CLOSE_IDLE`], and the
+    /// (connected or not: their browsers get close code [`CLOSE_IDLE`], and the
     /// closing is audited).
     pub fn start_reaper(&self, idle: std::time::Duration) {
         let Ok(rt) = tokio::runtime::Handle::try_current() else {
@@ -400,7 +405,7 @@ impl Dispatcher {
                 let secs = command_idle.as_secs_f64();
                 tracing::info!(session = %s.id, connected, "closing a session that got no command for {secs} s (it resumes from its log)");
                 s.end(
-                    super::relay::CLOSE_IDLE,
+                    CLOSE_IDLE,
                     &format!("idle: no command for {secs} s; open the attempt again to resume"),
                 );
                 let Some(records) = self.records() else {

@@ -56,7 +56,5 @@ mod verify;
 
 pub use dispatcher::*;
 pub use registry::{RemoteWorker, WorkerView};
-pub use relay::{
-    CLOSE_IDLE, CLOSE_LOG_REFUSED, MAX_CLIENT_MESSAGE_BYTES, MAX_IN_FLIGHT, MAX_UNREAD_ANSWERS,
-};
+pub use relay::{MAX_CLIENT_MESSAGE_BYTES, MAX_IN_FLIGHT, MAX_UNREAD_ANSWERS};
 pub use routes::router;

@@ -28,7 +28,7 @@ use tokio::sync::mpsc;
 use super::browser::BrowserWriter;
 use super::durable::LogWriter;
 use super::upstream::{UpSink, connect};
-use super::{Dispatcher, LiveSession, Placement, results, store};
+use super::{CLOSE_LOG_REFUSED, Dispatcher, LiveSession, Placement, results, store};
 use crate::records::RecordsState;
 use crate::records::activity::{ActivityKind, record_activity};
 
@@ -93,11 +93,6 @@ pub const MAX_IN_FLIGHT: usize = 1024;
 /// once it reads), a few megabytes of small JSON at most; a client that runs further ahead is
 /// held by TCP backpressure, never by a wedged relay.
 pub const MAX_UNREAD_ANSWERS: usize = 16_384;
-
-/// Close code when the session's log cannot be stored (RFC 6455: internal error).
-pub const CLOSE_LOG_REFUSED: u16 = 1011;
-/// Close code when the session was closed for want of commands (application range 4000-4999).
-pub const CLOSE_IDLE: u16 = 4001;
 
 /// How long a relay whose browser left goes on taking the worker's answers to commands it had
 /// already sent (a submit among them is then logged and its result stored, and the slot of a

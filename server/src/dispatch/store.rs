@@ -249,3 +249,29 @@ pub async fn load_commands(pool: &PgPool, id: Uuid) -> Result<Vec<LogEntry>, Str
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn values_jsonb_cannot_hold_are_refused_anywhere_in_the_command() {
+        assert!(jsonb_storable(&serde_json::json!({ "a": [1.5, "x", { "b": null }] })).is_ok());
+        for bad in [
+            serde_json::json!("a\u{0}b"),
+            serde_json::json!({ "label": "L4\u{0}" }),
+            serde_json::json!([[{ "deep": ["\u{0}"] }]]),
+            serde_json::json!({ "k\u{0}": 1 }),
+        ] {
+            assert!(jsonb_storable(&bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn connection_trouble_is_transient_and_refused_data_is_not() {
+        assert!(is_transient(&sqlx::Error::PoolTimedOut));
+        assert!(is_transient(&sqlx::Error::Io(std::io::Error::other("reset"))));
+        assert!(!is_transient(&sqlx::Error::RowNotFound));
+        assert!(!is_transient(&sqlx::Error::Encode("bad".into())));
+    }
+}
