@@ -9,6 +9,8 @@ use std::time::Duration;
 use futures::{SinkExt, StreamExt};
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::protocol::frame::Frame;
+use tokio_tungstenite::tungstenite::protocol::frame::coding::{Data, OpCode};
 
 use super::dispatch::{Client, Received, Ws, acked, demo_server};
 use super::dispatch_hardening::close_frame;
@@ -287,11 +289,29 @@ async fn hostile_websocket_input_gets_clear_errors_and_the_server_stays_healthy(
     ws.ws.send(Message::Text(over.into())).await.expect("send");
     let (code, reason) = close_frame(&mut ws, Duration::from_secs(30)).await;
     assert_eq!(code, 1009, "{reason}");
-    // And the session goes on after the oversized message.
+    // A message in fragments, each frame under the limit and the whole over it: 1009 too.
+    let mut ws = learner.websocket(&ws_path).await;
+    let part = || vec![b'x'; server::dispatch::MAX_CLIENT_MESSAGE_BYTES / 2];
+    let frames = [
+        Frame::message(part(), OpCode::Data(Data::Text), false),
+        Frame::message(part(), OpCode::Data(Data::Continue), false),
+        Frame::message(part(), OpCode::Data(Data::Continue), true),
+    ];
+    for f in frames {
+        if ws.ws.send(Message::Frame(f)).await.is_err() {
+            break; // The server may close before the last fragment.
+        }
+    }
+    let (code, reason) = close_frame(&mut ws, Duration::from_secs(30)).await;
+    assert_eq!(code, 1009, "{reason}");
+    // And the session goes on after the oversized messages.
     let mut ws = learner.websocket(&ws_path).await;
     ws.send(10_002, json!({ "type": "shot" })).await;
     let mut got = Received::default();
     ws.until(&mut got, |r| acked(r).contains(&10_002)).await;
+    // The server answers its health check with both sessions live.
+    let (_, health) = learner.call("GET", "/healthz", None).await;
+    assert_eq!(health["sessions"]["live"], 2, "{health}");
 }
 
 /// A burst of bad input with the answers read while sending (the without-reading variant is in
