@@ -419,3 +419,26 @@ async fn one_course_holds_at_most_the_per_course_limit_of_sessions() {
     assert_eq!(status, 429, "{body}");
     assert_eq!(body["error"]["scope"], "user", "{body}");
 }
+
+/// A revoked account's open session ends with close code 4003 and a reason instead of being
+/// restored on another worker, and its slot is freed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_revoked_accounts_open_session_closes_with_a_reason() {
+    let srv = demo_server(true, None).await;
+    let (_, _, session, mut ws) = open_session(&srv, "learner@demo.invalid").await;
+    let id: uuid::Uuid = session["session_id"].as_str().unwrap().parse().unwrap();
+    let learner_id: uuid::Uuid =
+        sqlx::query_scalar("SELECT id FROM users WHERE email = 'learner@demo.invalid'")
+            .fetch_one(&srv.db.pool)
+            .await
+            .unwrap();
+    let admin = Client::login(srv.addr, "admin@demo.invalid").await;
+    let (s, body) = admin
+        .call("POST", &format!("/api/users/{learner_id}/disable"), None)
+        .await;
+    assert_eq!(s, 200, "{body}");
+    let (code, reason) = close_frame(&mut ws, Duration::from_secs(30)).await;
+    assert_eq!(code, server::dispatch::CLOSE_REVOKED, "{reason}");
+    assert!(reason.contains("log in again"), "{reason}");
+    wait_freed(&srv, id, Duration::from_secs(10)).await;
+}

@@ -133,6 +133,8 @@ impl LiveSession {
 pub const CLOSE_LOG_REFUSED: u16 = 1011;
 /// Close code when the session was closed for want of commands (application range 4000-4999).
 pub const CLOSE_IDLE: u16 = 4001;
+/// Close code when the learner's account was revoked (disabled, or its password reset).
+pub const CLOSE_REVOKED: u16 = 4003;
 
 /// How long a session with no browser connected stays on its worker. Simulator choice: a
 /// learner who steps away for a few minutes comes back to a running session; after that the
