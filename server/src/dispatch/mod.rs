@@ -23,8 +23,9 @@
 //! ends a session itself, with a close code and reason on its sockets and an audit entry, when it
 //! got no command for `PAINSIM_SESSION_IDLE_SECS` (code [`CLOSE_IDLE`], 4001; audit
 //! `session_closed_idle`) or when the database refuses its log for good (code
-//! [`CLOSE_LOG_REFUSED`], 1011; audit `session_ended_log_refused`); either way the slot is freed
-//! and opening the attempt again resumes from the stored log.
+//! [`CLOSE_LOG_REFUSED`], 1011; audit `session_ended_log_refused`), or when the learner's
+//! account is revoked (code [`CLOSE_REVOKED`], 4003); in each case the slot is freed and opening
+//! the attempt again resumes from the stored log.
 //!
 //! # Failover
 //! Because the server holds the initial snapshot and every acknowledged command, it can rebuild
