@@ -228,6 +228,10 @@ async function openSession(attemptId, stationId) {
     });
     live.addEventListener('commanderror', (e) => { logLine(`Not accepted (${e.detail.error.field}): ${e.detail.error.message}`); });
     live.addEventListener('notice', (e) => { logLine(e.detail.message); });
+    live.addEventListener('ended', (e) => {
+      $('conn').textContent = 'ended';
+      say(`The session was closed: ${e.detail.reason}. Open the attempt again to continue.`);
+    });
     live.addEventListener('technical_result', (e) => showResult(e.detail.result));
     live.addEventListener('technical_result_error', (e) => { say(`The result could not be stored: ${e.detail.message}`); });
     live.connect();

@@ -48,9 +48,17 @@ export class LiveSession extends EventTarget {
       if (typeof ev.data === 'string') this.onText(ev.data);
       else this.onFrame(ev.data);
     };
-    ws.onclose = () => {
+    ws.onclose = (ev) => {
       this.emit('connection', { state: 'closed' });
       if (this.closed) return;
+      // The server ended the session (4001: no command for its idle limit; 4003: the account
+      // was revoked; 1011: its log cannot be stored): reconnecting cannot help; opening the
+      // attempt again (after logging in) resumes it.
+      if (ev.code === 4001 || ev.code === 4003 || ev.code === 1011) {
+        this.closed = true;
+        this.emit('ended', { code: ev.code, reason: ev.reason });
+        return;
+      }
       // Reconnect with back-off; unacknowledged commands are re-sent after the hello.
       setTimeout(() => this.connect(), this.retryMs);
       this.retryMs = Math.min(this.retryMs * 2, 4000);

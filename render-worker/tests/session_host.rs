@@ -226,6 +226,21 @@ async fn http(addr: std::net::SocketAddr, request: &str) -> String {
     out
 }
 
+/// `POST /sessions` for the demo station: the 201's body.
+async fn create_demo_session(addr: std::net::SocketAddr) -> serde_json::Value {
+    let body = r#"{"station_id":"demo-station"}"#;
+    let created = http(
+        addr,
+        &format!(
+            "POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+            body.len()
+        ),
+    )
+    .await;
+    assert!(created.starts_with("HTTP/1.1 201"), "{created}");
+    serde_json::from_str(created.split("\r\n\r\n").nth(1).unwrap()).unwrap()
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn real_websocket_creates_a_session_takes_a_shot_and_streams_a_jpeg() {
     use tokio_tungstenite::tungstenite::Message;
@@ -243,18 +258,7 @@ async fn real_websocket_creates_a_session_takes_a_shot_and_streams_a_jpeg() {
         health.contains("\"capacity\":2") && health.contains("cpu-reference"),
         "{health}"
     );
-    let body = r#"{"station_id":"demo-station"}"#;
-    let created = http(
-        addr,
-        &format!(
-            "POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
-            body.len()
-        ),
-    )
-    .await;
-    assert!(created.starts_with("HTTP/1.1 201"), "{created}");
-    let json: serde_json::Value =
-        serde_json::from_str(created.split("\r\n\r\n").nth(1).unwrap()).unwrap();
+    let json = create_demo_session(addr).await;
     let ws_path = json["ws"].as_str().unwrap();
     let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}{ws_path}"))
         .await
@@ -287,4 +291,66 @@ async fn real_websocket_creates_a_session_takes_a_shot_and_streams_a_jpeg() {
     assert_eq!((f.input_seq, f.width, f.height), (1, 128, 128));
     assert_eq!(&f.jpeg[..2], &[0xFF, 0xD8]);
     ws.close(None).await.unwrap();
+}
+
+/// Issue 20, point 3, on the worker's own socket: a client that sends 10,000 commands without
+/// reading, then reads, gets every answer in order, and the session takes another command.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_burst_sent_without_reading_is_answered_in_order_on_the_worker_socket() {
+    use tokio_tungstenite::tungstenite::Message;
+    const N: u64 = 10_000;
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    tokio::spawn(async move { axum::serve(listener, http::router(host(1))).await });
+    let json = create_demo_session(addr).await;
+    let (mut ws, _) =
+        tokio_tungstenite::connect_async(format!("ws://{addr}{}", json["ws"].as_str().unwrap()))
+            .await
+            .unwrap();
+    let started = std::time::Instant::now();
+    let text = |seq: u64| {
+        let c = if seq.is_multiple_of(2) {
+            Command::Tick
+        } else {
+            pose((seq % 90) as f64 - 45.0, 0.0)
+        };
+        match cmd_text(seq, &c) {
+            WsMessage::Text(t) => Message::Text(t.into()),
+            _ => unreachable!(),
+        }
+    };
+    let send = async {
+        for seq in 1..=N {
+            ws.feed(text(seq)).await.unwrap();
+        }
+        ws.flush().await.unwrap();
+    };
+    tokio::time::timeout(std::time::Duration::from_secs(120), send)
+        .await
+        .expect("the worker keeps reading a burst");
+    let mut next = 1;
+    while next <= N + 1 {
+        if next == N + 1 {
+            ws.send(text(N + 1)).await.unwrap();
+        }
+        let m = tokio::time::timeout(std::time::Duration::from_secs(60), ws.next())
+            .await
+            .expect("an answer within 60 s")
+            .unwrap()
+            .unwrap();
+        if let Message::Text(t) = m {
+            match serde_json::from_str::<ServerMessage>(&t).unwrap() {
+                ServerMessage::Ack(a) => {
+                    assert_eq!(a.seq, next, "in order");
+                    next += 1;
+                }
+                ServerMessage::Hello { .. } => {}
+                other => panic!("{other:?}"),
+            }
+        }
+    }
+    eprintln!(
+        "worker socket burst: {N} commands, last answer after {:.2} s",
+        started.elapsed().as_secs_f64()
+    );
 }

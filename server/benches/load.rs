@@ -195,8 +195,9 @@ async fn bench_backend(
     );
     let sessions_host = host.clone();
     let dispatcher = Dispatcher::new(Some(host.clone()), host, None);
-    // Every simulated learner logs in as the same demo account.
+    // Every simulated learner logs in as the same demo account, in the same course.
     dispatcher.set_sessions_per_user(capacity);
+    dispatcher.set_sessions_per_course(capacity);
     let state = AppState {
         pool: db.pool.clone(),
         embedded_db: true,

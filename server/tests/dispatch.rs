@@ -189,6 +189,19 @@ impl Client {
             .find(|c| c["code"] == "DEMO-101")
             .expect("demo course")["id"]
             .clone();
+        let id = self.new_attempt_in(&course).await;
+        let answer = self.session_of(&id).await;
+        (id, answer)
+    }
+
+    /// Asks for the session of an existing attempt (the running one, or resumed): status, body.
+    pub async fn session_of(&self, attempt: &str) -> (u16, Value) {
+        self.call("POST", &format!("/api/attempts/{attempt}/session"), None)
+            .await
+    }
+
+    /// Opens an attempt at the demo station in `course`; its id.
+    pub async fn new_attempt_in(&self, course: &Value) -> String {
         let (s, attempt) = self
             .call(
                 "POST",
@@ -197,11 +210,7 @@ impl Client {
             )
             .await;
         assert_eq!(s, 201, "{attempt}");
-        let id = attempt["id"].as_str().unwrap().to_string();
-        let answer = self
-            .call("POST", &format!("/api/attempts/{id}/session"), None)
-            .await;
-        (id, answer)
+        attempt["id"].as_str().unwrap().to_string()
     }
 
     /// Opens the session's websocket through the server.
@@ -220,7 +229,8 @@ impl Client {
 
 /// A session websocket with helpers.
 pub struct Ws {
-    ws: tokio_tungstenite::WebSocketStream<
+    /// The socket itself.
+    pub ws: tokio_tungstenite::WebSocketStream<
         tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
     >,
 }

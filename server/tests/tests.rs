@@ -2,6 +2,8 @@
 
 mod anatomy_readiness;
 mod dispatch;
+mod dispatch_hardening;
+mod dispatch_ws_fuzz;
 mod e2e_browser;
 mod embedded;
 mod health;

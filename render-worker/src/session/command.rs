@@ -35,6 +35,9 @@ pub const MAX_INJECTION_ML: f64 = 20.0;
 pub const MAX_INJECTION_RATE_ML_PER_S: f64 = 2.0;
 /// Longest annotation label, characters.
 pub const MAX_LABEL_CHARS: usize = 64;
+/// Longest instrument id, characters. Simulator choice: tray ids are short slugs
+/// (`spinal-22g`); the bound keeps every string a command logs small.
+pub const MAX_INSTRUMENT_CHARS: usize = 64;
 
 /// What an operator can do at a station. JSON form: `{"type": "carm_pose", "orbital_deg": 20,
 /// ...}`.
@@ -257,11 +260,11 @@ impl Command {
                 bevel_reference,
             } => {
                 no_nul("command.instrument", instrument)?;
-                if instrument.is_empty() {
+                if instrument.is_empty() || instrument.chars().count() > MAX_INSTRUMENT_CHARS {
                     return Err(CommandError::field(
                         "command.instrument",
                         ErrorCode::Invalid,
-                        "instrument id is empty",
+                        format!("instrument id must be 1 to {MAX_INSTRUMENT_CHARS} characters"),
                     ));
                 }
                 for (a, v) in entry_mm.iter().enumerate() {
@@ -514,5 +517,47 @@ mod tests {
             .unwrap_err();
         assert_eq!(e.field, "command.kvp");
         assert!(Command::Technique { kvp: 85, ma: 2.0 }.validate().is_ok());
+    }
+
+    /// Issue 20, point 3: every string a command carries is checked against what the server's
+    /// log (PostgreSQL text and jsonb) stores before the command can be acknowledged: no NUL,
+    /// bounded length; every number is finite (jsonb has no NaN or infinity).
+    #[test]
+    fn every_logged_string_and_number_is_storable() {
+        let place = |instrument: &str, x: f64| Command::NeedlePlace {
+            instrument: instrument.into(),
+            entry_mm: [x, 0.0, 0.0],
+            direction: [0.0, 1.0, 0.0],
+            bevel_reference: [1.0, 0.0, 0.0],
+        };
+        let annotate = |label: &str, x: f64| Command::Annotate {
+            pixel: [x, 1.0],
+            label: label.into(),
+        };
+        let cases = [
+            (place("spinal\0", 0.0), "command.instrument"),
+            (
+                place(&"x".repeat(MAX_INSTRUMENT_CHARS + 1), 0.0),
+                "command.instrument",
+            ),
+            (place("", 0.0), "command.instrument"),
+            (place("spinal-22g", f64::NAN), "command.entry_mm[0]"),
+            (annotate("L4\0", 1.0), "command.label"),
+            (
+                annotate(&"x".repeat(MAX_LABEL_CHARS + 1), 1.0),
+                "command.label",
+            ),
+            (annotate("L4", f64::INFINITY), "command.pixel[0]"),
+        ];
+        for (c, field) in cases {
+            assert_eq!(c.validate().unwrap_err().field, field, "{c:?}");
+        }
+        assert!(
+            place(&"x".repeat(MAX_INSTRUMENT_CHARS), 0.0)
+                .validate()
+                .is_ok()
+        );
+        // A huge but finite pixel is storable (jsonb numerics hold it) and so accepted here.
+        assert!(annotate("L4", 1e308).validate().is_ok());
     }
 }

@@ -4,16 +4,15 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
+use super::registry::{self, WorkerView};
+use render_worker::session::host::RegionReadiness;
 use render_worker::session::modalities::fluoro::{FluoroRenderError, FluoroRenderer};
 use render_worker::session::region::Region;
-use render_worker::session::host::RegionReadiness;
-use super::registry::{self, WorkerView};
 use render_worker::session::{
-    BackendProfile, Backends, FluoroBackend, HostConfig, HostError,
-    LogEntry, SessionConfig, SessionHost, SessionSnapshot,
+    BackendProfile, Backends, FluoroBackend, HostConfig, HostError, LogEntry, SessionConfig,
+    SessionHost, SessionSnapshot,
 };
 use uuid::Uuid;
-
 
 /// Where a session runs now.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -49,6 +48,8 @@ pub struct LiveSession {
     pub id: Uuid,
     /// The attempt it belongs to.
     pub attempt_id: Uuid,
+    /// The course of that attempt (for the per-course limit).
+    pub course_id: Uuid,
     /// The learner who drives it.
     pub learner_id: Uuid,
     /// Station id.
@@ -62,6 +63,12 @@ pub struct LiveSession {
     pub connections: std::sync::atomic::AtomicUsize,
     /// When the last connection ended (or the session was created).
     pub last_active: Mutex<std::time::Instant>,
+    /// When the browser last sent a command (or the session was created): the idle limit
+    /// ([`Dispatcher::session_idle`]) counts from here, connected or not.
+    pub last_command: Mutex<std::time::Instant>,
+    /// Set when the server ends the session (idle, or its log refused): the close code and
+    /// reason its connections close with.
+    pub ended: tokio::sync::watch::Sender<Option<(u16, String)>>,
 }
 
 impl LiveSession {
@@ -69,6 +76,7 @@ impl LiveSession {
     pub fn new(
         id: Uuid,
         attempt_id: Uuid,
+        course_id: Uuid,
         learner_id: Uuid,
         station_id: String,
         record: SessionRecord,
@@ -76,21 +84,95 @@ impl LiveSession {
         LiveSession {
             id,
             attempt_id,
+            course_id,
             learner_id,
             station_id,
             state: tokio::sync::Mutex::new(record),
             generation: std::sync::atomic::AtomicU64::new(0),
             connections: std::sync::atomic::AtomicUsize::new(0),
             last_active: Mutex::new(std::time::Instant::now()),
+            last_command: Mutex::new(std::time::Instant::now()),
+            ended: tokio::sync::watch::Sender::new(None),
         }
     }
+
+    /// Notes that the browser sent a command now.
+    pub fn touch_command(&self) {
+        if let Ok(mut t) = self.last_command.lock() {
+            *t = std::time::Instant::now();
+        }
+    }
+
+    /// Time since the last command.
+    pub fn idle_for(&self) -> std::time::Duration {
+        self.last_command
+            .lock()
+            .map(|t| t.elapsed())
+            .unwrap_or_default()
+    }
+
+    /// Ends the session on the server's side: its connections close with `code` and `reason`
+    /// (the first reason given stays).
+    pub fn end(&self, code: u16, reason: &str) {
+        self.ended.send_if_modified(|e| {
+            if e.is_some() {
+                return false;
+            }
+            *e = Some((code, reason.to_string()));
+            true
+        });
+    }
+
+    /// Why the server ended the session, if it did.
+    pub fn end_reason(&self) -> Option<(u16, String)> {
+        self.ended.borrow().clone()
+    }
 }
+
+/// Close code when the session's log cannot be stored (RFC 6455: internal error).
+pub const CLOSE_LOG_REFUSED: u16 = 1011;
+/// Close code when the session was closed for want of commands (application range 4000-4999).
+pub const CLOSE_IDLE: u16 = 4001;
+/// Close code when the learner's account was revoked (disabled, or its password reset).
+pub const CLOSE_REVOKED: u16 = 4003;
 
 /// How long a session with no browser connected stays on its worker. Simulator choice: a
 /// learner who steps away for a few minutes comes back to a running session; after that the
 /// worker's capacity is freed, and opening the attempt again resumes the session from its
-/// recorded log.
+/// recorded log. A session without commands closes sooner, at [`Dispatcher::session_idle`]
+/// (default [`DEFAULT_SESSION_IDLE`]), whether a browser is connected or not.
 pub const IDLE_CLOSE: std::time::Duration = std::time::Duration::from_secs(20 * 60);
+
+/// Default longest time a session stays open without a command, connected or not. Simulator
+/// choice: a learner thinking over an image sends no command for a minute or two; ten minutes
+/// without one means nobody is driving, and the slot is worth more to someone else (the
+/// session resumes from its log when the attempt is opened again).
+pub const DEFAULT_SESSION_IDLE: std::time::Duration = std::time::Duration::from_secs(10 * 60);
+
+/// `PAINSIM_SESSION_IDLE_SECS` (at least 1), else [`DEFAULT_SESSION_IDLE`].
+pub fn session_idle_from_env() -> std::time::Duration {
+    let default = DEFAULT_SESSION_IDLE.as_secs() as usize;
+    std::time::Duration::from_secs(limit_from_env("PAINSIM_SESSION_IDLE_SECS", default) as u64)
+}
+
+/// Default most live (unsubmitted) sessions of one course at once. Simulator choice: six of
+/// the in-process worker's default eight slots, so one course's lab cannot take the whole
+/// worker from the others; a deployment with remote workers raises it.
+pub const DEFAULT_SESSIONS_PER_COURSE: usize = 6;
+
+/// `PAINSIM_SESSIONS_PER_COURSE` (at least 1), else [`DEFAULT_SESSIONS_PER_COURSE`].
+pub fn sessions_per_course_from_env() -> usize {
+    limit_from_env("PAINSIM_SESSIONS_PER_COURSE", DEFAULT_SESSIONS_PER_COURSE)
+}
+
+/// The environment variable `name` as a limit of at least 1, else `default`.
+fn limit_from_env(name: &str, default: usize) -> usize {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.trim().parse::<usize>().ok())
+        .filter(|n| *n >= 1)
+        .unwrap_or(default)
+}
 
 /// The server's copy of a session.
 #[derive(Debug, Clone)]
@@ -219,6 +301,13 @@ pub(super) struct Inner {
     pub(super) sessions: Mutex<HashMap<Uuid, Arc<LiveSession>>>,
     pub(super) worker_token: Option<String>,
     pub(super) sessions_per_user: std::sync::atomic::AtomicUsize,
+    pub(super) sessions_per_course: std::sync::atomic::AtomicUsize,
+    /// [`Dispatcher::session_idle`], ms.
+    pub(super) session_idle_ms: std::sync::atomic::AtomicU64,
+    /// Wakes the reapers when the idle limit changes.
+    pub(super) reaper_wake: Arc<tokio::sync::Notify>,
+    /// The learning records, for audit entries of sessions the server ends.
+    pub(super) records: Mutex<Option<crate::records::RecordsState>>,
 }
 
 /// Default most live (unsubmitted) sessions one user holds at once. Simulator choice: a learner
@@ -228,11 +317,7 @@ pub const DEFAULT_SESSIONS_PER_USER: usize = 2;
 
 /// `PAINSIM_SESSIONS_PER_USER` (at least 1), else [`DEFAULT_SESSIONS_PER_USER`].
 pub fn sessions_per_user_from_env() -> usize {
-    std::env::var("PAINSIM_SESSIONS_PER_USER")
-        .ok()
-        .and_then(|v| v.trim().parse::<usize>().ok())
-        .filter(|n| *n >= 1)
-        .unwrap_or(DEFAULT_SESSIONS_PER_USER)
+    limit_from_env("PAINSIM_SESSIONS_PER_USER", DEFAULT_SESSIONS_PER_USER)
 }
 
 /// Session dispatch: the in-process host, registered workers, and the live sessions.
@@ -265,6 +350,14 @@ impl Dispatcher {
                 sessions: Mutex::new(HashMap::new()),
                 worker_token,
                 sessions_per_user: std::sync::atomic::AtomicUsize::new(sessions_per_user_from_env()),
+                sessions_per_course: std::sync::atomic::AtomicUsize::new(
+                    sessions_per_course_from_env(),
+                ),
+                session_idle_ms: std::sync::atomic::AtomicU64::new(
+                    session_idle_from_env().as_millis() as u64,
+                ),
+                reaper_wake: Arc::new(tokio::sync::Notify::new()),
+                records: Mutex::new(None),
             }),
         };
         d.inner.remote.start_polling();
@@ -272,45 +365,125 @@ impl Dispatcher {
         d
     }
 
-    /// Closes, every `idle / 4`, the sessions no browser has been connected to for `idle`.
+    /// Closes, every quarter of the shorter limit, the sessions no browser has been connected
+    /// to for `idle`, and the sessions that got no command for [`Dispatcher::session_idle`]
+    /// (connected or not: their browsers get close code [`CLOSE_IDLE`], and the
+    /// closing is audited).
     pub fn start_reaper(&self, idle: std::time::Duration) {
         let Ok(rt) = tokio::runtime::Handle::try_current() else {
             return;
         };
         let weak = Arc::downgrade(&self.inner);
+        let wake = self.inner.reaper_wake.clone();
         rt.spawn(async move {
             loop {
-                tokio::time::sleep(idle / 4).await;
-                let Some(inner) = weak.upgrade() else { return };
-                let d = Dispatcher { inner };
-                let idle_ids: Vec<Uuid> = d
-                    .inner
-                    .sessions
-                    .lock()
-                    .map(|m| {
-                        m.values()
-                            .filter(|s| {
-                                s.connections.load(std::sync::atomic::Ordering::SeqCst) == 0
-                                    && s.last_active.lock().is_ok_and(|t| t.elapsed() >= idle)
-                            })
-                            .map(|s| s.id)
-                            .collect()
-                    })
-                    .unwrap_or_default();
-                for id in idle_ids {
-                    tracing::info!(session = %id, "closing an idle session (it resumes from its log)");
-                    d.close(id).await;
+                // Holds the dispatcher only while reaping, so a dropped one ends the task.
+                let period = match weak.upgrade() {
+                    Some(inner) => Dispatcher { inner }.session_idle().min(idle) / 4,
+                    None => return,
+                };
+                tokio::select! {
+                    () = tokio::time::sleep(period.max(std::time::Duration::from_millis(20))) => {}
+                    () = wake.notified() => {}
                 }
+                let Some(inner) = weak.upgrade() else { return };
+                Dispatcher { inner }.reap(idle).await;
             }
         });
     }
 
+    /// One round of [`Dispatcher::start_reaper`].
+    async fn reap(&self, idle: std::time::Duration) {
+        let command_idle = self.session_idle();
+        let list: Vec<Arc<LiveSession>> = self
+            .inner
+            .sessions
+            .lock()
+            .map(|m| m.values().cloned().collect())
+            .unwrap_or_default();
+        for s in list {
+            let connected = s.connections.load(std::sync::atomic::Ordering::SeqCst);
+            if s.idle_for() >= command_idle {
+                let secs = command_idle.as_secs_f64();
+                tracing::info!(session = %s.id, connected, "closing a session that got no command for {secs} s (it resumes from its log)");
+                s.end(
+                    CLOSE_IDLE,
+                    &format!("idle: no command for {secs} s; open the attempt again to resume"),
+                );
+                let Some(records) = self.records() else {
+                    self.close(s.id).await;
+                    continue;
+                };
+                let detail = serde_json::json!({ "attempt_id": s.attempt_id, "idle_s": secs, "connected": connected });
+                self.end_session(&records, s.id, "session_closed_idle", detail)
+                    .await;
+            } else if connected == 0 && s.last_active.lock().is_ok_and(|t| t.elapsed() >= idle) {
+                tracing::info!(session = %s.id, "closing an idle session (it resumes from its log)");
+                self.close(s.id).await;
+            }
+        }
+    }
+
+    /// Most time a session stays open without a command (`PAINSIM_SESSION_IDLE_SECS`).
+    pub fn session_idle(&self) -> std::time::Duration {
+        std::time::Duration::from_millis(
+            self.inner
+                .session_idle_ms
+                .load(std::sync::atomic::Ordering::Relaxed),
+        )
+    }
+
+    /// Sets the idle limit instead of `PAINSIM_SESSION_IDLE_SECS` (tests use a short one).
+    pub fn set_session_idle(&self, idle: std::time::Duration) {
+        self.inner.session_idle_ms.store(
+            (idle.as_millis() as u64).max(1),
+            std::sync::atomic::Ordering::Relaxed,
+        );
+        self.inner.reaper_wake.notify_waiters();
+    }
+
+    /// The learning records the sessions' audit entries go to (set by the dispatch routes).
+    fn records(&self) -> Option<crate::records::RecordsState> {
+        self.inner.records.lock().ok().and_then(|r| r.clone())
+    }
+
+    pub(super) fn attach_records(&self, records: &crate::records::RecordsState) {
+        if let Ok(mut r) = self.inner.records.lock() {
+            *r = Some(records.clone());
+        }
+    }
+
+    /// Ends a session the server gave up on (the caller set its end reason): writes the audit
+    /// entry `action` with `detail` (once, by whoever removes the session), then frees its
+    /// worker slot.
+    pub async fn end_session(
+        &self,
+        records: &crate::records::RecordsState,
+        id: Uuid,
+        action: &str,
+        detail: serde_json::Value,
+    ) {
+        let Some(s) = self.take(id) else {
+            return;
+        };
+        let r = crate::records::history::audit(
+            &records.pool,
+            None,
+            action,
+            "live_session",
+            &id.to_string(),
+            detail,
+        )
+        .await;
+        if let Err(e) = r {
+            tracing::error!(session = %id, "writing the audit entry {action} failed: {e}");
+        }
+        self.close_taken(&s).await;
+    }
+
     /// The default: an in-process host over `config`'s stations and regions (regions load on
     /// first use) rendering with `backends`.
-    pub fn from_config(
-        config: &DispatchConfig,
-        backends: Backends,
-    ) -> Result<Dispatcher, String> {
+    pub fn from_config(config: &DispatchConfig, backends: Backends) -> Result<Dispatcher, String> {
         let host = SessionHost::new(
             HostConfig {
                 assets_root: config.assets_root.clone(),
@@ -450,13 +623,36 @@ impl Dispatcher {
             .store(limit.max(1), std::sync::atomic::Ordering::Relaxed);
     }
 
+    /// Most live sessions of one course.
+    pub fn sessions_per_course(&self) -> usize {
+        self.inner
+            .sessions_per_course
+            .load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Sets the per-course limit (at least 1), instead of `PAINSIM_SESSIONS_PER_COURSE`.
+    pub fn set_sessions_per_course(&self, limit: usize) {
+        self.inner
+            .sessions_per_course
+            .store(limit.max(1), std::sync::atomic::Ordering::Relaxed);
+    }
+
     /// Live (not submitted) sessions of `user`.
     pub async fn live_sessions_of(&self, user: Uuid) -> usize {
+        self.live_sessions_where(|s| s.learner_id == user).await
+    }
+
+    /// Live (not submitted) sessions of attempts in `course`.
+    pub async fn live_sessions_of_course(&self, course: Uuid) -> usize {
+        self.live_sessions_where(|s| s.course_id == course).await
+    }
+
+    async fn live_sessions_where(&self, keep: impl Fn(&LiveSession) -> bool) -> usize {
         let list: Vec<Arc<LiveSession>> = self
             .inner
             .sessions
             .lock()
-            .map(|m| m.values().filter(|s| s.learner_id == user).cloned().collect())
+            .map(|m| m.values().filter(|s| keep(s)).cloned().collect())
             .unwrap_or_default();
         let mut n = 0;
         for s in list {
@@ -529,7 +725,10 @@ impl Dispatcher {
     }
 
     /// Restores a recorded session on a live registered worker by least load, else in-process.
-    pub(super) async fn restore_anywhere(&self, record: &SessionRecord) -> Result<Placement, String> {
+    pub(super) async fn restore_anywhere(
+        &self,
+        record: &SessionRecord,
+    ) -> Result<Placement, String> {
         let nowhere = Placement::Local {
             worker_session: String::new(),
         };
@@ -584,17 +783,22 @@ impl Dispatcher {
         }
     }
 
-    /// Ends a session on its worker and forgets it.
-    pub async fn close(&self, id: Uuid) {
-        let Some(s) = self
-            .inner
-            .sessions
-            .lock()
-            .ok()
-            .and_then(|mut m| m.remove(&id))
-        else {
-            return;
+    /// Ends a session on its worker and forgets it; false when it was not held (any more).
+    pub async fn close(&self, id: Uuid) -> bool {
+        let Some(s) = self.take(id) else {
+            return false;
         };
+        self.close_taken(&s).await;
+        true
+    }
+
+    /// Forgets a session (whoever takes it ends it).
+    fn take(&self, id: Uuid) -> Option<Arc<LiveSession>> {
+        self.inner.sessions.lock().ok()?.remove(&id)
+    }
+
+    /// Ends a session taken from the map on its worker.
+    async fn close_taken(&self, s: &LiveSession) {
         let placement = s.state.lock().await.placement.clone();
         match placement {
             Placement::Local { worker_session } => {

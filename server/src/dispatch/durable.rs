@@ -18,8 +18,16 @@
 //! while a write is in flight go together in the next one, so a fast stream of commands costs
 //! one commit per round trip, not one per command. The relay never blocks on the write except
 //! at submit, where the stored result must follow its logged command.
+//!
+//! # Writes that can never succeed
+//! A transient failure (the connection, a restarting database) is retried with back-off for as
+//! long as the connection is open. A permanent one (the database refuses the data itself; see
+//! [`store::is_transient`]) is not: retrying would hold every later acknowledgement back for
+//! ever. The writer stops and keeps the reason ([`LogWriter::failure`]); the relay then ends the
+//! session with a close code and an audit entry and frees its worker slot. Nothing of the
+//! refused write was acknowledged to the browser, and the session resumes from what is durable.
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use sqlx::PgPool;
@@ -44,6 +52,8 @@ pub struct LogWriter {
     kick: mpsc::Sender<()>,
     /// How many log entries of the session are known to be in the database.
     pub durable: watch::Receiver<usize>,
+    /// Why the writer stopped for good (a permanent write error), once it did.
+    failure: Arc<Mutex<Option<String>>>,
     task: tokio::task::JoinHandle<()>,
 }
 
@@ -52,12 +62,23 @@ impl LogWriter {
     pub fn start(pool: PgPool, session: Arc<LiveSession>, durable_now: usize) -> LogWriter {
         let (kick, mut kicks) = mpsc::channel::<()>(1);
         let (durable_tx, durable) = watch::channel(durable_now);
+        let failure = Arc::new(Mutex::new(None));
+        let failed = failure.clone();
         let task = tokio::spawn(async move {
+            let stop = |reason: String| {
+                if let Ok(mut f) = failed.lock() {
+                    *f = Some(reason);
+                }
+            };
             loop {
-                flush(&pool, &session, &durable_tx).await;
+                if let Err(reason) = flush(&pool, &session, &durable_tx).await {
+                    return stop(reason);
+                }
                 if durable_tx.is_closed() || kicks.recv().await.is_none() {
                     // The connection ended: one last flush of what it pushed last.
-                    flush(&pool, &session, &durable_tx).await;
+                    if let Err(reason) = flush(&pool, &session, &durable_tx).await {
+                        stop(reason);
+                    }
                     return;
                 }
             }
@@ -65,6 +86,7 @@ impl LogWriter {
         let w = LogWriter {
             kick,
             durable,
+            failure,
             task,
         };
         w.kick();
@@ -87,12 +109,18 @@ impl LogWriter {
         self.durable.wait_for(|d| *d >= len).await.is_ok()
     }
 
+    /// Why the writer stopped for good: a write the database can never accept.
+    pub fn failure(&self) -> Option<String> {
+        self.failure.lock().ok().and_then(|f| f.clone())
+    }
+
     /// Ends the writer after a last flush (a few attempts at most).
     pub async fn finish(self) {
         let LogWriter {
             kick,
             durable,
             task,
+            ..
         } = self;
         drop((kick, durable));
         let _ = task.await;
@@ -101,7 +129,12 @@ impl LogWriter {
 
 /// Writes the log beyond the session's durable length until nothing is left (retrying with
 /// back-off while the connection is open, at most [`FINAL_ATTEMPTS`] times once it ended).
-async fn flush(pool: &PgPool, session: &LiveSession, durable_tx: &watch::Sender<usize>) {
+/// Err with the reason when a write can never succeed.
+async fn flush(
+    pool: &PgPool,
+    session: &LiveSession,
+    durable_tx: &watch::Sender<usize>,
+) -> Result<(), String> {
     let mut wait = RETRY_FIRST;
     let mut failures = 0u32;
     loop {
@@ -111,7 +144,7 @@ async fn flush(pool: &PgPool, session: &LiveSession, durable_tx: &watch::Sender<
             (from, st.log[from..].to_vec())
         };
         if batch.is_empty() {
-            return;
+            return Ok(());
         }
         match store::append_commands(pool, session.id, &batch).await {
             Ok(()) => {
@@ -123,11 +156,15 @@ async fn flush(pool: &PgPool, session: &LiveSession, durable_tx: &watch::Sender<
                 wait = RETRY_FIRST;
                 failures = 0;
             }
+            Err(e) if e.permanent => {
+                tracing::error!(session = %session.id, entries = batch.len(), "the database refuses the session's commands; the session ends: {e}");
+                return Err(e.message);
+            }
             Err(e) => {
                 failures += 1;
                 tracing::error!(session = %session.id, entries = batch.len(), failures, "writing acknowledged commands failed: {e}");
                 if durable_tx.is_closed() && failures >= FINAL_ATTEMPTS {
-                    return;
+                    return Ok(());
                 }
                 tokio::time::sleep(wait).await;
                 wait = (wait * 2).min(RETRY_MAX);

@@ -17,6 +17,16 @@
 //! learning records, and the submit's result is stored as the
 //! attempt's technical result, then sent to the browser as `{"type":"technical_result", ...}`.
 //!
+//! # Limits and endings
+//! A user holds at most `PAINSIM_SESSIONS_PER_USER` live sessions and a course's attempts at
+//! most `PAINSIM_SESSIONS_PER_COURSE` (429 `session_limit`, `scope` naming which). The server
+//! ends a session itself, with a close code and reason on its sockets and an audit entry, when it
+//! got no command for `PAINSIM_SESSION_IDLE_SECS` (code [`CLOSE_IDLE`], 4001; audit
+//! `session_closed_idle`) or when the database refuses its log for good (code
+//! [`CLOSE_LOG_REFUSED`], 1011; audit `session_ended_log_refused`), or when the learner's
+//! account is revoked (code [`CLOSE_REVOKED`], 4003); in each case the slot is freed and opening
+//! the attempt again resumes from the stored log.
+//!
 //! # Failover
 //! Because the server holds the initial snapshot and every acknowledged command, it can rebuild
 //! a session anywhere: when a remote worker's socket fails, the session is restored on another
@@ -33,6 +43,7 @@
 //! its verdict to the records (`result_replay_checks`), so faculty see it in the queue, the
 //! review screen and the CSV export.
 
+mod browser;
 mod dispatcher;
 mod durable;
 mod registry;
@@ -45,6 +56,6 @@ mod upstream;
 mod verify;
 
 pub use dispatcher::*;
-pub use relay::MAX_CLIENT_MESSAGE_BYTES;
 pub use registry::{RemoteWorker, WorkerView};
+pub use relay::{MAX_CLIENT_MESSAGE_BYTES, MAX_IN_FLIGHT, MAX_UNREAD_ANSWERS};
 pub use routes::router;

@@ -1,6 +1,12 @@
 //! The relay between the browser's websocket and the worker's session: one handler per message
 //! kind, around one `select!` over the worker, the browser, the log writer and a timer.
 //!
+//! The relay never awaits a send to the browser or to the worker: each has a writer task
+//! ([`super::browser`], `Upstream`), and the relay applies backpressure by not *reading* the
+//! browser while too much waits ([`MAX_IN_FLIGHT`], [`MAX_UNREAD_ANSWERS`]). So no cycle of
+//! bounded channels can wedge a connection: the worker's answers are always read, and a client
+//! that sends without reading is held by TCP, not by the server.
+//!
 //! What it keeps: the server's copy of the session log (each acknowledged command, committed by
 //! [`LogWriter`] before the acknowledgement is passed on), engagement events for the learning
 //! records, the submit's result (stored through [`super::results`]), and failover to another
@@ -8,28 +14,27 @@
 
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use axum::extract::ws::{Message, WebSocket};
-use futures::stream::SplitSink;
 use futures::{SinkExt, StreamExt};
 use render_worker::session::protocol::{
     ClientMessage, ServerMessage, WsMessage, parse_client_message,
 };
 use render_worker::session::{Ack, Command, LogEntry, sha256_hex};
 use serde_json::json;
+use tokio::sync::mpsc;
 
+use super::browser::BrowserWriter;
 use super::durable::LogWriter;
 use super::upstream::{UpSink, connect};
-use super::{Dispatcher, LiveSession, Placement, results, store};
+use super::{CLOSE_LOG_REFUSED, Dispatcher, LiveSession, Placement, results, store};
 use crate::records::RecordsState;
 use crate::records::activity::{ActivityKind, record_activity};
 
 /// How many times in a row one connection tries to move its session before giving up.
 /// Simulator choice: two dead workers in a row is already exceptional.
 const MAX_FAILOVERS_IN_A_ROW: u32 = 3;
-
-type BrowserTx = SplitSink<WebSocket, Message>;
 
 /// Largest websocket message (and frame) a browser may send, bytes. Simulator choice: the
 /// largest command (a needle placement or an annotation with a 64-character label) is well under
@@ -77,19 +82,111 @@ enum Flow {
     End,
 }
 
+/// Most commands sent to the worker and not yet answered. Simulator choice: far above what a
+/// browser has in flight (one per input event), small enough that a flood costs little memory;
+/// at the limit the relay stops reading the browser until answers come back.
+pub const MAX_IN_FLIGHT: usize = 1024;
+
+/// Most answers (acknowledgements, errors, notices) waiting for the browser to read them
+/// before the relay stops reading the browser. Simulator choice: above the 10,000-command
+/// burst of issue 20 (a client may send that many without reading and still get every answer
+/// once it reads), a few megabytes of small JSON at most; a client that runs further ahead is
+/// held by TCP backpressure, never by a wedged relay.
+pub const MAX_UNREAD_ANSWERS: usize = 16_384;
+
+/// How long a relay whose browser left goes on taking the worker's answers to commands it had
+/// already sent (a submit among them is then logged and its result stored, and the slot of a
+/// submitted session freed). Simulator choice: the worker answers in milliseconds and the log
+/// write takes a round trip; ten seconds bounds a slow database.
+const DRAIN: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// A close reason fits in a control frame: at most 123 bytes (RFC 6455, 5.5).
+fn close_reason(text: &str) -> String {
+    let mut end = text.len().min(123);
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    text[..end].to_string()
+}
+
+/// Messages towards the worker: a task of its own, so the relay never waits on the worker
+/// while the worker may be waiting on the relay (see [`super::browser`]).
+struct Upstream {
+    queue: mpsc::UnboundedSender<WsMessage>,
+    unsent: Arc<AtomicUsize>,
+}
+
+impl Upstream {
+    fn start(mut sink: UpSink) -> Upstream {
+        let (queue, mut rx) = mpsc::unbounded_channel::<WsMessage>();
+        let unsent = Arc::new(AtomicUsize::new(0));
+        let left = unsent.clone();
+        tokio::spawn(async move {
+            while let Some(m) = rx.recv().await {
+                let r = sink.send(m).await;
+                left.fetch_sub(1, Ordering::SeqCst);
+                // A send failure shows up as the worker stream ending: failover re-sends.
+                if r.is_err() {
+                    return;
+                }
+            }
+        });
+        Upstream { queue, unsent }
+    }
+
+    /// Queues a message for the worker (never waits).
+    fn send(&self, m: WsMessage) {
+        self.unsent.fetch_add(1, Ordering::SeqCst);
+        if self.queue.send(m).is_err() {
+            self.unsent.fetch_sub(1, Ordering::SeqCst);
+        }
+    }
+
+    fn unsent(&self) -> usize {
+        self.unsent.load(Ordering::SeqCst)
+    }
+}
+
+/// Engagement events of one connection, recorded in order by one task (a burst of commands
+/// is a queue of inserts, not thousands of tasks competing for the pool with the log writer).
+struct Engagement {
+    queue: mpsc::UnboundedSender<(ActivityKind, serde_json::Value)>,
+}
+
+impl Engagement {
+    fn start(records: &RecordsState, session: &LiveSession) -> Engagement {
+        let (queue, mut rx) = mpsc::unbounded_channel::<(ActivityKind, serde_json::Value)>();
+        let pool = records.pool.clone();
+        let (attempt, learner) = (session.attempt_id, session.learner_id);
+        tokio::spawn(async move {
+            while let Some((kind, detail)) = rx.recv().await {
+                if let Err(e) = record_activity(&pool, attempt, learner, kind, detail).await {
+                    tracing::warn!("recording activity failed: {e}");
+                }
+            }
+        });
+        Engagement { queue }
+    }
+}
+
 /// One browser connection's relay state.
 struct Relay {
     dispatcher: Dispatcher,
     records: RecordsState,
     session: Arc<LiveSession>,
     generation: u64,
-    browser_tx: BrowserTx,
+    browser: BrowserWriter,
     /// Commands sent to the worker and not yet acknowledged or rejected: re-sent after failover.
     pending: BTreeMap<u64, (String, Command)>,
     first_hello: bool,
     failovers_in_a_row: u32,
     writer: LogWriter,
     outbox: Outbox,
+    engagement: Engagement,
+    /// The close code and reason the browser gets when the connection ends.
+    close_with: Option<(u16, String)>,
+    /// Set when the browser left with commands in flight: until when their answers are awaited.
+    draining: Option<tokio::time::Instant>,
 }
 
 /// Relays one browser connection until it closes (or a newer connection takes over).
@@ -104,22 +201,32 @@ pub async fn relay(
     session.connections.fetch_add(1, Ordering::SeqCst);
     let durable_now = session.state.lock().await.durable_len;
     let writer = LogWriter::start(records.pool.clone(), session.clone(), durable_now);
+    let browser = BrowserWriter::start(browser_tx);
+    let mut browser_progress = browser.sent.clone();
+    let mut ended = session.ended.subscribe();
     let mut r = Relay {
+        engagement: Engagement::start(&records, &session),
         dispatcher,
         records,
         session,
         generation,
-        browser_tx,
+        browser,
         pending: BTreeMap::new(),
         first_hello: true,
         failovers_in_a_row: 0,
         writer,
         outbox: Outbox::default(),
+        close_with: None,
+        draining: None,
     };
     let mut tick = tokio::time::interval(std::time::Duration::from_millis(500));
     'connection: loop {
+        if let Some(end) = r.session.end_reason() {
+            r.close_with = Some(end);
+            break 'connection;
+        }
         let placement = r.session.state.lock().await.placement.clone();
-        let (mut up_tx, mut up_rx) = match connect(&r.dispatcher, &placement).await {
+        let (up_tx, mut up_rx) = match connect(&r.dispatcher, &placement).await {
             Ok(u) => u,
             Err(e) => {
                 tracing::warn!(session = %r.session.id, worker = %placement.worker_label(), "cannot reach the session: {e}");
@@ -129,21 +236,33 @@ pub async fn relay(
                 }
             }
         };
+        let up = Upstream::start(up_tx);
         // Re-send what the previous worker never answered (empty on the first connection).
         for (text, _) in r.pending.values() {
-            if up_tx.send(WsMessage::Text(text.clone())).await.is_err() {
-                continue 'connection;
-            }
+            up.send(WsMessage::Text(text.clone()));
         }
         loop {
+            // Backpressure: read the browser only while the worker and the browser keep up.
+            let reading = r.draining.is_none()
+                && r.pending.len() < MAX_IN_FLIGHT
+                && up.unsent() < MAX_IN_FLIGHT
+                && r.outbox.held.len() + r.browser.unsent() < MAX_UNREAD_ANSWERS;
+            let drain_until = r.draining.unwrap_or_else(tokio::time::Instant::now);
             let flow = tokio::select! {
                 biased;
+                _ = ended.changed() => r.on_ended(),
                 m = up_rx.next() => r.on_worker_message(m, &placement).await,
-                m = browser_rx.next() => r.on_browser_message(m, &mut up_tx).await,
                 changed = r.writer.durable.changed() => r.log_became_durable(changed.is_ok()).await,
-                _ = tick.tick() => r.on_timer(&mut up_tx).await,
+                m = browser_rx.next(), if reading => r.on_browser_message(m, &up).await,
+                p = browser_progress.changed(), if !reading && r.draining.is_none() => match p {
+                    Ok(()) => Flow::Stay,
+                    Err(_) => r.browser_gone(&up),
+                },
+                () = tokio::time::sleep_until(drain_until), if r.draining.is_some() => Flow::End,
+                _ = tick.tick() => r.on_timer(&up),
             };
             match flow {
+                Flow::Stay if r.draining.is_some() && r.pending.is_empty() => break 'connection,
                 Flow::Stay => {}
                 Flow::Reconnect => continue 'connection,
                 Flow::End => break 'connection,
@@ -222,7 +341,7 @@ impl Relay {
         if command == Command::Submit {
             // The result is stored only after the log it scores.
             if !self.writer.wait_durable(needs).await {
-                return Flow::End;
+                return self.on_log_refused().await;
             }
             let m = results::store_result(
                 &self.records,
@@ -237,7 +356,7 @@ impl Relay {
         if let Some(m) = result_message {
             self.outbox.push(needs, m.to_string());
         }
-        self.release().await
+        self.release()
     }
 
     /// A rejection: the command is no longer pending; the browser gets the error.
@@ -248,22 +367,25 @@ impl Relay {
         self.pass_text(text).await
     }
 
-    /// A frame: its hash is kept (for the records), the frame goes straight to the browser.
+    /// A frame: its hash is kept (for the records), the frame goes to the browser (newest wins
+    /// when the browser is slow).
     async fn on_frame(&mut self, b: Vec<u8>) -> Flow {
         let jpeg = b
             .get(render_worker::session::frame::HEADER_BYTES..)
             .unwrap_or_default();
         self.session.state.lock().await.last_frame_sha256 = Some(sha256_hex(jpeg));
-        match self.browser_tx.send(Message::Binary(b.into())).await {
-            Ok(()) => Flow::Stay,
-            Err(_) => Flow::End,
-        }
+        self.browser.frame(b);
+        Flow::Stay
     }
 
-    /// The worker's socket ended: move the session unless a newer connection owns it.
+    /// The worker's socket ended: move the session unless a newer connection owns it or the
+    /// session was ended on purpose.
     async fn on_worker_gone(&mut self, placement: &Placement) -> Flow {
         if self.session.generation.load(Ordering::SeqCst) != self.generation {
             return Flow::End;
+        }
+        if self.session.end_reason().is_some() {
+            return self.on_ended();
         }
         match self.failover(placement).await {
             true => Flow::Reconnect,
@@ -271,77 +393,125 @@ impl Relay {
         }
     }
 
+    /// The session was ended by the server (idle, or its log refused): tell the browser why.
+    fn on_ended(&mut self) -> Flow {
+        match self.session.end_reason() {
+            Some(end) => {
+                self.close_with = Some(end);
+                Flow::End
+            }
+            None => Flow::Stay,
+        }
+    }
+
     /// One message (or the end) of the browser's socket.
     async fn on_browser_message(
         &mut self,
         m: Option<Result<Message, axum::Error>>,
-        up_tx: &mut UpSink,
+        up: &Upstream,
     ) -> Flow {
         match m {
             Some(Ok(Message::Text(t))) => {
                 let t = t.to_string();
-                // Parsed once here to remember the command; the worker parses the same text.
+                // Parsed once here to remember the command; the worker parses the same text
+                // (and answers a bad one, in order with the others).
                 if let Ok(ClientMessage::Command { seq, command }) = parse_client_message(&t) {
+                    self.session.touch_command();
                     self.pending.insert(seq, (t.clone(), command));
                 }
-                // A send failure shows up as the worker stream ending: failover re-sends.
-                let _ = up_tx.send(WsMessage::Text(t)).await;
+                up.send(WsMessage::Text(t));
                 Flow::Stay
             }
             Some(Ok(Message::Binary(b))) => {
-                let _ = up_tx.send(WsMessage::Binary(b.to_vec())).await;
+                up.send(WsMessage::Binary(b.to_vec()));
                 Flow::Stay
             }
             Some(Ok(Message::Ping(_) | Message::Pong(_))) => Flow::Stay,
             Some(Err(e)) => {
                 // Too large a frame or message (the limits of `routes::session_socket`), or a
-                // protocol violation: say which, with the RFC 6455 close code, then end.
+                // protocol violation: say which, with the RFC 6455 close code, then end. A
+                // socket that just went away (reset, no closing handshake) is a browser gone.
                 let text = e.to_string();
-                let (code, reason) = if text.contains("too long") || text.contains("too big") {
-                    (
-                        1009,
-                        format!("message too large: at most {MAX_CLIENT_MESSAGE_BYTES} bytes"),
-                    )
-                } else {
-                    (1002, "websocket protocol error".to_string())
-                };
                 tracing::info!(session = %self.session.id, "closing the browser socket: {text}");
-                let frame = axum::extract::ws::CloseFrame {
-                    code,
-                    reason: reason.into(),
-                };
-                let _ = self.browser_tx.send(Message::Close(Some(frame))).await;
-                let _ = up_tx.send(WsMessage::Close).await;
-                Flow::End
+                if text.contains("too long") || text.contains("too big") {
+                    let reason =
+                        format!("message too large: at most {MAX_CLIENT_MESSAGE_BYTES} bytes");
+                    self.close_with = Some((1009, reason));
+                    up.send(WsMessage::Close);
+                    return Flow::End;
+                }
+                let gone = text.contains("without closing handshake")
+                    || text.contains("IO error")
+                    || text.contains("Connection reset");
+                if !gone {
+                    self.close_with = Some((1002, "websocket protocol error".to_string()));
+                }
+                self.browser_gone(up)
             }
-            Some(Ok(Message::Close(_))) | None => {
-                let _ = up_tx.send(WsMessage::Close).await;
-                Flow::End
-            }
+            Some(Ok(Message::Close(_))) | None => self.browser_gone(up),
         }
     }
 
-    /// More of the log is durable: release the messages that waited for it.
-    async fn log_became_durable(&mut self, writer_alive: bool) -> Flow {
-        if !writer_alive {
-            tracing::error!(session = %self.session.id, "the session's log writer stopped");
+    /// The browser left: end now, or, with commands in flight (a submit, perhaps), once their
+    /// answers are in (at most [`DRAIN`]).
+    fn browser_gone(&mut self, up: &Upstream) -> Flow {
+        if self.pending.is_empty() {
+            up.send(WsMessage::Close);
             return Flow::End;
         }
-        self.release().await
+        if self.draining.is_none() {
+            self.draining = Some(tokio::time::Instant::now() + DRAIN);
+        }
+        Flow::Stay
+    }
+
+    /// More of the log is durable: release the messages that waited for it. When the writer
+    /// stopped, the log was refused for good: the session ends.
+    async fn log_became_durable(&mut self, writer_alive: bool) -> Flow {
+        if !writer_alive {
+            return self.on_log_refused().await;
+        }
+        self.release()
+    }
+
+    /// The database refuses the session's log (a write that can never succeed): end the
+    /// session with a close code and reason, an audit entry, and its worker slot freed. The
+    /// refused commands were never acknowledged to the browser; opening the attempt again
+    /// resumes from the stored log.
+    async fn on_log_refused(&mut self) -> Flow {
+        let reason = self
+            .writer
+            .failure()
+            .unwrap_or_else(|| "the session's log writer stopped".into());
+        tracing::error!(session = %self.session.id, "ending the session: its log cannot be stored: {reason}");
+        let message = "the session's log cannot be stored; the session is closed (open the attempt again to resume from its last stored command)";
+        let short = "the session's log cannot be stored; the session is closed (reopen the attempt to resume)";
+        self.session.end(CLOSE_LOG_REFUSED, &close_reason(short));
+        let durable = self.writer.durable_len();
+        let note = json!({ "type": "notice", "code": "log_refused", "message": message });
+        let _ = self.browser.text(note.to_string());
+        self.close_with = Some((CLOSE_LOG_REFUSED, close_reason(short)));
+        let detail = json!({ "attempt_id": self.session.attempt_id, "reason": reason, "durable_commands": durable });
+        self.dispatcher
+            .end_session(
+                &self.records,
+                self.session.id,
+                "session_ended_log_refused",
+                detail,
+            )
+            .await;
+        Flow::End
     }
 
     /// Every half second: end this connection when a newer one took the session over.
-    async fn on_timer(&mut self, up_tx: &mut UpSink) -> Flow {
+    fn on_timer(&mut self, up: &Upstream) -> Flow {
         if self.session.generation.load(Ordering::SeqCst) == self.generation {
             return Flow::Stay;
         }
         let note =
             json!({ "type": "notice", "message": "this session was opened in another window" });
-        let _ = self
-            .browser_tx
-            .send(Message::Text(note.to_string().into()))
-            .await;
-        let _ = up_tx.send(WsMessage::Close).await;
+        let _ = self.browser.text(note.to_string());
+        up.send(WsMessage::Close);
         Flow::End
     }
 
@@ -349,18 +519,23 @@ impl Relay {
     async fn pass_text(&mut self, text: String) -> Flow {
         let needs = self.session.state.lock().await.log.len();
         self.outbox.push(needs, text);
-        self.release().await
+        self.release()
     }
 
-    async fn release(&mut self) -> Flow {
-        match self
+    fn release(&mut self) -> Flow {
+        let delivered = self
             .outbox
-            .release(self.writer.durable_len(), &mut self.browser_tx)
-            .await
-        {
-            true => Flow::Stay,
-            false => Flow::End,
+            .release(self.writer.durable_len(), &self.browser);
+        if delivered {
+            return Flow::Stay;
         }
+        // The browser is gone: end, or first take the answers to what is in flight.
+        if self.pending.is_empty() {
+            return Flow::End;
+        }
+        self.draining
+            .get_or_insert_with(|| tokio::time::Instant::now() + DRAIN);
+        Flow::Stay
     }
 
     /// The engagement event of an acknowledged command, recorded in the background.
@@ -368,13 +543,9 @@ impl Relay {
         let Some(kind) = activity_of(command) else {
             return;
         };
-        let (pool, s) = (self.records.pool.clone(), self.session.clone());
-        let detail = json!({ "session_id": s.id, "seq": seq, "command": command.name() });
-        tokio::spawn(async move {
-            if let Err(e) = record_activity(&pool, s.attempt_id, s.learner_id, kind, detail).await {
-                tracing::warn!("recording activity failed: {e}");
-            }
-        });
+        let detail =
+            json!({ "session_id": self.session.id, "seq": seq, "command": command.name() });
+        let _ = self.engagement.queue.send((kind, detail));
     }
 
     async fn failover(&mut self, failed: &Placement) -> bool {
@@ -383,13 +554,13 @@ impl Relay {
             &self.session,
             failed,
             &mut self.failovers_in_a_row,
-            &mut self.browser_tx,
+            &self.browser,
         )
         .await
     }
 
-    /// After the connection: the last log flush, the frame hash, and a submitted session's
-    /// worker freed.
+    /// After the connection: the last log flush, the frame hash, a submitted session's worker
+    /// freed, and the browser's socket closed (with the code and reason, if any).
     async fn finish(mut self) {
         self.writer.finish().await;
         persist(&self.records, &self.session).await;
@@ -403,7 +574,8 @@ impl Relay {
         {
             self.dispatcher.close(self.session.id).await;
         }
-        let _ = self.browser_tx.send(to_axum(WsMessage::Close)).await;
+        let close = self.close_with.take();
+        self.browser.close(close).await;
     }
 }
 
@@ -420,8 +592,9 @@ impl Outbox {
         self.held.push_back((needs, text));
     }
 
-    /// Sends, in order, every message whose log prefix is durable. False when the browser is gone.
-    async fn release(&mut self, durable: usize, browser_tx: &mut BrowserTx) -> bool {
+    /// Hands the browser, in order, every message whose log prefix is durable. False when the
+    /// browser is gone.
+    fn release(&mut self, durable: usize, browser: &BrowserWriter) -> bool {
         while self
             .held
             .front()
@@ -430,7 +603,7 @@ impl Outbox {
             let Some((_, text)) = self.held.pop_front() else {
                 break;
             };
-            if browser_tx.send(Message::Text(text.into())).await.is_err() {
+            if !browser.text(text) {
                 return false;
             }
         }
@@ -444,14 +617,12 @@ async fn failover(
     session: &LiveSession,
     failed: &Placement,
     in_a_row: &mut u32,
-    browser_tx: &mut BrowserTx,
+    browser: &BrowserWriter,
 ) -> bool {
     *in_a_row += 1;
     if *in_a_row > MAX_FAILOVERS_IN_A_ROW {
         let note = json!({ "type": "notice", "message": "the session could not be moved to a working render worker" });
-        let _ = browser_tx
-            .send(Message::Text(note.to_string().into()))
-            .await;
+        let _ = browser.text(note.to_string());
         return false;
     }
     let record = session.state.lock().await.clone();
@@ -467,26 +638,14 @@ async fn failover(
             st.failovers += 1;
             drop(st);
             let note = json!({ "type": "notice", "message": "render worker lost; the session continues on another worker", "worker": placement.worker_label() });
-            let _ = browser_tx
-                .send(Message::Text(note.to_string().into()))
-                .await;
+            let _ = browser.text(note.to_string());
             true
         }
         Err(e) => {
             tracing::error!(session = %session.id, "failover failed: {e}");
             let note = json!({ "type": "notice", "message": format!("the session could not be moved: {e}") });
-            let _ = browser_tx
-                .send(Message::Text(note.to_string().into()))
-                .await;
+            let _ = browser.text(note.to_string());
             false
         }
-    }
-}
-
-fn to_axum(m: WsMessage) -> Message {
-    match m {
-        WsMessage::Text(t) => Message::Text(t.into()),
-        WsMessage::Binary(b) => Message::Binary(b.into()),
-        WsMessage::Close => Message::Close(None),
     }
 }

@@ -30,20 +30,26 @@ pub(super) fn start_listener(mut revocations: Receiver<Uuid>, dispatcher: &Dispa
             let Some(inner) = weak.upgrade() else { return };
             let d = Dispatcher { inner };
             let Some(user) = user else { continue };
-            let ids: Vec<Uuid> = d
+            let sessions: Vec<std::sync::Arc<super::LiveSession>> = d
                 .inner
                 .sessions
                 .lock()
                 .map(|m| {
                     m.values()
                         .filter(|s| s.learner_id == user)
-                        .map(|s| s.id)
+                        .cloned()
                         .collect()
                 })
                 .unwrap_or_default();
-            for id in ids {
-                tracing::info!(session = %id, user = %user, "closing the session of a revoked account");
-                d.close(id).await;
+            for s in sessions {
+                tracing::info!(session = %s.id, user = %user, "closing the session of a revoked account");
+                // Ended, not just closed: its relay closes the socket with the reason instead of
+                // restoring the session on another worker.
+                s.end(
+                    super::CLOSE_REVOKED,
+                    "the account was disabled or its password reset: log in again",
+                );
+                d.close(s.id).await;
             }
         }
     });

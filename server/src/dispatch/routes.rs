@@ -55,6 +55,7 @@ pub fn router<S: Clone + Send + Sync + 'static>(
     records: RecordsState,
     dispatcher: Dispatcher,
 ) -> Router<S> {
+    dispatcher.attach_records(&records);
     Router::new()
         .route("/api/attempts/{attempt_id}/session", post(start_session))
         .route("/api/attempts/{attempt_id}/replay", get(replay))
@@ -86,14 +87,15 @@ fn session_json(s: &LiveSession, st: &SessionRecord) -> serde_json::Value {
     })
 }
 
-/// The attempt as the caller may see it: (learner, station, state); 404 when not visible.
+/// The attempt as the caller may see it: (learner, station, state, course); 404 when not
+/// visible.
 async fn visible_attempt(
     state: &DispatchState,
     user: &CurrentUser,
     attempt_id: Uuid,
-) -> Result<(Uuid, String, String), ApiError> {
+) -> Result<(Uuid, String, String, Uuid), ApiError> {
     sqlx::query_as(&format!(
-        "SELECT a.learner_id, a.station_id, a.state FROM attempts a WHERE a.id = $3 AND {}",
+        "SELECT a.learner_id, a.station_id, a.state, a.course_id FROM attempts a WHERE a.id = $3 AND {}",
         attempt_visible(1, 2)
     ))
     .bind(user.id)
@@ -111,7 +113,8 @@ async fn start_session(
     Caller(user): Caller,
     ApiPath(attempt_id): ApiPath<Uuid>,
 ) -> Result<Response, ApiError> {
-    let (learner, station_id, attempt_state) = visible_attempt(&state, &user, attempt_id).await?;
+    let (learner, station_id, attempt_state, course_id) =
+        visible_attempt(&state, &user, attempt_id).await?;
     if learner != user.id {
         return Err(ApiError::Forbidden(
             "only the attempt's learner drives its session".into(),
@@ -129,16 +132,10 @@ async fn start_session(
     // A session of this attempt that the server no longer holds (it restarted, or the session
     // was closed): continue it from its recorded snapshot and log.
     let stored = store::resumable_session(&state.records.pool, attempt_id).await?;
-    // One user cannot take the render workers from everyone: a new or resumed session needs
-    // the user under the per-user limit (the running one above is always returned).
-    let limit = state.dispatcher.sessions_per_user();
-    if state.dispatcher.live_sessions_of(user.id).await >= limit {
-        let body = json!({ "error": {
-            "code": "session_limit",
-            "message": format!("at most {limit} live sessions per user (PAINSIM_SESSIONS_PER_USER): submit or leave one (an idle one closes after {} min) before opening another", super::IDLE_CLOSE.as_secs() / 60),
-            "limit": limit,
-        } });
-        return Ok((StatusCode::TOO_MANY_REQUESTS, axum::Json(body)).into_response());
+    // One user, or one course, cannot take the render workers from everyone: a new or resumed
+    // session needs both under their limits (the running one above is always returned).
+    if let Some(refused) = over_session_limit(&state.dispatcher, user.id, course_id).await {
+        return Ok(refused);
     }
     if let Err(e) = state.dispatcher.check_local_ready(&station_id) {
         return Ok(not_placed(attempt_id, e));
@@ -162,7 +159,7 @@ async fn start_session(
         })?;
         let worker = record.placement.worker_label();
         let session = Arc::new(LiveSession::new(
-            id, attempt_id, user.id, station_id, record,
+            id, attempt_id, course_id, user.id, station_id, record,
         ));
         state.dispatcher.insert(session.clone());
         record_activity(
@@ -181,7 +178,15 @@ async fn start_session(
         Err(e) => return Ok(not_placed(attempt_id, e)),
     };
     let id = Uuid::new_v4();
-    store::insert_session(&state.records.pool, id, attempt_id, user.id, &station_id, &initial).await?;
+    store::insert_session(
+        &state.records.pool,
+        id,
+        attempt_id,
+        user.id,
+        &station_id,
+        &initial,
+    )
+    .await?;
     let worker = placement.worker_label();
     let record = SessionRecord {
         placement,
@@ -193,7 +198,7 @@ async fn start_session(
         failovers: 0,
     };
     let session = Arc::new(LiveSession::new(
-        id, attempt_id, user.id, station_id, record,
+        id, attempt_id, course_id, user.id, station_id, record,
     ));
     state.dispatcher.insert(session.clone());
     record_activity(
@@ -206,6 +211,40 @@ async fn start_session(
     .await?;
     let st = session.state.lock().await;
     Ok((StatusCode::CREATED, axum::Json(session_json(&session, &st))).into_response())
+}
+
+/// 429 when `user` holds the per-user limit of live sessions, or `course` the per-course one;
+/// the body names which (`scope`: `user` or `course`), its setting and its value.
+async fn over_session_limit(d: &Dispatcher, user: Uuid, course: Uuid) -> Option<Response> {
+    let idle_s = d.session_idle().as_secs();
+    let (scope, limit, setting, whose) = if d.live_sessions_of(user).await >= d.sessions_per_user()
+    {
+        let limit = d.sessions_per_user();
+        (
+            "user",
+            limit,
+            "PAINSIM_SESSIONS_PER_USER",
+            format!("at most {limit} live sessions per user"),
+        )
+    } else if d.live_sessions_of_course(course).await >= d.sessions_per_course() {
+        let limit = d.sessions_per_course();
+        (
+            "course",
+            limit,
+            "PAINSIM_SESSIONS_PER_COURSE",
+            format!("at most {limit} live sessions per course"),
+        )
+    } else {
+        return None;
+    };
+    let body = json!({ "error": {
+        "code": "session_limit",
+        "message": format!("{whose} ({setting}): submit or leave one (a session closes after {idle_s} s without a command) before opening another"),
+        "scope": scope,
+        "limit": limit,
+        "setting": setting,
+    } });
+    Some((StatusCode::TOO_MANY_REQUESTS, axum::Json(body)).into_response())
 }
 
 /// The answer when no session could be placed: while the anatomy is being prepared, 503 with

@@ -111,9 +111,85 @@ pub async fn save_submitted(
     Ok(())
 }
 
+/// Why a write of logged commands failed, and whether trying again can help.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct WriteError {
+    /// True when the same write can never succeed (the data is refused, not the connection):
+    /// retrying would wedge the session, so it ends instead (see [`super::durable`]).
+    pub permanent: bool,
+    /// What went wrong, in words.
+    pub message: String,
+}
+
+impl std::fmt::Display for WriteError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl WriteError {
+    fn permanent(message: impl Into<String>) -> WriteError {
+        WriteError {
+            permanent: true,
+            message: message.into(),
+        }
+    }
+}
+
+/// Whether a database error may go away by itself. SQLSTATE classes (PostgreSQL manual,
+/// appendix A): 08 connection exception, 25 invalid transaction state (a read-only standby
+/// during failover), 40 transaction rollback (serialization, deadlock), 53 insufficient
+/// resources (disk full, too many connections), 55 object not in prerequisite state (lock not
+/// available), 57 operator intervention (shutdown, cancel), 58 system error (I/O). Every other
+/// class (22 data exception, 23 integrity constraint, 42 syntax or access, P0 raised by a
+/// trigger, ...) refuses the data itself. Errors outside the database (I/O, pool timeouts, TLS)
+/// are transient.
+pub fn is_transient(e: &sqlx::Error) -> bool {
+    match e {
+        sqlx::Error::Database(db) => {
+            let code = db.code().map(|c| c.into_owned()).unwrap_or_default();
+            matches!(
+                code.get(..2),
+                Some("08" | "25" | "40" | "53" | "55" | "57" | "58") | None
+            )
+        }
+        sqlx::Error::Encode(_)
+        | sqlx::Error::Decode(_)
+        | sqlx::Error::ColumnDecode { .. }
+        | sqlx::Error::TypeNotFound { .. }
+        | sqlx::Error::ColumnNotFound(_)
+        | sqlx::Error::ColumnIndexOutOfBounds { .. }
+        | sqlx::Error::RowNotFound => false,
+        _ => true,
+    }
+}
+
+/// Refuses a JSON value PostgreSQL's `jsonb` cannot store: a string (or key) holding U+0000.
+/// (Non-finite numbers cannot occur: `serde_json` has no JSON form for them.)
+pub fn jsonb_storable(v: &serde_json::Value) -> Result<(), String> {
+    match v {
+        serde_json::Value::String(s) if s.contains('\0') => {
+            Err("a string holds U+0000, which jsonb cannot store".into())
+        }
+        serde_json::Value::Array(a) => a.iter().try_for_each(jsonb_storable),
+        serde_json::Value::Object(o) => o.iter().try_for_each(|(k, v)| {
+            if k.contains('\0') {
+                return Err("a key holds U+0000, which jsonb cannot store".into());
+            }
+            jsonb_storable(v)
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// Writes `entries` (consecutive, in order) of session `id`. Idempotent: a row that is already
-/// there (written by another connection's writer) is kept as it is.
-pub async fn append_commands(pool: &PgPool, id: Uuid, entries: &[LogEntry]) -> Result<(), String> {
+/// there (written by another connection's writer) is kept as it is. Values the table cannot
+/// hold are refused here, before the database, as permanent errors.
+pub async fn append_commands(
+    pool: &PgPool,
+    id: Uuid,
+    entries: &[LogEntry],
+) -> Result<(), WriteError> {
     if entries.is_empty() {
         return Ok(());
     }
@@ -121,9 +197,19 @@ pub async fn append_commands(pool: &PgPool, id: Uuid, entries: &[LogEntry]) -> R
     let mut times = Vec::with_capacity(entries.len());
     let mut commands = Vec::with_capacity(entries.len());
     for e in entries {
-        seqs.push(i64::try_from(e.seq).map_err(|_| format!("seq {} out of range", e.seq))?);
-        times.push(i64::try_from(e.t_ms).map_err(|_| format!("t_ms {} out of range", e.t_ms))?);
-        commands.push(serde_json::to_value(&e.command).map_err(|e| e.to_string())?);
+        seqs.push(
+            i64::try_from(e.seq)
+                .map_err(|_| WriteError::permanent(format!("seq {} out of range", e.seq)))?,
+        );
+        times.push(
+            i64::try_from(e.t_ms)
+                .map_err(|_| WriteError::permanent(format!("t_ms {} out of range", e.t_ms)))?,
+        );
+        let command = serde_json::to_value(&e.command)
+            .map_err(|x| WriteError::permanent(format!("command {}: {x}", e.seq)))?;
+        jsonb_storable(&command)
+            .map_err(|x| WriteError::permanent(format!("command {}: {x}", e.seq)))?;
+        commands.push(command);
     }
     sqlx::query(
         "INSERT INTO live_session_commands (session_id, seq, t_ms, command)
@@ -136,7 +222,10 @@ pub async fn append_commands(pool: &PgPool, id: Uuid, entries: &[LogEntry]) -> R
     .bind(commands)
     .execute(pool)
     .await
-    .map_err(|e| e.to_string())?;
+    .map_err(|e| WriteError {
+        permanent: !is_transient(&e),
+        message: e.to_string(),
+    })?;
     Ok(())
 }
 
@@ -159,4 +248,30 @@ pub async fn load_commands(pool: &PgPool, id: Uuid) -> Result<Vec<LogEntry>, Str
             })
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn values_jsonb_cannot_hold_are_refused_anywhere_in_the_command() {
+        assert!(jsonb_storable(&serde_json::json!({ "a": [1.5, "x", { "b": null }] })).is_ok());
+        for bad in [
+            serde_json::json!("a\u{0}b"),
+            serde_json::json!({ "label": "L4\u{0}" }),
+            serde_json::json!([[{ "deep": ["\u{0}"] }]]),
+            serde_json::json!({ "k\u{0}": 1 }),
+        ] {
+            assert!(jsonb_storable(&bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn connection_trouble_is_transient_and_refused_data_is_not() {
+        assert!(is_transient(&sqlx::Error::PoolTimedOut));
+        assert!(is_transient(&sqlx::Error::Io(std::io::Error::other("reset"))));
+        assert!(!is_transient(&sqlx::Error::RowNotFound));
+        assert!(!is_transient(&sqlx::Error::Encode("bad".into())));
+    }
 }
