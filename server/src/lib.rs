@@ -37,9 +37,14 @@ pub fn app(state: AppState) -> Router {
     let web = ServeDir::new(&state.config.web_dir).fallback(ServeFile::new(state.config.web_dir.join("index.html")));
     let records_state = records::RecordsState::from_parts(state.pool.clone(), state.config.records.clone());
     let tls = routes::headers::Tls(state.config.records.cookie_secure);
+    let (records_router, mut doc) = records::router(records_state.clone());
+    doc.merge(dispatch::openapi());
+    doc.info.title = "pain-sim API".into();
+    let doc = std::sync::Arc::new(doc);
     Router::new()
         .route("/healthz", get(routes::health::healthz))
-        .merge(records::router(records_state.clone()).0)
+        .route("/api/openapi.json", get(move || async move { axum::Json(doc.as_ref().clone()) }))
+        .merge(records_router)
         .merge(dispatch::router(records_state, dispatcher_for(&state)))
         .route("/api/{*rest}", any(routes::headers::api_not_found))
         .route("/api", any(routes::headers::api_not_found))

@@ -275,6 +275,59 @@ fn rows() -> Vec<Row> {
             |_| ("/api/audit".into(), None),
             [401, 403, 403, 403, 403, 200],
         ),
+        // Sessions (dispatch). The fixture's dispatcher has no render worker, so the cell asks
+        // for a session of the submitted attempt: its learner passes authorization and gets 409
+        // (submitted attempts take no session), everyone else is refused before. The submitted
+        // attempt has no recorded session, so its replays are 404 even where they are allowed.
+        // Opening sessions for real is `dispatch.rs`.
+        r(
+            M::POST,
+            "/api/attempts/{attempt_id}/session",
+            |w| (format!("/api/attempts/{}/session", w.attempt_submitted), None),
+            [401, 409, 404, 403, 404, 403],
+        ),
+        r(
+            M::GET,
+            "/api/sessions/{session_id}",
+            |_| (format!("/api/sessions/{}", uuid::Uuid::nil()), None),
+            [401, 404, 404, 404, 404, 404],
+        ),
+        r(
+            M::GET,
+            "/api/sessions/{session_id}/ws",
+            |_| (format!("/api/sessions/{}/ws", uuid::Uuid::nil()), None),
+            [401, 404, 404, 404, 404, 404],
+        ),
+        r(
+            M::GET,
+            "/api/attempts/{attempt_id}/replay",
+            |w| (format!("/api/attempts/{}/replay", w.attempt_submitted), None),
+            [401, 404, 404, 404, 404, 404],
+        ),
+        r(
+            M::GET,
+            "/api/attempts/{attempt_id}/replay/frame",
+            |w| (format!("/api/attempts/{}/replay/frame?step=0", w.attempt_submitted), None),
+            [401, 404, 404, 404, 404, 404],
+        ),
+        // Workers register with the cluster token, which this server has none of.
+        r(
+            M::POST,
+            "/api/workers",
+            |_| {
+                (
+                    "/api/workers".into(),
+                    Some(json!({ "url": "http://127.0.0.1:9", "capacity": 1, "renderer": {}, "adapter": null })),
+                )
+            },
+            [403, 403, 403, 403, 403, 403],
+        ),
+        r(
+            M::GET,
+            "/api/workers",
+            |_| ("/api/workers".into(), None),
+            [401, 403, 403, 403, 403, 200],
+        ),
         // The API description is public.
         r(
             M::GET,

@@ -32,6 +32,20 @@ fn workers() -> Workers {
     .clone()
 }
 
+/// A dispatcher with no render worker at all (an empty replay host, no in-process host): the
+/// records tests exercise the dispatch routes' authorization without building any anatomy, so an
+/// authorized request to open a session gets 503 (no worker), deterministically.
+fn no_worker_dispatcher() -> server::dispatch::Dispatcher {
+    let host = render_worker::session::SessionHost::with_regions(
+        Vec::new(),
+        Vec::new(),
+        render_worker::session::Backends::cpu(0),
+        1,
+        render_worker::session::SessionConfig::default(),
+    );
+    server::dispatch::Dispatcher::new(None, host, None)
+}
+
 /// Configuration for tests: cheap argon2, generous auth limits unless a test sets its own.
 pub fn test_config(overrides: &[(&str, &str)]) -> Config {
     let mut map: HashMap<String, String> = [
@@ -75,7 +89,7 @@ impl TestApp {
             pool: db.pool.clone(),
             embedded_db: false,
             workers: workers(),
-            dispatcher: None,
+            dispatcher: Some(no_worker_dispatcher()),
             config,
         };
         TestApp {

@@ -58,4 +58,4 @@ mod verify;
 pub use dispatcher::*;
 pub use registry::{RemoteWorker, WorkerView};
 pub use relay::{MAX_CLIENT_MESSAGE_BYTES, MAX_IN_FLIGHT, MAX_UNREAD_ANSWERS};
-pub use routes::router;
+pub use routes::{DispatchApi, openapi, router};

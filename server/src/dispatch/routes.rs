@@ -5,7 +5,8 @@ use std::sync::atomic::Ordering;
 
 use axum::Router;
 use axum::extract::ws::WebSocketUpgrade;
-use axum::extract::{FromRequestParts, Query, State};
+use axum::extract::ws::rejection::WebSocketUpgradeRejection;
+use axum::extract::{FromRequestParts, State};
 use axum::http::header::{AUTHORIZATION, CONTENT_TYPE, HOST, ORIGIN, RETRY_AFTER};
 use axum::http::request::Parts;
 use axum::http::{HeaderMap, StatusCode};
@@ -13,7 +14,8 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use render_worker::cluster::Registration;
 use render_worker::session::{LogEntry, Session, SessionSnapshot};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
+use utoipa::{IntoParams, OpenApi, ToSchema};
 use serde_json::json;
 use sha2::{Digest, Sha256};
 use uuid::Uuid;
@@ -24,7 +26,7 @@ use crate::records::RecordsState;
 use crate::records::activity::{ActivityKind, record_activity};
 use crate::records::auth::{CurrentUser, Role};
 use crate::records::authz::attempt_visible;
-use crate::records::extract::ApiPath;
+use crate::records::extract::{ApiJson, ApiPath, ApiQuery};
 use crate::records::results::ReplayVerdict;
 
 /// State of the dispatch routes.
@@ -32,6 +34,130 @@ use crate::records::results::ReplayVerdict;
 pub struct DispatchState {
     records: RecordsState,
     dispatcher: Dispatcher,
+}
+
+impl axum::extract::FromRef<DispatchState> for RecordsState {
+    fn from_ref(s: &DispatchState) -> RecordsState {
+        s.records.clone()
+    }
+}
+
+/// A live simulation session, as its learner sees it.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct SessionView {
+    /// The server's id of the session.
+    pub session_id: Uuid,
+    /// Its attempt.
+    pub attempt_id: Uuid,
+    /// Its station.
+    pub station_id: String,
+    /// Path of its websocket (`GET`, upgrade), relative to the server.
+    #[schema(example = "/api/sessions/00000000-0000-0000-0000-000000000000/ws")]
+    pub ws: String,
+    /// Where it runs: `in-process` or the worker's URL.
+    pub worker: String,
+    /// Times it was moved to another worker after one failed.
+    #[schema(minimum = 0)]
+    pub failovers: u32,
+    /// Commands acknowledged so far.
+    #[schema(minimum = 0)]
+    pub log_len: u64,
+    /// Sequence number of the last acknowledged command (0 before the first).
+    #[schema(minimum = 0)]
+    pub last_seq: u64,
+    /// The learner submitted it (it takes no more commands).
+    pub submitted: bool,
+}
+
+/// What a recorded session stored, or what replaying its log produced.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ReplaySide {
+    /// The stored result (recorded side only; absent before a submit).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub result_id: Option<Uuid>,
+    /// Measurements by key (`null` when there are none).
+    #[schema(value_type = Option<Object>)]
+    pub measurements: serde_json::Value,
+    /// Rubric score.
+    pub score: Option<f64>,
+    /// Rubric outcome (`met`, `not_met`, `incomplete`).
+    pub outcome: Option<String>,
+    /// Hash of the session's final state.
+    pub final_state_sha256: Option<String>,
+    /// Hash of the last image shown (recorded) or rendered (replayed).
+    pub final_frame_sha256: Option<String>,
+}
+
+/// The recorded log of an attempt's session and a full replay checked against the record.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ReplayView {
+    /// The recorded session.
+    pub session_id: Uuid,
+    /// Its station.
+    pub station_id: String,
+    /// Every acknowledged command in order: `{seq, t_ms, command}`.
+    #[schema(value_type = Vec<Object>)]
+    pub timeline: Vec<LogEntry>,
+    /// What was stored.
+    pub recorded: ReplaySide,
+    /// What the replay produced.
+    pub replayed: ReplaySide,
+    /// Measurement keys whose replayed value differs from the stored one.
+    pub differing_measurements: Vec<String>,
+    /// The replay reproduced measurements, score, outcome, final state and final image exactly.
+    pub identical: bool,
+}
+
+/// A render worker's announcement (`render_worker::cluster::Registration`).
+#[derive(Debug, Deserialize, ToSchema)]
+#[allow(dead_code, reason = "documents the body that `Registration` parses")]
+pub struct WorkerRegistration {
+    /// Base URL the server reaches the worker at: `http://host:port`.
+    #[schema(example = "http://10.0.0.5:8081", pattern = "^http://[^/]+:[0-9]+/?$")]
+    pub url: String,
+    /// Most sessions at once.
+    #[schema(minimum = 1, maximum = 10000)]
+    pub capacity: u32,
+    /// Renderer profile (CPU reference or GPU).
+    #[schema(value_type = Object)]
+    pub renderer: serde_json::Value,
+    /// GPU adapter, when one was opened.
+    #[schema(value_type = Option<Object>)]
+    pub adapter: Option<serde_json::Value>,
+}
+
+/// The `step` of a replayed frame.
+#[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
+struct StepQuery {
+    /// Commands of the log applied before the image is taken (0 to the log's length).
+    #[param(minimum = 0)]
+    step: u64,
+}
+
+/// The OpenAPI description of the dispatch routes (merged into `/api/openapi.json`).
+#[derive(OpenApi)]
+#[openapi(
+    paths(start_session, session_info, session_ws, replay, replay_frame, register_worker, list_workers),
+    components(schemas(SessionView, ReplayView, ReplaySide, WorkerRegistration)),
+    tags((name = "sessions", description = "Live simulation sessions, their websocket, replay and render workers"))
+)]
+pub struct DispatchApi;
+
+/// The dispatch routes' OpenAPI description, with the workers' bearer scheme.
+pub fn openapi() -> utoipa::openapi::OpenApi {
+    use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
+    let mut doc = DispatchApi::openapi();
+    doc.components.get_or_insert_with(Default::default).add_security_scheme(
+        "bearer",
+        SecurityScheme::Http(
+            HttpBuilder::new()
+                .scheme(HttpAuthScheme::Bearer)
+                .description(Some("The cluster token (PAINSIM_WORKER_TOKEN)"))
+                .build(),
+        ),
+    );
+    doc
 }
 
 /// The authenticated caller (the learning records' session cookie and CSRF rules).
@@ -73,18 +199,18 @@ pub fn router<S: Clone + Send + Sync + 'static>(
         })
 }
 
-fn session_json(s: &LiveSession, st: &SessionRecord) -> serde_json::Value {
-    json!({
-        "session_id": s.id,
-        "attempt_id": s.attempt_id,
-        "station_id": s.station_id,
-        "ws": format!("/api/sessions/{}/ws", s.id),
-        "worker": st.placement.worker_label(),
-        "failovers": st.failovers,
-        "log_len": st.log.len(),
-        "last_seq": st.log.last().map_or(0, |e| e.seq),
-        "submitted": st.result_id.is_some(),
-    })
+fn session_json(s: &LiveSession, st: &SessionRecord) -> SessionView {
+    SessionView {
+        session_id: s.id,
+        attempt_id: s.attempt_id,
+        station_id: s.station_id.clone(),
+        ws: format!("/api/sessions/{}/ws", s.id),
+        worker: st.placement.worker_label(),
+        failovers: st.failovers,
+        log_len: st.log.len() as u64,
+        last_seq: st.log.last().map_or(0, |e| e.seq),
+        submitted: st.result_id.is_some(),
+    }
 }
 
 /// The attempt as the caller may see it: (learner, station, state, course); 404 when not
@@ -108,6 +234,18 @@ async fn visible_attempt(
 
 /// `POST /api/attempts/{attempt_id}/session`: the learner's live session for an attempt (the
 /// running one, or a new one on the least loaded worker). Records `session_launched`.
+#[utoipa::path(post, path = "/api/attempts/{attempt_id}/session", tag = "sessions",
+    params(("attempt_id" = Uuid, Path, description = "Attempt id")),
+    responses(
+        (status = 200, description = "The attempt's running (or resumed) session", body = SessionView),
+        (status = 201, description = "A new session", body = SessionView),
+        (status = 400, description = "Malformed attempt id"),
+        (status = 401), (status = 403, description = "Not the attempt's learner, or CSRF token missing"),
+        (status = 404, description = "No such attempt visible to the caller"),
+        (status = 409, description = "The attempt is submitted or approved"),
+        (status = 429, description = "The per-user or per-course limit of live sessions is reached; the body names which (`scope`, `setting`, `limit`)"),
+        (status = 503, description = "No render worker can take it, or the anatomy is being prepared (`Retry-After`)"),
+    ))]
 async fn start_session(
     State(state): State<DispatchState>,
     Caller(user): Caller,
@@ -305,11 +443,15 @@ async fn owned_session(
 }
 
 /// `GET /api/sessions/{session_id}`: where it runs and how far it is (its learner only).
+#[utoipa::path(get, path = "/api/sessions/{session_id}", tag = "sessions",
+    params(("session_id" = Uuid, Path, description = "Session id")),
+    responses((status = 200, body = SessionView), (status = 400, description = "Malformed session id"), (status = 401),
+        (status = 404, description = "No live session of the caller's with this id")))]
 async fn session_info(
     State(state): State<DispatchState>,
     Caller(user): Caller,
     ApiPath(session_id): ApiPath<Uuid>,
-) -> Result<axum::Json<serde_json::Value>, ApiError> {
+) -> Result<axum::Json<SessionView>, ApiError> {
     let s = owned_session(&state, &user, session_id).await?;
     let st = s.state.lock().await;
     Ok(axum::Json(session_json(&s, &st)))
@@ -331,17 +473,28 @@ fn same_origin(headers: &HeaderMap) -> bool {
 }
 
 /// `GET /api/sessions/{session_id}/ws`: the session protocol, relayed (its learner only).
+#[utoipa::path(get, path = "/api/sessions/{session_id}/ws", tag = "sessions",
+    params(("session_id" = Uuid, Path, description = "Session id")),
+    responses(
+        (status = 101, description = "Switching to the session protocol (render_worker::session::protocol): JSON text messages, JPEG frames as binary; messages over 64 KiB close the socket with 1009"),
+        (status = 400, description = "Malformed session id, or not a websocket handshake (or a connection that cannot be upgraded)"),
+        (status = 401), (status = 403, description = "A handshake from another origin"),
+        (status = 404, description = "No live session of the caller's with this id"),
+    ))]
 async fn session_ws(
     State(state): State<DispatchState>,
     Caller(user): Caller,
     ApiPath(session_id): ApiPath<Uuid>,
     headers: HeaderMap,
-    upgrade: WebSocketUpgrade,
+    upgrade: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
 ) -> Result<Response, ApiError> {
     if !same_origin(&headers) {
         return Err(ApiError::Forbidden("websocket from another origin".into()));
     }
     let s = owned_session(&state, &user, session_id).await?;
+    let upgrade = upgrade.map_err(|r| {
+        ApiError::BadRequest(format!("not a websocket handshake: {}", r.body_text()))
+    })?;
     let generation = s.generation.fetch_add(1, Ordering::SeqCst) + 1;
     let (dispatcher, records) = (state.dispatcher.clone(), state.records.clone());
     Ok(upgrade
@@ -351,10 +504,15 @@ async fn session_ws(
 }
 
 /// `POST /api/workers`: a render worker announces itself (bearer: the cluster token).
+#[utoipa::path(post, path = "/api/workers", tag = "sessions", request_body = WorkerRegistration,
+    security(("bearer" = [])),
+    responses((status = 204, description = "Registered"), (status = 400, description = "Malformed registration"),
+        (status = 401, description = "Missing or wrong cluster token"),
+        (status = 403, description = "This server takes no remote render workers")))]
 async fn register_worker(
     State(state): State<DispatchState>,
     headers: HeaderMap,
-    body: axum::Json<Registration>,
+    ApiJson(reg): ApiJson<Registration>,
 ) -> Result<StatusCode, ApiError> {
     let Some(token) = &state.dispatcher.inner.worker_token else {
         return Err(ApiError::Forbidden(
@@ -370,7 +528,6 @@ async fn register_worker(
     if Sha256::digest(sent.as_bytes()) != Sha256::digest(token.as_bytes()) {
         return Err(ApiError::Unauthorized);
     }
-    let reg = body.0;
     if render_worker::cluster::split_url(&reg.url).is_err()
         || reg.capacity == 0
         || reg.capacity > 10_000
@@ -384,6 +541,8 @@ async fn register_worker(
 }
 
 /// `GET /api/workers`: registered workers (admins).
+#[utoipa::path(get, path = "/api/workers", tag = "sessions",
+    responses((status = 200, description = "The in-process host and the registered workers", body = Object), (status = 401), (status = 403, description = "Not an admin")))]
 async fn list_workers(
     State(state): State<DispatchState>,
     Caller(user): Caller,
@@ -434,11 +593,16 @@ async fn parse_recorded(
 /// `GET /api/attempts/{attempt_id}/replay`: the recorded log (the timeline) of the attempt's
 /// session, and a full replay checked against what was recorded: score, final state and final
 /// frame. Faculty of the course, admins and the learner.
+#[utoipa::path(get, path = "/api/attempts/{attempt_id}/replay", tag = "sessions",
+    params(("attempt_id" = Uuid, Path, description = "Attempt id")),
+    responses((status = 200, body = ReplayView), (status = 400, description = "Malformed attempt id"), (status = 401),
+        (status = 404, description = "No such attempt visible to the caller, or no recorded session"),
+        (status = 503, description = "The anatomy is being prepared")))]
 async fn replay(
     State(state): State<DispatchState>,
     Caller(user): Caller,
     ApiPath(attempt_id): ApiPath<Uuid>,
-) -> Result<axum::Json<serde_json::Value>, ApiError> {
+) -> Result<axum::Json<ReplayView>, ApiError> {
     let (session_id, station_id, initial, result_id, final_state, final_frame, score, outcome) =
         recorded_session(&state, &user, attempt_id).await?;
     let (initial, log) = parse_recorded(&state, session_id, initial).await?;
@@ -460,39 +624,61 @@ async fn replay(
         final_frame_sha256: final_frame.clone(),
     };
     let (verdict, detail) = verify::compare(&recorded, &s, jpeg.as_deref());
-    Ok(axum::Json(json!({
-        "session_id": session_id,
-        "station_id": station_id,
-        "timeline": log,
-        "recorded": { "result_id": result_id, "measurements": recorded.measurements, "score": score, "outcome": outcome, "final_state_sha256": final_state, "final_frame_sha256": final_frame },
-        "replayed": { "measurements": detail["measurements"]["replayed"], "score": detail["score"]["replayed"], "outcome": detail["outcome"]["replayed"], "final_state_sha256": detail["final_state_sha256"]["replayed"], "final_frame_sha256": detail["final_frame_sha256"]["replayed"] },
-        "differing_measurements": detail["measurements"]["differing_keys"],
-        "identical": result_id.is_some() && verdict == ReplayVerdict::Identical,
-    })))
-}
-
-#[derive(Deserialize)]
-struct StepQuery {
-    step: usize,
+    let text = |v: &serde_json::Value| v.as_str().map(str::to_owned);
+    let replayed = ReplaySide {
+        result_id: None,
+        measurements: detail["measurements"]["replayed"].clone(),
+        score: detail["score"]["replayed"].as_f64(),
+        outcome: text(&detail["outcome"]["replayed"]),
+        final_state_sha256: text(&detail["final_state_sha256"]["replayed"]),
+        final_frame_sha256: text(&detail["final_frame_sha256"]["replayed"]),
+    };
+    let differing_measurements = detail["measurements"]["differing_keys"]
+        .as_array()
+        .map(|a| a.iter().filter_map(|k| k.as_str().map(str::to_owned)).collect())
+        .unwrap_or_default();
+    Ok(axum::Json(ReplayView {
+        session_id,
+        station_id,
+        timeline: log,
+        recorded: ReplaySide {
+            result_id,
+            measurements: recorded.measurements,
+            score,
+            outcome,
+            final_state_sha256: final_state,
+            final_frame_sha256: final_frame,
+        },
+        replayed,
+        differing_measurements,
+        identical: result_id.is_some() && verdict == ReplayVerdict::Identical,
+    }))
 }
 
 /// `GET /api/attempts/{attempt_id}/replay/frame?step=k`: the JPEG on screen after the first `k`
 /// recorded commands (204 before the first image).
+#[utoipa::path(get, path = "/api/attempts/{attempt_id}/replay/frame", tag = "sessions",
+    params(("attempt_id" = Uuid, Path, description = "Attempt id"), StepQuery),
+    responses((status = 200, description = "The image on screen after `step` commands", content_type = "image/jpeg"),
+        (status = 204, description = "No image yet at that step"),
+        (status = 400, description = "Malformed id, or step beyond the log"), (status = 401),
+        (status = 404, description = "No such attempt visible to the caller, or no recorded session"),
+        (status = 503, description = "The anatomy is being prepared")))]
 async fn replay_frame(
     State(state): State<DispatchState>,
     Caller(user): Caller,
     ApiPath(attempt_id): ApiPath<Uuid>,
-    Query(q): Query<StepQuery>,
+    ApiQuery(q): ApiQuery<StepQuery>,
 ) -> Result<Response, ApiError> {
     let (session_id, station_id, initial, ..) = recorded_session(&state, &user, attempt_id).await?;
     let (initial, mut log) = parse_recorded(&state, session_id, initial).await?;
-    if q.step > log.len() {
+    if q.step > log.len() as u64 {
         return Err(ApiError::BadRequest(format!(
             "step must be 0 to {}",
             log.len()
         )));
     }
-    log.truncate(q.step);
+    log.truncate(q.step as usize);
     let (_, jpeg) = replay_to(&state, station_id, initial, log).await?;
     Ok(match jpeg {
         Some(j) => ([(CONTENT_TYPE, "image/jpeg")], j).into_response(),

@@ -18,13 +18,16 @@ use crate::error::ApiError;
 #[derive(Debug, Clone, Copy, Default)]
 pub struct ApiJson<T>(pub T);
 
-impl<T: serde::de::DeserializeOwned> FromRequest<RecordsState> for ApiJson<T> {
+impl<T, S> FromRequest<S> for ApiJson<T>
+where
+    T: serde::de::DeserializeOwned,
+    S: Send + Sync,
+    RecordsState: axum::extract::FromRef<S>,
+{
     type Rejection = ApiError;
 
-    async fn from_request(
-        req: axum::extract::Request,
-        state: &RecordsState,
-    ) -> Result<Self, ApiError> {
+    async fn from_request(req: axum::extract::Request, state: &S) -> Result<Self, ApiError> {
+        let state = &<RecordsState as axum::extract::FromRef<S>>::from_ref(state);
         // PostgreSQL stores no NUL in text or jsonb: a body with one is refused here, naming
         // the field, instead of failing at the database (a 500 before). JSON can only carry a
         // NUL as the escape `\u0000`, so bodies without that sequence skip the search.

@@ -1,10 +1,7 @@
 //! The learning-records router and its OpenAPI document: the one module that imports every
 //! handler (nothing imports it but the server's `app`, through the re-export `records::router`).
 
-use std::sync::Arc;
-
 use axum::Router;
-use axum::routing::get;
 use utoipa::OpenApi;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -31,7 +28,8 @@ use super::{accounts, activity, attempts, catalogue, detail, history, login, rev
 )]
 struct ApiDoc;
 
-/// The learning-records API router (with its state applied) and its OpenAPI document.
+/// The learning-records API router (with its state applied) and its OpenAPI document (served,
+/// merged with the other parts of the API, by the server's `app` at `/api/openapi.json`).
 pub fn router<S: Clone + Send + Sync + 'static>(
     state: RecordsState,
 ) -> (Router<S>, utoipa::openapi::OpenApi) {
@@ -62,13 +60,5 @@ pub fn router<S: Clone + Send + Sync + 'static>(
         .routes(routes!(history::audit_trail))
         .with_state(state)
         .split_for_parts();
-    let served = Arc::new(doc.clone());
-    let router = router.route(
-        "/api/openapi.json",
-        get(move || {
-            let doc = served.clone();
-            async move { axum::Json(doc.as_ref().clone()) }
-        }),
-    );
     (router, doc)
 }
