@@ -905,4 +905,6 @@ async fn one_user_holds_at_most_the_per_user_limit_of_sessions() {
         "{health}"
     );
     assert_eq!(sessions["per_user_limit"], 2);
+    assert_eq!(sessions["per_course_limit"], 6, "{health}");
+    assert_eq!(sessions["idle_close_s"], 600, "{health}");
 }

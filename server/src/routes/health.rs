@@ -50,6 +50,10 @@ pub struct SessionCapacity {
     pub free: usize,
     /// Most live sessions one user may hold.
     pub per_user_limit: usize,
+    /// Most live sessions one course may hold.
+    pub per_course_limit: usize,
+    /// A session without a command for this long is closed, open socket or not.
+    pub idle_close_s: u64,
 }
 
 /// Anatomy part of the health report. Not part of `status`: the server serves while the anatomy
@@ -89,6 +93,8 @@ pub async fn healthz(State(state): State<AppState>) -> (StatusCode, Json<Health>
             capacity,
             free: capacity.saturating_sub(live),
             per_user_limit: d.sessions_per_user(),
+            per_course_limit: d.sessions_per_course(),
+            idle_close_s: d.session_idle().as_secs(),
         })
     });
     let ok = database.ready && render_worker.ready;
