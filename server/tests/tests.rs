@@ -5,6 +5,7 @@ mod dispatch;
 mod e2e_browser;
 mod embedded;
 mod health;
+mod openapi_fuzz;
 mod process;
 mod records_accounts;
 mod records_approval;

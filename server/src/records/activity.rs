@@ -41,6 +41,18 @@ pub enum ActivityKind {
 }
 
 impl ActivityKind {
+    /// Every kind.
+    pub const ALL: [ActivityKind; 8] = [
+        ActivityKind::SessionLaunched,
+        ActivityKind::StationOpened,
+        ActivityKind::PageViewed,
+        ActivityKind::ViewChanged,
+        ActivityKind::ImageAcquired,
+        ActivityKind::NeedleAdjusted,
+        ActivityKind::Injection,
+        ActivityKind::Submission,
+    ];
+
     /// Stored name.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -70,6 +82,7 @@ pub const MAX_ACTIVITY_DETAIL_BYTES: usize = 4096;
 #[serde(deny_unknown_fields)]
 pub struct NewActivity {
     /// What happened (`station_opened` and `submission` are recorded by the server only).
+    #[schema(schema_with = super::schema::client_activity_kinds)]
     pub kind: ActivityKind,
     /// When the client saw it happen (kept for analysis; ordering uses the server's clock).
     #[serde(default, with = "time::serde::rfc3339::option")]
@@ -77,7 +90,7 @@ pub struct NewActivity {
     pub client_time: Option<OffsetDateTime>,
     /// Details (view angles, exposure, volume), a JSON object of at most 4 KiB.
     #[serde(default)]
-    #[schema(value_type = Object)]
+    #[schema(schema_with = super::schema::activity_detail)]
     pub detail: Option<serde_json::Value>,
 }
 

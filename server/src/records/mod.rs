@@ -52,6 +52,7 @@ pub mod ratelimit;
 pub mod results;
 pub mod reviews;
 pub mod routes;
+pub mod schema;
 pub mod startup;
 pub mod state;
 pub mod stations;

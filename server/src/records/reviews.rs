@@ -34,8 +34,8 @@ pub enum Decision {
     Return,
 }
 
-/// A review to record.
-#[derive(Debug, Deserialize, ToSchema)]
+/// A review to record (its schema is in [`super::schema`]: a returned attempt needs a comment).
+#[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ReviewRequest {
     /// Approve or return.
@@ -253,9 +253,11 @@ pub async fn review_attempt(
 #[serde(deny_unknown_fields)]
 pub struct BulkApproveRequest {
     /// Attempts to approve (1 to 200, no repeats).
+    #[schema(schema_with = super::schema::bulk_attempt_ids)]
     pub attempt_ids: Vec<Uuid>,
-    /// Comment recorded with each approval.
+    /// Comment recorded with each approval (at most 4000 characters after trimming).
     #[serde(default)]
+    #[schema(max_length = 4000, pattern = "^[^\\u0000]*$")]
     pub comment: String,
 }
 
@@ -303,10 +305,12 @@ pub async fn bulk_approve(
 #[into_params(parameter_in = Query)]
 pub struct QueueFilter {
     /// Only this station.
+    #[param(pattern = "^[^\\u0000]*$")]
     pub station_id: Option<String>,
     /// Only this course.
     pub course_id: Option<Uuid>,
     /// `submitted` (default), `returned`, `approved`, `in_progress` or `any`.
+    #[param(schema_with = super::schema::queue_state)]
     pub state: Option<String>,
 }
 
@@ -317,7 +321,7 @@ async fn queue_rows(
 ) -> Result<Vec<AttemptSummary>, ApiError> {
     user.require(&[Role::Faculty, Role::Admin])?;
     let wanted = f.state.as_deref().unwrap_or("submitted");
-    if !["submitted", "returned", "approved", "in_progress", "any"].contains(&wanted) {
+    if !super::schema::QUEUE_STATES.contains(&wanted) {
         return Err(ApiError::BadRequest(format!(
             "state {wanted:?} is not one of submitted, returned, approved, in_progress, any"
         )));
