@@ -67,7 +67,11 @@ fn schemathesis() -> PathBuf {
 }
 
 /// Logs in over HTTP; returns the cookie and the CSRF token.
-async fn login(addr: std::net::SocketAddr, email: &str, totp_code: Option<String>) -> (String, String) {
+async fn login(
+    addr: std::net::SocketAddr,
+    email: &str,
+    totp_code: Option<String>,
+) -> (String, String) {
     let r = request_with_headers(
         "POST",
         &format!("http://{addr}/api/auth/login"),
@@ -76,7 +80,12 @@ async fn login(addr: std::net::SocketAddr, email: &str, totp_code: Option<String
     )
     .await
     .expect("login request");
-    assert_eq!(r.status, 200, "login {email}: {}", String::from_utf8_lossy(&r.body));
+    assert_eq!(
+        r.status,
+        200,
+        "login {email}: {}",
+        String::from_utf8_lossy(&r.body)
+    );
     let cookie = r
         .headers
         .iter()
@@ -85,7 +94,10 @@ async fn login(addr: std::net::SocketAddr, email: &str, totp_code: Option<String
         .find(|c| c.starts_with("painsim_session="))
         .expect("session cookie")
         .to_string();
-    let csrf = r.json().unwrap()["csrf_token"].as_str().unwrap().to_string();
+    let csrf = r.json().unwrap()["csrf_token"]
+        .as_str()
+        .unwrap()
+        .to_string();
     (cookie, csrf)
 }
 
@@ -118,7 +130,9 @@ fn counts(output: &str) -> RunCounts {
         .iter()
         .rev()
         .find(|l| l.starts_with("==="))
-        .map_or("(not reported)", |l| l.trim_matches(|c| c == '=' || c == ' '))
+        .map_or("(not reported)", |l| {
+            l.trim_matches(|c| c == '=' || c == ' ')
+        })
         .to_string();
     RunCounts {
         operations,
@@ -160,10 +174,18 @@ async fn every_documented_operation_holds_under_schemathesis() {
     // The identities' accounts (and a few bystanders for the admin's account operations).
     let pool = &db.pool;
     let account = |email: &'static str, role: Role| async move {
-        users::create_user(pool, Argon2Cost::TEST_ONLY, email, email, role, PASSWORD, false)
-            .await
-            .expect("create user")
-            .id
+        users::create_user(
+            pool,
+            Argon2Cost::TEST_ONLY,
+            email,
+            email,
+            role,
+            PASSWORD,
+            false,
+        )
+        .await
+        .expect("create user")
+        .id
     };
     let learner = account("fuzz-learner@example.org", Role::Learner).await;
     let faculty = account("fuzz-faculty@example.org", Role::Faculty).await;
@@ -238,7 +260,13 @@ async fn every_documented_operation_holds_under_schemathesis() {
             .args(["--checks", CHECKS])
             .args(["--max-examples", &MAX_EXAMPLES.to_string()])
             .args(["--seed", &SEED.to_string()])
-            .args(["--workers", "1", "--no-color", "--suppress-health-check", "all"])
+            .args([
+                "--workers",
+                "1",
+                "--no-color",
+                "--suppress-health-check",
+                "all",
+            ])
             .args(["--output-sanitize", "false"])
             .env("SCHEMATHESIS_HOOKS", "")
             .current_dir(std::env::temp_dir());
@@ -276,5 +304,8 @@ async fn every_documented_operation_holds_under_schemathesis() {
         }
     }
     println!("openapi fuzz: four runs in {:.0?}", started.elapsed());
-    assert!(failed.is_empty(), "schemathesis found failures as {failed:?} (output above)");
+    assert!(
+        failed.is_empty(),
+        "schemathesis found failures as {failed:?} (output above)"
+    );
 }

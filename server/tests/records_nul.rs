@@ -67,18 +67,29 @@ async fn nul_in_a_query_parameter_is_a_400_naming_it() {
     let s = app.login("nul-admin@example.org", Some(code)).await;
     for (uri, field) in [
         ("/api/reviews?station_id=a%00b", "station_id"),
-        ("/api/reviews/export.csv?state=any&station_id=%00", "station_id"),
+        (
+            "/api/reviews/export.csv?state=any&station_id=%00",
+            "station_id",
+        ),
         ("/api/audit?object_type=attempt&object_id=x%00", "object_id"),
         ("/api/audit?object_type=%00", "object_type"),
     ] {
         let r = app.send(Method::GET, uri, Some(&s), None).await;
         assert_eq!(r.status, StatusCode::BAD_REQUEST, "{uri}: {}", r.text);
         let message = r.json["error"]["message"].as_str().unwrap_or_default();
-        assert!(message.starts_with(&format!("{field}: ")), "{uri}: {message}");
+        assert!(
+            message.starts_with(&format!("{field}: ")),
+            "{uri}: {message}"
+        );
         assert!(message.contains("NUL"), "{message}");
     }
     let r = app
-        .send(Method::GET, "/api/audit?object_type=attempt", Some(&s), None)
+        .send(
+            Method::GET,
+            "/api/audit?object_type=attempt",
+            Some(&s),
+            None,
+        )
         .await;
     assert_eq!(r.status, StatusCode::OK, "{}", r.text);
 }

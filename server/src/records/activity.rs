@@ -14,6 +14,7 @@ use uuid::Uuid;
 use super::auth::CurrentUser;
 use super::authz::attempt_visible;
 use super::extract::{ApiJson, ApiPath};
+use super::schema;
 use super::state::RecordsState;
 use super::summary::visible_attempt;
 use crate::error::ApiError;
@@ -82,7 +83,7 @@ pub const MAX_ACTIVITY_DETAIL_BYTES: usize = 4096;
 #[serde(deny_unknown_fields)]
 pub struct NewActivity {
     /// What happened (`station_opened` and `submission` are recorded by the server only).
-    #[schema(schema_with = super::schema::client_activity_kinds)]
+    #[schema(schema_with = client_activity_kinds)]
     pub kind: ActivityKind,
     /// When the client saw it happen (kept for analysis; ordering uses the server's clock).
     #[serde(default, with = "time::serde::rfc3339::option")]
@@ -90,8 +91,35 @@ pub struct NewActivity {
     pub client_time: Option<OffsetDateTime>,
     /// Details (view angles, exposure, volume), a JSON object of at most 4 KiB.
     #[serde(default)]
-    #[schema(schema_with = super::schema::activity_detail)]
+    #[schema(schema_with = activity_detail)]
     pub detail: Option<serde_json::Value>,
+}
+
+/// The activity kinds a client may report (the others are recorded by the server).
+fn client_activity_kinds() -> utoipa::openapi::schema::Schema {
+    schema::one_of_strings(
+        ActivityKind::ALL
+            .iter()
+            .filter(|k| !k.server_only())
+            .map(|k| k.as_str()),
+    )
+    .description(Some(
+        "What happened; `station_opened` and `submission` are recorded by the server only",
+    ))
+    .build()
+    .into()
+}
+
+/// `detail` of a new activity event: absent, `null` or a JSON object whose strings and keys hold
+/// no NUL (described three levels deep).
+fn activity_detail() -> utoipa::openapi::schema::Schema {
+    schema::object_without_nul(2, true)
+        .description(Some(format!(
+            "Details (view angles, exposure, volume): a JSON object of at most \
+             {MAX_ACTIVITY_DETAIL_BYTES} bytes"
+        )))
+        .build()
+        .into()
 }
 
 /// A recorded engagement event.

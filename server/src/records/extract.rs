@@ -117,9 +117,16 @@ impl<T: serde::de::DeserializeOwned, S: Send + Sync> FromRequestParts<S> for Api
         use axum::extract::Query;
         // A URI cannot hold a raw NUL, only the escape `%00`.
         let raw = parts.uri.query().unwrap_or_default();
-        if raw.as_bytes().windows(3).any(|w| w.eq_ignore_ascii_case(b"%00")) {
+        if raw
+            .as_bytes()
+            .windows(3)
+            .any(|w| w.eq_ignore_ascii_case(b"%00"))
+        {
             let Query(pairs) = Query::<Vec<(String, String)>>::try_from_uri(&parts.uri)?;
-            if let Some((k, _)) = pairs.iter().find(|(k, v)| k.contains('\0') || v.contains('\0')) {
+            if let Some((k, _)) = pairs
+                .iter()
+                .find(|(k, v)| k.contains('\0') || v.contains('\0'))
+            {
                 return Err(ApiError::BadRequest(format!(
                     "{}: must not contain NUL characters (U+0000)",
                     k.replace('\0', "\\u0000")

@@ -38,7 +38,10 @@ use crate::error::ApiError;
 #[serde(deny_unknown_fields)]
 pub struct LoginRequest {
     /// E-mail (case-insensitive).
-    #[schema(max_length = 320, pattern = "^[^@\\u0000\\t-\\r \\u0085\\u00a0\\u1680\\u2000-\\u200a\\u2028\\u2029\\u202f\\u205f\\u3000]+@[^@\\u0000\\t-\\r \\u0085\\u00a0\\u1680\\u2000-\\u200a\\u2028\\u2029\\u202f\\u205f\\u3000]+$")]
+    #[schema(
+        max_length = 320,
+        pattern = "^[^@\\u0000\\t-\\r \\u0085\\u00a0\\u1680\\u2000-\\u200a\\u2028\\u2029\\u202f\\u205f\\u3000]+@[^@\\u0000\\t-\\r \\u0085\\u00a0\\u1680\\u2000-\\u200a\\u2028\\u2029\\u202f\\u205f\\u3000]+$"
+    )]
     pub email: String,
     /// Password (accounts have passwords of 12 to 256 characters).
     #[schema(min_length = 1, max_length = 256, pattern = "^[^\\u0000]*$")]

@@ -15,6 +15,7 @@ use super::auth::{CurrentUser, Role};
 use super::authz::attempt_reviewer;
 use super::extract::{ApiJson, ApiPath, ApiQuery};
 use super::history::audit;
+use super::schema::{self, NO_NUL, NOT_BLANK};
 use super::state::RecordsState;
 use super::summary::{AttemptSummary, SUMMARY_COLUMNS, SUMMARY_FROM, SummaryRow, summary};
 use crate::error::ApiError;
@@ -34,7 +35,8 @@ pub enum Decision {
     Return,
 }
 
-/// A review to record (its schema is in [`super::schema`]: a returned attempt needs a comment).
+/// A review to record (its schema, written by hand below, says a returned attempt needs a
+/// comment).
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ReviewRequest {
@@ -44,6 +46,42 @@ pub struct ReviewRequest {
     #[serde(default)]
     pub comment: String,
 }
+
+/// `approve` with an optional comment, or `return` with a comment that is not blank; comments
+/// have at most [`MAX_COMMENT_CHARS`] characters after trimming ([`check_comment`]).
+impl utoipa::PartialSchema for ReviewRequest {
+    fn schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+        use utoipa::openapi::schema::{AdditionalProperties, ObjectBuilder, OneOfBuilder};
+        // The names of `Decision`'s variants as serde reads them.
+        let branch = |decision: &str, comment_pattern: &str, comment_required: bool| {
+            let b = ObjectBuilder::new()
+                .property("decision", schema::one_of_strings([decision]))
+                .property(
+                    "comment",
+                    schema::text(comment_pattern)
+                        .max_length(Some(MAX_COMMENT_CHARS))
+                        .description(Some("Comment to the learner; required when returning")),
+                )
+                .required("decision")
+                .additional_properties(Some(AdditionalProperties::FreeForm(false)));
+            if comment_required {
+                b.required("comment")
+            } else {
+                b
+            }
+        };
+        let one_of = OneOfBuilder::new()
+            .item(branch("approve", NO_NUL, false))
+            .item(branch("return", NOT_BLANK, true))
+            .description(Some(
+                "A review to record: approve, or return with a comment",
+            ))
+            .build();
+        utoipa::openapi::RefOr::T(one_of.into())
+    }
+}
+
+impl utoipa::ToSchema for ReviewRequest {}
 
 /// A recorded review.
 #[derive(Debug, Serialize, Deserialize, ToSchema)]
@@ -253,7 +291,7 @@ pub async fn review_attempt(
 #[serde(deny_unknown_fields)]
 pub struct BulkApproveRequest {
     /// Attempts to approve (1 to 200, no repeats).
-    #[schema(schema_with = super::schema::bulk_attempt_ids)]
+    #[schema(schema_with = bulk_attempt_ids)]
     pub attempt_ids: Vec<Uuid>,
     /// Comment recorded with each approval (at most 4000 characters after trimming).
     #[serde(default)]
@@ -299,6 +337,35 @@ pub async fn bulk_approve(
     Ok(axum::Json(BulkApproveResponse { approved }))
 }
 
+/// `attempt_ids` of a bulk approval: 1 to [`MAX_BULK`] attempt ids, no repeats.
+fn bulk_attempt_ids() -> utoipa::openapi::schema::Schema {
+    use utoipa::openapi::schema::{ArrayBuilder, ObjectBuilder, Type};
+    use utoipa::openapi::{KnownFormat, SchemaFormat};
+    ArrayBuilder::new()
+        .items(
+            ObjectBuilder::new()
+                .schema_type(Type::String)
+                .format(Some(SchemaFormat::KnownFormat(KnownFormat::Uuid))),
+        )
+        .min_items(Some(1))
+        .max_items(Some(MAX_BULK))
+        .unique_items(true)
+        .description(Some("Attempts to approve (no repeats)"))
+        .build()
+        .into()
+}
+
+/// States the review queue filters by.
+pub const QUEUE_STATES: [&str; 5] = ["submitted", "returned", "approved", "in_progress", "any"];
+
+/// The review queue's `state` filter.
+fn queue_state() -> utoipa::openapi::schema::Schema {
+    schema::one_of_strings(QUEUE_STATES)
+        .default(Some("submitted".into()))
+        .build()
+        .into()
+}
+
 /// Filters of the review queue and its CSV export.
 #[derive(Debug, Deserialize, IntoParams)]
 #[serde(deny_unknown_fields)]
@@ -310,7 +377,7 @@ pub struct QueueFilter {
     /// Only this course.
     pub course_id: Option<Uuid>,
     /// `submitted` (default), `returned`, `approved`, `in_progress` or `any`.
-    #[param(schema_with = super::schema::queue_state)]
+    #[param(schema_with = queue_state)]
     pub state: Option<String>,
 }
 
@@ -321,7 +388,7 @@ async fn queue_rows(
 ) -> Result<Vec<AttemptSummary>, ApiError> {
     user.require(&[Role::Faculty, Role::Admin])?;
     let wanted = f.state.as_deref().unwrap_or("submitted");
-    if !super::schema::QUEUE_STATES.contains(&wanted) {
+    if !QUEUE_STATES.contains(&wanted) {
         return Err(ApiError::BadRequest(format!(
             "state {wanted:?} is not one of submitted, returned, approved, in_progress, any"
         )));
