@@ -132,6 +132,7 @@ pub struct ActivityEvent {
     /// Who.
     pub user_id: Uuid,
     /// What.
+    #[schema(value_type = ActivityKind)]
     pub kind: String,
     /// Server time of recording.
     #[serde(with = "time::serde::rfc3339")]

@@ -45,6 +45,7 @@ pub struct Course {
     /// Title.
     pub title: String,
     /// The caller's role in it (none for admins who are not members).
+    #[schema(value_type = Option<CourseRole>)]
     pub my_role: Option<String>,
     /// Created.
     #[serde(with = "time::serde::rfc3339")]
@@ -62,6 +63,7 @@ pub struct Member {
     /// Display name.
     pub display_name: String,
     /// Role in the course.
+    #[schema(value_type = CourseRole)]
     pub role: String,
 }
 

@@ -97,6 +97,7 @@ pub struct ReviewView {
     /// Reviewer name.
     pub reviewer_name: String,
     /// `approved` or `returned`.
+    #[schema(schema_with = recorded_decision)]
     pub decision: String,
     /// Comment.
     pub comment: String,
@@ -351,6 +352,13 @@ fn bulk_attempt_ids() -> utoipa::openapi::schema::Schema {
         .max_items(Some(MAX_BULK))
         .unique_items(true)
         .description(Some("Attempts to approve (no repeats)"))
+        .build()
+        .into()
+}
+
+/// A recorded decision (the `reviews.decision` check).
+fn recorded_decision() -> utoipa::openapi::schema::Schema {
+    schema::one_of_strings(["approved", "returned"])
         .build()
         .into()
 }
