@@ -3,14 +3,21 @@
 //! four identities, one run each: anonymous, a learner (enrolled, with an open attempt), faculty
 //! of the learner's course and an admin (both with TOTP enabled and logged in with a valid code).
 //!
-//! Each run uses every phase (examples, coverage, fuzzing and the stateful phase over the
-//! document's links) and the checks `not_a_server_error`, `status_code_conformance`,
+//! Each run uses every phase: examples (none yet: the document has no examples), coverage,
+//! fuzzing, and the stateful phase over the links schemathesis infers from the document (utoipa
+//! 5.5 writes explicit links with snake_case keys that schemathesis refuses, so the document
+//! declares none). The checks are `not_a_server_error`, `status_code_conformance`,
 //! `content_type_conformance`, `response_schema_conformance`, `positive_data_acceptance` (a
 //! schema-valid request is not refused with 400 or 422: the document states every constraint the
 //! server enforces) and `negative_data_rejection` (a request that breaks the document is
 //! refused). Semantic refusals no schema can express (a wrong current password is 403, an attempt
 //! in the wrong state 409, an unknown id 404) are documented responses and lie within
 //! schemathesis's default expected statuses of `positive_data_acceptance`, so its defaults stay.
+//! The one exception, configured for that operation alone in `tests/schemathesis.toml`: adding a
+//! member whose account role does not fit the course role is a 400 (`records_bad_input.rs`).
+//!
+//! Bounded for CI: [`MAX_EXAMPLES`] cases per operation and phase, a fixed [`SEED`], one worker.
+//! Each run's full output and JUnit report land in `target/openapi-fuzz/`, beside the document.
 //!
 //! Exclusions, and why: only `POST /api/auth/logout` is left out of the three logged-in runs,
 //! because it ends the very session the run authenticates with (everything after it would test
