@@ -122,6 +122,44 @@ fn document_shared_refusals(doc: &mut utoipa::openapi::OpenApi) {
                     "Too many writes from this account; `Retry-After` says when to retry",
                 );
             }
+            describe_error_bodies(op);
+        }
+    }
+    doc.components
+        .get_or_insert_with(Default::default)
+        .schemas
+        .insert("Error".into(), super::schema::error_body().into());
+}
+
+/// Every 4xx of the records API is an [`crate::error::ApiError`]: a JSON body `{"error": {"code",
+/// "message"}}`, and on 429 a `Retry-After` header in seconds.
+fn describe_error_bodies(op: &mut utoipa::openapi::path::Operation) {
+    use utoipa::openapi::{ContentBuilder, Ref, RefOr, header::HeaderBuilder};
+    for (status, response) in op.responses.responses.iter_mut() {
+        let RefOr::T(response) = response else {
+            continue;
+        };
+        if !status.starts_with('4') || !response.content.is_empty() {
+            continue;
+        }
+        response.content.insert(
+            "application/json".into(),
+            ContentBuilder::new()
+                .schema(Some(Ref::from_schema_name("Error")))
+                .build(),
+        );
+        if status == "429" {
+            response.headers.insert(
+                "Retry-After".into(),
+                HeaderBuilder::new()
+                    .schema(
+                        utoipa::openapi::ObjectBuilder::new()
+                            .schema_type(utoipa::openapi::schema::Type::Integer)
+                            .minimum(Some(0)),
+                    )
+                    .description(Some("Seconds to wait before retrying"))
+                    .build(),
+            );
         }
     }
 }

@@ -77,6 +77,29 @@ pub fn object_without_nul(depth: usize, nullable: bool) -> ObjectBuilder {
         ))))
 }
 
+/// The body of every error response (`crate::error::ApiError`): a stable machine-readable code
+/// and a message for people.
+pub fn error_body() -> Schema {
+    let detail = ObjectBuilder::new()
+        .property(
+            "code",
+            ObjectBuilder::new()
+                .schema_type(Type::String)
+                .description(Some("Stable machine-readable code, e.g. `bad_request`")),
+        )
+        .property("message", ObjectBuilder::new().schema_type(Type::String))
+        .required("code")
+        .required("message");
+    ObjectBuilder::new()
+        .property("error", detail)
+        .required("error")
+        .description(Some(
+            "An error: what went wrong, naming the field where one is at fault",
+        ))
+        .build()
+        .into()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
