@@ -40,6 +40,7 @@ pub fn app(state: AppState) -> Router {
     let (records_router, mut doc) = records::router(records_state.clone());
     doc.merge(dispatch::openapi());
     doc.info.title = "pain-sim API".into();
+    records::routes::document_shared_refusals(&mut doc);
     let doc = std::sync::Arc::new(doc);
     Router::new()
         .route("/healthz", get(routes::health::healthz))

@@ -56,3 +56,40 @@ async fn nul_in_a_json_body_is_a_400_naming_the_field() {
         .await;
     assert_eq!(r.status, StatusCode::CREATED, "{}", r.text);
 }
+
+/// Found by the OpenAPI fuzz test: a NUL in a query filter reached the database (500).
+#[tokio::test]
+async fn nul_in_a_query_parameter_is_a_400_naming_it() {
+    let app = TestApp::new(&[]).await;
+    let admin = app.user("nul-admin@example.org", Role::Admin).await;
+    let secret = app.enable_totp(admin).await;
+    let code = server::records::totp::code_at(&secret, server::records::totp::unix_now());
+    let s = app.login("nul-admin@example.org", Some(code)).await;
+    for (uri, field) in [
+        ("/api/reviews?station_id=a%00b", "station_id"),
+        (
+            "/api/reviews/export.csv?state=any&station_id=%00",
+            "station_id",
+        ),
+        ("/api/audit?object_type=attempt&object_id=x%00", "object_id"),
+        ("/api/audit?object_type=%00", "object_type"),
+    ] {
+        let r = app.send(Method::GET, uri, Some(&s), None).await;
+        assert_eq!(r.status, StatusCode::BAD_REQUEST, "{uri}: {}", r.text);
+        let message = r.json["error"]["message"].as_str().unwrap_or_default();
+        assert!(
+            message.starts_with(&format!("{field}: ")),
+            "{uri}: {message}"
+        );
+        assert!(message.contains("NUL"), "{message}");
+    }
+    let r = app
+        .send(
+            Method::GET,
+            "/api/audit?object_type=attempt",
+            Some(&s),
+            None,
+        )
+        .await;
+    assert_eq!(r.status, StatusCode::OK, "{}", r.text);
+}

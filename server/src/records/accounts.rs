@@ -48,11 +48,11 @@ async fn new_hash(state: &RecordsState, new_password: &str) -> Result<String, Ap
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PasswordChange {
-    /// The current password.
-    #[schema(min_length = 1, max_length = 1024)]
+    /// The current password (accounts have passwords of 12 to 256 characters).
+    #[schema(min_length = 1, max_length = 256, pattern = "^[^\\u0000]*$")]
     pub current_password: String,
     /// The new password (12 to 256 characters).
-    #[schema(min_length = 12, max_length = 256)]
+    #[schema(min_length = 12, max_length = 256, pattern = "^[^\\u0000]*$")]
     pub new_password: String,
 }
 
@@ -307,7 +307,7 @@ pub struct PasswordResetCompletion {
     #[schema(min_length = 64, max_length = 64, pattern = "^[0-9a-f]{64}$")]
     pub reset_token: String,
     /// The new password (12 to 256 characters).
-    #[schema(min_length = 12, max_length = 256)]
+    #[schema(min_length = 12, max_length = 256, pattern = "^[^\\u0000]*$")]
     pub new_password: String,
 }
 

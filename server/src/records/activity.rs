@@ -14,6 +14,7 @@ use uuid::Uuid;
 use super::auth::CurrentUser;
 use super::authz::attempt_visible;
 use super::extract::{ApiJson, ApiPath};
+use super::schema;
 use super::state::RecordsState;
 use super::summary::visible_attempt;
 use crate::error::ApiError;
@@ -41,6 +42,18 @@ pub enum ActivityKind {
 }
 
 impl ActivityKind {
+    /// Every kind.
+    pub const ALL: [ActivityKind; 8] = [
+        ActivityKind::SessionLaunched,
+        ActivityKind::StationOpened,
+        ActivityKind::PageViewed,
+        ActivityKind::ViewChanged,
+        ActivityKind::ImageAcquired,
+        ActivityKind::NeedleAdjusted,
+        ActivityKind::Injection,
+        ActivityKind::Submission,
+    ];
+
     /// Stored name.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -70,6 +83,7 @@ pub const MAX_ACTIVITY_DETAIL_BYTES: usize = 4096;
 #[serde(deny_unknown_fields)]
 pub struct NewActivity {
     /// What happened (`station_opened` and `submission` are recorded by the server only).
+    #[schema(schema_with = client_activity_kinds)]
     pub kind: ActivityKind,
     /// When the client saw it happen (kept for analysis; ordering uses the server's clock).
     #[serde(default, with = "time::serde::rfc3339::option")]
@@ -77,8 +91,35 @@ pub struct NewActivity {
     pub client_time: Option<OffsetDateTime>,
     /// Details (view angles, exposure, volume), a JSON object of at most 4 KiB.
     #[serde(default)]
-    #[schema(value_type = Object)]
+    #[schema(schema_with = activity_detail)]
     pub detail: Option<serde_json::Value>,
+}
+
+/// The activity kinds a client may report (the others are recorded by the server).
+fn client_activity_kinds() -> utoipa::openapi::schema::Schema {
+    schema::one_of_strings(
+        ActivityKind::ALL
+            .iter()
+            .filter(|k| !k.server_only())
+            .map(|k| k.as_str()),
+    )
+    .description(Some(
+        "What happened; `station_opened` and `submission` are recorded by the server only",
+    ))
+    .build()
+    .into()
+}
+
+/// `detail` of a new activity event: absent, `null` or a JSON object whose strings and keys hold
+/// no NUL (described three levels deep).
+fn activity_detail() -> utoipa::openapi::schema::Schema {
+    schema::object_without_nul(2, true)
+        .description(Some(format!(
+            "Details (view angles, exposure, volume): a JSON object of at most \
+             {MAX_ACTIVITY_DETAIL_BYTES} bytes"
+        )))
+        .build()
+        .into()
 }
 
 /// A recorded engagement event.
@@ -91,6 +132,7 @@ pub struct ActivityEvent {
     /// Who.
     pub user_id: Uuid,
     /// What.
+    #[schema(value_type = ActivityKind)]
     pub kind: String,
     /// Server time of recording.
     #[serde(with = "time::serde::rfc3339")]

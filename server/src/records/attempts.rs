@@ -25,6 +25,7 @@ pub struct NewAttempt {
     /// Course the attempt counts for (the caller must be enrolled as a learner).
     pub course_id: Uuid,
     /// Station id.
+    #[schema(pattern = "^[^\\u0000]*$")]
     pub station_id: String,
 }
 

@@ -45,6 +45,7 @@ pub struct Course {
     /// Title.
     pub title: String,
     /// The caller's role in it (none for admins who are not members).
+    #[schema(value_type = Option<CourseRole>)]
     pub my_role: Option<String>,
     /// Created.
     #[serde(with = "time::serde::rfc3339")]
@@ -62,6 +63,7 @@ pub struct Member {
     /// Display name.
     pub display_name: String,
     /// Role in the course.
+    #[schema(value_type = CourseRole)]
     pub role: String,
 }
 
@@ -78,9 +80,19 @@ pub struct CourseDetail {
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct NewCourse {
-    /// Short code, 1 to 64 characters, unique.
+    /// Short code, 1 to 64 characters (surrounding white space is trimmed), unique.
+    #[schema(
+        min_length = 1,
+        max_length = 64,
+        pattern = "^[^\\u0000]*[^\\u0000\\t-\\r \\u0085\\u00a0\\u1680\\u2000-\\u200a\\u2028\\u2029\\u202f\\u205f\\u3000][^\\u0000]*$"
+    )]
     pub code: String,
-    /// Title, 1 to 200 characters.
+    /// Title, 1 to 200 characters (surrounding white space is trimmed).
+    #[schema(
+        min_length = 1,
+        max_length = 200,
+        pattern = "^[^\\u0000]*[^\\u0000\\t-\\r \\u0085\\u00a0\\u1680\\u2000-\\u200a\\u2028\\u2029\\u202f\\u205f\\u3000][^\\u0000]*$"
+    )]
     pub title: String,
 }
 

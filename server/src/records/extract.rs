@@ -108,10 +108,38 @@ impl<T: serde::Serialize> axum::response::IntoResponse for ApiJson<T> {
 #[from_request(via(axum::extract::Path), rejection(ApiError))]
 pub struct ApiPath<T>(pub T);
 
-/// `axum::extract::Query` with [`ApiError`] rejections.
-#[derive(Debug, FromRequestParts)]
-#[from_request(via(axum::extract::Query), rejection(ApiError))]
+/// `axum::extract::Query` with [`ApiError`] rejections; a NUL in a parameter is refused naming
+/// it, as in bodies (a filter holding one failed at the database, a 500 before).
+#[derive(Debug)]
 pub struct ApiQuery<T>(pub T);
+
+impl<T: serde::de::DeserializeOwned, S: Send + Sync> FromRequestParts<S> for ApiQuery<T> {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, ApiError> {
+        use axum::extract::Query;
+        // A URI cannot hold a raw NUL, only the escape `%00`.
+        let raw = parts.uri.query().unwrap_or_default();
+        if raw
+            .as_bytes()
+            .windows(3)
+            .any(|w| w.eq_ignore_ascii_case(b"%00"))
+        {
+            let Query(pairs) = Query::<Vec<(String, String)>>::try_from_uri(&parts.uri)?;
+            if let Some((k, _)) = pairs
+                .iter()
+                .find(|(k, v)| k.contains('\0') || v.contains('\0'))
+            {
+                return Err(ApiError::BadRequest(format!(
+                    "{}: must not contain NUL characters (U+0000)",
+                    k.replace('\0', "\\u0000")
+                )));
+            }
+        }
+        let Query(v) = Query::<T>::try_from_uri(&parts.uri)?;
+        Ok(ApiQuery(v))
+    }
+}
 
 impl From<JsonRejection> for ApiError {
     fn from(r: JsonRejection) -> ApiError {

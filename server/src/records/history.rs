@@ -106,10 +106,13 @@ pub(crate) async fn audit_of(
 #[into_params(parameter_in = Query)]
 pub struct AuditFilter {
     /// Only this object type (`attempt`, `user`, `course`).
+    #[param(pattern = "^[^\\u0000]*$")]
     pub object_type: Option<String>,
     /// Only this object id.
+    #[param(pattern = "^[^\\u0000]*$")]
     pub object_id: Option<String>,
     /// At most this many entries (default 500, at most 5000), newest last.
+    #[param(minimum = 1, maximum = 5000, default = 500)]
     pub limit: Option<i64>,
 }
 

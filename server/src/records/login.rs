@@ -38,11 +38,17 @@ use crate::error::ApiError;
 #[serde(deny_unknown_fields)]
 pub struct LoginRequest {
     /// E-mail (case-insensitive).
+    #[schema(
+        max_length = 320,
+        pattern = "^[^@\\u0000\\t-\\r \\u0085\\u00a0\\u1680\\u2000-\\u200a\\u2028\\u2029\\u202f\\u205f\\u3000]+@[^@\\u0000\\t-\\r \\u0085\\u00a0\\u1680\\u2000-\\u200a\\u2028\\u2029\\u202f\\u205f\\u3000]+$"
+    )]
     pub email: String,
-    /// Password.
+    /// Password (accounts have passwords of 12 to 256 characters).
+    #[schema(min_length = 1, max_length = 256, pattern = "^[^\\u0000]*$")]
     pub password: String,
-    /// Current TOTP code; required when the account has TOTP enabled.
+    /// Current TOTP code (six digits); required when the account has TOTP enabled.
     #[serde(default)]
+    #[schema(pattern = "^[0-9]{6}$")]
     pub totp_code: Option<String>,
 }
 
@@ -356,6 +362,7 @@ pub async fn totp_enroll(
 #[serde(deny_unknown_fields)]
 pub struct TotpCode {
     /// Six digits from the authenticator app.
+    #[schema(pattern = "^[0-9]{6}$")]
     pub code: String,
 }
 

@@ -21,8 +21,8 @@
 //!
 //! Architecture invariant: the modules form layers, and each imports only from layers below it:
 //!
-//! 1. `config`, `authz`, `password`, `totp`, `ratelimit`, `stations` (the catalog as loaded):
-//!    no handler state;
+//! 1. `config`, `authz`, `password`, `totp`, `ratelimit`, `stations` (the catalog as loaded),
+//!    `schema` (building blocks of the OpenAPI document): no handler state;
 //! 2. `state` ([`RecordsState`]), then the shared extractors `extract` and `auth`
 //!    ([`auth::CurrentUser`]);
 //! 3. `history` (the audit writer and its readers) and `summary` (the attempt as listed);
@@ -52,6 +52,7 @@ pub mod ratelimit;
 pub mod results;
 pub mod reviews;
 pub mod routes;
+pub mod schema;
 pub mod startup;
 pub mod state;
 pub mod stations;

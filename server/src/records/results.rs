@@ -22,6 +22,13 @@ use super::history::audit;
 use super::state::RecordsState;
 use crate::error::ApiError;
 
+/// Where a result came from (the `technical_results.source` check).
+fn result_source() -> utoipa::openapi::schema::Schema {
+    super::schema::one_of_strings(["server", "client"])
+        .build()
+        .into()
+}
+
 /// A stored technical result.
 #[derive(Debug, Serialize, Deserialize, ToSchema)]
 pub struct TechnicalResultView {
@@ -31,10 +38,12 @@ pub struct TechnicalResultView {
     pub seq: i32,
     /// `server` (computed by a simulation session from its log, the only source now) or `client`
     /// (reported by a client before results came only from the simulation; never replayable).
+    #[schema(schema_with = result_source)]
     pub source: String,
     /// The newest replay check of this result.
     pub replay_check: ReplayCheck,
     /// `met`, `not_met` or `incomplete`: a technical outcome, not a competency judgement.
+    #[schema(schema_with = super::summary::outcome)]
     pub outcome: String,
     /// Weighted score over measured criteria.
     pub score: Option<f64>,

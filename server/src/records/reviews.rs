@@ -15,6 +15,7 @@ use super::auth::{CurrentUser, Role};
 use super::authz::attempt_reviewer;
 use super::extract::{ApiJson, ApiPath, ApiQuery};
 use super::history::audit;
+use super::schema::{self, NO_NUL, NOT_BLANK};
 use super::state::RecordsState;
 use super::summary::{AttemptSummary, SUMMARY_COLUMNS, SUMMARY_FROM, SummaryRow, summary};
 use crate::error::ApiError;
@@ -34,8 +35,9 @@ pub enum Decision {
     Return,
 }
 
-/// A review to record.
-#[derive(Debug, Deserialize, ToSchema)]
+/// A review to record (its schema, written by hand below, says a returned attempt needs a
+/// comment).
+#[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ReviewRequest {
     /// Approve or return.
@@ -44,6 +46,42 @@ pub struct ReviewRequest {
     #[serde(default)]
     pub comment: String,
 }
+
+/// `approve` with an optional comment, or `return` with a comment that is not blank; comments
+/// have at most [`MAX_COMMENT_CHARS`] characters after trimming ([`check_comment`]).
+impl utoipa::PartialSchema for ReviewRequest {
+    fn schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+        use utoipa::openapi::schema::{AdditionalProperties, ObjectBuilder, OneOfBuilder};
+        // The names of `Decision`'s variants as serde reads them.
+        let branch = |decision: &str, comment_pattern: &str, comment_required: bool| {
+            let b = ObjectBuilder::new()
+                .property("decision", schema::one_of_strings([decision]))
+                .property(
+                    "comment",
+                    schema::text(comment_pattern)
+                        .max_length(Some(MAX_COMMENT_CHARS))
+                        .description(Some("Comment to the learner; required when returning")),
+                )
+                .required("decision")
+                .additional_properties(Some(AdditionalProperties::FreeForm(false)));
+            if comment_required {
+                b.required("comment")
+            } else {
+                b
+            }
+        };
+        let one_of = OneOfBuilder::new()
+            .item(branch("approve", NO_NUL, false))
+            .item(branch("return", NOT_BLANK, true))
+            .description(Some(
+                "A review to record: approve, or return with a comment",
+            ))
+            .build();
+        utoipa::openapi::RefOr::T(one_of.into())
+    }
+}
+
+impl utoipa::ToSchema for ReviewRequest {}
 
 /// A recorded review.
 #[derive(Debug, Serialize, Deserialize, ToSchema)]
@@ -59,6 +97,7 @@ pub struct ReviewView {
     /// Reviewer name.
     pub reviewer_name: String,
     /// `approved` or `returned`.
+    #[schema(schema_with = recorded_decision)]
     pub decision: String,
     /// Comment.
     pub comment: String,
@@ -253,9 +292,11 @@ pub async fn review_attempt(
 #[serde(deny_unknown_fields)]
 pub struct BulkApproveRequest {
     /// Attempts to approve (1 to 200, no repeats).
+    #[schema(schema_with = bulk_attempt_ids)]
     pub attempt_ids: Vec<Uuid>,
-    /// Comment recorded with each approval.
+    /// Comment recorded with each approval (at most 4000 characters after trimming).
     #[serde(default)]
+    #[schema(max_length = 4000, pattern = "^[^\\u0000]*$")]
     pub comment: String,
 }
 
@@ -297,16 +338,54 @@ pub async fn bulk_approve(
     Ok(axum::Json(BulkApproveResponse { approved }))
 }
 
+/// `attempt_ids` of a bulk approval: 1 to [`MAX_BULK`] attempt ids, no repeats.
+fn bulk_attempt_ids() -> utoipa::openapi::schema::Schema {
+    use utoipa::openapi::schema::{ArrayBuilder, ObjectBuilder, Type};
+    use utoipa::openapi::{KnownFormat, SchemaFormat};
+    ArrayBuilder::new()
+        .items(
+            ObjectBuilder::new()
+                .schema_type(Type::String)
+                .format(Some(SchemaFormat::KnownFormat(KnownFormat::Uuid))),
+        )
+        .min_items(Some(1))
+        .max_items(Some(MAX_BULK))
+        .unique_items(true)
+        .description(Some("Attempts to approve (no repeats)"))
+        .build()
+        .into()
+}
+
+/// A recorded decision (the `reviews.decision` check).
+fn recorded_decision() -> utoipa::openapi::schema::Schema {
+    schema::one_of_strings(["approved", "returned"])
+        .build()
+        .into()
+}
+
+/// States the review queue filters by.
+pub const QUEUE_STATES: [&str; 5] = ["submitted", "returned", "approved", "in_progress", "any"];
+
+/// The review queue's `state` filter.
+fn queue_state() -> utoipa::openapi::schema::Schema {
+    schema::one_of_strings(QUEUE_STATES)
+        .default(Some("submitted".into()))
+        .build()
+        .into()
+}
+
 /// Filters of the review queue and its CSV export.
 #[derive(Debug, Deserialize, IntoParams)]
 #[serde(deny_unknown_fields)]
 #[into_params(parameter_in = Query)]
 pub struct QueueFilter {
     /// Only this station.
+    #[param(pattern = "^[^\\u0000]*$")]
     pub station_id: Option<String>,
     /// Only this course.
     pub course_id: Option<Uuid>,
     /// `submitted` (default), `returned`, `approved`, `in_progress` or `any`.
+    #[param(schema_with = queue_state)]
     pub state: Option<String>,
 }
 
@@ -317,7 +396,7 @@ async fn queue_rows(
 ) -> Result<Vec<AttemptSummary>, ApiError> {
     user.require(&[Role::Faculty, Role::Admin])?;
     let wanted = f.state.as_deref().unwrap_or("submitted");
-    if !["submitted", "returned", "approved", "in_progress", "any"].contains(&wanted) {
+    if !QUEUE_STATES.contains(&wanted) {
         return Err(ApiError::BadRequest(format!(
             "state {wanted:?} is not one of submitted, returned, approved, in_progress, any"
         )));

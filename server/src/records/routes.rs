@@ -62,3 +62,93 @@ pub fn router<S: Clone + Send + Sync + 'static>(
         .split_for_parts();
     (router, doc)
 }
+
+/// The writes that need no session (the others pass [`super::auth::CurrentUser`]); the worker
+/// registration of `dispatch` authenticates with the cluster token instead.
+const UNAUTHENTICATED_WRITES: [&str; 3] = ["login", "complete_password_reset", "register_worker"];
+
+/// Adds the refusals every handler shares through its extractors, so each operation lists them
+/// without repeating them in its annotation: a body ([`super::extract::ApiJson`]) can be
+/// malformed (400) or too large (413); a path or query parameter can be malformed (400); an
+/// authenticated write ([`super::auth::CurrentUser`] on POST, PUT, PATCH or DELETE) can lack its
+/// CSRF token (403) or exceed the account's write rate (429 with `Retry-After`).
+pub fn document_shared_refusals(doc: &mut utoipa::openapi::OpenApi) {
+    use utoipa::openapi::{HttpMethod, RefOr, ResponseBuilder};
+    let add = |op: &mut utoipa::openapi::path::Operation, status: &str, description: &str| {
+        op.responses
+            .responses
+            .entry(status.to_string())
+            .or_insert_with(|| RefOr::T(ResponseBuilder::new().description(description).build()));
+    };
+    for item in doc.paths.paths.values_mut() {
+        for (method, op) in [
+            (HttpMethod::Get, item.get.as_mut()),
+            (HttpMethod::Post, item.post.as_mut()),
+            (HttpMethod::Put, item.put.as_mut()),
+            (HttpMethod::Patch, item.patch.as_mut()),
+            (HttpMethod::Delete, item.delete.as_mut()),
+        ] {
+            let Some(op) = op else { continue };
+            if op.request_body.is_some() {
+                add(
+                    op,
+                    "400",
+                    "Malformed body, or a value outside its documented range",
+                );
+                add(op, "413", "Body larger than the server's limit");
+            }
+            if op.parameters.as_ref().is_some_and(|p| !p.is_empty()) {
+                add(op, "400", "Malformed path or query parameter");
+            }
+            let id = op.operation_id.as_deref().unwrap_or_default();
+            let write = !matches!(method, HttpMethod::Get);
+            if write && !UNAUTHENTICATED_WRITES.contains(&id) {
+                add(op, "401", "No valid session");
+                add(op, "403", "Missing or wrong CSRF token, or not allowed");
+                add(
+                    op,
+                    "429",
+                    "Too many writes from this account; `Retry-After` says when to retry",
+                );
+            }
+            describe_error_bodies(op);
+        }
+    }
+    doc.components
+        .get_or_insert_with(Default::default)
+        .schemas
+        .insert("Error".into(), super::schema::error_body().into());
+}
+
+/// Every 4xx of the records API is an [`crate::error::ApiError`]: a JSON body `{"error": {"code",
+/// "message"}}`, and on 429 a `Retry-After` header in seconds.
+fn describe_error_bodies(op: &mut utoipa::openapi::path::Operation) {
+    use utoipa::openapi::{ContentBuilder, Ref, RefOr, header::HeaderBuilder};
+    for (status, response) in op.responses.responses.iter_mut() {
+        let RefOr::T(response) = response else {
+            continue;
+        };
+        if !status.starts_with('4') || !response.content.is_empty() {
+            continue;
+        }
+        response.content.insert(
+            "application/json".into(),
+            ContentBuilder::new()
+                .schema(Some(Ref::from_schema_name("Error")))
+                .build(),
+        );
+        if status == "429" {
+            response.headers.insert(
+                "Retry-After".into(),
+                HeaderBuilder::new()
+                    .schema(
+                        utoipa::openapi::ObjectBuilder::new()
+                            .schema_type(utoipa::openapi::schema::Type::Integer)
+                            .minimum(Some(0)),
+                    )
+                    .description(Some("Seconds to wait before retrying"))
+                    .build(),
+            );
+        }
+    }
+}

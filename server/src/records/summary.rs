@@ -8,8 +8,34 @@ use uuid::Uuid;
 
 use super::auth::CurrentUser;
 use super::authz::attempt_visible;
+use super::schema::one_of_strings;
 use super::state::RecordsState;
 use crate::error::ApiError;
+
+/// States of an attempt (the `attempts.state` check of the schema migration).
+pub const ATTEMPT_STATES: [&str; 4] = ["in_progress", "submitted", "returned", "approved"];
+
+/// Technical outcomes of a result (the `technical_results.outcome` check).
+pub const OUTCOMES: [&str; 3] = ["met", "not_met", "incomplete"];
+
+fn attempt_state() -> utoipa::openapi::schema::Schema {
+    one_of_strings(ATTEMPT_STATES).build().into()
+}
+
+fn latest_outcome() -> utoipa::openapi::schema::Schema {
+    one_of_strings(OUTCOMES)
+        .schema_type(utoipa::openapi::schema::SchemaType::from_iter([
+            utoipa::openapi::schema::Type::String,
+            utoipa::openapi::schema::Type::Null,
+        ]))
+        .build()
+        .into()
+}
+
+/// A technical outcome (`met`, `not_met` or `incomplete`).
+pub fn outcome() -> utoipa::openapi::schema::Schema {
+    one_of_strings(OUTCOMES).build().into()
+}
 
 /// An attempt as listed.
 #[derive(Debug, Serialize, Deserialize, ToSchema)]
@@ -33,8 +59,10 @@ pub struct AttemptSummary {
     /// Rubric revision in force when the attempt was opened.
     pub rubric_revision: i32,
     /// `in_progress`, `submitted` (awaiting review), `returned` (to the learner) or `approved`.
+    #[schema(schema_with = attempt_state)]
     pub state: String,
     /// Technical outcome of the latest result (`met`, `not_met`, `incomplete`), if any.
+    #[schema(schema_with = latest_outcome)]
     pub latest_outcome: Option<String>,
     /// Score of the latest result, if any.
     pub latest_score: Option<f64>,

@@ -144,12 +144,18 @@ pub async fn create_admin(
 #[serde(deny_unknown_fields)]
 pub struct NewUser {
     /// E-mail (stored in lower case, unique).
+    #[schema(
+        max_length = 320,
+        pattern = "^[^@\\u0000\\t-\\r \\u0085\\u00a0\\u1680\\u2000-\\u200a\\u2028\\u2029\\u202f\\u205f\\u3000]+@[^@\\u0000\\t-\\r \\u0085\\u00a0\\u1680\\u2000-\\u200a\\u2028\\u2029\\u202f\\u205f\\u3000]+$"
+    )]
     pub email: String,
-    /// Display name.
+    /// Display name (1 to 200 characters).
+    #[schema(min_length = 1, max_length = 200, pattern = "^[^\\u0000]*$")]
     pub display_name: String,
     /// Role.
     pub role: Role,
     /// Initial password (12 to 256 characters).
+    #[schema(min_length = 12, max_length = 256, pattern = "^[^\\u0000]*$")]
     pub password: String,
 }
 
