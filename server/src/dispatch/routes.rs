@@ -130,9 +130,10 @@ pub struct WorkerRegistration {
 #[derive(Debug, Deserialize, IntoParams)]
 #[into_params(parameter_in = Query)]
 struct StepQuery {
-    /// Commands of the log applied before the image is taken (0 to the log's length).
-    #[param(minimum = 0)]
-    step: u64,
+    /// Commands of the log applied before the image is taken; a step beyond the log's length
+    /// shows the image after the whole log.
+    #[param(minimum = 0, maximum = 4294967295_u64)]
+    step: u32,
 }
 
 /// The OpenAPI description of the dispatch routes (merged into `/api/openapi.json`).
@@ -474,7 +475,11 @@ fn same_origin(headers: &HeaderMap) -> bool {
 
 /// `GET /api/sessions/{session_id}/ws`: the session protocol, relayed (its learner only).
 #[utoipa::path(get, path = "/api/sessions/{session_id}/ws", tag = "sessions",
-    params(("session_id" = Uuid, Path, description = "Session id")),
+    params(("session_id" = Uuid, Path, description = "Session id"),
+        ("Connection" = String, Header, description = "The handshake (RFC 6455 section 4.1)", example = "Upgrade", pattern = "^[Uu]pgrade$"),
+        ("Upgrade" = String, Header, description = "The protocol", example = "websocket", pattern = "^websocket$"),
+        ("Sec-WebSocket-Version" = String, Header, description = "Only version 13", example = "13", pattern = "^13$"),
+        ("Sec-WebSocket-Key" = String, Header, description = "16 random bytes, base64", example = "dGhlIHNhbXBsZSBub25jZQ==", pattern = "^[A-Za-z0-9+/]{22}==$")),
     responses(
         (status = 101, description = "Switching to the session protocol (render_worker::session::protocol): JSON text messages, JPEG frames as binary; messages over 64 KiB close the socket with 1009"),
         (status = 400, description = "Malformed session id, or not a websocket handshake (or a connection that cannot be upgraded)"),
@@ -495,12 +500,56 @@ async fn session_ws(
     let upgrade = upgrade.map_err(|r| {
         ApiError::BadRequest(format!("not a websocket handshake: {}", r.body_text()))
     })?;
+    // RFC 6455 section 4.1: the key is 16 random bytes in base64 (24 characters ending in "==").
+    let key_ok = headers
+        .get("sec-websocket-key")
+        .and_then(|k| k.to_str().ok())
+        .is_some_and(|k| {
+            k.len() == 24
+                && k.ends_with("==")
+                && k[..22].bytes().all(|b| b.is_ascii_alphanumeric() || b == b'+' || b == b'/')
+        });
+    if !key_ok {
+        return Err(ApiError::BadRequest(
+            "not a websocket handshake: Sec-WebSocket-Key must be 16 bytes in base64".into(),
+        ));
+    }
     let generation = s.generation.fetch_add(1, Ordering::SeqCst) + 1;
     let (dispatcher, records) = (state.dispatcher.clone(), state.records.clone());
     Ok(upgrade
         .max_message_size(relay::MAX_CLIENT_MESSAGE_BYTES)
         .max_frame_size(relay::MAX_CLIENT_MESSAGE_BYTES)
         .on_upgrade(move |socket| relay::relay(dispatcher, records, s, socket, generation)))
+}
+
+/// A request that carries the cluster token (`Authorization: Bearer ...`). Checked before the
+/// body is read, so a caller without the token learns nothing about what a body must hold.
+struct ClusterToken;
+
+impl FromRequestParts<DispatchState> for ClusterToken {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(
+        parts: &mut Parts,
+        state: &DispatchState,
+    ) -> Result<Self, ApiError> {
+        let Some(token) = &state.dispatcher.inner.worker_token else {
+            return Err(ApiError::Forbidden(
+                "this server takes no remote render workers (PAINSIM_WORKER_TOKEN is unset)".into(),
+            ));
+        };
+        let sent = parts
+            .headers
+            .get(AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "))
+            .unwrap_or("");
+        // Compare digests: equal length, no early exit on the first differing byte.
+        if Sha256::digest(sent.as_bytes()) != Sha256::digest(token.as_bytes()) {
+            return Err(ApiError::Unauthorized);
+        }
+        Ok(ClusterToken)
+    }
 }
 
 /// `POST /api/workers`: a render worker announces itself (bearer: the cluster token).
@@ -511,23 +560,9 @@ async fn session_ws(
         (status = 403, description = "This server takes no remote render workers")))]
 async fn register_worker(
     State(state): State<DispatchState>,
-    headers: HeaderMap,
+    _token: ClusterToken,
     ApiJson(reg): ApiJson<Registration>,
 ) -> Result<StatusCode, ApiError> {
-    let Some(token) = &state.dispatcher.inner.worker_token else {
-        return Err(ApiError::Forbidden(
-            "this server takes no remote render workers (PAINSIM_WORKER_TOKEN is unset)".into(),
-        ));
-    };
-    let sent = headers
-        .get(AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
-        .unwrap_or("");
-    // Compare digests: equal length, no early exit on the first differing byte.
-    if Sha256::digest(sent.as_bytes()) != Sha256::digest(token.as_bytes()) {
-        return Err(ApiError::Unauthorized);
-    }
     if render_worker::cluster::split_url(&reg.url).is_err()
         || reg.capacity == 0
         || reg.capacity > 10_000
@@ -656,12 +691,12 @@ async fn replay(
 }
 
 /// `GET /api/attempts/{attempt_id}/replay/frame?step=k`: the JPEG on screen after the first `k`
-/// recorded commands (204 before the first image).
+/// recorded commands (all of them when `k` is beyond the log; 204 before the first image).
 #[utoipa::path(get, path = "/api/attempts/{attempt_id}/replay/frame", tag = "sessions",
     params(("attempt_id" = Uuid, Path, description = "Attempt id"), StepQuery),
     responses((status = 200, description = "The image on screen after `step` commands", content_type = "image/jpeg"),
         (status = 204, description = "No image yet at that step"),
-        (status = 400, description = "Malformed id, or step beyond the log"), (status = 401),
+        (status = 400, description = "Malformed id or step"), (status = 401),
         (status = 404, description = "No such attempt visible to the caller, or no recorded session"),
         (status = 503, description = "The anatomy is being prepared")))]
 async fn replay_frame(
@@ -672,13 +707,8 @@ async fn replay_frame(
 ) -> Result<Response, ApiError> {
     let (session_id, station_id, initial, ..) = recorded_session(&state, &user, attempt_id).await?;
     let (initial, mut log) = parse_recorded(&state, session_id, initial).await?;
-    if q.step > log.len() as u64 {
-        return Err(ApiError::BadRequest(format!(
-            "step must be 0 to {}",
-            log.len()
-        )));
-    }
-    log.truncate(q.step as usize);
+    // A step beyond the log shows the last image: the log of a live session still grows.
+    log.truncate(usize::try_from(q.step).unwrap_or(usize::MAX));
     let (_, jpeg) = replay_to(&state, station_id, initial, log).await?;
     Ok(match jpeg {
         Some(j) => ([(CONTENT_TYPE, "image/jpeg")], j).into_response(),
