@@ -100,6 +100,12 @@ fn cholesky(a: &Stencil) -> Vec<f64> {
             }
         }
     }
+    cholesky_factor(m, n)
+}
+
+/// Dense Cholesky factorisation in place of the row-major symmetric `m` (`n` x `n`); returns the
+/// lower triangle.
+pub(super) fn cholesky_factor(mut m: Vec<f64>, n: usize) -> Vec<f64> {
     for j in 0..n {
         let mut d = m[j * n + j];
         for k in 0..j {
@@ -118,7 +124,7 @@ fn cholesky(a: &Stencil) -> Vec<f64> {
     m
 }
 
-fn cholesky_solve(l: &[f64], b: &[f64], x: &mut [f64]) {
+pub(super) fn cholesky_solve(l: &[f64], b: &[f64], x: &mut [f64]) {
     let n = b.len();
     for i in 0..n {
         let mut v = b[i];
