@@ -11,7 +11,7 @@
 //! red-black Gauss-Seidel by lattice parity, a W-cycle with the over-corrected coarse correction,
 //! and a dense Cholesky solve at the coarsest level.
 
-use super::multigrid::{Multigrid, cholesky_factor, cholesky_solve};
+use super::multigrid::Multigrid;
 use super::pressure::{self, OutletNode, SolveStats, StopRule};
 
 /// A symmetric operator on a list of lattice cells: `y_k = diag_k x_k - sum val x_col` over the
@@ -30,25 +30,15 @@ pub(super) struct CellOp {
     pub(super) val: Vec<f64>,
 }
 
-/// Slot of the neighbour `q` of `p` (coordinates differ by one along one axis): -z, -y, -x, +x,
-/// +y, +z, which is ascending lattice order.
-fn slot(p: [u32; 3], q: [u32; 3]) -> usize {
-    for a in 0..3 {
-        if q[a] != p[a] {
-            return if q[a] < p[a] { 2 - a } else { 3 + a };
-        }
-    }
-    unreachable!("a coupling joins two distinct cells")
-}
-
 impl CellOp {
     /// Unknowns.
     pub(super) fn len(&self) -> usize {
         self.diag.len()
     }
 
-    /// An operator from per-cell neighbour slots (`nb[k][s]` with coupling `g[k][s]`, slots as in
-    /// [`slot`], absent where the coupling is 0) and diagonals.
+    /// An operator from per-cell neighbour slots (`nb[k][s]` with coupling `g[k][s]`, slots -z,
+    /// -y, -x, +x, +y, +z, which is ascending lattice order; absent where the coupling is 0) and
+    /// diagonals.
     fn from_slots(
         coords: Vec<[u32; 3]>,
         diag: Vec<f64>,
@@ -86,11 +76,15 @@ impl CellOp {
         extra: impl Fn(usize) -> f64,
     ) -> CellOp {
         let strides = [1, dims[0], dims[0] * dims[1]];
+        let lo = cells.first().copied().unwrap_or(0);
+        let mut map = vec![u32::MAX; cells.last().map_or(0, |&c| c + 1 - lo)];
+        for (k, &c) in cells.iter().enumerate() {
+            map[c - lo] = k as u32;
+        }
         let index = |c: usize| -> u32 {
-            cells
-                .binary_search(&c)
-                .unwrap_or_else(|_| panic!("cell {c} couples outside the live cells"))
-                as u32
+            let k = map.get(c - lo).copied().unwrap_or(u32::MAX);
+            assert!(k != u32::MAX, "cell {c} couples outside the live cells");
+            k
         };
         let coords: Vec<[u32; 3]> = cells
             .iter()
@@ -134,40 +128,98 @@ impl CellOp {
         }
     }
 
-    /// Galerkin coarsening by 2 x 2 x 2 lattice blocks: the coarse operator and the coarse
-    /// unknown of each fine one.
+    /// Galerkin coarsening by aggregates: the cells of one 2 x 2 x 2 lattice block that are
+    /// joined through couplings inside the block (cells of one block that do not couple, such as
+    /// two compartments a membrane separates, stay apart: a constant across them is no smooth
+    /// error of the operator). Returns the coarse operator and the coarse unknown of each fine
+    /// one; coarse unknowns are ordered by block (lattice order), then by their first cell.
     fn coarsen(&self) -> (CellOp, Vec<u32>) {
-        let key = |c: &[u32; 3]| [c[2] / 2, c[1] / 2, c[0] / 2];
-        let mut keys: Vec<[u32; 3]> = self.coords.iter().map(key).collect();
-        keys.sort_unstable();
-        keys.dedup();
-        let parent: Vec<u32> = self
-            .coords
-            .iter()
-            .map(|c| keys.binary_search(&key(c)).unwrap_or(0) as u32)
-            .collect();
-        let coords: Vec<[u32; 3]> = keys.iter().map(|k| [k[2], k[1], k[0]]).collect();
-        let n = coords.len();
-        let mut diag = vec![0.0; n];
-        let mut nb = vec![[0u32; 6]; n];
-        let mut g = vec![[0.0; 6]; n];
-        for k in 0..self.len() {
-            let p = parent[k] as usize;
-            diag[p] += self.diag[k];
-            let (s, e) = (self.start[k] as usize, self.start[k + 1] as usize);
-            for (&j, &v) in self.col[s..e].iter().zip(&self.val[s..e]) {
-                let q = parent[j as usize] as usize;
-                if q == p {
-                    // A coupling inside the block (met from both of its cells) cancels.
-                    diag[p] -= v;
-                } else {
-                    let sl = slot(coords[p], coords[q]);
-                    nb[p][sl] = q as u32;
-                    g[p][sl] += v;
+        let n = self.len();
+        let key = |k: usize| self.coords[k].map(|v| v / 2);
+        // Union-find of the couplings inside blocks.
+        let mut root: Vec<u32> = (0..n as u32).collect();
+        fn find(root: &mut [u32], mut k: u32) -> u32 {
+            while root[k as usize] != k {
+                let up = root[root[k as usize] as usize];
+                root[k as usize] = up;
+                k = up;
+            }
+            k
+        }
+        for k in 0..n {
+            for t in self.start[k] as usize..self.start[k + 1] as usize {
+                let j = self.col[t] as usize;
+                if j > k && key(j) == key(k) {
+                    let (a, b) = (find(&mut root, k as u32), find(&mut root, j as u32));
+                    // The smaller index is the root, so roots are each aggregate's first cell.
+                    root[a.max(b) as usize] = a.min(b);
                 }
             }
         }
-        (CellOp::from_slots(coords, diag, &nb, &g), parent)
+        // The cells block by block (a counting sort, stable, so by index within a block).
+        let mut cdims = [1u32; 3];
+        for c in &self.coords {
+            for a in 0..3 {
+                cdims[a] = cdims[a].max(c[a] / 2 + 1);
+            }
+        }
+        let block = |k: usize| {
+            let c = self.coords[k];
+            (c[0] / 2 + cdims[0] * (c[1] / 2 + cdims[1] * (c[2] / 2))) as usize
+        };
+        let order = counting_sort(n, (cdims[0] * cdims[1] * cdims[2]) as usize, block);
+        const NONE: u32 = u32::MAX;
+        let mut id = vec![NONE; n];
+        let mut coords = Vec::new();
+        let mut parent = vec![0u32; n];
+        for &k in &order {
+            let r = find(&mut root, k) as usize;
+            if id[r] == NONE {
+                id[r] = coords.len() as u32;
+                coords.push(self.coords[k as usize].map(|v| v / 2));
+            }
+            parent[k as usize] = id[r];
+        }
+        let nc = coords.len();
+        // Rows of the coarse operator, aggregate by aggregate (members in the order above), with
+        // a marker per coarse column: each coarse coupling sums its fine ones in a fixed order.
+        let members = counting_sort(n, nc, |k| parent[k] as usize);
+        let mut diag = vec![0.0; nc];
+        let mut start = Vec::with_capacity(nc + 1);
+        let (mut col, mut val): (Vec<u32>, Vec<f64>) = (Vec::new(), Vec::new());
+        let (mut marker, mut pos) = (vec![NONE; nc], vec![0usize; nc]);
+        start.push(0u32);
+        let mut m = 0;
+        for (p, dp) in diag.iter_mut().enumerate() {
+            while m < n && parent[members[m] as usize] as usize == p {
+                let k = members[m] as usize;
+                m += 1;
+                *dp += self.diag[k];
+                for t in self.start[k] as usize..self.start[k + 1] as usize {
+                    let q = parent[self.col[t] as usize] as usize;
+                    if q == p {
+                        // A coupling inside the aggregate (met from both of its cells) cancels.
+                        *dp -= self.val[t];
+                    } else if marker[q] == p as u32 {
+                        val[pos[q]] += self.val[t];
+                    } else {
+                        marker[q] = p as u32;
+                        pos[q] = col.len();
+                        col.push(q as u32);
+                        val.push(self.val[t]);
+                    }
+                }
+            }
+            start.push(col.len() as u32);
+        }
+        let op = CellOp {
+            coords,
+            diag,
+            start,
+            col,
+            val,
+        };
+        (op, parent)
     }
 
     /// Dense row-major copy (for the coarsest level).
@@ -183,6 +235,30 @@ impl CellOp {
         m
     }
 }
+
+/// Indices `0..n` ordered by `bucket(k) < buckets`, stably.
+fn counting_sort(n: usize, buckets: usize, bucket: impl Fn(usize) -> usize) -> Vec<u32> {
+    let mut first = vec![0u32; buckets + 1];
+    for k in 0..n {
+        first[bucket(k) + 1] += 1;
+    }
+    for b in 0..buckets {
+        first[b + 1] += first[b];
+    }
+    let mut out = vec![0u32; n];
+    for k in 0..n {
+        let b = bucket(k);
+        out[first[b] as usize] = k as u32;
+        first[b] += 1;
+    }
+    out
+}
+
+/// Largest coarsest level solved by a dense factorisation. Aggregates never join cells that do
+/// not couple, so a level made of many separate pockets stops shrinking above
+/// [`Multigrid::COARSEST_CELLS`]; beyond this size (a 1000^2 factor is 8 MB) the coarsest level
+/// is only smoothed, which keeps the cycle symmetric and positive definite.
+const DENSE_LIMIT: usize = 1000;
 
 #[derive(Debug, Clone)]
 struct Level {
@@ -200,7 +276,15 @@ struct Level {
 #[derive(Debug, Clone)]
 pub(super) struct CellMultigrid {
     levels: Vec<Level>,
+    /// Dense Cholesky factor of the coarsest level (empty when that level is too large, see
+    /// [`DENSE_LIMIT`]).
     chol: Vec<f64>,
+    /// Smoothing sweeps before and after the coarse correction.
+    pub(super) sweeps: usize,
+    /// Coarse visits per level.
+    pub(super) gamma: usize,
+    /// Coarse-correction scale.
+    pub(super) alpha: f64,
 }
 
 impl CellMultigrid {
@@ -232,8 +316,23 @@ impl CellMultigrid {
             }
         }
         let last = &levels[levels.len() - 1].a;
-        let chol = cholesky_factor(last.dense(), last.len());
-        CellMultigrid { levels, chol }
+        let chol = if last.len() <= DENSE_LIMIT {
+            cholesky_factor(last.dense(), last.len())
+        } else {
+            Vec::new()
+        };
+        CellMultigrid {
+            levels,
+            chol,
+            sweeps: Multigrid::SWEEPS,
+            gamma: 2,
+            alpha: Multigrid::OVERCORRECTION,
+        }
+    }
+
+    /// Number of levels.
+    pub(super) fn depth(&self) -> usize {
+        self.levels.len()
     }
 
     /// `z = M^-1 r` (one cycle from a zero guess).
@@ -247,12 +346,24 @@ impl CellMultigrid {
     fn cycle(&mut self, l: usize) {
         if l + 1 == self.levels.len() {
             let lv = &mut self.levels[l];
-            cholesky_solve(&self.chol, &lv.b, &mut lv.x);
+            if self.chol.is_empty() {
+                // Symmetric smoothing only (see `DENSE_LIMIT`).
+                for _ in 0..self.sweeps {
+                    gs(&lv.a, &lv.colours[0], &lv.b, &mut lv.x);
+                    gs(&lv.a, &lv.colours[1], &lv.b, &mut lv.x);
+                }
+                for _ in 0..self.sweeps {
+                    gs(&lv.a, &lv.colours[1], &lv.b, &mut lv.x);
+                    gs(&lv.a, &lv.colours[0], &lv.b, &mut lv.x);
+                }
+            } else {
+                cholesky_solve(&self.chol, &lv.b, &mut lv.x);
+            }
             return;
         }
         {
             let lv = &mut self.levels[l];
-            for _ in 0..Multigrid::SWEEPS {
+            for _ in 0..self.sweeps {
                 gs(&lv.a, &lv.colours[0], &lv.b, &mut lv.x);
                 gs(&lv.a, &lv.colours[1], &lv.b, &mut lv.x);
             }
@@ -268,18 +379,57 @@ impl CellMultigrid {
             c.b[p as usize] += r;
         }
         c.x.fill(0.0);
-        for _ in 0..2 {
+        for _ in 0..self.gamma {
             self.cycle(l + 1);
         }
         let (fine, coarse) = self.levels.split_at_mut(l + 1);
         let (f, c) = (&mut fine[l], &coarse[0]);
         for (x, &p) in f.x.iter_mut().zip(&f.parent) {
-            *x += Multigrid::OVERCORRECTION * c.x[p as usize];
+            *x += self.alpha * c.x[p as usize];
         }
-        for _ in 0..Multigrid::SWEEPS {
+        for _ in 0..self.sweeps {
             gs(&f.a, &f.colours[1], &f.b, &mut f.x);
             gs(&f.a, &f.colours[0], &f.b, &mut f.x);
         }
+    }
+}
+
+/// Dense Cholesky factorisation in place of the row-major symmetric `m` (`n` x `n`); returns the
+/// lower triangle.
+fn cholesky_factor(mut m: Vec<f64>, n: usize) -> Vec<f64> {
+    for j in 0..n {
+        let mut d = m[j * n + j];
+        for k in 0..j {
+            d -= m[j * n + k] * m[j * n + k];
+        }
+        let d = d.max(f64::MIN_POSITIVE).sqrt();
+        m[j * n + j] = d;
+        for i in j + 1..n {
+            let mut v = m[i * n + j];
+            for k in 0..j {
+                v -= m[i * n + k] * m[j * n + k];
+            }
+            m[i * n + j] = v / d;
+        }
+    }
+    m
+}
+
+fn cholesky_solve(l: &[f64], b: &[f64], x: &mut [f64]) {
+    let n = b.len();
+    for i in 0..n {
+        let mut v = b[i];
+        for k in 0..i {
+            v -= l[i * n + k] * x[k];
+        }
+        x[i] = v / l[i * n + i];
+    }
+    for i in (0..n).rev() {
+        let mut v = x[i];
+        for k in i + 1..n {
+            v -= l[k * n + i] * x[k];
+        }
+        x[i] = v / l[i * n + i];
     }
 }
 
