@@ -222,6 +222,29 @@ impl CellOp {
         (op, parent)
     }
 
+    /// The operator with unknown `order[i]` at position `i` (`new_index` the inverse).
+    fn permuted(&self, order: &[u32], new_index: &[u32]) -> CellOp {
+        let mut start = Vec::with_capacity(self.start.len());
+        let (mut col, mut val) = (Vec::with_capacity(self.col.len()), Vec::new());
+        start.push(0);
+        for &k in order {
+            let (s, e) = (
+                self.start[k as usize] as usize,
+                self.start[k as usize + 1] as usize,
+            );
+            col.extend(self.col[s..e].iter().map(|&j| new_index[j as usize]));
+            val.extend_from_slice(&self.val[s..e]);
+            start.push(col.len() as u32);
+        }
+        CellOp {
+            coords: order.iter().map(|&k| self.coords[k as usize]).collect(),
+            diag: order.iter().map(|&k| self.diag[k as usize]).collect(),
+            start,
+            col,
+            val,
+        }
+    }
+
     /// Dense row-major copy (for the coarsest level).
     fn dense(&self) -> Vec<f64> {
         let n = self.len();
@@ -234,6 +257,18 @@ impl CellOp {
         }
         m
     }
+}
+
+/// The unknowns of `a` with even lattice parity, then the odd ones (each ascending), and the
+/// number of even ones.
+fn parity_order(a: &CellOp) -> (Vec<u32>, usize) {
+    let odd = |c: &[u32; 3]| (c[0] + c[1] + c[2]) % 2 == 1;
+    let mut order: Vec<u32> = (0..a.len() as u32)
+        .filter(|&k| !odd(&a.coords[k as usize]))
+        .collect();
+    let split = order.len();
+    order.extend((0..a.len() as u32).filter(|&k| odd(&a.coords[k as usize])));
+    (order, split)
 }
 
 /// Indices `0..n` ordered by `bucket(k) < buckets`, stably.
@@ -263,8 +298,8 @@ const DENSE_LIMIT: usize = 1000;
 #[derive(Debug, Clone)]
 struct Level {
     a: CellOp,
-    /// Unknowns of each lattice parity.
-    colours: [Vec<u32>; 2],
+    /// The unknowns are ordered by lattice parity: `0..split` even, `split..` odd.
+    split: usize,
     /// Coarse unknown of each unknown (empty on the coarsest level).
     parent: Vec<u32>,
     x: Vec<f64>,
@@ -276,6 +311,8 @@ struct Level {
 #[derive(Debug, Clone)]
 pub(super) struct CellMultigrid {
     levels: Vec<Level>,
+    /// The operator's unknown at each position of the finest level.
+    order: Vec<u32>,
     /// Dense Cholesky factor of the coarsest level (empty when that level is too large, see
     /// [`DENSE_LIMIT`]).
     chol: Vec<f64>,
@@ -289,29 +326,44 @@ pub(super) struct CellMultigrid {
 
 impl CellMultigrid {
     pub(super) fn new(a: &CellOp) -> CellMultigrid {
-        let mut levels = Vec::new();
+        let mut levels: Vec<Level> = Vec::new();
+        let mut order0 = Vec::new();
         let mut cur = a.clone();
         loop {
-            let n = cur.len();
-            let next = (n > Multigrid::COARSEST_CELLS).then(|| cur.coarsen());
+            // Each level's unknowns in parity order, so a half-sweep streams one contiguous half.
+            let (order, split) = parity_order(&cur);
+            let mut new_index = vec![0u32; order.len()];
+            for (i, &k) in order.iter().enumerate() {
+                new_index[k as usize] = i as u32;
+            }
+            let op = cur.permuted(&order, &new_index);
+            match levels.last_mut() {
+                Some(prev) => {
+                    for q in prev.parent.iter_mut() {
+                        *q = new_index[*q as usize];
+                    }
+                }
+                None => order0 = order,
+            }
+            let n = op.len();
+            let next = (n > Multigrid::COARSEST_CELLS).then(|| op.coarsen());
             // Coarsening that no longer shrinks the level (cells far apart) ends the hierarchy;
             // the dense solve then takes the whole level.
             let next = next.filter(|(c, _)| c.len() < n);
-            let mut colours = [Vec::new(), Vec::new()];
-            for (k, c) in cur.coords.iter().enumerate() {
-                colours[((c[0] + c[1] + c[2]) % 2) as usize].push(k as u32);
-            }
-            let parent = next.as_ref().map(|(_, p)| p.clone()).unwrap_or_default();
+            let (next, parent) = match next {
+                Some((c, p)) => (Some(c), p),
+                None => (None, Vec::new()),
+            };
             levels.push(Level {
-                a: cur,
-                colours,
+                a: op,
+                split,
                 parent,
                 x: vec![0.0; n],
                 b: vec![0.0; n],
                 r: vec![0.0; n],
             });
             match next {
-                Some((c, _)) => cur = c,
+                Some(c) => cur = c,
                 None => break,
             }
         }
@@ -323,6 +375,7 @@ impl CellMultigrid {
         };
         CellMultigrid {
             levels,
+            order: order0,
             chol,
             sweeps: Multigrid::SWEEPS,
             gamma: 2,
@@ -337,10 +390,15 @@ impl CellMultigrid {
 
     /// `z = M^-1 r` (one cycle from a zero guess).
     pub(super) fn apply(&mut self, r: &[f64], z: &mut [f64]) {
-        self.levels[0].b.copy_from_slice(r);
-        self.levels[0].x.fill(0.0);
+        let lv = &mut self.levels[0];
+        for (b, &k) in lv.b.iter_mut().zip(&self.order) {
+            *b = r[k as usize];
+        }
+        lv.x.fill(0.0);
         self.cycle(0);
-        z.copy_from_slice(&self.levels[0].x);
+        for (&x, &k) in self.levels[0].x.iter().zip(&self.order) {
+            z[k as usize] = x;
+        }
     }
 
     fn cycle(&mut self, l: usize) {
@@ -349,12 +407,12 @@ impl CellMultigrid {
             if self.chol.is_empty() {
                 // Symmetric smoothing only (see `DENSE_LIMIT`).
                 for _ in 0..self.sweeps {
-                    gs(&lv.a, &lv.colours[0], &lv.b, &mut lv.x);
-                    gs(&lv.a, &lv.colours[1], &lv.b, &mut lv.x);
+                    gs(&lv.a, 0..lv.split, &lv.b, &mut lv.x);
+                    gs(&lv.a, lv.split..lv.a.len(), &lv.b, &mut lv.x);
                 }
                 for _ in 0..self.sweeps {
-                    gs(&lv.a, &lv.colours[1], &lv.b, &mut lv.x);
-                    gs(&lv.a, &lv.colours[0], &lv.b, &mut lv.x);
+                    gs(&lv.a, lv.split..lv.a.len(), &lv.b, &mut lv.x);
+                    gs(&lv.a, 0..lv.split, &lv.b, &mut lv.x);
                 }
             } else {
                 cholesky_solve(&self.chol, &lv.b, &mut lv.x);
@@ -364,8 +422,8 @@ impl CellMultigrid {
         {
             let lv = &mut self.levels[l];
             for _ in 0..self.sweeps {
-                gs(&lv.a, &lv.colours[0], &lv.b, &mut lv.x);
-                gs(&lv.a, &lv.colours[1], &lv.b, &mut lv.x);
+                gs(&lv.a, 0..lv.split, &lv.b, &mut lv.x);
+                gs(&lv.a, lv.split..lv.a.len(), &lv.b, &mut lv.x);
             }
             lv.a.apply(&lv.x, &mut lv.r);
             for (r, b) in lv.r.iter_mut().zip(&lv.b) {
@@ -388,8 +446,8 @@ impl CellMultigrid {
             *x += self.alpha * c.x[p as usize];
         }
         for _ in 0..self.sweeps {
-            gs(&f.a, &f.colours[1], &f.b, &mut f.x);
-            gs(&f.a, &f.colours[0], &f.b, &mut f.x);
+            gs(&f.a, f.split..f.a.len(), &f.b, &mut f.x);
+            gs(&f.a, 0..f.split, &f.b, &mut f.x);
         }
     }
 }
@@ -434,9 +492,8 @@ fn cholesky_solve(l: &[f64], b: &[f64], x: &mut [f64]) {
 }
 
 /// One Gauss-Seidel half-sweep over `rows` (one lattice parity, so they do not couple).
-fn gs(a: &CellOp, rows: &[u32], b: &[f64], x: &mut [f64]) {
-    for &k in rows {
-        let k = k as usize;
+fn gs(a: &CellOp, rows: std::ops::Range<usize>, b: &[f64], x: &mut [f64]) {
+    for k in rows {
         let (s, e) = (a.start[k] as usize, a.start[k + 1] as usize);
         let mut v = b[k];
         for (&j, &g) in a.col[s..e].iter().zip(&a.val[s..e]) {
