@@ -10,6 +10,8 @@
 //!   the vertebral levels ([`domains::phantom_levels`]);
 //! - [`grid`]: [`ContrastGrid`] (per-cell [`Domain`] and [`CellProps`]) and its [`Faces`];
 //! - [`pressure`], [`multigrid`]: the linear system, PCG and its stop rule, the preconditioner;
+//!   `cells` (private): the same operator and multigrid compressed to the live cells, which is
+//!   what a model step solves;
 //! - [`model`]: [`ContrastModel`]: `start_injection(&NeedleOutlet, &Injection)`,
 //!   `stop_injection()`, `puncture(&NeedleOutlet, depth_mm)`, `advance(dt_s) -> StepReport`,
 //!   `ledger()`, `density_stock()` (whole-voxel stock-equivalent density for
@@ -34,6 +36,7 @@
 //! assert!(model.ledger().balance_error(model.retained_mm3()) < 1e-12);
 //! ```
 
+mod cells;
 pub mod classify;
 pub mod domains;
 pub mod grid;

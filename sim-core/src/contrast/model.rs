@@ -2,6 +2,8 @@
 //! time stepping with the per-step ledger.
 //!
 //! # One step of length `dt`
+//! Only the live cells take part (see [`super::window`]); they are solved and transported as a
+//! compressed list ([`super::cells`]), not as the box around them.
 //! 1. Pressure, backward Euler in the storage: `sum_j G_ij (p_i - p_j) + s_i p_i
 //!    + C_i (p_i - p_i^n) / dt = Q_i`, where `C_i p_i^n` is the cell's current fluid excess over
 //!    its pore volume, `s_i` its drains, and `Q_i` comes from the outlet node (see
@@ -10,18 +12,30 @@
 //!    `T_ij (c_i - c_j)` with the harmonic `phi D` transmissibility; clearance removes `k m_i`.
 //!    Every exchange is subtracted from one cell and added to another (or to a ledger entry), so
 //!    iodine is conserved to round-off whatever the solver's accuracy.
-//! 3. The step is accepted only if every cell's outgoing transport (advective outflow, drains,
-//!    all diffusive transmissibilities and clearance) over `dt` is at most [`ModelConfig::cfl`] of
-//!    its fluid volume; then the new concentration `m'/V'` is a convex combination of old
-//!    concentrations and the injected one, so it stays in `[0, stock]`. Otherwise `dt` is halved
-//!    and the step repeated.
+//! 3. Transport is sub-cycled under the step's flows (see [`super::transport`]): each substep lets
+//!    every cell's outgoing transport (advective outflow, drains, all diffusive
+//!    transmissibilities and clearance) take at most [`ModelConfig::cfl`] of its fluid volume;
+//!    then the new concentration `m'/V'` is a convex combination of old concentrations and the
+//!    injected one, so it stays in `[0, stock]`. A step that cannot keep the bound (a cell without
+//!    fluid would lose some, NaN, too many substeps) is halved and repeated.
+//!
+//! # Step sizes and accuracy
+//! The pressure step is at most [`ModelConfig::dt_max_s`]; the transport substeps are as long
+//! as the bound allows. Measured on the benchmark's phantom injection (3 mL over 10 s at
+//! L4-L5, 1 mm cells), as the relative L1 difference of the final iodine field from a reference
+//! with 1/256 s steps: 0.33 % for the earlier scheme (one transport step per pressure solve,
+//! 320 steps of 1/32 s at a bound of 0.9); with 0.25 s pressure steps, 0.82 % at a bound of 0.9,
+//! 0.36 % at 0.3 and 0.28 % at 0.2 (the error is the forward-Euler error of the cells the
+//! outlet flushes fastest, so it falls with the bound), and 0.23 % at 0.1.
 
 use super::ContrastError;
+use super::cells::{self, CellMultigrid, CellOp};
 use super::grid::{ContrastGrid, Domain, Faces};
 use super::ledger::Ledger;
 use super::multigrid::Multigrid;
 use super::outlet::{self, Injection, NeedleOutlet};
 use super::pressure::{self, OutletNode, SolveStats, Stencil, StopRule, System};
+use super::transport::{self, LiveSet};
 use super::window::{Components, Window};
 use crate::volume::Volume;
 
@@ -43,7 +57,7 @@ pub struct ModelConfig {
     pub preconditioner: Preconditioner,
     /// Largest step, s.
     pub dt_max_s: f64,
-    /// Largest fraction of a cell's fluid that may leave it in one step (< 1).
+    /// Largest fraction of a cell's fluid that may leave it in one transport substep (< 1).
     pub cfl: f64,
 }
 
@@ -53,7 +67,8 @@ impl Default for ModelConfig {
             stop: StopRule::default(),
             preconditioner: Preconditioner::Multigrid,
             dt_max_s: 0.25,
-            cfl: 0.9,
+            // 0.2 rather than the 0.9 positivity allows: accuracy (see "Step sizes and accuracy").
+            cfl: 0.2,
         }
     }
 }
@@ -67,22 +82,28 @@ struct Running {
     stock_fraction: f64,
 }
 
+/// The operator of one step size on one live set, with what the steps on it reuse.
 #[derive(Debug, Clone)]
 struct Cached {
     dt: f64,
     version: u64,
     window: Window,
-    stencil: Stencil,
-    /// The outlet node with contacts in window indices.
+    live: LiveSet,
+    op: CellOp,
+    /// The outlet node with contacts in live-cell indices.
     node: Option<OutletNode>,
-    mg: Option<Multigrid>,
+    mg: Option<CellMultigrid>,
+    /// Smallest Ritz value the solves on this operator have found (see `pressure::pcg_floor`).
+    ritz_floor: f64,
 }
 
 /// Solver counters since creation.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct SolverCounters {
-    /// Accepted steps.
+    /// Accepted (pressure) steps.
     pub steps: u64,
+    /// Transport substeps of the accepted steps (see `transport`'s sub-cycling).
+    pub transport_substeps: u64,
     /// Rejected (halved) steps.
     pub rejected: u64,
     /// Pressure solves.
@@ -114,12 +135,16 @@ pub struct ContrastModel {
     grid: ContrastGrid,
     faces: Faces,
     components: Components,
-    window: Option<Window>,
     opened: Vec<(usize, usize)>,
     iodine: Vec<f64>,
     fluid: Vec<f64>,
     pore0: Vec<f64>,
     pressure: Vec<f64>,
+    /// The pressure before the last accepted step, when that step and the one before it had the
+    /// same operator (then the next solve on it starts from the linear extrapolation).
+    pressure_prev: Option<Vec<f64>>,
+    /// Operator version and step of the last accepted step.
+    last_key: Option<(u64, f64)>,
     injection: Option<Running>,
     ledger: Ledger,
     time_s: f64,
@@ -139,12 +164,13 @@ impl ContrastModel {
         let pore0: Vec<f64> = (0..grid.len()).map(|i| grid.pore_volume_mm3(i)).collect();
         ContrastModel {
             components: Components::new(&grid, &faces),
-            window: None,
             faces,
             opened: Vec::new(),
             iodine: vec![0.0; grid.len()],
             fluid: pore0.clone(),
             pressure: vec![0.0; grid.len()],
+            pressure_prev: None,
+            last_key: None,
             pore0,
             grid,
             injection: None,
@@ -318,11 +344,11 @@ impl ContrastModel {
         Ok(report)
     }
 
-    /// The pressure solve for a step of `dt` on the live window (see [`super::window`]),
-    /// warm-started from the last pressure; zero outside the window.
-    fn solve(&mut self, dt: f64) -> Vec<f64> {
+    /// The pressure solve for a step of `dt` on the live cells (see [`super::window`]),
+    /// warm-started from the last pressure: the cache slot of the operator and the pressures of
+    /// its live cells (then the outlet node), or `None` when nothing is live.
+    fn solve(&mut self, dt: f64) -> Option<(usize, Vec<f64>)> {
         let n = self.grid.len();
-        let node_len = usize::from(self.injection.is_some());
         let contacts = self
             .injection
             .iter()
@@ -330,16 +356,7 @@ impl ContrastModel {
         let seeds = (0..n)
             .filter(|&i| self.iodine[i] != 0.0 || self.fluid[i] != self.pore0[i])
             .chain(contacts);
-        self.window = Window::of_seeds(&self.components, self.grid.grid.dims, seeds);
-        let Some(w) = self.window.clone() else {
-            return vec![0.0; n + node_len];
-        };
-        let wd = w.dims();
-        let wn = wd[0] * wd[1] * wd[2];
-        let to_window = |c: usize| -> usize {
-            let [i, j, k] = self.grid.grid.ijk(c);
-            (i - w.lo[0]) + wd[0] * ((j - w.lo[1]) + wd[1] * (k - w.lo[2]))
-        };
+        let w = Window::of_seeds(&self.components, self.grid.grid.dims, seeds)?;
         // Operators (and multigrid hierarchies) of the last few step sizes and windows are kept:
         // steps are halved and doubled, so the same few recur.
         self.cache.retain(|c| c.version == self.version);
@@ -347,146 +364,161 @@ impl ContrastModel {
         let slot = match hit {
             Some(i) => i,
             None => {
-                let vc = self.grid.grid.voxel_volume_mm3();
-                let mut extra = vec![0.0; wn];
-                let mut active = vec![false; wn];
-                let mut off = [vec![0.0; wn], vec![0.0; wn], vec![0.0; wn]];
-                for k in 0..wd[2] {
-                    for j in 0..wd[1] {
-                        for i in 0..wd[0] {
-                            let c = w.full_index(i, j, k);
-                            if !w.is_live(&self.components, c) {
-                                continue;
-                            }
-                            let wi = i + wd[0] * (j + wd[1] * k);
-                            active[wi] = true;
-                            extra[wi] =
-                                self.faces.sink[c] + self.grid.props[c].compliance * vc / dt;
-                            let ijk = [i, j, k];
-                            for a in 0..3 {
-                                // Live cells couple only to live cells, all inside the window.
-                                if ijk[a] + 1 < wd[a] {
-                                    off[a][wi] = self.faces.conductance[a][c];
-                                } else {
-                                    debug_assert!(self.faces.conductance[a][c] == 0.0);
-                                }
-                            }
-                        }
-                    }
-                }
-                let node = self.injection.as_ref().map(|r| OutletNode {
-                    contacts: r
-                        .node
-                        .contacts
-                        .iter()
-                        .map(|&(c, g)| (to_window(c), g))
-                        .collect(),
-                });
-                if let Some(o) = &node {
-                    for &(c, g) in &o.contacts {
-                        extra[c] += g;
-                    }
-                }
-                let stencil = Stencil::from_couplings(wd, off, &extra, active);
-                let mg = (self.config.preconditioner == Preconditioner::Multigrid)
-                    .then(|| Multigrid::new(&stencil));
+                let entry = self.build(dt, w);
                 if self.cache.len() >= 4 {
                     self.cache.remove(0);
                 }
-                self.cache.push(Cached {
-                    dt,
-                    version: self.version,
-                    window: w.clone(),
-                    stencil,
-                    node,
-                    mg,
-                });
+                self.cache.push(entry);
                 self.cache.len() - 1
             }
         };
+        let b = self.rhs(&self.cache[slot].live.cells, dt);
         let cache = &mut self.cache[slot];
-        let sys = System {
-            stencil: &cache.stencil,
-            outlet: cache.node.as_ref(),
-        };
-        let mut b = vec![0.0; wn];
-        let mut x = vec![0.0; wn];
-        for k in 0..wd[2] {
-            for j in 0..wd[1] {
-                for i in 0..wd[0] {
-                    let c = w.full_index(i, j, k);
-                    if !cache.stencil.active[i + wd[0] * (j + wd[1] * k)] {
-                        continue;
-                    }
-                    let wi = i + wd[0] * (j + wd[1] * k);
-                    if self.grid.props[c].compliance > 0.0 {
-                        b[wi] = (self.fluid[c] - self.pore0[c]) / dt;
-                    }
-                    x[wi] = self.pressure.get(c).copied().unwrap_or(0.0);
-                }
-            }
-        }
-        if let Some(r) = &self.injection {
-            b.push(r.rate_mm3_s);
+        let cells = &cache.live.cells;
+        let mut x: Vec<f64> = cells
+            .iter()
+            .map(|&c| self.pressure.get(c).copied().unwrap_or(0.0))
+            .collect();
+        if self.injection.is_some() {
             x.push(self.pressure.get(n).copied().unwrap_or(0.0));
         }
-        let stats = solve_system(&sys, cache.mg.as_mut(), &b, &mut x, self.config.stop);
+        // Warm start: after two steps on this operator, extrapolate the pressure's trend (it
+        // changes smoothly while an injection runs); the stop rule does not depend on the guess.
+        if let Some(prev) = &self.pressure_prev
+            && self.last_key == Some((self.version, dt))
+            && prev.len() == self.pressure.len()
+        {
+            let full = cells
+                .iter()
+                .copied()
+                .chain((x.len() > cells.len()).then_some(n));
+            for (xk, c) in x.iter_mut().zip(full) {
+                *xk += *xk - prev[c];
+            }
+        }
+        let stats = cells::solve(
+            &cache.op,
+            cache.node.as_ref(),
+            cache.mg.as_mut(),
+            &b,
+            &mut x,
+            self.config.stop,
+            cache.ritz_floor,
+        );
+        if stats.iterations > 0 {
+            cache.ritz_floor = cache.ritz_floor.min(stats.ritz_min);
+        }
         self.counters.solves += 1;
         self.counters.iterations += stats.iterations as u64;
         self.counters.last = Some(stats);
-        let mut p = vec![0.0; n + node_len];
-        for k in 0..wd[2] {
-            for j in 0..wd[1] {
-                for i in 0..wd[0] {
-                    p[w.full_index(i, j, k)] = x[i + wd[0] * (j + wd[1] * k)];
+        Some((slot, x))
+    }
+
+    /// The right-hand side of a step of `dt` on `cells` (then the outlet node's rate, if any).
+    fn rhs(&self, cells: &[usize], dt: f64) -> Vec<f64> {
+        let mut b: Vec<f64> = cells
+            .iter()
+            .map(|&c| {
+                if self.grid.props[c].compliance > 0.0 {
+                    (self.fluid[c] - self.pore0[c]) / dt
+                } else {
+                    0.0
                 }
+            })
+            .collect();
+        if let Some(r) = &self.injection {
+            b.push(r.rate_mm3_s);
+        }
+        b
+    }
+
+    /// The live cells of window `w`, their operator for steps of `dt` and its preconditioner.
+    fn build(&self, dt: f64, w: Window) -> Cached {
+        let vc = self.grid.grid.voxel_volume_mm3();
+        let cells: Vec<usize> = w.live_cells(&self.components).collect();
+        let live = LiveSet::new(&self.grid, &self.faces, cells);
+        let cells = &live.cells;
+        let node = self.injection.as_ref().map(|r| OutletNode {
+            contacts: r
+                .node
+                .contacts
+                .iter()
+                .map(|&(c, g)| (cells.binary_search(&c).unwrap_or(0), g))
+                .collect(),
+        });
+        let mut extra: Vec<f64> = cells
+            .iter()
+            .map(|&c| self.faces.sink[c] + self.grid.props[c].compliance * vc / dt)
+            .collect();
+        if let Some(o) = &node {
+            for &(k, g) in &o.contacts {
+                extra[k] += g;
             }
         }
-        if node_len == 1 {
-            p[n] = x[wn];
+        // Live cells couple only to live cells (components are closed under open faces).
+        let op = CellOp::from_cells(
+            self.grid.grid.dims,
+            cells,
+            |a, c| self.faces.conductance[a][c],
+            |k| extra[k],
+        );
+        let mg = (self.config.preconditioner == Preconditioner::Multigrid)
+            .then(|| CellMultigrid::new(&op));
+        Cached {
+            dt,
+            version: self.version,
+            window: w,
+            live,
+            op,
+            node,
+            mg,
+            ritz_floor: f64::INFINITY,
         }
-        p
     }
 
     /// One step of `dt`, or `None` if it would break the step bound (nothing changed then).
     fn try_step(&mut self, dt: f64) -> Option<Ledger> {
         let t0 = std::time::Instant::now();
-        let p = self.solve(dt);
+        let Some((slot, x)) = self.solve(dt) else {
+            // Nothing live: everything is at rest.
+            self.pressure = vec![0.0; self.grid.len()];
+            return Some(Ledger::default());
+        };
         let t1 = std::time::Instant::now();
-        let out = super::transport::step(self, &p, dt);
+        let cache = &self.cache[slot];
+        let contacts = self
+            .injection
+            .as_ref()
+            .zip(cache.node.as_ref())
+            .map(|(r, o)| (o.contacts.as_slice(), r.stock_fraction));
+        let out = transport::step(
+            &cache.live,
+            &x,
+            contacts,
+            self.config.cfl,
+            dt,
+            &mut self.iodine,
+            &mut self.fluid,
+        );
         self.counters.solve_seconds += (t1 - t0).as_secs_f64();
         self.counters.transport_seconds += t1.elapsed().as_secs_f64();
         let out = out?;
-        self.pressure = p;
-        // Grow the step again once it is comfortably inside the bound.
-        if out.max_ratio < 0.25 * self.config.cfl {
-            self.dt_try = (2.0 * dt).min(self.config.dt_max_s);
+        let n = self.grid.len();
+        let mut p = vec![0.0; n + usize::from(self.injection.is_some())];
+        for (k, &c) in cache.live.cells.iter().enumerate() {
+            p[c] = x[k];
         }
+        if self.injection.is_some() {
+            p[n] = x[cache.live.cells.len()];
+        }
+        let key = Some((self.version, dt));
+        let before = std::mem::replace(&mut self.pressure, p);
+        self.pressure_prev = (self.last_key == key).then_some(before);
+        self.last_key = key;
+        self.counters.transport_substeps += u64::from(out.substeps);
+        // Grow the step again after one that was refused.
+        self.dt_try = (2.0 * dt).min(self.config.dt_max_s);
         Some(out.ledger)
-    }
-
-    pub(super) fn parts(&self) -> super::transport::Parts<'_> {
-        super::transport::Parts {
-            grid: &self.grid,
-            faces: &self.faces,
-            iodine: &self.iodine,
-            fluid: &self.fluid,
-            live: self
-                .window
-                .as_ref()
-                .map(|w| w.live_cells(&self.components).collect())
-                .unwrap_or_default(),
-            contacts: self
-                .injection
-                .as_ref()
-                .map(|r| (r.node.contacts.as_slice(), r.stock_fraction)),
-            cfl: self.config.cfl,
-        }
-    }
-
-    pub(super) fn commit(&mut self, iodine: Vec<f64>, fluid: Vec<f64>) {
-        self.iodine = iodine;
-        self.fluid = fluid;
     }
 
     /// Retained iodine per domain, stock-equivalent mm^3.
@@ -510,28 +542,17 @@ pub fn solve_system(
     x: &mut [f64],
     rule: StopRule,
 ) -> SolveStats {
-    let n = sys.stencil.len();
-    let jac = pressure::jacobi_diagonal(sys);
-    let mut apply = |v: &[f64], y: &mut [f64]| sys.apply(v, y);
-    match mg {
-        Some(mg) => {
-            let mut pc = |r: &[f64], z: &mut [f64]| {
-                mg.apply(&r[..n], &mut z[..n]);
-                for i in n..r.len() {
-                    z[i] = r[i] * jac[i];
-                }
-            };
-            pressure::pcg(&mut apply, &mut pc, b, x, rule)
-        }
-        None => {
-            let mut pc = |r: &[f64], z: &mut [f64]| {
-                for i in 0..r.len() {
-                    z[i] = r[i] * jac[i];
-                }
-            };
-            pressure::pcg(&mut apply, &mut pc, b, x, rule)
-        }
-    }
+    let mut mg_apply = mg.map(|m| move |r: &[f64], z: &mut [f64]| m.apply(r, z));
+    pressure::pcg_cells(
+        &sys.stencil.diag,
+        &|v, y| sys.stencil.apply(v, y),
+        sys.outlet,
+        mg_apply.as_mut().map(|f| f as pressure::CellPrecond<'_>),
+        b,
+        x,
+        rule,
+        f64::INFINITY,
+    )
 }
 
 /// Steady pressure with drains only (no storage, no outlet): `sum_j G_ij (p_i - p_j) + s_i p_i =
@@ -562,4 +583,86 @@ pub fn steady_stencil(grid: &ContrastGrid, faces: &Faces) -> Stencil {
         &faces.sink,
         grid.domain.iter().map(Option::is_some).collect(),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::contrast::{Agent, CellProps};
+    use crate::volume::VolumeGrid;
+
+    /// The warm-started, extrapolated solves with the carried Ritz floor still deliver the stop
+    /// rule's relative energy-norm error (against a 1e-13 solve of the same system from zero).
+    #[test]
+    fn warm_started_solves_meet_the_stop_rule() {
+        let vg = VolumeGrid {
+            dims: [16, 8, 8],
+            spacing_mm: [1.0; 3],
+            origin_mm: [0.0; 3],
+        };
+        let mut grid =
+            ContrastGrid::uniform(vg, Domain::Epidural, Domain::Epidural.default_props());
+        // A slow, stiff layer across the channel: a harder operator than the uniform box.
+        for k in 0..8 {
+            for j in 0..8 {
+                grid.props[vg.index(9, j, k)] = CellProps {
+                    mobility: [0.001; 3],
+                    ..Domain::Epidural.default_props()
+                };
+            }
+        }
+        let mut m = ContrastModel::new(grid, ModelConfig::default());
+        let dose = Injection {
+            agent: Agent::CONTRAST,
+            volume_ml: 1.0,
+            rate_ml_s: 0.05,
+        };
+        m.start_injection(
+            &NeedleOutlet::tuohy([4.0, 3.5, 3.5], [1.0, 0.0, 0.0]),
+            &dose,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let rule = m.config.stop;
+        for step in 0..8 {
+            m.advance(0.25).unwrap_or_else(|e| panic!("{e}"));
+            let dt = m.config.dt_max_s;
+            let Some((slot, x)) = m.solve(dt) else {
+                panic!("nothing live")
+            };
+            let its = m.counters.last.map_or(0, |s| s.iterations);
+            let c = &m.cache[slot];
+            let b = m.rhs(&c.live.cells, dt);
+            let mut reference = vec![0.0; b.len()];
+            let tight = StopRule {
+                rel_error: 1e-13,
+                max_iter: 5000,
+            };
+            let mut mg = CellMultigrid::new(&c.op);
+            cells::solve(
+                &c.op,
+                c.node.as_ref(),
+                Some(&mut mg),
+                &b,
+                &mut reference,
+                tight,
+                f64::INFINITY,
+            );
+            let n = c.op.len();
+            let energy = |v: &[f64]| {
+                let mut y = vec![0.0; v.len()];
+                c.op.apply(&v[..n], &mut y[..n]);
+                if let Some(o) = &c.node {
+                    o.apply(v, &mut y, n);
+                }
+                v.iter().zip(&y).map(|(a, b)| a * b).sum::<f64>()
+            };
+            let e: Vec<f64> = x.iter().zip(&reference).map(|(a, b)| a - b).collect();
+            let rel = (energy(&e) / energy(&reference)).sqrt();
+            println!("step {step}: {its} iterations, relative energy error {rel:.2e}");
+            assert!(
+                rel <= rule.rel_error,
+                "step {step}: {rel} after {its} iterations"
+            );
+        }
+    }
 }

@@ -141,6 +141,18 @@ impl OutletNode {
     pub fn total(&self) -> f64 {
         self.contacts.iter().map(|c| c.1).sum()
     }
+
+    /// Completes `y = A x` for the node, unknown `n` after `n` cells whose rows `y` already hold
+    /// the cell operator: the contacts' couplings to the node, and the node's row.
+    pub fn apply(&self, x: &[f64], y: &mut [f64], n: usize) {
+        let xn = x[n];
+        let mut yn = 0.0;
+        for &(c, g) in &self.contacts {
+            y[c] -= g * xn;
+            yn += g * (xn - x[c]);
+        }
+        y[n] = yn;
+    }
 }
 
 /// The full operator: the stencil (whose diagonal already includes the contact conductances) and
@@ -168,13 +180,7 @@ impl System<'_> {
         let n = self.stencil.len();
         self.stencil.apply(&x[..n], &mut y[..n]);
         if let Some(o) = self.outlet {
-            let xn = x[n];
-            let mut yn = 0.0;
-            for &(c, g) in &o.contacts {
-                y[c] -= g * xn;
-                yn += g * (xn - x[c]);
-            }
-            y[n] = yn;
+            o.apply(x, y, n);
         }
     }
 }
@@ -274,6 +280,22 @@ pub fn pcg(
     x: &mut [f64],
     rule: StopRule,
 ) -> SolveStats {
+    pcg_floor(apply, precond, b, x, rule, f64::INFINITY)
+}
+
+/// [`pcg`] that also knows `ritz_floor`, the smallest Ritz value an earlier solve with the same
+/// operator and preconditioner reached. Every Ritz value lies in the spectrum, so it is an upper
+/// bound on `lambda_min` like the solve's own estimate, and the smaller of the two is used: a
+/// warm-started solve that stops after a few iterations (whose own Lanczos tridiagonal is too
+/// short to have found `lambda_min`) still bounds its error with the better estimate.
+pub fn pcg_floor(
+    apply: &mut dyn FnMut(&[f64], &mut [f64]),
+    precond: &mut dyn FnMut(&[f64], &mut [f64]),
+    b: &[f64],
+    x: &mut [f64],
+    rule: StopRule,
+    ritz_floor: f64,
+) -> SolveStats {
     let n = b.len();
     let mut r = vec![0.0; n];
     apply(x, &mut r);
@@ -327,7 +349,7 @@ pub fn pcg(
         stats.iterations = it + 1;
         if it < 64 || it % 8 == 0 {
             let (lo, hi) = tridiagonal_extremes(&td, &te2[..td.len() - 1]);
-            stats.ritz_min = lo.max(f64::MIN_POSITIVE);
+            stats.ritz_min = lo.min(ritz_floor).max(f64::MIN_POSITIVE);
             stats.ritz_max = hi;
         }
         let xb = dot(x, b);
@@ -355,4 +377,51 @@ pub fn jacobi_diagonal(sys: &System<'_>) -> Vec<f64> {
         d.push(1.0 / o.total());
     }
     d
+}
+
+/// A preconditioner of the cell unknowns: `z = M^-1 r`.
+pub(super) type CellPrecond<'a> = &'a mut dyn FnMut(&[f64], &mut [f64]);
+
+/// PCG ([`pcg_floor`]) on `diag.len()` cells plus an optional outlet node after them: `cells`
+/// applies the cell operator (diagonal `diag`), `precond` preconditions the cells (Jacobi when
+/// `None`); the node is always Jacobi-scaled.
+#[expect(
+    clippy::too_many_arguments,
+    reason = "the operator's parts and PCG's own arguments"
+)]
+pub(super) fn pcg_cells(
+    diag: &[f64],
+    cells: &dyn Fn(&[f64], &mut [f64]),
+    outlet: Option<&OutletNode>,
+    precond: Option<CellPrecond<'_>>,
+    b: &[f64],
+    x: &mut [f64],
+    rule: StopRule,
+    ritz_floor: f64,
+) -> SolveStats {
+    let n = diag.len();
+    let mut apply = |v: &[f64], y: &mut [f64]| {
+        cells(&v[..n], &mut y[..n]);
+        if let Some(o) = outlet {
+            o.apply(v, y, n);
+        }
+    };
+    let mut jac: Vec<f64> = diag.iter().map(|&v| 1.0 / v).collect();
+    if let Some(o) = outlet {
+        jac.push(1.0 / o.total());
+    }
+    let mut precond = precond;
+    let mut pc = |r: &[f64], z: &mut [f64]| {
+        let from = match precond.as_mut() {
+            Some(m) => {
+                m(&r[..n], &mut z[..n]);
+                n
+            }
+            None => 0,
+        };
+        for i in from..r.len() {
+            z[i] = r[i] * jac[i];
+        }
+    };
+    pcg_floor(&mut apply, &mut pc, b, x, rule, ritz_floor)
 }
