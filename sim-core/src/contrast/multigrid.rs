@@ -44,16 +44,11 @@ pub struct Multigrid {
 
 impl Multigrid {
     /// Coarsening stops once a level has at most this many cells.
-    pub const COARSEST_CELLS: usize = 125;
-    /// Default scale of the coarse correction (see the module docs). Measured on the tests'
-    /// 1000x-contrast grid (`contrast_grid`, 1e-6) at 64^3: 7 PCG iterations at 1.6, 12 at 1.0
-    /// (at 32^3: 7 and 10), 1.6 also the shortest time.
-    pub const OVERCORRECTION: f64 = 1.6;
-    /// Red-black sweeps before and after the correction: two instead of one cut the PCG
-    /// iterations at 64^3 from 10 to 7 for the same time (same measurement; with the earlier
-    /// aggregates that ignored membranes, from 49 to 31). The W-cycle (`gamma` 2) instead of a
-    /// V-cycle: 7 instead of 11 iterations, 20 % less time.
-    pub const SWEEPS: usize = 2;
+    pub const COARSEST_CELLS: usize = super::cells::COARSEST_CELLS;
+    /// Default scale of the coarse correction (see [`super::cells::OVERCORRECTION`]).
+    pub const OVERCORRECTION: f64 = super::cells::OVERCORRECTION;
+    /// Red-black sweeps before and after the correction (see [`super::cells::SWEEPS`]).
+    pub const SWEEPS: usize = super::cells::SWEEPS;
 
     /// Builds the hierarchy of `a` (its active cells; couplings to inactive cells are ignored).
     pub fn new(a: &Stencil) -> Multigrid {
