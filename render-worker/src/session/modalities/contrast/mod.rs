@@ -251,7 +251,8 @@ impl Live {
 /// The crop and grid of a station (see the module docs).
 #[derive(Debug, Clone)]
 struct Site {
-    params: PhantomParams,
+    /// The phantom; `None` for the analytic demo region (see [`site`]).
+    params: Option<PhantomParams>,
     crop_lo_mm: [f64; 3],
     crop_hi_mm: [f64; 3],
     levels: Vec<LevelSpan>,
@@ -273,10 +274,11 @@ impl Site {
         if let Some((_, g)) = grids.iter().find(|(k, _)| *k == key) {
             return Arc::clone(g);
         }
-        let g = Arc::new(phantom_grid(
-            &self.params,
-            crop_grid(self.crop_lo_mm, self.crop_hi_mm, CELL_MM),
-        ));
+        let crop = crop_grid(self.crop_lo_mm, self.crop_hi_mm, CELL_MM);
+        let g = Arc::new(match &self.params {
+            Some(p) => phantom_grid(p, crop),
+            None => ContrastGrid::uniform(crop, Domain::Epidural, Domain::Epidural.default_props()),
+        });
         if grids.len() >= 8 {
             grids.remove(0);
         }
@@ -301,22 +303,36 @@ impl std::fmt::Debug for ContrastModality {
     }
 }
 
+/// Half extent of the analytic demo region's transport box, mm. Simulator choice: small, so
+/// whole-process tests inject in milliseconds.
+pub const DEMO_HALF_MM: f64 = 10.0;
+
+/// The crop of a phantom region around the station's primary target; for the analytic demo
+/// region (boxes of known geometry, no phantom), one uniform epidural box of [`DEMO_HALF_MM`]
+/// around the target, so whole-process tests can inject and see contrast; no grid elsewhere.
 fn site(region: &Region, station: &StationContext) -> Option<Site> {
-    region.phantom.as_ref().map(|params| {
-        let c = primary_target(station)
-            .or_else(|| region.landmarks.get("L4_body_centre").copied())
-            .unwrap_or([0.0; 3]);
-        Site {
-            params: params.clone(),
-            crop_lo_mm: std::array::from_fn(|a| c[a] - CROP_HALF_MM[a]),
-            crop_hi_mm: std::array::from_fn(|a| c[a] + CROP_HALF_MM[a]),
-            levels: phantom_levels(params),
-        }
+    let c = primary_target(station)
+        .or_else(|| region.landmarks.get("L4_body_centre").copied())
+        .unwrap_or([0.0; 3]);
+    let half = match &region.phantom {
+        Some(_) => CROP_HALF_MM,
+        None if region.name == crate::session::demo::DEMO_REGION_NAME => [DEMO_HALF_MM; 3],
+        None => return None,
+    };
+    Some(Site {
+        params: region.phantom.clone(),
+        crop_lo_mm: std::array::from_fn(|a| c[a] - half[a]),
+        crop_hi_mm: std::array::from_fn(|a| c[a] + half[a]),
+        levels: region
+            .phantom
+            .as_ref()
+            .map(phantom_levels)
+            .unwrap_or_default(),
     })
 }
 
 /// The transport grid a contrast session of `station` in `region` uses (`None` outside a
-/// phantom region); built once per process.
+/// phantom or the demo region); built once per process.
 pub fn transport_grid(region: &Region, station: &StationContext) -> Option<Arc<ContrastGrid>> {
     site(region, station).map(|s| s.grid())
 }
