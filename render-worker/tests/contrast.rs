@@ -152,19 +152,16 @@ fn place_tip(r: &mut Run, t_ms: u64, tip: [f64; 3], axis: usize, instrument: &st
         return false;
     }
     r.ok(t_ms, Command::NeedleFeed { mm: 3.0 });
-    let at =
-        r.s.world()
-            .needle
-            .as_ref()
-            .unwrap()
-            .state
-            .tip_mm()
-            .to_array();
+    let at = needle_tip(&r.s);
     let miss = (0..3).map(|a| (at[a] - tip[a]).powi(2)).sum::<f64>().sqrt();
     if miss >= 0.5 {
         eprintln!("tip {at:?} missed {tip:?} by {miss:.2} mm");
     }
     miss < 0.5
+}
+
+fn needle_tip(s: &Session) -> [f64; 3] {
+    s.world().needle.as_ref().unwrap().state.tip_mm().to_array()
 }
 
 fn inject(agent: Agent, volume_ml: f64, rate_ml_per_s: f64) -> Command {
@@ -562,4 +559,56 @@ fn a_station_without_contrast_builds_no_contrast_model() {
         serde_json::json!({ "events": [] })
     );
     assert!(!c.s.measurements().contains_key("intrathecal_contrast_bool"));
+}
+
+/// The analytic demo region (boxes, no phantom) with a station that lists contrast: one uniform
+/// epidural box along the demo's posterior approach, so whole-process tests (the server's
+/// browser test) inject in milliseconds and see the contrast live.
+#[test]
+fn the_demo_station_with_contrast_injects_and_shows_it_live() {
+    use render_worker::session::demo::{demo_region, demo_station};
+    let region = Arc::new(demo_region());
+    let (st, sha) = demo_station(&["contrast"]);
+    let env = SessionEnv::new(
+        Arc::new(StationContext::new(st, sha, &region)),
+        region,
+        Backends::cpu(1),
+    );
+    let steps = [
+        (0, Command::Technique { kvp: 80, ma: 20.0 }),
+        (
+            0,
+            Command::NeedlePlace {
+                instrument: "spinal-22g".into(),
+                entry_mm: [12.0, -78.0, 0.0],
+                direction: [0.0, 1.0, 0.0],
+                bevel_reference: [1.0, 0.0, 0.0],
+            },
+        ),
+        (0, Command::NeedleFeed { mm: 15.0 }),
+        (100, Command::Live { on: true }),
+        (200, inject(Agent::Contrast, 0.5, 0.5)),
+        (700, Command::Tick),
+        (1300, Command::InjectStop),
+        (3500, Command::Tick),
+    ];
+    let (r, frames) = run_script(env, &steps);
+    let m = r.s.measurements();
+    assert!((m["injected_volume_ml"] - 0.5).abs() < 1e-6, "{m:?}");
+    assert_eq!(m["contrast_pattern_count"], 1.0);
+    let tip = needle_tip(&r.s);
+    let px = last_projection(&r.s).project_point(tip).unwrap();
+    let (first, last) = (
+        &frames.first().unwrap().image,
+        &frames.last().unwrap().image,
+    );
+    let d = mean_around(first, px, 3) - mean_around(last, px, 3);
+    eprintln!(
+        "demo contrast: {} frames, darkening at the tip {d:.1}",
+        frames.len()
+    );
+    assert!(d > 10.0, "{d}");
+    // Live on, then one frame per command that found a newer field (the injection's start, the
+    // tick, the stop, the settling tick).
+    assert_eq!(frames.len(), 5);
 }

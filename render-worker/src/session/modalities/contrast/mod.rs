@@ -303,9 +303,11 @@ impl std::fmt::Debug for ContrastModality {
     }
 }
 
-/// Half extent of the analytic demo region's transport box, mm. Simulator choice: small, so
-/// whole-process tests inject in milliseconds.
-pub const DEMO_HALF_MM: f64 = 10.0;
+/// Half extent of the analytic demo region's transport box around the demo target, mm (x, y,
+/// z). Simulator choice: narrow across (whole-process tests inject in milliseconds) and long
+/// along the demo's posterior needle approach (y), so a needle advanced part of the way from
+/// the skin is inside it.
+pub const DEMO_HALF_MM: [f64; 3] = [8.0, 60.0, 8.0];
 
 /// The crop of a phantom region around the station's primary target; for the analytic demo
 /// region (boxes of known geometry, no phantom), one uniform epidural box of [`DEMO_HALF_MM`]
@@ -316,7 +318,7 @@ fn site(region: &Region, station: &StationContext) -> Option<Site> {
         .unwrap_or([0.0; 3]);
     let half = match &region.phantom {
         Some(_) => CROP_HALF_MM,
-        None if region.name == crate::session::demo::DEMO_REGION_NAME => [DEMO_HALF_MM; 3],
+        None if region.name == crate::session::demo::DEMO_REGION_NAME => DEMO_HALF_MM,
         None => return None,
     };
     Some(Site {
