@@ -612,3 +612,92 @@ fn the_demo_station_with_contrast_injects_and_shows_it_live() {
     // tick, the stop, the settling tick).
     assert_eq!(frames.len(), 5);
 }
+
+/// The vascular-uptake station: a test dose into a radicular vessel, then the needle
+/// repositioned into the epidural space and a second dose. The per-injection scorers see one
+/// vascular injection that was managed and a clean last one; injecting again from the same spot
+/// is not managed.
+#[test]
+fn the_vascular_uptake_station_scores_recognition_and_repositioning() {
+    const ID: &str = "l4-left-transforaminal-vascular-uptake";
+    let st = station(ID);
+    let target = st.targets["left_l4_subpedicular"];
+    let g = contrast::transport_grid(&region(), &st).expect("grid");
+    let vessels = sites(&g, Domain::Vascular, target, 2, 1, 0);
+    let epidural = sites(&g, Domain::Epidural, target, 1, 2, 1);
+    let dose = |r: &mut Run, t: u64, ml: f64| {
+        r.try_apply(t, inject(Agent::Contrast, ml, 0.5))
+            .map(|_| {
+                r.ok(
+                    t + (ml / 0.5 * 1000.0) as u64 + 2 * QUANTUM_MS,
+                    Command::Tick,
+                )
+            })
+            .is_ok()
+    };
+    let mut tried = 0;
+    for v in vessels.iter().take(8) {
+        let mut r = Run::new(env_of(ID, Backends::cpu(1)), quiet_config());
+        if !place_tip(&mut r, 0, *v, 2, "spinal-22g-89") || !dose(&mut r, 100, 0.05) {
+            continue;
+        }
+        let m = r.s.measurements();
+        if m["last_injection_vascular_bool"] != 1.0 {
+            continue;
+        }
+        assert_eq!(
+            m["vascular_uptake_managed_bool"], 0.0,
+            "not yet repositioned"
+        );
+        // Injecting again from the same spot: two vascular doses, not managed.
+        let mut same = Run::new(env_of(ID, Backends::cpu(1)), quiet_config());
+        assert!(place_tip(&mut same, 0, *v, 2, "spinal-22g-89"));
+        assert!(dose(&mut same, 100, 0.05) && dose(&mut same, 1000, 0.05));
+        let m = same.s.measurements();
+        assert_eq!(m["vascular_injections_count"], 2.0);
+        assert_eq!(m["vascular_uptake_managed_bool"], 0.0);
+        // Repositioned: withdraw, place in the epidural space near the target, inject again.
+        r.ok(1000, Command::NeedleWithdraw { mm: 3.0 });
+        for e in epidural.iter().take(8) {
+            tried += 1;
+            let mut moved = Run::new(env_of(ID, Backends::cpu(1)), quiet_config());
+            for entry in r.s.log() {
+                moved.ok(entry.t_ms, entry.command.clone());
+            }
+            if !place_tip(&mut moved, 1100, *e, 1, "spinal-22g-89") || !dose(&mut moved, 1200, 0.1)
+            {
+                continue;
+            }
+            let m = moved.s.measurements();
+            eprintln!(
+                "vascular dose at {v:?}, then epidural at {e:?}: {:?}",
+                [
+                    "vascular_injections_count",
+                    "last_injection_vascular_bool",
+                    "vascular_uptake_managed_bool",
+                    "perineural_spread_bool",
+                    "epidural_spread_bool",
+                ]
+                .map(|k| m[k])
+            );
+            assert_eq!(m["vascular_injections_count"], 1.0);
+            assert_eq!(m["last_injection_vascular_bool"], 0.0);
+            assert_eq!(m["vascular_uptake_managed_bool"], 1.0);
+            // The cumulative flag still reports that a vessel took contrast.
+            assert_eq!(m["intravascular_uptake_bool"], 1.0);
+            let result = moved.s.score();
+            for id in ["final_injection_not_vascular", "vascular_uptake_managed"] {
+                let c = result
+                    .rubric
+                    .criteria
+                    .iter()
+                    .find(|c| c.id == id)
+                    .unwrap_or_else(|| panic!("{id}"));
+                assert_eq!(c.credit, Some(1.0), "{id}: {c:?}");
+            }
+            return;
+        }
+        panic!("no epidural site accepted a second dose ({tried} tried)");
+    }
+    panic!("no vessel site near {target:?} gave vascular uptake");
+}
