@@ -206,6 +206,8 @@ async function openSession(attemptId, stationId) {
     show('session-view');
     $('session-title').textContent = station.title;
     $('result').hidden = true;
+    $('syringe').hidden = !(station.modalities || []).includes('contrast');
+    $('injected').textContent = '0.00 mL';
     $('instrument').replaceChildren(...station.instruments.filter((i) => i.kind.includes('needle'))
       .map((i) => el('option', { value: i.id, textContent: `${i.id} (${i.kind})` })));
     const ctx = $('fluoro').getContext('2d');
@@ -225,6 +227,7 @@ async function openSession(attemptId, stationId) {
       const o = e.detail.outcome || {};
       if (o.depth_mm != null) $('depth').textContent = `${fmt(o.depth_mm, 1)} mm`;
       if (o.outcome && o.outcome.kind) logLine(`Needle: ${o.outcome.kind}`);
+      if (o.injected_ml != null) $('injected').textContent = `${fmt(o.injected_ml, 2)} mL`;
     });
     live.addEventListener('commanderror', (e) => { logLine(`Not accepted (${e.detail.error.field}): ${e.detail.error.message}`); });
     live.addEventListener('notice', (e) => { logLine(e.detail.message); });
@@ -288,6 +291,51 @@ function placeNeedle() {
   live.send({ type: 'needle_place', instrument: $('instrument').value, entry_mm: [t[0], t[1] - 60, t[2]], direction: [0, 1, 0], bevel_reference: [1, 0, 0] });
 }
 $('needle-place').addEventListener('click', placeNeedle);
+
+// Syringe: pressing the plunger starts an injection of the chosen volume at the chosen rate;
+// releasing it stops. While fluid moves the client sends `tick`s, which move only the session's
+// logged clock, so the contrast spreads (and live fluoroscopy shows it) in replayable steps.
+// Ticks go on for the model's settling time after the release (2 s, render_worker::session::
+// modalities::contrast::SETTLE_MS), then stop: an idle session sends nothing.
+const TICK_MS = 100;
+const SETTLE_MS = 2000;
+let ticker = null;
+let tickUntil = 0;
+function startTicks(ms) {
+  tickUntil = Math.max(tickUntil, performance.now() + ms);
+  if (ticker) return;
+  ticker = setInterval(() => {
+    if (!live || performance.now() > tickUntil) { clearInterval(ticker); ticker = null; return; }
+    live.send({ type: 'tick' });
+  }, TICK_MS);
+}
+function agentValue() {
+  const a = $('agent').value;
+  return a === 'diluted_contrast' ? { diluted_contrast: { stock_percent: 50 } } : a;
+}
+function pressPlunger(e) {
+  if (!live || $('plunger').getAttribute('aria-pressed') === 'true') return;
+  if (e) e.preventDefault();
+  const volume = Number($('inject-volume').value);
+  const rate = Number($('inject-rate').value);
+  $('plunger').setAttribute('aria-pressed', 'true');
+  live.send({ type: 'inject', agent: agentValue(), volume_ml: volume, rate_ml_per_s: rate });
+  startTicks(1000 * volume / Math.max(rate, 1e-3) + SETTLE_MS);
+}
+function releasePlunger() {
+  if (!live || $('plunger').getAttribute('aria-pressed') !== 'true') return;
+  $('plunger').setAttribute('aria-pressed', 'false');
+  live.send({ type: 'inject_stop' });
+  tickUntil = performance.now() + SETTLE_MS;
+  startTicks(SETTLE_MS);
+}
+$('plunger').addEventListener('pointerdown', pressPlunger);
+$('plunger').addEventListener('pointerup', releasePlunger);
+$('plunger').addEventListener('pointerleave', releasePlunger);
+$('plunger').addEventListener('pointercancel', releasePlunger);
+// Keyboard: hold Enter or Space on the plunger.
+$('plunger').addEventListener('keydown', (e) => { if ((e.key === 'Enter' || e.key === ' ') && !e.repeat) pressPlunger(e); });
+$('plunger').addEventListener('keyup', (e) => { if (e.key === 'Enter' || e.key === ' ') releasePlunger(); });
 $('feed-1').addEventListener('click', () => live && live.send({ type: 'needle_feed', mm: 1 }));
 $('feed-5').addEventListener('click', () => live && live.send({ type: 'needle_feed', mm: 5 }));
 $('withdraw-1').addEventListener('click', () => live && live.send({ type: 'needle_withdraw', mm: 1 }));

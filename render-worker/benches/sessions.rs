@@ -252,7 +252,7 @@ fn main() {
         let mut times = Vec::new();
         for _ in 0..reps.min(3) {
             let t = Instant::now();
-            let _ = r.render(None, &p, &settings).expect("frame");
+            let _ = r.render(None, &p, &settings, None).expect("frame");
             times.push(t.elapsed().as_secs_f64() * 1000.0);
         }
         let profile = b.fluoro.profile();

@@ -1,4 +1,5 @@
 //! Integration tests of render-worker, one module per area.
+mod contrast;
 mod fluoro;
 mod fluoro_cache;
 mod gpu;

@@ -39,8 +39,13 @@ pub fn base_workers() -> Workers {
 
 /// An in-process session host over the demo station and region.
 pub fn demo_host(capacity: usize) -> SessionHost {
+    demo_host_with(capacity, &[])
+}
+
+/// [`demo_host`] whose demo station also lists `extra_modalities` (`"contrast"`).
+pub fn demo_host_with(capacity: usize, extra_modalities: &[&str]) -> SessionHost {
     SessionHost::with_regions(
-        vec![demo_station(&[])],
+        vec![demo_station(extra_modalities)],
         vec![Arc::new(demo_region())],
         Backends::cpu(0),
         capacity,
@@ -62,10 +67,19 @@ pub struct DemoServer {
 /// Starts a [`DemoServer`]: sessions in-process when `in_process`, and remote workers accepted
 /// with `worker_token`.
 pub async fn demo_server(in_process: bool, worker_token: Option<&str>) -> DemoServer {
+    demo_server_with(in_process, worker_token, &[]).await
+}
+
+/// [`demo_server`] whose demo station also lists `extra_modalities` (`"contrast"`).
+pub async fn demo_server_with(
+    in_process: bool,
+    worker_token: Option<&str>,
+    extra_modalities: &[&str],
+) -> DemoServer {
     let stations = tempfile::tempdir().expect("temporary stations folder");
     std::fs::write(
         stations.path().join("demo-station.toml"),
-        demo_station_toml(&[]),
+        demo_station_toml(extra_modalities),
     )
     .expect("write the demo station");
     let map: HashMap<&str, String> = [
@@ -84,7 +98,7 @@ pub async fn demo_server(in_process: bool, worker_token: Option<&str>) -> DemoSe
     server::records::prepare(&db.pool, &config.records, true)
         .await
         .expect("stations and demo accounts");
-    let host = demo_host(8);
+    let host = demo_host_with(8, extra_modalities);
     let dispatcher = Dispatcher::new(
         in_process.then(|| host.clone()),
         host,

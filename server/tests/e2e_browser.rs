@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use serde_json::Value;
 
-use crate::dispatch::demo_server;
+use crate::dispatch::demo_server_with;
 
 fn web_client_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../web-client")
@@ -53,7 +53,8 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
         eprintln!("SKIPPED learner_session_and_faculty_approval_in_headless_chromium: {why}");
         return;
     }
-    let srv = demo_server(true, None).await;
+    // The demo station with contrast (a uniform epidural box on the analytic demo region).
+    let srv = demo_server_with(true, None, &["contrast"]).await;
     let shots = tempfile::tempdir().expect("screenshot folder");
     // PAINSIM_E2E_SCREENSHOTS keeps the canvas captures for a person to look at.
     let shots_dir = std::env::var("PAINSIM_E2E_SCREENSHOTS")
@@ -96,6 +97,7 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
             "shot",
             "rotated",
             "needle",
+            "injected",
             "submitted",
             "totp",
             "approved"
@@ -130,6 +132,24 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
         f["needle_blocks_above_noise_max"].as_u64().unwrap() >= 20,
         "the needle did not show: {f:#}"
     );
+    // Contrast: live fluoroscopy over a press-and-hold injection. The region around the block
+    // that darkened most (3 x 3 blocks of 4 x 4 pixels) is darker after the injection than
+    // before by several times the largest noise-only block change, and the readout shows the
+    // volume the model delivered.
+    let c = &report["contrast"];
+    let noise_max = f["max_diff_noise_only"].as_f64().unwrap();
+    let darkening = c["region_before"].as_f64().unwrap() - c["region_after"].as_f64().unwrap();
+    eprintln!("contrast in the browser: {c}; darkening {darkening:.1}, noise max {noise_max:.1}");
+    assert!(
+        darkening > 3.0 * noise_max.max(1.0),
+        "the contrast did not darken the image: {c:#} (noise {noise_max})"
+    );
+    assert!(
+        c["injected_text"].as_str().unwrap().ends_with("mL")
+            && !c["injected_text"].as_str().unwrap().starts_with("0.00"),
+        "{c:#}"
+    );
+    assert!(c["live_frames"].as_u64().unwrap() >= 3, "{c:#}");
     assert!(
         report["orbital_deg"].as_f64().unwrap() >= 20.0,
         "keyboard and drag rotated the C-arm: {report:#}"

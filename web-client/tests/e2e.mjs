@@ -1,6 +1,7 @@
 // End-to-end run of the web client in headless Chromium (Debian's /usr/bin/chromium, driven by
 // playwright-core): a learner logs in, opens a fluoroscopy station, takes a shot, rotates the
-// C-arm, takes a shot, places and advances the needle, takes a shot and submits; then faculty
+// C-arm, takes a shot, places and advances the needle, takes a shot, injects contrast under live
+// fluoroscopy with the press-and-hold plunger and submits; then faculty
 // log in, set up an authenticator (the code is computed here, as an authenticator app would),
 // open the replay and approve.
 //
@@ -190,6 +191,47 @@ try {
   await act(page, () => page.click('#shot'));
   const needle = await capture(page, '3-needle');
   report.steps.push('needle');
+
+  // Contrast: live fluoroscopy, then hold the plunger (0.5 mL at 0.5 mL/s) for 1.2 s and
+  // release; the client ticks the session clock while fluid moves and for 2 s after.
+  await act(page, () => page.click('#live'));
+  const beforeContrast = await capture(page, '4-live-before-contrast');
+  const framesBeforeInjection = await framesSoFar(page);
+  const plunger = await page.locator('#plunger').boundingBox();
+  await page.mouse.move(plunger.x + plunger.width / 2, plunger.y + plunger.height / 2);
+  await page.mouse.down();
+  await page.waitForTimeout(1200);
+  await page.mouse.up();
+  // The ticks end 2 s after the release; then wait for the last frame and every answer.
+  await page.waitForTimeout(2300);
+  await waitUntil(page, () => window.__sim.live.pending.size === 0);
+  await waitUntil(page, () => Number(document.getElementById('frame-count').textContent) === window.__sim.stats.frames);
+  const afterContrast = await capture(page, '5-live-after-contrast');
+  // The block that darkened most and its 8 neighbours (4 x 4 pixel blocks of the 128 x 128
+  // thumbnail), mean grey before and after.
+  let best = 0;
+  for (let i = 1; i < beforeContrast.thumb.length; i++) {
+    if (beforeContrast.thumb[i] - afterContrast.thumb[i] > beforeContrast.thumb[best] - afterContrast.thumb[best]) best = i;
+  }
+  const side = Math.round(Math.sqrt(beforeContrast.thumb.length));
+  const region = (t) => {
+    const [bx, by] = [best % side, Math.floor(best / side)];
+    let sum = 0; let n = 0;
+    for (let y = Math.max(0, by - 1); y <= Math.min(side - 1, by + 1); y++) {
+      for (let x = Math.max(0, bx - 1); x <= Math.min(side - 1, bx + 1); x++) { sum += t[y * side + x]; n += 1; }
+    }
+    return sum / n;
+  };
+  report.contrast = {
+    region_before: region(beforeContrast.thumb),
+    region_after: region(afterContrast.thumb),
+    live_frames: (await framesSoFar(page)) - framesBeforeInjection,
+    injected_text: await page.textContent('#injected'),
+  };
+  // Live off makes no new image (last-image hold): wait for its answer only.
+  await page.click('#live');
+  await waitUntil(page, () => window.__sim.live.pending.size === 0);
+  report.steps.push('injected');
 
   report.frames = {
     first: { mean: first.mean, std: first.std },

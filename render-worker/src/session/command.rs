@@ -128,6 +128,8 @@ pub enum Command {
         /// Rate, ml/s.
         rate_ml_per_s: f64,
     },
+    /// Stop the injection under way (the plunger released); what was delivered stays.
+    InjectStop,
     /// Let simulated time pass: the clock moves to the moment the command is applied and
     /// nothing else changes, so a modality that evolves over time (contrast spreading) steps to
     /// it. Logged like every command, so replay steps the same way.
@@ -136,14 +138,33 @@ pub enum Command {
     Submit,
 }
 
-/// An injectable agent.
+/// An injectable agent. JSON: `"contrast"`, `"saline"`, `"local_anaesthetic"` or
+/// `{"diluted_contrast": {"stock_percent": 50}}`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Agent {
-    /// Iodinated contrast.
+    /// Iodinated contrast, undiluted stock.
     Contrast,
     /// Normal saline.
     Saline,
+    /// Local anaesthetic (no iodine; the same hydraulics as saline).
+    LocalAnaesthetic,
+    /// Contrast diluted with saline to a percentage of stock (1 to 100).
+    DilutedContrast {
+        /// Iodine concentration as a percentage of stock.
+        stock_percent: u8,
+    },
+}
+
+impl Agent {
+    /// Iodine per unit volume as a fraction of stock contrast.
+    pub fn stock_fraction(self) -> f64 {
+        match self {
+            Agent::Contrast => 1.0,
+            Agent::Saline | Agent::LocalAnaesthetic => 0.0,
+            Agent::DilutedContrast { stock_percent } => f64::from(stock_percent) / 100.0,
+        }
+    }
 }
 
 /// Which part of the session a command belongs to.
@@ -172,7 +193,7 @@ impl Command {
             | Command::Live { .. }
             | Command::Annotate { .. } => CommandClass::Fluoroscopy,
             Command::ProbePose { .. } | Command::ProbeSettings { .. } => CommandClass::Ultrasound,
-            Command::Inject { .. } => CommandClass::Contrast,
+            Command::Inject { .. } | Command::InjectStop => CommandClass::Contrast,
             Command::NeedlePlace { .. }
             | Command::NeedleFeed { .. }
             | Command::NeedleRoll { .. }
@@ -196,6 +217,7 @@ impl Command {
             Command::ProbePose { .. } => "probe_pose",
             Command::ProbeSettings { .. } => "probe_settings",
             Command::Inject { .. } => "inject",
+            Command::InjectStop => "inject_stop",
             Command::Tick => "tick",
             Command::Submit => "submit",
         }
@@ -252,7 +274,11 @@ impl Command {
                 }
                 range("command.ma", *ma, MA_RANGE.0, MA_RANGE.1)
             }
-            Command::Shot | Command::Live { .. } | Command::Tick | Command::Submit => Ok(()),
+            Command::Shot
+            | Command::Live { .. }
+            | Command::Tick
+            | Command::Submit
+            | Command::InjectStop => Ok(()),
             Command::NeedlePlace {
                 instrument,
                 entry_mm,
@@ -313,10 +339,19 @@ impl Command {
                 range("command.frequency_mhz", *frequency_mhz, 1.0, 20.0)
             }
             Command::Inject {
+                agent,
                 volume_ml,
                 rate_ml_per_s,
-                ..
             } => {
+                if let Agent::DilutedContrast { stock_percent } = agent {
+                    if !(1..=100).contains(stock_percent) {
+                        return Err(CommandError::field(
+                            "command.agent.stock_percent",
+                            ErrorCode::OutOfRange,
+                            format!("{stock_percent} must be 1 to 100 (% of stock)"),
+                        ));
+                    }
+                }
                 positive_at_most("command.volume_ml", *volume_ml, MAX_INJECTION_ML)?;
                 positive_at_most(
                     "command.rate_ml_per_s",

@@ -71,6 +71,7 @@ pub fn station_modality_name(m: StationModality) -> &'static str {
     match m {
         StationModality::Fluoroscopy => "fluoroscopy",
         StationModality::Ultrasound => "ultrasound",
+        StationModality::Contrast => "contrast",
     }
 }
 
@@ -217,6 +218,8 @@ impl Session {
             needle: None,
             needle_version: 0,
             injections: Vec::new(),
+            iodine: None,
+            iodine_version: 0,
         };
         let mut s = Session {
             env,
@@ -284,6 +287,7 @@ impl Session {
                 .ok_or_else(|| SessionError::MissingModalityState(m.name().to_string()))?;
             m.restore(state.clone())?;
         }
+        s.sync_iodine();
         s.log = log[..snapshot.log_len].to_vec();
         s.submitted = snapshot.result.clone();
         for entry in &log[snapshot.log_len..] {
@@ -416,14 +420,23 @@ impl Session {
         }
         env.command.validate()?;
         let before = self.world.clock_ms;
+        let iodine_before = (self.world.iodine.clone(), self.world.iodine_version);
         self.world.clock_ms = before.max(t_ms);
         if self.world.clock_ms > before {
             for m in &mut self.modalities {
                 m.advance(before, &self.world);
             }
         }
-        match self.dispatch(&env.command) {
+        // The command sees the iodine field of its moment (a shot images it); the other
+        // modalities hear of a new field once the command is accepted.
+        self.sync_iodine();
+        let dispatched = self.dispatch(&env.command);
+        self.sync_iodine();
+        match dispatched {
             Ok(outcome) => {
+                if self.world.iodine_version != iodine_before.1 {
+                    self.notify(&WorldChange::Iodine);
+                }
                 let result = (env.command == Command::Submit)
                     .then(|| self.submitted.clone().map(Box::new))
                     .flatten();
@@ -443,6 +456,7 @@ impl Session {
             }
             Err(e) => {
                 self.world.clock_ms = before;
+                (self.world.iodine, self.world.iodine_version) = iodine_before;
                 Err(e)
             }
         }
@@ -513,6 +527,19 @@ impl Session {
         };
         self.world.injections.push(injection.clone());
         self.notify(&WorldChange::FluidInjected(injection));
+    }
+
+    /// Puts the iodine field of the modality that makes one, at the current clock, into the
+    /// world.
+    fn sync_iodine(&mut self) {
+        for m in &mut self.modalities {
+            if let Some((version, field)) = m.iodine(&self.world) {
+                if version != self.world.iodine_version || self.world.iodine.is_none() {
+                    self.world.iodine = Some(field);
+                    self.world.iodine_version = version;
+                }
+            }
+        }
     }
 
     fn notify(&mut self, change: &WorldChange) {

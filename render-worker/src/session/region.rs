@@ -26,6 +26,9 @@ pub struct Region {
     pub asset_sha256: BTreeMap<String, String>,
     /// Where the anatomy came from, in words (generator or CT file).
     pub source: String,
+    /// The parameters of a procedural phantom region (the phantom is a pure function of them),
+    /// from which the contrast modality builds its transport domains; `None` for other regions.
+    pub phantom: Option<phantom::PhantomParams>,
 }
 
 impl Region {
@@ -53,12 +56,14 @@ impl Region {
             landmarks,
             asset_sha256,
             source,
+            phantom: None,
         }
     }
 
     /// A loaded asset; for a phantom region the landmarks are recomputed from the parameters
     /// recorded in its provenance (the phantom is a pure function of them).
     pub fn from_asset(asset: &RegionAsset) -> Region {
+        let mut params_of_phantom = None;
         let (landmarks, source) = match &asset.provenance.source {
             Source::Phantom {
                 generator,
@@ -67,6 +72,7 @@ impl Region {
                 let params: Option<phantom::PhantomParams> = parameters
                     .get("params")
                     .and_then(|p| serde_json::from_value(p.clone()).ok());
+                params_of_phantom.clone_from(&params);
                 let landmarks = params
                     .map(|p| {
                         phantom::landmarks(&p)
@@ -79,13 +85,15 @@ impl Region {
             }
             Source::Ct { ct_file, .. } => (BTreeMap::new(), format!("ct:{ct_file}")),
         };
-        Region::from_structures(
+        let mut region = Region::from_structures(
             &asset.name,
             &asset.structures,
             landmarks,
             asset.provenance.files_sha256.clone(),
             source,
-        )
+        );
+        region.phantom = params_of_phantom;
+        region
     }
 
     /// Entry index of a structure by name.

@@ -28,9 +28,15 @@
 //! - `annotation_error_mm`: for the last annotation whose label names a target or landmark, the
 //!   distance from that point to the ray through the marked pixel.
 //!
-//! Measurements that need modalities this worker does not have yet (contrast spread,
-//! intravascular uptake, ultrasound visibility) are simply absent, so the rubric engine reports
-//! the result as incomplete rather than scoring a zero.
+//! Contrast (see `modalities/contrast/scorers.rs`): the pattern measurements from the transport
+//! model's field and ledger (`epidural_spread_bool`, `perineural_spread_bool`,
+//! `intravascular_uptake_bool`, `intrathecal_contrast_bool`, `epidural_levels_count`, ...),
+//! present once iodine was injected.
+//!
+//! Measurements that need what this worker does not have yet (ultrasound visibility, the
+//! facet stations' `intra_articular_spread_bool`: the transport model has no joint space) are
+//! simply absent, so the rubric engine reports the result as incomplete rather than scoring a
+//! zero.
 
 use std::collections::BTreeMap;
 

@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
+use sim_core::fluoro::IodineField;
 use sim_core::needle::{InitialResponse, InstrumentProfile, NeedleState};
 use sim_core::rubric::Station;
 
@@ -139,6 +140,9 @@ pub enum WorldChange {
     Needle,
     /// Fluid left the needle (the entry just added to [`World::injections`]).
     FluidInjected(Injection),
+    /// The contrast modality's iodine field changed (now in [`World::iodine`]): what the
+    /// fluoroscopy renderers ray-march.
+    Iodine,
 }
 
 /// Shared session state.
@@ -156,4 +160,10 @@ pub struct World {
     pub needle_version: u64,
     /// Every injection so far, oldest first.
     pub injections: Vec<Injection>,
+    /// The iodine in the body as whole-voxel stock-equivalent density, published by the contrast
+    /// modality (`None` at stations without one and before the first injection). Derived from
+    /// the contrast modality's state, so not part of snapshots.
+    pub iodine: Option<Arc<IodineField>>,
+    /// Bumped whenever [`World::iodine`] changes.
+    pub iodine_version: u64,
 }

@@ -56,6 +56,7 @@ fn activity_of(command: &Command) -> Option<ActivityKind> {
         | Command::NeedleWithdraw { .. } => ActivityKind::NeedleAdjusted,
         Command::Inject { .. } => ActivityKind::Injection,
         Command::Live { on: false }
+        | Command::InjectStop
         | Command::Annotate { .. }
         | Command::Tick
         | Command::Submit => {

@@ -315,6 +315,7 @@ fn modality_name(m: Modality) -> String {
     match m {
         Modality::Fluoroscopy => "fluoroscopy".into(),
         Modality::Ultrasound => "ultrasound".into(),
+        Modality::Contrast => "contrast".into(),
     }
 }
 

@@ -17,6 +17,10 @@ pub enum Modality {
     Fluoroscopy,
     /// B-mode ultrasound.
     Ultrasound,
+    /// Contrast and saline injected through the needle, transported in the spinal compartments
+    /// (`sim_core::contrast`) and seen on fluoroscopy. A station without it builds no transport
+    /// model.
+    Contrast,
 }
 
 /// The unit of a criterion's measurement. The measurement key must end in `_<unit>` (for example

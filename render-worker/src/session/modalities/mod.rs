@@ -11,6 +11,7 @@
 //! [`ModalityFactory::standard`]. Tests and embedders can register their own with
 //! [`ModalityFactory::with`].
 
+pub mod contrast;
 pub mod fluoro;
 mod modality;
 
@@ -43,7 +44,9 @@ impl Default for ModalityFactory {
 impl ModalityFactory {
     /// Every modality this worker implements. One line per modality.
     pub fn standard() -> ModalityFactory {
-        ModalityFactory::empty().with("fluoroscopy", fluoro::build)
+        ModalityFactory::empty()
+            .with("fluoroscopy", fluoro::build)
+            .with("contrast", contrast::build)
     }
 
     /// No modality at all.

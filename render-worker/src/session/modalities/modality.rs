@@ -60,6 +60,15 @@ pub trait Modality: Send {
     /// Reacts to a change of the shared world made by another part of the session.
     fn world_changed(&mut self, change: &WorldChange, world: &World);
 
+    /// The iodine field this modality makes, brought to `world.clock_ms`, with a version that
+    /// changes whenever the field does (the session publishes it in [`World::iodine`] and
+    /// announces a new version as [`WorldChange::Iodine`]). Only the contrast modality makes
+    /// one; the version must depend on the logged commands alone, not on how often this is
+    /// called.
+    fn iodine(&mut self, _world: &World) -> Option<(u64, Arc<sim_core::fluoro::IodineField>)> {
+        None
+    }
+
     /// Views whose content is newer than their last render.
     fn dirty_views(&self) -> Vec<ViewId>;
 

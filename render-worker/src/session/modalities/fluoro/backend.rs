@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
-use sim_core::fluoro::{FluoroMaterial, Image, Projection, RenderSettings, Scene};
+use sim_core::fluoro::{FluoroMaterial, Image, IodineField, Projection, RenderSettings, Scene};
 use sim_core::geom::{capped_cylinder, equal_area_vertex_radius};
 
 use crate::session::region::Region;
@@ -36,12 +36,15 @@ pub trait FluoroBackend: Send + Sync {
 
 /// One session's renderer (may hold per-session resources, such as uploaded meshes).
 pub trait FluoroRenderer: Send {
-    /// One frame of the region (no iodine yet) with the needle, if any, through `projection`.
+    /// One frame of the region with the needle and the iodine field (stock-equivalent density),
+    /// if any, through `projection`. Without iodine the frame is exactly the one of a scene that
+    /// never had contrast.
     fn render(
         &mut self,
         needle: Option<&NeedleShaft>,
         projection: &Projection,
         settings: &RenderSettings,
+        iodine: Option<&IodineField>,
     ) -> Result<Image, FluoroRenderError>;
 }
 
@@ -92,6 +95,7 @@ impl FluoroRenderer for CpuRenderer {
         needle: Option<&NeedleShaft>,
         projection: &Projection,
         settings: &RenderSettings,
+        iodine: Option<&IodineField>,
     ) -> Result<Image, FluoroRenderError> {
         let settings = RenderSettings {
             threads: self.threads,
@@ -114,7 +118,7 @@ impl FluoroRenderer for CpuRenderer {
             }
         };
         Ok(sim_core::fluoro::render_frame(
-            scene, None, projection, &settings,
+            scene, iodine, projection, &settings,
         )?)
     }
 }
@@ -154,6 +158,7 @@ impl FluoroRenderer for GpuRenderer {
         needle: Option<&NeedleShaft>,
         projection: &Projection,
         settings: &RenderSettings,
+        iodine: Option<&IodineField>,
     ) -> Result<Image, FluoroRenderError> {
         if self.needle.as_ref() != needle {
             match needle {
@@ -173,7 +178,7 @@ impl FluoroRenderer for GpuRenderer {
             }
             self.needle = needle.cloned();
         }
-        Ok(self.renderer.render_frame(projection, settings, None)?)
+        Ok(self.renderer.render_frame(projection, settings, iodine)?)
     }
 }
 

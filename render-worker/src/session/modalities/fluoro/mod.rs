@@ -15,7 +15,9 @@ use std::sync::Arc;
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
-use sim_core::fluoro::{Collimation, EnergyModel, Projection, QuantumNoise, RenderSettings};
+use sim_core::fluoro::{
+    Collimation, EnergyModel, IodineField, Projection, QuantumNoise, RenderSettings,
+};
 use sim_core::rubric::Measurements;
 
 pub use crate::session::config::FluoroConfig;
@@ -62,6 +64,9 @@ pub struct AcquiredImage {
     pub needle: Option<NeedleShaft>,
     /// Quantum noise seed.
     pub noise_seed: u64,
+    /// Version of the world's iodine field imaged (absent when there was none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub iodine_version: Option<u64>,
 }
 
 /// A mark on an image.
@@ -118,6 +123,9 @@ pub struct FluoroModality {
     rendered: Option<u64>,
     /// Created on the first render.
     renderer: Option<Box<dyn FluoroRenderer>>,
+    /// The iodine field of the last image acquired in this process (not part of the state: it
+    /// is the world's field of that moment, see [`AcquiredImage::iodine_version`]).
+    image_iodine: Option<Arc<IodineField>>,
 }
 
 impl std::fmt::Debug for FluoroModality {
@@ -158,6 +166,7 @@ impl FluoroModality {
             backend,
             rendered: None,
             renderer: None,
+            image_iodine: None,
         }
     }
 
@@ -222,7 +231,9 @@ impl FluoroModality {
             noise_seed: sim_core::rng::splitmix64(
                 self.state.seed ^ index.wrapping_mul(sim_core::rng::GOLDEN_GAMMA),
             ),
+            iodine_version: world.iodine.as_ref().map(|_| world.iodine_version),
         });
+        self.image_iodine = world.iodine.clone();
     }
 }
 
@@ -377,6 +388,14 @@ impl Modality for FluoroModality {
             // Injected fluid shows through the contrast modality's iodine field, which makes
             // its own world change when it does.
             WorldChange::FluidInjected(_) => {}
+            // Live fluoroscopy shows the contrast spreading: a new image whenever the field is
+            // newer than the last image's.
+            WorldChange::Iodine => {
+                let imaged = self.state.images.last().and_then(|i| i.iodine_version);
+                if self.state.live_since_ms.is_some() && imaged != Some(world.iodine_version) {
+                    self.acquire(world, true);
+                }
+            }
         }
     }
 
@@ -413,8 +432,13 @@ impl Modality for FluoroModality {
         let Some(renderer) = self.renderer.as_mut() else {
             return Ok(None);
         };
+        // The field the image was acquired with; after a restore (which drops it) the world's,
+        // which is the same field unless contrast moved after the image without a new one.
+        let iodine = image
+            .iodine_version
+            .and(self.image_iodine.as_deref().or(world.iodine.as_deref()));
         let frame = renderer
-            .render(image.needle.as_ref(), &image.projection, &settings)
+            .render(image.needle.as_ref(), &image.projection, &settings, iodine)
             .map_err(failed)?;
         self.rendered = Some(image.index);
         Ok(Some(frame.into()))
@@ -514,6 +538,7 @@ impl Modality for FluoroModality {
             message: e.to_string(),
         })?;
         self.rendered = None;
+        self.image_iodine = None;
         Ok(())
     }
 }
