@@ -693,3 +693,64 @@ mod patterns {
         assert!(r.intrathecal, "{r:?}");
     }
 }
+
+/// A mixed outlet (the tip half in a vessel, half in the epidural space) splits the flow by
+/// pressure and conductance, not by contact area: the vessel, far more mobile, takes most of the
+/// injected iodine although the opening touches both domains about equally.
+#[test]
+fn a_mixed_outlet_splits_by_conductance_not_by_area() {
+    let grid = VolumeGrid {
+        dims: [16, 8, 8],
+        spacing_mm: [1.0; 3],
+        origin_mm: [0.0; 3],
+    };
+    let mut dom = vec![None; grid.len()];
+    for k in 0..8 {
+        for j in 0..8 {
+            for i in 0..16 {
+                dom[grid.index(i, j, k)] = Some(if i < 8 {
+                    Domain::Epidural
+                } else {
+                    Domain::Vascular
+                });
+            }
+        }
+    }
+    let g = ContrastGrid::from_domains(grid, dom);
+    // The axis lies in the epidural cells, the rim of the 1.27 mm shaft reaches across the
+    // interface plane x = 7.5 mm (voxel centres at whole mm): most of the footprint touches the
+    // epidural space.
+    let outlet = NeedleOutlet::tuohy([7.2, 4.0, 4.0], [0.0, 0.0, 1.0]);
+    let (mut epi, mut vas) = (0usize, 0usize);
+    for p in outlet.footprint() {
+        match g.cell_at(p).and_then(|c| g.domain[c]) {
+            Some(Domain::Epidural) => epi += 1,
+            Some(Domain::Vascular) => vas += 1,
+            _ => {}
+        }
+    }
+    assert!(
+        epi > 0 && vas > 0,
+        "the footprint touches both: {epi} epidural, {vas} vascular points"
+    );
+    let area_share = vas as f64 / (epi + vas) as f64;
+    assert!(area_share < 0.5, "contact share of the vessel {area_share}");
+    let mut model = ContrastModel::new(g, ModelConfig::default());
+    let dose = Injection {
+        agent: Agent::CONTRAST,
+        volume_ml: 0.05,
+        rate_ml_s: 0.1,
+    };
+    model.start_injection(&outlet, &dose).unwrap();
+    for _ in 0..10 {
+        model.advance(0.1).unwrap();
+    }
+    let report = sim_core::contrast::classify::classify(&model, &[]);
+    let vascular = report.entered_fraction[Domain::Vascular.index()];
+    let epidural = report.entered_fraction[Domain::Epidural.index()];
+    assert!(
+        vascular > 0.8 && vascular > area_share + 0.2,
+        "vascular took {vascular:.3} of the iodine (contact share {area_share:.2}, epidural {epidural:.3})"
+    );
+    assert!(report.vascular, "{report:?}");
+}
