@@ -53,7 +53,7 @@ pub(crate) fn march_line(ctx: &LineContext<'_>, j: usize, spec: &mut IqGrid) -> 
     let mut prev: AcousticProps = ctx.medium.props(o);
     let mut needle_done = hit.is_none();
     let deposit = |z: f64, amp: f64, spec: &mut IqGrid| {
-        let (s, c) = (2.0 * k0 * z).sin_cos();
+        let (c, s) = super::scatter::cis(2.0 * k0 * z);
         spec.deposit_on_line(j, z / t.dz, amp * c, amp * s);
     };
     log_gain.push(0.0);

@@ -138,7 +138,7 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
         let q = geo.frame.to_probe(t.position_mm);
         let (u, z) = geo.plane_to_line(q.x, q.y);
         let w = t.amplitude * tables.elevation_weight(q.z, z);
-        let (sn, cs) = (2.0 * k0 * z).sin_cos();
+        let (cs, sn) = scatter::cis(2.0 * k0 * z);
         grid.deposit(u, z / tables.dz, w * cs, w * sn);
     }
     let lateral = convolve_lateral(&grid, &tables, &|z| geo.line_spacing_mm(z));
