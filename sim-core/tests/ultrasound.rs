@@ -2,11 +2,13 @@
 //! attenuation, bone shadow, needle visibility, determinism and input validation.
 
 use glam::DVec3;
-use sim_core::ultrasound::tissue::{CORTICAL_BONE, SOFT_TISSUE};
+use sim_core::material::MaterialClass;
+use sim_core::ultrasound::tissue::{AIR, CORTICAL_BONE, FAT, MUSCLE, SOFT_TISSUE, hu_props};
 use sim_core::ultrasound::{
-    AcousticMedium, AcousticProps, BModeFrame, NeedleShaft, PointTarget, ProbeKind, ProbePose,
-    Sampling, ScanRequest, Settings, UltrasoundError, UniformMedium, scan,
+    AcousticMedium, AcousticProps, BModeFrame, CtMedium, NeedleShaft, PointTarget, ProbeKind,
+    ProbePose, Sampling, ScanRequest, Scanner, Settings, UltrasoundError, UniformMedium, scan,
 };
+use sim_core::volume::{Volume, VolumeGrid};
 
 /// Probe on the origin looking along +z, marker towards +x (so image x runs along -x and the
 /// slice's elevation axis is +y).
@@ -486,4 +488,66 @@ fn bad_input_is_refused_naming_the_field() {
     let mut r = base;
     r.settings.focus_mm = 100.0;
     refuse(r, "settings.focus_mm");
+}
+
+#[test]
+fn ct_labels_override_hu_and_outside_the_grid_is_air() {
+    let grid = VolumeGrid {
+        dims: [4, 4, 4],
+        spacing_mm: [1.0; 3],
+        origin_mm: [0.0; 3],
+    };
+    let mut hu = Volume::filled(grid, 40.0f32);
+    let mut labels = Volume::filled(grid, 0u8);
+    // Bone HU labelled muscle is muscle; soft-tissue HU labelled cortex is cortex (no soft
+    // tissue is ever counted inside bone).
+    hu.set(1, 1, 1, 1200.0);
+    labels.set(1, 1, 1, MaterialClass::Muscle.label());
+    labels.set(2, 2, 2, MaterialClass::CorticalBone.label());
+    let m = CtMedium {
+        hu: &hu,
+        labels: Some(&labels),
+    };
+    assert_eq!(m.props(DVec3::new(1.2, 0.8, 1.0)), MUSCLE);
+    assert_eq!(m.props(DVec3::new(2.0, 2.0, 2.0)), CORTICAL_BONE);
+    assert_eq!(m.props(DVec3::new(0.0, 3.0, 0.0)), hu_props(40.0));
+    assert_eq!(m.props(DVec3::new(-1.0, 0.0, 0.0)), AIR);
+    // The HU mapping: air, then fat, impedance rising monotonically to cortex.
+    assert_eq!(hu_props(-1000.0), AIR);
+    assert_eq!(hu_props(-60.0), FAT);
+    let z: Vec<f64> = (-300..=1500)
+        .step_by(10)
+        .map(|h| hu_props(f64::from(h)).impedance_mrayl)
+        .collect();
+    assert!(z.windows(2).all(|w| w[1] >= w[0] - 1e-12), "{z:?}");
+    assert_eq!(hu_props(2000.0), CORTICAL_BONE);
+}
+
+#[test]
+fn freeze_holds_the_last_live_frame() {
+    let probe = ProbeKind::Linear;
+    let st = settings(probe, 20.0, 10.0, 7.5);
+    let sampling = Sampling {
+        lines: 64,
+        ..Sampling::for_settings(&probe.spec(), &st)
+    };
+    let medium = UniformMedium(SOFT_TISSUE);
+    let mut scanner = Scanner::new();
+    let live = scanner
+        .scan(&request(probe, pose_at(0.0), st, sampling, &medium, &[]))
+        .unwrap()
+        .clone();
+    let frozen_st = Settings { frozen: true, ..st };
+    let moved = request(probe, pose_at(5.0), frozen_st, sampling, &medium, &[]);
+    assert_eq!(
+        scanner.scan(&moved).unwrap(),
+        &live,
+        "frozen: the probe moved but the image did not"
+    );
+    // Frozen or not, bad input is still refused.
+    let mut bad = moved;
+    bad.pose.position_mm.x = f64::INFINITY;
+    assert!(scanner.scan(&bad).is_err());
+    let unfrozen = request(probe, pose_at(5.0), st, sampling, &medium, &[]);
+    assert_ne!(scanner.scan(&unfrozen).unwrap().pixels, live.pixels);
 }
