@@ -3,7 +3,7 @@
 
 use glam::DVec3;
 use sim_core::material::MaterialClass;
-use sim_core::ultrasound::tissue::{AIR, CORTICAL_BONE, FAT, MUSCLE, SOFT_TISSUE, hu_props};
+use sim_core::ultrasound::tissue::{AIR, CORTICAL_BONE, FAT, MUSCLE, NERVE, SOFT_TISSUE, hu_props};
 use sim_core::ultrasound::{
     AcousticMedium, AcousticProps, BModeFrame, CtMedium, NeedleShaft, PointTarget, ProbeKind,
     ProbePose, Sampling, ScanRequest, Scanner, Settings, UltrasoundError, UniformMedium, scan,
@@ -550,4 +550,49 @@ fn freeze_holds_the_last_live_frame() {
     assert!(scanner.scan(&bad).is_err());
     let unfrozen = request(probe, pose_at(5.0), st, sampling, &medium, &[]);
     assert_ne!(scanner.scan(&unfrozen).unwrap().pixels, live.pixels);
+}
+
+/// Nerve everywhere, fibres along `axis`, no attenuation.
+struct Nerve(DVec3);
+
+impl AcousticMedium for Nerve {
+    fn props(&self, _p: DVec3) -> AcousticProps {
+        no_loss(NERVE)
+    }
+    fn fibre_axis(&self, _p: DVec3) -> Option<DVec3> {
+        Some(self.0)
+    }
+}
+
+#[test]
+fn nerves_are_fascicular_and_anisotropic() {
+    let probe = ProbeKind::Linear;
+    let st = settings(probe, 30.0, 15.0, 10.0);
+    let sampling = Sampling::for_settings(&probe.spec(), &st);
+    let stats = |medium: &dyn AcousticMedium| {
+        let frame = scan(&request(probe, pose_at(0.0), st, sampling, medium, &[])).unwrap();
+        let env = &frame.envelope;
+        let (mut db, mut power) = (Vec::new(), 0.0);
+        for j in 16..env.lines - 16 {
+            for s in (8.0 / env.sample_mm) as usize..(22.0 / env.sample_mm) as usize {
+                let a = f64::from(env.at(j, s));
+                db.push(20.0 * a.log10());
+                power += a * a;
+            }
+        }
+        // Mean echo power in dB (texture-independent) and the SD of the dB image (texture).
+        (10.0 * (power / db.len() as f64).log10(), mean_sd(&db).1)
+    };
+    // Short axis (fibres along the elevation axis +y, perpendicular to the beam) against fibres
+    // along the beam (+z).
+    let (across, sd_across) = stats(&Nerve(DVec3::Y));
+    let (along, _) = stats(&Nerve(DVec3::Z));
+    let (_, sd_muscle) = stats(&UniformMedium(no_loss(MUSCLE)));
+    println!(
+        "nerve across {across:.1} dB (SD {sd_across:.2}), along {along:.1} dB; muscle SD {sd_muscle:.2}"
+    );
+    // Anisotropy: NERVE_ANISOTROPY_FLOOR = 0.25 is 12 dB; at least 10 dB must survive.
+    assert!(across - along >= 10.0);
+    // Fascicles make the texture rougher than plain speckle (5.57 dB for Rayleigh).
+    assert!(sd_across >= sd_muscle + 1.0);
 }

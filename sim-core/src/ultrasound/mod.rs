@@ -34,7 +34,7 @@ pub use frame::{BModeFrame, Envelope};
 pub use needle::{NeedleShaft, NeedleView, needle_view};
 pub use probe::{ProbeFrame, ProbeKind, ProbePose, ProbeSpec, ScanGeometry};
 pub use settings::{Sampling, Settings, TGC_BANDS};
-pub use tissue::{AcousticMedium, AcousticProps, CtMedium, UniformMedium};
+pub use tissue::{AcousticMedium, AcousticProps, CtMedium, Texture, UniformMedium};
 
 use echo::{LineContext, march_line};
 use scatter::{

@@ -30,6 +30,19 @@ pub struct AcousticProps {
     pub scatter_density: f64,
     /// Diffuse fraction (0 ..= 1) of an interface echo that does not depend on beam alignment.
     pub roughness: f64,
+    /// Internal structure of the scatter (see [`Texture`]).
+    pub texture: Texture,
+}
+
+/// Internal structure of a tissue's scatter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Texture {
+    /// Plain speckle.
+    Speckle,
+    /// Peripheral nerve: dark fascicles in bright perineurium (a tissue-fixed honeycomb of tubes
+    /// along [`AcousticMedium::fibre_axis`], or of blobs where no axis is known), and anisotropy:
+    /// brightest with the beam perpendicular to the fibres (see [`super::scatter`]).
+    Fascicular,
 }
 
 /// Density (kg/m^3) x speed (m/s) in MRayl.
@@ -52,6 +65,7 @@ const fn props(
         echogenicity_db: echo,
         scatter_density: scat,
         roughness: rough,
+        texture: Texture::Speckle,
     }
 }
 
@@ -65,7 +79,10 @@ pub const SOFT_TISSUE: AcousticProps = props(1050.0, 1540.0, 0.54, -44.0, 1.0, 0
 /// Blood in a vessel: Mast Table 1 (1060 kg/m^3, 1584 m/s, 0.2 dB/cm/MHz); anechoic (our choice).
 pub const BLOOD: AcousticProps = props(1060.0, 1584.0, 0.2, -90.0, 1.0, 0.2);
 /// Nerve: IT'IS (1075 kg/m^3, 1630 m/s); attenuation 0.9 dB/cm/MHz and echogenicity ours.
-pub const NERVE: AcousticProps = props(1075.0, 1630.0, 0.9, -42.0, 1.0, 0.3);
+pub const NERVE: AcousticProps = AcousticProps {
+    texture: Texture::Fascicular,
+    ..props(1075.0, 1630.0, 0.9, -42.0, 1.0, 0.3)
+};
 /// Dura and CSF (CSF dominates): IT'IS (1007 kg/m^3, 1504 m/s, about 0.005 dB/cm/MHz); anechoic.
 pub const DURA_CSF: AcousticProps = props(1007.0, 1504.0, 0.005, -90.0, 1.0, 0.2);
 /// Epidural space: fat (Mast), slightly brighter than subcutaneous fat (our choice).
@@ -137,6 +154,7 @@ fn lerp_props(a: &AcousticProps, b: &AcousticProps, t: f64) -> AcousticProps {
         echogenicity_db: l(a.echogenicity_db, b.echogenicity_db),
         scatter_density: l(a.scatter_density, b.scatter_density),
         roughness: l(a.roughness, b.roughness),
+        texture: if t < 0.5 { a.texture } else { b.texture },
     }
 }
 
@@ -145,6 +163,12 @@ fn lerp_props(a: &AcousticProps, b: &AcousticProps, t: f64) -> AcousticProps {
 pub trait AcousticMedium: Sync {
     /// Properties at a region point (mm).
     fn props(&self, p_mm: DVec3) -> AcousticProps;
+
+    /// Unit direction of the fibres (a nerve's course) at a point, where known. Only asked
+    /// where the texture is [`Texture::Fascicular`].
+    fn fibre_axis(&self, _p_mm: DVec3) -> Option<DVec3> {
+        None
+    }
 }
 
 /// One tissue everywhere (the statistics and calibration tests).
