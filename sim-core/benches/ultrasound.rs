@@ -129,6 +129,7 @@ fn main() {
             (256, s, 0.2),
             (256, s, 0.05),
         ];
+        variants.dedup();
         if quick {
             variants.truncate(3);
         }
