@@ -11,18 +11,18 @@ use glam::DVec3;
 use super::beam::Beam;
 use super::needle::{LineHit, NeedleShaft, REVERB_COUNT, REVERB_RATIO, STEEL_REFLECTION, line_hit};
 use super::probe::ScanGeometry;
-use super::scatter::{BeamTables, IqGrid};
+use super::scatter::BeamTables;
 use super::tissue::{AcousticMedium, AcousticProps};
 
 /// Nepers per decibel (amplitude): ln 10 / 20.
 const NP_PER_DB: f64 = std::f64::consts::LN_10 / 20.0;
 /// Reflections weaker than this are not drawn as interfaces (they still cost transmission).
-const MIN_INTERFACE_R: f64 = 0.003;
+const MIN_INTERFACE_R: f64 = 0.01;
 /// Angular half-width of the specular interface lobe, degrees (our choice: the aperture accepts
 /// reflections within about this angle of normal incidence).
 const INTERFACE_LOBE_DEG: f64 = 15.0;
 /// Step of the finite-difference normal at an interface, mm.
-const NORMAL_STEP_MM: f64 = 0.5;
+const NORMAL_STEP_MM: f64 = 1.0;
 
 /// Inputs shared by every line.
 pub(crate) struct LineContext<'a> {
@@ -34,9 +34,33 @@ pub(crate) struct LineContext<'a> {
     pub march_step_mm: f64,
 }
 
-/// Marches line `j`: deposits its interface and needle echoes into `spec` and returns the
+/// One line's specular echoes (I and Q per sample), each a pulse of the axial PSF evaluated
+/// exactly at the samples (no deposit-and-convolve, so a plane reflector's peak is `R`).
+pub(crate) struct LineEchoes<'a> {
+    pub re: &'a mut [f32],
+    pub im: &'a mut [f32],
+}
+
+impl LineEchoes<'_> {
+    fn pulse(&mut self, t: &BeamTables, z: f64, amp: f64, k0: f64) {
+        let (c, s) = super::scatter::cis(2.0 * k0 * z);
+        let sigma = t.axial_sigma_mm;
+        let reach = 4.0 * sigma;
+        let n = self.re.len();
+        let s0 = (((z - reach) / t.dz).ceil().max(0.0)) as usize;
+        let s1 = (((z + reach) / t.dz).floor().max(-1.0) + 1.0) as usize;
+        for i in s0..s1.min(n) {
+            let d = i as f64 * t.dz - z;
+            let g = amp * super::scatter::exp_neg(d * d / (2.0 * sigma * sigma));
+            self.re[i] += (g * c) as f32;
+            self.im[i] += (g * s) as f32;
+        }
+    }
+}
+
+/// Marches line `j`: adds its interface and needle echoes to `echoes` and returns the
 /// two-way loss factor (amplitude) at each sample.
-pub(crate) fn march_line(ctx: &LineContext<'_>, j: usize, spec: &mut IqGrid) -> Vec<f32> {
+pub(crate) fn march_line(ctx: &LineContext<'_>, j: usize, echoes: &mut LineEchoes<'_>) -> Vec<f32> {
     let (o, d) = ctx.geo.line_ray(j as f64);
     let depth = ctx.geo.depth_mm;
     let t = ctx.tables;
@@ -52,10 +76,6 @@ pub(crate) fn march_line(ctx: &LineContext<'_>, j: usize, spec: &mut IqGrid) -> 
     let mut loss_np = 0.0f64;
     let mut prev: AcousticProps = ctx.medium.props(o);
     let mut needle_done = hit.is_none();
-    let deposit = |z: f64, amp: f64, spec: &mut IqGrid| {
-        let (c, s) = super::scatter::cis(2.0 * k0 * z);
-        spec.deposit_on_line(j, z / t.dz, amp * c, amp * s);
-    };
     log_gain.push(0.0);
     for k in 1..n_march {
         let z = k as f64 * step;
@@ -69,7 +89,7 @@ pub(crate) fn march_line(ctx: &LineContext<'_>, j: usize, spec: &mut IqGrid) -> 
                 let amp = STEEL_REFLECTION * h.specular * h.overlap * g;
                 for r in 0..=REVERB_COUNT {
                     let zr = h.z + r as f64 * ctx.needle.map_or(0.0, |n| n.diameter_mm);
-                    deposit(zr, amp * REVERB_RATIO.powi(r as i32), spec);
+                    echoes.pulse(t, zr, amp * REVERB_RATIO.powi(r as i32), k0);
                 }
                 log_t += (1.0 - h.overlap * STEEL_REFLECTION * STEEL_REFLECTION)
                     .max(1e-12)
@@ -81,7 +101,7 @@ pub(crate) fn march_line(ctx: &LineContext<'_>, j: usize, spec: &mut IqGrid) -> 
         if r.abs() >= MIN_INTERFACE_R {
             let pm = o + d * zm;
             let w = alignment(ctx.medium, pm, d, prev.roughness.max(cur.roughness));
-            deposit(zm, r * w * (log_t - loss_np).exp(), spec);
+            echoes.pulse(t, zm, r * w * (log_t - loss_np).exp(), k0);
         }
         log_t += (1.0 - r * r).max(1e-12).ln();
         let alpha = 0.5 * (prev.attenuation_db_cm_mhz + cur.attenuation_db_cm_mhz);
@@ -103,13 +123,15 @@ pub(crate) fn march_line(ctx: &LineContext<'_>, j: usize, spec: &mut IqGrid) -> 
 /// Weight of a specular interface echo: the diffuse `roughness` plus a Gaussian lobe in the angle
 /// between the beam and the impedance gradient (the surface normal).
 fn alignment(medium: &dyn AcousticMedium, p: DVec3, d: DVec3, roughness: f64) -> f64 {
+    // The impedance gradient from a sphere of radius h sampled in 48 near-uniform (Fibonacci)
+    // directions: on a voxelised (step) surface a 6-point stencil quantises the normal to 0 /
+    // 45 / 55 degrees, and a cube stencil is biased towards its axes; the sphere follows the
+    // true tilt to a few degrees.
     let h = NORMAL_STEP_MM;
-    let z = |q: DVec3| medium.props(q).impedance_mrayl;
-    let g = DVec3::new(
-        z(p + DVec3::X * h) - z(p - DVec3::X * h),
-        z(p + DVec3::Y * h) - z(p - DVec3::Y * h),
-        z(p + DVec3::Z * h) - z(p - DVec3::Z * h),
-    );
+    let mut g = DVec3::ZERO;
+    for &u in sphere_directions() {
+        g += u * medium.props(p + u * h).impedance_mrayl;
+    }
     let cos = match g.try_normalize() {
         Some(n) => n.dot(d).abs().min(1.0),
         None => 1.0,
@@ -117,4 +139,21 @@ fn alignment(medium: &dyn AcousticMedium, p: DVec3, d: DVec3, roughness: f64) ->
     let theta = cos.acos();
     let lobe = INTERFACE_LOBE_DEG.to_radians();
     roughness + (1.0 - roughness) * (-(theta * theta) / (2.0 * lobe * lobe)).exp()
+}
+
+/// 48 near-uniform unit vectors (a Fibonacci sphere).
+fn sphere_directions() -> &'static [DVec3] {
+    static D: std::sync::OnceLock<Vec<DVec3>> = std::sync::OnceLock::new();
+    D.get_or_init(|| {
+        let n = 48;
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        (0..n)
+            .map(|i| {
+                let z = 1.0 - (2 * i + 1) as f64 / n as f64;
+                let r = (1.0 - z * z).sqrt();
+                let (s, c) = (golden * i as f64).sin_cos();
+                DVec3::new(r * c, r * s, z)
+            })
+            .collect()
+    })
 }

@@ -36,7 +36,7 @@ pub use probe::{ProbeFrame, ProbeKind, ProbePose, ProbeSpec, ScanGeometry};
 pub use settings::{Sampling, Settings, TGC_BANDS};
 pub use tissue::{AcousticMedium, AcousticProps, CtMedium, Texture, UniformMedium};
 
-use echo::{LineContext, march_line};
+use echo::{LineContext, LineEchoes, march_line};
 use scatter::{
     BeamTables, IqGrid, ScatterField, conv_sigma, convolve_axial, convolve_lateral,
     deposit_scatterers,
@@ -145,7 +145,6 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
     let (sre, sim) = convolve_axial(&lateral, &tables);
 
     // Lines: losses, interfaces and the needle.
-    let mut spec = IqGrid::new(geo.lines, samples, 0, pad_s);
     let ctx = LineContext {
         geo: &geo,
         beam: &beam,
@@ -154,11 +153,16 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
         needle: req.needle.as_ref(),
         march_step_mm: req.sampling.march_step_mm,
     };
+    let mut pre = vec![0f32; geo.lines * samples];
+    let mut pim = vec![0f32; geo.lines * samples];
     let mut gain = Vec::with_capacity(geo.lines * samples);
-    for j in 0..geo.lines {
-        gain.extend(march_line(&ctx, j, &mut spec));
+    for ((j, re), im) in pre
+        .chunks_mut(samples)
+        .enumerate()
+        .zip(pim.chunks_mut(samples))
+    {
+        gain.extend(march_line(&ctx, j, &mut LineEchoes { re, im }));
     }
-    let (pre, pim) = convolve_axial(&spec, &tables);
     let data = (0..geo.lines * samples)
         .map(|i| {
             let a = gain[i] * sre[i] + pre[i];

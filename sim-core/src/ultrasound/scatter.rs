@@ -83,25 +83,6 @@ impl IqGrid {
         }
     }
 
-    /// Adds `(a, b)` at fractional sample `s` of integer line `line` (linear along the line only).
-    pub fn deposit_on_line(&mut self, line: usize, s: f64, a: f64, b: f64) {
-        let sp = s + self.pad_s as f64;
-        if sp.is_nan() || sp < 0.0 {
-            return;
-        }
-        let s0 = sp.floor();
-        let fs = sp - s0;
-        let s0 = s0 as usize;
-        if s0 + 1 >= self.stride() || line >= self.lines {
-            return;
-        }
-        let i = (line + self.pad_l) * self.stride() + s0;
-        self.re[i] += (a * (1.0 - fs)) as f32;
-        self.im[i] += (b * (1.0 - fs)) as f32;
-        self.re[i + 1] += (a * fs) as f32;
-        self.im[i + 1] += (b * fs) as f32;
-    }
-
     pub fn add(&mut self, other: &IqGrid) {
         for (x, y) in self.re.iter_mut().zip(&other.re) {
             *x += y;
