@@ -113,7 +113,7 @@ pub(crate) fn march_line(ctx: &LineContext<'_>, j: usize, echoes: &mut LineEchoe
     (0..t.elev_inv2s2.len())
         .map(|s| {
             let x = s as f64 * t.dz / step;
-            let i = (x.floor() as usize).min(n_march - 2);
+            let i = (x as usize).min(n_march - 2);
             let fr = x - i as f64;
             (log_gain[i] * (1.0 - fr) + log_gain[i + 1] * fr).exp() as f32
         })

@@ -72,8 +72,8 @@ pub(crate) fn sample_envelope(env: &Envelope, u: f64, s: f64) -> Option<f64> {
         return None;
     }
     let (u0, s0) = (
-        (u.floor() as usize).min(env.lines - 2),
-        (s.floor() as usize).min(env.samples - 2),
+        (u as usize).min(env.lines - 2),
+        (s as usize).min(env.samples - 2),
     );
     let (fu, fs) = (u - u0 as f64, s - s0 as f64);
     let v = |a: usize, b: usize| f64::from(env.at(a, b));
@@ -107,7 +107,7 @@ pub(crate) fn scan_convert(
             };
             let db = 20.0 * a.max(1e-12).log10() + settings.gain_db + settings.tgc_at_db(z);
             let g = ((db + dr) / dr).clamp(0.0, 1.0) * 255.0;
-            pixels[y * width + x] = g.round() as u8;
+            pixels[y * width + x] = (g + 0.5) as u8;
             inside[y * width + x] = true;
         }
     }

@@ -66,9 +66,9 @@ impl IqGrid {
         if up.is_nan() || sp.is_nan() || up < 0.0 || sp < 0.0 {
             return;
         }
-        let (u0, s0) = (up.floor(), sp.floor());
-        let (fu, fs) = (up - u0, sp - s0);
-        let (u0, s0) = (u0 as usize, s0 as usize);
+        // Both are non-negative here, so truncation is floor (and no libm call).
+        let (u0, s0) = (up as usize, sp as usize);
+        let (fu, fs) = (up - u0 as f64, sp - s0 as f64);
         if u0 + 1 >= self.total_lines() || s0 + 1 >= self.stride() {
             return;
         }
@@ -145,11 +145,14 @@ impl BeamTables {
     }
 
     /// Nearest sample index of depth `z` (clamped).
+    #[inline]
     pub fn sample_of(&self, z: f64) -> usize {
-        ((z / self.dz).round().max(0.0) as usize).min(self.elev_inv2s2.len() - 1)
+        // Round half up by truncation of a non-negative value (no libm call).
+        ((z / self.dz + 0.5).max(0.0) as usize).min(self.elev_inv2s2.len() - 1)
     }
 
     /// Peak-normalised elevation weight of offset `e` at depth `z`, times the energy factor.
+    #[inline]
     pub fn elevation_weight(&self, e: f64, z: f64) -> f64 {
         let s = self.sample_of(z);
         exp_neg(e * e * self.elev_inv2s2[s]) * self.elev_energy[s]
@@ -197,10 +200,16 @@ fn exp_table() -> &'static [f64] {
 /// `(pi / 4096)^2 / 2 = 3e-7`, several times faster than `sin_cos` in the scatter loop.
 pub(crate) fn cis(phi: f64) -> (f64, f64) {
     let x = phi * (CIS_N as f64 / std::f64::consts::TAU);
-    let n = x.round();
+    let n = floor_fast(x + 0.5);
     let d = (x - n) * (std::f64::consts::TAU / CIS_N as f64);
     let (c, s) = cis_table()[(n as i64).rem_euclid(CIS_N as i64) as usize];
     (c - s * d, s + c * d)
+}
+
+/// `floor` without a libm call (the baseline x86-64 target has no rounding instruction).
+pub(crate) fn floor_fast(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t > x { t - 1.0 } else { t }
 }
 
 /// `exp(-x)` for `x >= 0`, linearly interpolated in a table of step 1/128 (relative error below
