@@ -73,8 +73,15 @@ fn mean_sd(v: &[f64]) -> (f64, f64) {
 
 #[test]
 fn uniform_speckle_is_rayleigh() {
+    // The bottom and the top of the linear band (the default lattice follows the frequency).
+    for f in [5.0, 12.0] {
+        uniform_speckle_is_rayleigh_at(f);
+    }
+}
+
+fn uniform_speckle_is_rayleigh_at(f: f64) {
     let probe = ProbeKind::Linear;
-    let st = settings(probe, 40.0, 20.0, 5.0);
+    let st = settings(probe, 40.0, 20.0, f);
     let medium = UniformMedium(no_loss(SOFT_TISSUE));
     let sampling = Sampling::for_settings(&probe.spec(), &st);
     let frame = scan(&request(probe, pose_at(0.0), st, sampling, &medium, &[])).unwrap();
@@ -104,7 +111,7 @@ fn uniform_speckle_is_rayleigh() {
     let width_mm = (env.lines - 32) as f64 * 38.0 / (env.lines - 1) as f64;
     let cells = width_mm * 28.0 / (widest * beam.axial_fwhm_mm());
     println!(
-        "mean/SD {:.4}  SD(dB) {:.3}  cells {cells:.0}",
+        "{f} MHz: mean/SD {:.4}  SD(dB) {:.3}  cells {cells:.0}",
         m / sd,
         sd_db
     );

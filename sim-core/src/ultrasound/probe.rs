@@ -44,8 +44,8 @@ pub struct ProbeSpec {
     pub elevation_focus_mm: f64,
     /// Allowed display depth in mm.
     pub depth_range_mm: (f64, f64),
-    /// Side of a scatterer lattice cell in mm (see [`super::scatter`]; our choice, tested by the
-    /// speckle statistics).
+    /// Largest side of a scatterer lattice cell in mm (see [`super::scatter`] and
+    /// [`super::Sampling::for_settings`]; our choice, tested by the speckle statistics).
     pub scatter_cell_mm: f64,
 }
 
