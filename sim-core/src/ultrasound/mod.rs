@@ -13,6 +13,30 @@
 //! 4. [`frame`]: envelope `sqrt(I^2 + Q^2)`, gain, TGC and log compression into the dynamic
 //!    range, scan conversion to square millimetre-scaled pixels.
 //!
+//! ```
+//! use glam::DVec3;
+//! use sim_core::ultrasound::{ProbeKind, ProbePose, Sampling, ScanRequest, Settings, UniformMedium, scan};
+//! use sim_core::ultrasound::tissue::MUSCLE;
+//! let probe = ProbeKind::Linear;
+//! let settings = Settings { depth_mm: 20.0, focus_mm: 10.0, ..Settings::default_for(&probe.spec()) };
+//! let sampling = Sampling { lines: 64, ..Sampling::for_settings(&probe.spec(), &settings) };
+//! let req = ScanRequest {
+//!     probe,
+//!     // On the skin at the origin, looking along +z, orientation marker towards +x.
+//!     pose: ProbePose { position_mm: DVec3::ZERO, beam_dir: DVec3::Z, marker_dir: DVec3::X },
+//!     settings,
+//!     sampling,
+//!     medium: &UniformMedium(MUSCLE),
+//!     needle: None,
+//!     targets: &[],
+//!     seed: 1,
+//! };
+//! let frame = scan(&req).unwrap();
+//! // Square pixels of `pixel_mm`; column 0 is the marker side, row 0 the probe face.
+//! assert_eq!(frame.width, (38.0 / frame.pixel_mm) as usize + 1);
+//! assert!(frame.envelope.data.iter().all(|a| a.is_finite()));
+//! ```
+//!
 //! Not modelled: refraction and speed-of-sound aberration (depth assumes 1540 m/s), multiple
 //! scattering except the needle's reverberation, side lobes, tissue deformation.
 
