@@ -43,17 +43,6 @@ pub struct Beam {
 const RECEIVE_F_NUMBER_MIN: f64 = 1.0;
 
 impl Beam {
-    /// The beam of a probe with its settings (no validation).
-    pub fn new(spec: &super::ProbeSpec, settings: &super::Settings) -> Beam {
-        Beam {
-            frequency_mhz: settings.frequency_mhz,
-            focus_mm: settings.focus_mm,
-            aperture_mm: spec.aperture_mm,
-            elevation_aperture_mm: spec.elevation_aperture_mm,
-            elevation_focus_mm: spec.elevation_focus_mm,
-        }
-    }
-
     /// Wavelength, mm.
     pub fn wavelength_mm(&self) -> f64 {
         wavelength_mm(self.frequency_mhz)

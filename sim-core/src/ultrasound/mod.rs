@@ -117,7 +117,7 @@ impl ScanRequest<'_> {
             lines: self.sampling.lines,
             depth_mm: self.settings.depth_mm,
         };
-        let beam = Beam::new(&spec, &self.settings);
+        let beam = self.settings.beam(&spec);
         Ok((geo, beam))
     }
 }

@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::beam::Beam;
 use super::error::{UltrasoundError, check_range};
 use super::probe::{ProbeSpec, check_depth};
 
@@ -72,6 +73,17 @@ impl Settings {
         Ok(())
     }
 
+    /// The beam these settings give on a probe (no validation).
+    pub fn beam(&self, spec: &ProbeSpec) -> Beam {
+        Beam {
+            frequency_mhz: self.frequency_mhz,
+            focus_mm: self.focus_mm,
+            aperture_mm: spec.aperture_mm,
+            elevation_aperture_mm: spec.elevation_aperture_mm,
+            elevation_focus_mm: spec.elevation_focus_mm,
+        }
+    }
+
     /// Time-gain compensation in dB at depth `z_mm`.
     pub fn tgc_at_db(&self, z_mm: f64) -> f64 {
         let band = self.depth_mm / TGC_BANDS as f64;
@@ -107,7 +119,7 @@ impl Sampling {
     /// mean/SD 1.67, a 0.1 mm cell 1.90; the probe's cell is the upper bound).
     pub fn for_settings(spec: &ProbeSpec, settings: &Settings) -> Sampling {
         let axial_fwhm = super::beam::axial_fwhm_mm(settings.frequency_mhz);
-        let beam = super::Beam::new(spec, settings);
+        let beam = settings.beam(spec);
         let spans = (0..=100)
             .map(|i| {
                 let z = settings.depth_mm * f64::from(i) / 100.0;
