@@ -23,4 +23,5 @@ pub mod mesh;
 pub mod needle;
 pub mod rng;
 pub mod rubric;
+pub mod ultrasound;
 pub mod volume;

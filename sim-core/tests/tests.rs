@@ -7,3 +7,4 @@ mod needle;
 mod nesting;
 mod phantom;
 mod rubric;
+mod ultrasound;

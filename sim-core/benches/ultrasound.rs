@@ -1,0 +1,154 @@
+//! Ultrasound reference: frame time against error for lines per frame, samples per line and
+//! march step, both probes, on an 8 cm frame.
+//!
+//! Scene: 8 mm of fat over muscle, a 3 mm cortical plate at 45 mm under half the field and an
+//! in-plane 22 G needle at 25 degrees. The error of a variant is measured on the displayed image
+//! (same pixel grid, same scatter seed) against a fine reference (4x the default lines, 2x the
+//! default samples, 0.025 mm march): NCC of the grey levels and their mean absolute difference.
+//! Time is the median of whole `scan` calls (scatter, march, envelope, scan conversion).
+//!
+//! `BENCH_QUICK=1` runs one repetition and a shorter list (CI, under 5 s).
+
+use std::hint::black_box;
+use std::time::Instant;
+
+use glam::DVec3;
+use sim_core::ultrasound::tissue::{CORTICAL_BONE, FAT, MUSCLE};
+use sim_core::ultrasound::{
+    AcousticMedium, AcousticProps, BModeFrame, NeedleShaft, ProbeKind, ProbePose, Sampling,
+    ScanRequest, Settings, scan,
+};
+
+struct Layers;
+
+impl AcousticMedium for Layers {
+    fn props(&self, p: DVec3) -> AcousticProps {
+        if p.z < 8.0 {
+            FAT
+        } else if p.x < 0.0 && (45.0..48.0).contains(&p.z) {
+            CORTICAL_BONE
+        } else {
+            MUSCLE
+        }
+    }
+}
+
+fn median_seconds(reps: usize, mut f: impl FnMut()) -> f64 {
+    let mut t: Vec<f64> = (0..reps)
+        .map(|_| {
+            let t0 = Instant::now();
+            f();
+            t0.elapsed().as_secs_f64()
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
+
+fn errors(a: &BModeFrame, reference: &BModeFrame) -> (f64, f64) {
+    let idx: Vec<usize> = (0..a.pixels.len())
+        .filter(|&i| a.inside[i] && reference.inside[i])
+        .collect();
+    let n = idx.len() as f64;
+    let va: Vec<f64> = idx.iter().map(|&i| f64::from(a.pixels[i])).collect();
+    let vb: Vec<f64> = idx
+        .iter()
+        .map(|&i| f64::from(reference.pixels[i]))
+        .collect();
+    let (ma, mb) = (va.iter().sum::<f64>() / n, vb.iter().sum::<f64>() / n);
+    let (mut sab, mut saa, mut sbb, mut mad) = (0.0, 0.0, 0.0, 0.0);
+    for (x, y) in va.iter().zip(&vb) {
+        sab += (x - ma) * (y - mb);
+        saa += (x - ma) * (x - ma);
+        sbb += (y - mb) * (y - mb);
+        mad += (x - y).abs();
+    }
+    (sab / (saa * sbb).sqrt(), mad / n)
+}
+
+fn main() {
+    let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
+    let reps = if quick { 1 } else { 7 };
+    let medium = Layers;
+    let dir = DVec3::new(25f64.to_radians().cos(), 0.0, 25f64.to_radians().sin());
+    let needle = NeedleShaft {
+        hub_mm: DVec3::new(-25.0, 0.0, 0.0) - dir * 10.0,
+        tip_mm: DVec3::new(-25.0, 0.0, 0.0) + dir * 40.0,
+        diameter_mm: 0.72,
+    };
+    println!("Ultrasound: 8 cm frame, median of {reps} (error vs fine reference on the image)");
+    for (probe, f) in [(ProbeKind::Linear, 5.0), (ProbeKind::Curvilinear, 3.5)] {
+        let spec = probe.spec();
+        let settings = Settings {
+            depth_mm: 80.0,
+            focus_mm: 40.0,
+            frequency_mhz: f,
+            ..Settings::default_for(&spec)
+        };
+        let base = Sampling {
+            pixel_mm: 0.2,
+            ..Sampling::for_settings(&spec, &settings)
+        };
+        let req = |sampling: Sampling| ScanRequest {
+            probe,
+            pose: ProbePose {
+                position_mm: DVec3::ZERO,
+                beam_dir: DVec3::Z,
+                marker_dir: DVec3::X,
+            },
+            settings,
+            sampling,
+            medium: &medium,
+            needle: Some(needle),
+            targets: &[],
+            seed: 1,
+        };
+        let fine = Sampling {
+            lines: 4 * base.lines,
+            samples_per_line: 2 * base.samples_per_line,
+            march_step_mm: 0.025,
+            ..base
+        };
+        let reference = scan(&req(fine)).expect("valid request");
+        println!();
+        println!(
+            "{probe:?} at {f} MHz (default {} lines, {} samples)",
+            base.lines, base.samples_per_line
+        );
+        println!();
+        println!("| lines | samples/line | march (mm) | time (ms) | NCC | mean abs diff (grey) |");
+        println!("|---:|---:|---:|---:|---:|---:|");
+        let s = base.samples_per_line;
+        let mut variants = vec![
+            (128, s, 0.1),
+            (256, s, 0.1),
+            (base.lines, s, 0.1),
+            (256, s / 2, 0.1),
+            (256, 2 * s, 0.1),
+            (256, s, 0.4),
+            (256, s, 0.2),
+            (256, s, 0.05),
+        ];
+        variants.dedup();
+        if quick {
+            variants.truncate(3);
+        }
+        for (lines, samples, march) in variants {
+            let sampling = Sampling {
+                lines,
+                samples_per_line: samples,
+                march_step_mm: march,
+                ..base
+            };
+            let frame = scan(&req(sampling)).expect("valid request");
+            let (ncc, mad) = errors(&frame, &reference);
+            let t = median_seconds(reps, || {
+                black_box(scan(black_box(&req(sampling))).expect("valid request"));
+            });
+            println!(
+                "| {lines} | {samples} | {march} | {:.1} | {ncc:.3} | {mad:.2} |",
+                t * 1e3
+            );
+        }
+    }
+}

@@ -1,0 +1,216 @@
+//! Acoustic properties of tissue: from CT numbers (HU) with label overrides.
+//!
+//! Sources. "Mast" is T. D. Mast, "Empirical relationships between acoustic parameters in human
+//! soft tissues", Acoust. Res. Lett. Online 1(2), 37-42 (2000), Table 1 (speed, density,
+//! attenuation slope), rounded. "IT'IS" is the IT'IS Foundation tissue property database v4.1
+//! (acoustic section), rounded, for tissues Mast does not list. Echogenicity, scatter density
+//! and roughness are appearance parameters and always "our choice". Impedance is density x speed.
+//! HU do not determine acoustic properties uniquely; the HU table is a plausible mapping, not a
+//! measurement of this patient.
+
+use glam::DVec3;
+
+use crate::material::MaterialClass;
+use crate::volume::Volume;
+
+/// Acoustic properties at one point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AcousticProps {
+    /// Characteristic impedance, MRayl (10^6 kg m^-2 s^-1).
+    pub impedance_mrayl: f64,
+    /// Speed of sound, m/s (informational: the scanner images with 1540 m/s and the march does
+    /// not refract).
+    pub speed_m_s: f64,
+    /// Attenuation slope, dB/cm/MHz (amplitude, one way; linear in frequency).
+    pub attenuation_db_cm_mhz: f64,
+    /// RMS speckle amplitude relative to a perfect plane reflector at the focus, dB.
+    pub echogenicity_db: f64,
+    /// Fraction (0 ..= 1) of scatterer lattice cells that hold a scatterer: 1 gives fully
+    /// developed speckle, less gives sparser, spottier texture.
+    pub scatter_density: f64,
+    /// Diffuse fraction (0 ..= 1) of an interface echo that does not depend on beam alignment.
+    pub roughness: f64,
+    /// Internal structure of the scatter (see [`Texture`]).
+    pub texture: Texture,
+}
+
+/// Internal structure of a tissue's scatter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Texture {
+    /// Plain speckle.
+    Speckle,
+    /// Peripheral nerve: dark fascicles in bright perineurium (a tissue-fixed honeycomb of tubes
+    /// along [`AcousticMedium::fibre_axis`], or of blobs where no axis is known), and anisotropy:
+    /// brightest with the beam perpendicular to the fibres (see [`super::scatter`]).
+    Fascicular,
+}
+
+/// Density (kg/m^3) x speed (m/s) in MRayl.
+const fn mrayl(density: f64, speed: f64) -> f64 {
+    density * speed * 1e-6
+}
+
+const fn props(
+    density: f64,
+    speed: f64,
+    att: f64,
+    echo: f64,
+    scat: f64,
+    rough: f64,
+) -> AcousticProps {
+    AcousticProps {
+        impedance_mrayl: mrayl(density, speed),
+        speed_m_s: speed,
+        attenuation_db_cm_mhz: att,
+        echogenicity_db: echo,
+        scatter_density: scat,
+        roughness: rough,
+        texture: Texture::Speckle,
+    }
+}
+
+/// Fat: Mast Table 1 (950 kg/m^3, 1478 m/s, 0.48 dB/cm/MHz); hypoechoic, sparse septa (our choice).
+pub const FAT: AcousticProps = props(950.0, 1478.0, 0.48, -52.0, 0.35, 0.3);
+/// Skeletal muscle: Mast Table 1 (1050 kg/m^3, 1547 m/s, 1.09 dB/cm/MHz); echogenicity ours.
+pub const MUSCLE: AcousticProps = props(1050.0, 1547.0, 1.09, -46.0, 1.0, 0.3);
+/// Generic soft tissue and skin: 1050 kg/m^3, 1540 m/s, 0.54 dB/cm/MHz (the soft-tissue average
+/// used by Mast's regression; our choice of representative).
+pub const SOFT_TISSUE: AcousticProps = props(1050.0, 1540.0, 0.54, -44.0, 1.0, 0.3);
+/// Blood in a vessel: Mast Table 1 (1060 kg/m^3, 1584 m/s, 0.2 dB/cm/MHz); anechoic (our choice).
+pub const BLOOD: AcousticProps = props(1060.0, 1584.0, 0.2, -90.0, 1.0, 0.2);
+/// Nerve: IT'IS (1075 kg/m^3, 1630 m/s); attenuation 0.9 dB/cm/MHz and echogenicity ours.
+pub const NERVE: AcousticProps = AcousticProps {
+    texture: Texture::Fascicular,
+    ..props(1075.0, 1630.0, 0.9, -42.0, 1.0, 0.3)
+};
+/// Dura and CSF (CSF dominates): IT'IS (1007 kg/m^3, 1504 m/s, about 0.005 dB/cm/MHz); anechoic.
+pub const DURA_CSF: AcousticProps = props(1007.0, 1504.0, 0.005, -90.0, 1.0, 0.2);
+/// Epidural space: fat (Mast), slightly brighter than subcutaneous fat (our choice).
+pub const EPIDURAL_FAT: AcousticProps = props(950.0, 1478.0, 0.48, -48.0, 0.5, 0.3);
+/// Ligamentum flavum, as tendon: IT'IS (1142 kg/m^3, 1750 m/s); attenuation 1.1 and a bright,
+/// fibrillar echo are our choice.
+pub const LIGAMENT: AcousticProps = props(1142.0, 1750.0, 1.1, -38.0, 1.0, 0.3);
+/// Intervertebral disc, as cartilage: IT'IS (1100 kg/m^3, 1640 m/s); attenuation 1.0 ours.
+pub const DISC: AcousticProps = props(1100.0, 1640.0, 1.0, -50.0, 1.0, 0.3);
+/// Cortical bone: IT'IS (1908 kg/m^3, 3514 m/s); 20 dB/cm/MHz is our choice standing for
+/// absorption plus unresolved scattering (IT'IS lists absorption only), so bone shadows.
+pub const CORTICAL_BONE: AcousticProps = props(1908.0, 3514.0, 20.0, -40.0, 1.0, 0.35);
+/// Cancellous bone: IT'IS (1178 kg/m^3, 2117 m/s); 25 dB/cm/MHz our choice (as for cortex).
+pub const CANCELLOUS_BONE: AcousticProps = props(1178.0, 2117.0, 25.0, -45.0, 1.0, 0.35);
+/// Air or gas (HU below -400): 1.2 kg/m^3, 343 m/s; total reflection and no transmission.
+pub const AIR: AcousticProps = props(1.2, 343.0, 1000.0, -120.0, 0.0, 0.5);
+
+/// Properties of a labelled class (the label override of the HU mapping).
+pub fn class_props(class: MaterialClass) -> AcousticProps {
+    match class {
+        MaterialClass::CorticalBone => CORTICAL_BONE,
+        MaterialClass::Cancellous => CANCELLOUS_BONE,
+        MaterialClass::Disc => DISC,
+        MaterialClass::Muscle => MUSCLE,
+        MaterialClass::Fat => FAT,
+        MaterialClass::SoftTissue => SOFT_TISSUE,
+        MaterialClass::Vessel => BLOOD,
+        MaterialClass::Nerve => NERVE,
+        MaterialClass::DuraCsf => DURA_CSF,
+        MaterialClass::EpiduralSpace => EPIDURAL_FAT,
+        MaterialClass::LigamentumFlavum => LIGAMENT,
+    }
+}
+
+/// Properties from a CT number alone: air below -400 HU, fat up to -60 HU, soft tissue at 20 HU,
+/// muscle at 50 HU, cancellous bone at 300 HU and cortex from 1000 HU, interpolated in between
+/// (the knots are our choice, placed at the usual HU of each tissue).
+pub fn hu_props(hu: f64) -> AcousticProps {
+    const KNOTS: [(f64, AcousticProps); 6] = [
+        (-400.0, AIR),
+        (-60.0, FAT),
+        (20.0, SOFT_TISSUE),
+        (50.0, MUSCLE),
+        (300.0, CANCELLOUS_BONE),
+        (1000.0, CORTICAL_BONE),
+    ];
+    if hu <= KNOTS[0].0 {
+        return AIR;
+    }
+    for w in KNOTS.windows(2) {
+        let ((h0, a), (h1, b)) = (w[0], w[1]);
+        if hu <= h1 {
+            // The air knot is a step, not a ramp: anything above -400 HU is at least fat.
+            if h0 == -400.0 {
+                return FAT;
+            }
+            return lerp_props(&a, &b, (hu - h0) / (h1 - h0));
+        }
+    }
+    CORTICAL_BONE
+}
+
+fn lerp_props(a: &AcousticProps, b: &AcousticProps, t: f64) -> AcousticProps {
+    let l = |x: f64, y: f64| x + (y - x) * t;
+    AcousticProps {
+        impedance_mrayl: l(a.impedance_mrayl, b.impedance_mrayl),
+        speed_m_s: l(a.speed_m_s, b.speed_m_s),
+        attenuation_db_cm_mhz: l(a.attenuation_db_cm_mhz, b.attenuation_db_cm_mhz),
+        echogenicity_db: l(a.echogenicity_db, b.echogenicity_db),
+        scatter_density: l(a.scatter_density, b.scatter_density),
+        roughness: l(a.roughness, b.roughness),
+        texture: if t < 0.5 { a.texture } else { b.texture },
+    }
+}
+
+/// Where the acoustic properties come from. Implementations must be pure functions of the point
+/// (the frame is deterministic and the scatterers are fixed to the tissue).
+pub trait AcousticMedium: Sync {
+    /// Properties at a region point (mm).
+    fn props(&self, p_mm: DVec3) -> AcousticProps;
+
+    /// Unit direction of the fibres (a nerve's course) at a point, where known. Only asked
+    /// where the texture is [`Texture::Fascicular`].
+    fn fibre_axis(&self, _p_mm: DVec3) -> Option<DVec3> {
+        None
+    }
+}
+
+/// One tissue everywhere (the statistics and calibration tests).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UniformMedium(pub AcousticProps);
+
+impl AcousticMedium for UniformMedium {
+    fn props(&self, _p_mm: DVec3) -> AcousticProps {
+        self.0
+    }
+}
+
+/// A region's CT (HU) with an optional label volume on the same grid: a labelled voxel takes its
+/// class's properties (so soft tissue never counts inside bone), an unlabelled one the HU mapping.
+/// Lookups are nearest-voxel, so tissue boundaries are sharp interfaces; outside the grid is air.
+#[derive(Debug, Clone, Copy)]
+pub struct CtMedium<'a> {
+    /// CT numbers.
+    pub hu: &'a Volume<f32>,
+    /// [`MaterialClass::label`] per voxel (0 = no override), on the grid of `hu`.
+    pub labels: Option<&'a Volume<u8>>,
+}
+
+impl AcousticMedium for CtMedium<'_> {
+    fn props(&self, p_mm: DVec3) -> AcousticProps {
+        let g = &self.hu.grid;
+        let v = g.world_to_voxel(p_mm.to_array());
+        let mut ijk = [0usize; 3];
+        for a in 0..3 {
+            let r = v[a].round();
+            if !(r >= 0.0 && r < g.dims[a] as f64) {
+                return AIR;
+            }
+            ijk[a] = r as usize;
+        }
+        let idx = g.index(ijk[0], ijk[1], ijk[2]);
+        if let Some(class) = self
+            .labels
+            .and_then(|l| MaterialClass::from_label(l.data[idx]))
+        {
+            return class_props(class);
+        }
+        hu_props(f64::from(self.hu.data[idx]))
+    }
+}
