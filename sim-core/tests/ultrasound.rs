@@ -699,3 +699,54 @@ fn each_interface_costs_one_minus_r_squared_both_ways() {
     // missing speckle near its edges: 0.1 dB.
     assert!((got_db - expected_db).abs() < 0.1);
 }
+
+/// Air for z below `gap`, muscle beyond.
+struct Gap(f64);
+
+impl AcousticMedium for Gap {
+    fn props(&self, p: DVec3) -> AcousticProps {
+        if p.z < self.0 { AIR } else { MUSCLE }
+    }
+}
+
+/// Mean envelope in dB over lines 32.. lines-32 and depths `z0 ..= z1` mm.
+fn band_db(frame: &BModeFrame, z0: f64, z1: f64) -> f64 {
+    let env = &frame.envelope;
+    let (s0, s1) = ((z0 / env.sample_mm) as usize, (z1 / env.sample_mm) as usize);
+    let mut sum = 0.0;
+    let mut n = 0.0;
+    for j in 32..env.lines - 32 {
+        for s in s0..=s1 {
+            sum += f64::from(env.at(j, s));
+            n += 1.0;
+        }
+    }
+    20.0 * (sum / n).max(1e-30).log10()
+}
+
+#[test]
+fn air_under_the_face_is_coupling_gel_up_to_its_limit() {
+    use sim_core::ultrasound::GEL_MAX_MM;
+    let probe = ProbeKind::Linear;
+    let st = settings(probe, 40.0, 20.0, 7.5);
+    let sampling = Sampling::for_settings(&probe.spec(), &st);
+    let frame =
+        |gap: f64| scan(&request(probe, pose_at(0.0), st, sampling, &Gap(gap), &[])).unwrap();
+    // In contact, and 4 mm off the skin with gel between: at the same depth below the face the
+    // gel image is brighter by the two-way muscle attenuation of the 4 mm it replaces, within
+    // 1.5 dB (the gel-muscle interface passes 99.8 % of the energy both ways; the rest is the
+    // speckle of different tissue cells at that depth).
+    let contact = band_db(&frame(0.0), 12.0, 30.0);
+    let gel = band_db(&frame(4.0), 12.0, 30.0);
+    let expected = 2.0 * MUSCLE.attenuation_db_cm_mhz * 7.5 * 0.4;
+    assert!(
+        (gel - contact - expected).abs() < 1.5,
+        "contact {contact} dB, gel {gel} dB, expected difference {expected} dB"
+    );
+    // Farther off than the gel limit the air gap stays air: nothing passes.
+    let air = band_db(&frame(GEL_MAX_MM + 3.0), GEL_MAX_MM + 8.0, 36.0);
+    assert!(
+        air < contact - 60.0,
+        "air gap {air} dB vs contact {contact} dB"
+    );
+}

@@ -23,6 +23,35 @@ const MIN_INTERFACE_R: f64 = 0.01;
 const INTERFACE_LOBE_DEG: f64 = 15.0;
 /// Step of the finite-difference normal at an interface, mm.
 const NORMAL_STEP_MM: f64 = 1.0;
+/// Deepest air under the face that counts as coupling gel, mm (see [`GEL`]). Our choice: a
+/// convex face pressed onto a curved back leaves gaps of up to about 10 mm at the sector's edges,
+/// which gel and the deformed skin fill on a real scanner.
+pub const GEL_MAX_MM: f64 = 15.0;
+/// Coupling gel: air within [`GEL_MAX_MM`] of the face (between the face and the skin, and in
+/// the staircase of a voxelised skin surface) is taken as gel, acoustically water
+/// (1000 kg/m^3 x 1480 m/s; water's attenuation, 0.002 dB/cm/MHz, is negligible over
+/// millimetres), anechoic. Without it a face that does not touch the skin everywhere would image
+/// nothing through the air gap. (No air lies that close under the skin of the back.)
+pub const GEL: AcousticProps = AcousticProps {
+    impedance_mrayl: 1.48,
+    speed_m_s: 1480.0,
+    attenuation_db_cm_mhz: 0.002,
+    echogenicity_db: -120.0,
+    scatter_density: 0.0,
+    roughness: 0.0,
+    texture: super::tissue::Texture::Speckle,
+};
+/// Below this impedance a point is air (MRayl): air is 0.0004, the lightest tissue (fat) 1.3.
+const AIR_BELOW_MRAYL: f64 = 0.1;
+
+/// `props` at depth `z` under the face, with air within [`GEL_MAX_MM`] replaced by [`GEL`].
+pub(crate) fn coupled(props: AcousticProps, z: f64) -> AcousticProps {
+    if props.impedance_mrayl < AIR_BELOW_MRAYL && z <= GEL_MAX_MM {
+        GEL
+    } else {
+        props
+    }
+}
 
 /// Inputs shared by every line.
 pub(crate) struct LineContext<'a> {
@@ -74,13 +103,13 @@ pub(crate) fn march_line(ctx: &LineContext<'_>, j: usize, echoes: &mut LineEchoe
     let mut log_gain = Vec::with_capacity(n_march);
     let mut log_t = 0.0f64;
     let mut loss_np = 0.0f64;
-    let mut prev: AcousticProps = ctx.medium.props(o);
+    let mut prev: AcousticProps = coupled(ctx.medium.props(o), 0.0);
     let mut needle_done = hit.is_none();
     log_gain.push(0.0);
     for k in 1..n_march {
         let z = k as f64 * step;
         let p = o + d * z;
-        let cur = ctx.medium.props(p);
+        let cur = coupled(ctx.medium.props(p), z);
         let zm = z - 0.5 * step;
         if let (false, Some(h)) = (needle_done, hit) {
             if h.z <= z {

@@ -60,6 +60,7 @@ pub use probe::{ProbeFrame, ProbeKind, ProbePose, ProbeSpec, ScanGeometry};
 pub use settings::{Sampling, Settings, TGC_BANDS};
 pub use tissue::{AcousticMedium, AcousticProps, CtMedium, Texture, UniformMedium};
 
+pub use echo::{GEL, GEL_MAX_MM};
 use echo::{LineContext, LineEchoes, march_line};
 use scatter::{
     BeamTables, IqGrid, ScatterField, conv_sigma, convolve_axial, convolve_lateral,
