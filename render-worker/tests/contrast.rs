@@ -17,7 +17,8 @@ use sim_core::fluoro::Projection;
 
 use crate::sessions::config;
 
-fn region() -> Arc<Region> {
+/// The phantom meshed at 4 mm, built once per test binary (shared with the ultrasound tests).
+pub(crate) fn region() -> Arc<Region> {
     static REGION: OnceLock<Arc<Region>> = OnceLock::new();
     Arc::clone(REGION.get_or_init(|| {
         use sim_core::anatomy::phantom::{self, PhantomParams};
@@ -26,7 +27,8 @@ fn region() -> Arc<Region> {
     }))
 }
 
-fn station(id: &str) -> Arc<StationContext> {
+/// A station from `assets/stations` with its targets resolved on [`region`].
+pub(crate) fn station(id: &str) -> Arc<StationContext> {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/stations");
     let file = sim_core::rubric::load_station_dir(&dir)
         .unwrap()

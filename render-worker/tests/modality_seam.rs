@@ -186,8 +186,8 @@ fn script() -> Vec<(u64, Command)> {
             100,
             Command::ProbePose {
                 position_mm: [0.0, -120.0, 0.0],
-                direction: [0.0, 1.0, 0.0],
-                lateral: [1.0, 0.0, 0.0],
+                beam_dir: [0.0, 1.0, 0.0],
+                marker_dir: [1.0, 0.0, 0.0],
             },
         ),
         (600, Command::Tick),
@@ -227,7 +227,16 @@ fn run(s: &mut Session, script: &[(u64, Command)]) -> Vec<RenderedView> {
 #[test]
 fn a_new_modality_plugs_in_through_the_factory_alone() {
     // Without it, the station's ultrasound is reported unavailable and probe commands refused.
-    let plain = Session::new(env(ModalityFactory::standard()), config());
+    let without = ModalityFactory::empty()
+        .with(
+            "fluoroscopy",
+            render_worker::session::modalities::fluoro::build,
+        )
+        .with(
+            "contrast",
+            render_worker::session::modalities::contrast::build,
+        );
+    let plain = Session::new(env(without), config());
     assert_eq!(plain.unavailable_modalities(), ["ultrasound".to_string()]);
     assert_eq!(plain.views(), [ViewId::Fluoroscopy]);
 

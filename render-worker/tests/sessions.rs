@@ -252,13 +252,16 @@ fn modalities_the_station_lacks_are_refused_with_a_clear_message() {
     for c in [
         Command::ProbePose {
             position_mm: [0.0, -120.0, 0.0],
-            direction: [0.0, 1.0, 0.0],
-            lateral: [1.0, 0.0, 0.0],
+            beam_dir: [0.0, 1.0, 0.0],
+            marker_dir: [1.0, 0.0, 0.0],
         },
         Command::ProbeSettings {
-            depth_mm: 60.0,
-            gain_db: 10.0,
-            frequency_mhz: 5.0,
+            depth_mm: Some(60.0),
+            gain_db: Some(10.0),
+            tgc_db: None,
+            focus_mm: None,
+            frequency_mhz: Some(5.0),
+            dynamic_range_db: None,
         },
         Command::Inject {
             agent: Agent::Contrast,
@@ -277,11 +280,16 @@ fn modalities_the_station_lacks_are_refused_with_a_clear_message() {
             e.message
         );
     }
-    // A station that lists ultrasound: the worker says it lacks the implementation, and the
-    // fluoroscopy-only session never built anything for ultrasound.
+    // A station that lists ultrasound builds it (its views beside fluoroscopy's), and the
+    // fluoroscopy-only session never built anything for ultrasound. A worker without an
+    // implementation reports it unavailable (modality_seam).
     let s = Session::new(env_with(&["ultrasound"]), config());
-    assert_eq!(s.unavailable_modalities(), ["ultrasound".to_string()]);
-    assert_eq!(s.modality_names(), ["fluoroscopy"]);
+    assert!(s.unavailable_modalities().is_empty());
+    assert_eq!(s.modality_names(), ["fluoroscopy", "ultrasound"]);
+    assert_eq!(
+        s.views(),
+        [ViewId::Fluoroscopy, ViewId::Ultrasound, ViewId::Placement]
+    );
     let fluoro_only = Session::new(env(), config());
     assert!(fluoro_only.unavailable_modalities().is_empty());
     assert_eq!(fluoro_only.views(), [ViewId::Fluoroscopy]);

@@ -33,6 +33,16 @@ pub const MAX_INJECTION_ML: f64 = 20.0;
 /// Largest injection rate, ml/s. Simulator choice: hand injection through a spinal needle is
 /// well below 1 ml/s; 2 ml/s bounds it.
 pub const MAX_INJECTION_RATE_ML_PER_S: f64 = 2.0;
+/// Farthest the probe face may be put from the skin along its beam line, mm (it is then moved
+/// onto the skin). Simulator choice: a drag ends within a few millimetres of the surface; 40 mm
+/// off the body is a probe in the air, refused.
+pub const MAX_PROBE_SNAP_MM: f64 = 40.0;
+/// Largest single probe slide, mm. Simulator choice: a hand movement (keyboard steps are 1 to
+/// 5 mm); a drag on the placement view moves farther in one command.
+pub const MAX_PROBE_SLIDE_MM: f64 = 100.0;
+/// Largest single probe tilt, degrees. Simulator choice: beyond 60 degrees the face no longer
+/// sits on the skin.
+pub const MAX_PROBE_TILT_DEG: f64 = 60.0;
 /// Longest annotation label, characters.
 pub const MAX_LABEL_CHARS: usize = 64;
 /// Longest instrument id, characters. Simulator choice: tray ids are short slugs
@@ -101,23 +111,71 @@ pub enum Command {
         /// What the mark names (a station target or an anatomical landmark).
         label: String,
     },
-    /// Ultrasound probe pose (needs an ultrasound station).
-    ProbePose {
-        /// Probe face centre, mm.
-        position_mm: [f64; 3],
-        /// Beam direction.
-        direction: [f64; 3],
-        /// In-plane lateral axis of the image.
-        lateral: [f64; 3],
+    /// Pick up an ultrasound probe from the tray (needs an ultrasound station).
+    ProbeSelect {
+        /// Instrument id of an `ultrasound-probe` on the station's tray (`linear-probe`,
+        /// `curvilinear-probe`: the id's first word names the array).
+        instrument: String,
     },
-    /// Ultrasound settings (needs an ultrasound station).
+    /// Put the probe on the skin (absolute pose, needs an ultrasound station). The face is
+    /// placed where the central beam line through `position_mm` meets the skin, within
+    /// [`MAX_PROBE_SNAP_MM`]; farther from the body it is refused.
+    ProbePose {
+        /// Probe face centre, model frame, mm.
+        position_mm: [f64; 3],
+        /// Direction of the central scan line into the body (need not be unit length).
+        beam_dir: [f64; 3],
+        /// Direction of the orientation marker (the image's left edge); its component along
+        /// the beam is removed.
+        marker_dir: [f64; 3],
+    },
+    /// Move the probe relative to its pose (keyboard and touch controls): slide on the skin,
+    /// tilt, rotate. Every field defaults to 0.
+    ProbeMove {
+        /// Slide along the marker direction and across the scan plane (elevation), mm; the face
+        /// follows the skin.
+        #[serde(default)]
+        slide_mm: [f64; 2],
+        /// Rock (heel-toe: about the elevation axis, the beam turning towards the marker for
+        /// positive values, in the scan plane) and tilt (fanning: about the marker axis, the
+        /// slice sweeping towards +elevation for positive values), degrees.
+        #[serde(default)]
+        tilt_deg: [f64; 2],
+        /// Rotation about the beam, degrees (right-handed).
+        #[serde(default)]
+        rotate_deg: f64,
+    },
+    /// Put the probe where a pixel of the placement view shows skin, keeping its rotation
+    /// (dragging the probe on the external view).
+    ProbeDrag {
+        /// Continuous pixel coordinates `[x, y]` on the placement view (top-left is `[0, 0]`).
+        pixel: [f64; 2],
+    },
+    /// Scanner controls (needs an ultrasound station). Absent fields keep their value.
     ProbeSettings {
-        /// Imaging depth, mm.
-        depth_mm: f64,
-        /// Gain, dB.
-        gain_db: f64,
-        /// Centre frequency, MHz.
-        frequency_mhz: f64,
+        /// Display depth, mm (within the probe's range).
+        #[serde(default)]
+        depth_mm: Option<f64>,
+        /// Overall gain, dB.
+        #[serde(default)]
+        gain_db: Option<f64>,
+        /// Time-gain compensation per depth band, dB (shallow first).
+        #[serde(default)]
+        tgc_db: Option<[f64; sim_core::ultrasound::TGC_BANDS]>,
+        /// Transmit focus depth, mm.
+        #[serde(default)]
+        focus_mm: Option<f64>,
+        /// Centre frequency, MHz (within the probe's band).
+        #[serde(default)]
+        frequency_mhz: Option<f64>,
+        /// Displayed dynamic range, dB.
+        #[serde(default)]
+        dynamic_range_db: Option<f64>,
+    },
+    /// Freeze or unfreeze the ultrasound image.
+    ProbeFreeze {
+        /// True freezes.
+        on: bool,
     },
     /// Inject through the needle (needs contrast transport at the station).
     Inject {
@@ -192,7 +250,12 @@ impl Command {
             | Command::Shot
             | Command::Live { .. }
             | Command::Annotate { .. } => CommandClass::Fluoroscopy,
-            Command::ProbePose { .. } | Command::ProbeSettings { .. } => CommandClass::Ultrasound,
+            Command::ProbeSelect { .. }
+            | Command::ProbePose { .. }
+            | Command::ProbeMove { .. }
+            | Command::ProbeDrag { .. }
+            | Command::ProbeSettings { .. }
+            | Command::ProbeFreeze { .. } => CommandClass::Ultrasound,
             Command::Inject { .. } | Command::InjectStop => CommandClass::Contrast,
             Command::NeedlePlace { .. }
             | Command::NeedleFeed { .. }
@@ -214,8 +277,12 @@ impl Command {
             Command::NeedleRoll { .. } => "needle_roll",
             Command::NeedleWithdraw { .. } => "needle_withdraw",
             Command::Annotate { .. } => "annotate",
+            Command::ProbeSelect { .. } => "probe_select",
             Command::ProbePose { .. } => "probe_pose",
+            Command::ProbeMove { .. } => "probe_move",
+            Command::ProbeDrag { .. } => "probe_drag",
             Command::ProbeSettings { .. } => "probe_settings",
+            Command::ProbeFreeze { .. } => "probe_freeze",
             Command::Inject { .. } => "inject",
             Command::InjectStop => "inject_stop",
             Command::Tick => "tick",
@@ -317,27 +384,83 @@ impl Command {
                 }
                 Ok(())
             }
+            Command::ProbeSelect { instrument } => {
+                no_nul("command.instrument", instrument)?;
+                if instrument.is_empty() || instrument.chars().count() > MAX_INSTRUMENT_CHARS {
+                    return Err(CommandError::field(
+                        "command.instrument",
+                        ErrorCode::Invalid,
+                        format!("instrument id must be 1 to {MAX_INSTRUMENT_CHARS} characters"),
+                    ));
+                }
+                Ok(())
+            }
             Command::ProbePose {
                 position_mm,
-                direction,
-                lateral,
+                beam_dir,
+                marker_dir,
             } => {
                 for (a, v) in position_mm.iter().enumerate() {
                     range(&format!("command.position_mm[{a}]"), *v, -1000.0, 1000.0)?;
                 }
-                unit_vector("command.direction", *direction)?;
-                unit_vector("command.lateral", *lateral)
+                unit_vector("command.beam_dir", *beam_dir)?;
+                unit_vector("command.marker_dir", *marker_dir)
+            }
+            Command::ProbeMove {
+                slide_mm,
+                tilt_deg,
+                rotate_deg,
+            } => {
+                for (a, v) in slide_mm.iter().enumerate() {
+                    range(
+                        &format!("command.slide_mm[{a}]"),
+                        *v,
+                        -MAX_PROBE_SLIDE_MM,
+                        MAX_PROBE_SLIDE_MM,
+                    )?;
+                }
+                for (a, v) in tilt_deg.iter().enumerate() {
+                    range(
+                        &format!("command.tilt_deg[{a}]"),
+                        *v,
+                        -MAX_PROBE_TILT_DEG,
+                        MAX_PROBE_TILT_DEG,
+                    )?;
+                }
+                range("command.rotate_deg", *rotate_deg, -360.0, 360.0)
+            }
+            Command::ProbeDrag { pixel } => {
+                for (a, v) in pixel.iter().enumerate() {
+                    range(&format!("command.pixel[{a}]"), *v, -1.0e4, 1.0e4)?;
+                }
+                Ok(())
             }
             Command::ProbeSettings {
                 depth_mm,
                 gain_db,
+                tgc_db,
+                focus_mm,
                 frequency_mhz,
+                dynamic_range_db,
             } => {
-                // Ranges of clinical musculoskeletal/spine probes (simulator choice).
-                range("command.depth_mm", *depth_mm, 10.0, 200.0)?;
-                range("command.gain_db", *gain_db, -20.0, 60.0)?;
-                range("command.frequency_mhz", *frequency_mhz, 1.0, 20.0)
+                // Probe-independent bounds here (the probe's own ranges are checked by the
+                // modality against the probe in use): sim_core::ultrasound::Settings::validate.
+                let opt = |f: &str, v: Option<f64>, lo: f64, hi: f64| match v {
+                    Some(v) => range(f, v, lo, hi),
+                    None => Ok(()),
+                };
+                opt("command.depth_mm", *depth_mm, 10.0, 240.0)?;
+                opt("command.gain_db", *gain_db, -30.0, 60.0)?;
+                if let Some(t) = tgc_db {
+                    for (i, v) in t.iter().enumerate() {
+                        range(&format!("command.tgc_db[{i}]"), *v, -30.0, 30.0)?;
+                    }
+                }
+                opt("command.focus_mm", *focus_mm, 5.0, 240.0)?;
+                opt("command.frequency_mhz", *frequency_mhz, 2.0, 12.0)?;
+                opt("command.dynamic_range_db", *dynamic_range_db, 20.0, 100.0)
             }
+            Command::ProbeFreeze { .. } => Ok(()),
             Command::Inject {
                 agent,
                 volume_ml,

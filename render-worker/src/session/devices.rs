@@ -10,6 +10,7 @@ use std::sync::Arc;
 use crate::gpu::{AdapterSummary, GpuContext, saxpy};
 
 use super::modalities::fluoro::{CpuFluoroBackend, FluoroBackend, GpuFluoroBackend};
+use super::modalities::ultrasound::{CpuUltrasoundBackend, UltrasoundBackend};
 
 /// Why a GPU is not used.
 #[derive(Debug, thiserror::Error)]
@@ -69,12 +70,15 @@ pub fn open_gpu() -> Result<GpuContext, DeviceError> {
 pub struct Backends {
     /// Fluoroscopy.
     pub fluoro: Arc<dyn FluoroBackend>,
+    /// Ultrasound B-mode.
+    pub ultrasound: Arc<dyn UltrasoundBackend>,
 }
 
 impl std::fmt::Debug for Backends {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Backends")
             .field("fluoro", &self.fluoro.profile())
+            .field("ultrasound", &self.ultrasound.describe())
             .finish()
     }
 }
@@ -104,6 +108,8 @@ impl Backends {
     pub fn gpu(ctx: GpuContext) -> Backends {
         Backends {
             fluoro: Arc::new(GpuFluoroBackend { ctx }),
+            // The GPU B-mode path joins here once it is checked against the reference.
+            ultrasound: Arc::new(CpuUltrasoundBackend),
         }
     }
 
@@ -111,6 +117,7 @@ impl Backends {
     pub fn cpu(threads: usize) -> Backends {
         Backends {
             fluoro: Arc::new(CpuFluoroBackend { threads }),
+            ultrasound: Arc::new(CpuUltrasoundBackend),
         }
     }
 

@@ -6,7 +6,7 @@
 //! |--------|--------------------------------------------------------|
 //! | 0..4   | magic `SIMF`                                           |
 //! | 4      | header version (1)                                     |
-//! | 5      | view code (0 fluoroscopy, 1 ultrasound)                |
+//! | 5      | view code (0 fluoroscopy, 1 ultrasound, 2 placement)   |
 //! | 6..8   | reserved (0)                                           |
 //! | 8..16  | frame sequence (per session, increasing)               |
 //! | 16..24 | last accepted input sequence the frame reflects        |

@@ -11,6 +11,9 @@ pub enum ViewId {
     Fluoroscopy,
     /// The ultrasound B-mode image.
     Ultrasound,
+    /// The external view of the body for placing the ultrasound probe (skin, probe, needle
+    /// outside the skin, C-arm direction).
+    Placement,
 }
 
 impl ViewId {
@@ -19,6 +22,7 @@ impl ViewId {
         match self {
             ViewId::Fluoroscopy => 0,
             ViewId::Ultrasound => 1,
+            ViewId::Placement => 2,
         }
     }
 
@@ -27,6 +31,7 @@ impl ViewId {
         match code {
             0 => Some(ViewId::Fluoroscopy),
             1 => Some(ViewId::Ultrasound),
+            2 => Some(ViewId::Placement),
             _ => None,
         }
     }

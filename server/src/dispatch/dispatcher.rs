@@ -284,6 +284,22 @@ impl InProcessBackend {
     }
 }
 
+impl render_worker::session::modalities::ultrasound::UltrasoundBackend for InProcessBackend {
+    fn describe(&self) -> String {
+        Backends::for_device(self.workers.gpu())
+            .ultrasound
+            .describe()
+    }
+
+    fn renderer(
+        &self,
+    ) -> Box<dyn render_worker::session::modalities::ultrasound::UltrasoundRenderer> {
+        Backends::for_device(self.workers.gpu())
+            .ultrasound
+            .renderer()
+    }
+}
+
 impl FluoroBackend for InProcessBackend {
     fn profile(&self) -> BackendProfile {
         self.current().profile()
@@ -514,10 +530,12 @@ impl Dispatcher {
             return d.clone();
         }
         let config = DispatchConfig::from_env(stations_dir);
+        let in_process = Arc::new(InProcessBackend {
+            workers: workers.clone(),
+        });
         let backends = Backends {
-            fluoro: Arc::new(InProcessBackend {
-                workers: workers.clone(),
-            }),
+            fluoro: in_process.clone(),
+            ultrasound: in_process,
         };
         Dispatcher::from_config(&config, backends).unwrap_or_else(|e| {
             tracing::error!("no in-process sessions: {e}");

@@ -46,7 +46,10 @@ pub const MAX_CLIENT_MESSAGE_BYTES: usize = 64 * 1024;
 fn activity_of(command: &Command) -> Option<ActivityKind> {
     Some(match command {
         Command::CarmPose { .. }
+        | Command::ProbeSelect { .. }
         | Command::ProbePose { .. }
+        | Command::ProbeMove { .. }
+        | Command::ProbeDrag { .. }
         | Command::ProbeSettings { .. }
         | Command::Technique { .. } => ActivityKind::ViewChanged,
         Command::Shot | Command::Live { on: true } => ActivityKind::ImageAcquired,
@@ -56,6 +59,7 @@ fn activity_of(command: &Command) -> Option<ActivityKind> {
         | Command::NeedleWithdraw { .. } => ActivityKind::NeedleAdjusted,
         Command::Inject { .. } => ActivityKind::Injection,
         Command::Live { on: false }
+        | Command::ProbeFreeze { .. }
         | Command::InjectStop
         | Command::Annotate { .. }
         | Command::Tick

@@ -14,6 +14,7 @@
 pub mod contrast;
 pub mod fluoro;
 mod modality;
+pub mod ultrasound;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -47,6 +48,7 @@ impl ModalityFactory {
         ModalityFactory::empty()
             .with("fluoroscopy", fluoro::build)
             .with("contrast", contrast::build)
+            .with("ultrasound", ultrasound::build)
     }
 
     /// No modality at all.

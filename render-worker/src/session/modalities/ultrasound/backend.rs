@@ -1,0 +1,49 @@
+//! Who computes B-mode frames: the sim-core CPU reference, or the wgpu compute path checked
+//! against it (`crate::ultrasound`), chosen once per device in `session::devices`.
+
+use sim_core::ultrasound::{BModeFrame, ScanRequest};
+
+use super::medium::AcousticVolume;
+
+/// A B-mode renderer kind on one device, shared by every session there.
+pub trait UltrasoundBackend: Send + Sync {
+    /// What renders, in words (`"sim-core CPU reference"`, `"wgpu on <adapter>"`).
+    fn describe(&self) -> String;
+
+    /// A renderer for one session (it may hold device buffers).
+    fn renderer(&self) -> Box<dyn UltrasoundRenderer>;
+}
+
+/// Makes frames for one session.
+pub trait UltrasoundRenderer: Send {
+    /// The frame of `req`, whose medium is `volume.medium()`.
+    fn scan(
+        &mut self,
+        req: &ScanRequest<'_>,
+        volume: &AcousticVolume,
+    ) -> Result<BModeFrame, String>;
+}
+
+/// The sim-core reference (`sim_core::ultrasound::scan`).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct CpuUltrasoundBackend;
+
+impl UltrasoundBackend for CpuUltrasoundBackend {
+    fn describe(&self) -> String {
+        "sim-core CPU reference".into()
+    }
+
+    fn renderer(&self) -> Box<dyn UltrasoundRenderer> {
+        Box::new(CpuUltrasoundBackend)
+    }
+}
+
+impl UltrasoundRenderer for CpuUltrasoundBackend {
+    fn scan(
+        &mut self,
+        req: &ScanRequest<'_>,
+        _volume: &AcousticVolume,
+    ) -> Result<BModeFrame, String> {
+        sim_core::ultrasound::scan(req).map_err(|e| e.to_string())
+    }
+}
