@@ -7,6 +7,7 @@
 //! tests; the acoustic volume is painted from its meshes at the modality's 0.5 mm.
 
 use std::collections::BTreeSet;
+use std::sync::Arc;
 
 use glam::DVec3;
 use render_worker::session::modalities::ultrasound::{placement, snap_to_skin};
@@ -528,4 +529,49 @@ fn a_drag_on_the_placement_view_puts_the_probe_under_the_pixel() {
     assert!(pos.distance(goal) < 2.0, "{pos} vs {goal}");
     let e = r.err(Command::ProbeDrag { pixel: [2.0, 2.0] });
     assert_eq!(e.field, "command.pixel", "{e}");
+}
+
+#[test]
+fn a_station_with_both_modalities_shows_one_needle_in_both_and_the_carm_on_the_placement_view() {
+    let mut ctx = (*station(IN_PLANE)).clone();
+    ctx.station.modalities = vec![
+        sim_core::rubric::Modality::Fluoroscopy,
+        sim_core::rubric::Modality::Ultrasound,
+    ];
+    let env = SessionEnv::new(Arc::new(ctx), region(), Backends::cpu(0));
+    let mut r = Run {
+        s: Session::new(env, config()),
+        seq: 0,
+    };
+    assert_eq!(
+        r.s.views(),
+        [ViewId::Fluoroscopy, ViewId::Ultrasound, ViewId::Placement]
+    );
+    let t = target(IN_PLANE);
+    r.ok(1, transverse_over(t));
+    r.render(ViewId::Ultrasound).unwrap();
+    let before = r.render(ViewId::Placement).unwrap();
+    // The C-arm turns 30 degrees: only the placement view (its beam) changes.
+    r.ok(
+        2,
+        Command::CarmPose {
+            orbital_deg: 30.0,
+            angular_deg: 0.0,
+            table_mm: [0.0; 3],
+        },
+    );
+    assert!(r.render(ViewId::Ultrasound).is_none());
+    let turned = r.render(ViewId::Placement).unwrap();
+    assert_ne!(before.pixels, turned.pixels, "the C-arm beam moved");
+    // One needle: live fluoroscopy, the B-mode and the placement view all follow it.
+    r.ok(3, Command::Live { on: true });
+    r.render(ViewId::Fluoroscopy).unwrap();
+    let mut clock = 10;
+    let entry = skin_above(t - DVec3::X * 35.0) - DVec3::Y * 2.0;
+    let aim = skin_above(t - DVec3::X * 10.0) + DVec3::Y * 20.0;
+    needle(&mut r, &mut clock, entry, aim, 15.0, 1);
+    for view in [ViewId::Fluoroscopy, ViewId::Ultrasound, ViewId::Placement] {
+        assert!(r.render(view).is_some(), "{view:?} shows the needle move");
+    }
+    assert_eq!(measurement(&r, "tip_visible_bool"), Some(1.0));
 }

@@ -211,7 +211,7 @@ impl Session {
                 None => unavailable.push(name.to_string()),
             }
         }
-        let world = World {
+        let mut world = World {
             region: Arc::clone(&env.region),
             station: Arc::clone(&env.station),
             clock_ms: 0,
@@ -220,7 +220,9 @@ impl Session {
             injections: Vec::new(),
             iodine: None,
             iodine_version: 0,
+            carm: None,
         };
+        world.carm = modalities.iter().find_map(|m| m.carm());
         let mut s = Session {
             env,
             config,
@@ -288,6 +290,7 @@ impl Session {
             m.restore(state.clone())?;
         }
         s.sync_iodine();
+        s.world.carm = s.modalities.iter().find_map(|m| m.carm());
         s.log = log[..snapshot.log_len].to_vec();
         s.submitted = snapshot.result.clone();
         for entry in &log[snapshot.log_len..] {
@@ -436,6 +439,11 @@ impl Session {
             Ok(outcome) => {
                 if self.world.iodine_version != iodine_before.1 {
                     self.notify(&WorldChange::Iodine);
+                }
+                let carm = self.modalities.iter().find_map(|m| m.carm());
+                if carm != self.world.carm {
+                    self.world.carm = carm;
+                    self.notify(&WorldChange::CArm);
                 }
                 let result = (env.command == Command::Submit)
                     .then(|| self.submitted.clone().map(Box::new))

@@ -143,6 +143,17 @@ pub enum WorldChange {
     /// The contrast modality's iodine field changed (now in [`World::iodine`]): what the
     /// fluoroscopy renderers ray-march.
     Iodine,
+    /// The C-arm moved (now in [`World::carm`]).
+    CArm,
+}
+
+/// Where the C-arm's central beam runs, for views that show it (the ultrasound placement view).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CArmAxis {
+    /// The isocentre with the table translation applied, model frame, mm.
+    pub isocentre_mm: [f64; 3],
+    /// Unit direction of the central ray, from the source to the detector.
+    pub beam_dir: [f64; 3],
 }
 
 /// Shared session state.
@@ -166,4 +177,7 @@ pub struct World {
     pub iodine: Option<Arc<IodineField>>,
     /// Bumped whenever [`World::iodine`] changes.
     pub iodine_version: u64,
+    /// The C-arm's central beam at stations with fluoroscopy (published by that modality,
+    /// derived from its state, so not part of snapshots).
+    pub carm: Option<CArmAxis>,
 }

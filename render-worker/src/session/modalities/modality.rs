@@ -69,6 +69,12 @@ pub trait Modality: Send {
         None
     }
 
+    /// The C-arm's central beam, for a modality that drives a C-arm (the session publishes it
+    /// in [`World::carm`] and announces a change as [`WorldChange::CArm`]).
+    fn carm(&self) -> Option<crate::session::world::CArmAxis> {
+        None
+    }
+
     /// Views whose content is newer than their last render.
     fn dirty_views(&self) -> Vec<ViewId>;
 

@@ -388,6 +388,8 @@ impl Modality for FluoroModality {
             // Injected fluid shows through the contrast modality's iodine field, which makes
             // its own world change when it does.
             WorldChange::FluidInjected(_) => {}
+            // The C-arm is this modality's own: its commands acquire what they need.
+            WorldChange::CArm => {}
             // Live fluoroscopy shows the contrast spreading: a new image whenever the field is
             // newer than the last image's.
             WorldChange::Iodine => {
@@ -397,6 +399,14 @@ impl Modality for FluoroModality {
                 }
             }
         }
+    }
+
+    fn carm(&self) -> Option<crate::session::world::CArmAxis> {
+        let p = self.projection();
+        Some(crate::session::world::CArmAxis {
+            isocentre_mm: p.effective_isocentre_mm(),
+            beam_dir: p.frame().normal,
+        })
     }
 
     fn dirty_views(&self) -> Vec<ViewId> {

@@ -544,6 +544,10 @@ impl Modality for UltrasoundModality {
     }
 
     fn world_changed(&mut self, change: &WorldChange, world: &World) {
+        if *change == WorldChange::CArm {
+            self.versions[1] += 1;
+            return;
+        }
         if *change != WorldChange::Needle {
             return;
         }

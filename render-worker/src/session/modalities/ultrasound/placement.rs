@@ -1,6 +1,6 @@
 //! The placement view: the patient's back seen from outside (the skin surface, shaded), the
-//! probe on it with its orientation marker, and the needle's hub and the shaft outside the
-//! skin. The learner drags the probe on this view (`probe_drag`): a pixel maps to the skin
+//! probe on it with its orientation marker, the needle's hub and the shaft outside the skin,
+//! and, at stations with a C-arm, its central beam. The learner drags the probe on this view (`probe_drag`): a pixel maps to the skin
 //! point it shows.
 //!
 //! A small CPU ray caster: the skin's depth and shading per pixel are computed once per region
@@ -36,6 +36,9 @@ pub const SHAFT_DRAW_RADIUS_MM: f64 = 0.9;
 pub const HUB_RADIUS_MM: f64 = 3.5;
 /// Hub length, mm.
 pub const HUB_LENGTH_MM: f64 = 16.0;
+/// The C-arm beam is drawn from this far before the isocentre to this far (mm along the beam,
+/// source side): from inside the body out past the skin of the back.
+pub const CARM_ROD_MM: [f64; 2] = [40.0, 200.0];
 /// Grey of the background.
 const BACKGROUND: u8 = 24;
 
@@ -313,6 +316,24 @@ fn shapes(pose: &ProbePose, probe: ProbeKind, world: &World) -> Vec<Shape> {
                 half: [2.5, 6.0, 2.5],
             },
             1.0,
+        ));
+    }
+    if let Some(c) = &world.carm {
+        // The C-arm's central beam: a rod entering the body from the source side, with a
+        // thicker collar where the beam leaves the tube.
+        let d = DVec3::from_array(c.beam_dir);
+        let iso = DVec3::from_array(c.isocentre_mm);
+        out.push(Shape::Rod(
+            iso - d * CARM_ROD_MM[1],
+            iso - d * CARM_ROD_MM[0],
+            1.5,
+            0.95,
+        ));
+        out.push(Shape::Rod(
+            iso - d * (CARM_ROD_MM[1] + 20.0),
+            iso - d * CARM_ROD_MM[1],
+            6.0,
+            0.9,
         ));
     }
     if let Some(n) = &world.needle {
