@@ -1,0 +1,124 @@
+//! Ultrasound in a session: the one-off cost of the first scan (painting the acoustic volume
+//! of the region's crop), and the cost of each probe move as the learner sees it: the command,
+//! the B-mode frame (sim-core CPU reference through the session's backend) and the placement
+//! view, on the procedural phantom (meshed at 4 mm as in the tests, painted at 0.5 mm),
+//! curvilinear probe at its default 100 mm depth and sampling.
+//!
+//! `BENCH_QUICK=1` runs 3 moves instead of 15 (CI).
+
+use std::collections::BTreeSet;
+use std::sync::Arc;
+use std::time::Instant;
+
+use glam::DVec3;
+use render_worker::session::modalities::ultrasound::snap_to_skin;
+use render_worker::session::*;
+
+fn main() {
+    let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
+    let moves = if quick { 3 } else { 15 };
+    let t0 = Instant::now();
+    let asset = sim_core::anatomy::phantom::build(
+        &sim_core::anatomy::phantom::PhantomParams::with_voxel_mm(4.0),
+        &mut |_| {},
+    )
+    .expect("phantom");
+    let region = Arc::new(Region::from_asset(&asset));
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/stations");
+    let file = sim_core::rubric::load_station_dir(&dir)
+        .expect("stations")
+        .into_iter()
+        .find(|f| f.station.id == "l4-l5-left-facet-ultrasound")
+        .expect("the ultrasound station");
+    let station = Arc::new(StationContext::new(
+        file.station,
+        sha256_hex(file.text.as_bytes()),
+        &region,
+    ));
+    let target = DVec3::from_array(station.targets["left_l4_l5_facet_posterior_joint_line"]);
+    println!(
+        "Ultrasound session on the 4 mm phantom (built in {:.1} s)\n",
+        t0.elapsed().as_secs_f64()
+    );
+    let mut s = Session::new(
+        SessionEnv::new(station, Arc::clone(&region), Backends::cpu(0)),
+        SessionConfig::default(),
+    );
+    let skin = snap_to_skin(
+        &region,
+        DVec3::new(target.x, target.y - 30.0, target.z),
+        DVec3::Y,
+    )
+    .map(|(p, _)| p)
+    .unwrap_or(target);
+    let mut seq = 0u64;
+    let mut apply = |s: &mut Session, c: Command| {
+        seq += 1;
+        s.apply(Envelope { seq, command: c }, seq * 10)
+            .expect("command accepted")
+    };
+    apply(
+        &mut s,
+        Command::ProbePose {
+            position_mm: (skin - DVec3::Y * 5.0).to_array(),
+            beam_dir: [0.0, 1.0, 0.0],
+            marker_dir: [1.0, 0.0, 0.0],
+        },
+    );
+    let us: BTreeSet<ViewId> = [ViewId::Ultrasound].into();
+    let pl: BTreeSet<ViewId> = [ViewId::Placement].into();
+    let t = Instant::now();
+    let first = s.render_dirty(&us).expect("render");
+    let first_s = t.elapsed().as_secs_f64();
+    let img = &first[0].image;
+    let t = Instant::now();
+    s.render_dirty(&pl).expect("render");
+    let first_pl_s = t.elapsed().as_secs_f64();
+    let (mut cmd, mut bmode, mut place) = (Vec::new(), Vec::new(), Vec::new());
+    for k in 0..moves {
+        let t = Instant::now();
+        apply(
+            &mut s,
+            Command::ProbeMove {
+                slide_mm: [if k % 2 == 0 { 1.0 } else { -1.0 }, 0.0],
+                tilt_deg: [0.0, 0.0],
+                rotate_deg: 0.0,
+            },
+        );
+        cmd.push(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        s.render_dirty(&us).expect("render");
+        bmode.push(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        s.render_dirty(&pl).expect("render");
+        place.push(t.elapsed().as_secs_f64());
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2] * 1e3
+    };
+    println!("| step | time (ms) |");
+    println!("|---|---:|");
+    println!(
+        "| first B-mode frame incl. painting the acoustic volume | {:.0} |",
+        first_s * 1e3
+    );
+    println!(
+        "| first placement frame incl. the skin buffer | {:.0} |",
+        first_pl_s * 1e3
+    );
+    println!(
+        "| probe_move command (skin snap), median | {:.2} |",
+        median(&mut cmd)
+    );
+    println!(
+        "| B-mode frame {} x {} px, median of {moves} | {:.0} |",
+        img.width,
+        img.height,
+        median(&mut bmode)
+    );
+    println!(
+        "| placement frame, median of {moves} | {:.1} |",
+        median(&mut place)
+    );
+}
