@@ -60,6 +60,7 @@ impl IqGrid {
     }
 
     /// Adds `(a, b)` at fractional unpadded coordinates (bilinear; nodes off the grid are dropped).
+    #[inline]
     pub fn deposit(&mut self, u: f64, s: f64, a: f64, b: f64) {
         let up = u + self.pad_l as f64;
         let sp = s + self.pad_s as f64;
@@ -215,13 +216,18 @@ pub(crate) fn floor_fast(x: f64) -> f64 {
 /// `exp(-x)` for `x >= 0`, linearly interpolated in a table of step 1/128 (relative error below
 /// `(1/128)^2 / 8 = 8e-6`); zero beyond 16.
 pub(crate) fn exp_neg(x: f64) -> f64 {
+    exp_neg_in(exp_table(), x)
+}
+
+/// [`exp_neg`] with the table at hand (the scatter loop fetches it once).
+#[inline]
+fn exp_neg_in(tab: &[f64], x: f64) -> f64 {
     if x.is_nan() || x >= EXP_MAX {
         return 0.0;
     }
     let t = x.max(0.0) * EXP_PER_UNIT;
     let i = t as usize;
     let f = t - i as f64;
-    let tab = exp_table();
     tab[i] + (tab[i + 1] - tab[i]) * f
 }
 
@@ -290,6 +296,18 @@ pub(crate) fn deposit_scatterers(
     let reach_s = grid.pad_s as f64 * tables.dz;
     let depth = geo.depth_mm;
     let mut p = [0i64; 3];
+    // The scatterers of a lattice column share their in-plane point whenever the column is
+    // along the slice normal (a probe square to the lattice); everything that depends only on
+    // that point is computed once and the column's sum is deposited once.
+    let mut at = PlanePoint::none();
+    // The sum over the scatterers seen at `at` so far of their weighted I and Q before the
+    // carrier turn (which they share); locals, so that they stay in registers.
+    let (mut sum_i, mut sum_q) = (0.0, 0.0);
+    let reach = Reach {
+        u: (-reach_u, lines_max + reach_u),
+        z: (-reach_s, depth + reach_s),
+    };
+    let exp_tab = exp_table();
     for ia in idx_lo(aa)..=idx_hi(aa) {
         // Two interleaved halves of the lattice (a fixed split, so the sum is deterministic).
         if ia.rem_euclid(2) as u64 != part {
@@ -319,19 +337,31 @@ pub(crate) fn deposit_scatterers(
             let mut q = q0 + unit[am] * (k_lo as f64 * h);
             p[aa] = ia;
             p[ab] = ib;
+            // The hash's leading indices that stay fixed along the column.
+            let prefix = match am {
+                0 => seed,
+                1 => splitmix64(seed ^ p[0] as u64),
+                _ => splitmix64(splitmix64(seed ^ p[0] as u64) ^ p[1] as u64),
+            };
             for k in k_lo..=k_hi {
                 let here = q;
                 q += step_m;
-                let (u, z) = geo.plane_to_line(here.x, here.y);
-                if !(u >= -reach_u
-                    && u <= lines_max + reach_u
-                    && z >= -reach_s
-                    && z <= depth + reach_s)
-                {
+                if !at.is(here.x, here.y) {
+                    at.deposit(grid, sum_i, sum_q);
+                    (sum_i, sum_q) = (0.0, 0.0);
+                    at = PlanePoint::new(here.x, here.y, geo, tables, k0, &reach);
+                }
+                if !at.inside {
                     continue;
                 }
                 p[am] = k;
-                let hsh = cell_hash(seed, p[0], p[1], p[2]);
+                let hsh = match am {
+                    0 => splitmix64(
+                        splitmix64(splitmix64(prefix ^ p[0] as u64) ^ p[1] as u64) ^ p[2] as u64,
+                    ),
+                    1 => splitmix64(splitmix64(prefix ^ p[1] as u64) ^ p[2] as u64),
+                    _ => splitmix64(prefix ^ p[2] as u64),
+                };
                 let mut pos = base;
                 pos[am] = k as f64 * h;
                 let tissue = medium.props(pos);
@@ -345,17 +375,91 @@ pub(crate) fn deposit_scatterers(
                     echo_db = tissue.echogenicity_db;
                     echo_amp = norm * 10f64.powf(echo_db / 20.0);
                 }
-                let mut w = echo_amp * tables.elevation_weight(here.z, z);
+                let mut w = echo_amp
+                    * (exp_neg_in(exp_tab, here.z * here.z * at.elev_inv2s2) * at.elev_energy);
                 if tissue.texture == Texture::Fascicular {
-                    let ([_, _], [dx, dy]) = geo.line_in_plane(u.clamp(0.0, lines_max));
+                    let ([_, _], [dx, dy]) = geo.line_in_plane(at.u.clamp(0.0, lines_max));
                     let dir = f.lateral * dx + f.beam * dy;
                     w *= fascicle_factor(pos, medium.fibre_axis(pos), dir, seed);
                 }
                 let (ci, cq) = iq_of_hash(hsh);
-                let (cs, sn) = cis(2.0 * k0 * z);
-                let (a, b) = (ci * cs - cq * sn, ci * sn + cq * cs);
-                grid.deposit(u, z / tables.dz, a * w, b * w);
+                sum_i += ci * w;
+                sum_q += cq * w;
             }
+        }
+    }
+    at.deposit(grid, sum_i, sum_q);
+}
+
+/// The in-plane reach of the scatter sum: line index and depth (mm) ranges.
+struct Reach {
+    u: (f64, f64),
+    z: (f64, f64),
+}
+
+/// Everything a scatterer's deposit needs that depends only on its in-plane point (the
+/// scatterers seen there are summed and deposited together: their bilinear weights are equal).
+struct PlanePoint {
+    x: u64,
+    y: u64,
+    u: f64,
+    /// Fractional sample index `z / dz`.
+    s: f64,
+    elev_inv2s2: f64,
+    elev_energy: f64,
+    carrier: (f64, f64),
+    /// Whether the point is within the reach (scatterers outside it are skipped).
+    inside: bool,
+}
+
+impl PlanePoint {
+    /// A point no scatterer has (NaN coordinates).
+    fn none() -> PlanePoint {
+        PlanePoint {
+            x: f64::NAN.to_bits(),
+            y: f64::NAN.to_bits(),
+            u: f64::NAN,
+            s: f64::NAN,
+            elev_inv2s2: 0.0,
+            elev_energy: 0.0,
+            carrier: (0.0, 0.0),
+            inside: false,
+        }
+    }
+
+    fn new(
+        x: f64,
+        y: f64,
+        geo: &ScanGeometry,
+        tables: &BeamTables,
+        k0: f64,
+        reach: &Reach,
+    ) -> PlanePoint {
+        let (u, z) = geo.plane_to_line(x, y);
+        let i = tables.sample_of(z);
+        PlanePoint {
+            x: x.to_bits(),
+            y: y.to_bits(),
+            u,
+            s: z / tables.dz,
+            elev_inv2s2: tables.elev_inv2s2[i],
+            elev_energy: tables.elev_energy[i],
+            carrier: cis(2.0 * k0 * z),
+            inside: u >= reach.u.0 && u <= reach.u.1 && z >= reach.z.0 && z <= reach.z.1,
+        }
+    }
+
+    /// Whether `(x, y)` is this point, bit for bit.
+    #[inline]
+    fn is(&self, x: f64, y: f64) -> bool {
+        self.x == x.to_bits() && self.y == y.to_bits()
+    }
+
+    /// Turns the sum `(i, q)` of the scatterers seen here by the carrier and deposits it.
+    fn deposit(&self, grid: &mut IqGrid, i: f64, q: f64) {
+        if i != 0.0 || q != 0.0 {
+            let (cs, sn) = self.carrier;
+            grid.deposit(self.u, self.s, i * cs - q * sn, i * sn + q * cs);
         }
     }
 }
@@ -426,7 +530,8 @@ pub(crate) fn fascicle_factor(p: DVec3, axis: Option<DVec3>, dir: DVec3, seed: u
 /// Signed I and Q of a scatterer: each the sum of two 16-bit uniforms minus 1 (mean 0,
 /// variance 1/6).
 fn iq_of_hash(x: u64) -> (f64, f64) {
-    let u = |sh: u32| ((x >> sh) & 0xFFFF) as f64 / 65536.0;
+    // Through u32: the same value, but a plain integer conversion (u64 -> f64 is a sequence).
+    let u = |sh: u32| f64::from(((x >> sh) & 0xFFFF) as u32) / 65536.0;
     (u(0) + u(16) - 1.0, u(32) + u(48) - 1.0)
 }
 
