@@ -62,7 +62,7 @@ pub use tissue::{AcousticMedium, AcousticProps, CtMedium, Texture, UniformMedium
 
 use echo::{LineContext, LineEchoes, march_line};
 use scatter::{
-    BeamTables, IqGrid, ScatterField, conv_sigma, convolve_axial, convolve_lateral,
+    BeamTables, IqGrid, LateralKernel, ScatterField, axial_taps, conv_sigma, convolve_axial_row,
     deposit_scatterers,
 };
 
@@ -165,10 +165,11 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
         let (cs, sn) = scatter::cis(2.0 * k0 * z);
         grid.deposit(u, z / tables.dz, w * cs, w * sn);
     }
-    let lateral = convolve_lateral(&grid, &tables, &|z| geo.line_spacing_mm(z));
-    let (sre, sim) = convolve_axial(&lateral, &tables);
+    let lateral = LateralKernel::new(&grid, &tables, &|z| geo.line_spacing_mm(z));
+    let taps = axial_taps(&grid, &tables);
 
-    // Lines: losses, interfaces and the needle.
+    // Lines, each on its own: the lateral then the axial convolution of the speckle, the losses,
+    // interfaces and the needle, and the envelope.
     let ctx = LineContext {
         geo: &geo,
         beam: &beam,
@@ -177,23 +178,33 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
         needle: req.needle.as_ref(),
         march_step_mm: req.sampling.march_step_mm,
     };
-    let mut pre = vec![0f32; geo.lines * samples];
-    let mut pim = vec![0f32; geo.lines * samples];
-    let mut gain = Vec::with_capacity(geo.lines * samples);
-    for ((j, re), im) in pre
-        .chunks_mut(samples)
-        .enumerate()
-        .zip(pim.chunks_mut(samples))
-    {
-        gain.extend(march_line(&ctx, j, &mut LineEchoes { re, im }));
-    }
-    let data = (0..geo.lines * samples)
-        .map(|i| {
-            let a = gain[i] * sre[i] + pre[i];
-            let b = gain[i] * sim[i] + pim[i];
-            (a * a + b * b).sqrt()
-        })
-        .collect();
+    let mut data = vec![0f32; geo.lines * samples];
+    in_two(&mut data, samples, |out, j0| {
+        let st = grid.stride();
+        let (mut row_re, mut row_im) = (vec![0f32; st], vec![0f32; st]);
+        let (mut sre, mut sim) = (vec![0f32; samples], vec![0f32; samples]);
+        let (mut pre, mut pim) = (vec![0f32; samples], vec![0f32; samples]);
+        for (i, line) in out.chunks_mut(samples).enumerate() {
+            let j = j0 + i;
+            lateral.row(&grid, j, &mut row_re, &mut row_im);
+            convolve_axial_row(&taps, &row_re, &row_im, &mut sre, &mut sim);
+            pre.fill(0.0);
+            pim.fill(0.0);
+            let gain = march_line(
+                &ctx,
+                j,
+                &mut LineEchoes {
+                    re: &mut pre,
+                    im: &mut pim,
+                },
+            );
+            for (s, e) in line.iter_mut().enumerate() {
+                let a = gain[s] * sre[s] + pre[s];
+                let b = gain[s] * sim[s] + pim[s];
+                *e = (a * a + b * b).sqrt();
+            }
+        }
+    });
     let envelope = Envelope {
         lines: geo.lines,
         samples,
@@ -208,6 +219,18 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
         envelope,
         view,
     ))
+}
+
+/// Runs `f(part, first)` on the two halves of `data` (whole chunks of `chunk` items; `first` is
+/// the index of the part's first chunk), the second half on another thread. Each item is
+/// computed the same way whichever thread does it, so the result does not depend on the split.
+pub(crate) fn in_two<T: Send>(data: &mut [T], chunk: usize, f: impl Fn(&mut [T], usize) + Sync) {
+    let half = data.len() / chunk / 2;
+    let (a, b) = data.split_at_mut(half * chunk);
+    std::thread::scope(|s| {
+        s.spawn(|| f(b, half));
+        f(a, 0);
+    });
 }
 
 /// A scanner that honours freeze: while `settings.frozen` it returns the last live frame.
