@@ -226,7 +226,8 @@ fn exp_neg_in(tab: &[f64], x: f64) -> f64 {
         return 0.0;
     }
     let t = x.max(0.0) * EXP_PER_UNIT;
-    let i = t as usize;
+    // 0 <= t < 2048 here: through i64, the same index with a plain conversion.
+    let i = t as i64 as usize;
     let f = t - i as f64;
     tab[i] + (tab[i + 1] - tab[i]) * f
 }
@@ -308,6 +309,8 @@ pub(crate) fn deposit_scatterers(
         z: (-reach_s, depth + reach_s),
     };
     let exp_tab = exp_table();
+    // Square to the lattice, a column keeps its in-plane point exactly (steps of zero).
+    let square = step_m.x == 0.0 && step_m.y == 0.0;
     for ia in idx_lo(aa)..=idx_hi(aa) {
         // Two interleaved halves of the lattice (a fixed split, so the sum is deterministic).
         if ia.rem_euclid(2) as u64 != part {
@@ -337,16 +340,25 @@ pub(crate) fn deposit_scatterers(
             let mut q = q0 + unit[am] * (k_lo as f64 * h);
             p[aa] = ia;
             p[ab] = ib;
+            let mut pos = base;
             // The hash's leading indices that stay fixed along the column.
             let prefix = match am {
                 0 => seed,
                 1 => splitmix64(seed ^ p[0] as u64),
                 _ => splitmix64(splitmix64(seed ^ p[0] as u64) ^ p[1] as u64),
             };
+            if square && !at.is(q.x, q.y) {
+                at.deposit(grid, sum_i, sum_q);
+                (sum_i, sum_q) = (0.0, 0.0);
+                at = PlanePoint::new(q.x, q.y, geo, tables, k0, &reach);
+            }
+            if square && !at.inside {
+                continue;
+            }
             for k in k_lo..=k_hi {
                 let here = q;
                 q += step_m;
-                if !at.is(here.x, here.y) {
+                if !square && !at.is(here.x, here.y) {
                     at.deposit(grid, sum_i, sum_q);
                     (sum_i, sum_q) = (0.0, 0.0);
                     at = PlanePoint::new(here.x, here.y, geo, tables, k0, &reach);
@@ -362,7 +374,6 @@ pub(crate) fn deposit_scatterers(
                     1 => splitmix64(splitmix64(prefix ^ p[1] as u64) ^ p[2] as u64),
                     _ => splitmix64(prefix ^ p[2] as u64),
                 };
-                let mut pos = base;
                 pos[am] = k as f64 * h;
                 let tissue = medium.props(pos);
                 if tissue.scatter_density < 1.0 {
@@ -530,9 +541,13 @@ pub(crate) fn fascicle_factor(p: DVec3, axis: Option<DVec3>, dir: DVec3, seed: u
 /// Signed I and Q of a scatterer: each the sum of two 16-bit uniforms minus 1 (mean 0,
 /// variance 1/6).
 fn iq_of_hash(x: u64) -> (f64, f64) {
-    // Through u32: the same value, but a plain integer conversion (u64 -> f64 is a sequence).
-    let u = |sh: u32| f64::from(((x >> sh) & 0xFFFF) as u32) / 65536.0;
-    (u(0) + u(16) - 1.0, u(32) + u(48) - 1.0)
+    // u(a) + u(b) with u(sh) = ((x >> sh) & 0xFFFF) / 65536: the sum of the two 16-bit integers
+    // scaled once is the same f64 (every step is exact), with one conversion instead of two.
+    let pair = |a: u32, b: u32| {
+        let n = ((x >> a) & 0xFFFF) as u32 + ((x >> b) & 0xFFFF) as u32;
+        f64::from(n) / 65536.0 - 1.0
+    };
+    (pair(0, 16), pair(32, 48))
 }
 
 /// Scale making uniform tissue's mean squared speckle amplitude `10^(echogenicity/10)`:
