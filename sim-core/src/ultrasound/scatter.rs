@@ -46,8 +46,8 @@ impl IqGrid {
             samples,
             pad_l,
             pad_s,
-            re: vec![0.0; n],
-            im: vec![0.0; n],
+            re: zeroed_buffer(n),
+            im: zeroed_buffer(n),
         }
     }
 
@@ -90,6 +90,37 @@ impl IqGrid {
         }
         for (x, y) in self.im.iter_mut().zip(&other.im) {
             *x += y;
+        }
+    }
+}
+
+/// Buffers of dropped grids, kept for the next frame (a fresh megabyte-sized allocation costs
+/// a page fault per 4 KiB page, every frame).
+static SPARE_BUFFERS: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
+/// Most buffers kept (our choice: the two deposit grids of a frame, re and im).
+const SPARE_BUFFERS_MAX: usize = 4;
+
+/// `n` zeros, in a spare buffer when there is one.
+fn zeroed_buffer(n: usize) -> Vec<f32> {
+    let spare = SPARE_BUFFERS.lock().ok().and_then(|mut v| v.pop());
+    match spare {
+        Some(mut b) => {
+            b.clear();
+            b.resize(n, 0.0);
+            b
+        }
+        None => vec![0.0; n],
+    }
+}
+
+impl Drop for IqGrid {
+    fn drop(&mut self) {
+        if let Ok(mut spare) = SPARE_BUFFERS.lock() {
+            for b in [&mut self.re, &mut self.im] {
+                if spare.len() < SPARE_BUFFERS_MAX {
+                    spare.push(std::mem::take(b));
+                }
+            }
         }
     }
 }
