@@ -354,7 +354,7 @@ pub(crate) fn deposit_scatterers(
             let q0 = f.to_probe(base);
             // Elevation is q0.z + x_m * em; keep |e| <= the reach at this column's depth.
             let qc = q0 - unit[am] * (q0.z / em);
-            let (_, zc) = geo.plane_to_line(qc.x, qc.y);
+            let (uc, zc) = geo.plane_to_line(qc.x, qc.y);
             let wander = t_e * drift;
             let t_col = (ELEV_REACH_FWHM
                 * (beam.elevation_fwhm_mm(zc.clamp(0.0, depth)) + lip * wander))
@@ -381,7 +381,13 @@ pub(crate) fn deposit_scatterers(
             if square && !at.is(q.x, q.y) {
                 at.deposit(grid, sum_i, sum_q);
                 (sum_i, sum_q) = (0.0, 0.0);
-                at = PlanePoint::new(q.x, q.y, geo, tables, k0, &reach);
+                // Square, qc is q bit for bit (the column's steps are zero in plane).
+                let line = if qc.x.to_bits() == q.x.to_bits() && qc.y.to_bits() == q.y.to_bits() {
+                    (uc, zc)
+                } else {
+                    geo.plane_to_line(q.x, q.y)
+                };
+                at = PlanePoint::new(q.x, q.y, line, tables, k0, &reach);
             }
             if square && !at.inside {
                 continue;
@@ -392,7 +398,8 @@ pub(crate) fn deposit_scatterers(
                 if !square && !at.is(here.x, here.y) {
                     at.deposit(grid, sum_i, sum_q);
                     (sum_i, sum_q) = (0.0, 0.0);
-                    at = PlanePoint::new(here.x, here.y, geo, tables, k0, &reach);
+                    let line = geo.plane_to_line(here.x, here.y);
+                    at = PlanePoint::new(here.x, here.y, line, tables, k0, &reach);
                 }
                 if !at.inside {
                     continue;
@@ -469,15 +476,15 @@ impl PlanePoint {
         }
     }
 
+    /// The point `(x, y)` whose line index and depth are `(u, z)`.
     fn new(
         x: f64,
         y: f64,
-        geo: &ScanGeometry,
+        (u, z): (f64, f64),
         tables: &BeamTables,
         k0: f64,
         reach: &Reach,
     ) -> PlanePoint {
-        let (u, z) = geo.plane_to_line(x, y);
         let i = tables.sample_of(z);
         PlanePoint {
             x: x.to_bits(),
