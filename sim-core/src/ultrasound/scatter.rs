@@ -319,8 +319,10 @@ pub(crate) fn deposit_scatterers(
     // slice thickness changes at most `lip` mm per mm of depth (the elevation cone).
     let drift = unit[am].x.hypot(unit[am].y) / em.abs();
     let lip = beam.elevation_aperture_mm / beam.elevation_focus_mm / std::f64::consts::SQRT_2;
-    let mut echo_db = f64::NAN;
-    let mut echo_amp = 0.0;
+    let mut echo = EchoCache {
+        db: f64::NAN,
+        amp: 0.0,
+    };
     let k0 = 2.0 * std::f64::consts::PI / beam.wavelength_mm();
     let norm = amplitude_norm(beam, tables, h);
     let lines_max = (geo.lines - 1) as f64;
@@ -340,6 +342,17 @@ pub(crate) fn deposit_scatterers(
         z: (-reach_s, depth + reach_s),
     };
     let exp_tab = exp_table();
+    let cx = ScatterContext {
+        geo,
+        tables,
+        medium,
+        exp_tab,
+        reach,
+        k0,
+        h,
+        norm,
+        seed,
+    };
     // Square to the lattice, a column keeps its in-plane point exactly (steps of zero).
     let square = step_m.x == 0.0 && step_m.y == 0.0;
     for ia in idx_lo(aa)..=idx_hi(aa) {
@@ -368,10 +381,10 @@ pub(crate) fn deposit_scatterers(
             if k_lo > k_hi {
                 continue;
             }
-            let mut q = q0 + unit[am] * (k_lo as f64 * h);
+            let q = q0 + unit[am] * (k_lo as f64 * h);
             p[aa] = ia;
             p[ab] = ib;
-            let mut pos = base;
+            let pos = base;
             // The hash's leading indices that stay fixed along the column.
             let prefix = match am {
                 0 => seed,
@@ -387,57 +400,128 @@ pub(crate) fn deposit_scatterers(
                 } else {
                     geo.plane_to_line(q.x, q.y)
                 };
-                at = PlanePoint::new(q.x, q.y, line, tables, k0, &reach);
+                at = PlanePoint::new(q.x, q.y, line, tables, k0, &cx.reach);
             }
             if square && !at.inside {
                 continue;
             }
-            for k in k_lo..=k_hi {
-                let here = q;
-                q += step_m;
-                if !square && !at.is(here.x, here.y) {
-                    at.deposit(grid, sum_i, sum_q);
-                    (sum_i, sum_q) = (0.0, 0.0);
-                    let line = geo.plane_to_line(here.x, here.y);
-                    at = PlanePoint::new(here.x, here.y, line, tables, k0, &reach);
-                }
-                if !at.inside {
-                    continue;
-                }
-                p[am] = k;
-                let hsh = match am {
-                    0 => splitmix64(
-                        splitmix64(splitmix64(prefix ^ p[0] as u64) ^ p[1] as u64) ^ p[2] as u64,
-                    ),
-                    1 => splitmix64(splitmix64(prefix ^ p[1] as u64) ^ p[2] as u64),
-                    _ => splitmix64(prefix ^ p[2] as u64),
-                };
-                pos[am] = k as f64 * h;
-                let tissue = medium.props(pos);
-                if tissue.scatter_density < 1.0 {
-                    let keep = crate::rng::unit_f64(splitmix64(hsh));
-                    if keep >= tissue.scatter_density {
-                        continue;
-                    }
-                }
-                if tissue.echogenicity_db != echo_db {
-                    echo_db = tissue.echogenicity_db;
-                    echo_amp = norm * 10f64.powf(echo_db / 20.0);
-                }
-                let mut w = echo_amp
-                    * (exp_neg_in(exp_tab, here.z * here.z * at.elev_inv2s2) * at.elev_energy);
-                if tissue.texture == Texture::Fascicular {
-                    let ([_, _], [dx, dy]) = geo.line_in_plane(at.u.clamp(0.0, lines_max));
-                    let dir = f.lateral * dx + f.beam * dy;
-                    w *= fascicle_factor(pos, medium.fibre_axis(pos), dir, seed);
-                }
-                let (ci, cq) = iq_of_hash(hsh);
-                sum_i += ci * w;
-                sum_q += cq * w;
-            }
+            let col = Column {
+                k: k_lo..=k_hi,
+                q,
+                step: step_m,
+                p,
+                prefix,
+                pos,
+            };
+            let sums = (sum_i, sum_q);
+            (sum_i, sum_q) = match (am, square) {
+                (0, true) => column_sum::<0, true>(&cx, &col, &mut at, grid, &mut echo, sums),
+                (1, true) => column_sum::<1, true>(&cx, &col, &mut at, grid, &mut echo, sums),
+                (_, true) => column_sum::<2, true>(&cx, &col, &mut at, grid, &mut echo, sums),
+                (0, false) => column_sum::<0, false>(&cx, &col, &mut at, grid, &mut echo, sums),
+                (1, false) => column_sum::<1, false>(&cx, &col, &mut at, grid, &mut echo, sums),
+                (_, false) => column_sum::<2, false>(&cx, &col, &mut at, grid, &mut echo, sums),
+            };
         }
     }
     at.deposit(grid, sum_i, sum_q);
+}
+
+/// What every column of one deposit shares.
+struct ScatterContext<'a> {
+    geo: &'a ScanGeometry,
+    tables: &'a BeamTables,
+    medium: &'a dyn AcousticMedium,
+    exp_tab: &'a [f64],
+    reach: Reach,
+    /// Wavenumber, rad/mm.
+    k0: f64,
+    /// Lattice cell, mm.
+    h: f64,
+    /// Amplitude scale (see [`amplitude_norm`]).
+    norm: f64,
+    seed: u64,
+}
+
+/// One lattice column: its cells `k` along axis `AM`, the probe-frame point of the first
+/// and the step between cells, the other two indices (in `p`), the hash of the leading fixed
+/// indices and the region point with the fixed coordinates set.
+struct Column {
+    k: std::ops::RangeInclusive<i64>,
+    q: DVec3,
+    step: DVec3,
+    p: [i64; 3],
+    prefix: u64,
+    pos: DVec3,
+}
+
+/// The last echogenicity seen (dB) and its amplitude (the `powf` is done on change only).
+struct EchoCache {
+    db: f64,
+    amp: f64,
+}
+
+/// Adds the column's scatterers to the running sum `(sum_i, sum_q)` at `at`, depositing it and
+/// moving `at` whenever the in-plane point changes (`SQUARE`: it never does within a column,
+/// and `at` is already the column's point). Generic over the column axis `AM` and `SQUARE`, so
+/// that each of the six loops is compiled with its indices and checks fixed.
+#[inline(always)]
+fn column_sum<const AM: usize, const SQUARE: bool>(
+    cx: &ScatterContext<'_>,
+    col: &Column,
+    at: &mut PlanePoint,
+    grid: &mut IqGrid,
+    echo: &mut EchoCache,
+    (mut sum_i, mut sum_q): (f64, f64),
+) -> (f64, f64) {
+    let geo = cx.geo;
+    let f = &geo.frame;
+    let lines_max = (geo.lines - 1) as f64;
+    let mut q = col.q;
+    let mut pos = col.pos;
+    let [_, p1, p2] = col.p.map(|i| i as u64);
+    for k in col.k.clone() {
+        let here = q;
+        q += col.step;
+        if !SQUARE && !at.is(here.x, here.y) {
+            at.deposit(grid, sum_i, sum_q);
+            (sum_i, sum_q) = (0.0, 0.0);
+            let line = geo.plane_to_line(here.x, here.y);
+            *at = PlanePoint::new(here.x, here.y, line, cx.tables, cx.k0, &cx.reach);
+        }
+        if !SQUARE && !at.inside {
+            continue;
+        }
+        let ku = k as u64;
+        let hsh = match AM {
+            0 => splitmix64(splitmix64(splitmix64(col.prefix ^ ku) ^ p1) ^ p2),
+            1 => splitmix64(splitmix64(col.prefix ^ ku) ^ p2),
+            _ => splitmix64(col.prefix ^ ku),
+        };
+        pos[AM] = k as f64 * cx.h;
+        let tissue = cx.medium.props(pos);
+        if tissue.scatter_density < 1.0 {
+            let keep = crate::rng::unit_f64(splitmix64(hsh));
+            if keep >= tissue.scatter_density {
+                continue;
+            }
+        }
+        if tissue.echogenicity_db != echo.db {
+            echo.db = tissue.echogenicity_db;
+            echo.amp = cx.norm * 10f64.powf(echo.db / 20.0);
+        }
+        let mut w =
+            echo.amp * (exp_neg_in(cx.exp_tab, here.z * here.z * at.elev_inv2s2) * at.elev_energy);
+        if tissue.texture == Texture::Fascicular {
+            let ([_, _], [dx, dy]) = geo.line_in_plane(at.u.clamp(0.0, lines_max));
+            let dir = f.lateral * dx + f.beam * dy;
+            w *= fascicle_factor(pos, cx.medium.fibre_axis(pos), dir, cx.seed);
+        }
+        let (ci, cq) = iq_of_hash(hsh);
+        sum_i += ci * w;
+        sum_q += cq * w;
+    }
+    (sum_i, sum_q)
 }
 
 /// The in-plane reach of the scatter sum: line index and depth (mm) ranges.
