@@ -219,13 +219,13 @@ fn cis_table() -> &'static [(f64, f64)] {
     })
 }
 
-fn exp_table() -> &'static [f64] {
-    static T: std::sync::OnceLock<Vec<f64>> = std::sync::OnceLock::new();
-    T.get_or_init(|| {
-        (0..=(EXP_MAX * EXP_PER_UNIT) as usize + 1)
-            .map(|i| (-(i as f64) / EXP_PER_UNIT).exp())
-            .collect()
-    })
+/// Entries of the [`exp_neg`] table: `EXP_MAX * EXP_PER_UNIT + 2`.
+const EXP_LEN: usize = 16 * 128 + 2;
+const _: () = assert!(EXP_LEN == (EXP_MAX * EXP_PER_UNIT) as usize + 2);
+
+fn exp_table() -> &'static [f64; EXP_LEN] {
+    static T: std::sync::OnceLock<[f64; EXP_LEN]> = std::sync::OnceLock::new();
+    T.get_or_init(|| std::array::from_fn(|i| (-(i as f64) / EXP_PER_UNIT).exp()))
 }
 
 /// `(cos phi, sin phi)` from a 4096-entry table with a first-order correction: error below
@@ -252,13 +252,14 @@ pub(crate) fn exp_neg(x: f64) -> f64 {
 
 /// [`exp_neg`] with the table at hand (the scatter loop fetches it once).
 #[inline]
-fn exp_neg_in(tab: &[f64], x: f64) -> f64 {
+fn exp_neg_in(tab: &[f64; EXP_LEN], x: f64) -> f64 {
     if x.is_nan() || x >= EXP_MAX {
         return 0.0;
     }
     let t = x.max(0.0) * EXP_PER_UNIT;
-    // 0 <= t < 2048 here: through i64, the same index with a plain conversion.
-    let i = t as i64 as usize;
+    // 0 <= t < 2048 here: through i64, the same index with a plain conversion; the `min` changes
+    // nothing but lets the compiler drop the bounds checks.
+    let i = (t as i64 as usize).min(EXP_LEN - 2);
     let f = t - i as f64;
     tab[i] + (tab[i + 1] - tab[i]) * f
 }
@@ -432,7 +433,7 @@ struct ScatterContext<'a> {
     geo: &'a ScanGeometry,
     tables: &'a BeamTables,
     medium: &'a dyn AcousticMedium,
-    exp_tab: &'a [f64],
+    exp_tab: &'a [f64; EXP_LEN],
     reach: Reach,
     /// Wavenumber, rad/mm.
     k0: f64,
