@@ -331,6 +331,7 @@ pub(crate) fn deposit_scatterers(
     let reach_s = grid.pad_s as f64 * tables.dz;
     let depth = geo.depth_mm;
     let mut p = [0i64; 3];
+    let mut row_hash: Vec<u64> = Vec::new();
     // The scatterers of a lattice column share their in-plane point whenever the column is
     // along the slice normal (a probe square to the lattice); everything that depends only on
     // that point is computed once and the column's sum is deposited once.
@@ -361,6 +362,15 @@ pub(crate) fn deposit_scatterers(
         if ia.rem_euclid(2) as u64 != part {
             continue;
         }
+        // With the column along axis 0 or 1, `ib` is the last index the hash takes: its first
+        // two levels depend on `ia` and `k` only, so they are computed once for the whole row.
+        row_hash.clear();
+        if am < 2 {
+            row_hash.extend((idx_lo(am)..=idx_hi(am)).map(|k| {
+                let (first, second) = if am == 0 { (k, ia) } else { (ia, k) };
+                splitmix64(splitmix64(seed ^ first as u64) ^ second as u64)
+            }));
+        }
         for ib in idx_lo(ab)..=idx_hi(ab) {
             let mut base = DVec3::ZERO;
             base[aa] = ia as f64 * h;
@@ -386,11 +396,11 @@ pub(crate) fn deposit_scatterers(
             p[aa] = ia;
             p[ab] = ib;
             let pos = base;
-            // The hash's leading indices that stay fixed along the column.
-            let prefix = match am {
-                0 => seed,
-                1 => splitmix64(seed ^ p[0] as u64),
-                _ => splitmix64(splitmix64(seed ^ p[0] as u64) ^ p[1] as u64),
+            // Along axis 2, the hash's two leading levels stay fixed along the column.
+            let prefix = if am == 2 {
+                splitmix64(splitmix64(seed ^ p[0] as u64) ^ p[1] as u64)
+            } else {
+                0
             };
             if square && !at.is(q.x, q.y) {
                 at.deposit(grid, sum_i, sum_q);
@@ -412,6 +422,8 @@ pub(crate) fn deposit_scatterers(
                 step: step_m,
                 p,
                 prefix,
+                row_hash: &row_hash,
+                k_first: idx_lo(am),
                 pos,
             };
             let sums = (sum_i, sum_q);
@@ -445,14 +457,19 @@ struct ScatterContext<'a> {
 }
 
 /// One lattice column: its cells `k` along axis `AM`, the probe-frame point of the first
-/// and the step between cells, the other two indices (in `p`), the hash of the leading fixed
-/// indices and the region point with the fixed coordinates set.
-struct Column {
+/// and the step between cells, the other two indices (in `p`), the hash levels that do not
+/// depend on `k` (axis 2) or on the column (axes 0 and 1, per row), and the region point with
+/// the fixed coordinates set.
+struct Column<'a> {
     k: std::ops::RangeInclusive<i64>,
     q: DVec3,
     step: DVec3,
     p: [i64; 3],
+    /// For `AM` 2: the hash's first two levels.
     prefix: u64,
+    /// For `AM` 0 or 1: the hash's first two levels for every `k` of the row, from `k_first`.
+    row_hash: &'a [u64],
+    k_first: i64,
     pos: DVec3,
 }
 
@@ -469,7 +486,7 @@ struct EchoCache {
 #[inline(always)]
 fn column_sum<const AM: usize, const SQUARE: bool>(
     cx: &ScatterContext<'_>,
-    col: &Column,
+    col: &Column<'_>,
     at: &mut PlanePoint,
     grid: &mut IqGrid,
     echo: &mut EchoCache,
@@ -480,7 +497,7 @@ fn column_sum<const AM: usize, const SQUARE: bool>(
     let lines_max = (geo.lines - 1) as f64;
     let mut q = col.q;
     let mut pos = col.pos;
-    let [_, p1, p2] = col.p.map(|i| i as u64);
+    let p2 = col.p[2] as u64;
     for k in col.k.clone() {
         let here = q;
         q += col.step;
@@ -495,8 +512,7 @@ fn column_sum<const AM: usize, const SQUARE: bool>(
         }
         let ku = k as u64;
         let hsh = match AM {
-            0 => splitmix64(splitmix64(splitmix64(col.prefix ^ ku) ^ p1) ^ p2),
-            1 => splitmix64(splitmix64(col.prefix ^ ku) ^ p2),
+            0 | 1 => splitmix64(col.row_hash[(k - col.k_first) as usize] ^ p2),
             _ => splitmix64(col.prefix ^ ku),
         };
         pos[AM] = k as f64 * cx.h;
