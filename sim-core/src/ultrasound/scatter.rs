@@ -417,7 +417,7 @@ pub(crate) fn deposit_scatterers(
                 continue;
             }
             let col = Column {
-                k: k_lo..=k_hi,
+                k: k_lo..k_hi + 1,
                 q,
                 step: step_m,
                 p,
@@ -461,7 +461,7 @@ struct ScatterContext<'a> {
 /// depend on `k` (axis 2) or on the column (axes 0 and 1, per row), and the region point with
 /// the fixed coordinates set.
 struct Column<'a> {
-    k: std::ops::RangeInclusive<i64>,
+    k: std::ops::Range<i64>,
     q: DVec3,
     step: DVec3,
     p: [i64; 3],
