@@ -179,8 +179,14 @@ impl BeamTables {
     /// Nearest sample index of depth `z` (clamped).
     #[inline]
     pub fn sample_of(&self, z: f64) -> usize {
+        self.sample_at(z / self.dz)
+    }
+
+    /// Nearest sample index of fractional sample `s = z / dz` (clamped).
+    #[inline]
+    pub fn sample_at(&self, s: f64) -> usize {
         // Round half up by truncation of a non-negative value (no libm call).
-        ((z / self.dz + 0.5).max(0.0) as usize).min(self.elev_inv2s2.len() - 1)
+        ((s + 0.5).max(0.0) as usize).min(self.elev_inv2s2.len() - 1)
     }
 
     /// Peak-normalised elevation weight of offset `e` at depth `z`, times the energy factor.
@@ -586,16 +592,25 @@ impl PlanePoint {
         k0: f64,
         reach: &Reach,
     ) -> PlanePoint {
-        let i = tables.sample_of(z);
+        if !(u >= reach.u.0 && u <= reach.u.1 && z >= reach.z.0 && z <= reach.z.1) {
+            // Out of reach: its scatterers are skipped, nothing else is needed.
+            return PlanePoint {
+                x: x.to_bits(),
+                y: y.to_bits(),
+                ..PlanePoint::none()
+            };
+        }
+        let s = z / tables.dz;
+        let i = tables.sample_at(s);
         PlanePoint {
             x: x.to_bits(),
             y: y.to_bits(),
             u,
-            s: z / tables.dz,
+            s,
             elev_inv2s2: tables.elev_inv2s2[i],
             elev_energy: tables.elev_energy[i],
             carrier: cis(2.0 * k0 * z),
-            inside: u >= reach.u.0 && u <= reach.u.1 && z >= reach.z.0 && z <= reach.z.1,
+            inside: true,
         }
     }
 
