@@ -84,6 +84,29 @@ impl IqGrid {
         }
     }
 
+    /// The top-left node and bilinear weights of a deposit at `(u, s)`, as [`IqGrid::deposit`]
+    /// takes them (`None` where it drops the deposit).
+    #[inline]
+    fn cell(&self, u: f64, s: f64) -> Option<(usize, [f64; 4])> {
+        let up = u + self.pad_l as f64;
+        let sp = s + self.pad_s as f64;
+        if up.is_nan() || sp.is_nan() || up < 0.0 || sp < 0.0 {
+            return None;
+        }
+        let (u0, s0) = (up as usize, sp as usize);
+        let (fu, fs) = (up - u0 as f64, sp - s0 as f64);
+        if u0 + 1 >= self.total_lines() || s0 + 1 >= self.stride() {
+            return None;
+        }
+        let w = [
+            (1.0 - fu) * (1.0 - fs),
+            (1.0 - fu) * fs,
+            fu * (1.0 - fs),
+            fu * fs,
+        ];
+        Some((u0 * self.stride() + s0, w))
+    }
+
     pub fn add(&mut self, other: &IqGrid) {
         for (x, y) in self.re.iter_mut().zip(&other.re) {
             *x += y;
@@ -91,6 +114,53 @@ impl IqGrid {
         for (x, y) in self.im.iter_mut().zip(&other.im) {
             *x += y;
         }
+    }
+}
+
+/// Deposits into one grid cell (its four nodes), summed in `f64` while consecutive deposits hit
+/// the same cell and added to the grid when they move on: the same terms as [`IqGrid::deposit`]
+/// one by one, rounded to `f32` once per run instead of once per term.
+pub(crate) struct CellSum {
+    /// Index of the cell's top-left node (`usize::MAX`: none yet).
+    node: usize,
+    /// `(re, im)` per node: top-left, below it (next sample), right (next line), diagonal.
+    sum: [f64; 8],
+}
+
+impl CellSum {
+    pub fn new() -> CellSum {
+        CellSum {
+            node: usize::MAX,
+            sum: [0.0; 8],
+        }
+    }
+
+    /// Adds `(a, b)` at fractional unpadded `(u, s)` as [`IqGrid::deposit`] would.
+    #[inline]
+    pub fn deposit(&mut self, grid: &mut IqGrid, u: f64, s: f64, a: f64, b: f64) {
+        let Some((node, w)) = grid.cell(u, s) else {
+            return;
+        };
+        if node != self.node {
+            self.flush(grid);
+            self.node = node;
+        }
+        for (c, wc) in w.iter().enumerate() {
+            self.sum[2 * c] += a * wc;
+            self.sum[2 * c + 1] += b * wc;
+        }
+    }
+
+    /// Adds the sums to the grid and starts afresh.
+    pub fn flush(&mut self, grid: &mut IqGrid) {
+        if self.node != usize::MAX {
+            let st = grid.stride();
+            for (c, offset) in [0, 1, st, st + 1].into_iter().enumerate() {
+                grid.re[self.node + offset] += self.sum[2 * c] as f32;
+                grid.im[self.node + offset] += self.sum[2 * c + 1] as f32;
+            }
+        }
+        *self = CellSum::new();
     }
 }
 
@@ -338,6 +408,7 @@ pub(crate) fn deposit_scatterers(
     let depth = geo.depth_mm;
     let mut p = [0i64; 3];
     let mut row_hash: Vec<u64> = Vec::new();
+    let mut cells = CellSum::new();
     // The scatterers of a lattice column share their in-plane point whenever the column is
     // along the slice normal (a probe square to the lattice); everything that depends only on
     // that point is computed once and the column's sum is deposited once.
@@ -409,7 +480,7 @@ pub(crate) fn deposit_scatterers(
                 0
             };
             if square && !at.is(q.x, q.y) {
-                at.deposit(grid, sum_i, sum_q);
+                at.deposit(grid, &mut cells, sum_i, sum_q);
                 (sum_i, sum_q) = (0.0, 0.0);
                 // Square, qc is q bit for bit (the column's steps are zero in plane).
                 let line = if qc.x.to_bits() == q.x.to_bits() && qc.y.to_bits() == q.y.to_bits() {
@@ -434,16 +505,29 @@ pub(crate) fn deposit_scatterers(
             };
             let sums = (sum_i, sum_q);
             (sum_i, sum_q) = match (am, square) {
-                (0, true) => column_sum::<0, true>(&cx, &col, &mut at, grid, &mut echo, sums),
-                (1, true) => column_sum::<1, true>(&cx, &col, &mut at, grid, &mut echo, sums),
-                (_, true) => column_sum::<2, true>(&cx, &col, &mut at, grid, &mut echo, sums),
-                (0, false) => column_sum::<0, false>(&cx, &col, &mut at, grid, &mut echo, sums),
-                (1, false) => column_sum::<1, false>(&cx, &col, &mut at, grid, &mut echo, sums),
-                (_, false) => column_sum::<2, false>(&cx, &col, &mut at, grid, &mut echo, sums),
+                (0, true) => {
+                    column_sum::<0, true>(&cx, &col, &mut at, grid, &mut cells, &mut echo, sums)
+                }
+                (1, true) => {
+                    column_sum::<1, true>(&cx, &col, &mut at, grid, &mut cells, &mut echo, sums)
+                }
+                (_, true) => {
+                    column_sum::<2, true>(&cx, &col, &mut at, grid, &mut cells, &mut echo, sums)
+                }
+                (0, false) => {
+                    column_sum::<0, false>(&cx, &col, &mut at, grid, &mut cells, &mut echo, sums)
+                }
+                (1, false) => {
+                    column_sum::<1, false>(&cx, &col, &mut at, grid, &mut cells, &mut echo, sums)
+                }
+                (_, false) => {
+                    column_sum::<2, false>(&cx, &col, &mut at, grid, &mut cells, &mut echo, sums)
+                }
             };
         }
     }
-    at.deposit(grid, sum_i, sum_q);
+    at.deposit(grid, &mut cells, sum_i, sum_q);
+    cells.flush(grid);
 }
 
 /// What every column of one deposit shares.
@@ -495,6 +579,7 @@ fn column_sum<const AM: usize, const SQUARE: bool>(
     col: &Column<'_>,
     at: &mut PlanePoint,
     grid: &mut IqGrid,
+    cells: &mut CellSum,
     echo: &mut EchoCache,
     (mut sum_i, mut sum_q): (f64, f64),
 ) -> (f64, f64) {
@@ -508,7 +593,7 @@ fn column_sum<const AM: usize, const SQUARE: bool>(
         let here = q;
         q += col.step;
         if !SQUARE && !at.is(here.x, here.y) {
-            at.deposit(grid, sum_i, sum_q);
+            at.deposit(grid, cells, sum_i, sum_q);
             (sum_i, sum_q) = (0.0, 0.0);
             let line = geo.plane_to_line(here.x, here.y);
             *at = PlanePoint::new(here.x, here.y, line, cx.tables, cx.k0, &cx.reach);
@@ -621,10 +706,10 @@ impl PlanePoint {
     }
 
     /// Turns the sum `(i, q)` of the scatterers seen here by the carrier and deposits it.
-    fn deposit(&self, grid: &mut IqGrid, i: f64, q: f64) {
+    fn deposit(&self, grid: &mut IqGrid, cells: &mut CellSum, i: f64, q: f64) {
         if i != 0.0 || q != 0.0 {
             let (cs, sn) = self.carrier;
-            grid.deposit(self.u, self.s, i * cs - q * sn, i * sn + q * cs);
+            cells.deposit(grid, self.u, self.s, i * cs - q * sn, i * sn + q * cs);
         }
     }
 }
