@@ -503,26 +503,12 @@ pub(crate) fn deposit_scatterers(
                 k_first: idx_lo(am),
                 pos,
             };
+            let state = (&mut at, &mut *grid, &mut cells, &mut echo);
             let sums = (sum_i, sum_q);
-            (sum_i, sum_q) = match (am, square) {
-                (0, true) => {
-                    column_sum::<0, true>(&cx, &col, &mut at, grid, &mut cells, &mut echo, sums)
-                }
-                (1, true) => {
-                    column_sum::<1, true>(&cx, &col, &mut at, grid, &mut cells, &mut echo, sums)
-                }
-                (_, true) => {
-                    column_sum::<2, true>(&cx, &col, &mut at, grid, &mut cells, &mut echo, sums)
-                }
-                (0, false) => {
-                    column_sum::<0, false>(&cx, &col, &mut at, grid, &mut cells, &mut echo, sums)
-                }
-                (1, false) => {
-                    column_sum::<1, false>(&cx, &col, &mut at, grid, &mut cells, &mut echo, sums)
-                }
-                (_, false) => {
-                    column_sum::<2, false>(&cx, &col, &mut at, grid, &mut cells, &mut echo, sums)
-                }
+            (sum_i, sum_q) = if square {
+                column_on_axis::<true>(am, &cx, &col, state, sums)
+            } else {
+                column_on_axis::<false>(am, &cx, &col, state, sums)
             };
         }
     }
@@ -567,6 +553,22 @@ struct Column<'a> {
 struct EchoCache {
     db: f64,
     amp: f64,
+}
+
+/// [`column_sum`] for column axis `am` (each compiled on its own).
+#[inline(always)]
+fn column_on_axis<const SQUARE: bool>(
+    am: usize,
+    cx: &ScatterContext<'_>,
+    col: &Column<'_>,
+    (at, grid, cells, echo): (&mut PlanePoint, &mut IqGrid, &mut CellSum, &mut EchoCache),
+    sums: (f64, f64),
+) -> (f64, f64) {
+    match am {
+        0 => column_sum::<0, SQUARE>(cx, col, at, grid, cells, echo, sums),
+        1 => column_sum::<1, SQUARE>(cx, col, at, grid, cells, echo, sums),
+        _ => column_sum::<2, SQUARE>(cx, col, at, grid, cells, echo, sums),
+    }
 }
 
 /// Adds the column's scatterers to the running sum `(sum_i, sum_q)` at `at`, depositing it and
