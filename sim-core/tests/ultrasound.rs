@@ -750,3 +750,125 @@ fn air_under_the_face_is_coupling_gel_up_to_its_limit() {
         "air gap {air} dB vs contact {contact} dB"
     );
 }
+
+/// Fat (sparse scatter) over muscle, a nerve along +y (fascicular, fibre axis known) and a
+/// cortical plate under x < 0: every branch of the scatter deposit.
+struct Mixed;
+
+impl Mixed {
+    fn in_nerve(p: DVec3) -> bool {
+        (p.x - 4.0).hypot(p.z - 15.0) < 3.0
+    }
+}
+
+impl AcousticMedium for Mixed {
+    fn props(&self, p: DVec3) -> AcousticProps {
+        if p.z < 6.0 {
+            FAT
+        } else if Mixed::in_nerve(p) {
+            NERVE
+        } else if p.x < 0.0 && (25.0..28.0).contains(&p.z) {
+            CORTICAL_BONE
+        } else {
+            MUSCLE
+        }
+    }
+    fn fibre_axis(&self, p: DVec3) -> Option<DVec3> {
+        Mixed::in_nerve(p).then_some(DVec3::Y)
+    }
+}
+
+/// The envelopes of four fixed scenes (linear at 7.5 MHz and curvilinear at 3.5 MHz, each
+/// oblique to the scatterer lattice and square to it, with fat, nerve, bone, a needle and a
+/// point target), line-major, one after the other.
+fn reference_scenes() -> Vec<f32> {
+    let square = ProbePose {
+        position_mm: DVec3::new(0.5, 0.0, 0.0),
+        beam_dir: DVec3::Z,
+        marker_dir: DVec3::X,
+    };
+    let mut out = Vec::new();
+    for (probe, f, depth, samples, pose) in [
+        (
+            ProbeKind::Linear,
+            7.5,
+            30.0,
+            200,
+            ProbePose::from_rotation(DVec3::new(1.0, 0.5, 0.0), DVec3::new(0.1, 0.15, 1.0), 23.0),
+        ),
+        (
+            ProbeKind::Curvilinear,
+            3.5,
+            40.0,
+            160,
+            ProbePose::from_rotation(
+                DVec3::new(-2.0, 1.0, 0.0),
+                DVec3::new(-0.1, 0.2, 1.0),
+                -31.0,
+            ),
+        ),
+        (ProbeKind::Linear, 7.5, 30.0, 128, square),
+        (ProbeKind::Curvilinear, 3.5, 40.0, 128, square),
+    ] {
+        let st = settings(probe, depth, 0.5 * depth, f);
+        let sampling = Sampling {
+            lines: 48,
+            samples_per_line: samples,
+            ..Sampling::for_settings(&probe.spec(), &st)
+        };
+        let target = [PointTarget {
+            position_mm: pose.position_mm + pose.beam_dir.normalize() * 12.0,
+            amplitude: 0.3,
+        }];
+        let mut req = request(probe, pose, st, sampling, &Mixed, &target);
+        req.needle = Some(NeedleShaft {
+            hub_mm: DVec3::new(-20.0, 0.0, 0.0),
+            tip_mm: DVec3::new(10.0, 1.0, 20.0),
+            diameter_mm: 0.72,
+        });
+        out.extend(scan(&req).unwrap().envelope.data);
+    }
+    out
+}
+
+/// Envelopes recorded from the straightforward scatter deposit (commit f479061, before the
+/// performance work), little-endian `f32`.
+const REFERENCE_ENVELOPES: &str = "tests/data/ultrasound_reference_envelopes.f32";
+
+#[test]
+fn the_frame_matches_the_recorded_reference_within_round_off() {
+    // The speed-ups of the scatter pass sum the same terms in another order (and in f64 where
+    // the straightforward deposit rounded each term to f32), so frames may differ by f32
+    // round-off only: per sample at most 1e-4 relative (measured 1.3e-5 at worst, median 1.4e-7,
+    // about two f32 ulps), relative to no less than 1 % of the median envelope (in a deep speckle
+    // null the sum cancels and only an absolute bound means anything).
+    // `ULTRASOUND_RECORD_REFERENCE=1` rewrites the file: only for a deliberate model change.
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(REFERENCE_ENVELOPES);
+    let now = reference_scenes();
+    if std::env::var("ULTRASOUND_RECORD_REFERENCE").is_ok_and(|v| v == "1") {
+        let bytes: Vec<u8> = now.iter().flat_map(|x| x.to_le_bytes()).collect();
+        std::fs::write(&path, bytes).unwrap();
+    }
+    let bytes = std::fs::read(&path).unwrap();
+    let recorded: Vec<f32> = bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    assert_eq!(recorded.len(), now.len());
+    let mut sorted = recorded.clone();
+    sorted.sort_by(f32::total_cmp);
+    let floor = 0.01 * f64::from(sorted[sorted.len() / 2]);
+    let (worst, at) = recorded
+        .iter()
+        .zip(&now)
+        .map(|(&a, &b)| (f64::from(a) - f64::from(b)).abs() / f64::from(a).max(floor))
+        .enumerate()
+        .fold((0.0, 0), |m, (i, d)| if d > m.0 { (d, i) } else { m });
+    println!("max relative envelope difference {worst:.3e} (sample {at})");
+    assert!(
+        worst <= 1e-4,
+        "sample {at}: {} against {}",
+        now[at],
+        recorded[at]
+    );
+}

@@ -94,23 +94,26 @@ pub(crate) fn scan_convert(
     let (x0, x1, y0, y1) = geo.image_extent_mm();
     let width = ((x1 - x0) / pixel_mm).floor() as usize + 1;
     let height = ((y1 - y0) / pixel_mm).floor() as usize + 1;
-    let mut pixels = vec![0u8; width * height];
-    let mut inside = vec![false; width * height];
+    // Grey level + 1 per pixel, 0 outside the scanned region; rows split over two threads.
+    let mut grey = vec![0u16; width * height];
     let dr = settings.dynamic_range_db;
-    for y in 0..height {
-        let ym = y0 + y as f64 * pixel_mm;
-        for x in 0..width {
-            let xm = x0 + x as f64 * pixel_mm;
-            let (u, z) = geo.plane_to_line(xm, ym);
-            let Some(a) = sample_envelope(&envelope, u, z / envelope.sample_mm) else {
-                continue;
-            };
-            let db = 20.0 * a.max(1e-12).log10() + settings.gain_db + settings.tgc_at_db(z);
-            let g = ((db + dr) / dr).clamp(0.0, 1.0) * 255.0;
-            pixels[y * width + x] = (g + 0.5) as u8;
-            inside[y * width + x] = true;
+    super::in_two(&mut grey, width, |rows, y_first| {
+        for (i, row) in rows.chunks_mut(width).enumerate() {
+            let ym = y0 + (y_first + i) as f64 * pixel_mm;
+            for (x, out) in row.iter_mut().enumerate() {
+                let xm = x0 + x as f64 * pixel_mm;
+                let (u, z) = geo.plane_to_line(xm, ym);
+                let Some(a) = sample_envelope(&envelope, u, z / envelope.sample_mm) else {
+                    continue;
+                };
+                let db = 20.0 * a.max(1e-12).log10() + settings.gain_db + settings.tgc_at_db(z);
+                let g = ((db + dr) / dr).clamp(0.0, 1.0) * 255.0;
+                *out = u16::from((g + 0.5) as u8) + 1;
+            }
         }
-    }
+    });
+    let pixels = grey.iter().map(|&g| g.saturating_sub(1) as u8).collect();
+    let inside = grey.iter().map(|&g| g > 0).collect();
     BModeFrame {
         width,
         height,

@@ -13,6 +13,14 @@
 //! 4. [`frame`]: envelope `sqrt(I^2 + Q^2)`, gain, TGC and log compression into the dynamic
 //!    range, scan conversion to square millimetre-scaled pixels.
 //!
+//! Threads and time: the deposit of step 2 runs on two threads (two fixed halves of the
+//! lattice, summed in a fixed order); then each line on its own (lateral and axial convolution,
+//! march, envelope) and each image row, both split over two threads. Every value is computed the
+//! same way whichever thread does it, so frames are bit-identical run to run. About 85 % of a
+//! frame's instructions are the deposit: per scatterer a hash, a medium lookup, a table exp and
+//! two multiply-adds, about 150 instructions with the column set-up (callgrind, the bench scene
+//! of `benches/ultrasound.rs`).
+//!
 //! ```
 //! use glam::DVec3;
 //! use sim_core::ultrasound::{ProbeKind, ProbePose, Sampling, ScanRequest, Settings, UniformMedium, scan};
@@ -63,7 +71,7 @@ pub use tissue::{AcousticMedium, AcousticProps, CtMedium, Texture, UniformMedium
 pub use echo::{GEL, GEL_MAX_MM};
 use echo::{LineContext, LineEchoes, march_line};
 use scatter::{
-    BeamTables, IqGrid, ScatterField, conv_sigma, convolve_axial, convolve_lateral,
+    BeamTables, IqGrid, LateralKernel, ScatterField, axial_taps, conv_sigma, convolve_axial_row,
     deposit_scatterers,
 };
 
@@ -166,10 +174,11 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
         let (cs, sn) = scatter::cis(2.0 * k0 * z);
         grid.deposit(u, z / tables.dz, w * cs, w * sn);
     }
-    let lateral = convolve_lateral(&grid, &tables, &|z| geo.line_spacing_mm(z));
-    let (sre, sim) = convolve_axial(&lateral, &tables);
+    let lateral = LateralKernel::new(&grid, &tables, &|z| geo.line_spacing_mm(z));
+    let taps = axial_taps(&grid, &tables);
 
-    // Lines: losses, interfaces and the needle.
+    // Lines, each on its own: the lateral then the axial convolution of the speckle, the losses,
+    // interfaces and the needle, and the envelope.
     let ctx = LineContext {
         geo: &geo,
         beam: &beam,
@@ -178,23 +187,33 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
         needle: req.needle.as_ref(),
         march_step_mm: req.sampling.march_step_mm,
     };
-    let mut pre = vec![0f32; geo.lines * samples];
-    let mut pim = vec![0f32; geo.lines * samples];
-    let mut gain = Vec::with_capacity(geo.lines * samples);
-    for ((j, re), im) in pre
-        .chunks_mut(samples)
-        .enumerate()
-        .zip(pim.chunks_mut(samples))
-    {
-        gain.extend(march_line(&ctx, j, &mut LineEchoes { re, im }));
-    }
-    let data = (0..geo.lines * samples)
-        .map(|i| {
-            let a = gain[i] * sre[i] + pre[i];
-            let b = gain[i] * sim[i] + pim[i];
-            (a * a + b * b).sqrt()
-        })
-        .collect();
+    let mut data = vec![0f32; geo.lines * samples];
+    in_two(&mut data, samples, |out, j0| {
+        let st = grid.stride();
+        let (mut row_re, mut row_im) = (vec![0f32; st], vec![0f32; st]);
+        let (mut sre, mut sim) = (vec![0f32; samples], vec![0f32; samples]);
+        let (mut pre, mut pim) = (vec![0f32; samples], vec![0f32; samples]);
+        for (i, line) in out.chunks_mut(samples).enumerate() {
+            let j = j0 + i;
+            lateral.row(&grid, j, &mut row_re, &mut row_im);
+            convolve_axial_row(&taps, &row_re, &row_im, &mut sre, &mut sim);
+            pre.fill(0.0);
+            pim.fill(0.0);
+            let gain = march_line(
+                &ctx,
+                j,
+                &mut LineEchoes {
+                    re: &mut pre,
+                    im: &mut pim,
+                },
+            );
+            for (s, e) in line.iter_mut().enumerate() {
+                let a = gain[s] * sre[s] + pre[s];
+                let b = gain[s] * sim[s] + pim[s];
+                *e = (a * a + b * b).sqrt();
+            }
+        }
+    });
     let envelope = Envelope {
         lines: geo.lines,
         samples,
@@ -209,6 +228,18 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
         envelope,
         view,
     ))
+}
+
+/// Runs `f(part, first)` on the two halves of `data` (whole chunks of `chunk` items; `first` is
+/// the index of the part's first chunk), the second half on another thread. Each item is
+/// computed the same way whichever thread does it, so the result does not depend on the split.
+pub(crate) fn in_two<T: Send>(data: &mut [T], chunk: usize, f: impl Fn(&mut [T], usize) + Sync) {
+    let half = data.len() / chunk / 2;
+    let (a, b) = data.split_at_mut(half * chunk);
+    std::thread::scope(|s| {
+        s.spawn(|| f(b, half));
+        f(a, 0);
+    });
 }
 
 /// A scanner that honours freeze: while `settings.frozen` it returns the last live frame.

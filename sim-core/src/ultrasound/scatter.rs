@@ -46,8 +46,8 @@ impl IqGrid {
             samples,
             pad_l,
             pad_s,
-            re: vec![0.0; n],
-            im: vec![0.0; n],
+            re: zeroed_buffer(n),
+            im: zeroed_buffer(n),
         }
     }
 
@@ -60,6 +60,7 @@ impl IqGrid {
     }
 
     /// Adds `(a, b)` at fractional unpadded coordinates (bilinear; nodes off the grid are dropped).
+    #[inline]
     pub fn deposit(&mut self, u: f64, s: f64, a: f64, b: f64) {
         let up = u + self.pad_l as f64;
         let sp = s + self.pad_s as f64;
@@ -83,12 +84,113 @@ impl IqGrid {
         }
     }
 
+    /// The top-left node and bilinear weights of a deposit at `(u, s)`, as [`IqGrid::deposit`]
+    /// takes them (`None` where it drops the deposit).
+    #[inline]
+    fn cell(&self, u: f64, s: f64) -> Option<(usize, [f64; 4])> {
+        let up = u + self.pad_l as f64;
+        let sp = s + self.pad_s as f64;
+        if up.is_nan() || sp.is_nan() || up < 0.0 || sp < 0.0 {
+            return None;
+        }
+        let (u0, s0) = (up as usize, sp as usize);
+        let (fu, fs) = (up - u0 as f64, sp - s0 as f64);
+        if u0 + 1 >= self.total_lines() || s0 + 1 >= self.stride() {
+            return None;
+        }
+        let w = [
+            (1.0 - fu) * (1.0 - fs),
+            (1.0 - fu) * fs,
+            fu * (1.0 - fs),
+            fu * fs,
+        ];
+        Some((u0 * self.stride() + s0, w))
+    }
+
     pub fn add(&mut self, other: &IqGrid) {
         for (x, y) in self.re.iter_mut().zip(&other.re) {
             *x += y;
         }
         for (x, y) in self.im.iter_mut().zip(&other.im) {
             *x += y;
+        }
+    }
+}
+
+/// Deposits into one grid cell (its four nodes), summed in `f64` while consecutive deposits hit
+/// the same cell and added to the grid when they move on: the same terms as [`IqGrid::deposit`]
+/// one by one, rounded to `f32` once per run instead of once per term.
+pub(crate) struct CellSum {
+    /// Index of the cell's top-left node (`usize::MAX`: none yet).
+    node: usize,
+    /// `(re, im)` per node: top-left, below it (next sample), right (next line), diagonal.
+    sum: [f64; 8],
+}
+
+impl CellSum {
+    pub fn new() -> CellSum {
+        CellSum {
+            node: usize::MAX,
+            sum: [0.0; 8],
+        }
+    }
+
+    /// Adds `(a, b)` at fractional unpadded `(u, s)` as [`IqGrid::deposit`] would.
+    #[inline]
+    pub fn deposit(&mut self, grid: &mut IqGrid, u: f64, s: f64, a: f64, b: f64) {
+        let Some((node, w)) = grid.cell(u, s) else {
+            return;
+        };
+        if node != self.node {
+            self.flush(grid);
+            self.node = node;
+        }
+        for (c, wc) in w.iter().enumerate() {
+            self.sum[2 * c] += a * wc;
+            self.sum[2 * c + 1] += b * wc;
+        }
+    }
+
+    /// Adds the sums to the grid and starts afresh.
+    pub fn flush(&mut self, grid: &mut IqGrid) {
+        if self.node != usize::MAX {
+            let st = grid.stride();
+            for (c, offset) in [0, 1, st, st + 1].into_iter().enumerate() {
+                grid.re[self.node + offset] += self.sum[2 * c] as f32;
+                grid.im[self.node + offset] += self.sum[2 * c + 1] as f32;
+            }
+        }
+        *self = CellSum::new();
+    }
+}
+
+/// Buffers of dropped grids, kept for the next frame (a fresh megabyte-sized allocation costs
+/// a page fault per 4 KiB page, every frame).
+static SPARE_BUFFERS: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
+/// Most buffers kept (our choice: the two deposit grids of a frame, re and im).
+const SPARE_BUFFERS_MAX: usize = 4;
+
+/// `n` zeros, in a spare buffer when there is one.
+fn zeroed_buffer(n: usize) -> Vec<f32> {
+    let spare = SPARE_BUFFERS.lock().ok().and_then(|mut v| v.pop());
+    match spare {
+        Some(mut b) => {
+            b.clear();
+            b.resize(n, 0.0);
+            b
+        }
+        None => vec![0.0; n],
+    }
+}
+
+impl Drop for IqGrid {
+    fn drop(&mut self) {
+        if let Ok(mut spare) = SPARE_BUFFERS.lock() {
+            for b in [&mut self.re, &mut self.im] {
+                if spare.len() < SPARE_BUFFERS_MAX {
+                    spare.push(std::mem::take(b));
+                }
+            }
         }
     }
 }
@@ -147,8 +249,14 @@ impl BeamTables {
     /// Nearest sample index of depth `z` (clamped).
     #[inline]
     pub fn sample_of(&self, z: f64) -> usize {
+        self.sample_at(z / self.dz)
+    }
+
+    /// Nearest sample index of fractional sample `s = z / dz` (clamped).
+    #[inline]
+    pub fn sample_at(&self, s: f64) -> usize {
         // Round half up by truncation of a non-negative value (no libm call).
-        ((z / self.dz + 0.5).max(0.0) as usize).min(self.elev_inv2s2.len() - 1)
+        ((s + 0.5).max(0.0) as usize).min(self.elev_inv2s2.len() - 1)
     }
 
     /// Peak-normalised elevation weight of offset `e` at depth `z`, times the energy factor.
@@ -187,13 +295,13 @@ fn cis_table() -> &'static [(f64, f64)] {
     })
 }
 
-fn exp_table() -> &'static [f64] {
-    static T: std::sync::OnceLock<Vec<f64>> = std::sync::OnceLock::new();
-    T.get_or_init(|| {
-        (0..=(EXP_MAX * EXP_PER_UNIT) as usize + 1)
-            .map(|i| (-(i as f64) / EXP_PER_UNIT).exp())
-            .collect()
-    })
+/// Entries of the [`exp_neg`] table: `EXP_MAX * EXP_PER_UNIT + 2`.
+const EXP_LEN: usize = 16 * 128 + 2;
+const _: () = assert!(EXP_LEN == (EXP_MAX * EXP_PER_UNIT) as usize + 2);
+
+fn exp_table() -> &'static [f64; EXP_LEN] {
+    static T: std::sync::OnceLock<[f64; EXP_LEN]> = std::sync::OnceLock::new();
+    T.get_or_init(|| std::array::from_fn(|i| (-(i as f64) / EXP_PER_UNIT).exp()))
 }
 
 /// `(cos phi, sin phi)` from a 4096-entry table with a first-order correction: error below
@@ -215,13 +323,20 @@ pub(crate) fn floor_fast(x: f64) -> f64 {
 /// `exp(-x)` for `x >= 0`, linearly interpolated in a table of step 1/128 (relative error below
 /// `(1/128)^2 / 8 = 8e-6`); zero beyond 16.
 pub(crate) fn exp_neg(x: f64) -> f64 {
+    exp_neg_in(exp_table(), x)
+}
+
+/// [`exp_neg`] with the table at hand (the scatter loop fetches it once).
+#[inline]
+fn exp_neg_in(tab: &[f64; EXP_LEN], x: f64) -> f64 {
     if x.is_nan() || x >= EXP_MAX {
         return 0.0;
     }
     let t = x.max(0.0) * EXP_PER_UNIT;
-    let i = t as usize;
+    // 0 <= t < 2048 here: through i64, the same index with a plain conversion; the `min` changes
+    // nothing but lets the compiler drop the bounds checks.
+    let i = (t as i64 as usize).min(EXP_LEN - 2);
     let f = t - i as f64;
-    let tab = exp_table();
     tab[i] + (tab[i + 1] - tab[i]) * f
 }
 
@@ -281,8 +396,10 @@ pub(crate) fn deposit_scatterers(
     // slice thickness changes at most `lip` mm per mm of depth (the elevation cone).
     let drift = unit[am].x.hypot(unit[am].y) / em.abs();
     let lip = beam.elevation_aperture_mm / beam.elevation_focus_mm / std::f64::consts::SQRT_2;
-    let mut echo_db = f64::NAN;
-    let mut echo_amp = 0.0;
+    let mut echo = EchoCache {
+        db: f64::NAN,
+        amp: 0.0,
+    };
     let k0 = 2.0 * std::f64::consts::PI / beam.wavelength_mm();
     let norm = amplitude_norm(beam, tables, h);
     let lines_max = (geo.lines - 1) as f64;
@@ -290,10 +407,46 @@ pub(crate) fn deposit_scatterers(
     let reach_s = grid.pad_s as f64 * tables.dz;
     let depth = geo.depth_mm;
     let mut p = [0i64; 3];
+    let mut row_hash: Vec<u64> = Vec::new();
+    let mut cells = CellSum::new();
+    // The scatterers of a lattice column share their in-plane point whenever the column is
+    // along the slice normal (a probe square to the lattice); everything that depends only on
+    // that point is computed once and the column's sum is deposited once.
+    let mut at = PlanePoint::none();
+    // The sum over the scatterers seen at `at` so far of their weighted I and Q before the
+    // carrier turn (which they share); locals, so that they stay in registers.
+    let (mut sum_i, mut sum_q) = (0.0, 0.0);
+    let reach = Reach {
+        u: (-reach_u, lines_max + reach_u),
+        z: (-reach_s, depth + reach_s),
+    };
+    let exp_tab = exp_table();
+    let cx = ScatterContext {
+        geo,
+        tables,
+        medium,
+        exp_tab,
+        reach,
+        k0,
+        h,
+        norm,
+        seed,
+    };
+    // Square to the lattice, a column keeps its in-plane point exactly (steps of zero).
+    let square = step_m.x == 0.0 && step_m.y == 0.0;
     for ia in idx_lo(aa)..=idx_hi(aa) {
         // Two interleaved halves of the lattice (a fixed split, so the sum is deterministic).
         if ia.rem_euclid(2) as u64 != part {
             continue;
+        }
+        // With the column along axis 0 or 1, `ib` is the last index the hash takes: its first
+        // two levels depend on `ia` and `k` only, so they are computed once for the whole row.
+        row_hash.clear();
+        if am < 2 {
+            row_hash.extend((idx_lo(am)..=idx_hi(am)).map(|k| {
+                let (first, second) = if am == 0 { (k, ia) } else { (ia, k) };
+                splitmix64(splitmix64(seed ^ first as u64) ^ second as u64)
+            }));
         }
         for ib in idx_lo(ab)..=idx_hi(ab) {
             let mut base = DVec3::ZERO;
@@ -302,7 +455,7 @@ pub(crate) fn deposit_scatterers(
             let q0 = f.to_probe(base);
             // Elevation is q0.z + x_m * em; keep |e| <= the reach at this column's depth.
             let qc = q0 - unit[am] * (q0.z / em);
-            let (_, zc) = geo.plane_to_line(qc.x, qc.y);
+            let (uc, zc) = geo.plane_to_line(qc.x, qc.y);
             let wander = t_e * drift;
             let t_col = (ELEV_REACH_FWHM
                 * (beam.elevation_fwhm_mm(zc.clamp(0.0, depth)) + lip * wander))
@@ -316,46 +469,249 @@ pub(crate) fn deposit_scatterers(
             if k_lo > k_hi {
                 continue;
             }
-            let mut q = q0 + unit[am] * (k_lo as f64 * h);
+            let q = q0 + unit[am] * (k_lo as f64 * h);
             p[aa] = ia;
             p[ab] = ib;
-            for k in k_lo..=k_hi {
-                let here = q;
-                q += step_m;
-                let (u, z) = geo.plane_to_line(here.x, here.y);
-                if !(u >= -reach_u
-                    && u <= lines_max + reach_u
-                    && z >= -reach_s
-                    && z <= depth + reach_s)
-                {
-                    continue;
-                }
-                p[am] = k;
-                let hsh = cell_hash(seed, p[0], p[1], p[2]);
-                let mut pos = base;
-                pos[am] = k as f64 * h;
-                let tissue = medium.props(pos);
-                if tissue.scatter_density < 1.0 {
-                    let keep = crate::rng::unit_f64(splitmix64(hsh));
-                    if keep >= tissue.scatter_density {
-                        continue;
-                    }
-                }
-                if tissue.echogenicity_db != echo_db {
-                    echo_db = tissue.echogenicity_db;
-                    echo_amp = norm * 10f64.powf(echo_db / 20.0);
-                }
-                let mut w = echo_amp * tables.elevation_weight(here.z, z);
-                if tissue.texture == Texture::Fascicular {
-                    let ([_, _], [dx, dy]) = geo.line_in_plane(u.clamp(0.0, lines_max));
-                    let dir = f.lateral * dx + f.beam * dy;
-                    w *= fascicle_factor(pos, medium.fibre_axis(pos), dir, seed);
-                }
-                let (ci, cq) = iq_of_hash(hsh);
-                let (cs, sn) = cis(2.0 * k0 * z);
-                let (a, b) = (ci * cs - cq * sn, ci * sn + cq * cs);
-                grid.deposit(u, z / tables.dz, a * w, b * w);
+            let pos = base;
+            // Along axis 2, the hash's two leading levels stay fixed along the column.
+            let prefix = if am == 2 {
+                splitmix64(splitmix64(seed ^ p[0] as u64) ^ p[1] as u64)
+            } else {
+                0
+            };
+            if square && !at.is(q.x, q.y) {
+                at.deposit(grid, &mut cells, sum_i, sum_q);
+                (sum_i, sum_q) = (0.0, 0.0);
+                // Square, qc is q bit for bit (the column's steps are zero in plane).
+                let line = if qc.x.to_bits() == q.x.to_bits() && qc.y.to_bits() == q.y.to_bits() {
+                    (uc, zc)
+                } else {
+                    geo.plane_to_line(q.x, q.y)
+                };
+                at = PlanePoint::new(q.x, q.y, line, tables, k0, &cx.reach);
             }
+            if square && !at.inside {
+                continue;
+            }
+            let col = Column {
+                k: k_lo..k_hi + 1,
+                q,
+                step: step_m,
+                p,
+                prefix,
+                row_hash: &row_hash,
+                k_first: idx_lo(am),
+                pos,
+            };
+            let state = (&mut at, &mut *grid, &mut cells, &mut echo);
+            let sums = (sum_i, sum_q);
+            (sum_i, sum_q) = if square {
+                column_on_axis::<true>(am, &cx, &col, state, sums)
+            } else {
+                column_on_axis::<false>(am, &cx, &col, state, sums)
+            };
+        }
+    }
+    at.deposit(grid, &mut cells, sum_i, sum_q);
+    cells.flush(grid);
+}
+
+/// What every column of one deposit shares.
+struct ScatterContext<'a> {
+    geo: &'a ScanGeometry,
+    tables: &'a BeamTables,
+    medium: &'a dyn AcousticMedium,
+    exp_tab: &'a [f64; EXP_LEN],
+    reach: Reach,
+    /// Wavenumber, rad/mm.
+    k0: f64,
+    /// Lattice cell, mm.
+    h: f64,
+    /// Amplitude scale (see [`amplitude_norm`]).
+    norm: f64,
+    seed: u64,
+}
+
+/// One lattice column: its cells `k` along axis `AM`, the probe-frame point of the first
+/// and the step between cells, the other two indices (in `p`), the hash levels that do not
+/// depend on `k` (axis 2) or on the column (axes 0 and 1, per row), and the region point with
+/// the fixed coordinates set.
+struct Column<'a> {
+    k: std::ops::Range<i64>,
+    q: DVec3,
+    step: DVec3,
+    p: [i64; 3],
+    /// For `AM` 2: the hash's first two levels.
+    prefix: u64,
+    /// For `AM` 0 or 1: the hash's first two levels for every `k` of the row, from `k_first`.
+    row_hash: &'a [u64],
+    k_first: i64,
+    pos: DVec3,
+}
+
+/// The last echogenicity seen (dB) and its amplitude (the `powf` is done on change only).
+struct EchoCache {
+    db: f64,
+    amp: f64,
+}
+
+/// [`column_sum`] for column axis `am` (each compiled on its own).
+#[inline(always)]
+fn column_on_axis<const SQUARE: bool>(
+    am: usize,
+    cx: &ScatterContext<'_>,
+    col: &Column<'_>,
+    (at, grid, cells, echo): (&mut PlanePoint, &mut IqGrid, &mut CellSum, &mut EchoCache),
+    sums: (f64, f64),
+) -> (f64, f64) {
+    match am {
+        0 => column_sum::<0, SQUARE>(cx, col, at, grid, cells, echo, sums),
+        1 => column_sum::<1, SQUARE>(cx, col, at, grid, cells, echo, sums),
+        _ => column_sum::<2, SQUARE>(cx, col, at, grid, cells, echo, sums),
+    }
+}
+
+/// Adds the column's scatterers to the running sum `(sum_i, sum_q)` at `at`, depositing it and
+/// moving `at` whenever the in-plane point changes (`SQUARE`: it never does within a column,
+/// and `at` is already the column's point). Generic over the column axis `AM` and `SQUARE`, so
+/// that each of the six loops is compiled with its indices and checks fixed.
+#[inline(always)]
+fn column_sum<const AM: usize, const SQUARE: bool>(
+    cx: &ScatterContext<'_>,
+    col: &Column<'_>,
+    at: &mut PlanePoint,
+    grid: &mut IqGrid,
+    cells: &mut CellSum,
+    echo: &mut EchoCache,
+    (mut sum_i, mut sum_q): (f64, f64),
+) -> (f64, f64) {
+    let geo = cx.geo;
+    let f = &geo.frame;
+    let lines_max = (geo.lines - 1) as f64;
+    let mut q = col.q;
+    let mut pos = col.pos;
+    let p2 = col.p[2] as u64;
+    for k in col.k.clone() {
+        let here = q;
+        q += col.step;
+        if !SQUARE && !at.is(here.x, here.y) {
+            at.deposit(grid, cells, sum_i, sum_q);
+            (sum_i, sum_q) = (0.0, 0.0);
+            let line = geo.plane_to_line(here.x, here.y);
+            *at = PlanePoint::new(here.x, here.y, line, cx.tables, cx.k0, &cx.reach);
+        }
+        if !SQUARE && !at.inside {
+            continue;
+        }
+        let ku = k as u64;
+        let hsh = match AM {
+            0 | 1 => splitmix64(col.row_hash[(k - col.k_first) as usize] ^ p2),
+            _ => splitmix64(col.prefix ^ ku),
+        };
+        pos[AM] = k as f64 * cx.h;
+        let tissue = cx.medium.props(pos);
+        if tissue.scatter_density < 1.0 {
+            let keep = crate::rng::unit_f64(splitmix64(hsh));
+            if keep >= tissue.scatter_density {
+                continue;
+            }
+        }
+        if tissue.echogenicity_db != echo.db {
+            echo.db = tissue.echogenicity_db;
+            echo.amp = cx.norm * 10f64.powf(echo.db / 20.0);
+        }
+        let mut w =
+            echo.amp * (exp_neg_in(cx.exp_tab, here.z * here.z * at.elev_inv2s2) * at.elev_energy);
+        if tissue.texture == Texture::Fascicular {
+            let ([_, _], [dx, dy]) = geo.line_in_plane(at.u.clamp(0.0, lines_max));
+            let dir = f.lateral * dx + f.beam * dy;
+            w *= fascicle_factor(pos, cx.medium.fibre_axis(pos), dir, cx.seed);
+        }
+        let (ci, cq) = iq_of_hash(hsh);
+        sum_i += ci * w;
+        sum_q += cq * w;
+    }
+    (sum_i, sum_q)
+}
+
+/// The in-plane reach of the scatter sum: line index and depth (mm) ranges.
+struct Reach {
+    u: (f64, f64),
+    z: (f64, f64),
+}
+
+/// Everything a scatterer's deposit needs that depends only on its in-plane point (the
+/// scatterers seen there are summed and deposited together: their bilinear weights are equal).
+struct PlanePoint {
+    x: u64,
+    y: u64,
+    u: f64,
+    /// Fractional sample index `z / dz`.
+    s: f64,
+    elev_inv2s2: f64,
+    elev_energy: f64,
+    carrier: (f64, f64),
+    /// Whether the point is within the reach (scatterers outside it are skipped).
+    inside: bool,
+}
+
+impl PlanePoint {
+    /// A point no scatterer has (NaN coordinates).
+    fn none() -> PlanePoint {
+        PlanePoint {
+            x: f64::NAN.to_bits(),
+            y: f64::NAN.to_bits(),
+            u: f64::NAN,
+            s: f64::NAN,
+            elev_inv2s2: 0.0,
+            elev_energy: 0.0,
+            carrier: (0.0, 0.0),
+            inside: false,
+        }
+    }
+
+    /// The point `(x, y)` whose line index and depth are `(u, z)`.
+    fn new(
+        x: f64,
+        y: f64,
+        (u, z): (f64, f64),
+        tables: &BeamTables,
+        k0: f64,
+        reach: &Reach,
+    ) -> PlanePoint {
+        if !(u >= reach.u.0 && u <= reach.u.1 && z >= reach.z.0 && z <= reach.z.1) {
+            // Out of reach: its scatterers are skipped, nothing else is needed.
+            return PlanePoint {
+                x: x.to_bits(),
+                y: y.to_bits(),
+                ..PlanePoint::none()
+            };
+        }
+        let s = z / tables.dz;
+        let i = tables.sample_at(s);
+        PlanePoint {
+            x: x.to_bits(),
+            y: y.to_bits(),
+            u,
+            s,
+            elev_inv2s2: tables.elev_inv2s2[i],
+            elev_energy: tables.elev_energy[i],
+            carrier: cis(2.0 * k0 * z),
+            inside: true,
+        }
+    }
+
+    /// Whether `(x, y)` is this point, bit for bit.
+    #[inline]
+    fn is(&self, x: f64, y: f64) -> bool {
+        self.x == x.to_bits() && self.y == y.to_bits()
+    }
+
+    /// Turns the sum `(i, q)` of the scatterers seen here by the carrier and deposits it.
+    fn deposit(&self, grid: &mut IqGrid, cells: &mut CellSum, i: f64, q: f64) {
+        if i != 0.0 || q != 0.0 {
+            let (cs, sn) = self.carrier;
+            cells.deposit(grid, self.u, self.s, i * cs - q * sn, i * sn + q * cs);
         }
     }
 }
@@ -426,8 +782,13 @@ pub(crate) fn fascicle_factor(p: DVec3, axis: Option<DVec3>, dir: DVec3, seed: u
 /// Signed I and Q of a scatterer: each the sum of two 16-bit uniforms minus 1 (mean 0,
 /// variance 1/6).
 fn iq_of_hash(x: u64) -> (f64, f64) {
-    let u = |sh: u32| ((x >> sh) & 0xFFFF) as f64 / 65536.0;
-    (u(0) + u(16) - 1.0, u(32) + u(48) - 1.0)
+    // u(a) + u(b) with u(sh) = ((x >> sh) & 0xFFFF) / 65536: the sum of the two 16-bit integers
+    // scaled once is the same f64 (every step is exact), with one conversion instead of two.
+    let pair = |a: u32, b: u32| {
+        let n = ((x >> a) & 0xFFFF) as u32 + ((x >> b) & 0xFFFF) as u32;
+        f64::from(n) / 65536.0 - 1.0
+    };
+    (pair(0, 16), pair(32, 48))
 }
 
 /// Scale making uniform tissue's mean squared speckle amplitude `10^(echogenicity/10)`:
@@ -454,37 +815,59 @@ pub(crate) fn conv_sigma(sigma_steps: f64) -> f64 {
     (sigma_steps * sigma_steps - 1.0 / 6.0).max(0.01).sqrt()
 }
 
-/// Lateral convolution of every depth row (width from the line spacing at that depth), then
-/// the lateral energy factor. `spacing_mm(z)` is the line spacing at depth `z`.
-pub(crate) fn convolve_lateral(
-    grid: &IqGrid,
-    tables: &BeamTables,
-    spacing_mm: &dyn Fn(f64) -> f64,
-) -> IqGrid {
-    let st = grid.stride();
-    let k = grid.pad_l;
-    let ntap = 2 * k + 1;
-    // weights[t * st + s]
-    let mut weights = vec![0f32; ntap * st];
-    for sp in 0..st {
-        let s = sp as isize - grid.pad_s as isize;
-        let z = s as f64 * tables.dz;
-        let si = (s.max(0) as usize).min(grid.samples - 1);
-        let sig = conv_sigma(tables.lat_sigma_mm[si] / spacing_mm(z.max(0.0)));
-        let taps = gaussian_taps(sig, k);
-        let en = tables.lat_energy[si] as f32;
-        for t in 0..ntap {
-            weights[t * st + sp] = taps[t] * en;
+/// The lateral convolution of every depth row (width from the line spacing at that depth),
+/// times the lateral energy factor, as per-sample tap weights.
+pub(crate) struct LateralKernel {
+    st: usize,
+    /// `weights[t * st + s]` for tap `t` (source line `j + t - pad_l`) at padded sample `s`.
+    weights: Vec<f32>,
+    /// The taps with a nonzero weight at some sample (the others underflow f32 everywhere).
+    taps: std::ops::Range<usize>,
+}
+
+impl LateralKernel {
+    /// The kernel of `grid`'s shape; `spacing_mm(z)` is the line spacing at depth `z`.
+    pub fn new(
+        grid: &IqGrid,
+        tables: &BeamTables,
+        spacing_mm: &dyn Fn(f64) -> f64,
+    ) -> LateralKernel {
+        let st = grid.stride();
+        let k = grid.pad_l;
+        let ntap = 2 * k + 1;
+        let mut weights = vec![0f32; ntap * st];
+        for sp in 0..st {
+            let s = sp as isize - grid.pad_s as isize;
+            let z = s as f64 * tables.dz;
+            let si = (s.max(0) as usize).min(grid.samples - 1);
+            let sig = conv_sigma(tables.lat_sigma_mm[si] / spacing_mm(z.max(0.0)));
+            let taps = gaussian_taps(sig, k);
+            let en = tables.lat_energy[si] as f32;
+            for t in 0..ntap {
+                weights[t * st + sp] = taps[t] * en;
+            }
+        }
+        let live = |t: &usize| weights[t * st..(t + 1) * st].iter().any(|&w| w != 0.0);
+        let first = (0..ntap).find(live).unwrap_or(0);
+        let last = (0..ntap).rev().find(live).map_or(0, |t| t + 1);
+        LateralKernel {
+            st,
+            weights,
+            taps: first..last.max(first),
         }
     }
-    let mut out = IqGrid::new(grid.lines, grid.samples, grid.pad_l, grid.pad_s);
-    for j in 0..grid.lines {
-        let o = (j + grid.pad_l) * st;
-        for t in 0..ntap {
+
+    /// Unpadded line `j` of the laterally convolved grid, all `stride` padded samples, into
+    /// `re`/`im`. (Skipped taps are zero at every sample: adding their products changes nothing.)
+    pub fn row(&self, grid: &IqGrid, j: usize, re: &mut [f32], im: &mut [f32]) {
+        let st = self.st;
+        let (ore, oim) = (&mut re[..st], &mut im[..st]);
+        ore.fill(0.0);
+        oim.fill(0.0);
+        for t in self.taps.clone() {
             // Source line (padded index) j + t - k + pad_l = j + t.
             let src = (j + t) * st;
-            let w = &weights[t * st..(t + 1) * st];
-            let (ore, oim) = (&mut out.re[o..o + st], &mut out.im[o..o + st]);
+            let w = &self.weights[t * st..(t + 1) * st];
             let (sre, sim) = (&grid.re[src..src + st], &grid.im[src..src + st]);
             for s in 0..st {
                 ore[s] += w[s] * sre[s];
@@ -492,30 +875,30 @@ pub(crate) fn convolve_lateral(
             }
         }
     }
-    out
 }
 
-/// Axial convolution of every unpadded line with the pulse envelope, written into `re`/`im`
-/// of size `lines * samples` (unpadded).
-pub(crate) fn convolve_axial(grid: &IqGrid, tables: &BeamTables) -> (Vec<f32>, Vec<f32>) {
-    let k = grid.pad_s;
-    let taps = gaussian_taps(conv_sigma(tables.axial_sigma_mm / tables.dz), k);
-    let st = grid.stride();
-    let n = grid.samples;
-    let mut re = vec![0f32; grid.lines * n];
-    let mut im = vec![0f32; grid.lines * n];
-    for j in 0..grid.lines {
-        let row = (j + grid.pad_l) * st;
-        for s in 0..n {
-            let (mut a, mut b) = (0f32, 0f32);
-            // Output sample s is padded index s + k; sources s + k + t - k = s + t.
-            for (t, w) in taps.iter().enumerate() {
-                a += w * grid.re[row + s + t];
-                b += w * grid.im[row + s + t];
-            }
-            re[j * n + s] = a;
-            im[j * n + s] = b;
+/// Taps of the axial convolution with the pulse envelope (`2 pad_s + 1` of them).
+pub(crate) fn axial_taps(grid: &IqGrid, tables: &BeamTables) -> Vec<f32> {
+    gaussian_taps(conv_sigma(tables.axial_sigma_mm / tables.dz), grid.pad_s)
+}
+
+/// Axial convolution of one padded row (`samples + 2 pad_s` long) into its `samples` unpadded
+/// samples.
+pub(crate) fn convolve_axial_row(
+    taps: &[f32],
+    row_re: &[f32],
+    row_im: &[f32],
+    re: &mut [f32],
+    im: &mut [f32],
+) {
+    for (s, (a_out, b_out)) in re.iter_mut().zip(im.iter_mut()).enumerate() {
+        let (mut a, mut b) = (0f32, 0f32);
+        // Output sample s is padded index s + k; sources s + k + t - k = s + t.
+        for (t, w) in taps.iter().enumerate() {
+            a += w * row_re[s + t];
+            b += w * row_im[s + t];
         }
+        *a_out = a;
+        *b_out = b;
     }
-    (re, im)
 }

@@ -5,6 +5,20 @@
 //! attenuation slope), rounded. "IT'IS" is the IT'IS Foundation tissue property database v4.1
 //! (acoustic section), rounded, for tissues Mast does not list. Echogenicity, scatter density
 //! and roughness are appearance parameters and always "our choice". Impedance is density x speed.
+//!
+//! Source check (2026-11): neither Mast's Table 1 nor the IT'IS acoustic tables could be read
+//! from here, so no value below is confirmed against the table it cites; each says so and gives
+//! the published range it does fall in, from sources that could be read:
+//! - "MechMater": the compilation in Mech. Mater. 44, 174-188 (2012), Table 3 (density
+//!   and speed ranges from Goss 1978/1980, Goldman & Hueter, Mast 2000 and others;
+//!   <https://pmc.ncbi.nlm.nih.gov/articles/PMC3233242/table/T3>);
+//! - "Fernandes": ex vivo measurements, Bioengineering 12(9), 946 (2025), Appendix A.1-A.2
+//!   (mean +- SD; <https://www.mdpi.com/2306-5354/12/9/946>);
+//! - "Sensors": Sensors 23(13), 5942 (2023), Table A2 (attenuation slopes;
+//!   <https://pmc.ncbi.nlm.nih.gov/articles/PMC10346919/table/sensors-23-05942-t0A2>).
+//!
+//! Where no range was found the value says "unchecked" alone. No value was changed.
+//!
 //! HU do not determine acoustic properties uniquely; the HU table is a plausible mapping, not a
 //! measurement of this patient.
 
@@ -69,33 +83,47 @@ const fn props(
     }
 }
 
-/// Fat: Mast Table 1 (950 kg/m^3, 1478 m/s, 0.48 dB/cm/MHz); hypoechoic, sparse septa (our choice).
+/// Fat: Mast Table 1 (950 kg/m^3, 1478 m/s, 0.48 dB/cm/MHz), unchecked against the table; within
+/// MechMater (fat 950 kg/m^3, 1468-1488 m/s) and near Fernandes (927 +- 15 kg/m^3, 1462 +- 26 m/s);
+/// Sensors lists 0.8 dB/cm/MHz. Hypoechoic, sparse septa (our choice).
 pub const FAT: AcousticProps = props(950.0, 1478.0, 0.48, -52.0, 0.35, 0.3);
-/// Skeletal muscle: Mast Table 1 (1050 kg/m^3, 1547 m/s, 1.09 dB/cm/MHz); echogenicity ours.
+/// Skeletal muscle: Mast Table 1 (1050 kg/m^3, 1547 m/s, 1.09 dB/cm/MHz), unchecked against the
+/// table; within MechMater (1050 kg/m^3, 1517-1600 m/s), near Fernandes (1058 +- 16 kg/m^3,
+/// 1562-1599 m/s across/along fibres); Sensors lists 1.2 dB/cm/MHz. Echogenicity ours.
 pub const MUSCLE: AcousticProps = props(1050.0, 1547.0, 1.09, -46.0, 1.0, 0.3);
 /// Generic soft tissue and skin: 1050 kg/m^3, 1540 m/s, 0.54 dB/cm/MHz (the soft-tissue average
-/// used by Mast's regression; our choice of representative).
+/// used by Mast's regression; our choice of representative; unchecked).
 pub const SOFT_TISSUE: AcousticProps = props(1050.0, 1540.0, 0.54, -44.0, 1.0, 0.3);
-/// Blood in a vessel: Mast Table 1 (1060 kg/m^3, 1584 m/s, 0.2 dB/cm/MHz); anechoic (our choice).
+/// Blood in a vessel: Mast Table 1 (1060 kg/m^3, 1584 m/s, 0.2 dB/cm/MHz), unchecked (no range
+/// found); anechoic (our choice).
 pub const BLOOD: AcousticProps = props(1060.0, 1584.0, 0.2, -90.0, 1.0, 0.2);
-/// Nerve: IT'IS (1075 kg/m^3, 1630 m/s); attenuation 0.9 dB/cm/MHz and echogenicity ours.
+/// Nerve: IT'IS (1075 kg/m^3, 1630 m/s), unchecked (no range found); attenuation 0.9 dB/cm/MHz
+/// and echogenicity ours.
 pub const NERVE: AcousticProps = AcousticProps {
     texture: Texture::Fascicular,
     ..props(1075.0, 1630.0, 0.9, -42.0, 1.0, 0.3)
 };
-/// Dura and CSF (CSF dominates): IT'IS (1007 kg/m^3, 1504 m/s, about 0.005 dB/cm/MHz); anechoic.
+/// Dura and CSF (CSF dominates): IT'IS (1007 kg/m^3, 1504 m/s, about 0.005 dB/cm/MHz), unchecked
+/// (no range found); anechoic.
 pub const DURA_CSF: AcousticProps = props(1007.0, 1504.0, 0.005, -90.0, 1.0, 0.2);
 /// Epidural space: fat (Mast), slightly brighter than subcutaneous fat (our choice).
 pub const EPIDURAL_FAT: AcousticProps = props(950.0, 1478.0, 0.48, -48.0, 0.5, 0.3);
-/// Ligamentum flavum, as tendon: IT'IS (1142 kg/m^3, 1750 m/s); attenuation 1.1 and a bright,
-/// fibrillar echo are our choice.
+/// Ligamentum flavum, as tendon: IT'IS (1142 kg/m^3, 1750 m/s), unchecked against IT'IS; within
+/// MechMater (tendon 1130 kg/m^3, 1654-1852 m/s), Fernandes ligament 1101 +- 54 kg/m^3,
+/// 1664 +- 42 m/s. Attenuation 1.1 and a bright, fibrillar echo are our choice.
 pub const LIGAMENT: AcousticProps = props(1142.0, 1750.0, 1.1, -38.0, 1.0, 0.3);
-/// Intervertebral disc, as cartilage: IT'IS (1100 kg/m^3, 1640 m/s); attenuation 1.0 ours.
+/// Intervertebral disc, as cartilage: IT'IS (1100 kg/m^3, 1640 m/s), unchecked against IT'IS;
+/// speed within MechMater (cartilage 1565-1770 m/s), density near Fernandes (1033 +- 43 kg/m^3).
+/// Attenuation 1.0 ours.
 pub const DISC: AcousticProps = props(1100.0, 1640.0, 1.0, -50.0, 1.0, 0.3);
-/// Cortical bone: IT'IS (1908 kg/m^3, 3514 m/s); 20 dB/cm/MHz is our choice standing for
-/// absorption plus unresolved scattering (IT'IS lists absorption only), so bone shadows.
+/// Cortical bone: IT'IS (1908 kg/m^3, 3514 m/s), unchecked against IT'IS; within MechMater
+/// (1800-2200 kg/m^3, 3200-4000 m/s), near Fernandes (1862 +- 101 kg/m^3, 3194 +- 113 m/s).
+/// 20 dB/cm/MHz is our choice standing for absorption plus unresolved scattering (above the
+/// 1-10 dB/cm/MHz Sensors lists), so bone shadows.
 pub const CORTICAL_BONE: AcousticProps = props(1908.0, 3514.0, 20.0, -40.0, 1.0, 0.35);
-/// Cancellous bone: IT'IS (1178 kg/m^3, 2117 m/s); 25 dB/cm/MHz our choice (as for cortex).
+/// Cancellous bone: IT'IS (1178 kg/m^3, 2117 m/s), unchecked against IT'IS; within MechMater
+/// (trabecular 400-1600 kg/m^3, 1500-2400 m/s); Fernandes measured 572 +- 115 kg/m^3,
+/// 2325 +- 173 m/s. 25 dB/cm/MHz our choice (as for cortex).
 pub const CANCELLOUS_BONE: AcousticProps = props(1178.0, 2117.0, 25.0, -45.0, 1.0, 0.35);
 /// Air or gas (HU below -400): 1.2 kg/m^3, 343 m/s; total reflection and no transmission.
 pub const AIR: AcousticProps = props(1.2, 343.0, 1000.0, -120.0, 0.0, 0.5);
