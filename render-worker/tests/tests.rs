@@ -6,3 +6,4 @@ mod gpu;
 mod modality_seam;
 mod session_host;
 mod sessions;
+mod ultrasound_gpu;
