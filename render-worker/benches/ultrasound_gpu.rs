@@ -13,41 +13,25 @@
 //! frame per probe at the defaults (each pass submitted and waited for separately): medium
 //! upload, CPU set-up, deposit, convolutions, march, display, read-back, assembly.
 //!
-//! `BENCH_QUICK=1`: the default variant of each probe, one repetition, no fine reference.
+//! `BENCH_QUICK=1`: the default and the 256-line variants of each probe, one repetition, no
+//! fine reference.
 
 use std::time::Instant;
 
 use glam::DVec3;
 use render_worker::gpu::GpuContext;
-use render_worker::ultrasound::GpuUltrasound;
-use sim_core::material::MaterialClass;
+use render_worker::ultrasound::{GpuUltrasound, layered_test_volume};
 use sim_core::ultrasound::{
     BModeFrame, CtMedium, NeedleShaft, ProbeKind, ProbePose, Sampling, ScanRequest, Settings, scan,
 };
 use sim_core::volume::{Volume, VolumeGrid};
 
 fn scene() -> (Volume<f32>, Volume<u8>) {
-    let g = VolumeGrid {
+    layered_test_volume(VolumeGrid {
         dims: [321, 81, 221],
         spacing_mm: [0.5; 3],
         origin_mm: [-80.0, -20.0, -15.0],
-    };
-    let mut hu = Volume::filled(g, 50.0f32);
-    let mut labels = Volume::filled(g, 0u8);
-    for k in 0..g.dims[2] {
-        for j in 0..g.dims[1] {
-            for i in 0..g.dims[0] {
-                let [x, _, z] = g.voxel_center_mm(i, j, k);
-                if z < 8.0 {
-                    hu.set(i, j, k, -100.0);
-                }
-                if x < 0.0 && (45.0..48.0).contains(&z) {
-                    labels.set(i, j, k, MaterialClass::CorticalBone.label());
-                }
-            }
-        }
-    }
-    (hu, labels)
+    })
 }
 
 fn errors(a: &BModeFrame, reference: &BModeFrame) -> (f64, f64) {
@@ -141,7 +125,7 @@ fn main() {
             }))
             .expect("fine reference")
         });
-        let mut variants = vec![("default", d)];
+        let mut variants = vec![("default", d), ("256 lines", Sampling { lines: 256, ..d })];
         if !quick {
             variants.extend([
                 (

@@ -11,8 +11,7 @@
 
 use glam::DVec3;
 use render_worker::gpu::context_for_tests;
-use render_worker::ultrasound::{GpuUltrasound, UltrasoundGpuError};
-use sim_core::material::MaterialClass;
+use render_worker::ultrasound::{GpuUltrasound, UltrasoundGpuError, layered_test_volume};
 use sim_core::ultrasound::{
     BModeFrame, CtMedium, NeedleShaft, PointTarget, ProbeKind, ProbePose, Sampling, ScanRequest,
     Settings, scan,
@@ -35,26 +34,9 @@ fn uniform_volume() -> Volume<f32> {
     Volume::filled(grid(), 40.0)
 }
 
-/// Fat (-100 HU) down to 8 mm over muscle (50 HU), and a 3 mm cortical plate at 45 mm under
-/// half the field given by the label volume (its HU say muscle: the label wins).
+/// Fat over muscle with a labelled cortical plate at 45 mm (see `layered_test_volume`).
 fn layered() -> (Volume<f32>, Volume<u8>) {
-    let g = grid();
-    let mut hu = Volume::filled(g, 50.0f32);
-    let mut labels = Volume::filled(g, 0u8);
-    for k in 0..g.dims[2] {
-        for j in 0..g.dims[1] {
-            for i in 0..g.dims[0] {
-                let [x, _, z] = g.voxel_center_mm(i, j, k);
-                if z < 8.0 {
-                    hu.set(i, j, k, -100.0);
-                }
-                if x < 0.0 && (45.0..48.0).contains(&z) {
-                    labels.set(i, j, k, MaterialClass::CorticalBone.label());
-                }
-            }
-        }
-    }
-    (hu, labels)
+    layered_test_volume(grid())
 }
 
 /// Probe at the origin looking along +z, marker towards +x (elevation is +y).

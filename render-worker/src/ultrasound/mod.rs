@@ -1115,3 +1115,29 @@ fn finish_frame(
         settings: req.settings,
     }
 }
+
+/// The layered test scene of the GPU tests and bench on `grid`: fat (-100 HU) down to 8 mm over
+/// muscle (50 HU), and a 3 mm cortical plate at 45 mm under `x < 0` given by the label volume
+/// (its HU say muscle: the label wins). Only with the `test-support` feature.
+#[cfg(feature = "test-support")]
+pub fn layered_test_volume(
+    grid: VolumeGrid,
+) -> (sim_core::volume::Volume<f32>, sim_core::volume::Volume<u8>) {
+    use sim_core::volume::Volume;
+    let mut hu = Volume::filled(grid, 50.0f32);
+    let mut labels = Volume::filled(grid, 0u8);
+    for k in 0..grid.dims[2] {
+        for j in 0..grid.dims[1] {
+            for i in 0..grid.dims[0] {
+                let [x, _, z] = grid.voxel_center_mm(i, j, k);
+                if z < 8.0 {
+                    hu.set(i, j, k, -100.0);
+                }
+                if x < 0.0 && (45.0..48.0).contains(&z) {
+                    labels.set(i, j, k, MaterialClass::CorticalBone.label());
+                }
+            }
+        }
+    }
+    (hu, labels)
+}
