@@ -131,6 +131,10 @@ fn deposit_lattice(@builtin(global_invocation_id) id: vec3<u32>) {
     var tab = vec4<f32>(0.0);
     var cs = vec2<f32>(0.0);
     var fp = Footprint(vec2<u32>(0xFFFFFFFFu, 0u), vec4<f32>(0.0));
+    // The tissue and its amplitude, reused while the voxel repeats.
+    var last_voxel = 0xFFFFFFFEu;
+    var tissue = tissue_of(0xFFFFFFFFu);
+    var amp = 0.0;
     var rel = vec3<f32>(0.0);
     rel[aa] = f32(ia - n0[aa]) * h;
     rel[ab] = f32(ib - n0[ab]) * h;
@@ -152,7 +156,12 @@ fn deposit_lattice(@builtin(global_invocation_id) id: vec3<u32>) {
             hsh = cell_hash(seed, k, idx.y, idx.z);
         }
         rel[am] = f32(kk) * h;
-        let tissue = tissue_at(P, P.vlattice.xyz + rel * P.inv_spacing.xyz);
+        let voxel = voxel_index(P, P.vlattice.xyz + rel * P.inv_spacing.xyz);
+        if (voxel != last_voxel) {
+            last_voxel = voxel;
+            tissue = tissue_of(voxel);
+            amp = norm * exp2(tissue.a.z * 0.16609640); // 10^(dB/20) = 2^(dB log2(10) / 20)
+        }
         let density = tissue.a.w;
         if (density < 1.0) {
             if (unit_of(splitmix64(hsh)) >= density) {
@@ -168,7 +177,6 @@ fn deposit_lattice(@builtin(global_invocation_id) id: vec3<u32>) {
         if (fp.node.x == 0xFFFFFFFFu) {
             continue;
         }
-        let amp = norm * exp2(tissue.a.z * 0.16609640); // 10^(dB/20) = 2^(dB log2(10) / 20)
         var w = amp * exp_neg(q.z * q.z * tab.x) * tab.y;
         if (tissue.b.y > 0.5) {
             var cell = vec3<i32>(0);

@@ -22,15 +22,23 @@ fn lut_row(i: u32) -> Tissue {
     return Tissue(lut[2u * i], lut[2u * i + 1u]);
 }
 
-// Properties at voxel coordinates v (voxel centres at integers; nearest voxel; outside is air).
-fn tissue_at(p: Params, v: vec3<f32>) -> Tissue {
+// Index of the nearest voxel to voxel coordinates v, or 0xFFFFFFFF outside the grid.
+fn voxel_index(p: Params, v: vec3<f32>) -> u32 {
     let r = floor(v + vec3<f32>(0.5));
     let d = vec3<f32>(p.dims.xyz);
     if (!(all(r >= vec3<f32>(0.0)) && all(r < d))) {
-        return lut_row(0u);
+        return 0xFFFFFFFFu;
     }
     let ijk = vec3<u32>(r);
-    let code = medium[ijk.x + p.dims.x * (ijk.y + p.dims.y * ijk.z)];
+    return ijk.x + p.dims.x * (ijk.y + p.dims.y * ijk.z);
+}
+
+// Properties of a voxel (outside is air).
+fn tissue_of(index: u32) -> Tissue {
+    if (index == 0xFFFFFFFFu) {
+        return lut_row(0u);
+    }
+    let code = medium[index];
     if (code >= LABEL_BASE) {
         return lut_row(u32(code - LABEL_BASE));
     }
@@ -46,4 +54,9 @@ fn tissue_at(p: Params, v: vec3<f32>) -> Tissue {
     let lo = lut_row(HU_ROW + i);
     let hi = lut_row(HU_ROW + i + 1u);
     return Tissue(mix(lo.a, hi.a, f), vec4<f32>(mix(lo.b.x, hi.b.x, f), lo.b.y, 0.0, 0.0));
+}
+
+// Properties at voxel coordinates v (voxel centres at integers; nearest voxel; outside is air).
+fn tissue_at(p: Params, v: vec3<f32>) -> Tissue {
+    return tissue_of(voxel_index(p, v));
 }
