@@ -7,3 +7,4 @@ pub mod cluster;
 pub mod fluoro;
 pub mod gpu;
 pub mod session;
+pub mod ultrasound;

@@ -7,3 +7,4 @@ mod modality_seam;
 mod session_host;
 mod sessions;
 mod ultrasound;
+mod ultrasound_gpu;
