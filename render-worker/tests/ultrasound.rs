@@ -575,3 +575,62 @@ fn a_station_with_both_modalities_shows_one_needle_in_both_and_the_carm_on_the_p
     }
     assert_eq!(measurement(&r, "tip_visible_bool"), Some(1.0));
 }
+
+#[test]
+fn the_gpu_backend_gives_the_session_frame_of_the_reference() {
+    use render_worker::session::modalities::ultrasound::GpuUltrasoundBackend;
+    let Some(ctx) = render_worker::gpu::context_for_tests() else {
+        return;
+    };
+    let t = target(IN_PLANE);
+    let gpu = Backends {
+        fluoro: Backends::cpu(0).fluoro,
+        ultrasound: Arc::new(GpuUltrasoundBackend { ctx }),
+    };
+    let mut frames = Vec::new();
+    for backends in [Backends::cpu(0), gpu] {
+        let mut r = Run {
+            s: Session::new(
+                SessionEnv::new(station(IN_PLANE), region(), backends),
+                config(),
+            ),
+            seq: 0,
+        };
+        r.ok(1, transverse_over(t));
+        let mut clock = 10;
+        let entry = skin_above(t - DVec3::X * 35.0) - DVec3::Y * 2.0;
+        let aim = skin_above(t - DVec3::X * 10.0) + DVec3::Y * 20.0;
+        needle(&mut r, &mut clock, entry, aim, 20.0, 1);
+        frames.push(r.render(ViewId::Ultrasound).unwrap());
+    }
+    let (cpu, gpu) = (&frames[0], &frames[1]);
+    assert_eq!((cpu.width, cpu.height), (gpu.width, gpu.height));
+    let n = cpu.pixels.len() as f64;
+    let mad = cpu
+        .pixels
+        .iter()
+        .zip(&gpu.pixels)
+        .map(|(a, b)| (f64::from(*a) - f64::from(*b)).abs())
+        .sum::<f64>()
+        / n;
+    let ncc = ncc_shifted(cpu, gpu, 0, 0);
+    eprintln!("session frame GPU vs CPU: NCC {ncc}, mean |grey| {mad}");
+    // The tolerances of tests/ultrasound_gpu.rs (f32 phases and the fixed-point deposit): image
+    // NCC >= 0.9999, mean |grey| <= 0.03 of 255.
+    assert!(ncc >= 0.9999 && mad <= 0.03, "NCC {ncc}, mean |grey| {mad}");
+}
+
+#[test]
+fn the_b_mode_renderer_is_selectable() {
+    use render_worker::session::devices::ultrasound_on_gpu;
+    let Some(ctx) = render_worker::gpu::context_for_tests() else {
+        return;
+    };
+    assert!(ultrasound_on_gpu(&ctx, Some("gpu")));
+    assert!(!ultrasound_on_gpu(&ctx, Some("cpu")));
+    // Automatic: the GPU path on hardware, the faster CPU reference under a software adapter.
+    let auto = !ctx.summary.is_software;
+    assert_eq!(ultrasound_on_gpu(&ctx, None), auto);
+    assert_eq!(ultrasound_on_gpu(&ctx, Some("auto")), auto);
+    assert_eq!(ultrasound_on_gpu(&ctx, Some("typo")), auto);
+}

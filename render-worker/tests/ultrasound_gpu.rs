@@ -176,16 +176,18 @@ fn uniform_medium_matches_the_cpu_speckle() {
         return;
     };
     let hu = uniform_volume();
-    let medium = CtMedium {
-        hu: &hu,
-        labels: None,
-    };
-    let mut us = GpuUltrasound::new(&ctx).expect("pipelines");
+    both_probes_match(&ctx, &hu, 1, "uniform");
+}
+
+/// An unlabelled HU volume: both probes' GPU frames agree with the CPU's (key `key`).
+fn both_probes_match(ctx: &render_worker::gpu::GpuContext, hu: &Volume<f32>, key: u64, name: &str) {
+    let medium = CtMedium { hu, labels: None };
+    let mut us = GpuUltrasound::new(ctx).expect("pipelines");
     for probe in [ProbeKind::Linear, ProbeKind::Curvilinear] {
         let req = request(probe, &medium, None, &[]);
         let cpu = scan(&req).expect("cpu frame");
-        let gpu = us.scan(&req, &medium, 1).expect("gpu frame");
-        check(&format!("uniform {probe:?}"), &agreement(&gpu, &cpu));
+        let gpu = us.scan(&req, &medium, key).expect("gpu frame");
+        check(&format!("{name} {probe:?}"), &agreement(&gpu, &cpu));
     }
 }
 
@@ -214,6 +216,27 @@ fn layered_scene_with_bone_and_needle_matches_the_cpu() {
         );
         check(&format!("layered {probe:?}"), &agreement(&gpu, &cpu));
     }
+}
+
+#[test]
+fn air_under_the_face_is_gel_on_the_gpu_too() {
+    let Some(ctx) = context_for_tests() else {
+        return;
+    };
+    // Air above z = 4 mm (the face stands off the skin), soft tissue below: the march couples
+    // through gel (sim_core::ultrasound::GEL) on both paths.
+    let mut hu = uniform_volume();
+    let g = hu.grid;
+    for k in 0..g.dims[2] {
+        if g.voxel_center_mm(0, 0, k)[2] < 4.0 {
+            for j in 0..g.dims[1] {
+                for i in 0..g.dims[0] {
+                    hu.data[g.index(i, j, k)] = -1000.0;
+                }
+            }
+        }
+    }
+    both_probes_match(&ctx, &hu, 3, "gel gap");
 }
 
 #[test]

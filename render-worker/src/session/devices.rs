@@ -10,7 +10,9 @@ use std::sync::Arc;
 use crate::gpu::{AdapterSummary, GpuContext, saxpy};
 
 use super::modalities::fluoro::{CpuFluoroBackend, FluoroBackend, GpuFluoroBackend};
-use super::modalities::ultrasound::{CpuUltrasoundBackend, UltrasoundBackend};
+use super::modalities::ultrasound::{
+    CpuUltrasoundBackend, GpuUltrasoundBackend, UltrasoundBackend,
+};
 
 /// Why a GPU is not used.
 #[derive(Debug, thiserror::Error)]
@@ -65,6 +67,28 @@ pub fn open_gpu() -> Result<GpuContext, DeviceError> {
     Ok(ctx)
 }
 
+/// Environment variable choosing the B-mode renderer on a device with a GPU: `cpu` (the
+/// sim-core reference), `gpu` (the wgpu compute path) or `auto` (the default).
+pub const ULTRASOUND_RENDERER_ENV: &str = "PAINSIM_ULTRASOUND_RENDERER";
+
+/// Whether B-mode frames are computed on the GPU: `gpu` or `cpu` as asked; by default on a
+/// hardware adapter, and on the CPU reference under a software one (on 2-core lavapipe the
+/// compute path is 1.1 to 1.6 times slower than the reference on the same cores, measured by
+/// `benches/ultrasound_gpu.rs`).
+pub fn ultrasound_on_gpu(ctx: &GpuContext, choice: Option<&str>) -> bool {
+    match choice.map(str::trim) {
+        Some("gpu") => true,
+        Some("cpu") => false,
+        Some(other) if other != "auto" => {
+            tracing::warn!(
+                "{ULTRASOUND_RENDERER_ENV}={other:?} is not cpu, gpu or auto; choosing automatically"
+            );
+            !ctx.summary.is_software
+        }
+        _ => !ctx.summary.is_software,
+    }
+}
+
 /// The renderer of each modality on one device, shared by every session there.
 #[derive(Clone)]
 pub struct Backends {
@@ -106,10 +130,15 @@ impl Backends {
 
     /// The GPU renderers on `ctx`.
     pub fn gpu(ctx: GpuContext) -> Backends {
+        let ultrasound: Arc<dyn UltrasoundBackend> =
+            if ultrasound_on_gpu(&ctx, std::env::var(ULTRASOUND_RENDERER_ENV).ok().as_deref()) {
+                Arc::new(GpuUltrasoundBackend { ctx: ctx.clone() })
+            } else {
+                Arc::new(CpuUltrasoundBackend)
+            };
         Backends {
             fluoro: Arc::new(GpuFluoroBackend { ctx }),
-            // The GPU B-mode path joins here once it is checked against the reference.
-            ultrasound: Arc::new(CpuUltrasoundBackend),
+            ultrasound,
         }
     }
 

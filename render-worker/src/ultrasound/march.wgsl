@@ -15,6 +15,17 @@
 
 const FWHM_PER_SIGMA: f32 = 2.3548200;
 
+// Air within gel_max_mm of the face is coupling gel (sim_core ultrasound::echo::coupled).
+override gel_max_mm: f32;
+override air_below_mrayl: f32;
+
+fn coupled(t: Tissue, z: f32) -> Tissue {
+    if (t.a.x < air_below_mrayl && z <= gel_max_mm) {
+        return lut_row(GEL_ROW);
+    }
+    return t;
+}
+
 fn voxel_of(rel: vec3<f32>) -> vec3<f32> {
     return P.vorigin.xyz + rel * P.inv_spacing.xyz;
 }
@@ -129,12 +140,12 @@ fn march(@builtin(global_invocation_id) id: vec3<u32>) {
     let min_r = P.march_f.x;
     var log_t = 0.0;
     var loss = 0.0;
-    var prev = tissue_at(P, voxel_of(o));
+    var prev = coupled(tissue_at(P, voxel_of(o)), 0.0);
     var needle_done = !hit.ok;
     log_gain[lrow] = 0.0;
     for (var k = 1u; k < n_march; k++) {
         let z = f32(k) * step;
-        let cur = tissue_at(P, voxel_of(o + d * z));
+        let cur = coupled(tissue_at(P, voxel_of(o + d * z)), z);
         let zm = z - 0.5 * step;
         if (!needle_done && hit.z <= z) {
             needle_done = true;

@@ -7,6 +7,8 @@
 // Table rows (two vec4 per entry): AIR at 0, class c at c (labels 1 ..= 11), HU h at
 // HU_ROW + (h + 400) for h = -400 ..= 1000.
 const HU_ROW: u32 = 16u;
+// The coupling gel (sim_core::ultrasound::GEL).
+const GEL_ROW: u32 = 15u;
 const HU_MIN: f32 = -400.0;
 const HU_MAX: f32 = 1000.0;
 const LABEL_BASE: f32 = 1000000.0;

@@ -109,6 +109,8 @@ const LABEL_BASE: f32 = 1_000_000.0;
 /// HU range of the table (must match `medium.wgsl`).
 const HU_MIN: i32 = -400;
 const HU_MAX: i32 = 1000;
+/// Table row of the coupling gel (must match `medium.wgsl`; above every class label).
+const GEL_ROW: usize = 15;
 /// First table row of the HU part (must match `medium.wgsl`).
 const HU_ROW: usize = 16;
 
@@ -356,6 +358,7 @@ fn property_table() -> Vec<[[f32; 4]; 2]> {
             *row = lut_row(&class_props(c));
         }
     }
+    rows[GEL_ROW] = lut_row(&sim_core::ultrasound::GEL);
     // At -400 HU itself `hu_props` is air, but just above it fat: the row at -400 is the limit
     // from above, which the interpolation in (-400, -399) needs (-400 and below is air, row 0).
     rows.extend((HU_MIN..=HU_MAX).map(|h| lut_row(&hu_props(f64::from(h).max(-399.5)))));
@@ -427,7 +430,14 @@ impl Pipelines {
             deposit_points: pipeline(&deposit, "deposit_points", &fascicle),
             lateral: pipeline(&convolve, "lateral", &[]),
             axial: pipeline(&convolve, "axial", &[]),
-            march: pipeline(&march, "march", &[]),
+            march: pipeline(
+                &march,
+                "march",
+                &[
+                    ("gel_max_mm", sim_core::ultrasound::GEL_MAX_MM),
+                    ("air_below_mrayl", sim_core::ultrasound::AIR_BELOW_MRAYL),
+                ],
+            ),
             display: pipeline(&display, "display", &[]),
         }
     }

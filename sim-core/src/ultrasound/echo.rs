@@ -42,7 +42,7 @@ pub const GEL: AcousticProps = AcousticProps {
     texture: super::tissue::Texture::Speckle,
 };
 /// Below this impedance a point is air (MRayl): air is 0.0004, the lightest tissue (fat) 1.3.
-const AIR_BELOW_MRAYL: f64 = 0.1;
+pub const AIR_BELOW_MRAYL: f64 = 0.1;
 
 /// `props` at depth `z` under the face, with air within [`GEL_MAX_MM`] replaced by [`GEL`].
 pub(crate) fn coupled(props: AcousticProps, z: f64) -> AcousticProps {

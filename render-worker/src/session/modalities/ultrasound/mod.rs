@@ -34,7 +34,9 @@ use sim_core::ultrasound::{
     UltrasoundError, needle_view,
 };
 
-pub use backend::{CpuUltrasoundBackend, UltrasoundBackend, UltrasoundRenderer};
+pub use backend::{
+    CpuUltrasoundBackend, GpuUltrasoundBackend, UltrasoundBackend, UltrasoundRenderer,
+};
 pub use medium::AcousticVolume;
 
 use super::modality::{Modality, ModalityContext, ModalityError};
