@@ -225,10 +225,8 @@ async fn ultrasound_station_in_headless_chromium() {
     }
     let srv = demo_server_for(true, None, &ultrasound_demo_station_toml()).await;
     let report = run_script("e2e_ultrasound.mjs", srv.addr, "ultrasound").await;
-    eprintln!(
-        "ultrasound in the browser: speckle {}, frames {}, target {}",
-        report["speckle"], report["frames"], report["target"]
-    );
+    // The whole report, for the figures (one line).
+    eprintln!("ultrasound in the browser: {report}");
     let steps = strings(&report["steps"]);
     assert_eq!(
         steps,
@@ -249,6 +247,22 @@ async fn ultrasound_station_in_headless_chromium() {
         views.contains(&"ultrasound") && views.contains(&"placement"),
         "{views:?}"
     );
+    // The probe from the tray: the linear probe images 10 to 90 mm at 5 to 12 MHz
+    // (sim_core::ultrasound::ProbeKind::spec), and the depth slider follows its range; back on
+    // the curvilinear probe its default depth (100 mm, Settings::default_for) returns.
+    let lin = &report["linear"];
+    assert_eq!(lin["probe"], "linear", "{lin:#}");
+    assert_eq!(lin["depth_max"], "90", "{lin:#}");
+    assert!(
+        lin["frequency_text"].as_str().unwrap().ends_with("MHz"),
+        "{lin:#}"
+    );
+    assert_eq!(report["curvilinear_depth_mm"], 100.0, "{report:#}");
+    // The mouse drag (40 px) and the touch drag (30 px back) both moved the probe on the skin
+    // (a pixel of the placement view is about 1 mm at the site: more than 10 mm each).
+    let drag = &report["drag"];
+    assert!(drag["moved_mm"].as_f64().unwrap() > 10.0, "{drag:#}");
+    assert!(drag["touch_moved_mm"].as_f64().unwrap() > 10.0, "{drag:#}");
     // B-mode frames are not blank: speckle over soft tissue spreads the grey levels widely (the
     // sim-core speckle is fully developed: its standard deviation is about half its mean, some
     // tens of grey levels at the default 60 dB range), while an empty or single-grey canvas

@@ -161,6 +161,21 @@ await runReport(async (page, report) => {
     return { width: c.width, height: c.height, mean, std: Math.sqrt(Math.max(0, sum2 / n - mean * mean)) };
   });
 
+  // Probe select from the tray: the linear probe (10 to 90 mm, 5 to 12 MHz) and back to the
+  // curvilinear one (its defaults again: 10 cm).
+  await page.selectOption('#us-probe', 'linear-probe');
+  await settle(page);
+  const linear = await outcome(page);
+  report.linear = {
+    probe: linear.probe,
+    depth_max: await page.getAttribute('#us-depth', 'max'),
+    frequency_text: await page.textContent('#us-frequency-out'),
+    width: (await capture(page, '1b-linear')).width,
+  };
+  await page.selectOption('#us-probe', 'curvilinear-probe');
+  await settle(page);
+  report.curvilinear_depth_mm = (await outcome(page)).settings.depth_mm;
+
   // Scanner controls: 2 cm deeper with the depth button (10 to 12 cm on the curvilinear
   // probe), gain, the deepest TGC band, focus and frequency with their sliders.
   await page.click('#us-depth-more');
@@ -188,6 +203,18 @@ await runReport(async (page, report) => {
   await settle(page);
   const dragged = await outcome(page);
   report.drag = { before_mm: before, after_mm: dragged.position_mm, moved_mm: Math.hypot(...sub(dragged.position_mm, before)) };
+  // A touch drag (touch events through the DevTools protocol, as a finger on a touch screen):
+  // 30 px back to the left.
+  const cdp = await page.context().newCDPSession(page);
+  const touch = (type, dx) => cdp.send('Input.dispatchTouchEvent', {
+    type, touchPoints: type === 'touchEnd' ? [] : [{ x: box.x + box.width / 2 + dx, y: box.y + box.height / 2 }],
+  });
+  await touch('touchStart', 40);
+  for (const dx of [30, 20, 10]) await touch('touchMove', dx);
+  await touch('touchEnd', 10);
+  await settle(page);
+  const touched = await outcome(page);
+  report.drag.touch_moved_mm = Math.hypot(...sub(touched.position_mm, dragged.position_mm));
   frames.dragged = await capture(page, '2-dragged');
   report.steps.push('dragged');
 
