@@ -349,6 +349,32 @@ async fn ultrasound_station_in_headless_chromium() {
     assert_eq!(report["command_errors"], 0, "{report:#}");
     assert_eq!(report["accessible"]["unlabeled_buttons"], 0, "{report:#}");
     assert_eq!(report["accessible"]["unlabeled_inputs"], 0, "{report:#}");
+    // The attempt's log (probe moves, drags, settings, freeze, needle) replays to the same
+    // measurements, score, state and final image: the server's replay check says so. It runs
+    // after the submit; 60 s is far above its cost (a few B-mode frames on the demo region).
+    let mut verdict = None;
+    for _ in 0..600 {
+        verdict = sqlx::query_scalar::<_, String>(
+            "SELECT verdict FROM result_replay_checks ORDER BY id DESC LIMIT 1",
+        )
+        .fetch_optional(&srv.db.pool)
+        .await
+        .unwrap();
+        if verdict.is_some() {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let detail: Option<Value> =
+        sqlx::query_scalar("SELECT detail FROM result_replay_checks ORDER BY id DESC LIMIT 1")
+            .fetch_optional(&srv.db.pool)
+            .await
+            .unwrap();
+    assert_eq!(
+        verdict.as_deref(),
+        Some("identical"),
+        "replay check: {detail:#?}"
+    );
     assert!(
         report["console_errors"].as_array().unwrap().is_empty(),
         "{report:#}"
