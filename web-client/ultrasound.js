@@ -188,9 +188,8 @@ export class UltrasoundStation {
     }
     ctx.stroke();
     for (let cm = 0; cm * 10 <= g.depth_mm + 1e-6; cm++) {
-      ctx.fillText(String(cm), x0 + 12, Math.min(h - 6, Math.max(6, yOf(cm * 10))));
+      ctx.fillText(cm === 0 ? '0 cm' : String(cm), x0 + 12, Math.min(h - 6, Math.max(6, yOf(cm * 10))));
     }
-    ctx.fillText('cm', x0 + 12, Math.max(6, m.top - 8));
     // Focus: a triangle pointing at the image at the focal depth.
     const yf = yOf(g.focus_mm);
     ctx.fillStyle = '#fc3';

@@ -247,6 +247,11 @@ async fn ultrasound_station_in_headless_chromium() {
         views.contains(&"ultrasound") && views.contains(&"placement"),
         "{views:?}"
     );
+    // A fluoroscopy shot on the same station shows on its own canvas (not blank, as in the
+    // fluoroscopy test: 5 grey levels) and brings no ultrasound frame.
+    let shot = &report["shot"];
+    assert!(shot["std"].as_f64().unwrap() > 5.0, "{shot:#}");
+    assert_eq!(shot["ultrasound_frames_unchanged"], true, "{shot:#}");
     // The probe from the tray: the linear probe images 10 to 90 mm at 5 to 12 MHz
     // (sim_core::ultrasound::ProbeKind::spec), and the depth slider follows its range; back on
     // the curvilinear probe its default depth (100 mm, Settings::default_for) returns.

@@ -161,6 +161,22 @@ await runReport(async (page, report) => {
     return { width: c.width, height: c.height, mean, std: Math.sqrt(Math.max(0, sum2 / n - mean * mean)) };
   });
 
+  // The station has fluoroscopy too: a shot's frame goes to the fluoroscopy canvas and leaves
+  // the ultrasound views alone.
+  const usFrames = await page.evaluate(() => window.__sim.us.drawn.ultrasound.frames);
+  await page.click('#shot');
+  await waitUntil(page, () => (window.__sim.stats.views.fluoroscopy || { frames: 0 }).frames > 0 && window.__sim.live.pending.size === 0);
+  await waitUntil(page, () => Number(document.getElementById('frame-count').textContent) === window.__sim.stats.frames);
+  report.shot = await page.evaluate((before) => {
+    const c = document.getElementById('fluoro');
+    const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+    let sum = 0; let sum2 = 0; const n = c.width * c.height;
+    for (let i = 0; i < n; i++) { const g = d[4 * i]; sum += g; sum2 += g * g; }
+    const mean = sum / n;
+    return { std: Math.sqrt(Math.max(0, sum2 / n - mean * mean)), ultrasound_frames_unchanged: window.__sim.us.drawn.ultrasound.frames === before };
+  }, usFrames);
+  if (outDir) writeFileSync(join(outDir, '1a-shot-fluoro.png'), await page.locator('#fluoro').screenshot());
+
   // Probe select from the tray: the linear probe (10 to 90 mm, 5 to 12 MHz) and back to the
   // curvilinear one (its defaults again: 10 cm).
   await page.selectOption('#us-probe', 'linear-probe');
