@@ -63,6 +63,9 @@ export class UltrasoundStation {
     this.dragTimer = null;
     this.lastDragSent = 0;
     this.dragPixel = null;
+    this.pendingMove = null;
+    this.moveTimer = null;
+    this.lastMoveSent = 0;
     this.wire();
   }
 
@@ -262,12 +265,31 @@ export class UltrasoundStation {
     this.send({ type: 'probe_settings', ...fields });
   }
 
+  /** A probe step from the keys. Steps within one interval (a held key repeats about 30 times
+   * a second) are summed into one `probe_move`, at most one per DRAG_INTERVAL_MS as for drags;
+   * the first goes at once. */
   move(slide, tilt, rotate) {
+    const m = this.pendingMove || (this.pendingMove = { slide: [0, 0], tilt: [0, 0], rotate: 0 });
+    if (slide) m.slide = m.slide.map((v, i) => v + slide[i]);
+    if (tilt) m.tilt = m.tilt.map((v, i) => v + tilt[i]);
+    if (rotate) m.rotate += rotate;
+    if (this.moveTimer) return;
+    const since = performance.now() - this.lastMoveSent;
+    if (since >= DRAG_INTERVAL_MS) this.flushMove();
+    else this.moveTimer = setTimeout(() => this.flushMove(), DRAG_INTERVAL_MS - since);
+  }
+
+  flushMove() {
+    this.moveTimer = null;
+    const m = this.pendingMove;
+    this.pendingMove = null;
+    if (!m) return;
+    this.lastMoveSent = performance.now();
     const c = { type: 'probe_move' };
-    if (slide) c.slide_mm = slide;
-    if (tilt) c.tilt_deg = tilt;
-    if (rotate) c.rotate_deg = rotate;
-    this.send(c);
+    if (m.slide.some((v) => v !== 0)) c.slide_mm = m.slide;
+    if (m.tilt.some((v) => v !== 0)) c.tilt_deg = m.tilt;
+    if (m.rotate !== 0) c.rotate_deg = m.rotate;
+    if (Object.keys(c).length > 1) this.send(c);
   }
 
   /** Probe keys on either ultrasound canvas (listed on screen in #us-keys). */

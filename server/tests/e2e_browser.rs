@@ -238,6 +238,7 @@ async fn ultrasound_station_in_headless_chromium() {
             "speckle",
             "needle in plane",
             "frozen",
+            "tilted",
             "submitted"
         ]
     );
@@ -345,6 +346,19 @@ async fn ultrasound_station_in_headless_chromium() {
     assert_eq!(fr["frozen"], true, "{report:#}");
     assert_eq!(fr["frozen_text"], "FROZEN", "{report:#}");
     assert_eq!(fr["unfrozen_tip_in_slice"], true, "{report:#}");
+    // Rock and rotation keys turn the probe by their documented steps (2 and 5 degrees: the
+    // beam turns in the scan plane with the marker, then the marker about the beam), and the
+    // opposite keys undo them. 1e-4 degree: the angles come from acos of a dot product, where
+    // one rounding step of 1e-16 near 1 already reads as 1e-6 degree.
+    let tilt = &report["tilt"];
+    let deg = |k: &str| tilt[k].as_f64().unwrap();
+    assert!((deg("rock_deg") - 2.0).abs() < 1e-4, "{tilt:#}");
+    assert!((deg("rock_marker_deg") - 2.0).abs() < 1e-4, "{tilt:#}");
+    assert!((deg("rotate_deg") - 5.0).abs() < 1e-4, "{tilt:#}");
+    assert!(deg("rotate_beam_deg") < 1e-4, "{tilt:#}");
+    assert!(deg("back_beam_deg") < 1e-4, "{tilt:#}");
+    assert!(deg("back_marker_deg") < 1e-4, "{tilt:#}");
+    assert_eq!(tilt["back_tip_in_slice"], true, "{tilt:#}");
     let text = report["result_text"].as_str().unwrap();
     assert!(text.contains("Technical result"), "{text}");
     assert!(

@@ -27,7 +27,8 @@ const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a
 /** Waits until every sent command was answered and a drawn frame of `view` reflects the newest
  * of them (`minSeq`: an earlier sequence number, for commands that do not change the view). */
 async function settle(page, view = 'ultrasound', minSeq = null) {
-  await waitUntil(page, () => window.__sim.live.pending.size === 0);
+  // Key steps are summed for up to 50 ms before they are sent (see ultrasound.js).
+  await waitUntil(page, () => !window.__sim.us.moveTimer && !window.__sim.us.pendingMove && window.__sim.live.pending.size === 0);
   // A state query (sent after each needle command and on connecting) changes no view: the
   // frame to wait for reflects the command before it.
   const seq = minSeq ?? await page.evaluate(() => {
@@ -347,6 +348,33 @@ await runReport(async (page, report) => {
   await settle(page);
   report.freeze.unfrozen_tip_in_slice = (await outcome(page)).tip_in_slice;
   report.steps.push('frozen');
+
+  // Rock (Shift+Left: 2 degrees in the scan plane), rotate (Q: 5 degrees about the beam), and
+  // back (E, then Shift+Right): each an exact inverse about the same axis.
+  const angle = (a, b) => (Math.acos(Math.min(1, Math.abs(dot(norm(a), norm(b))))) * 180) / Math.PI;
+  await page.focus('#bmode');
+  const p0 = await outcome(page);
+  await page.keyboard.press('Shift+ArrowLeft');
+  await settle(page);
+  const p1 = await outcome(page);
+  await page.keyboard.press('q');
+  await settle(page);
+  const p2 = await outcome(page);
+  await page.keyboard.press('e');
+  await settle(page);
+  await page.keyboard.press('Shift+ArrowRight');
+  await settle(page);
+  const p3 = await outcome(page);
+  report.tilt = {
+    rock_deg: angle(p0.beam_dir, p1.beam_dir),
+    rock_marker_deg: angle(p0.marker_dir, p1.marker_dir),
+    rotate_deg: angle(p1.marker_dir, p2.marker_dir),
+    rotate_beam_deg: angle(p1.beam_dir, p2.beam_dir),
+    back_beam_deg: angle(p0.beam_dir, p3.beam_dir),
+    back_marker_deg: angle(p0.marker_dir, p3.marker_dir),
+    back_tip_in_slice: p3.tip_in_slice,
+  };
+  report.steps.push('tilted');
 
   report.frames = frames;
   report.command_errors = await page.evaluate(() => window.__sim.stats.errors);
