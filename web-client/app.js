@@ -3,6 +3,7 @@
 
 import { api, setCsrf, ApiError } from './api.js';
 import { LiveSession } from './session.js';
+import { UltrasoundStation } from './ultrasound.js';
 
 const $ = (id) => document.getElementById(id);
 const views = ['login-view', 'learner-view', 'session-view', 'faculty-view'];
@@ -171,6 +172,23 @@ function logLine(text) {
   $('session-log').textContent = text;
 }
 
+const us = new UltrasoundStation({ send: (command) => (live ? live.send(command) : null), log: logLine });
+
+/** Shows the panels of the views a session renders (fluoroscopy, ultrasound and placement). */
+function showViews(views) {
+  const fluoro = views.includes('fluoroscopy');
+  $('fluoro-viewer').hidden = !fluoro;
+  $('carm-controls').hidden = !fluoro;
+  us.hello(views);
+}
+
+/** A needle command; on an ultrasound station, then the probe's state (needle in slice). */
+function needleCommand(command) {
+  if (!live) return;
+  live.send(command);
+  us.afterNeedle();
+}
+
 /** What the server says while a station's anatomy is prepared (503 `anatomy_preparing`). */
 function preparingMessage(detail) {
   const r = detail.readiness || {};
@@ -214,16 +232,34 @@ async function openSession(attemptId, stationId) {
     ctx.fillStyle = '#000';
     ctx.fillRect(0, 0, 512, 512);
     live = new LiveSession(s.ws);
-    window.__sim = { session: s, live, stats: live.stats };
+    us.reset(station);
+    // Until the hello lists the session's views, the station's modalities say what to show.
+    const listed = station.modalities || [];
+    $('fluoro-viewer').hidden = !listed.includes('fluoroscopy');
+    $('carm-controls').hidden = !listed.includes('fluoroscopy');
+    window.__sim = { session: s, live, stats: live.stats, station, us, views: null };
+    let drawn = 0;
     live.addEventListener('connection', (e) => { $('conn').textContent = e.detail.state; });
-    live.addEventListener('hello', () => { $('conn').textContent = 'live'; });
+    live.addEventListener('hello', (e) => {
+      $('conn').textContent = 'live';
+      const views = e.detail.session.views || ['fluoroscopy'];
+      window.__sim.views = views;
+      live.setVisible(views);
+      showViews(views);
+    });
     live.addEventListener('frame', (e) => {
-      const { bitmap } = e.detail;
-      ctx.drawImage(bitmap, 0, 0, 512, 512);
-      bitmap.close();
-      $('frame-count').textContent = String(live.stats.frames);
+      const { bitmap, frame } = e.detail;
+      if (frame.view === 'fluoroscopy') {
+        ctx.drawImage(bitmap, 0, 0, 512, 512);
+        bitmap.close();
+      } else if (!us.frame(frame, bitmap)) {
+        bitmap.close();
+      }
+      drawn += 1;
+      $('frame-count').textContent = String(drawn);
     });
     live.addEventListener('ack', (e) => {
+      us.ack(e.detail);
       const o = e.detail.outcome || {};
       if (o.depth_mm != null) $('depth').textContent = `${fmt(o.depth_mm, 1)} mm`;
       if (o.outcome && o.outcome.kind) logLine(`Needle: ${o.outcome.kind}`);
@@ -288,9 +324,10 @@ function placeNeedle() {
   const t = target ? target.position_mm : [0, 0, 0];
   // Default posterior approach: 60 mm behind the first target along -y (posterior in the
   // model frame), aimed straight at it, bevel facing patient right.
-  live.send({ type: 'needle_place', instrument: $('instrument').value, entry_mm: [t[0], t[1] - 60, t[2]], direction: [0, 1, 0], bevel_reference: [1, 0, 0] });
+  needleCommand({ type: 'needle_place', instrument: $('instrument').value, entry_mm: [t[0], t[1] - 60, t[2]], direction: [0, 1, 0], bevel_reference: [1, 0, 0] });
 }
 $('needle-place').addEventListener('click', placeNeedle);
+$('us-needle-place').addEventListener('click', () => us.placeInPlane($('instrument').value));
 
 // Syringe: pressing the plunger starts an injection of the chosen volume at the chosen rate;
 // releasing it stops. While fluid moves the client sends `tick`s, which move only the session's
@@ -336,10 +373,10 @@ $('plunger').addEventListener('pointercancel', releasePlunger);
 // Keyboard: hold Enter or Space on the plunger.
 $('plunger').addEventListener('keydown', (e) => { if ((e.key === 'Enter' || e.key === ' ') && !e.repeat) pressPlunger(e); });
 $('plunger').addEventListener('keyup', (e) => { if (e.key === 'Enter' || e.key === ' ') releasePlunger(); });
-$('feed-1').addEventListener('click', () => live && live.send({ type: 'needle_feed', mm: 1 }));
-$('feed-5').addEventListener('click', () => live && live.send({ type: 'needle_feed', mm: 5 }));
-$('withdraw-1').addEventListener('click', () => live && live.send({ type: 'needle_withdraw', mm: 1 }));
-$('roll-90').addEventListener('click', () => live && live.send({ type: 'needle_roll', deg: 90 }));
+$('feed-1').addEventListener('click', () => needleCommand({ type: 'needle_feed', mm: 1 }));
+$('feed-5').addEventListener('click', () => needleCommand({ type: 'needle_feed', mm: 5 }));
+$('withdraw-1').addEventListener('click', () => needleCommand({ type: 'needle_withdraw', mm: 1 }));
+$('roll-90').addEventListener('click', () => needleCommand({ type: 'needle_roll', deg: 90 }));
 $('submit').addEventListener('click', () => live && live.send({ type: 'submit' }));
 $('leave').addEventListener('click', () => { if (live) { live.close(); live = null; } learnerHome(); });
 
@@ -351,9 +388,9 @@ $('fluoro').addEventListener('keydown', (e) => {
     ArrowLeft: () => rotate(-step, 0), ArrowRight: () => rotate(step, 0),
     ArrowUp: () => rotate(0, step), ArrowDown: () => rotate(0, -step),
     s: () => live && live.send({ type: 'shot' }), ' ': () => live && live.send({ type: 'shot' }),
-    f: () => live && live.send({ type: 'needle_feed', mm: 1 }),
-    w: () => live && live.send({ type: 'needle_withdraw', mm: 1 }),
-    r: () => live && live.send({ type: 'needle_roll', deg: 90 }),
+    f: () => needleCommand({ type: 'needle_feed', mm: 1 }),
+    w: () => needleCommand({ type: 'needle_withdraw', mm: 1 }),
+    r: () => needleCommand({ type: 'needle_roll', deg: 90 }),
   }[k.length === 1 ? k.toLowerCase() : k];
   if (handled) { e.preventDefault(); handled(); }
 });
@@ -377,7 +414,7 @@ $('fluoro').addEventListener('pointercancel', endDrag);
 $('fluoro').addEventListener('wheel', (e) => {
   if (!live) return;
   e.preventDefault();
-  live.send(e.deltaY < 0 ? { type: 'needle_feed', mm: 1 } : { type: 'needle_withdraw', mm: 1 });
+  needleCommand(e.deltaY < 0 ? { type: 'needle_feed', mm: 1 } : { type: 'needle_withdraw', mm: 1 });
 }, { passive: false });
 
 // ---------------------------------------------------------------- faculty: queue, replay, review

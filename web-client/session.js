@@ -6,6 +6,9 @@
 /** Frame header length, bytes (render_worker::session::frame). */
 export const HEADER_BYTES = 40;
 
+/** View codes of header byte 5 (render_worker::session::image::ViewId::code). */
+export const VIEW_NAMES = ['fluoroscopy', 'ultrasound', 'placement'];
+
 /** Parses a binary frame message: header fields and the JPEG bytes. */
 export function parseFrame(buffer) {
   const b = new Uint8Array(buffer);
@@ -13,7 +16,7 @@ export function parseFrame(buffer) {
   if (b.length < HEADER_BYTES || magic !== 'SIMF' || b[4] !== 1) return null;
   const dv = new DataView(buffer);
   return {
-    view: b[5] === 0 ? 'fluoroscopy' : 'ultrasound',
+    view: VIEW_NAMES[b[5]] || 'unknown',
     frameSeq: Number(dv.getBigUint64(8, true)),
     inputSeq: Number(dv.getBigUint64(16, true)),
     tMs: Number(dv.getBigUint64(24, true)),
@@ -33,7 +36,10 @@ export class LiveSession extends EventTarget {
     this.sentAt = new Map(); // seq -> performance.now() when first sent
     this.lastFrameInput = 0;
     this.frameTimes = [];
-    this.stats = { frames: 0, acks: 0, errors: 0, latenciesMs: [], lastFrame: null };
+    // `views`: per view, frames received and the header of the newest one.
+    this.stats = { frames: 0, acks: 0, errors: 0, latenciesMs: [], lastFrame: null, views: {} };
+    /** Views on screen, sent after every hello (null: the session's default, all of them). */
+    this.visible = null;
     this.closed = false;
     this.retryMs = 250;
   }
@@ -84,6 +90,7 @@ export class LiveSession extends EventTarget {
         for (const [seq, t] of [...this.pending.entries()].sort((a, b) => a[0] - b[0])) {
           if (seq > m.last_seq) this.ws.send(t); else this.pending.delete(seq);
         }
+        if (this.visible) this.ws.send(JSON.stringify({ type: 'views', visible: this.visible }));
         this.emit('hello', m);
         break;
       case 'ack':
@@ -116,7 +123,9 @@ export class LiveSession extends EventTarget {
     this.frameTimes.push(now);
     while (this.frameTimes.length && now - this.frameTimes[0] > 2000) this.frameTimes.shift();
     this.stats.frames += 1;
-    this.stats.lastFrame = { frameSeq: f.frameSeq, inputSeq: f.inputSeq, width: f.width, height: f.height };
+    this.stats.lastFrame = { view: f.view, frameSeq: f.frameSeq, inputSeq: f.inputSeq, width: f.width, height: f.height };
+    const v = this.stats.views[f.view] || (this.stats.views[f.view] = { frames: 0 });
+    Object.assign(v, { frames: v.frames + 1, frameSeq: f.frameSeq, inputSeq: f.inputSeq, width: f.width, height: f.height });
     const bitmap = await createImageBitmap(new Blob([f.jpeg], { type: 'image/jpeg' }));
     this.emit('frame', { frame: f, bitmap });
   }
@@ -132,6 +141,13 @@ export class LiveSession extends EventTarget {
   latencyMs() {
     const l = [...this.stats.latenciesMs].sort((a, b) => a - b);
     return l.length ? l[Math.floor(l.length / 2)] : null;
+  }
+
+  /** Tells the worker which views are on screen (only those are rendered); kept for
+   * reconnections. */
+  setVisible(views) {
+    this.visible = [...views];
+    if (this.ws && this.ws.readyState === WebSocket.OPEN) this.ws.send(JSON.stringify({ type: 'views', visible: this.visible }));
   }
 
   /** Sends a command; returns its sequence number. */

@@ -20,6 +20,7 @@ use server::dispatch::Dispatcher;
 use server::records::config::Argon2Cost;
 use server::test_support::{TestDb, test_db};
 use server::{AppState, Config, app, workers::Workers};
+use sim_core::rubric::Station;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 
@@ -44,8 +45,14 @@ pub fn demo_host(capacity: usize) -> SessionHost {
 
 /// [`demo_host`] whose demo station also lists `extra_modalities` (`"contrast"`).
 pub fn demo_host_with(capacity: usize, extra_modalities: &[&str]) -> SessionHost {
+    demo_host_for(capacity, demo_station(extra_modalities))
+}
+
+/// An in-process session host over one station (parsed, with the SHA-256 of its text) on the
+/// demo region.
+pub fn demo_host_for(capacity: usize, station: (Station, String)) -> SessionHost {
     SessionHost::with_regions(
-        vec![demo_station(extra_modalities)],
+        vec![station],
         vec![Arc::new(demo_region())],
         Backends::cpu(0),
         capacity,
@@ -76,12 +83,63 @@ pub async fn demo_server_with(
     worker_token: Option<&str>,
     extra_modalities: &[&str],
 ) -> DemoServer {
-    let stations = tempfile::tempdir().expect("temporary stations folder");
-    std::fs::write(
-        stations.path().join("demo-station.toml"),
-        demo_station_toml(extra_modalities),
+    demo_server_for(
+        in_process,
+        worker_token,
+        &demo_station_toml(extra_modalities),
     )
-    .expect("write the demo station");
+    .await
+}
+
+/// The demo station with ultrasound: [`demo_station_toml`] listing `"ultrasound"`, with a
+/// curvilinear and a linear probe on its tray and the ultrasound scorers' in-plane and
+/// tip-visibility criteria added to its rubric. The modality scans around the station's
+/// primary target (`behind_l4`, 102 mm under the flat posterior skin of the demo region).
+pub fn ultrasound_demo_station_toml() -> String {
+    let probes = r#"[[instruments]]
+id = "curvilinear-probe"
+kind = "ultrasound-probe"
+
+[[instruments]]
+id = "linear-probe"
+kind = "ultrasound-probe"
+
+[[targets]]"#;
+    let criteria = r#"
+[[rubric.criteria]]
+id = "needle_in_plane"
+description = "Share of the needle advancement with the shaft in the scan plane."
+measurement = "needle_in_plane_fraction"
+unit = "fraction"
+weight = 1.5
+tolerance = { law = "higher_is_better", pass_from = 0.9, fail_below = 0.5 }
+
+[[rubric.criteria]]
+id = "tip_visible_at_confirmation"
+description = "The tip itself was imaged when the final position was confirmed."
+measurement = "tip_visible_bool"
+unit = "bool"
+weight = 2.0
+tolerance = { law = "boolean", expected = true }
+"#;
+    let base = demo_station_toml(&["ultrasound"]);
+    assert_eq!(base.matches("[[targets]]").count(), 1, "one target table");
+    base.replace("[[targets]]", probes) + criteria
+}
+
+/// [`demo_server_with`] over the station `station_toml` (on the demo region), written to the
+/// stations folder the learning records load and served by an in-process host.
+pub async fn demo_server_for(
+    in_process: bool,
+    worker_token: Option<&str>,
+    station_toml: &str,
+) -> DemoServer {
+    let station = Station::from_toml_str(station_toml)
+        .unwrap_or_else(|e| panic!("test station: {e}\n{station_toml}"));
+    let hash = render_worker::session::sha256_hex(station_toml.as_bytes());
+    let stations = tempfile::tempdir().expect("temporary stations folder");
+    std::fs::write(stations.path().join("demo-station.toml"), station_toml)
+        .expect("write the demo station");
     let map: HashMap<&str, String> = [
         (
             "PAINSIM_STATIONS_DIR",
@@ -98,7 +156,7 @@ pub async fn demo_server_with(
     server::records::prepare(&db.pool, &config.records, true)
         .await
         .expect("stations and demo accounts");
-    let host = demo_host_with(8, extra_modalities);
+    let host = demo_host_for(8, (station, hash));
     let dispatcher = Dispatcher::new(
         in_process.then(|| host.clone()),
         host,
@@ -462,15 +520,25 @@ async fn in_process_session_records_activity_result_and_replays_exactly() {
     );
     assert_eq!(replay["identical"], true, "{replay}");
     // The stored measurements are exactly those of the replay (every one, bit for bit).
-    assert!(replay["recorded"]["measurements"].as_object().is_some_and(|m| !m.is_empty()), "{replay}");
-    assert_eq!(replay["recorded"]["measurements"], replay["replayed"]["measurements"]);
+    assert!(
+        replay["recorded"]["measurements"]
+            .as_object()
+            .is_some_and(|m| !m.is_empty()),
+        "{replay}"
+    );
+    assert_eq!(
+        replay["recorded"]["measurements"],
+        replay["replayed"]["measurements"]
+    );
     assert_eq!(replay["recorded"]["measurements"], result["measurements"]);
     assert_eq!(replay["differing_measurements"], json!([]));
     // The background checker replays the stored result on its own and records the verdict,
     // which travels with the result: detail, review queue and CSV export show source and check.
     let mut verdict = serde_json::Value::Null;
     for _ in 0..600 {
-        let (_, d) = faculty.call("GET", &format!("/api/attempts/{attempt}"), None).await;
+        let (_, d) = faculty
+            .call("GET", &format!("/api/attempts/{attempt}"), None)
+            .await;
         verdict = d["results"][0]["replay_check"].clone();
         if verdict["verdict"] != "pending" {
             break;
@@ -478,13 +546,33 @@ async fn in_process_session_records_activity_result_and_replays_exactly() {
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     assert_eq!(verdict["verdict"], "identical", "{verdict}");
-    assert_eq!(verdict["detail"]["measurements"]["differing_keys"], json!([]), "{verdict}");
-    let (_, d) = faculty.call("GET", &format!("/api/attempts/{attempt}"), None).await;
+    assert_eq!(
+        verdict["detail"]["measurements"]["differing_keys"],
+        json!([]),
+        "{verdict}"
+    );
+    let (_, d) = faculty
+        .call("GET", &format!("/api/attempts/{attempt}"), None)
+        .await;
     assert_eq!(d["results"][0]["source"], "server");
-    let (s, queue) = faculty.call("GET", "/api/reviews?state=submitted", None).await;
+    let (s, queue) = faculty
+        .call("GET", "/api/reviews?state=submitted", None)
+        .await;
     assert_eq!(s, 200, "{queue}");
-    let row = queue.as_array().unwrap().iter().find(|a| a["id"] == attempt.to_string().as_str()).expect("queued");
-    assert_eq!((row["latest_source"].as_str(), row["latest_replay_check"].as_str()), (Some("server"), Some("identical")), "{row}");
+    let row = queue
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|a| a["id"] == attempt.to_string().as_str())
+        .expect("queued");
+    assert_eq!(
+        (
+            row["latest_source"].as_str(),
+            row["latest_replay_check"].as_str()
+        ),
+        (Some("server"), Some("identical")),
+        "{row}"
+    );
     let r = request_with_headers(
         "GET",
         &format!("http://{}/api/reviews/export.csv?state=submitted", srv.addr),
@@ -494,7 +582,13 @@ async fn in_process_session_records_activity_result_and_replays_exactly() {
     .await
     .unwrap();
     let csv = String::from_utf8_lossy(&r.body).into_owned();
-    assert!(csv.lines().next().unwrap().contains("result_source,replay_check"), "{csv}");
+    assert!(
+        csv.lines()
+            .next()
+            .unwrap()
+            .contains("result_source,replay_check"),
+        "{csv}"
+    );
     assert!(csv.contains("\"server\",\"identical\""), "{csv}");
     let r = request_with_headers(
         "GET",

@@ -9,32 +9,16 @@
 // Prints one JSON object on stdout (the figures the Rust test asserts on) and exits 0 when every
 // step passed, 1 with {"ok": false, "error": ...} otherwise. Canvas captures go to out-dir.
 
-import { chromium } from 'playwright-core';
 import { createHmac } from 'node:crypto';
-import { mkdtempSync, rmSync, writeFileSync, mkdirSync } from 'node:fs';
-import { tmpdir } from 'node:os';
+import { writeFileSync, mkdirSync } from 'node:fs';
 import { join } from 'node:path';
+import { STEP_TIMEOUT_MS, waitUntil, login, openFirstStation, runReport } from './harness.mjs';
 
 const base = process.argv[2];
 const outDir = process.argv[3] || null;
 if (!base) {
   console.error('usage: node tests/e2e.mjs <base-url> [out-dir]');
   process.exit(2);
-}
-const DEMO_PASSWORD = process.env.E2E_PASSWORD || 'demo-password-not-secret';
-const STEP_TIMEOUT_MS = 60_000;
-
-// Polls `predicate(arg)` in the page until it is true. Not page.waitForFunction: that compiles
-// its predicate inside the page, which the server's Content-Security-Policy (no 'unsafe-eval')
-// rightly refuses; page.evaluate goes through the DevTools protocol instead.
-async function waitUntil(page, predicate, arg = null, options = {}) {
-  const timeout = options.timeout ?? STEP_TIMEOUT_MS;
-  const deadline = Date.now() + timeout;
-  for (;;) {
-    if (await page.evaluate(predicate, arg)) return;
-    if (Date.now() > deadline) throw new Error(`timed out after ${timeout} ms waiting for ${predicate}`);
-    await new Promise((r) => setTimeout(r, 25));
-  }
 }
 
 /** RFC 6238 TOTP (HMAC-SHA1, 6 digits, 30 s), from a base32 secret. */
@@ -115,42 +99,10 @@ async function capture(page, name) {
   return stats;
 }
 
-async function login(page, email, code) {
-  await page.fill('#login-email', email);
-  await page.fill('#login-password', DEMO_PASSWORD);
-  if (code) await page.fill('#login-totp', code);
-  await page.click('#login-submit');
-}
-
-const profile = mkdtempSync(join(tmpdir(), 'painsim-e2e-chromium-'));
-const report = { ok: false, steps: [] };
-let context;
-try {
-  context = await chromium.launchPersistentContext(profile, {
-    executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
-    headless: true,
-    args: ['--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
-      '--disable-background-networking', '--disable-component-update', '--disable-sync'],
-    viewport: { width: 1200, height: 900 },
-  });
-  const page = context.pages()[0] || await context.newPage();
-  const consoleErrors = [];
-  // Script errors; the browser's own "Failed to load resource" lines for expected HTTP errors
-  // (401 from /api/auth/me before login, 503 health while the GPU check runs) are not ours.
-  page.on('console', (m) => { if (m.type() === 'error' && !m.text().startsWith('Failed to load resource')) consoleErrors.push(m.text()); });
-  page.on('pageerror', (e) => consoleErrors.push(String(e)));
-  page.setDefaultTimeout(STEP_TIMEOUT_MS);
+await runReport(async (page, report) => {
 
   // Learner.
-  await page.goto(base);
-  await page.waitForSelector('#login-view:not([hidden])');
-  await login(page, 'learner@demo.invalid');
-  await page.waitForSelector('#learner-view:not([hidden])');
-  const stationButton = page.locator('#station-list button').first();
-  report.station = await stationButton.getAttribute('data-station');
-  await stationButton.click();
-  await page.waitForSelector('#session-view:not([hidden])');
-  await waitUntil(page, () => document.getElementById('conn').textContent === 'live');
+  report.station = await openFirstStation(page, base);
   report.steps.push('session open');
   report.accessible = await page.evaluate(() => ({
     canvas_label: document.getElementById('fluoro').getAttribute('aria-label') || '',
@@ -285,13 +237,4 @@ try {
   await page.click('#approve');
   await waitUntil(page, () => document.getElementById('message').textContent === 'Approved.');
   report.steps.push('approved');
-  report.console_errors = consoleErrors;
-  report.ok = true;
-} catch (e) {
-  report.error = String(e && e.stack ? e.stack : e);
-} finally {
-  if (context) await context.close().catch(() => {});
-  rmSync(profile, { recursive: true, force: true });
-}
-console.log(JSON.stringify(report));
-process.exit(report.ok ? 0 : 1);
+});

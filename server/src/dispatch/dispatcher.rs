@@ -185,7 +185,8 @@ pub struct SessionRecord {
     pub log: Vec<LogEntry>,
     /// How many of `log`'s first entries are in `live_session_commands` (see `durable`).
     pub durable_len: usize,
-    /// SHA-256 of the newest frame's JPEG sent to the browser.
+    /// SHA-256 of the newest fluoroscopy frame's JPEG sent to the browser (the image the
+    /// replay check re-renders; other views' frames are not recorded).
     pub last_frame_sha256: Option<String>,
     /// Set once the submit was stored.
     pub result_id: Option<Uuid>,

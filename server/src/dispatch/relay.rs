@@ -372,13 +372,16 @@ impl Relay {
         self.pass_text(text).await
     }
 
-    /// A frame: its hash is kept (for the records), the frame goes to the browser (newest wins
+    /// A frame: the hash of a fluoroscopy frame is kept (for the records: the replay check
+    /// re-renders the fluoroscopy view, see `verify`; ultrasound and placement frames of the
+    /// same session would otherwise stand in for it), the frame goes to the browser (newest wins
     /// when the browser is slow).
     async fn on_frame(&mut self, b: Vec<u8>) -> Flow {
-        let jpeg = b
-            .get(render_worker::session::frame::HEADER_BYTES..)
-            .unwrap_or_default();
-        self.session.state.lock().await.last_frame_sha256 = Some(sha256_hex(jpeg));
+        use render_worker::session::frame::HEADER_BYTES;
+        if b.get(5) == Some(&render_worker::session::ViewId::Fluoroscopy.code()) {
+            let jpeg = b.get(HEADER_BYTES..).unwrap_or_default();
+            self.session.state.lock().await.last_frame_sha256 = Some(sha256_hex(jpeg));
+        }
         self.browser.frame(b);
         Flow::Stay
     }
