@@ -117,7 +117,25 @@ fn stations_build_ultrasound_only_where_listed() {
 fn the_probe_sits_on_the_skin_and_bad_poses_name_their_field() {
     let mut r = Run::new(IN_PLANE);
     let t = target(IN_PLANE);
-    let ack = r.ok(1, transverse_over(t));
+    // The session starts with the probe on the skin over the midline at the target's level.
+    let ack = r.ok(
+        1,
+        Command::ProbeSettings {
+            depth_mm: None,
+            gain_db: None,
+            tgc_db: None,
+            focus_mm: None,
+            frequency_mhz: None,
+            dynamic_range_db: None,
+        },
+    );
+    let start: [f64; 3] = serde_json::from_value(ack.outcome["position_mm"].clone()).unwrap();
+    let midline = skin_above(DVec3::new(0.0, t.y, t.z));
+    assert!(
+        DVec3::from_array(start).distance(midline) < 1e-6,
+        "{start:?} vs {midline}"
+    );
+    let ack = r.ok(2, transverse_over(t));
     let pos: [f64; 3] = serde_json::from_value(ack.outcome["position_mm"].clone()).unwrap();
     let skin = skin_above(t);
     assert!(

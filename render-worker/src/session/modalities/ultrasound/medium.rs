@@ -13,7 +13,6 @@
 
 use std::sync::{Arc, Mutex};
 
-use glam::DVec3;
 use sim_core::anatomy::phantom::TissueHu;
 use sim_core::fluoro::FluoroMaterial;
 use sim_core::geom::Hit;
@@ -27,10 +26,15 @@ use crate::session::region::Region;
 /// grid, finer than the curvilinear probe's axial resolution (about 0.45 mm FWHM at 3.5 MHz is
 /// the scale of the speckle, not of the anatomy) and a quarter of the lumbar cortex thickness.
 pub const VOXEL_MM: f64 = 0.5;
-/// Half extents of the scannable crop around the site across (x) and along (z) the body, mm.
-/// Simulator choice: 60 mm each way covers a paramedian scan of the target level and its two
-/// neighbours from the midline to beyond the transverse processes.
-pub const CROP_HALF_MM: [f64; 2] = [60.0, 60.0];
+/// Half extents of the area where the probe face may be put, around the site, across (x) and
+/// along (z) the body, mm. Simulator choice: 60 mm each way covers a paramedian scan of the
+/// target level and its two neighbours from the midline to beyond the transverse processes.
+pub const PROBE_AREA_HALF_MM: [f64; 2] = [60.0, 60.0];
+/// Half extents of the painted crop, mm: wider than the probe area across the body by 40 mm, so
+/// a curvilinear sector (80 mm half-width at its default 100 mm depth) from a probe at the edge
+/// of the area sees tissue, not the crop's edge, over most of its width. Along the body the
+/// sector does not spread (the slice is thin), so the probe area suffices.
+pub const CROP_HALF_MM: [f64; 2] = [100.0, 60.0];
 /// Depth of the crop beyond the site (anterior), mm. Simulator choice: the posterior half of
 /// the vertebral body and the psoas lie within 50 mm of a posterior-element target.
 pub const BEYOND_SITE_MM: f64 = 50.0;
@@ -60,12 +64,6 @@ impl AcousticVolume {
             labels: Some(&self.labels),
         }
     }
-
-    /// Whether `p` lies over the crop's footprint (x and z), where a probe may scan.
-    pub fn covers_footprint(&self, p: DVec3) -> bool {
-        (self.lo_mm[0]..=self.hi_mm[0]).contains(&p.x)
-            && (self.lo_mm[2]..=self.hi_mm[2]).contains(&p.z)
-    }
 }
 
 /// Classes that carry their own acoustic properties (the label overrides).
@@ -73,7 +71,21 @@ fn overrides(class: MaterialClass) -> bool {
     !matches!(class, MaterialClass::Fat | MaterialClass::SoftTissue)
 }
 
-/// The scannable crop around `site_mm`: [`CROP_HALF_MM`] across and along the body, from
+/// The area (x and z ranges, mm) of `site_mm` where the probe face may be put.
+pub fn probe_area(site_mm: [f64; 3]) -> ([f64; 2], [f64; 2]) {
+    (
+        [
+            site_mm[0] - PROBE_AREA_HALF_MM[0],
+            site_mm[0] + PROBE_AREA_HALF_MM[0],
+        ],
+        [
+            site_mm[2] - PROBE_AREA_HALF_MM[1],
+            site_mm[2] + PROBE_AREA_HALF_MM[1],
+        ],
+    )
+}
+
+/// The painted crop around `site_mm`: [`CROP_HALF_MM`] across and along the body, from
 /// [`AIR_MARGIN_MM`] behind the skin's posterior extent to [`BEYOND_SITE_MM`] in front of the
 /// site.
 pub fn crop_of(region: &Region, site_mm: [f64; 3]) -> ([f64; 3], [f64; 3]) {
@@ -114,8 +126,8 @@ pub fn acoustic_volume(region: &Region, site_mm: [f64; 3]) -> Arc<AcousticVolume
     }
     let id = cache.len() as u64 + 1;
     let v = Arc::new(paint(region, lo, hi, id));
-    // Sixteen regions and sites per process at most (about 70 MB each).
-    if cache.len() >= 16 {
+    // Six regions and sites per process at most (about 100 MB each).
+    if cache.len() >= 6 {
         cache.remove(0);
     }
     cache.push((key, Arc::clone(&v)));

@@ -166,6 +166,24 @@ pub fn snap_to_skin(
     Ok((DVec3::from_array(hit.point_mm), normal))
 }
 
+/// Where a beam along `beam` first meets the skin on its way to `point` from outside the body
+/// (from [`START_SEARCH_MM`] away), if it does.
+pub fn first_skin_along(region: &Region, point: DVec3, beam: DVec3) -> Option<DVec3> {
+    let skin = region.entry("skin")?;
+    let origin = point - beam * START_SEARCH_MM;
+    let hit = region.scene.entries()[skin].bvh.first_hit(
+        origin.to_array(),
+        beam.to_array(),
+        0.0,
+        START_SEARCH_MM,
+    )?;
+    hit.hit.entering.then(|| DVec3::from_array(hit.point_mm))
+}
+
+/// How far outside a point the start pose's skin search begins, mm. Simulator choice: farther
+/// than any target lies under the skin of the back.
+pub const START_SEARCH_MM: f64 = 400.0;
+
 /// The scan site of a station: its primary target, else the L4 body centre.
 fn site_of(ctx: &ModalityContext<'_>) -> [f64; 3] {
     primary_target(ctx.station)
@@ -189,10 +207,9 @@ pub fn build(ctx: &ModalityContext<'_>) -> Box<dyn Modality> {
         .unwrap_or(ProbeKind::Curvilinear);
     // Start on the midline at the site's level in a transverse view, beam anterior (+y), the
     // marker towards the patient's right (+x): the learner finds the target from there.
-    let start = DVec3::new(0.0, site[1] - 150.0, site[2]);
     let beam = DVec3::Y;
-    let position = snap_to_skin(ctx.region, start + beam * (150.0 - MAX_PROBE_SNAP_MM), beam)
-        .map_or(DVec3::new(0.0, site[1] - 60.0, site[2]), |(p, _)| p);
+    let position = first_skin_along(ctx.region, DVec3::new(0.0, site[1], site[2]), beam)
+        .unwrap_or(DVec3::new(0.0, site[1] - 60.0, site[2]));
     let settings = Settings::default_for(&probe.spec());
     Box::new(UltrasoundModality {
         state: UltrasoundState {
@@ -281,11 +298,11 @@ impl UltrasoundModality {
             .try_normalize()
             .ok_or_else(|| invalid("zero beam direction"))?;
         let (face, _) = snap_to_skin(&self.region, position, beam).map_err(invalid)?;
-        let (lo, hi) = medium::crop_of(&self.region, self.state.site_mm);
-        if !((lo[0]..=hi[0]).contains(&face.x) && (lo[2]..=hi[2]).contains(&face.z)) {
+        let (xs, zs) = medium::probe_area(self.state.site_mm);
+        if !((xs[0]..=xs[1]).contains(&face.x) && (zs[0]..=zs[1]).contains(&face.z)) {
             return Err(invalid(&format!(
                 "outside the scannable area of this station (x {:.0} to {:.0} mm, z {:.0} to {:.0} mm)",
-                lo[0], hi[0], lo[2], hi[2]
+                xs[0], xs[1], zs[0], zs[1]
             )));
         }
         let pose = ProbePose {
