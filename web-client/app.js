@@ -182,11 +182,10 @@ function showViews(views) {
   us.hello(views);
 }
 
-/** A needle command; on an ultrasound station, then the probe's state (needle in slice). */
+/** A needle command (its acknowledgement carries what the ultrasound plane shows of it). */
 function needleCommand(command) {
   if (!live) return;
   live.send(command);
-  us.afterNeedle();
 }
 
 /** What the server says while a station's anatomy is prepared (503 `anatomy_preparing`). */

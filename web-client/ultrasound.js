@@ -4,8 +4,9 @@
 //
 // Everything drawn comes from the worker: frames (view codes 1 and 2) and the outcome of every
 // ultrasound command's acknowledgement (probe, pose, settings, image geometry, needle in
-// slice). Needle acknowledgements carry no ultrasound state, so after each needle command the
-// client asks for it with `probe_settings {}` (a command that changes nothing).
+// slice). Needle acknowledgements carry what the scan plane shows of the needle under
+// `outcome.ultrasound`; on connecting the client asks for the state once with
+// `probe_settings {}` (a command that changes nothing).
 
 const $ = (id) => document.getElementById(id);
 
@@ -207,6 +208,12 @@ export class UltrasoundStation {
   /** An acknowledgement: picks out ultrasound outcomes. */
   ack(a) {
     const o = a.outcome;
+    if (o && typeof o === 'object' && o.ultrasound && this.outcome) {
+      // A needle command: what the scan plane shows of the needle now.
+      this.outcome = { ...this.outcome, ...o.ultrasound };
+      this.showOutcome();
+      return;
+    }
     if (!o || typeof o !== 'object' || !o.settings || !('tip_in_slice' in o)) return;
     this.outcome = o;
     if (o.image) {
@@ -249,11 +256,6 @@ export class UltrasoundStation {
     }
     $('us-feedback').textContent = needleWords(o);
     $('us-feedback').dataset.tip = String(!!(o && o.tip_in_slice));
-  }
-
-  /** After a needle command: ask for the ultrasound state (needle in slice). */
-  afterNeedle() {
-    if (this.active) this.query();
   }
 
   /** Asks for the probe's state with a command that changes nothing. */
@@ -307,8 +309,8 @@ export class UltrasoundStation {
       q: () => this.move(null, null, -ROTATE_STEP_DEG),
       e: () => this.move(null, null, ROTATE_STEP_DEG),
       ' ': () => this.toggleFreeze(),
-      f: () => { this.send({ type: 'needle_feed', mm: 1 }); this.afterNeedle(); },
-      w: () => { this.send({ type: 'needle_withdraw', mm: 1 }); this.afterNeedle(); },
+      f: () => this.send({ type: 'needle_feed', mm: 1 }),
+      w: () => this.send({ type: 'needle_withdraw', mm: 1 }),
     }[k];
     if (handled && !e.altKey) { e.preventDefault(); handled(); }
   }
@@ -351,7 +353,6 @@ export class UltrasoundStation {
     // The bevel faces across the scan plane (the elevation axis), perpendicular to the shaft.
     const bevel = norm(cross(marker, beam));
     this.send({ type: 'needle_place', instrument, entry_mm: entry, direction, bevel_reference: bevel });
-    this.afterNeedle();
   }
 
   wire() {

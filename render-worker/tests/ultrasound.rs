@@ -343,6 +343,15 @@ fn an_in_plane_needle_shows_its_tip_and_scores() {
     let entry = skin_above(t - DVec3::X * 35.0) - DVec3::Y * 2.0;
     let aim = skin_above(t - DVec3::X * 10.0) + DVec3::Y * 20.0;
     needle(&mut r, &mut clock, entry, aim, entry.distance(aim) - 8.0, 6);
+    // The needle's own acknowledgement says what the scan plane shows of it.
+    clock += 10;
+    let ack = r.ok(clock, Command::NeedleFeed { mm: 0.5 });
+    assert_eq!(
+        ack.outcome["ultrasound"]["tip_in_slice"], true,
+        "{}",
+        ack.outcome
+    );
+    assert_eq!(ack.outcome["ultrasound"]["needle_in_slice"], true);
     assert_eq!(measurement(&r, "needle_in_plane_fraction"), Some(1.0));
     assert_eq!(measurement(&r, "tip_visible_bool"), Some(1.0));
     assert_eq!(measurement(&r, "needle_redirections_count"), Some(0.0));

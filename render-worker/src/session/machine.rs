@@ -664,6 +664,12 @@ impl Session {
         };
         self.world.needle_version += 1;
         self.notify(&WorldChange::Needle);
+        let mut outcome = outcome;
+        for m in &self.modalities {
+            if let (Some(f), Some(o)) = (m.needle_feedback(&self.world), outcome.as_object_mut()) {
+                o.insert(m.name().to_string(), f);
+            }
+        }
         Ok(outcome)
     }
 

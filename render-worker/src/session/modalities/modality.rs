@@ -75,6 +75,13 @@ pub trait Modality: Send {
         None
     }
 
+    /// What this modality shows of the needle, added under its name to the acknowledgement of
+    /// every needle command (the ultrasound modality: whether the shaft and the tip are in the
+    /// scan plane), so a client needs no extra command to learn it.
+    fn needle_feedback(&self, _world: &World) -> Option<serde_json::Value> {
+        None
+    }
+
     /// Views whose content is newer than their last render.
     fn dirty_views(&self) -> Vec<ViewId>;
 

@@ -579,6 +579,15 @@ impl Modality for UltrasoundModality {
         self.state.history.needle_moved(depth, view);
     }
 
+    fn needle_feedback(&self, world: &World) -> Option<serde_json::Value> {
+        let view = self.displayed_needle_view(world);
+        Some(serde_json::json!({
+            "needle_in_slice": view.is_some_and(|v| v.in_slice.is_some()),
+            "tip_in_slice": view.is_some_and(|v| v.tip_in_slice),
+            "frozen": self.state.frozen_scene.is_some(),
+        }))
+    }
+
     fn dirty_views(&self) -> Vec<ViewId> {
         [ViewId::Ultrasound, ViewId::Placement]
             .into_iter()
