@@ -91,42 +91,6 @@ pub async fn demo_server_with(
     .await
 }
 
-/// The demo station with ultrasound: [`demo_station_toml`] listing `"ultrasound"`, with a
-/// curvilinear and a linear probe on its tray and the ultrasound scorers' in-plane and
-/// tip-visibility criteria added to its rubric. The modality scans around the station's
-/// primary target (`behind_l4`, 102 mm under the flat posterior skin of the demo region).
-pub fn ultrasound_demo_station_toml() -> String {
-    let probes = r#"[[instruments]]
-id = "curvilinear-probe"
-kind = "ultrasound-probe"
-
-[[instruments]]
-id = "linear-probe"
-kind = "ultrasound-probe"
-
-[[targets]]"#;
-    let criteria = r#"
-[[rubric.criteria]]
-id = "needle_in_plane"
-description = "Share of the needle advancement with the shaft in the scan plane."
-measurement = "needle_in_plane_fraction"
-unit = "fraction"
-weight = 1.5
-tolerance = { law = "higher_is_better", pass_from = 0.9, fail_below = 0.5 }
-
-[[rubric.criteria]]
-id = "tip_visible_at_confirmation"
-description = "The tip itself was imaged when the final position was confirmed."
-measurement = "tip_visible_bool"
-unit = "bool"
-weight = 2.0
-tolerance = { law = "boolean", expected = true }
-"#;
-    let base = demo_station_toml(&["ultrasound"]);
-    assert_eq!(base.matches("[[targets]]").count(), 1, "one target table");
-    base.replace("[[targets]]", probes) + criteria
-}
-
 /// [`demo_server_with`] over the station `station_toml` (on the demo region), written to the
 /// stations folder the learning records load and served by an in-process host.
 pub async fn demo_server_for(

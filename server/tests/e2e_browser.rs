@@ -13,7 +13,8 @@ use std::time::Duration;
 
 use serde_json::Value;
 
-use crate::dispatch::{demo_server_for, demo_server_with, ultrasound_demo_station_toml};
+use crate::dispatch::{demo_server_for, demo_server_with};
+use render_worker::session::demo::demo_station_toml;
 
 fn web_client_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../web-client")
@@ -398,4 +399,40 @@ async fn ultrasound_station_in_headless_chromium() {
         report["console_errors"].as_array().unwrap().is_empty(),
         "{report:#}"
     );
+}
+
+/// The demo station with ultrasound: [`demo_station_toml`] listing `"ultrasound"`, with a
+/// curvilinear and a linear probe on its tray and the ultrasound scorers' in-plane and
+/// tip-visibility criteria added to its rubric. The modality scans around the station's
+/// primary target (`behind_l4`, 102 mm under the flat posterior skin of the demo region).
+pub fn ultrasound_demo_station_toml() -> String {
+    let probes = r#"[[instruments]]
+id = "curvilinear-probe"
+kind = "ultrasound-probe"
+
+[[instruments]]
+id = "linear-probe"
+kind = "ultrasound-probe"
+
+[[targets]]"#;
+    let criteria = r#"
+[[rubric.criteria]]
+id = "needle_in_plane"
+description = "Share of the needle advancement with the shaft in the scan plane."
+measurement = "needle_in_plane_fraction"
+unit = "fraction"
+weight = 1.5
+tolerance = { law = "higher_is_better", pass_from = 0.9, fail_below = 0.5 }
+
+[[rubric.criteria]]
+id = "tip_visible_at_confirmation"
+description = "The tip itself was imaged when the final position was confirmed."
+measurement = "tip_visible_bool"
+unit = "bool"
+weight = 2.0
+tolerance = { law = "boolean", expected = true }
+"#;
+    let base = demo_station_toml(&["ultrasound"]);
+    assert_eq!(base.matches("[[targets]]").count(), 1, "one target table");
+    base.replace("[[targets]]", probes) + criteria
 }

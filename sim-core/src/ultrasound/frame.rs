@@ -97,7 +97,7 @@ pub(crate) fn scan_convert(
     // Grey level + 1 per pixel, 0 outside the scanned region; rows split over two threads.
     let mut grey = vec![0u16; width * height];
     let dr = settings.dynamic_range_db;
-    super::in_two(&mut grey, width, |rows, y_first| {
+    super::parallel::in_two(&mut grey, width, |rows, y_first| {
         for (i, row) in rows.chunks_mut(width).enumerate() {
             let ym = y0 + (y_first + i) as f64 * pixel_mm;
             for (x, out) in row.iter_mut().enumerate() {

@@ -53,6 +53,7 @@ mod echo;
 pub mod error;
 pub mod frame;
 pub mod needle;
+mod parallel;
 pub mod probe;
 pub mod scatter;
 pub mod settings;
@@ -188,7 +189,7 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
         march_step_mm: req.sampling.march_step_mm,
     };
     let mut data = vec![0f32; geo.lines * samples];
-    in_two(&mut data, samples, |out, j0| {
+    parallel::in_two(&mut data, samples, |out, j0| {
         let st = grid.stride();
         let (mut row_re, mut row_im) = (vec![0f32; st], vec![0f32; st]);
         let (mut sre, mut sim) = (vec![0f32; samples], vec![0f32; samples]);
@@ -228,18 +229,6 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
         envelope,
         view,
     ))
-}
-
-/// Runs `f(part, first)` on the two halves of `data` (whole chunks of `chunk` items; `first` is
-/// the index of the part's first chunk), the second half on another thread. Each item is
-/// computed the same way whichever thread does it, so the result does not depend on the split.
-pub(crate) fn in_two<T: Send>(data: &mut [T], chunk: usize, f: impl Fn(&mut [T], usize) + Sync) {
-    let half = data.len() / chunk / 2;
-    let (a, b) = data.split_at_mut(half * chunk);
-    std::thread::scope(|s| {
-        s.spawn(|| f(b, half));
-        f(a, 0);
-    });
 }
 
 /// A scanner that honours freeze: while `settings.frozen` it returns the last live frame.

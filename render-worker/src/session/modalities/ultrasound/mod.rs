@@ -22,6 +22,7 @@
 pub mod backend;
 pub mod medium;
 pub mod placement;
+mod scene;
 pub mod scorers;
 
 use std::sync::Arc;
@@ -30,14 +31,15 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use sim_core::rubric::Measurements;
 use sim_core::ultrasound::{
-    NeedleShaft, NeedleView, ProbeKind, ProbePose, Sampling, ScanGeometry, ScanRequest, Settings,
-    UltrasoundError, needle_view,
+    NeedleView, ProbeKind, ProbePose, Sampling, ScanGeometry, ScanRequest, Settings,
+    UltrasoundError,
 };
 
 pub use backend::{
     CpuUltrasoundBackend, GpuUltrasoundBackend, UltrasoundBackend, UltrasoundRenderer,
 };
 pub use medium::AcousticVolume;
+pub use scene::{ScanScene, needle_shaft, scene_needle_view};
 
 use super::modality::{Modality, ModalityContext, ModalityError};
 use crate::session::anatomy::primary_target;
@@ -53,19 +55,6 @@ pub const MAX_BEAM_TO_NORMAL_DEG: f64 = 60.0;
 pub const PROBE_KIND: &str = "ultrasound-probe";
 /// Mixed into the session seed for the tissue's speckle field.
 const SPECKLE_SEED_SALT: u64 = 0x756c_7472_6173_6f75;
-
-/// Everything one B-mode frame depends on besides the tissue.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct ScanScene {
-    /// The array.
-    pub probe: ProbeKind,
-    /// Where it is.
-    pub pose: ProbePose,
-    /// Its controls.
-    pub settings: Settings,
-    /// The needle shaft in the body, if any.
-    pub needle: Option<NeedleShaft>,
-}
 
 /// Serializable ultrasound state.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -118,22 +107,6 @@ pub fn probe_kind_of(instrument_id: &str) -> Option<ProbeKind> {
     } else {
         None
     }
-}
-
-/// The needle as the scanner sees it: a straight shaft from the hub to the tip, when buried.
-pub fn needle_shaft(world: &World) -> Option<NeedleShaft> {
-    let n = world.needle.as_ref()?;
-    if n.state.buried_mm() <= 0.0 {
-        return None;
-    }
-    let line = n.state.shaft_polyline(2.0);
-    let hub = *line.first()?;
-    let tip = n.state.tip_mm();
-    (hub != tip).then_some(NeedleShaft {
-        hub_mm: hub,
-        tip_mm: tip,
-        diameter_mm: n.state.profile.outer_diameter_mm,
-    })
 }
 
 /// Where the face of a probe aimed along `beam` through `position` meets the skin, with the
@@ -386,21 +359,6 @@ impl UltrasoundModality {
     }
 }
 
-/// What a frame of `scene` shows of its needle.
-pub fn scene_needle_view(scene: &ScanScene) -> Option<NeedleView> {
-    let n = scene.needle?;
-    let spec = scene.probe.spec();
-    let frame = scene.pose.frame().ok()?;
-    let sampling = Sampling::for_settings(&spec, &scene.settings);
-    let geo = ScanGeometry {
-        spec,
-        frame,
-        lines: sampling.lines,
-        depth_mm: scene.settings.depth_mm,
-    };
-    Some(needle_view(&n, &geo, &scene.settings.beam(&spec)))
-}
-
 /// Rotates `v` about unit `axis` by `deg` (right-handed).
 fn rotate(v: DVec3, axis: DVec3, deg: f64) -> DVec3 {
     glam::DQuat::from_axis_angle(axis, deg.to_radians()) * v
@@ -644,7 +602,13 @@ impl Modality for UltrasoundModality {
     }
 
     fn measure(&self, world: &World, out: &mut Measurements) {
-        scorers::measure(self, world, out);
+        scorers::measure(
+            &self.state.pose,
+            &self.state.history,
+            &self.displayed_scene(world),
+            world,
+            out,
+        );
     }
 
     fn record(&self) -> serde_json::Value {

@@ -13,9 +13,9 @@
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use sim_core::rubric::Measurements;
-use sim_core::ultrasound::NeedleView;
+use sim_core::ultrasound::{NeedleView, ProbePose};
 
-use super::{UltrasoundModality, needle_shaft, scene_needle_view};
+use super::scene::{ScanScene, needle_shaft, scene_needle_view};
 use crate::session::anatomy::{facet_joint_normal, primary_target};
 use crate::session::world::World;
 
@@ -82,9 +82,14 @@ fn line_to_plane_deg(line: DVec3, normal: DVec3) -> f64 {
 }
 
 /// Adds the measurements of the module table.
-pub fn measure(m: &UltrasoundModality, world: &World, out: &mut Measurements) {
-    let st = &m.state;
-    let Ok(frame) = st.pose.frame() else {
+pub fn measure(
+    pose: &ProbePose,
+    history: &History,
+    displayed: &ScanScene,
+    world: &World,
+    out: &mut Measurements,
+) {
+    let Ok(frame) = pose.frame() else {
         return;
     };
     if let Some(n) = primary_target(&world.station)
@@ -102,17 +107,16 @@ pub fn measure(m: &UltrasoundModality, world: &World, out: &mut Measurements) {
     };
     out.insert(
         "needle_redirections_count".into(),
-        f64::from(st.history.redirections),
+        f64::from(history.redirections),
     );
-    if st.history.advanced_mm > 0.0 {
+    if history.advanced_mm > 0.0 {
         out.insert(
             "needle_in_plane_fraction".into(),
-            st.history.in_plane_mm / st.history.advanced_mm,
+            history.in_plane_mm / history.advanced_mm,
         );
     }
     let tip = needle.state.tip_mm();
-    let displayed = m.displayed_scene(world);
-    let visible = scene_needle_view(&displayed).is_some_and(|v| v.tip_in_slice)
+    let visible = scene_needle_view(displayed).is_some_and(|v| v.tip_in_slice)
         && displayed.needle.is_some_and(|n| n.tip_mm == tip);
     out.insert("tip_visible_bool".into(), if visible { 1.0 } else { 0.0 });
     if let Some(shaft) = needle_shaft(world) {
