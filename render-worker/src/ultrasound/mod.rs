@@ -74,7 +74,8 @@ use sim_core::ultrasound::needle::{
     NEEDLE_ROUGHNESS, REVERB_COUNT, REVERB_RATIO, SPECULAR_LOBE_DEG, STEEL_REFLECTION,
 };
 use sim_core::ultrasound::scatter::{
-    FASCICLE_CELL_MM, FASCICLE_INSIDE, FASCICLE_OUTSIDE, FASCICLE_RADIUS_MM,
+    FASCICLE_CELL_MM, FASCICLE_INSIDE, FASCICLE_OUTSIDE, FASCICLE_RADIUS_MM, LatticeBounds,
+    lattice_bounds,
 };
 use sim_core::ultrasound::{
     BModeFrame, Beam, CtMedium, Envelope, ProbeKind, ScanGeometry, ScanRequest, UltrasoundError,
@@ -767,34 +768,19 @@ fn plan_frame(
     }
     let axial_taps = gaussian_taps(conv_sigma(tables.axial_sigma_mm / dz), pad_s);
 
-    // Lattice bounds (deposit_scatterers).
+    // Lattice bounds: sim-core's own (`scatter::lattice_bounds`), so both visit the same cells.
     let f = &geo.frame;
     let h = req.sampling.scatter_cell_mm;
     let t_e = ELEV_REACH_FWHM * tables.max_elev_fwhm_mm;
     let m = 1.5 * tables.max_lat_fwhm_mm + 4.0 * tables.axial_sigma_mm;
-    let (ex0, ex1, ey0, ey1) = (x0 - m, x1 + m, y0 - m, y1 + m);
-    let mut lo = DVec3::splat(f64::INFINITY);
-    let mut hi = DVec3::splat(f64::NEG_INFINITY);
-    for x in [ex0, ex1] {
-        for y in [ey0, ey1] {
-            for e in [-t_e, t_e] {
-                let p = f.to_region(DVec3::new(x, y, e));
-                lo = lo.min(p);
-                hi = hi.max(p);
-            }
-        }
-    }
-    let ev = f.elevation.to_array();
-    let am = (0..3)
-        .max_by(|&a, &b| ev[a].abs().total_cmp(&ev[b].abs()))
-        .unwrap_or(2);
-    let (aa, ab) = match am {
-        0 => (1, 2),
-        1 => (0, 2),
-        _ => (0, 1),
-    };
-    let idx_lo = |a: usize| (lo[a] / h).floor() as i64;
-    let idx_hi = |a: usize| (hi[a] / h).ceil() as i64;
+    let LatticeBounds {
+        lo_cell,
+        hi_cell,
+        column_axis: am,
+        across: (aa, ab),
+    } = lattice_bounds(f, (x0 - m, x1 + m, y0 - m, y1 + m), t_e, h);
+    let idx_lo = |a: usize| lo_cell[a];
+    let idx_hi = |a: usize| hi_cell[a];
     let unit: [DVec3; 3] = std::array::from_fn(|a| f.to_probe(f.origin + DVec3::AXES[a]));
     let drift = unit[am].x.hypot(unit[am].y) / unit[am].z.abs();
     let lip = beam.elevation_aperture_mm / beam.elevation_focus_mm / std::f64::consts::SQRT_2;
@@ -934,7 +920,12 @@ fn plan_frame(
             NORMAL_STEP_MM as f32,
             (2.0 * beam.frequency_mhz * step * 0.1 * NP_PER_DB) as f32,
         ],
-        march_u: [REVERB_COUNT as u32, SPHERE_DIRECTIONS as u32, 0, 0],
+        march_u: [
+            REVERB_COUNT as u32,
+            sim_core::ultrasound::sphere_directions().len() as u32,
+            0,
+            0,
+        ],
     };
     FramePlan {
         geo,

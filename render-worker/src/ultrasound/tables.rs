@@ -16,8 +16,6 @@ pub(super) const MIN_INTERFACE_R: f64 = 0.01;
 pub(super) const INTERFACE_LOBE_DEG: f64 = 15.0;
 /// Finite-difference radius of the interface normal, mm (mirrors sim-core `echo::NORMAL_STEP_MM`).
 pub(super) const NORMAL_STEP_MM: f64 = 1.0;
-/// Directions of the normal's sphere (mirrors sim-core `echo::sphere_directions`).
-pub(super) const SPHERE_DIRECTIONS: usize = 48;
 /// Nepers per decibel (amplitude): ln 10 / 20.
 pub(super) const NP_PER_DB: f64 = std::f64::consts::LN_10 / 20.0;
 /// Voxel code of a labelled voxel: `LABEL_BASE + label` (must match `medium.wgsl`).
@@ -143,17 +141,11 @@ pub(super) fn property_table() -> Vec<[[f32; 4]; 2]> {
     rows
 }
 
-/// sim-core `echo::sphere_directions`: 48 near-uniform directions (a Fibonacci sphere).
+/// sim-core's interface-normal directions (`sphere_directions`) as shader vectors.
 pub(super) fn sphere_directions() -> Vec<[f32; 4]> {
-    let n = SPHERE_DIRECTIONS;
-    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-    (0..n)
-        .map(|i| {
-            let z = 1.0 - (2 * i + 1) as f64 / n as f64;
-            let r = (1.0 - z * z).sqrt();
-            let (s, c) = (golden * i as f64).sin_cos();
-            v4(DVec3::new(r * c, r * s, z), 0.0)
-        })
+    sim_core::ultrasound::sphere_directions()
+        .iter()
+        .map(|d| v4(*d, 0.0))
         .collect()
 }
 

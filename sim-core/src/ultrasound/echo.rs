@@ -170,8 +170,9 @@ fn alignment(medium: &dyn AcousticMedium, p: DVec3, d: DVec3, roughness: f64) ->
     roughness + (1.0 - roughness) * (-(theta * theta) / (2.0 * lobe * lobe)).exp()
 }
 
-/// 48 near-uniform unit vectors (a Fibonacci sphere).
-fn sphere_directions() -> &'static [DVec3] {
+/// 48 near-uniform unit vectors (a Fibonacci sphere): the directions of the interface-normal
+/// estimate (also uploaded by the GPU path).
+pub fn sphere_directions() -> &'static [DVec3] {
     static D: std::sync::OnceLock<Vec<DVec3>> = std::sync::OnceLock::new();
     D.get_or_init(|| {
         let n = 48;

@@ -69,7 +69,7 @@ pub use probe::{ProbeFrame, ProbeKind, ProbePose, ProbeSpec, ScanGeometry};
 pub use settings::{Sampling, Settings, TGC_BANDS};
 pub use tissue::{AcousticMedium, AcousticProps, CtMedium, Texture, UniformMedium};
 
-pub use echo::{AIR_BELOW_MRAYL, GEL, GEL_MAX_MM};
+pub use echo::{AIR_BELOW_MRAYL, GEL, GEL_MAX_MM, sphere_directions};
 use echo::{LineContext, LineEchoes, march_line};
 use scatter::{
     BeamTables, IqGrid, LateralKernel, ScatterField, axial_taps, conv_sigma, convolve_axial_row,

@@ -21,7 +21,7 @@
 use glam::DVec3;
 
 use super::beam::{Beam, FWHM_PER_SIGMA};
-use super::probe::ScanGeometry;
+use super::probe::{ProbeFrame, ScanGeometry};
 use super::tissue::{AcousticMedium, Texture};
 use crate::rng::splitmix64;
 
@@ -345,6 +345,56 @@ fn cell_hash(seed: u64, i: i64, j: i64, k: i64) -> u64 {
     splitmix64(splitmix64(splitmix64(seed ^ i as u64) ^ j as u64) ^ k as u64)
 }
 
+/// The lattice cells a frame can reach, and how its columns run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LatticeBounds {
+    /// Lowest cell index per region axis.
+    pub lo_cell: [i64; 3],
+    /// Highest cell index per region axis.
+    pub hi_cell: [i64; 3],
+    /// The region axis closest to the elevation direction: lattice columns run along it.
+    pub column_axis: usize,
+    /// The two other region axes, in increasing order.
+    pub across: (usize, usize),
+}
+
+/// The lattice cells (side `cell_mm`) of the box around image extent `(x0, x1, y0, y1)` (mm,
+/// already widened by the in-plane PSF reach) and `+-reach_elev_mm` across the slice, in the
+/// region frame; shared by the CPU deposit and the GPU path so both visit the same cells.
+pub fn lattice_bounds(
+    f: &ProbeFrame,
+    (x0, x1, y0, y1): (f64, f64, f64, f64),
+    reach_elev_mm: f64,
+    cell_mm: f64,
+) -> LatticeBounds {
+    let mut lo = DVec3::splat(f64::INFINITY);
+    let mut hi = DVec3::splat(f64::NEG_INFINITY);
+    for x in [x0, x1] {
+        for y in [y0, y1] {
+            for e in [-reach_elev_mm, reach_elev_mm] {
+                let p = f.to_region(DVec3::new(x, y, e));
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
+        }
+    }
+    let ev = f.elevation.to_array();
+    let column_axis = (0..3)
+        .max_by(|&a, &b| ev[a].abs().total_cmp(&ev[b].abs()))
+        .unwrap_or(2);
+    let across = match column_axis {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    };
+    LatticeBounds {
+        lo_cell: std::array::from_fn(|a| (lo[a] / cell_mm).floor() as i64),
+        hi_cell: std::array::from_fn(|a| (hi[a] / cell_mm).ceil() as i64),
+        column_axis,
+        across,
+    }
+}
+
 /// Deposits every lattice scatterer within reach of the frame into `grid` (not yet convolved).
 pub(crate) fn deposit_scatterers(
     grid: &mut IqGrid,
@@ -364,28 +414,14 @@ pub(crate) fn deposit_scatterers(
     let m = 1.5 * tables.max_lat_fwhm_mm + 4.0 * tables.axial_sigma_mm;
     let (x0, x1, y0, y1) = geo.image_extent_mm();
     let (x0, x1, y0, y1) = (x0 - m, x1 + m, y0 - m, y1 + m);
-    let mut lo = DVec3::splat(f64::INFINITY);
-    let mut hi = DVec3::splat(f64::NEG_INFINITY);
-    for x in [x0, x1] {
-        for y in [y0, y1] {
-            for e in [-t_e, t_e] {
-                let p = f.to_region(DVec3::new(x, y, e));
-                lo = lo.min(p);
-                hi = hi.max(p);
-            }
-        }
-    }
-    let ev = f.elevation.to_array();
-    let am = (0..3)
-        .max_by(|&a, &b| ev[a].abs().total_cmp(&ev[b].abs()))
-        .unwrap_or(2);
-    let (aa, ab) = match am {
-        0 => (1, 2),
-        1 => (0, 2),
-        _ => (0, 1),
-    };
-    let idx_lo = |a: usize| (lo[a] / h).floor() as i64;
-    let idx_hi = |a: usize| (hi[a] / h).ceil() as i64;
+    let LatticeBounds {
+        lo_cell,
+        hi_cell,
+        column_axis: am,
+        across: (aa, ab),
+    } = lattice_bounds(f, (x0, x1, y0, y1), t_e, h);
+    let idx_lo = |a: usize| lo_cell[a];
+    let idx_hi = |a: usize| hi_cell[a];
     let mut unit = [DVec3::ZERO; 3];
     for (a, u) in unit.iter_mut().enumerate() {
         *u = f.to_probe(f.origin + DVec3::AXES[a]);
