@@ -11,6 +11,8 @@
 //!   the exact mean of the exponentially relaxing bending response (second order in the substep);
 //!   the frame is parallel-transported.
 //! - [`play`]: hub roll reaches the bevel through a depth-dependent deadband.
+//! - [`hub`]: hub tilt while in tissue (the shaft as a beam on an elastic foundation) and the
+//!   redirection rule.
 //! - [`tract`]: the cut channel and the tip's place on it.
 //! - [`contact`]: centre-line ray casts against bone; steep contacts arrest, shallow ones slide.
 //! - [`state`]: the serializable [`NeedleState`], the commands and the replayable [`Needle`] log.
@@ -37,6 +39,7 @@
 //! ```
 
 pub mod contact;
+pub mod hub;
 pub mod kinematics;
 pub mod placement;
 pub mod play;
@@ -51,6 +54,7 @@ pub use play::TorsionalPlay;
 pub use profile::{InstrumentProfile, Opening, PathModel, TipGeometry};
 pub use state::{
     ArrestReason, CommandOutcome, ContactArrest, FeedOutcome, FeedStop, InitialResponse, Needle,
-    NeedleCommand, NeedleError, NeedleState, OutletFootprint, RollOutcome, WithdrawOutcome,
+    NeedleCommand, NeedleError, NeedleState, OutletFootprint, RollOutcome, TiltOutcome,
+    WithdrawOutcome,
 };
 pub use tract::{SegmentKind, Tract, TractCursor, TractSegment};
