@@ -18,6 +18,11 @@
 //! - [`state`]: the serializable [`NeedleState`], the commands and the replayable [`Needle`] log.
 //! - [`placement`]: automatic placement toward a target by duty-cycled 180 degree flips.
 //!
+//! Handling (issue 19), pure models the session drives once per 0.5 mm substep:
+//! - [`tissue`]: the mechanical [`Tissue`] class of a structure name.
+//! - [`force`]: the insertion force along the path after Okamura, Simone & O'Leary (2004):
+//!   capsule stiffness up to a puncture ("pop"), cutting at the tip, friction along the shaft.
+//!
 //! ```
 //! use glam::DVec3;
 //! use sim_core::needle::{InitialResponse, InstrumentProfile, Needle, NeedleCommand, NeedleState};
@@ -39,15 +44,18 @@
 //! ```
 
 pub mod contact;
+pub mod force;
 pub mod hub;
 pub mod kinematics;
 pub mod placement;
 pub mod play;
 pub mod profile;
 pub mod state;
+pub mod tissue;
 pub mod tract;
 
 pub use contact::{BoneSurface, HalfSpaceBone, NoBone, RayHit, SphereBone};
+pub use force::{ForceModel, ForceParams, ForcePhase, ForceSample, ForceState};
 pub use kinematics::Pose;
 pub use placement::{PlacementConfig, PlacementFailure, PlacementReport, place_toward};
 pub use play::TorsionalPlay;
@@ -57,4 +65,5 @@ pub use state::{
     NeedleCommand, NeedleError, NeedleState, OutletFootprint, RollOutcome, TiltOutcome,
     WithdrawOutcome,
 };
+pub use tissue::{LayerStack, Tissue};
 pub use tract::{SegmentKind, Tract, TractCursor, TractSegment};
