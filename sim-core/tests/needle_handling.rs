@@ -2,7 +2,14 @@
 //! and the fluoroscopy dose estimate, each against an independent reference.
 
 use sim_core::needle::force::{BONE_STOP_N, POP_DROP_N};
-use sim_core::needle::{ForceModel, ForcePhase, ForceSample, ForceState, LayerStack, Tissue};
+use sim_core::needle::syringe::{
+    CSF_ASPIRATION_FALSE_NEGATIVE, TEXT_EMPTY, TEXT_FIRM, TEXT_GIVES_WAY, TEXT_SPRINGY,
+    VASCULAR_ASPIRATION_FALSE_NEGATIVE,
+};
+use sim_core::needle::{
+    Aspirate, ForceModel, ForcePhase, ForceSample, ForceState, LayerStack, LorMedium, LorSyringe,
+    Tissue, aspirate, is_false_loss,
+};
 use sim_core::rng::SplitMix64;
 /// The session's substep, mm.
 const H: f64 = 0.5;
@@ -269,4 +276,135 @@ fn force_state_round_trips_through_json_mid_insertion() {
             assert_eq!(sa, b.cut(&model, stack.tissue_at(d), H, &shaft));
         }
     }
+}
+
+/// Holds the plunger from the first sample in the ligament; returns the depth of the first
+/// give-way and checks it never gives way with the outlet in the ligament or the flavum.
+fn first_loss(stack: &LayerStack, medium: LorMedium) -> f64 {
+    let mut syringe = LorSyringe::new(medium);
+    let start = stack.start_of(Tissue::InterspinousLigament).unwrap();
+    let mut d = (start / H).ceil() * H;
+    loop {
+        let outlet = stack.tissue_at(d);
+        let feel = syringe.hold(outlet);
+        assert!(feel.resistance >= 0.0 && feel.resistance <= 1.0);
+        if matches!(
+            outlet,
+            Tissue::InterspinousLigament | Tissue::LigamentumFlavum
+        ) {
+            assert!(!feel.gave_way, "{d} {outlet:?}");
+            assert_eq!(feel.resistance, 1.0);
+        }
+        if feel.gave_way {
+            assert_eq!(feel.text, TEXT_GIVES_WAY);
+            assert!(!is_false_loss(outlet, &feel));
+            return d;
+        }
+        d += H;
+        assert!(d < 200.0, "never gave way");
+    }
+}
+
+#[test]
+fn the_syringe_gives_way_at_the_epidural_boundary_within_one_step() {
+    let mut rng = SplitMix64::new(2019);
+    for _ in 0..20 {
+        let stack = random_interlaminar(&mut rng);
+        let boundary = stack.end_of(Tissue::LigamentumFlavum).unwrap();
+        for medium in [LorMedium::Saline, LorMedium::Air] {
+            let d = first_loss(&stack, medium);
+            // Sampled every 0.5 mm: the first sample at or beyond the boundary.
+            assert!(d >= boundary && d < boundary + H, "{d} vs {boundary}");
+        }
+    }
+}
+
+#[test]
+fn false_loss_of_resistance_in_fat_and_muscle_only() {
+    for t in Tissue::ALL {
+        let feel = LorSyringe::new(LorMedium::Saline).hold(t);
+        let expect_false = matches!(
+            t,
+            Tissue::Air
+                | Tissue::SubcutaneousFat
+                | Tissue::Muscle
+                | Tissue::Intrathecal
+                | Tissue::Vessel
+                | Tissue::SoftTissue
+        );
+        assert_eq!(is_false_loss(t, &feel), expect_false, "{t:?}");
+    }
+    let feel = LorSyringe::new(LorMedium::Air).hold(Tissue::EpiduralFat);
+    assert!(feel.gave_way && !is_false_loss(Tissue::EpiduralFat, &feel));
+}
+
+#[test]
+fn air_is_springy_saline_is_firm() {
+    let mut saline = LorSyringe::new(LorMedium::Saline);
+    let f = saline.press(Tissue::LigamentumFlavum, 1.0);
+    assert_eq!((f.text, f.travel_ml, f.injected_ml), (TEXT_FIRM, 0.0, 0.0));
+    let mut air = LorSyringe::new(LorMedium::Air);
+    let f = air.press(Tissue::LigamentumFlavum, 2.0);
+    // Boyle: 5 ml at 101.325 kPa under 30 kPa gauge travels 5 * 30 / 131.325 = 1.1422 ml.
+    assert!((f.travel_ml - 1.1422).abs() < 1e-4, "{f:?}");
+    assert_eq!((f.text, f.injected_ml), (TEXT_SPRINGY, 0.0));
+    assert_eq!(air.contents_ml(), 5.0);
+}
+
+#[test]
+fn syringe_contents_never_go_negative_and_absurd_presses_are_refused() {
+    let mut s = LorSyringe::new(LorMedium::Saline);
+    for ml in [f64::NAN, -1.0, 0.0, f64::NEG_INFINITY, f64::INFINITY] {
+        let f = s.press(Tissue::EpiduralFat, ml);
+        assert_eq!(f.injected_ml, 0.0, "{ml}");
+        assert_eq!(s.contents_ml(), 5.0);
+    }
+    // Larger than the contents: clamped to the contents.
+    let f = s.press(Tissue::EpiduralFat, 7.0);
+    assert_eq!(f.injected_ml, 5.0);
+    assert_eq!(s.contents_ml(), 0.0);
+    let f = s.press(Tissue::EpiduralFat, 1.0);
+    assert_eq!(
+        (f.text, f.injected_ml, f.gave_way),
+        (TEXT_EMPTY, 0.0, false)
+    );
+    let mut rng = SplitMix64::new(7);
+    let mut s = LorSyringe::new(LorMedium::Air);
+    for _ in 0..1000 {
+        let t = Tissue::ALL[(rng.next_u64() % Tissue::COUNT as u64) as usize];
+        let f = s.press(t, rng.next_f64() * 3.0 - 1.0);
+        assert!(f.injected_ml >= 0.0 && s.contents_ml() >= 0.0);
+    }
+}
+
+#[test]
+fn aspiration_reproduces_the_published_false_negative_rates() {
+    let n = 100_000;
+    let mut rng = SplitMix64::new(2000);
+    let (mut blood_missed, mut csf_missed) = (0, 0);
+    for _ in 0..n {
+        let u = rng.next_f64();
+        match aspirate(Tissue::Vessel, u) {
+            Aspirate::Nothing => blood_missed += 1,
+            Aspirate::Blood => {}
+            Aspirate::Csf => panic!("csf from a vessel"),
+        }
+        if aspirate(Tissue::Intrathecal, u) == Aspirate::Nothing {
+            csf_missed += 1;
+        }
+        assert_eq!(aspirate(Tissue::EpiduralFat, u), Aspirate::Nothing);
+    }
+    // Furman et al. 2000: sensitivity 44.7 % -> 55.3 % missed.
+    assert!((VASCULAR_ASPIRATION_FALSE_NEGATIVE - 0.553).abs() < 1e-12);
+    for (missed, p) in [
+        (blood_missed, VASCULAR_ASPIRATION_FALSE_NEGATIVE),
+        (csf_missed, CSF_ASPIRATION_FALSE_NEGATIVE),
+    ] {
+        let rate = missed as f64 / n as f64;
+        // Binomial tolerance: 5 standard deviations of a proportion over n draws.
+        let tol = 5.0 * (p * (1.0 - p) / n as f64).sqrt();
+        assert!((rate - p).abs() < tol, "{rate} vs {p} +- {tol}");
+    }
+    assert_eq!(aspirate(Tissue::Vessel, f64::NAN), Aspirate::Nothing);
+    assert_eq!(aspirate(Tissue::Vessel, 7.0), Aspirate::Blood);
 }

@@ -22,6 +22,8 @@
 //! - [`tissue`]: the mechanical [`Tissue`] class of a structure name.
 //! - [`force`]: the insertion force along the path after Okamura, Simone & O'Leary (2004):
 //!   capsule stiffness up to a puncture ("pop"), cutting at the tip, friction along the shaft.
+//! - [`syringe`]: the loss-of-resistance syringe (saline or air) against tissue opening
+//!   pressures, false loss of resistance, and aspiration with published false-negative rates.
 //!
 //! ```
 //! use glam::DVec3;
@@ -51,6 +53,7 @@ pub mod placement;
 pub mod play;
 pub mod profile;
 pub mod state;
+pub mod syringe;
 pub mod tissue;
 pub mod tract;
 
@@ -65,5 +68,6 @@ pub use state::{
     NeedleCommand, NeedleError, NeedleState, OutletFootprint, RollOutcome, TiltOutcome,
     WithdrawOutcome,
 };
+pub use syringe::{Aspirate, LorFeel, LorMedium, LorSyringe, aspirate, is_false_loss};
 pub use tissue::{LayerStack, Tissue};
 pub use tract::{SegmentKind, Tract, TractCursor, TractSegment};
