@@ -10,7 +10,7 @@
 //! `sim-core/data/fluoro/generate_kerma.py`:
 //!
 //! ```text
-//! K [uGy/mAs] = sum_E Phi(E) dE * E * (mu_en/rho)_air(E) * 1.6022e-16 J/keV * 1e3 g/kg * 1e6 uGy/Gy
+//! K [uGy/mAs] = sum_E Phi(E) dE E (mu_en/rho)_air(E) * 1.6022e-16 J/keV * 1e3 g/kg * 1e6 uGy/Gy
 //!             [photons keV^-1 cm^-2 mAs^-1] [keV] [keV] [cm^2 g^-1]  -> keV g^-1 mAs^-1 -> uGy/mAs
 //! ```
 //!

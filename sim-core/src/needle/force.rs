@@ -120,49 +120,53 @@ pub struct ForceModel {
 }
 
 // Literature values (18 G Tuohy needle). Forces in N, lengths in mm.
-//
-// Skin. Puncture: our choice 3.0 N. van Gerwen, Dankelman & van den Dobbelsteen (2012, Med Eng
-// Phys 34(6):665-680) survey skin puncture forces from 0.5 mN to 19 N over needles and species,
-// median about 1.2 N; an 18 G Tuohy tip is larger and blunter than most needles surveyed, so we
-// take 3 N. Stiffness: our choice, reaching 3 N at 4.2 mm of tenting (skin tents several
-// millimetres before a blunt needle punctures it). Cutting 1.0 N and friction 0.02 N/mm: our
-// choice, judged from the 0.5-2 N post-puncture levels of the same survey.
+
+/// Skin. Puncture: our choice 3.0 N. van Gerwen, Dankelman & van den Dobbelsteen (2012,
+/// "Needle-tissue interaction forces - a survey of experimental data", Med Eng Phys
+/// 34(6):665-680) collect puncture forces from 0.5 mN to 19.2 N over needles, tissues and
+/// species, median 1.22 N; an 18 G Tuohy tip is larger and blunter than most needles surveyed,
+/// so we take 3 N. Stiffness: our choice, reaching 3 N at 4.2 mm of tenting (skin tents several
+/// millimetres before a blunt needle punctures it). Cutting 1.0 N and friction 0.02 N/mm: our
+/// choice, judged from the 0.5-2 N post-puncture levels of the same survey.
 const SKIN: ForceParams = ForceParams::capsule(0.3, 0.1, 3.0, 1.0, 0.02);
-// Fat: our choice, the softest solid layer (0.1-0.5 N cutting judged from the survey above).
+/// Fat: our choice, the softest solid layer (0.1-0.5 N cutting judged from the survey above).
 const FAT: ForceParams = ForceParams::cut(0.3, 0.005);
-// Muscle: our choice, between fat and ligament (0.5-1.5 N judged from the survey above).
+/// Muscle: our choice, between fat and ligament (0.5-1.5 N judged from the survey above).
 const MUSCLE: ForceParams = ForceParams::cut(0.8, 0.015);
-// Supraspinous/interspinous ligament: our choice 2.5 N cutting, dense collagen that a Tuohy
-// needle grips ("the needle stands up in the ligament"); the loss-of-resistance pressure there is
-// lower than in the ligamentum flavum (Vaughan et al. 2012 below), so the force stays under the
-// flavum's puncture force.
+/// Supraspinous/interspinous ligament: our choice 2.5 N cutting, dense collagen that a Tuohy
+/// needle grips ("the needle stands up in the ligament"); the loss-of-resistance pressure there is
+/// lower than in the ligamentum flavum (Vaughan et al. 2012 below), so the force stays under the
+/// flavum's puncture force.
 const INTERSPINOUS: ForceParams = ForceParams::cut(2.5, 0.03);
-// Ligamentum flavum. Puncture 6.0 N: our choice inside the "several newtons" the epidural
-// literature reports for a Tuohy needle (Vaughan, Dubey, Wee & Isaacs 2012, "Measuring Tuohy
-// needle insertion force on a porcine spine", conference paper, Bournemouth University, measured
-// the flavum peak as 62.7-66.7 kPa in the loss-of-resistance syringe, 11.1-11.8 N on the
-// plunger; Naemura & Saito 2009, IFMBE Proc 25/6, measured porcine flavum peaks that depend on
-// needle and speed). Stiffness: our choice, 6 N at 2.65 mm of indentation so that a 3-5 mm
-// lumbar flavum punctures inside the layer and a thinner one at its far side. Cutting 2.5 N,
-// friction 0.03 N/mm: our choice, as the interspinous ligament.
+/// Ligamentum flavum. Puncture 6.0 N: our choice, "several newtons" for a Tuohy needle. Our
+/// searches found no direct measurement of the needle force through human flavum: Vaughan,
+/// Dubey, Wee & Isaacs (2012, "Measuring Tuohy needle insertion force on a porcine spine",
+/// conference paper, Bournemouth University) measured the flavum peak as a loss-of-resistance
+/// syringe pressure, 62.7-66.7 kPa (11.1-11.8 N on the plunger, not on the needle); Naemura &
+/// Saito (2009, "Needle insertion test by porcine ligamentum flavum", IFMBE Proc 25/6) measured
+/// porcine flavum peak forces that depend on needle and speed. Stiffness: our choice, 6 N at
+/// 2.65 mm of indentation so that a 3-5 mm lumbar flavum punctures inside the layer and a
+/// thinner one at its far side. Cutting 2.5 N, friction 0.03 N/mm: our choice, as the
+/// interspinous ligament.
 const FLAVUM: ForceParams = ForceParams::capsule(1.2, 0.4, 6.0, 2.5, 0.03);
-// Epidural fat: our choice, loose fat and veins (as subcutaneous fat, slightly lower cutting).
+/// Epidural fat: our choice, loose fat and veins (as subcutaneous fat, slightly lower cutting).
 const EPIDURAL: ForceParams = ForceParams::cut(0.2, 0.005);
-// Dura (entering the dural sac). Lewis et al. (2000, Br J Anaesth 85(2):238-241) measured the
-// peak force and the tenting of cadaveric dura punctured by a 17 G Tuohy needle, with a clear
-// drop on penetration. Puncture 1.5 N at 3 mm of tenting: our choice, well under the flavum so
-// that the dural click is the smaller one. CSF: no cutting to speak of; 0.05 N, 0.002 N/mm: our
-// choice.
+/// Dura (entering the dural sac). Lewis, Lafferty, Sacks, Pallares & TerRiet (2000, "How much
+/// work is required to puncture dura with Tuohy needles?", Br J Anaesth 85(2):238-241) measured
+/// the peak force and the tenting of cadaveric dura punctured by a 17 G Tuohy needle, with an
+/// abrupt drop on penetration (their figures were not available to us). Puncture 1.5 N at 3 mm
+/// of tenting: our choice, well under the flavum so that the dural click is the smaller one.
+/// CSF: no cutting to speak of; 0.05 N, 0.002 N/mm: our choice.
 const DURA: ForceParams = ForceParams::capsule(0.2, 0.1, 1.5, 0.05, 0.002);
-// Nerve root: our choice (a firm cord; the physician should feel it as a soft resistance).
+/// Nerve root: our choice (a firm cord; the physician should feel it as a soft resistance).
 const NERVE: ForceParams = ForceParams::cut(0.5, 0.01);
-// Vessel: our choice (a thin wall, then blood).
+/// Vessel: our choice (a thin wall, then blood).
 const VESSEL: ForceParams = ForceParams::cut(0.3, 0.005);
-// Disc annulus: our choice 4.0 N, dense fibrocartilage, firmer than ligament.
+/// Disc annulus: our choice 4.0 N, dense fibrocartilage, firmer than ligament.
 const DISC: ForceParams = ForceParams::cut(4.0, 0.05);
-// Bone: handled by `ForceState::bone_stop`; these values apply only if a caller cuts it anyway.
+/// Bone: handled by `ForceState::bone_stop`; these values apply only if a caller cuts it anyway.
 const BONE: ForceParams = ForceParams::cut(BONE_STOP_N, 0.05);
-// Other soft tissue: our choice, as muscle but softer.
+/// Other soft tissue: our choice, as muscle but softer.
 const SOFT: ForceParams = ForceParams::cut(0.5, 0.01);
 
 impl ForceModel {

@@ -15,10 +15,12 @@
 //!
 //! False loss of resistance is modelled through opening pressures, not as a random fraction:
 //! subcutaneous fat and muscle have opening pressures below the hand's pressure, so the plunger
-//! gives way when the outlet lies in them (Sharrock 1979, Br J Anaesth 51(3):253-258, recorded
-//! false loss of resistance and explained it by the needle leaving the interspinous ligament
-//! into the paraspinal muscle; Lawrence, Llewellyn, Hunt, Cowin, Sturgess & Reutens 2021, Reg Anesth Pain Med,
-//! found fat-filled gaps in 75 % of lumbar interspinous ligaments). [`is_false_loss`] names a
+//! gives way when the outlet lies in them. Sharrock (1979, "Recordings of, and an anatomical
+//! explanation for, false positive loss of resistance during lumbar extradural analgesia",
+//! Br J Anaesth 51:253-258) recorded such false losses during midline approaches; Lawrence,
+//! Llewellyn, Hunt, Cowin, Sturgess & Reutens (2021, Reg Anesth Pain Med, "Anatomy of the lumbar
+//! interspinous ligament: findings relevant to epidural insertion using loss of resistance")
+//! found fat-filled gaps in 75 % of lumbar interspinous ligaments. [`is_false_loss`] names a
 //! give-way outside the epidural space.
 //!
 //! # Aspiration
@@ -91,8 +93,10 @@ pub const CSF_ASPIRATION_FALSE_NEGATIVE: f64 = 0.10;
 ///   way (the false loss of resistance of Sharrock 1979 and Lawrence et al. 2021, module docs).
 /// - Vessel 2 kPa: our choice (venous pressure of a few kPa; an artery would be higher, but the
 ///   plunger still gives way against blood).
-/// - Nerve root 140 kPa: our choice; intraneural injection needs far higher opening pressures
-///   than perineural (Hadzic et al. 2004, Reg Anesth Pain Med 29(5):417-423, in dogs).
+/// - Nerve root 140 kPa (about 20 psi): our choice; intraneural injection needs far higher
+///   opening pressures than perineural (Hadzic et al. 2004, "Combination of intraneural
+///   injection and high injection pressure leads to fascicular injury and neurologic deficits
+///   in dogs", Reg Anesth Pain Med 29(5):417-423).
 /// - Skin 80 kPa, disc 200 kPa, soft tissue 20 kPa: our choice (dense dermis and annulus do not
 ///   take injectate at hand pressure).
 /// - Bone: does not take injectate (infinite). Air (outlet outside the body): 0.
