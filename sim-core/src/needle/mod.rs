@@ -1,9 +1,11 @@
-//! Needle mechanics: bevel-tip kinematics, torsional play, the recorded tract, bone contact and
-//! automatic placement.
+//! Needle mechanics: bevel-tip kinematics, torsional play, the recorded tract, bone contact,
+//! automatic placement, hub tilt, and what the hands feel (insertion force, loss of resistance,
+//! aspiration).
 //!
-//! This is a low-order interaction model in the nonholonomic framework of Webster et al. (2006),
-//! not a device predictor: it has no cutting or friction forces, tissue displacement, rate
-//! dependence or elastic shaft equilibrium, and the tract is retraced exactly.
+//! The path is a low-order interaction model in the nonholonomic framework of Webster et al.
+//! (2006), not a device predictor: the insertion force ([`force`]) is computed along the path
+//! but does not act back on it (no tissue displacement, rate dependence or elastic shaft
+//! equilibrium), and the tract is retraced exactly.
 //!
 //! - [`profile`]: instruments as data (rigid 22G Quincke spinal, rigid 18G Tuohy, flexible
 //!   pre-bent steerable needle), each number with its source.
