@@ -646,7 +646,8 @@ fn the_dose_estimate_follows_the_inverse_square_and_the_live_time() {
 /// advanced in 0.5 mm feeds with constant pressure on a saline syringe from the moment the
 /// outlet sits in the interspinous ligament: the plunger gives way on the first feed whose end
 /// puts the outlet in the epidural fat (within one feed step of the boundary, found by a
-/// 0.05 mm march along the same line), and never while the outlet is in ligament or flavum.
+/// 0.05 mm march along the same line), and never while the outlet is in ligament or flavum;
+/// every path shows the pop (a force drop) through the ligamentum flavum.
 #[test]
 fn loss_of_resistance_is_felt_at_the_epidural_boundary_on_twenty_trajectories() {
     let reg = region();
@@ -732,9 +733,11 @@ fn loss_of_resistance_is_felt_at_the_epidural_boundary_on_twenty_trajectories() 
         t += 10;
         let a = r.ok(t, Command::PlungerHold { on: true });
         assert_eq!(a.outcome["lor"]["gave_way"], false, "path {k}");
+        let mut pop = false;
         let loss = loop {
             t += 10;
             let a = r.ok(t, Command::NeedleFeed { mm: 0.5 });
+            pop |= a.outcome["force"]["pop"] == true;
             let (tissue, depth) = outlet(&r);
             if a.outcome["lor"]["gave_way"] == true {
                 break (tissue, depth);
@@ -742,6 +745,7 @@ fn loss_of_resistance_is_felt_at_the_epidural_boundary_on_twenty_trajectories() 
             assert!(depth < boundary + 1.0, "path {k}: no loss by {depth} mm");
         };
         assert_eq!(loss.0, Tissue::EpiduralFat, "path {k}");
+        assert!(pop, "path {k}: no force drop through the ligamentum flavum");
         assert!(
             loss.1 >= boundary - 0.05 && loss.1 < boundary + 0.5 + 0.05,
             "path {k}: loss at {} mm, boundary {boundary} mm",
