@@ -1,6 +1,7 @@
 // End-to-end run of the web client in headless Chromium (Debian's /usr/bin/chromium, driven by
 // playwright-core): a learner logs in, opens a fluoroscopy station, takes a shot, rotates the
-// C-arm, takes a shot, places and advances the needle, takes a shot, injects contrast under live
+// C-arm, takes a shot, drags the skin marker on that image, punctures there in AP and advances
+// the needle back in the rotated view, takes a shot, injects contrast under live
 // fluoroscopy with the press-and-hold plunger and submits; then faculty
 // log in, set up an authenticator (the code is computed here, as an authenticator app would),
 // open the replay and approve.
@@ -134,12 +135,40 @@ await runReport(async (page, report) => {
   const rotated = await capture(page, '2-rotated');
   report.steps.push('rotated');
 
-  // Needle: place at the skin, advance 15 mm, shoot.
-  const acks0 = await acksSoFar(page);
-  await page.click('#needle-place');
+  // Needle: the skin marker dragged to the centre of the rotated image (where the central ray
+  // meets the skin), the C-arm back to AP (slider), the puncture (down the AP central beam, +y,
+  // as the placement of the earlier client), the C-arm back to the rotated pose, 15 mm advanced,
+  // shot: the rotated and needle images differ by the needle only.
+  const setPose = async (orbital, angular) => {
+    await page.evaluate(([o, a]) => {
+      for (const [id, v] of [['orbital', o], ['angular', a]]) {
+        const el = document.getElementById(id);
+        el.value = String(v);
+        el.dispatchEvent(new Event('input', { bubbles: true }));
+      }
+    }, [orbital, angular]);
+    // Pose commands are throttled to one per 50 ms (app.js): let the last one go, then wait for
+    // its answer, so the puncture follows it.
+    await page.waitForTimeout(120);
+    await waitUntil(page, () => window.__sim.live.pending.size === 0);
+  };
+  const rotatedPose = [report.orbital_deg, Number(await page.inputValue('#angular'))];
+  await page.check('input[name="drag-mode"][value="marker"]');
+  await page.mouse.move(box.x + box.width / 2 - 20, box.y + box.height / 2);
+  await page.mouse.down();
+  await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2, { steps: 4 });
+  await page.mouse.up();
+  await waitUntil(page, () => window.__sim.live.pending.size === 0);
+  report.marker_text = await page.textContent('#marker-state');
+  await page.check('input[name="drag-mode"][value="carm"]');
+  await setPose(0, 0);
+  await page.click('#puncture');
+  await waitUntil(page, () => window.__sim.live.pending.size === 0);
+  await setPose(...rotatedPose);
   for (let i = 0; i < 3; i++) await page.click('#feed-5');
-  await waitUntil(page, (n) => window.__sim.stats.acks >= n + 4 && window.__sim.live.pending.size === 0, acks0);
+  await waitUntil(page, () => window.__sim.live.pending.size === 0);
   report.depth_text = await page.textContent('#depth');
+  report.force_text = await page.textContent('#force-text');
   await act(page, () => page.click('#shot'));
   const needle = await capture(page, '3-needle');
   report.steps.push('needle');
