@@ -234,7 +234,7 @@ async function openSession(attemptId, stationId) {
     const listed = station.modalities || [];
     $('fluoro-viewer').hidden = !listed.includes('fluoroscopy');
     $('carm-controls').hidden = !listed.includes('fluoroscopy');
-    window.__sim = { session: s, live, stats: live.stats, station, us, views: null };
+    window.__sim = { session: s, live, stats: live.stats, station, us, needle, views: null };
     let drawn = 0;
     live.addEventListener('connection', (e) => { $('conn').textContent = e.detail.state; });
     live.addEventListener('hello', (e) => {

@@ -265,6 +265,8 @@ export class NeedleControls {
         this.markerPixel = null;
         this.markerSent = null;
         $('hub-deviation').textContent = '0.0°';
+        // The marker is used up: drags and arrows now tilt the hub.
+        if (this.mode() === 'marker') this.setMode('hub');
         this.log(`Skin punctured with ${c.instrument}.`);
         break;
       case 'syringe': {

@@ -8,13 +8,22 @@
 //! When one is missing the test skips loudly, unless `CI` or `REQUIRE_GPU` is set (the test
 //! command sets `REQUIRE_GPU=1`), where it fails.
 
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Duration;
 
-use serde_json::Value;
-
-use crate::dispatch::{demo_server_for, demo_server_with};
 use render_worker::session::demo::demo_station_toml;
+use render_worker::session::region::Region;
+use render_worker::session::{Backends, SessionConfig, SessionHost, sha256_hex};
+use serde_json::Value;
+use server::dispatch::Dispatcher;
+use server::test_support::{TestDb, test_db};
+use server::{AppState, app};
+use sim_core::anatomy::phantom::{self, PhantomParams};
+
+use crate::dispatch::{base_workers, demo_server_for, demo_server_with};
+use crate::records_support::test_config;
 
 fn web_client_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../web-client")
@@ -61,7 +70,7 @@ fn can_run(name: &str) -> bool {
 /// Runs `web-client/tests/<script>` against `addr` and returns its JSON report after checking
 /// that the run succeeded. Canvas captures go to `PAINSIM_E2E_SCREENSHOTS/<subdir>` when that
 /// is set (for a person to look at), else to a temporary folder.
-async fn run_script(script: &str, addr: std::net::SocketAddr, subdir: &str) -> Value {
+async fn run_script(script: &str, addr: SocketAddr, subdir: &str) -> Value {
     let shots = tempfile::tempdir().expect("screenshot folder");
     let shots_dir = std::env::var("PAINSIM_E2E_SCREENSHOTS")
         .map(|d| PathBuf::from(d).join(subdir))
@@ -171,6 +180,19 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
     assert!(
         report["orbital_deg"].as_f64().unwrap() >= 20.0,
         "keyboard and drag rotated the C-arm: {report:#}"
+    );
+    // The needle went in at a skin marker dragged on the image, and the feeds report the force
+    // on the hub (issue 19).
+    assert!(
+        report["marker_text"]
+            .as_str()
+            .unwrap()
+            .contains("on the skin"),
+        "{report:#}"
+    );
+    assert!(
+        report["force_text"].as_str().unwrap().ends_with("N)"),
+        "{report:#}"
     );
     assert_eq!(report["command_errors"], 0, "{report:#}");
 
@@ -435,4 +457,139 @@ tolerance = { law = "boolean", expected = true }
     let base = demo_station_toml(&["ultrasound"]);
     assert_eq!(base.matches("[[targets]]").count(), 1, "one target table");
     base.replace("[[targets]]", probes) + criteria
+}
+
+/// A server whose only station is `station_id` from `assets/stations`, on the procedural
+/// phantom meshed at 4 mm (built in memory, seconds; the render-worker session tests use the
+/// same region), sessions in-process on the CPU renderer. Returns the address, the database
+/// and the stations folder (keep it while the server runs).
+async fn phantom_server(station_id: &str) -> (SocketAddr, TestDb, tempfile::TempDir) {
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/stations");
+    let file = sim_core::rubric::load_station_dir(&assets)
+        .expect("the repository's stations")
+        .into_iter()
+        .find(|f| f.station.id == station_id)
+        .unwrap_or_else(|| panic!("station {station_id}"));
+    let stations = tempfile::tempdir().expect("temporary stations folder");
+    std::fs::write(
+        stations.path().join(format!("{station_id}.toml")),
+        &file.text,
+    )
+    .expect("write the station");
+    let asset = phantom::build(&PhantomParams::with_voxel_mm(4.0), &mut |_| {}).expect("phantom");
+    let host = SessionHost::with_regions(
+        vec![(file.station, sha256_hex(file.text.as_bytes()))],
+        vec![Arc::new(Region::from_asset(&asset))],
+        Backends::cpu(0),
+        4,
+        SessionConfig::default(),
+    );
+    let dir = stations.path().display().to_string();
+    let config = test_config(&[("PAINSIM_STATIONS_DIR", &dir)]);
+    let db = test_db().await;
+    server::records::prepare(&db.pool, &config.records, true)
+        .await
+        .expect("stations and demo accounts");
+    let state = AppState {
+        pool: db.pool.clone(),
+        embedded_db: true,
+        workers: base_workers(),
+        dispatcher: Some(Dispatcher::new(Some(host.clone()), host, None)),
+        config,
+    };
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    tokio::spawn(async move { axum::serve(listener, app(state)).await });
+    (addr, db, stations)
+}
+
+/// A whole L4-L5 interlaminar epidural through the UI only (`web-client/tests/
+/// e2e_epidural.mjs`) on the phantom: AP shots, the skin marker dragged on the image and seen
+/// on the next shot, the puncture, hub tilts by touch and keys, the advance, the contralateral
+/// oblique, loss of resistance with the syringe held under pressure while advancing,
+/// aspiration and the submit; the scores come from the session's measurements.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn interlaminar_epidural_by_hand_in_headless_chromium() {
+    if !can_run("interlaminar_epidural_by_hand_in_headless_chromium") {
+        return;
+    }
+    let (addr, db, _stations) = phantom_server("l4-l5-interlaminar-epidural").await;
+    let report = run_script("e2e_epidural.mjs", addr, "epidural").await;
+    eprintln!("epidural in the browser: {report}");
+    let steps = strings(&report["steps"]);
+    assert_eq!(
+        steps,
+        [
+            "session open",
+            "ap",
+            "marker",
+            "punctured",
+            "tilted",
+            "advanced",
+            "oblique",
+            "loss of resistance",
+            "aspirated",
+            "submitted"
+        ]
+    );
+    // The marker: the pixel the drag ended on (the client keeps half pixels), acknowledged, and
+    // seen on the next shot near that pixel: a 4 x 4 block there changed by more than the
+    // largest change between two shots of the same view (quantum noise only).
+    let m = &report["marker"];
+    assert!(m["text"].as_str().unwrap().contains("on the skin"), "{m:#}");
+    assert!(
+        m["change_near"].as_f64().unwrap() > m["noise_max"].as_f64().unwrap(),
+        "the marker did not show near its pixel: {m:#}"
+    );
+    assert_eq!(m["cursor_hidden_after_shot"], true, "{m:#}");
+    // The two-finger drag tilted the hub by 1 degree (8 px at 8 px a degree) and Shift + down
+    // tilted it back.
+    assert_eq!(report["touch_tilt_hub"], "1.0°", "{report:#}");
+    assert_eq!(report["touch_undone_hub"], "0.0°", "{report:#}");
+    // The plunger gave way under held pressure, and the panels never told where the tip was.
+    let lor = &report["lor"];
+    assert!(
+        lor["text"].as_str().unwrap().contains("gives way"),
+        "{lor:#}"
+    );
+    assert!(
+        report["telltales"].as_array().unwrap().is_empty(),
+        "{report:#}"
+    );
+    assert!(
+        !report["aspirate_text"].as_str().unwrap().is_empty(),
+        "{report:#}"
+    );
+    // The session's measurements: one skin puncture, loss of resistance confirmed, no dural
+    // puncture, aspiration done, a dose from the shots.
+    let ms = &report["measurements"];
+    let v = |k: &str| {
+        ms[k]
+            .as_f64()
+            .unwrap_or_else(|| panic!("measurement {k}: {ms:#}"))
+    };
+    assert_eq!(v("skin_punctures_count"), 1.0, "{ms:#}");
+    assert_eq!(v("lor_confirmed_bool"), 1.0, "{ms:#}");
+    assert_eq!(v("dural_puncture_bool"), 0.0, "{ms:#}");
+    assert_eq!(v("aspiration_done_bool"), 1.0, "{ms:#}");
+    assert_eq!(v("false_loss_count"), 0.0, "{ms:#}");
+    for k in ["air_kerma_mgy", "kerma_area_product_gycm2"] {
+        assert!(v(k) > 0.0, "{k}: {ms:#}");
+    }
+    assert!(
+        !report["dose_text"].as_str().unwrap().starts_with('–'),
+        "{report:#}"
+    );
+    assert_eq!(report["command_errors"], 0, "{report:#}");
+    assert_eq!(report["accessible"]["unlabeled_buttons"], 0, "{report:#}");
+    assert_eq!(report["accessible"]["unlabeled_inputs"], 0, "{report:#}");
+    assert!(
+        report["console_errors"].as_array().unwrap().is_empty(),
+        "{report:#}"
+    );
+    let stored: Value = sqlx::query_scalar("SELECT measurements FROM technical_results")
+        .fetch_one(&db.pool)
+        .await
+        .unwrap();
+    assert_eq!(stored["lor_confirmed_bool"], 1.0, "{stored:#}");
 }
