@@ -72,6 +72,7 @@ export class NeedleControls {
     this.sent.clear();
     this.markerPixel = null;
     this.markerSent = null;
+    this.markerSeq = null;
     this.tilt = null;
     this.trace = [];
     this.peakN = 0;
@@ -107,11 +108,11 @@ export class NeedleControls {
     if (input) input.checked = true;
   }
 
-  /** A new fluoroscopy frame: its size (skin marker pixels are image pixels), and the marker
-   * cursor goes (the marker itself is in this and later images). */
+  /** A new fluoroscopy frame: its size (skin marker pixels are image pixels); once a frame
+   * reflects the newest marker command the cursor goes (the image shows the marker itself). */
   fluoroFrame(frame) {
     this.imageSize = [frame.width, frame.height];
-    $('marker-cursor').hidden = true;
+    if (this.markerSeq != null && frame.inputSeq >= this.markerSeq) $('marker-cursor').hidden = true;
   }
 
   // ------------------------------------------------------------ commands
@@ -127,7 +128,7 @@ export class NeedleControls {
     const p = this.markerPixel;
     if (!p || (this.markerSent && p[0] === this.markerSent[0] && p[1] === this.markerSent[1])) return;
     this.markerSent = p;
-    this.send({ type: 'skin_marker', pixel: p });
+    this.markerSeq = this.send({ type: 'skin_marker', pixel: p });
   }
 
   /** Puts the marker cursor at image pixel `p` and sends it (throttled). */
