@@ -531,12 +531,11 @@ fn epidural_trajectory(region: &Region) -> Value {
     // 1e-4 mm; the session test uses the mesh's ray hit, the same point).
     let inside = |t: f64| region.contains("skin", along(t)) == Some(true);
     assert!(!inside(1.0), "the line starts outside the body");
-    let mut t_out = 1.0;
     let mut t_in = (0..1000)
         .map(|k| 1.0 - f64::from(k) * 1e-3)
         .find(|t| inside(*t))
         .expect("the planned line meets the skin");
-    t_out = t_out.min(t_in + 1e-3);
+    let mut t_out = t_in + 1e-3;
     while t_out - t_in > 1e-6 {
         let mid = 0.5 * (t_in + t_out);
         if inside(mid) {
