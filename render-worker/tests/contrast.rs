@@ -15,6 +15,7 @@ use render_worker::session::*;
 use sim_core::contrast::{ContrastGrid, Domain};
 use sim_core::fluoro::Projection;
 
+use crate::driver::Run;
 use crate::sessions::config;
 
 /// The phantom meshed at 4 mm, built once per test binary (shared with the ultrasound tests).
@@ -53,39 +54,6 @@ fn quiet_config() -> SessionConfig {
     let mut c = config();
     c.fluoro.noise = false;
     c
-}
-
-/// A session driven with an automatic sequence number.
-struct Run {
-    s: Session,
-    seq: u64,
-}
-
-impl Run {
-    fn new(env: SessionEnv, config: SessionConfig) -> Run {
-        Run {
-            s: Session::new(env, config),
-            seq: 0,
-        }
-    }
-    fn try_apply(&mut self, t_ms: u64, command: Command) -> Result<Ack, CommandError> {
-        let r = self.s.apply(
-            Envelope {
-                seq: self.seq + 1,
-                command,
-            },
-            t_ms,
-        );
-        if r.is_ok() {
-            self.seq += 1;
-        }
-        r
-    }
-    fn ok(&mut self, t_ms: u64, command: Command) -> Ack {
-        let c = command.clone();
-        self.try_apply(t_ms, command)
-            .unwrap_or_else(|e| panic!("{c:?} rejected: {e}"))
-    }
 }
 
 fn axis_dir(axis: usize) -> [f64; 3] {

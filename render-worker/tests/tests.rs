@@ -1,9 +1,11 @@
 //! Integration tests of render-worker, one module per area.
 mod contrast;
+mod driver;
 mod fluoro;
 mod fluoro_cache;
 mod gpu;
 mod modality_seam;
+mod needle_handling;
 mod session_host;
 mod sessions;
 mod ultrasound;

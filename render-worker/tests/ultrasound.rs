@@ -14,6 +14,7 @@ use render_worker::session::modalities::ultrasound::{placement, snap_to_skin};
 use render_worker::session::*;
 
 use crate::contrast::{region, station};
+use crate::driver::Run;
 use crate::sessions::config;
 
 const IN_PLANE: &str = "l4-l5-left-facet-ultrasound";
@@ -24,53 +25,8 @@ fn env_of(id: &str) -> SessionEnv {
     SessionEnv::new(station(id), region(), Backends::cpu(0))
 }
 
-struct Run {
-    s: Session,
-    seq: u64,
-}
-
-impl Run {
-    fn new(id: &str) -> Run {
-        Run {
-            s: Session::new(env_of(id), config()),
-            seq: 0,
-        }
-    }
-    fn try_apply(&mut self, t_ms: u64, command: Command) -> Result<Ack, CommandError> {
-        command.validate()?;
-        let r = self.s.apply(
-            Envelope {
-                seq: self.seq + 1,
-                command,
-            },
-            t_ms,
-        );
-        if r.is_ok() {
-            self.seq += 1;
-        }
-        r
-    }
-    fn ok(&mut self, t_ms: u64, command: Command) -> Ack {
-        let c = command.clone();
-        self.try_apply(t_ms, command)
-            .unwrap_or_else(|e| panic!("{c:?} rejected: {e}"))
-    }
-    fn err(&mut self, command: Command) -> CommandError {
-        let c = command.clone();
-        match self.try_apply(1, command) {
-            Ok(_) => panic!("{c:?} accepted"),
-            Err(e) => e,
-        }
-    }
-    fn render(&mut self, view: ViewId) -> Option<ViewImage> {
-        let views: BTreeSet<ViewId> = [view].into();
-        self.s
-            .render_dirty(&views)
-            .unwrap()
-            .into_iter()
-            .find(|r| r.view == view)
-            .map(|r| r.image)
-    }
+fn run_at(id: &str) -> Run {
+    Run::new(env_of(id), config())
 }
 
 fn target(id: &str) -> DVec3 {
@@ -105,7 +61,7 @@ fn measurement(r: &Run, key: &str) -> Option<f64> {
 
 #[test]
 fn stations_build_ultrasound_only_where_listed() {
-    let r = Run::new(IN_PLANE);
+    let r = run_at(IN_PLANE);
     assert_eq!(r.s.modality_names(), vec!["ultrasound"]);
     assert_eq!(r.s.views(), vec![ViewId::Ultrasound, ViewId::Placement]);
     let fluoro_only = Session::new(env_of("l4-l5-left-facet"), config());
@@ -115,7 +71,7 @@ fn stations_build_ultrasound_only_where_listed() {
 
 #[test]
 fn the_probe_sits_on_the_skin_and_bad_poses_name_their_field() {
-    let mut r = Run::new(IN_PLANE);
+    let mut r = run_at(IN_PLANE);
     let t = target(IN_PLANE);
     // The session starts with the probe on the skin over the midline at the target's level.
     let ack = r.ok(
@@ -207,7 +163,7 @@ fn the_probe_sits_on_the_skin_and_bad_poses_name_their_field() {
 
 #[test]
 fn both_views_render_and_the_image_geometry_matches_the_outcome() {
-    let mut r = Run::new(IN_PLANE);
+    let mut r = run_at(IN_PLANE);
     let ack = r.ok(1, transverse_over(target(IN_PLANE)));
     let img = r.render(ViewId::Ultrasound).expect("a B-mode frame");
     assert_eq!(
@@ -275,7 +231,7 @@ fn ncc_shifted(a: &ViewImage, b: &ViewImage, dx: i64, dy: i64) -> f64 {
 
 #[test]
 fn speckle_stays_with_the_tissue_when_the_probe_slides() {
-    let mut r = Run::new(IN_PLANE);
+    let mut r = run_at(IN_PLANE);
     let ack = r.ok(1, transverse_over(target(IN_PLANE)));
     let pixel_mm = ack.outcome["image"]["pixel_mm"].as_f64().unwrap();
     let a = r.render(ViewId::Ultrasound).unwrap();
@@ -334,7 +290,7 @@ fn needle(r: &mut Run, t: &mut u64, entry: DVec3, aim: DVec3, mm: f64, steps: us
 
 #[test]
 fn an_in_plane_needle_shows_its_tip_and_scores() {
-    let mut r = Run::new(IN_PLANE);
+    let mut r = run_at(IN_PLANE);
     let t = target(IN_PLANE);
     r.ok(1, transverse_over(t));
     let mut clock = 10;
@@ -397,7 +353,7 @@ fn an_in_plane_needle_shows_its_tip_and_scores() {
 
 #[test]
 fn an_out_of_plane_crossing_is_a_dot_not_the_tip() {
-    let mut r = Run::new(OUT_OF_PLANE);
+    let mut r = run_at(OUT_OF_PLANE);
     let t = target(OUT_OF_PLANE);
     let ack = r.ok(1, transverse_over(t));
     assert_eq!(ack.outcome["needle_in_slice"], false);
@@ -454,7 +410,7 @@ fn an_out_of_plane_crossing_is_a_dot_not_the_tip() {
 
 #[test]
 fn freeze_holds_the_image_and_its_scores() {
-    let mut r = Run::new(IN_PLANE);
+    let mut r = run_at(IN_PLANE);
     let t = target(IN_PLANE);
     r.ok(1, transverse_over(t));
     let mut clock = 10;
@@ -491,7 +447,7 @@ fn freeze_holds_the_image_and_its_scores() {
 
 #[test]
 fn replay_with_probe_commands_is_bit_identical() {
-    let mut r = Run::new(IN_PLANE);
+    let mut r = run_at(IN_PLANE);
     let initial = r.s.snapshot();
     let t = target(IN_PLANE);
     r.ok(1, transverse_over(t));
@@ -542,7 +498,7 @@ fn replay_with_probe_commands_is_bit_identical() {
 
 #[test]
 fn a_drag_on_the_placement_view_puts_the_probe_under_the_pixel() {
-    let mut r = Run::new(IN_PLANE);
+    let mut r = run_at(IN_PLANE);
     let t = target(IN_PLANE);
     let cam = placement::Camera::for_site(&region(), t.to_array());
     // The skin over a point 20 mm left of and 15 mm above the target, seen by the camera.

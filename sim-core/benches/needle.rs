@@ -8,8 +8,11 @@
 //!
 //! `BENCH_QUICK=1` runs fewer repetitions (CI).
 
+mod common;
+
 use std::hint::black_box;
-use std::time::Instant;
+
+use common::median_seconds;
 
 use glam::DVec3;
 use sim_core::geom::Bvh;
@@ -30,18 +33,6 @@ fn insert_100mm(substep_mm: f64, bone: &dyn BoneSurface) -> DVec3 {
     st.roll(180.0);
     st.feed(80.0, bone);
     st.tip_mm()
-}
-
-fn median_seconds(reps: usize, mut f: impl FnMut()) -> f64 {
-    let mut times: Vec<f64> = (0..reps)
-        .map(|_| {
-            let t0 = Instant::now();
-            f();
-            t0.elapsed().as_secs_f64()
-        })
-        .collect();
-    times.sort_by(f64::total_cmp);
-    times[times.len() / 2]
 }
 
 fn main() {

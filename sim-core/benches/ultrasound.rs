@@ -10,8 +10,11 @@
 //!
 //! `BENCH_QUICK=1` runs one repetition and a shorter list (CI, under 5 s).
 
+mod common;
+
 use std::hint::black_box;
-use std::time::Instant;
+
+use common::median_seconds;
 
 use glam::DVec3;
 use sim_core::ultrasound::tissue::{CORTICAL_BONE, FAT, MUSCLE};
@@ -32,18 +35,6 @@ impl AcousticMedium for Layers {
             MUSCLE
         }
     }
-}
-
-fn median_seconds(reps: usize, mut f: impl FnMut()) -> f64 {
-    let mut t: Vec<f64> = (0..reps)
-        .map(|_| {
-            let t0 = Instant::now();
-            f();
-            t0.elapsed().as_secs_f64()
-        })
-        .collect();
-    t.sort_by(f64::total_cmp);
-    t[t.len() / 2]
 }
 
 fn errors(a: &BModeFrame, reference: &BModeFrame) -> (f64, f64) {

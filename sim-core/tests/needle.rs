@@ -759,6 +759,7 @@ fn soak_of_100k_random_commands() {
                 branches += w.branched as usize;
             }
             sim_core::needle::CommandOutcome::Roll(r) => branches += r.branched as usize,
+            sim_core::needle::CommandOutcome::Tilt(t) => branches += t.branched as usize,
         }
         let st = &needle.state;
         let tip = st.tip_mm();

@@ -733,12 +733,54 @@ fn impossible_measurements_are_refused_not_scored() {
     let s = Station::from_toml_str(&station_toml(
         0.5,
         &[
-            crit("d", 1.0, true, "tip_to_target_mm", "mm", r#"{ law = "lower_is_better", pass_within = 2.0, fail_beyond = 5.0 }"#),
-            crit("m", 1.0, false, "tip_medial_to_pedicle_mm", "mm", r#"{ law = "lower_is_better", pass_within = 0.0, fail_beyond = 3.0 }"#),
-            crit("a", 1.0, false, "beam_to_joint_plane_deg", "deg", r#"{ law = "lower_is_better", pass_within = 5.0, fail_beyond = 15.0 }"#),
-            crit("n", 1.0, false, "fluoro_acquisitions_count", "count", r#"{ law = "lower_is_better", pass_within = 10.0, fail_beyond = 20.0 }"#),
-            crit("f", 1.0, false, "needle_in_plane_fraction", "fraction", r#"{ law = "higher_is_better", pass_from = 0.8, fail_below = 0.2 }"#),
-            crit("t", 1.0, false, "fluoro_exposure_s", "s", r#"{ law = "lower_is_better", pass_within = 30.0, fail_beyond = 60.0 }"#),
+            crit(
+                "d",
+                1.0,
+                true,
+                "tip_to_target_mm",
+                "mm",
+                r#"{ law = "lower_is_better", pass_within = 2.0, fail_beyond = 5.0 }"#,
+            ),
+            crit(
+                "m",
+                1.0,
+                false,
+                "tip_medial_to_pedicle_mm",
+                "mm",
+                r#"{ law = "lower_is_better", pass_within = 0.0, fail_beyond = 3.0 }"#,
+            ),
+            crit(
+                "a",
+                1.0,
+                false,
+                "beam_to_joint_plane_deg",
+                "deg",
+                r#"{ law = "lower_is_better", pass_within = 5.0, fail_beyond = 15.0 }"#,
+            ),
+            crit(
+                "n",
+                1.0,
+                false,
+                "fluoro_acquisitions_count",
+                "count",
+                r#"{ law = "lower_is_better", pass_within = 10.0, fail_beyond = 20.0 }"#,
+            ),
+            crit(
+                "f",
+                1.0,
+                false,
+                "needle_in_plane_fraction",
+                "fraction",
+                r#"{ law = "higher_is_better", pass_from = 0.8, fail_below = 0.2 }"#,
+            ),
+            crit(
+                "t",
+                1.0,
+                false,
+                "fluoro_exposure_s",
+                "s",
+                r#"{ law = "lower_is_better", pass_within = 30.0, fail_beyond = 60.0 }"#,
+            ),
         ]
         .concat(),
     ))
@@ -782,5 +824,9 @@ fn impossible_measurements_are_refused_not_scored() {
     // Keys no criterion reads are checked by their suffix as well.
     let mut m = measure(&good);
     m.insert("needle_depth_mm".into(), 5000.0);
-    assert!(sim_core::rubric::check_measurements(&m).unwrap_err().contains("needle_depth_mm"));
+    assert!(
+        sim_core::rubric::check_measurements(&m)
+            .unwrap_err()
+            .contains("needle_depth_mm")
+    );
 }

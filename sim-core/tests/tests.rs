@@ -4,6 +4,8 @@ mod contrast;
 mod fluoro;
 mod laminar;
 mod needle;
+mod needle_handling;
+mod needle_hub;
 mod nesting;
 mod phantom;
 mod rubric;

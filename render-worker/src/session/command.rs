@@ -43,6 +43,12 @@ pub const MAX_PROBE_SLIDE_MM: f64 = 100.0;
 /// Largest single probe tilt, degrees. Simulator choice: beyond 60 degrees the face no longer
 /// sits on the skin.
 pub const MAX_PROBE_TILT_DEG: f64 = 60.0;
+/// Largest hub tilt per command on each axis, degrees. Simulator choice: a hand correction is a
+/// few degrees; the total deviation is bounded by `sim_core::needle::hub::MAX_HUB_DEVIATION_DEG`.
+pub const MAX_TILT_DEG: f64 = 20.0;
+/// Largest single plunger step, ml. Simulator choice: loss-of-resistance checks press 0.1 to
+/// 0.5 ml at a time; 2 ml bounds a typo.
+pub const MAX_PLUNGER_STEP_ML: f64 = 2.0;
 /// Longest annotation label, characters.
 pub const MAX_LABEL_CHARS: usize = 64;
 /// Longest instrument id, characters. Simulator choice: tray ids are short slugs
@@ -104,6 +110,60 @@ pub enum Command {
         /// Hub travel, mm.
         mm: f64,
     },
+    /// Put the radio-opaque skin marker (a clamp tip) on the skin: where the ray through `pixel`
+    /// of the displayed fluoroscopy image meets the skin on the X-ray source's side, or where the
+    /// C-arm's central beam line through `position_mm` does. Exactly one of the two.
+    SkinMarker {
+        /// Continuous pixel coordinates `[x, y]` on the displayed fluoroscopy image.
+        #[serde(default)]
+        pixel: Option<[f64; 2]>,
+        /// A point near the skin, model frame, mm (snapped along the beam within
+        /// [`MAX_PROBE_SNAP_MM`]).
+        #[serde(default)]
+        position_mm: Option<[f64; 3]>,
+    },
+    /// Puncture the skin at the marker with a needle from the tray (only while no needle is in
+    /// tissue). The marker is taken away.
+    NeedlePuncture {
+        /// Instrument id from the station's tray.
+        instrument: String,
+        /// Direction of insertion (default: down the C-arm's central beam).
+        #[serde(default)]
+        direction: Option<[f64; 3]>,
+        /// Where the bevel faces (default: cranial).
+        #[serde(default)]
+        bevel_reference: Option<[f64; 3]>,
+    },
+    /// Tilt the needle hub, degrees (both default to 0): `cc_deg` > 0 aims the needle more
+    /// cranially (the hub moves caudally), `ml_deg` > 0 aims it towards the patient's left.
+    NeedleTilt {
+        /// Cranio-caudal aim change, degrees.
+        #[serde(default)]
+        cc_deg: f64,
+        /// Medio-lateral aim change towards the patient's left, degrees.
+        #[serde(default)]
+        ml_deg: f64,
+    },
+    /// Attach or detach the loss-of-resistance syringe.
+    Syringe {
+        /// What to do.
+        action: SyringeAction,
+        /// What the syringe holds (attach only; default saline).
+        #[serde(default)]
+        medium: Option<sim_core::needle::LorMedium>,
+    },
+    /// Press the loss-of-resistance plunger by a step, ml.
+    Plunger {
+        /// Plunger travel as volume, ml.
+        ml: f64,
+    },
+    /// Hold constant pressure on the loss-of-resistance plunger while advancing (or release).
+    PlungerHold {
+        /// True holds.
+        on: bool,
+    },
+    /// Draw back on the syringe to see what comes back through the needle.
+    Aspirate,
     /// Mark a point on the current fluoroscopy image.
     Annotate {
         /// Continuous pixel coordinates `[x, y]` on the detector (top-left corner is `[0, 0]`).
@@ -196,6 +256,16 @@ pub enum Command {
     Submit,
 }
 
+/// What to do with the loss-of-resistance syringe.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SyringeAction {
+    /// Put it on the needle hub.
+    Attach,
+    /// Take it off.
+    Detach,
+}
+
 /// An injectable agent. JSON: `"contrast"`, `"saline"`, `"local_anaesthetic"` or
 /// `{"diluted_contrast": {"stock_percent": 50}}`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -260,7 +330,14 @@ impl Command {
             Command::NeedlePlace { .. }
             | Command::NeedleFeed { .. }
             | Command::NeedleRoll { .. }
-            | Command::NeedleWithdraw { .. } => CommandClass::Needle,
+            | Command::NeedleWithdraw { .. }
+            | Command::SkinMarker { .. }
+            | Command::NeedlePuncture { .. }
+            | Command::NeedleTilt { .. }
+            | Command::Syringe { .. }
+            | Command::Plunger { .. }
+            | Command::PlungerHold { .. }
+            | Command::Aspirate => CommandClass::Needle,
             Command::Tick | Command::Submit => CommandClass::Session,
         }
     }
@@ -276,6 +353,13 @@ impl Command {
             Command::NeedleFeed { .. } => "needle_feed",
             Command::NeedleRoll { .. } => "needle_roll",
             Command::NeedleWithdraw { .. } => "needle_withdraw",
+            Command::SkinMarker { .. } => "skin_marker",
+            Command::NeedlePuncture { .. } => "needle_puncture",
+            Command::NeedleTilt { .. } => "needle_tilt",
+            Command::Syringe { .. } => "syringe",
+            Command::Plunger { .. } => "plunger",
+            Command::PlungerHold { .. } => "plunger_hold",
+            Command::Aspirate => "aspirate",
             Command::Annotate { .. } => "annotate",
             Command::ProbeSelect { .. } => "probe_select",
             Command::ProbePose { .. } => "probe_pose",
@@ -345,21 +429,74 @@ impl Command {
             | Command::Live { .. }
             | Command::Tick
             | Command::Submit
-            | Command::InjectStop => Ok(()),
+            | Command::InjectStop
+            | Command::PlungerHold { .. }
+            | Command::Aspirate => Ok(()),
+            Command::SkinMarker { pixel, position_mm } => match (pixel, position_mm) {
+                (Some(px), None) => {
+                    for (a, v) in px.iter().enumerate() {
+                        finite(&format!("command.pixel[{a}]"), *v)?;
+                    }
+                    Ok(())
+                }
+                (None, Some(p)) => {
+                    for (a, v) in p.iter().enumerate() {
+                        range(&format!("command.position_mm[{a}]"), *v, -1000.0, 1000.0)?;
+                    }
+                    Ok(())
+                }
+                _ => Err(CommandError::field(
+                    "command.pixel",
+                    ErrorCode::Invalid,
+                    "give exactly one of pixel and position_mm",
+                )),
+            },
+            Command::NeedlePuncture {
+                instrument,
+                direction,
+                bevel_reference,
+            } => {
+                instrument_id("command.instrument", instrument)?;
+                if let Some(d) = direction {
+                    unit_vector("command.direction", *d)?;
+                }
+                if let Some(b) = bevel_reference {
+                    unit_vector("command.bevel_reference", *b)?;
+                }
+                Ok(())
+            }
+            Command::NeedleTilt { cc_deg, ml_deg } => {
+                range("command.cc_deg", *cc_deg, -MAX_TILT_DEG, MAX_TILT_DEG)?;
+                range("command.ml_deg", *ml_deg, -MAX_TILT_DEG, MAX_TILT_DEG)
+            }
+            Command::Syringe { action, medium } => {
+                if *action == SyringeAction::Detach && medium.is_some() {
+                    return Err(CommandError::field(
+                        "command.medium",
+                        ErrorCode::Invalid,
+                        "a medium is given only when attaching",
+                    ));
+                }
+                Ok(())
+            }
+            Command::Plunger { ml } => {
+                range("command.ml", *ml, 0.0, MAX_PLUNGER_STEP_ML)?;
+                if *ml == 0.0 {
+                    return Err(CommandError::field(
+                        "command.ml",
+                        ErrorCode::OutOfRange,
+                        "a plunger step moves more than 0 ml",
+                    ));
+                }
+                Ok(())
+            }
             Command::NeedlePlace {
                 instrument,
                 entry_mm,
                 direction,
                 bevel_reference,
             } => {
-                no_nul("command.instrument", instrument)?;
-                if instrument.is_empty() || instrument.chars().count() > MAX_INSTRUMENT_CHARS {
-                    return Err(CommandError::field(
-                        "command.instrument",
-                        ErrorCode::Invalid,
-                        format!("instrument id must be 1 to {MAX_INSTRUMENT_CHARS} characters"),
-                    ));
-                }
+                instrument_id("command.instrument", instrument)?;
                 for (a, v) in entry_mm.iter().enumerate() {
                     range(&format!("command.entry_mm[{a}]"), *v, -1000.0, 1000.0)?;
                 }
@@ -385,14 +522,7 @@ impl Command {
                 Ok(())
             }
             Command::ProbeSelect { instrument } => {
-                no_nul("command.instrument", instrument)?;
-                if instrument.is_empty() || instrument.chars().count() > MAX_INSTRUMENT_CHARS {
-                    return Err(CommandError::field(
-                        "command.instrument",
-                        ErrorCode::Invalid,
-                        format!("instrument id must be 1 to {MAX_INSTRUMENT_CHARS} characters"),
-                    ));
-                }
+                instrument_id("command.instrument", instrument)?;
                 Ok(())
             }
             Command::ProbePose {
@@ -562,6 +692,19 @@ pub struct LogEntry {
 
 /// Refuses text holding a NUL: the server's copy of the log (PostgreSQL text and jsonb) cannot
 /// store one, so such a command must never be acknowledged.
+/// A tray instrument id: no NUL, 1 to [`MAX_INSTRUMENT_CHARS`] characters.
+fn instrument_id(field: &str, id: &str) -> Result<(), CommandError> {
+    no_nul(field, id)?;
+    if id.is_empty() || id.chars().count() > MAX_INSTRUMENT_CHARS {
+        return Err(CommandError::field(
+            field,
+            ErrorCode::Invalid,
+            format!("instrument id must be 1 to {MAX_INSTRUMENT_CHARS} characters"),
+        ));
+    }
+    Ok(())
+}
+
 fn no_nul(field: &str, text: &str) -> Result<(), CommandError> {
     if text.contains('\0') {
         return Err(CommandError::field(

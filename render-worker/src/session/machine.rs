@@ -16,6 +16,7 @@ use super::config::SessionConfig;
 use super::devices::Backends;
 use super::error::SessionError;
 use super::frame::EncodedFrame;
+use super::hands;
 use super::image::{ViewId, ViewImage};
 use super::modalities::{Modality, ModalityContext, ModalityFactory};
 use super::region::Region;
@@ -106,12 +107,19 @@ pub struct SessionSnapshot {
     /// Injections so far (absent from the JSON while there are none).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub injections: Vec<Injection>,
+    /// What the hands hold and have done (absent from the JSON while untouched).
+    #[serde(default, skip_serializing_if = "is_default_hands")]
+    pub hands: world::Hands,
     /// State of each modality by name.
     pub modalities: BTreeMap<String, serde_json::Value>,
     /// The result, once the attempt was submitted.
     pub result: Option<SubmitResult>,
     /// SHA-256 of the session's initial snapshot (for records).
     pub initial_sha256: String,
+}
+
+fn is_default_hands(h: &world::Hands) -> bool {
+    *h == world::Hands::default()
 }
 
 impl SessionSnapshot {
@@ -221,6 +229,7 @@ impl Session {
             iodine: None,
             iodine_version: 0,
             carm: None,
+            hands: world::Hands::default(),
         };
         world.carm = modalities.iter().find_map(|m| m.carm());
         let mut s = Session {
@@ -280,6 +289,7 @@ impl Session {
         s.world.needle = snapshot.needle.clone();
         s.world.needle_version = snapshot.needle_version;
         s.world.injections = snapshot.injections.clone();
+        s.world.hands = snapshot.hands.clone();
         s.last_seq = snapshot.last_seq;
         s.initial_sha256 = snapshot.initial_sha256.clone();
         for m in &mut s.modalities {
@@ -323,6 +333,7 @@ impl Session {
             needle: self.world.needle.clone(),
             needle_version: self.world.needle_version,
             injections: self.world.injections.clone(),
+            hands: self.world.hands.clone(),
             modalities: self
                 .modalities
                 .iter()
@@ -504,6 +515,16 @@ impl Session {
                         format!("modality not available at this station: {what} {why}"),
                     ));
                 };
+                if command.class() == CommandClass::Contrast
+                    && matches!(command, Command::Inject { .. })
+                    && self.world.hands.syringe.is_some()
+                {
+                    return Err(CommandError::field(
+                        "command.type",
+                        ErrorCode::State,
+                        "the loss-of-resistance syringe is on the needle: detach it before injecting",
+                    ));
+                }
                 let outcome = m.apply(command, &self.world)?;
                 if let Command::Inject {
                     agent,
@@ -557,117 +578,35 @@ impl Session {
     }
 
     fn apply_needle(&mut self, command: &Command) -> Result<serde_json::Value, CommandError> {
-        let outcome = match command {
-            Command::NeedlePlace {
-                instrument,
-                entry_mm,
-                direction,
-                bevel_reference,
-            } => {
-                let station = &self.env.station.station;
-                let Some(item) = station.instruments.iter().find(|i| &i.id == instrument) else {
-                    return Err(CommandError::field(
-                        "command.instrument",
-                        ErrorCode::InstrumentUnavailable,
-                        format!("{instrument} is not on this station's tray"),
-                    ));
-                };
-                let Some(profile) = world::profile_for_kind(&item.kind) else {
-                    return Err(CommandError::field(
-                        "command.instrument",
-                        ErrorCode::InstrumentUnavailable,
-                        format!("{instrument} ({}) is not a needle", item.kind),
-                    ));
-                };
-                if self
-                    .world
-                    .needle
-                    .as_ref()
-                    .is_some_and(|n| n.state.buried_mm() > 0.0)
-                {
-                    return Err(CommandError::field(
-                        "command.type",
-                        ErrorCode::State,
-                        "the needle is in tissue: withdraw it fully before placing again",
-                    ));
-                }
-                use sim_core::needle::BoneSurface;
-                if self
-                    .env
-                    .region
-                    .bones()
-                    .contains(glam::DVec3::from_array(*entry_mm))
-                {
-                    return Err(CommandError::field(
-                        "command.entry_mm",
-                        ErrorCode::Invalid,
-                        "the entry point lies inside bone",
-                    ));
-                }
-                let state = world::new_needle(profile, *entry_mm, *direction, *bevel_reference)
-                    .map_err(|e| CommandError::field("command.direction", ErrorCode::Invalid, e))?;
-                self.world.needle = Some(NeedleInstrument {
-                    instrument: instrument.clone(),
-                    state,
-                    entered: BTreeSet::new(),
-                });
-                serde_json::json!({ "placed": instrument })
-            }
-            _ => {
-                let Some(cmd) = command.needle_command() else {
-                    return Err(CommandError::field(
-                        "command.type",
-                        ErrorCode::Invalid,
-                        "not a needle command",
-                    ));
-                };
-                let region = Arc::clone(&self.env.region);
-                let Some(n) = self.world.needle.as_mut() else {
-                    return Err(CommandError::field(
-                        "command.type",
-                        ErrorCode::State,
-                        "no needle placed: send needle_place first",
-                    ));
-                };
-                let outcome = match cmd {
-                    sim_core::needle::NeedleCommand::Feed { mm } => {
-                        serde_json::to_value(n.state.feed(mm, &region.bones()))
-                    }
-                    sim_core::needle::NeedleCommand::Roll { deg } => {
-                        serde_json::to_value(n.state.roll(deg))
-                    }
-                    sim_core::needle::NeedleCommand::Withdraw { mm } => {
-                        serde_json::to_value(n.state.withdraw(mm))
-                    }
-                }
-                .unwrap_or_default();
-                // Watched structures: the tip and the buried channel every millimetre.
-                let mut points = n.state.tract.polyline(n.state.buried_mm(), 1.0);
-                points.push(n.state.tip_mm());
-                for name in world::WATCHED_STRUCTURES {
-                    if n.entered.contains(name) {
-                        continue;
-                    }
-                    if points
-                        .iter()
-                        .any(|p| region.contains(name, p.to_array()) == Some(true))
-                    {
-                        n.entered.insert(name.to_string());
-                    }
-                }
-                serde_json::json!({
-                    "outcome": outcome,
-                    "tip_mm": n.state.tip_mm().to_array(),
-                    "depth_mm": n.state.buried_mm(),
-                })
-            }
+        let pixel_ray = match command {
+            Command::SkinMarker {
+                pixel: Some(px), ..
+            } => self.modalities.iter().find_map(|m| m.image_ray(*px)),
+            _ => None,
         };
-        self.world.needle_version += 1;
-        self.notify(&WorldChange::Needle);
-        let mut outcome = outcome;
-        for m in &self.modalities {
-            if let (Some(f), Some(o)) = (m.needle_feedback(&self.world), outcome.as_object_mut()) {
-                o.insert(m.name().to_string(), f);
+        let ctx = hands::Context {
+            region: &self.env.region,
+            seed: self.config.seed,
+            pixel_ray,
+        };
+        let mut effects = hands::Effects::default();
+        let mut outcome = hands::apply(command, &mut self.world, &ctx, &mut effects)?;
+        if effects.saline_ml > 0.0 {
+            self.record_injection(Agent::Saline, effects.saline_ml, hands::LOR_FLOW_ML_PER_S);
+            self.world.hands.lor_ledger_entries += 1;
+        }
+        if effects.marker_moved && !effects.needle_moved {
+            self.notify(&WorldChange::Marker);
+        }
+        if effects.needle_moved {
+            self.world.needle_version += 1;
+            self.notify(&WorldChange::Needle);
+            for m in &self.modalities {
+                if let (Some(f), Some(o)) =
+                    (m.needle_feedback(&self.world), outcome.as_object_mut())
+                {
+                    o.insert(m.name().to_string(), f);
+                }
             }
         }
         Ok(outcome)

@@ -12,6 +12,8 @@
 //!   C-arm over a [`modalities::fluoro::FluoroBackend`], the CPU reference or the GPU renderer).
 //! - [`devices`]: the renderers of a device, chosen once ([`devices::Backends`]).
 //! - [`anatomy`]: targets, sides and structure geometry that scorers of every modality share.
+//! - [`hands`]: needle handling (skin marker, puncture, hub tilt, insertion force, the
+//!   loss-of-resistance syringe, aspiration) and its tallies.
 //! - [`scoring`]: needle measurements, the rubric result and the reproducibility record.
 //! - [`image`] and [`frame`]: the modality-neutral grey image and its JPEG frame with a small
 //!   binary header.
@@ -47,6 +49,7 @@ pub mod demo;
 pub mod devices;
 pub mod error;
 pub mod frame;
+pub mod hands;
 pub mod host;
 pub mod http;
 pub mod image;
@@ -58,7 +61,9 @@ pub mod region;
 pub mod scoring;
 pub mod world;
 
-pub use command::{Agent, Command, CommandClass, CommandError, Envelope, ErrorCode, LogEntry};
+pub use command::{
+    Agent, Command, CommandClass, CommandError, Envelope, ErrorCode, LogEntry, SyringeAction,
+};
 pub use config::SessionConfig;
 pub use devices::Backends;
 pub use error::SessionError;

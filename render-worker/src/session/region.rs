@@ -7,7 +7,7 @@ use sim_core::anatomy::asset::{RegionAsset, Source, StructureAsset};
 use sim_core::anatomy::phantom;
 use sim_core::fluoro::{FluoroMaterial, Scene};
 use sim_core::material::MaterialClass;
-use sim_core::needle::{BoneSurface, RayHit};
+use sim_core::needle::{BoneSurface, RayHit, Tissue};
 
 /// A region ready for simulation: the fluoroscopy scene of its structures (one BVH each, built
 /// once), which of them are bone for needle contact, named landmarks, and the hashes that
@@ -105,6 +105,32 @@ impl Region {
     pub fn contains(&self, structure: &str, p_mm: [f64; 3]) -> Option<bool> {
         self.entry(structure)
             .map(|i| self.scene.entries()[i].bvh.contains(p_mm))
+    }
+
+    /// The structure owning `p`: the last one in painting order whose mesh contains it (masks
+    /// are disjoint except the two whole-envelope solids, `skin` and `deep_soft_tissue`, which
+    /// come first), or `None` outside the body.
+    pub fn structure_at(&self, p_mm: [f64; 3]) -> Option<&str> {
+        self.scene.entries().iter().rev().find_map(|e| {
+            let (lo, hi) = e.bvh.bounds_mm()?;
+            let inside_box = (0..3).all(|a| p_mm[a] >= lo[a] && p_mm[a] <= hi[a]);
+            (inside_box && e.bvh.contains(p_mm)).then_some(e.name.as_str())
+        })
+    }
+
+    /// The tissue at `p` as the needle feels it (air outside the body).
+    pub fn tissue_at(&self, p_mm: [f64; 3]) -> Tissue {
+        self.structure_at(p_mm)
+            .map_or(Tissue::Air, Tissue::of_structure)
+    }
+
+    /// Where a line meets the skin first, coming along `dir` from `far_mm` (a point outside the
+    /// body), within `max_t_mm`.
+    pub fn skin_entry(&self, far_mm: DVec3, dir: DVec3, max_t_mm: f64) -> Option<DVec3> {
+        let skin = self.entry("skin")?;
+        let dir = dir.normalize_or_zero();
+        self.first_hit(skin, far_mm.to_array(), dir.to_array(), max_t_mm)
+            .map(|h| far_mm + dir * h.t_mm)
     }
 
     /// The bone surface the needle is steered against.

@@ -10,8 +10,24 @@
 //! - `dural_puncture_bool`: 1 when the tip has been inside the `dural_sac` structure after any
 //!   needle command (the tip and the buried channel sampled every millimetre are checked).
 //!
+//! Needle handling (see [`super::hands`]), present from the start of every attempt:
+//! - `skin_punctures_count`: `needle_puncture` and `needle_place` commands accepted.
+//! - `redirections_count`: advances into new tissue on a branch that left at least 2 mm of
+//!   channel behind (withdraw, re-aim by hub tilt or bevel, advance), summed over every needle
+//!   (`sim_core::needle::hub`).
+//! - `bone_contacts_count`: episodes of bone contact (a feed stopped or deflected by bone after
+//!   one that was not).
+//! - `lor_confirmed_bool`: 1 once the loss-of-resistance plunger gave way with the outlet in the
+//!   epidural space before any injection through the contrast syringe.
+//! - `false_loss_count`: losses felt with the outlet outside the epidural space.
+//! - `aspiration_done_bool`: 1 once the learner aspirated with the needle in the body.
+//!
 //! Fluoroscopy (see `modalities/fluoro/`):
-//! - `fluoro_acquisitions_count` (shots plus live runs) and `fluoro_exposure_s`.
+//! - `fluoro_acquisitions_count` (shots plus live runs) and `fluoro_exposure_s`, also reported
+//!   as `fluoro_time_s`.
+//! - `air_kerma_mgy` and `kerma_area_product_gycm2`: the radiation estimate (incident air kerma
+//!   at the skin entrance of the central ray, and kerma-area product; see
+//!   `modalities/fluoro/dose.rs`). An estimate, not a dose record.
 //! - `ap_endplate_tilt_deg`: the smallest angle between the central ray and the L4 inferior
 //!   endplate plane over the AP-like acquisitions (|orbital| <= 10 degrees). The endplate normal
 //!   is read from the `L4_cortical` mesh where rays from the L4 body centre towards the L5 body
@@ -60,6 +76,18 @@ pub fn code_revision() -> String {
 
 /// Needle measurements from the shared world.
 pub fn measure_needle(world: &World, out: &mut Measurements) {
+    let h = &world.hands;
+    let flag = |b: bool| if b { 1.0 } else { 0.0 };
+    out.insert("skin_punctures_count".into(), f64::from(h.skin_punctures));
+    let current = world.needle.as_ref().map_or(0, |n| n.state.redirections);
+    out.insert(
+        "redirections_count".into(),
+        f64::from(h.redirections_before + current),
+    );
+    out.insert("bone_contacts_count".into(), f64::from(h.bone_contacts));
+    out.insert("lor_confirmed_bool".into(), flag(h.lor_confirmed));
+    out.insert("false_loss_count".into(), f64::from(h.false_losses));
+    out.insert("aspiration_done_bool".into(), flag(h.aspirations > 0));
     let Some(n) = &world.needle else {
         return;
     };

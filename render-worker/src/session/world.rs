@@ -8,7 +8,7 @@ use std::sync::Arc;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use sim_core::fluoro::IodineField;
-use sim_core::needle::{InitialResponse, InstrumentProfile, NeedleState};
+use sim_core::needle::{ForceState, InitialResponse, InstrumentProfile, LorSyringe, NeedleState};
 use sim_core::rubric::Station;
 
 use super::command::Agent;
@@ -117,6 +117,57 @@ pub fn new_needle(
     .map_err(|e| e.to_string())
 }
 
+/// What the hands hold and have done (part of the session snapshot; see
+/// `super::hands`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Hands {
+    /// The skin marker, model frame, mm (taken away at the puncture).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub marker_mm: Option<[f64; 3]>,
+    /// Skin punctures (each `needle_puncture` and `needle_place`).
+    #[serde(default)]
+    pub skin_punctures: u32,
+    /// Redirections of needles that are out of the body again.
+    #[serde(default)]
+    pub redirections_before: u32,
+    /// Episodes of bone contact (a feed stopped or deflected by bone after one that was not).
+    #[serde(default)]
+    pub bone_contacts: u32,
+    /// The last feed ended on bone.
+    #[serde(default)]
+    pub on_bone: bool,
+    /// Insertion force model state of the needle in the body.
+    #[serde(default)]
+    pub force: ForceState,
+    /// Largest total force during the current needle's insertion, N.
+    #[serde(default)]
+    pub peak_force_n: f64,
+    /// The loss-of-resistance syringe on the hub.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub syringe: Option<LorSyringe>,
+    /// Constant pressure held on the plunger.
+    #[serde(default)]
+    pub hold: bool,
+    /// The plunger was giving way at the last check.
+    #[serde(default)]
+    pub giving_way: bool,
+    /// A loss was felt with the outlet in the epidural space before any injection.
+    #[serde(default)]
+    pub lor_confirmed: bool,
+    /// Losses felt with the outlet outside the epidural space.
+    #[serde(default)]
+    pub false_losses: u32,
+    /// Volume that left the loss-of-resistance syringe, ml.
+    #[serde(default)]
+    pub lor_injected_ml: f64,
+    /// Entries of the world's injection ledger that came from the loss-of-resistance syringe.
+    #[serde(default)]
+    pub lor_ledger_entries: usize,
+    /// Aspirations done.
+    #[serde(default)]
+    pub aspirations: u32,
+}
+
 /// One injection through the needle, as the session recorded it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Injection {
@@ -145,6 +196,8 @@ pub enum WorldChange {
     Iodine,
     /// The C-arm moved (now in [`World::carm`]).
     CArm,
+    /// The skin marker was put down or taken away (now in [`Hands::marker_mm`]).
+    Marker,
 }
 
 /// Where the C-arm's central beam runs, for views that show it (the ultrasound placement view).
@@ -180,4 +233,24 @@ pub struct World {
     /// The C-arm's central beam at stations with fluoroscopy (published by that modality,
     /// derived from its state, so not part of snapshots).
     pub carm: Option<CArmAxis>,
+    /// What the hands hold and have done: skin marker, syringe, force state, tallies.
+    pub hands: Hands,
+}
+
+/// Records the watched structures the tip or the buried channel (sampled every millimetre) is
+/// inside after a needle move.
+pub fn mark_entered(n: &mut NeedleInstrument, region: &Region) {
+    let mut points = n.state.tract.polyline(n.state.buried_mm(), 1.0);
+    points.push(n.state.tip_mm());
+    for name in WATCHED_STRUCTURES {
+        if n.entered.contains(name) {
+            continue;
+        }
+        if points
+            .iter()
+            .any(|p| region.contains(name, p.to_array()) == Some(true))
+        {
+            n.entered.insert(name.to_string());
+        }
+    }
 }

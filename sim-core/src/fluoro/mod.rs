@@ -11,6 +11,9 @@
 //! 5. [`render`] normalises exposure, maps to 8-bit, adds seeded quantum noise and draws the
 //!    collimator shutters.
 //!
+//! [`dose`] estimates the incident air kerma and kerma-area product of an exposure from the same
+//! spectra (an estimate, not a dose record).
+//!
 //! The GPU renderer in `render-worker` reproduces steps 1 to 4 and is tested against this module.
 //! Units: millimetres for geometry, per-centimetre attenuation coefficients (as tabulated), and
 //! every chord is converted to centimetres exactly once, in [`attenuation`].
@@ -41,6 +44,7 @@
 pub mod analytic;
 pub mod attenuation;
 pub mod contrast;
+pub mod dose;
 pub mod geometry;
 pub mod nesting;
 pub mod render;
@@ -49,6 +53,7 @@ pub mod spectrum;
 
 pub use attenuation::{BasisDepths, EnergyModel, FluoroMaterial, MaterialChords, SpectralModel};
 pub use contrast::IodineField;
+pub use dose::{DoseExposure, DoseIncrement, air_kerma_ugy_per_mas_at_1m, incident_dose};
 pub use geometry::{Collimation, DetectorFrame, GpuRayFrame, Projection, Ray};
 pub use render::{
     Exposure, Image, QuantumNoise, RenderSettings, TransmissionImage, render_chords, render_frame,

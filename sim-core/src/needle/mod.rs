@@ -1,9 +1,11 @@
-//! Needle mechanics: bevel-tip kinematics, torsional play, the recorded tract, bone contact and
-//! automatic placement.
+//! Needle mechanics: bevel-tip kinematics, torsional play, the recorded tract, bone contact,
+//! automatic placement, hub tilt, and what the hands feel (insertion force, loss of resistance,
+//! aspiration).
 //!
-//! This is a low-order interaction model in the nonholonomic framework of Webster et al. (2006),
-//! not a device predictor: it has no cutting or friction forces, tissue displacement, rate
-//! dependence or elastic shaft equilibrium, and the tract is retraced exactly.
+//! The path is a low-order interaction model in the nonholonomic framework of Webster et al.
+//! (2006), not a device predictor: the insertion force ([`force`]) is computed along the path
+//! but does not act back on it (no tissue displacement, rate dependence or elastic shaft
+//! equilibrium), and the tract is retraced exactly.
 //!
 //! - [`profile`]: instruments as data (rigid 22G Quincke spinal, rigid 18G Tuohy, flexible
 //!   pre-bent steerable needle), each number with its source.
@@ -11,10 +13,19 @@
 //!   the exact mean of the exponentially relaxing bending response (second order in the substep);
 //!   the frame is parallel-transported.
 //! - [`play`]: hub roll reaches the bevel through a depth-dependent deadband.
+//! - [`hub`]: hub tilt while in tissue (the shaft as a beam on an elastic foundation) and the
+//!   redirection rule.
 //! - [`tract`]: the cut channel and the tip's place on it.
 //! - [`contact`]: centre-line ray casts against bone; steep contacts arrest, shallow ones slide.
 //! - [`state`]: the serializable [`NeedleState`], the commands and the replayable [`Needle`] log.
 //! - [`placement`]: automatic placement toward a target by duty-cycled 180 degree flips.
+//!
+//! Handling (issue 19), pure models the session drives once per 0.5 mm substep:
+//! - [`tissue`]: the mechanical [`Tissue`] class of a structure name.
+//! - [`force`]: the insertion force along the path after Okamura, Simone & O'Leary (2004):
+//!   capsule stiffness up to a puncture ("pop"), cutting at the tip, friction along the shaft.
+//! - [`syringe`]: the loss-of-resistance syringe (saline or air) against tissue opening
+//!   pressures, false loss of resistance, and aspiration with published false-negative rates.
 //!
 //! ```
 //! use glam::DVec3;
@@ -37,20 +48,28 @@
 //! ```
 
 pub mod contact;
+pub mod force;
+pub mod hub;
 pub mod kinematics;
 pub mod placement;
 pub mod play;
 pub mod profile;
 pub mod state;
+pub mod syringe;
+pub mod tissue;
 pub mod tract;
 
 pub use contact::{BoneSurface, HalfSpaceBone, NoBone, RayHit, SphereBone};
+pub use force::{ForceModel, ForceParams, ForcePhase, ForceSample, ForceState};
 pub use kinematics::Pose;
 pub use placement::{PlacementConfig, PlacementFailure, PlacementReport, place_toward};
 pub use play::TorsionalPlay;
 pub use profile::{InstrumentProfile, Opening, PathModel, TipGeometry};
 pub use state::{
     ArrestReason, CommandOutcome, ContactArrest, FeedOutcome, FeedStop, InitialResponse, Needle,
-    NeedleCommand, NeedleError, NeedleState, OutletFootprint, RollOutcome, WithdrawOutcome,
+    NeedleCommand, NeedleError, NeedleState, OutletFootprint, RollOutcome, TiltOutcome,
+    WithdrawOutcome,
 };
+pub use syringe::{Aspirate, LorFeel, LorMedium, LorSyringe, aspirate, is_false_loss};
+pub use tissue::{LayerStack, Tissue};
 pub use tract::{SegmentKind, Tract, TractCursor, TractSegment};

@@ -158,6 +158,10 @@ fn run_on_state(
             NeedleCommand::Withdraw { mm } => {
                 state.withdraw(mm);
             }
+            NeedleCommand::Tilt { toward, deg } => {
+                // Placement never tilts; a refused tilt changes nothing.
+                let _ = state.tilt(toward, deg);
+            }
         }
     }
     stop

@@ -7,6 +7,7 @@ use super::contact::{
     ARREST_INCIDENCE_DEG, BoneSurface, CONTACT_GAP_MM, LOOKAHEAD_MM, NoBone, TURNING_BUDGET_DEG,
     first_entry,
 };
+use super::hub::{MAX_HUB_DEVIATION_DEG, REDIRECT_MIN_DISCARD_MM, tip_turn_fraction};
 use super::kinematics::{Pose, arc_pose, mean_response};
 use super::play::{TorsionalPlay, window_rad};
 use super::profile::{InstrumentProfile, PathModel};
@@ -41,6 +42,18 @@ pub enum NeedleError {
     /// The entry direction or bevel reference is degenerate.
     #[error("degenerate entry pose (zero direction, or bevel parallel to it)")]
     DegenerateEntry,
+    /// A hub tilt would take the hub further than [`MAX_HUB_DEVIATION_DEG`] from the puncture
+    /// direction.
+    #[error(
+        "hub tilt refused: the hub would be {deviation_deg:.1} degrees from the puncture direction (at most {MAX_HUB_DEVIATION_DEG})"
+    )]
+    TiltLimit {
+        /// Deviation the tilt would have reached, degrees.
+        deviation_deg: f64,
+    },
+    /// A tilt direction with no component across the hub's direction.
+    #[error("hub tilt direction is parallel to the needle")]
+    DegenerateTilt,
 }
 
 /// Bending response when the needle enters the skin.
@@ -72,6 +85,14 @@ pub enum NeedleCommand {
         /// Hub travel, millimetres (>= 0).
         mm: f64,
     },
+    /// Tilt the hub: the aim turns by `deg` degrees towards `toward` (its component across the
+    /// hub's direction); the tip follows by the fraction of [`super::hub`].
+    Tilt {
+        /// World direction the aim turns towards (need not be unit length).
+        toward: DVec3,
+        /// Tilt angle, degrees (>= 0).
+        deg: f64,
+    },
 }
 
 impl NeedleCommand {
@@ -81,6 +102,9 @@ impl NeedleCommand {
                 mm.is_finite() && mm >= 0.0
             }
             NeedleCommand::Roll { deg } => deg.is_finite(),
+            NeedleCommand::Tilt { toward, deg } => {
+                toward.is_finite() && toward.length_squared() > 0.0 && deg.is_finite() && deg >= 0.0
+            }
         }
     }
 }
@@ -162,6 +186,19 @@ pub enum CommandOutcome {
     Roll(RollOutcome),
     /// See [`WithdrawOutcome`].
     Withdraw(WithdrawOutcome),
+    /// See [`TiltOutcome`].
+    Tilt(TiltOutcome),
+}
+
+/// Result of a hub tilt.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TiltOutcome {
+    /// Angle between the hub's new direction and the puncture direction, degrees.
+    pub hub_deviation_deg: f64,
+    /// How far the tip heading turned, degrees.
+    pub tip_turn_deg: f64,
+    /// True when the turn cut the channel ahead of the tip (the next advance branches).
+    pub branched: bool,
 }
 
 /// The contrast outlet in world coordinates.
@@ -206,6 +243,29 @@ pub struct NeedleState {
     pub play: TorsionalPlay,
     /// Redirection accumulated over the current continuous bone contact, radians.
     pub contact_turn_rad: f64,
+    /// Direction of the external shaft from the skin entry towards the tip (`None`: the entry
+    /// direction, never tilted).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hub_dir: Option<DVec3>,
+    /// Direction the needle punctured the skin with, the reference of
+    /// [`MAX_HUB_DEVIATION_DEG`] (`None`: the entry direction).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub puncture_dir: Option<DVec3>,
+    /// Redirections so far: advances into new tissue on a branch that left at least
+    /// [`REDIRECT_MIN_DISCARD_MM`] of channel behind (see [`super::hub`]).
+    #[serde(default, skip_serializing_if = "is_zero_u32")]
+    pub redirections: u32,
+    /// Channel discarded by the latest branch not yet followed by new cutting, mm.
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub pending_branch_mm: f64,
+}
+
+fn is_zero_u32(v: &u32) -> bool {
+    *v == 0
+}
+
+fn is_zero_f64(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl NeedleState {
@@ -241,6 +301,10 @@ impl NeedleState {
             tip_roll_rad: 0.0,
             play: TorsionalPlay::default(),
             contact_turn_rad: 0.0,
+            hub_dir: None,
+            puncture_dir: None,
+            redirections: 0,
+            pending_branch_mm: 0.0,
         })
     }
 
@@ -307,7 +371,7 @@ impl NeedleState {
     /// entry direction, the skin entry, then the buried channel up to the tip.
     pub fn shaft_polyline(&self, max_step_mm: f64) -> Vec<DVec3> {
         let external_mm = (self.profile.shaft_length_mm - self.buried_mm()).max(0.0);
-        let mut pts = vec![self.entry.position_mm - self.entry.tangent() * external_mm];
+        let mut pts = vec![self.entry.position_mm - self.hub_direction() * external_mm];
         let buried = self.tract.polyline(self.buried_mm(), max_step_mm);
         if buried.is_empty() {
             pts.push(self.entry.position_mm);
@@ -336,8 +400,94 @@ impl NeedleState {
         if self.tract.is_end(self.cursor) {
             return false;
         }
+        let discarded = self.tract.length_mm() - self.buried_mm();
+        self.pending_branch_mm = self.pending_branch_mm.max(discarded);
         self.tract.truncate_at(self.cursor);
         true
+    }
+
+    /// Direction of the external shaft, from the hub towards the skin entry.
+    pub fn hub_direction(&self) -> DVec3 {
+        self.hub_dir.unwrap_or_else(|| self.entry.tangent())
+    }
+
+    /// Direction the needle punctured the skin with.
+    pub fn puncture_direction(&self) -> DVec3 {
+        self.puncture_dir.unwrap_or_else(|| self.entry.tangent())
+    }
+
+    /// The hub direction after turning it by `deg` towards `toward`, and the rotation that does
+    /// it.
+    fn tilted(&self, toward: DVec3, deg: f64) -> Result<(DVec3, DQuat), NeedleError> {
+        let hub = self.hub_direction();
+        let across = toward - hub * toward.dot(hub);
+        // A direction within 1e-9 rad of the hub has no usable across component.
+        if across.length() <= 1e-9 * toward.length() {
+            return Err(NeedleError::DegenerateTilt);
+        }
+        let axis = hub.cross(across).normalize();
+        let rot = DQuat::from_axis_angle(axis, deg.to_radians());
+        Ok(((rot * hub).normalize(), rot))
+    }
+
+    /// Angle the hub would make with the puncture direction after a tilt, degrees.
+    pub fn hub_deviation_after_deg(&self, toward: DVec3, deg: f64) -> Result<f64, NeedleError> {
+        let (hub, _) = self.tilted(toward, deg)?;
+        Ok(hub
+            .dot(self.puncture_direction())
+            .clamp(-1.0, 1.0)
+            .acos()
+            .to_degrees())
+    }
+
+    /// Tilt the hub by `deg` degrees towards `toward` (see [`super::hub`]): the external shaft
+    /// pivots about the skin entry, the tip heading turns by the transmitted fraction, and the
+    /// channel ahead of the tip (if any) is cut so that the next advance branches. Refused
+    /// beyond [`MAX_HUB_DEVIATION_DEG`] from the puncture direction.
+    pub fn tilt(&mut self, toward: DVec3, deg: f64) -> Result<TiltOutcome, NeedleError> {
+        let deviation = self.hub_deviation_after_deg(toward, deg)?;
+        if deviation > MAX_HUB_DEVIATION_DEG {
+            return Err(NeedleError::TiltLimit {
+                deviation_deg: deviation,
+            });
+        }
+        let (hub, rot) = self.tilted(toward, deg)?;
+        self.puncture_dir = Some(self.puncture_direction());
+        self.hub_dir = Some(hub);
+        let fraction = tip_turn_fraction(self.profile.outer_diameter_mm, self.buried_mm());
+        let (axis, angle) = rot.to_axis_angle();
+        let tip_rot = DQuat::from_axis_angle(axis, angle * fraction);
+        let mut branched = false;
+        if self.tract.segments.is_empty() {
+            // Not yet in tissue: the whole needle re-aims about the entry point.
+            self.entry.orientation = (tip_rot * self.entry.orientation).normalize();
+            self.pose = self.entry;
+        } else {
+            branched = self.branch_here();
+            let mut turned = self.pose;
+            turned.orientation = (tip_rot * turned.orientation).normalize();
+            let seg = TractSegment {
+                start: turned,
+                response_start: self.response,
+                bevel: self.bevel_local(),
+                curvature_per_mm: DVec2::ZERO,
+                length_mm: 0.0,
+                start_arc_mm: self.buried_mm(),
+                kind: SegmentKind::Turn,
+            };
+            self.tract.segments.push(seg);
+            self.cursor = TractCursor {
+                segment: self.tract.segments.len() - 1,
+                offset_mm: 0.0,
+            };
+            self.pose = turned;
+        }
+        self.contact_turn_rad = 0.0;
+        Ok(TiltOutcome {
+            hub_deviation_deg: deviation,
+            tip_turn_deg: (angle * fraction).to_degrees(),
+            branched,
+        })
     }
 
     /// Apply a tip roll and branch if the tip is behind the end of its channel.
@@ -428,6 +578,10 @@ impl NeedleState {
 
         // Cut new tissue.
         if remaining > 0.0 {
+            if self.pending_branch_mm >= REDIRECT_MIN_DISCARD_MM {
+                self.redirections += 1;
+            }
+            self.pending_branch_mm = 0.0;
             let n = ((remaining / self.substep_mm).ceil() as usize).max(1);
             let h = remaining / n as f64;
             for _ in 0..n {
@@ -664,6 +818,13 @@ impl Needle {
             NeedleCommand::Feed { mm } => CommandOutcome::Feed(self.state.feed(mm, bone)),
             NeedleCommand::Roll { deg } => CommandOutcome::Roll(self.state.roll(deg)),
             NeedleCommand::Withdraw { mm } => CommandOutcome::Withdraw(self.state.withdraw(mm)),
+            NeedleCommand::Tilt { toward, deg } => match self.state.tilt(toward, deg) {
+                Ok(t) => CommandOutcome::Tilt(t),
+                Err(e) => {
+                    self.log.pop();
+                    return Err(e);
+                }
+            },
         })
     }
 

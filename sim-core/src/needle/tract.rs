@@ -17,6 +17,8 @@ pub enum SegmentKind {
     Cut,
     /// Straight sliding along a bone surface after a shallow contact.
     Slide,
+    /// A zero-length segment whose start frame carries a hub tilt's turn of the tip.
+    Turn,
 }
 
 /// One arc of the channel.

@@ -3,7 +3,8 @@
 //! non-finite number), so the engine refuses it instead of scoring it: `tip_to_target_mm =
 //! -1e308` must never earn the credit of a perfect placement.
 //!
-//! The unit comes from the key's suffix (`_mm`, `_deg`, `_count`, `_s`, `_fraction`, `_bool`, the
+//! The unit comes from the key's suffix (`_mm`, `_deg`, `_count`, `_s`, `_fraction`, `_bool`,
+//! `_mgy`, `_gycm2`, the
 //! convention station validation enforces for criteria). A key of the form `<a>_to_<b>_<unit>`
 //! names the distance or the smallest angle between two things: a magnitude, never negative.
 //! Other millimetre and degree keys may be signed; the few signed offsets whose key also contains
@@ -26,6 +27,14 @@ pub const MAX_COUNT: f64 = 1.0e6;
 /// Longest duration in seconds. Our choice: one day, beyond any attempt.
 pub const MAX_SECONDS: f64 = 86_400.0;
 
+/// Largest air kerma, mGy. Our choice: 10^5 mGy (100 Gy) is far beyond any fluoroscopic
+/// procedure (skin injury thresholds begin at a few gray; ICRP Publication 85, 2000).
+pub const MAX_MGY: f64 = 1.0e5;
+
+/// Largest kerma-area product, Gy cm^2. Our choice: 10^4 Gy cm^2 is far beyond any procedure
+/// (complex interventional procedures reach a few hundred; ICRP Publication 85, 2000).
+pub const MAX_GYCM2: f64 = 1.0e4;
+
 /// Keys containing `_to_` that are signed offsets rather than magnitudes.
 pub const SIGNED_KEYS: &[&str] = &["tip_medial_to_pedicle_mm"];
 
@@ -42,6 +51,8 @@ pub fn unit_of_key(key: &str) -> Option<Unit> {
         "s" => Unit::S,
         "fraction" => Unit::Fraction,
         "bool" => Unit::Bool,
+        "mgy" => Unit::Mgy,
+        "gycm2" => Unit::Gycm2,
         _ => return None,
     })
 }
@@ -74,6 +85,8 @@ pub fn check_value(key: &str, unit: Unit, value: f64) -> Result<(), String> {
         Unit::S if !(0.0..=MAX_SECONDS).contains(&value) => out("0 to 86400 s"),
         Unit::Fraction if !(0.0..=1.0).contains(&value) => out("0 to 1"),
         Unit::Bool if value != 0.0 && value != 1.0 => out("1 or 0 (yes or no)"),
+        Unit::Mgy if !(0.0..=MAX_MGY).contains(&value) => out("0 to 1e5 mGy"),
+        Unit::Gycm2 if !(0.0..=MAX_GYCM2).contains(&value) => out("0 to 1e4 Gy cm^2"),
         _ => Ok(()),
     }
 }

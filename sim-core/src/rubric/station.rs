@@ -40,6 +40,10 @@ pub enum Unit {
     Fraction,
     /// A yes/no observation, stored as 1.0 (yes) or 0.0 (no).
     Bool,
+    /// Milligray (air kerma).
+    Mgy,
+    /// Gray square centimetres (kerma-area product).
+    Gycm2,
 }
 
 impl Unit {
@@ -52,6 +56,8 @@ impl Unit {
             Unit::S => "s",
             Unit::Fraction => "fraction",
             Unit::Bool => "bool",
+            Unit::Mgy => "mgy",
+            Unit::Gycm2 => "gycm2",
         }
     }
 }

@@ -75,6 +75,14 @@ pub trait Modality: Send {
         None
     }
 
+    /// The ray through continuous pixel `pixel` of the image this modality displays (the
+    /// fluoroscopy modality: from the focal spot through that pixel of the last image), as
+    /// origin and unit direction in the model frame, or why there is none; `None` from a
+    /// modality without such an image.
+    fn image_ray(&self, _pixel: [f64; 2]) -> Option<Result<(glam::DVec3, glam::DVec3), String>> {
+        None
+    }
+
     /// What this modality shows of the needle, added under its name to the acknowledgement of
     /// every needle command (the ultrasound modality: whether the shaft and the tip are in the
     /// scan plane), so a client needs no extra command to learn it.

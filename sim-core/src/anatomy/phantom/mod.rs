@@ -24,7 +24,7 @@
 //! - `{L1..L5,sacrum,ilium_left,ilium_right}_cortical` (the cortical shell) and `_cancellous`
 //!   (the interior): pedicles, laminae, spinous, transverse and articular processes with 2 mm
 //!   facet joints and open interlaminar windows; sacral canal, anterior and posterior foramina,
-//!   hiatus; iliac wings with a 2.5 mm sacroiliac joint.
+//!   hiatus; iliac wings with arched crests and a 2.5 mm sacroiliac joint.
 //!
 //! Except for the two whole-envelope solids, masks (and so meshes) are disjoint: a mesh bounds
 //! exactly the voxels its structure owns, so a renderer may sum per-material chord lengths
@@ -69,7 +69,7 @@ use crate::volume::{Volume, VolumeGrid};
 pub use model::{AnatomyParams, Landmark};
 
 /// Generator identifier recorded in the provenance; bump the number when the model changes shape.
-pub const GENERATOR: &str = "lumbosacral-phantom/2";
+pub const GENERATOR: &str = "lumbosacral-phantom/3";
 
 /// Region name and default folder name under `assets/`.
 pub const REGION_NAME: &str = "lumbar-phantom";

@@ -185,19 +185,32 @@ impl FluoroRenderer for GpuRenderer {
 /// The needle's closed prisms, one per polyline segment (equal-area radius, [`NEEDLE_FACETS`]).
 pub fn needle_meshes(needle: &NeedleShaft) -> Vec<sim_core::mesh::TriMesh> {
     let r = equal_area_vertex_radius(needle.radius_mm, NEEDLE_FACETS);
+    let rods = needle.rods.iter().map(|([a, b], radius)| {
+        capped_cylinder(
+            *a,
+            *b,
+            equal_area_vertex_radius(*radius, NEEDLE_FACETS),
+            NEEDLE_FACETS,
+        )
+    });
     needle
         .points_mm
         .windows(2)
         .filter(|w| (0..3).map(|a| (w[1][a] - w[0][a]).powi(2)).sum::<f64>() > 1e-12)
         .map(|w| capped_cylinder(w[0], w[1], r, NEEDLE_FACETS))
+        .chain(rods)
         .collect()
 }
 
-/// The needle shaft as imaged: a polyline (hub first) and its radius.
+/// The steel instruments as imaged: the needle shaft, a polyline (hub first; empty without a
+/// needle) with its radius, and straight rods lying on the skin (the skin marker).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NeedleShaft {
     /// Points, mm.
     pub points_mm: Vec<[f64; 3]>,
     /// Outer radius, mm.
     pub radius_mm: f64,
+    /// Straight steel rods: ends (mm) and radius (mm).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub rods: Vec<([[f64; 3]; 2], f64)>,
 }

@@ -10,6 +10,7 @@
 //! caught up, or after a restore) is exactly the image of that moment.
 
 mod backend;
+pub mod dose;
 
 use std::sync::Arc;
 
@@ -25,12 +26,14 @@ pub use backend::{
     BackendProfile, CpuFluoroBackend, FluoroBackend, FluoroRenderError, FluoroRenderer,
     GpuFluoroBackend, NEEDLE_FACETS, NeedleShaft, needle_meshes,
 };
+use dose::DoseTally;
 
 use super::modality::{Modality, ModalityContext, ModalityError};
 use crate::session::anatomy::{
     angle_to_plane_deg, endplate_normal, facet_joint_normal, primary_target, target_side,
 };
 use crate::session::command::{Command, CommandClass, CommandError, ErrorCode};
+use crate::session::hands::{MARKER_LENGTH_MM, MARKER_RADIUS_MM};
 use crate::session::image::{ViewId, ViewImage};
 use crate::session::world::{World, WorldChange};
 
@@ -113,6 +116,9 @@ pub struct FluoroState {
     pub annotations: Vec<Annotation>,
     /// Session seed for quantum noise.
     pub seed: u64,
+    /// The radiation estimate booked so far.
+    #[serde(default, skip_serializing_if = "DoseTally::is_empty")]
+    pub dose: DoseTally,
 }
 
 /// The fluoroscopy modality.
@@ -162,6 +168,7 @@ impl FluoroModality {
                 images: Vec::new(),
                 annotations: Vec::new(),
                 seed,
+                dose: DoseTally::default(),
             },
             backend,
             rendered: None,
@@ -208,9 +215,44 @@ impl FluoroModality {
                 .map_or(0, |s| now_ms.saturating_sub(s))
     }
 
+    /// Books the live fluoroscopy since the last booking with the current pose and technique.
+    fn book_live(&mut self, world: &World) {
+        if let Some(t0) = self.state.dose.live_booked_to_ms {
+            let p = self.projection();
+            let seconds = world.clock_ms.saturating_sub(t0) as f64 / 1000.0;
+            let (kvp, ma) = (self.state.kvp, self.state.ma);
+            self.state.dose.book(&world.region, &p, kvp, ma, seconds);
+            self.state.dose.live_booked_to_ms = Some(world.clock_ms);
+        }
+    }
+
+    /// Air kerma (mGy) and kerma-area product (Gy cm^2) so far, a live run included.
+    pub fn dose_at(&self, world: &World) -> (f64, f64) {
+        let d = &self.state.dose;
+        let (k, kap) = d.live_booked_to_ms.map_or((0.0, 0.0), |t0| {
+            dose::dose_of(
+                &world.region,
+                &self.projection(),
+                self.state.kvp,
+                self.state.ma,
+                world.clock_ms.saturating_sub(t0) as f64 / 1000.0,
+            )
+        });
+        (d.air_kerma_mgy + k, d.kerma_area_product_gycm2 + kap)
+    }
+
+    fn dose_json(&self, world: &World) -> serde_json::Value {
+        let (k, kap) = self.dose_at(world);
+        serde_json::json!({
+            "air_kerma_mgy": k,
+            "kerma_area_product_gycm2": kap,
+            "fluoro_time_s": self.exposure_ms_at(world.clock_ms) as f64 / 1000.0,
+        })
+    }
+
     fn acquire(&mut self, world: &World, live: bool) {
         let index = self.state.images.len() as u64;
-        let needle = world.needle.as_ref().map(|n| NeedleShaft {
+        let mut needle = world.needle.as_ref().map(|n| NeedleShaft {
             points_mm: simplify_polyline(
                 &n.state
                     .shaft_polyline(2.0)
@@ -219,7 +261,27 @@ impl FluoroModality {
                     .collect::<Vec<_>>(),
             ),
             radius_mm: 0.5 * n.state.profile.outer_diameter_mm,
+            rods: Vec::new(),
         });
+        if let Some(m) = world.hands.marker_mm {
+            // The clamp tip lies on the skin along the body axis, raised by its radius towards
+            // the tube.
+            let m = DVec3::from_array(m);
+            let up = -DVec3::from_array(self.projection().frame().normal);
+            let centre = m + up * MARKER_RADIUS_MM;
+            let half = DVec3::Z * (0.5 * MARKER_LENGTH_MM);
+            needle
+                .get_or_insert_with(|| NeedleShaft {
+                    points_mm: Vec::new(),
+                    radius_mm: 0.0,
+                    rods: Vec::new(),
+                })
+                .rods
+                .push((
+                    [(centre - half).to_array(), (centre + half).to_array()],
+                    MARKER_RADIUS_MM,
+                ));
+        }
         self.state.images.push(AcquiredImage {
             index,
             t_ms: world.clock_ms,
@@ -305,6 +367,7 @@ impl Modality for FluoroModality {
                 angular_deg,
                 table_mm,
             } => {
+                self.book_live(world);
                 self.state.orbital_deg = *orbital_deg;
                 self.state.angular_deg = *angular_deg;
                 self.state.table_mm = *table_mm;
@@ -313,6 +376,7 @@ impl Modality for FluoroModality {
                 }
             }
             Command::Technique { kvp, ma } => {
+                self.book_live(world);
                 self.state.kvp = *kvp;
                 self.state.ma = *ma;
                 if live {
@@ -322,16 +386,27 @@ impl Modality for FluoroModality {
             Command::Shot => {
                 self.state.shots += 1;
                 self.state.exposure_ms += SHOT_EXPOSURE_MS;
+                let p = self.projection();
+                self.state.dose.book(
+                    &world.region,
+                    &p,
+                    self.state.kvp,
+                    self.state.ma,
+                    SHOT_EXPOSURE_MS as f64 / 1000.0,
+                );
                 self.acquire(world, false);
             }
             Command::Live { on: true } => {
                 if !live {
                     self.state.live_runs += 1;
                     self.state.live_since_ms = Some(now);
+                    self.state.dose.live_booked_to_ms = Some(now);
                     self.acquire(world, true);
                 }
             }
             Command::Live { on: false } => {
+                self.book_live(world);
+                self.state.dose.live_booked_to_ms = None;
                 if let Some(since) = self.state.live_since_ms.take() {
                     self.state.exposure_ms += now.saturating_sub(since);
                 }
@@ -375,12 +450,13 @@ impl Modality for FluoroModality {
             "acquisitions": self.state.shots + self.state.live_runs,
             "exposure_s": self.exposure_ms_at(now) as f64 / 1000.0,
             "image": self.state.images.last().map(|i| i.index),
+            "dose": self.dose_json(world),
         }))
     }
 
     fn world_changed(&mut self, change: &WorldChange, world: &World) {
         match change {
-            WorldChange::Needle => {
+            WorldChange::Needle | WorldChange::Marker => {
                 if self.state.live_since_ms.is_some() {
                     self.acquire(world, true);
                 }
@@ -399,6 +475,23 @@ impl Modality for FluoroModality {
                 }
             }
         }
+    }
+
+    fn image_ray(&self, pixel: [f64; 2]) -> Option<Result<(DVec3, DVec3), String>> {
+        let Some(image) = self.state.images.last() else {
+            return Some(Err(
+                "no fluoroscopy image yet: take a shot first".to_string()
+            ));
+        };
+        let [w, h] = image.projection.detector_pixels;
+        if !(0.0..=f64::from(w)).contains(&pixel[0]) || !(0.0..=f64::from(h)).contains(&pixel[1]) {
+            return Some(Err(format!("{pixel:?} is outside the {w} x {h} image")));
+        }
+        let r = image.projection.pixel_ray(pixel);
+        Some(Ok((
+            DVec3::from_array(r.origin_mm),
+            DVec3::from_array(r.dir),
+        )))
     }
 
     fn carm(&self) -> Option<crate::session::world::CArmAxis> {
@@ -464,6 +557,13 @@ impl Modality for FluoroModality {
             "fluoro_exposure_s".into(),
             self.exposure_ms_at(world.clock_ms) as f64 / 1000.0,
         );
+        out.insert(
+            "fluoro_time_s".into(),
+            self.exposure_ms_at(world.clock_ms) as f64 / 1000.0,
+        );
+        let (kerma, kap) = self.dose_at(world);
+        out.insert("air_kerma_mgy".into(), kerma);
+        out.insert("kerma_area_product_gycm2".into(), kap);
         let region = &world.region;
         let side = primary_target(&world.station)
             .map(|t| target_side(region, t))

@@ -194,10 +194,27 @@ pub(super) fn sacrum_with_processes(spine: &Spine, gap: f64) -> Sdf {
     Sdf::SmoothUnion(sac_extra, 3.0).minus(Sdf::Union(sac_keep))
 }
 
+/// Radius of the dome that shapes the iliac crest, mm: the crest follows a sphere of this radius
+/// whose top is the crest's highest point, so it falls by `d^2 / 2R` (roughly) at a horizontal
+/// distance `d` from that point: about 40 mm at the posterior end of the wing (which meets the
+/// posterior superior iliac spine, centred 57 mm below the crest top here) and 30 mm at the
+/// anterior end (towards the anterior superior spine). Our assumption, giving the arched crest
+/// of an AP film, highest postero-laterally and falling towards both iliac spines.
+const CREST_DOME_RADIUS_MM: f64 = 150.0;
+
+/// Angle of the crest's highest point on the wing's rim, radians from its lateral-most point
+/// (negative: posterior). Our assumption: the highest point lies a little behind the iliac
+/// tubercle, as the intercristal (Tuffier's) line is drawn through the crests' posterior tops.
+const CREST_APEX_ANGLE_RAD: f64 = -0.35;
+
 /// Iliac bone of side `s`: a bowl-shaped wing (shell of an ellipsoid) with an auricular part
 /// against the sacrum and a column towards the acetabulum; the SI joint is kept open by removing
 /// the sacrum grown by the joint width `si_gap` (our assumption for all dimensions: inter-crest
-/// width about 270 mm, crest at the L4 level).
+/// width about 270 mm, crest top at the L4 level).
+///
+/// The wing ends at an arched crest, not at a horizontal plane: a plane cuts the shell along a
+/// level ring, which in every view projects to a straight edge across the whole field at one
+/// height (a bright-to-dark step of about 20 grey levels through both flanks of the AP image).
 pub(super) fn ilium(spine: &Spine, sacrum: &Sdf, s: f64, si_gap: f64) -> Sdf {
     let v = &spine.lumbar;
     let sf = &spine.sacral;
@@ -227,15 +244,32 @@ pub(super) fn ilium(spine: &Spine, sacrum: &Sdf, s: f64, si_gap: f64) -> Sdf {
             offset: 55.0,
         },
     ]);
-    // Iliac crest: a thickened rim along the top of the wing.
+    // The crest's top: a dome (a sphere over everything below its centre) whose highest point,
+    // at height `crest_top`, lies over the rim at `CREST_APEX_ANGLE_RAD`.
+    let crest_top = crest_z + 3.0;
+    let r_dome = CREST_DOME_RADIUS_MM;
+    let apex = DVec3::new(
+        c.x + s * 80.0 * CREST_APEX_ANGLE_RAD.cos(),
+        c.y + 62.0 * CREST_APEX_ANGLE_RAD.sin(),
+        crest_top - r_dome,
+    );
+    let dome = Sdf::Union(vec![
+        Sdf::Sphere { radius: r_dome }.at(apex),
+        Sdf::HalfSpace {
+            normal: DVec3::Z,
+            offset: apex.z,
+        },
+    ]);
+    let dome_top = |q: DVec3| {
+        let d2 = (q.x - apex.x).powi(2) + (q.y - apex.y).powi(2);
+        apex.z + (r_dome * r_dome - d2).max(0.0).sqrt()
+    };
+    // Iliac crest: a thickened rim along the top of the wing, its centre a radius under the dome.
     let crest_pts: Vec<DVec3> = (0..=10)
         .map(|k| {
             let t = -1.75 + 2.9 * f64::from(k) / 10.0;
-            DVec3::new(
-                c.x + s * 76.5 * t.cos(),
-                c.y + 59.0 * t.sin(),
-                crest_z - 3.0,
-            )
+            let q = DVec3::new(c.x + s * 76.5 * t.cos(), c.y + 59.0 * t.sin(), 0.0);
+            DVec3::new(q.x, q.y, dome_top(q) - 6.0)
         })
         .filter(|q| q.y <= 55.0 && s * q.x >= 28.0)
         .collect();
@@ -243,13 +277,7 @@ pub(super) fn ilium(spine: &Spine, sacrum: &Sdf, s: f64, si_gap: f64) -> Sdf {
         radii: vec![6.0; crest_pts.len()],
         points: crest_pts,
     };
-    let wing = Sdf::Intersect(vec![
-        Sdf::SmoothUnion(vec![wing, crest], 4.0),
-        Sdf::HalfSpace {
-            normal: DVec3::Z,
-            offset: crest_z + 3.0,
-        },
-    ]);
+    let wing = Sdf::Intersect(vec![Sdf::SmoothUnion(vec![wing, crest], 4.0), dome]);
     let auricular = Sdf::Ellipsoid {
         radii: DVec3::new(20.0, 24.0, 32.0),
     }
