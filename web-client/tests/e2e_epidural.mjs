@@ -89,6 +89,13 @@ function maxDiff(a, b, centre, radius = 4, outside = -1) {
   return m;
 }
 
+/** The fluoroscopy canvas's box on screen, scrolled into view first (clicks on the panels
+ * below scroll the page). */
+async function canvasBox(page) {
+  await page.locator('#fluoro').scrollIntoViewIfNeeded();
+  return page.locator('#fluoro').boundingBox();
+}
+
 /** Sets the C-arm with the arrow keys in C-arm mode (5 degrees a press, 1 with Shift). */
 async function carmTo(page, orbital, angular) {
   await page.check('input[name="drag-mode"][value="carm"]');
@@ -141,7 +148,7 @@ await runReport(async (page, report) => {
   // Skin marker: dragged on the image to the trajectory's pixel (image pixels: the canvas shows
   // a 512 x 512 frame at its CSS size), then a shot shows it.
   await page.check('input[name="drag-mode"][value="marker"]');
-  const box = await page.locator('#fluoro').boundingBox();
+  let box = await canvasBox(page);
   const size = await page.evaluate(() => window.__sim.needle.imageSize);
   const at = (p) => [box.x + (p[0] * box.width) / size[0], box.y + (p[1] * box.height) / size[1]];
   const [mx, my] = at(TRAJECTORY.markerPixel);
@@ -166,29 +173,32 @@ await runReport(async (page, report) => {
   report.after_puncture = { marker_text: await page.textContent('#marker-state'), hub: await page.textContent('#hub-deviation') };
   report.steps.push('punctured');
 
-  // Hub tilt onto the planned line, rounded to 0.5 degree: the first degree across by a
-  // two-finger touch drag of 8 px (TILT_PX_PER_DEG in needle.js), the whole degrees by the arrow
-  // keys (2 a press, 1 with Shift), a half degree by a Shift + mouse drag of 4 px. The needle is
-  // not buried yet, so the pieces add up to one tilt.
+  // Hub tilt onto the planned line, rounded to 0.5 degree: the first 3 degrees across by a
+  // two-finger touch drag of 24 px (TILT_PX_PER_DEG in needle.js; Chromium holds back touch
+  // moves within its slop of about 15 px), the whole degrees by the arrow keys (2 a press, 1
+  // with Shift), a half degree by a Shift + mouse drag of 4 px. The needle is not buried yet, so
+  // the pieces add up to one tilt.
   const half = (v) => Math.round(v * 2) / 2;
   const cc = half(TRAJECTORY.tiltCcDeg);
   const ml = half(TRAJECTORY.tiltMlDeg);
   report.tilt_asked = { cc, ml };
   const sign = Math.sign(ml) || 1;
+  box = await canvasBox(page);
   const cdp = await page.context().newCDPSession(page);
   const fingers = (type, dx) => cdp.send('Input.dispatchTouchEvent', {
     type,
     touchPoints: type === 'touchEnd' ? [] : [-20, 20].map((x, id) => ({ x: box.x + box.width / 2 + x + dx, y: box.y + box.height / 2, id })),
   });
   await fingers('touchStart', 0);
-  for (const dx of [3, 6, 8]) await fingers('touchMove', sign * dx);
-  await fingers('touchEnd', sign * 8);
+  for (const dx of [8, 16, 24]) await fingers('touchMove', sign * dx);
+  await fingers('touchEnd', sign * 24);
   await settle(page);
   report.touch_hub = await page.textContent('#hub-deviation');
-  const rest = ml - sign;
+  const rest = ml - 3 * sign;
   await tiltKeys(page, Math.trunc(cc), Math.trunc(rest));
   for (const [deg, dx, dy] of [[cc - Math.trunc(cc), 0, -4], [rest - Math.trunc(rest), 4, 0]]) {
     if (deg === 0) continue;
+    box = await canvasBox(page);
     const [cx, cy] = [box.x + box.width / 2, box.y + box.height / 2];
     const s = Math.sign(deg);
     await page.keyboard.down('Shift');
@@ -215,8 +225,8 @@ await runReport(async (page, report) => {
   await check('advance');
   report.steps.push('advanced');
 
-  // Loss of resistance: saline syringe on, pressure held, advanced by the wheel (1 mm a notch)
-  // and then F with Shift (0.5 mm) until the plunger gives way.
+  // Loss of resistance: saline syringe on, pressure held, advanced 0.5 mm at a time (as the
+  // session test) by the wheel with Shift and then F with Shift until the plunger gives way.
   await page.click('#lor-attach');
   await settle(page);
   await page.click('#lor-press');
@@ -227,13 +237,15 @@ await runReport(async (page, report) => {
   report.lor_hold_pressed = await page.getAttribute('#lor-hold', 'aria-pressed');
   const gaveWay = () => page.evaluate(() => /gives way/i.test(document.getElementById('lor-text').textContent));
   let travel = 0;
-  const box2 = await page.locator('#fluoro').boundingBox();
-  await page.mouse.move(box2.x + box2.width / 2, box2.y + box2.height / 2);
-  for (let i = 0; i < 5 && !(await gaveWay()); i++) {
+  box = await canvasBox(page);
+  await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
+  await page.keyboard.down('Shift');
+  for (let i = 0; i < 4 && !(await gaveWay()); i++) {
     await page.mouse.wheel(0, -100);
     await settle(page);
-    travel += 1;
+    travel += 0.5;
   }
+  await page.keyboard.up('Shift');
   await page.focus('#fluoro');
   while (!(await gaveWay()) && travel < MAX_LOR_TRAVEL_MM) {
     await page.keyboard.press('Shift+F');
