@@ -54,11 +54,17 @@ fn activity_of(command: &Command) -> Option<ActivityKind> {
         | Command::Technique { .. } => ActivityKind::ViewChanged,
         Command::Shot | Command::Live { on: true } => ActivityKind::ImageAcquired,
         Command::NeedlePlace { .. }
+        | Command::NeedlePuncture { .. }
         | Command::NeedleFeed { .. }
         | Command::NeedleRoll { .. }
+        | Command::NeedleTilt { .. }
         | Command::NeedleWithdraw { .. } => ActivityKind::NeedleAdjusted,
-        Command::Inject { .. } => ActivityKind::Injection,
+        Command::Inject { .. } | Command::Plunger { .. } => ActivityKind::Injection,
         Command::Live { on: false }
+        | Command::SkinMarker { .. }
+        | Command::Syringe { .. }
+        | Command::PlungerHold { .. }
+        | Command::Aspirate
         | Command::ProbeFreeze { .. }
         | Command::InjectStop
         | Command::Annotate { .. }
