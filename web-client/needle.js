@@ -31,8 +31,9 @@ const DRAG_INTERVAL_MS = 50;
  * which send many small deltas, step about as often as a wheel. */
 const WHEEL_STEP_PX = 50;
 /** Force gauge full scale, N, and the trace's length in samples (0.5 mm apart: the last 40 mm of
- * travel). Simulator choice: above the hand forces of a Tuohy needle through the ligamentum
- * flavum in the session's force model; the scale grows if a larger force is felt. */
+ * travel). Simulator choice: the force model's bone stop (sim_core::needle::force::BONE_STOP_N,
+ * 10 N) fills the gauge; the flavum peaks at about 6 N in the browser test. The scale grows if a
+ * larger force is felt. */
 const FORCE_FULL_SCALE_N = 10;
 const TRACE_SAMPLES = 80;
 

@@ -261,6 +261,7 @@ await runReport(async (page, report) => {
     force_text: await page.textContent('#force-text'),
     trace: await page.evaluate(() => window.__sim.needle.trace),
   };
+  if (outDir) await page.screenshot({ path: join(outDir, 'page-at-loss.png'), fullPage: true });
   await page.click('#lor-hold');
   await settle(page);
   await check('lor');
