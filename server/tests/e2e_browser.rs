@@ -680,10 +680,13 @@ async fn interlaminar_epidural_by_hand_in_headless_chromium() {
     );
     assert!(m["change_far"].as_f64().unwrap() < 5.0, "{m:#}");
     assert_eq!(m["cursor_hidden_after_shot"], true, "{m:#}");
-    // The two-finger drag tilted the hub by 3 degrees (24 px at 8 px a degree); with the keys
-    // and the Shift drag the hub stands at the planned tilt (the planned line keeps its height,
-    // so the tilt is across only and the hub's deviation is its size).
+    // The two-finger drag tilted the hub by 3 degrees (24 px at 8 px a degree), the button by 2
+    // more, the Shift + drag of 8 px by 1 more; with the keys the hub stands at the planned tilt
+    // (the planned line keeps its height, so the tilt is across only and the hub's deviation is
+    // its size).
     assert_eq!(report["touch_hub"], "3.0°", "{report:#}");
+    assert_eq!(report["button_hub"], "5.0°", "{report:#}");
+    assert_eq!(report["drag_hub"], "6.0°", "{report:#}");
     assert_eq!(trajectory["tiltCcDeg"], 0.0, "{trajectory}");
     let ml = trajectory["tiltMlDeg"].as_f64().unwrap();
     assert_eq!(

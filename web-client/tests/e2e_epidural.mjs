@@ -173,11 +173,12 @@ await runReport(async (page, report) => {
   report.after_puncture = { marker_text: await page.textContent('#marker-state'), hub: await page.textContent('#hub-deviation') };
   report.steps.push('punctured');
 
-  // Hub tilt onto the planned line, rounded to 0.5 degree: the first 3 degrees across by a
-  // two-finger touch drag of 24 px (TILT_PX_PER_DEG in needle.js; Chromium holds back touch
-  // moves within its slop of about 15 px), the whole degrees by the arrow keys (2 a press, 1
-  // with Shift), a half degree by a Shift + mouse drag of 4 px. The needle is not buried yet, so
-  // the pieces add up to one tilt.
+  // Hub tilt onto the planned line, rounded to 0.5 degree, by every input: the first 3 degrees
+  // across by a two-finger touch drag of 24 px (TILT_PX_PER_DEG in needle.js; Chromium holds
+  // back touch moves within its slop of about 15 px), 2 by a tilt button, 1 by a Shift + mouse
+  // drag of 8 px, the remaining whole degrees by the arrow keys (2 a press, 1 with Shift) and a
+  // half degree by a Shift + mouse drag of 4 px. The needle is not buried yet, so the pieces
+  // add up to one tilt.
   const half = (v) => Math.round(v * 2) / 2;
   const cc = half(TRAJECTORY.tiltCcDeg);
   const ml = half(TRAJECTORY.tiltMlDeg);
@@ -194,21 +195,27 @@ await runReport(async (page, report) => {
   await fingers('touchEnd', sign * 24);
   await settle(page);
   report.touch_hub = await page.textContent('#hub-deviation');
-  const rest = ml - 3 * sign;
-  await tiltKeys(page, Math.trunc(cc), Math.trunc(rest));
-  for (const [deg, dx, dy] of [[cc - Math.trunc(cc), 0, -4], [rest - Math.trunc(rest), 4, 0]]) {
-    if (deg === 0) continue;
+  await page.click(sign < 0 ? '#tilt-right' : '#tilt-left');
+  await settle(page);
+  report.button_hub = await page.textContent('#hub-deviation');
+  /** A Shift + mouse drag on the image by (dx, dy) px. */
+  const shiftDrag = async (dx, dy) => {
     box = await canvasBox(page);
     const [cx, cy] = [box.x + box.width / 2, box.y + box.height / 2];
-    const s = Math.sign(deg);
     await page.keyboard.down('Shift');
     await page.mouse.move(cx, cy);
     await page.mouse.down();
-    await page.mouse.move(cx + s * dx, cy + s * dy, { steps: 2 });
+    await page.mouse.move(cx + dx, cy + dy, { steps: 2 });
     await page.mouse.up();
     await page.keyboard.up('Shift');
-  }
-  await settle(page);
+    await settle(page);
+  };
+  await shiftDrag(sign * 8, 0);
+  report.drag_hub = await page.textContent('#hub-deviation');
+  const rest = ml - 6 * sign;
+  await tiltKeys(page, Math.trunc(cc), Math.trunc(rest));
+  if (cc !== Math.trunc(cc)) await shiftDrag(0, -4 * Math.sign(cc));
+  if (rest !== Math.trunc(rest)) await shiftDrag(4 * Math.sign(rest), 0);
   report.hub_text = await page.textContent('#hub-deviation');
   report.steps.push('tilted');
 
