@@ -640,3 +640,114 @@ fn the_dose_estimate_follows_the_inverse_square_and_the_live_time() {
         (ssd_m / ssd3_m).powi(2)
     );
 }
+
+/// Twenty straight paramedian trajectories to the posterior epidural space (scanned on this
+/// phantom: bone-free lines that cross the ligamentum flavum into the epidural fat), each
+/// advanced in 0.5 mm feeds with constant pressure on a saline syringe from the moment the
+/// outlet sits in the interspinous ligament: the plunger gives way on the first feed whose end
+/// puts the outlet in the epidural fat (within one feed step of the boundary, found by a
+/// 0.05 mm march along the same line), and never while the outlet is in ligament or flavum.
+#[test]
+fn loss_of_resistance_is_felt_at_the_epidural_boundary_on_twenty_trajectories() {
+    let reg = region();
+    let setback = {
+        let p = sim_core::needle::InstrumentProfile::tuohy_18g().opening;
+        p.distal_edge_from_tip_mm + 0.5 * p.length_mm
+    };
+    let mut paths = Vec::new();
+    'scan: for tz in [-56.0, -54.0] {
+        for tx in [-10.0, -7.0] {
+            for dx in [-40.0, -35.0, -30.0, -25.0, -20.0] {
+                for dz in [0.0, 10.0, 20.0, 35.0] {
+                    let t = DVec3::new(tx, -39.0, tz);
+                    let far = t + DVec3::new(dx, -120.0, dz);
+                    let dir = (t - far).normalize();
+                    let Some(skin) = reg.skin_entry(far, dir, 200.0) else {
+                        continue;
+                    };
+                    // March the outlet along the line: tissues in order, no bone.
+                    let mut seq = Vec::new();
+                    let mut s = 0.0;
+                    while s < (t - skin).length() + 2.0 {
+                        let tissue = reg.tissue_at((skin + dir * s).to_array());
+                        if seq.last().map(|x: &(Tissue, f64)| x.0) != Some(tissue) {
+                            seq.push((tissue, s));
+                        }
+                        s += 0.05;
+                    }
+                    let bone = seq.iter().any(|x| x.0 == Tissue::Bone);
+                    let flavum = seq.iter().position(|x| x.0 == Tissue::LigamentumFlavum);
+                    let epi = seq.iter().position(|x| x.0 == Tissue::EpiduralFat);
+                    if let (false, Some(f), Some(e)) = (bone, flavum, epi) {
+                        if e == f + 1 {
+                            paths.push((skin, dir, seq[e].1));
+                            if paths.len() == 20 {
+                                break 'scan;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert_eq!(paths.len(), 20, "trajectories found");
+    for (k, (skin, dir, boundary_tip_mm)) in paths.into_iter().enumerate() {
+        // The boundary for the outlet is `setback` deeper for the tip; the 0.05 mm tolerance is the
+        // march's resolution.
+        let boundary = boundary_tip_mm + setback;
+        let mut r = Run::new(env(EPIDURAL), quiet());
+        r.ok(
+            1,
+            Command::NeedlePlace {
+                instrument: TUOHY.into(),
+                entry_mm: skin.to_array(),
+                direction: dir.to_array(),
+                bevel_reference: [0.0, 0.0, 1.0],
+            },
+        );
+        let mut t = 1;
+        let outlet = |r: &Run| {
+            let n = r.s.world().needle.as_ref().unwrap();
+            (
+                reg.tissue_at(n.state.outlet().centre_mm.to_array()),
+                n.state.buried_mm(),
+            )
+        };
+        while outlet(&r).0 != Tissue::InterspinousLigament {
+            t += 10;
+            r.ok(t, Command::NeedleFeed { mm: 0.5 });
+            assert!(
+                outlet(&r).1 < boundary,
+                "path {k}: no ligament before the space"
+            );
+        }
+        t += 10;
+        r.ok(
+            t,
+            Command::Syringe {
+                action: SyringeAction::Attach,
+                medium: None,
+            },
+        );
+        t += 10;
+        let a = r.ok(t, Command::PlungerHold { on: true });
+        assert_eq!(a.outcome["lor"]["gave_way"], false, "path {k}");
+        let loss = loop {
+            t += 10;
+            let a = r.ok(t, Command::NeedleFeed { mm: 0.5 });
+            let (tissue, depth) = outlet(&r);
+            if a.outcome["lor"]["gave_way"] == true {
+                break (tissue, depth);
+            }
+            assert!(depth < boundary + 1.0, "path {k}: no loss by {depth} mm");
+        };
+        assert_eq!(loss.0, Tissue::EpiduralFat, "path {k}");
+        assert!(
+            loss.1 >= boundary - 0.05 && loss.1 < boundary + 0.5 + 0.05,
+            "path {k}: loss at {} mm, boundary {boundary} mm",
+            loss.1
+        );
+        assert_eq!(r.s.measurements()["lor_confirmed_bool"], 1.0);
+        assert_eq!(r.s.measurements()["false_loss_count"], 0.0);
+    }
+}

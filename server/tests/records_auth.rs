@@ -359,7 +359,7 @@ async fn an_edited_published_station_revision_is_refused() {
     // Bumping the rubric revision makes it a new, accepted revision.
     std::fs::write(
         dir.path().join("l4-l5-left-facet.toml"),
-        edited.replacen("[rubric]\nrevision = 1", "[rubric]\nrevision = 2", 1),
+        edited.replacen("[rubric]\nrevision = 2", "[rubric]\nrevision = 3", 1),
     )
     .unwrap();
     server::records::prepare(app.pool(), &cfg, false)

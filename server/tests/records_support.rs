@@ -385,7 +385,12 @@ pub fn facet_measurements_met() -> Value {
         "tip_to_target_mm": 1.5,
         "intra_articular_spread_bool": 1.0,
         "intravascular_uptake_bool": 0.0,
-        "fluoro_acquisitions_count": 8.0
+        "fluoro_acquisitions_count": 8.0,
+        "skin_punctures_count": 1.0,
+        "redirections_count": 1.0,
+        "bone_contacts_count": 1.0,
+        "air_kerma_mgy": 3.5,
+        "fluoro_time_s": 12.0
     })
 }
 
