@@ -4,6 +4,7 @@
 import { api, setCsrf, ApiError } from './api.js';
 import { LiveSession } from './session.js';
 import { UltrasoundStation } from './ultrasound.js';
+import { NeedleControls } from './needle.js';
 
 const $ = (id) => document.getElementById(id);
 const views = ['login-view', 'learner-view', 'session-view', 'faculty-view'];
@@ -173,6 +174,7 @@ function logLine(text) {
 }
 
 const us = new UltrasoundStation({ send: (command) => (live ? live.send(command) : null), log: logLine });
+const needle = new NeedleControls({ send: (command) => (live ? live.send(command) : null), log: logLine });
 
 /** Shows the panels of the views a session renders (fluoroscopy, ultrasound and placement). */
 function showViews(views) {
@@ -180,12 +182,6 @@ function showViews(views) {
   $('fluoro-viewer').hidden = !fluoro;
   $('carm-controls').hidden = !fluoro;
   us.hello(views);
-}
-
-/** A needle command (its acknowledgement carries what the ultrasound plane shows of it). */
-function needleCommand(command) {
-  if (!live) return;
-  live.send(command);
 }
 
 /** What the server says while a station's anatomy is prepared (503 `anatomy_preparing`). */
@@ -232,11 +228,13 @@ async function openSession(attemptId, stationId) {
     ctx.fillRect(0, 0, 512, 512);
     live = new LiveSession(s.ws);
     us.reset(station);
+    needle.reset(station);
+    $('dose').textContent = '–';
     // Until the hello lists the session's views, the station's modalities say what to show.
     const listed = station.modalities || [];
     $('fluoro-viewer').hidden = !listed.includes('fluoroscopy');
     $('carm-controls').hidden = !listed.includes('fluoroscopy');
-    window.__sim = { session: s, live, stats: live.stats, station, us, views: null };
+    window.__sim = { session: s, live, stats: live.stats, station, us, needle, views: null };
     let drawn = 0;
     live.addEventListener('connection', (e) => { $('conn').textContent = e.detail.state; });
     live.addEventListener('hello', (e) => {
@@ -249,6 +247,7 @@ async function openSession(attemptId, stationId) {
     live.addEventListener('frame', (e) => {
       const { bitmap, frame } = e.detail;
       if (frame.view === 'fluoroscopy') {
+        needle.fluoroFrame(frame);
         ctx.drawImage(bitmap, 0, 0, 512, 512);
         bitmap.close();
       } else if (!us.frame(frame, bitmap)) {
@@ -259,12 +258,16 @@ async function openSession(attemptId, stationId) {
     });
     live.addEventListener('ack', (e) => {
       us.ack(e.detail);
+      needle.ack(e.detail);
       const o = e.detail.outcome || {};
       if (o.depth_mm != null) $('depth').textContent = `${fmt(o.depth_mm, 1)} mm`;
-      if (o.outcome && o.outcome.kind) logLine(`Needle: ${o.outcome.kind}`);
       if (o.injected_ml != null) $('injected').textContent = `${fmt(o.injected_ml, 2)} mL`;
+      if (o.dose) $('dose').textContent = doseWords(o.dose);
     });
-    live.addEventListener('commanderror', (e) => { logLine(`Not accepted (${e.detail.error.field}): ${e.detail.error.message}`); });
+    live.addEventListener('commanderror', (e) => {
+      needle.error(e.detail);
+      logLine(`Not accepted (${e.detail.error.field}): ${e.detail.error.message}`);
+    });
     live.addEventListener('notice', (e) => { logLine(e.detail.message); });
     live.addEventListener('ended', (e) => {
       $('conn').textContent = 'ended';
@@ -279,7 +282,14 @@ async function openSession(attemptId, stationId) {
   }
 }
 
+/** The session's dose estimate (fluoroscopy acks): air kerma at the reference point, kerma-area
+ * product and fluoroscopy time. */
+function doseWords(d) {
+  return `air kerma ${fmt(d.air_kerma_mgy, 2)} mGy · KAP ${fmt(d.kerma_area_product_gycm2, 3)} Gy·cm² · fluoroscopy ${fmt(d.fluoro_time_s, 1)} s`;
+}
+
 function showResult(r) {
+  if (window.__sim) window.__sim.result = r;
   $('result').hidden = false;
   $('result-summary').textContent = `Technical result: ${outcomeWords(r.outcome)}; weighted score ${fmt(r.score)} (measured weight ${fmt(r.measured_weight_fraction)}). It now waits for faculty review.`;
   const criteria = (r.detail && r.detail.criteria) || [];
@@ -317,15 +327,6 @@ $('live').addEventListener('click', (e) => {
   live.send({ type: 'live', on });
 });
 
-function placeNeedle() {
-  if (!live || !station) return;
-  const target = station.targets && station.targets[0];
-  const t = target ? target.position_mm : [0, 0, 0];
-  // Default posterior approach: 60 mm behind the first target along -y (posterior in the
-  // model frame), aimed straight at it, bevel facing patient right.
-  needleCommand({ type: 'needle_place', instrument: $('instrument').value, entry_mm: [t[0], t[1] - 60, t[2]], direction: [0, 1, 0], bevel_reference: [1, 0, 0] });
-}
-$('needle-place').addEventListener('click', placeNeedle);
 $('us-needle-place').addEventListener('click', () => us.placeInPlane($('instrument').value));
 
 // Syringe: pressing the plunger starts an injection of the chosen volume at the chosen rate;
@@ -372,14 +373,11 @@ $('plunger').addEventListener('pointercancel', releasePlunger);
 // Keyboard: hold Enter or Space on the plunger.
 $('plunger').addEventListener('keydown', (e) => { if ((e.key === 'Enter' || e.key === ' ') && !e.repeat) pressPlunger(e); });
 $('plunger').addEventListener('keyup', (e) => { if (e.key === 'Enter' || e.key === ' ') releasePlunger(); });
-$('feed-1').addEventListener('click', () => needleCommand({ type: 'needle_feed', mm: 1 }));
-$('feed-5').addEventListener('click', () => needleCommand({ type: 'needle_feed', mm: 5 }));
-$('withdraw-1').addEventListener('click', () => needleCommand({ type: 'needle_withdraw', mm: 1 }));
-$('roll-90').addEventListener('click', () => needleCommand({ type: 'needle_roll', deg: 90 }));
 $('submit').addEventListener('click', () => live && live.send({ type: 'submit' }));
 $('leave').addEventListener('click', () => { if (live) { live.close(); live = null; } learnerHome(); });
 
-// Keyboard on the image: arrows rotate, S/Space shoot, F/W/R move the needle.
+// Keyboard on the image (listed on screen in #fluoro-keys): S/Space shoot; the needle's keys;
+// arrows rotate the C-arm unless the marker or the hub is chosen.
 $('fluoro').addEventListener('keydown', (e) => {
   const k = e.key;
   const step = e.shiftKey ? 1 : 5;
@@ -387,33 +385,54 @@ $('fluoro').addEventListener('keydown', (e) => {
     ArrowLeft: () => rotate(-step, 0), ArrowRight: () => rotate(step, 0),
     ArrowUp: () => rotate(0, step), ArrowDown: () => rotate(0, -step),
     s: () => live && live.send({ type: 'shot' }), ' ': () => live && live.send({ type: 'shot' }),
-    f: () => needleCommand({ type: 'needle_feed', mm: 1 }),
-    w: () => needleCommand({ type: 'needle_withdraw', mm: 1 }),
-    r: () => needleCommand({ type: 'needle_roll', deg: 90 }),
   }[k.length === 1 ? k.toLowerCase() : k];
-  if (handled) { e.preventDefault(); handled(); }
+  if (needle.key(e)) e.preventDefault();
+  else if (handled) { e.preventDefault(); handled(); }
 });
 
-// Mouse and touch (pointer events): drag rotates the C-arm, the wheel feeds or withdraws.
+// Mouse and touch (pointer events): a drag moves what the mode says (C-arm, skin marker or
+// hub); Shift + drag and two fingers tilt the hub; the wheel feeds or withdraws.
+function carmDrag(at) {
+  const start = { x: at.x, y: at.y, o: pose.orbital, a: pose.angular };
+  return {
+    move: (p) => {
+      // 4 screen pixels per degree (simulator choice: a full-width drag turns about 120 degrees).
+      pose.orbital = clamp(Math.round(start.o + (p.x - start.x) / 4), -90, 90);
+      pose.angular = clamp(Math.round(start.a - (p.y - start.y) / 4), -40, 40);
+      sendPose();
+    },
+    end: () => sendPose(true),
+  };
+}
+const pointers = new Map();
 let drag = null;
+function dragPoint() {
+  const ps = [...pointers.values()];
+  return { x: ps.reduce((s, p) => s + p.x, 0) / ps.length, y: ps.reduce((s, p) => s + p.y, 0) / ps.length };
+}
 $('fluoro').addEventListener('pointerdown', (e) => {
-  drag = { x: e.clientX, y: e.clientY, o: pose.orbital, a: pose.angular };
+  pointers.set(e.pointerId, { x: e.clientX, y: e.clientY });
   e.target.setPointerCapture(e.pointerId);
+  if (drag) drag.end();
+  const kind = pointers.size > 1 || e.shiftKey ? 'hub' : needle.mode();
+  drag = kind === 'carm' ? carmDrag(dragPoint()) : needle.drag(kind, dragPoint(), e.target);
 });
 $('fluoro').addEventListener('pointermove', (e) => {
-  if (!drag) return;
-  // 4 screen pixels per degree (simulator choice: a full-width drag turns about 120 degrees).
-  pose.orbital = clamp(Math.round(drag.o + (e.clientX - drag.x) / 4), -90, 90);
-  pose.angular = clamp(Math.round(drag.a - (e.clientY - drag.y) / 4), -40, 40);
-  sendPose();
+  if (!pointers.has(e.pointerId)) return;
+  pointers.set(e.pointerId, { x: e.clientX, y: e.clientY });
+  if (drag) drag.move(dragPoint());
 });
-const endDrag = () => { if (drag) { drag = null; sendPose(true); } };
+// A finger lifted from a two-finger tilt ends the drag (the rest would jump the midpoint).
+const endDrag = (e) => {
+  pointers.delete(e.pointerId);
+  if (drag) { drag.end(); drag = null; }
+};
 $('fluoro').addEventListener('pointerup', endDrag);
 $('fluoro').addEventListener('pointercancel', endDrag);
 $('fluoro').addEventListener('wheel', (e) => {
   if (!live) return;
   e.preventDefault();
-  needleCommand(e.deltaY < 0 ? { type: 'needle_feed', mm: 1 } : { type: 'needle_withdraw', mm: 1 });
+  needle.wheel(e);
 }, { passive: false });
 
 // ---------------------------------------------------------------- faculty: queue, replay, review

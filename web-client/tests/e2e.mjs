@@ -1,11 +1,12 @@
 // End-to-end run of the web client in headless Chromium (Debian's /usr/bin/chromium, driven by
 // playwright-core): a learner logs in, opens a fluoroscopy station, takes a shot, rotates the
-// C-arm, takes a shot, places and advances the needle, takes a shot, injects contrast under live
+// C-arm, takes a shot, drags the skin marker on that image, punctures there in AP and advances
+// the needle back in the rotated view, takes a shot, injects contrast under live
 // fluoroscopy with the press-and-hold plunger and submits; then faculty
 // log in, set up an authenticator (the code is computed here, as an authenticator app would),
 // open the replay and approve.
 //
-// Usage: node tests/e2e.mjs <base-url> [out-dir]
+// Usage: E2E_MARKER='{"orbitalDeg":30,"pixel":[x,y]}' node tests/e2e.mjs <base-url> [out-dir]
 // Prints one JSON object on stdout (the figures the Rust test asserts on) and exits 0 when every
 // step passed, 1 with {"ok": false, "error": ...} otherwise. Canvas captures go to out-dir.
 
@@ -16,8 +17,11 @@ import { STEP_TIMEOUT_MS, waitUntil, login, openFirstStation, runReport } from '
 
 const base = process.argv[2];
 const outDir = process.argv[3] || null;
-if (!base) {
-  console.error('usage: node tests/e2e.mjs <base-url> [out-dir]');
+/** Where to put the skin marker: `{"orbitalDeg": o, "pixel": [x, y]}`, the pixel (of the 512 x
+ * 512 image) of the skin behind the demo target in the view rotated by `o` degrees. */
+const MARKER = JSON.parse(process.env.E2E_MARKER || 'null');
+if (!base || !MARKER) {
+  console.error('usage: E2E_MARKER={"orbitalDeg":..,"pixel":[..]} node tests/e2e.mjs <base-url> [out-dir]');
   process.exit(2);
 }
 
@@ -134,12 +138,46 @@ await runReport(async (page, report) => {
   const rotated = await capture(page, '2-rotated');
   report.steps.push('rotated');
 
-  // Needle: place at the skin, advance 15 mm, shoot.
-  const acks0 = await acksSoFar(page);
-  await page.click('#needle-place');
-  for (let i = 0; i < 3; i++) await page.click('#feed-5');
-  await waitUntil(page, (n) => window.__sim.stats.acks >= n + 4 && window.__sim.live.pending.size === 0, acks0);
+  // Needle: the skin marker dragged on the rotated image to the pixel where the skin behind the
+  // target images (E2E_MARKER: computed by the Rust test for this pose), the C-arm back to AP
+  // (slider), the puncture (down the AP central beam, +y, as the placement of the earlier
+  // client), the C-arm back to the rotated pose, 55 mm advanced (the contrast transport box of
+  // the demo region reaches 42 mm under its skin), shot: the rotated and needle images differ
+  // by the needle only.
+  const setPose = async (orbital, angular) => {
+    await page.evaluate(([o, a]) => {
+      for (const [id, v] of [['orbital', o], ['angular', a]]) {
+        const el = document.getElementById(id);
+        el.value = String(v);
+        el.dispatchEvent(new Event('input', { bubbles: true }));
+      }
+    }, [orbital, angular]);
+    // Pose commands are throttled to one per 50 ms (app.js): let the last one go, then wait for
+    // its answer, so the puncture follows it.
+    await page.waitForTimeout(120);
+    await waitUntil(page, () => window.__sim.live.pending.size === 0);
+  };
+  const rotatedPose = [report.orbital_deg, Number(await page.inputValue('#angular'))];
+  if (rotatedPose[0] !== MARKER.orbitalDeg || rotatedPose[1] !== 0) throw new Error(`rotated to ${rotatedPose}, the marker pixel is for ${MARKER.orbitalDeg}`);
+  await page.check('input[name="drag-mode"][value="marker"]');
+  await page.locator('#fluoro').scrollIntoViewIfNeeded();
+  const at = await page.locator('#fluoro').boundingBox();
+  const [mx, my] = [at.x + (MARKER.pixel[0] * at.width) / 512, at.y + (MARKER.pixel[1] * at.height) / 512];
+  await page.mouse.move(mx - 20, my);
+  await page.mouse.down();
+  await page.mouse.move(mx, my, { steps: 4 });
+  await page.mouse.up();
+  await waitUntil(page, () => window.__sim.live.pending.size === 0);
+  report.marker_text = await page.textContent('#marker-state');
+  await page.check('input[name="drag-mode"][value="carm"]');
+  await setPose(0, 0);
+  await page.click('#puncture');
+  await waitUntil(page, () => window.__sim.live.pending.size === 0);
+  await setPose(...rotatedPose);
+  for (let i = 0; i < 11; i++) await page.click('#feed-5');
+  await waitUntil(page, () => window.__sim.live.pending.size === 0);
   report.depth_text = await page.textContent('#depth');
+  report.force_text = await page.textContent('#force-text');
   await act(page, () => page.click('#shot'));
   const needle = await capture(page, '3-needle');
   report.steps.push('needle');
@@ -149,6 +187,8 @@ await runReport(async (page, report) => {
   await act(page, () => page.click('#live'));
   const beforeContrast = await capture(page, '4-live-before-contrast');
   const framesBeforeInjection = await framesSoFar(page);
+  // The syringe panel sits below the needle's panels: bring it on screen for the mouse.
+  await page.locator('#plunger').scrollIntoViewIfNeeded();
   const plunger = await page.locator('#plunger').boundingBox();
   await page.mouse.move(plunger.x + plunger.width / 2, plunger.y + plunger.height / 2);
   await page.mouse.down();
