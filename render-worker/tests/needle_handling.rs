@@ -755,3 +755,56 @@ fn loss_of_resistance_is_felt_at_the_epidural_boundary_on_twenty_trajectories() 
         assert_eq!(r.s.measurements()["false_loss_count"], 0.0);
     }
 }
+
+/// Targets that name a landmark are the region's landmark, and on the phantom they lie in the
+/// tissue the station means: the epidural targets in the epidural fat, the subpedicular target
+/// in neither the nerve root nor a vessel (the typed coordinates of the first revisions fell in
+/// the dural sac and the L4 nerve root).
+#[test]
+fn landmark_targets_lie_where_their_names_say() {
+    let reg = region();
+    for (id, target, landmark, tissue) in [
+        (
+            EPIDURAL,
+            "posterior_epidural_l4_l5",
+            "L4_L5_posterior_epidural_space",
+            Some(Tissue::EpiduralFat),
+        ),
+        (
+            EPIDURAL,
+            "ventral_interlaminar_line_l4_l5",
+            "L4_L5_posterior_epidural_space",
+            Some(Tissue::EpiduralFat),
+        ),
+        (
+            "l4-left-transforaminal",
+            "left_l4_subpedicular",
+            "L4_transforaminal_target_left",
+            None,
+        ),
+        (
+            "l4-left-transforaminal-vascular-uptake",
+            "left_l4_subpedicular",
+            "L4_transforaminal_target_left",
+            None,
+        ),
+    ] {
+        let e = env(id);
+        let p = e.station.targets[target];
+        assert_eq!(p, reg.landmarks[landmark], "{id} {target}");
+        let at = reg.tissue_at(p);
+        match tissue {
+            Some(t) => assert_eq!(at, t, "{id} {target}"),
+            None => assert!(
+                ![
+                    Tissue::NerveRoot,
+                    Tissue::Vessel,
+                    Tissue::Bone,
+                    Tissue::Intrathecal
+                ]
+                .contains(&at),
+                "{id} {target} in {at:?}"
+            ),
+        }
+    }
+}

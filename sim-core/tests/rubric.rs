@@ -830,3 +830,23 @@ fn impossible_measurements_are_refused_not_scored() {
             .contains("needle_depth_mm")
     );
 }
+
+#[test]
+fn a_target_may_name_a_landmark_with_a_valid_name() {
+    let base = station_toml(0.5, &dist("d", 1.0, false));
+    let with = |landmark: &str| {
+        base.replace(
+            "position_mm = [1.0, 2.0, 3.0]",
+            &format!("position_mm = [1.0, 2.0, 3.0]\nlandmark = {landmark:?}"),
+        )
+    };
+    let ok = Station::from_toml_str(&with("L4_L5_posterior_epidural_space")).unwrap();
+    assert_eq!(
+        ok.targets[0].landmark.as_deref(),
+        Some("L4_L5_posterior_epidural_space")
+    );
+    for bad in ["", "no spaces", "dash-ed", &"x".repeat(65)] {
+        let e = Station::from_toml_str(&with(bad)).unwrap_err();
+        assert!(e.to_string().contains("landmark"), "{bad:?}: {e}");
+    }
+}

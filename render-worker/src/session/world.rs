@@ -39,9 +39,10 @@ pub struct StationContext {
 pub const L4_ORIGIN_NOTE: &str = "origin at the L4 vertebral body centre";
 
 impl StationContext {
-    /// Resolves the targets: stations whose `frame_note` says their origin is the L4 vertebral
-    /// body centre are shifted by the region's `L4_body_centre` landmark (when it has one); all
-    /// others are taken to be in the model frame already.
+    /// Resolves the targets: a target naming a landmark the region publishes is that landmark;
+    /// otherwise stations whose `frame_note` says their origin is the L4 vertebral body centre
+    /// are shifted by the region's `L4_body_centre` landmark (when it has one), and all others
+    /// are taken to be in the model frame already.
     pub fn new(station: Station, station_sha256: String, region: &Region) -> StationContext {
         let offset = if station.frame_note.contains(L4_ORIGIN_NOTE) {
             region
@@ -56,10 +57,13 @@ impl StationContext {
             .targets
             .iter()
             .map(|t| {
-                (
-                    t.name.clone(),
-                    std::array::from_fn(|a| t.position_mm[a] + offset[a]),
-                )
+                let at = t
+                    .landmark
+                    .as_ref()
+                    .and_then(|l| region.landmarks.get(l))
+                    .copied()
+                    .unwrap_or_else(|| std::array::from_fn(|a| t.position_mm[a] + offset[a]));
+                (t.name.clone(), at)
             })
             .collect();
         StationContext {

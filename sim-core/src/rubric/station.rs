@@ -281,8 +281,14 @@ pub struct Instrument {
 pub struct Target {
     /// Identifier, unique within the station (`[a-z0-9_]+`).
     pub name: String,
-    /// Position in millimetres in the region's model frame.
+    /// Position in millimetres in the station's frame (see `frame_note`); for a target that
+    /// names a [`Target::landmark`], the fallback used on regions that do not publish it.
     pub position_mm: [f64; 3],
+    /// A landmark of the region (computed from its anatomy, such as the phantom's
+    /// `L4_L5_posterior_epidural_space`) that this target is: where the region publishes it, the
+    /// target is the landmark's position.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub landmark: Option<String>,
     /// What the landmark is.
     #[serde(default)]
     pub description: String,
@@ -445,6 +451,17 @@ impl Station {
             }
             if t.position_mm.iter().any(|v| !v.is_finite()) {
                 p.push(format!("target {:?} has a non-finite coordinate", t.name));
+            }
+            if let Some(l) = &t.landmark {
+                let ok = !l.is_empty()
+                    && l.len() <= 64
+                    && l.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+                if !ok {
+                    p.push(format!(
+                        "target {:?} landmark {l:?} must be 1 to 64 letters, digits or '_'",
+                        t.name
+                    ));
+                }
             }
         }
         let r = &self.rubric;
