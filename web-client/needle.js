@@ -267,6 +267,9 @@ export class NeedleControls {
         this.markerPixel = null;
         this.markerSent = null;
         $('hub-deviation').textContent = '0.0°';
+        // A new puncture takes the syringe off the old needle (the worker does the same).
+        $('lor-attach').setAttribute('aria-pressed', 'false');
+        $('lor-hold').setAttribute('aria-pressed', 'false');
         // The marker is used up: drags and arrows now tilt the hub.
         if (this.mode() === 'marker') this.setMode('hub');
         this.log(`Skin punctured with ${c.instrument}.`);

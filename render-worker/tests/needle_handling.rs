@@ -448,11 +448,24 @@ fn bad_needle_commands_are_refused_naming_the_field() {
         rate_ml_per_s: 0.5,
     });
     assert_eq!(e.field, "command.type", "{e}");
+    // A tilt of nothing, and aspiration with the opening still outside the skin, are refused.
+    assert_eq!(
+        field(r.err(Command::NeedleTilt {
+            cc_deg: 0.0,
+            ml_deg: 0.0,
+        })),
+        "command.cc_deg"
+    );
+    assert_eq!(field(r.err(Command::Aspirate)), "command.type");
+    // Pressing with the opening outside the skin squirts fluid: no loss, no false loss.
+    let a = r.ok(r.s.snapshot().clock_ms + 10, Command::Plunger { ml: 0.2 });
+    assert!(a.outcome["lor"].is_object());
+    assert_eq!(r.s.measurements()["false_loss_count"], 0.0);
     // Nothing refused reached the log.
     assert_eq!(
         r.s.log().len(),
-        7,
-        "shot, marker, puncture, three tilts, attach"
+        8,
+        "shot, marker, puncture, three tilts, attach, plunger"
     );
 }
 

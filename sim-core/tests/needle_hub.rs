@@ -175,7 +175,8 @@ fn redirection_counter_matches_scripted_reference_counts() {
             0,
         ),
         (
-            "bevel turned behind the channel end, then advanced",
+            "a rigid straight needle's bevel turned behind the channel end, then advanced (the \
+             same line: not a redirection)",
             vec![
                 feed(30.0),
                 withdraw(10.0),
@@ -183,7 +184,7 @@ fn redirection_counter_matches_scripted_reference_counts() {
                 roll(180.0),
                 feed(12.0),
             ],
-            1,
+            0,
         ),
         (
             "withdraw to the skin, re-aim, advance",
@@ -198,6 +199,33 @@ fn redirection_counter_matches_scripted_reference_counts() {
         }
         assert_eq!(n.state.redirections, expected, "{name}");
     }
+}
+
+/// A bevel-steered needle re-advanced after a bevel turn behind its channel's end leaves the
+/// old path: one redirection.
+#[test]
+fn a_bevel_turn_of_a_steerable_needle_behind_the_channel_end_is_a_redirection() {
+    let mut n = Needle::new(
+        NeedleState::new(
+            InstrumentProfile::flexible_prebent(),
+            DVec3::ZERO,
+            DVec3::Z,
+            DVec3::X,
+            0.5,
+            InitialResponse::Settled,
+        )
+        .unwrap(),
+    );
+    for c in [
+        feed(30.0),
+        withdraw(10.0),
+        NeedleCommand::Roll { deg: 180.0 },
+        NeedleCommand::Roll { deg: 180.0 },
+        feed(12.0),
+    ] {
+        n.apply_free(c).unwrap();
+    }
+    assert_eq!(n.state.redirections, 1);
 }
 
 /// The tip always lies on its recorded channel, the channel is continuous, and nothing is

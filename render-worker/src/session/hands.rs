@@ -155,11 +155,17 @@ pub fn apply(
             }))
         }
         Command::NeedleTilt { cc_deg, ml_deg } => {
+            if *cc_deg == 0.0 && *ml_deg == 0.0 {
+                return Err(CommandError::field(
+                    "command.cc_deg",
+                    ErrorCode::Invalid,
+                    "a tilt turns the hub: give cc_deg or ml_deg",
+                ));
+            }
             let n = needle_mut(world)?;
             let mut trial = n.state.clone();
             let mut turned = 0.0;
             let mut branched = false;
-            let mut deviation = trial.hub_deviation_after_deg(trial.hub_direction(), 0.0);
             for (field, deg, toward) in [
                 ("command.cc_deg", *cc_deg, DVec3::Z),
                 ("command.ml_deg", *ml_deg, DVec3::NEG_X),
@@ -172,22 +178,42 @@ pub fn apply(
                 })?;
                 turned += out.tip_turn_deg;
                 branched |= out.branched;
-                deviation = Ok(out.hub_deviation_deg);
             }
+            let deviation = trial
+                .hub_direction()
+                .dot(trial.puncture_direction())
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees();
             n.state = trial;
             effects.needle_moved = true;
-            Ok(serde_json::json!({
-                "hub_deviation_deg": deviation.unwrap_or(0.0),
+            let ack = serde_json::json!({
+                "hub_deviation_deg": deviation,
                 "tip_turn_deg": turned,
                 "branched": branched,
                 "tip_mm": n.state.tip_mm().to_array(),
                 "depth_mm": n.state.buried_mm(),
                 "direction": n.state.pose.tangent().to_array(),
-            }))
+            });
+            world.hands.giving_way = false;
+            Ok(ack)
         }
-        Command::NeedleFeed { mm } => feed(world, ctx, *mm, effects),
-        Command::NeedleWithdraw { mm } => withdraw(world, ctx, *mm, effects),
+        Command::NeedleFeed { mm } => {
+            needle_mut(world)?;
+            if !world.hands.hold {
+                // The needle moved without the plunger checked: the next give is a new episode.
+                world.hands.giving_way = false;
+            }
+            feed(world, ctx, *mm, effects)
+        }
+        Command::NeedleWithdraw { mm } => {
+            needle_mut(world)?;
+            world.hands.giving_way = false;
+            withdraw(world, ctx, *mm, effects)
+        }
         Command::NeedleRoll { deg } => {
+            needle_mut(world)?;
+            world.hands.giving_way = false;
             let n = needle_mut(world)?;
             let out = n.state.roll(*deg);
             effects.needle_moved = true;
@@ -254,13 +280,24 @@ pub fn apply(
         }
         Command::Aspirate => {
             let n = needle_mut(world)?;
-            if n.state.buried_mm() <= 0.0 {
-                return Err(state_error("the needle is not in the body"));
+            if n.state.buried_mm() <= outlet_setback_mm(n) {
+                return Err(state_error(
+                    "the needle's opening is not under the skin: advance before aspirating",
+                ));
             }
+            // One draw per placement (the puncture and the outlet's millimetre cell), so
+            // repeated aspiration at the same place gives the same answer and the published
+            // per-placement miss rate holds.
+            let cell = n.state.outlet().centre_mm.round();
+            let place = [cell.x, cell.y, cell.z]
+                .iter()
+                .fold(u64::from(world.hands.skin_punctures), |h, v| {
+                    sim_core::rng::splitmix64(h ^ (*v as i64 as u64))
+                });
             let outlet = outlet_tissue(world, ctx)?;
             world.hands.aspirations += 1;
             let draw = sim_core::rng::unit_f64(sim_core::rng::splitmix64(
-                ctx.seed ^ u64::from(world.hands.aspirations).wrapping_mul(0xa5a5_5a5a_0f0f_f0f1),
+                ctx.seed ^ place.wrapping_mul(0xa5a5_5a5a_0f0f_f0f1),
             ));
             let got = aspirate(outlet, draw);
             Ok(serde_json::json!({ "aspirate": got, "text": got.text() }))
@@ -318,11 +355,7 @@ fn insert_needle(
     h.syringe = None;
     h.hold = false;
     h.giving_way = false;
-    let entered = world
-        .needle
-        .take()
-        .map(|n| n.entered)
-        .unwrap_or_default();
+    let entered = world.needle.take().map(|n| n.entered).unwrap_or_default();
     world.needle = Some(NeedleInstrument {
         instrument: instrument.to_string(),
         state,
@@ -505,7 +538,7 @@ fn feed(
         } else {
             h.force.cut(&model, tip, s - prev.max(retraced_to), &shaft)
         };
-        h.peak_force_n = h.peak_force_n.max(sample.total_n);
+        h.peak_force_n = h.peak_force_n.max(sample.total_n).max(sample.peak_n);
         samples.push((s, sample));
         prev = s;
         if world.hands.hold && world.hands.syringe.is_some() {
@@ -525,17 +558,21 @@ fn feed(
         }
     }
     let on_bone = matches!(out.stop, FeedStop::Arrested(_)) || out.slides > 0;
+    // A zero-length feed that meets nothing leaves the contact state as it was.
+    let moved_or_touched = on_bone || out.advanced_mm > 0.0;
     let h = &mut world.hands;
     if matches!(out.stop, FeedStop::Arrested(_)) {
         let shaft = shaft_lengths(&tissues, after);
         let sample = h.force.bone_stop(&model, &shaft);
-        h.peak_force_n = h.peak_force_n.max(sample.total_n);
+        h.peak_force_n = h.peak_force_n.max(sample.total_n).max(sample.peak_n);
         samples.push((after, sample));
     }
     if on_bone && !h.on_bone {
         h.bone_contacts += 1;
     }
-    h.on_bone = on_bone;
+    if moved_or_touched {
+        h.on_bone = on_bone;
+    }
     effects.needle_moved = true;
     let mut ack = serde_json::json!({
         "outcome": out,
@@ -560,12 +597,13 @@ fn withdraw(
     let region = ctx.region;
     let n = needle_mut(world)?;
     let before = n.state.buried_mm();
+    // The channel as it was: a withdrawal may release twist and cut the channel at the new tip.
+    let tissues = channel_tissues(region, n, before);
+    let tract = n.state.tract.clone();
+    let entry = n.state.entry.position_mm;
     let out = n.state.withdraw(mm);
     let after = n.state.buried_mm();
-    let tissues = channel_tissues(region, n, before);
-    let entry = n.state.entry.position_mm;
     let tip_mm = n.state.tip_mm().to_array();
-    let tract = n.state.tract.clone();
     let model = ForceModel::literature();
     let mut samples = Vec::new();
     let steps = ((before - after) / FORCE_SAMPLE_MM).ceil().max(0.0) as usize;
@@ -580,7 +618,9 @@ fn withdraw(
         samples.push((s, world.hands.force.retrace(&model, tip, &shaft)));
     }
     let h = &mut world.hands;
-    h.on_bone = false;
+    if out.withdrawn_mm > 0.0 {
+        h.on_bone = false;
+    }
     if after <= 0.0 {
         // Out of the body: the skin closes behind it and the next entry is a new puncture.
         h.force.reset();
@@ -602,8 +642,24 @@ fn felt(
     feel: &LorFeel,
     effects: &mut Effects,
 ) -> serde_json::Value {
-    let agent_injections = world.injections.len() - world.hands.lor_ledger_entries;
+    let agent_injections = world
+        .injections
+        .len()
+        .saturating_sub(world.hands.lor_ledger_entries);
     let h = &mut world.hands;
+    if outlet == Tissue::Air {
+        // The opening is still outside the skin: the fluid runs out of the needle, which
+        // neither tests the tissue nor reaches the body.
+        h.giving_way = false;
+        h.lor_injected_ml += feel.injected_ml;
+        return serde_json::json!({
+            "resistance": feel.resistance,
+            "gave_way": feel.gave_way,
+            "text": feel.text,
+            "injected_ml": feel.injected_ml,
+            "remaining_ml": h.syringe.as_ref().map_or(0.0, |s| s.contents_ml()),
+        });
+    }
     if feel.gave_way && !h.giving_way {
         if is_false_loss(outlet, feel) {
             h.false_losses += 1;

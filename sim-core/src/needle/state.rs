@@ -395,13 +395,18 @@ impl NeedleState {
         }
     }
 
-    /// Cut the channel ahead of the tip (if any), so that the next advance branches.
-    fn branch_here(&mut self) -> bool {
+    /// Cut the channel ahead of the tip (if any), so that the next advance branches. The
+    /// discarded length counts towards a redirection when `new_direction` (the next advance
+    /// leaves the old path: a hub tilt, or a bevel turn of a needle whose path follows its
+    /// bevel; a straight needle's re-advance after a bevel turn runs along the old line).
+    fn branch_here(&mut self, new_direction: bool) -> bool {
         if self.tract.is_end(self.cursor) {
             return false;
         }
-        let discarded = self.tract.length_mm() - self.buried_mm();
-        self.pending_branch_mm = self.pending_branch_mm.max(discarded);
+        if new_direction {
+            let discarded = self.tract.length_mm() - self.buried_mm();
+            self.pending_branch_mm = self.pending_branch_mm.max(discarded);
+        }
         self.tract.truncate_at(self.cursor);
         true
     }
@@ -463,7 +468,7 @@ impl NeedleState {
             self.entry.orientation = (tip_rot * self.entry.orientation).normalize();
             self.pose = self.entry;
         } else {
-            branched = self.branch_here();
+            branched = self.branch_here(true);
             let mut turned = self.pose;
             turned.orientation = (tip_rot * turned.orientation).normalize();
             let seg = TractSegment {
@@ -496,7 +501,8 @@ impl NeedleState {
             return false;
         }
         self.tip_roll_rad += delta_rad;
-        self.branch_here()
+        let curved = !matches!(self.profile.path, PathModel::Straight);
+        self.branch_here(curved)
     }
 
     /// Roll the hub by `deg` degrees; the bevel turns only once the play is taken up.

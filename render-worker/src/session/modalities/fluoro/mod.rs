@@ -217,7 +217,14 @@ impl FluoroModality {
 
     /// Books the live fluoroscopy since the last booking with the current pose and technique.
     fn book_live(&mut self, world: &World) {
-        if let Some(t0) = self.state.dose.live_booked_to_ms {
+        // A snapshot written before dose booking existed has a live run without a booking
+        // mark: its run is booked from its start.
+        let mark = self
+            .state
+            .dose
+            .live_booked_to_ms
+            .or(self.state.live_since_ms);
+        if let Some(t0) = mark {
             let p = self.projection();
             let seconds = world.clock_ms.saturating_sub(t0) as f64 / 1000.0;
             let (kvp, ma) = (self.state.kvp, self.state.ma);
@@ -229,7 +236,8 @@ impl FluoroModality {
     /// Air kerma (mGy) and kerma-area product (Gy cm^2) so far, a live run included.
     pub fn dose_at(&self, world: &World) -> (f64, f64) {
         let d = &self.state.dose;
-        let (k, kap) = d.live_booked_to_ms.map_or((0.0, 0.0), |t0| {
+        let mark = d.live_booked_to_ms.or(self.state.live_since_ms);
+        let (k, kap) = mark.map_or((0.0, 0.0), |t0| {
             dose::dose_of(
                 &world.region,
                 &self.projection(),
