@@ -205,6 +205,27 @@ pub(crate) fn scripted_epidural() -> Epidural {
     r.ok(next(), Command::PlungerHold { on: false });
     let asp = r.ok(next(), Command::Aspirate);
     assert_eq!(asp.outcome["aspirate"], "nothing", "{}", asp.outcome);
+    // Swap syringes and inject contrast; while it runs the LOR syringe cannot go back on.
+    r.ok(
+        next(),
+        Command::Syringe {
+            action: SyringeAction::Detach,
+            medium: None,
+        },
+    );
+    r.ok(
+        next(),
+        Command::Inject {
+            agent: Agent::Contrast,
+            volume_ml: 1.0,
+            rate_ml_per_s: 0.2,
+        },
+    );
+    let busy = r.err(Command::Syringe {
+        action: SyringeAction::Attach,
+        medium: None,
+    });
+    assert_eq!(busy.field, "command.type", "{busy}");
     r.ok(next(), Command::Shot);
     Epidural {
         run: r,

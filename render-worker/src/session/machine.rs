@@ -11,6 +11,7 @@ use sim_core::rubric::{Measurements, Modality as StationModality};
 
 use super::command::{
     Agent, Command, CommandClass, CommandError, Envelope, ErrorCode, LogEntry, MAX_SEQ,
+    SyringeAction,
 };
 use super::config::SessionConfig;
 use super::devices::Backends;
@@ -578,6 +579,20 @@ impl Session {
     }
 
     fn apply_needle(&mut self, command: &Command) -> Result<serde_json::Value, CommandError> {
+        if let Command::Syringe {
+            action: SyringeAction::Attach,
+            ..
+        } = command
+        {
+            if self.modalities.iter().any(|m| m.injecting()) {
+                return Err(CommandError::field(
+                    "command.type",
+                    ErrorCode::State,
+                    "a contrast injection is under way: stop it before attaching the \
+                     loss-of-resistance syringe",
+                ));
+            }
+        }
         let pixel_ray = match command {
             Command::SkinMarker {
                 pixel: Some(px), ..

@@ -83,6 +83,12 @@ pub trait Modality: Send {
         None
     }
 
+    /// Whether fluid is still leaving a syringe this modality drives (a contrast injection under
+    /// way at `world.clock_ms`); the loss-of-resistance syringe cannot go on the hub meanwhile.
+    fn injecting(&self) -> bool {
+        false
+    }
+
     /// What this modality shows of the needle, added under its name to the acknowledgement of
     /// every needle command (the ultrasound modality: whether the shaft and the tip are in the
     /// scan plane), so a client needs no extra command to learn it.

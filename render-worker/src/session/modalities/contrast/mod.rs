@@ -539,6 +539,10 @@ impl Modality for ContrastModality {
         Some((live.version, live.field()))
     }
 
+    fn injecting(&self) -> bool {
+        self.model().is_some_and(ContrastModel::injecting)
+    }
+
     fn dirty_views(&self) -> Vec<ViewId> {
         Vec::new()
     }
