@@ -9,6 +9,8 @@
 //!
 //! `BENCH_QUICK=1` repeats the epidural 2 times instead of 8 (CI).
 
+mod common;
+
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -25,23 +27,8 @@ fn main() {
     let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
     let repeats = if quick { 2 } else { 8 };
     let t0 = Instant::now();
-    let asset = sim_core::anatomy::phantom::build(
-        &sim_core::anatomy::phantom::PhantomParams::with_voxel_mm(2.0),
-        &mut |_| {},
-    )
-    .expect("phantom");
-    let region = Arc::new(Region::from_asset(&asset));
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/stations");
-    let file = sim_core::rubric::load_station_dir(&dir)
-        .expect("stations")
-        .into_iter()
-        .find(|f| f.station.id == "l4-l5-interlaminar-epidural")
-        .expect("the epidural station");
-    let station = Arc::new(StationContext::new(
-        file.station,
-        sha256_hex(file.text.as_bytes()),
-        &region,
-    ));
+    let region = common::phantom_region(2.0);
+    let station = common::station("l4-l5-interlaminar-epidural", &region);
     println!(
         "Needle handling on the 2 mm phantom (built in {:.1} s)\n",
         t0.elapsed().as_secs_f64()

@@ -6,6 +6,8 @@
 //!
 //! `BENCH_QUICK=1` runs 3 moves instead of 15 (CI).
 
+mod common;
+
 use std::collections::BTreeSet;
 use std::sync::Arc;
 use std::time::Instant;
@@ -18,23 +20,8 @@ fn main() {
     let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
     let moves = if quick { 3 } else { 15 };
     let t0 = Instant::now();
-    let asset = sim_core::anatomy::phantom::build(
-        &sim_core::anatomy::phantom::PhantomParams::with_voxel_mm(4.0),
-        &mut |_| {},
-    )
-    .expect("phantom");
-    let region = Arc::new(Region::from_asset(&asset));
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/stations");
-    let file = sim_core::rubric::load_station_dir(&dir)
-        .expect("stations")
-        .into_iter()
-        .find(|f| f.station.id == "l4-l5-left-facet-ultrasound")
-        .expect("the ultrasound station");
-    let station = Arc::new(StationContext::new(
-        file.station,
-        sha256_hex(file.text.as_bytes()),
-        &region,
-    ));
+    let region = common::phantom_region(4.0);
+    let station = common::station("l4-l5-left-facet-ultrasound", &region);
     let target = DVec3::from_array(station.targets["left_l4_l5_facet_posterior_joint_line"]);
     println!(
         "Ultrasound session on the 4 mm phantom (built in {:.1} s)\n",

@@ -30,6 +30,11 @@ pub(crate) fn region() -> Arc<Region> {
 
 /// A station from `assets/stations` with its targets resolved on [`region`].
 pub(crate) fn station(id: &str) -> Arc<StationContext> {
+    station_on(id, &region())
+}
+
+/// A station from `assets/stations` with its targets resolved on `region`.
+pub(crate) fn station_on(id: &str, region: &Region) -> Arc<StationContext> {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/stations");
     let file = sim_core::rubric::load_station_dir(&dir)
         .unwrap()
@@ -39,7 +44,7 @@ pub(crate) fn station(id: &str) -> Arc<StationContext> {
     Arc::new(StationContext::new(
         file.station,
         sha256_hex(file.text.as_bytes()),
-        &region(),
+        region,
     ))
 }
 

@@ -15,6 +15,7 @@ use render_worker::session::*;
 use sim_core::needle::Tissue;
 use sim_core::rng::SplitMix64;
 
+use crate::contrast::station_on;
 use crate::driver::Run;
 use crate::sessions::config;
 
@@ -32,18 +33,7 @@ pub(crate) fn region() -> Arc<Region> {
 }
 
 fn env(id: &str) -> SessionEnv {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/stations");
-    let file = sim_core::rubric::load_station_dir(&dir)
-        .unwrap()
-        .into_iter()
-        .find(|f| f.station.id == id)
-        .unwrap_or_else(|| panic!("station {id}"));
-    let station = Arc::new(StationContext::new(
-        file.station,
-        sha256_hex(file.text.as_bytes()),
-        &region(),
-    ));
-    SessionEnv::new(station, region(), Backends::cpu(1))
+    SessionEnv::new(station_on(id, &region()), region(), Backends::cpu(1))
 }
 
 fn quiet() -> SessionConfig {

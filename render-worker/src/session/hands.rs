@@ -198,30 +198,19 @@ pub fn apply(
             world.hands.giving_way = false;
             Ok(ack)
         }
-        Command::NeedleFeed { mm } => {
-            needle_mut(world)?;
-            if !world.hands.hold {
-                // The needle moved without the plunger checked: the next give is a new episode.
-                world.hands.giving_way = false;
-            }
-            feed(world, ctx, *mm, effects)
-        }
-        Command::NeedleWithdraw { mm } => {
-            needle_mut(world)?;
-            world.hands.giving_way = false;
-            withdraw(world, ctx, *mm, effects)
-        }
+        Command::NeedleFeed { mm } => feed(world, ctx, *mm, effects),
+        Command::NeedleWithdraw { mm } => withdraw(world, ctx, *mm, effects),
         Command::NeedleRoll { deg } => {
-            needle_mut(world)?;
-            world.hands.giving_way = false;
             let n = needle_mut(world)?;
             let out = n.state.roll(*deg);
             effects.needle_moved = true;
-            Ok(serde_json::json!({
+            let ack = serde_json::json!({
                 "outcome": out,
                 "tip_mm": n.state.tip_mm().to_array(),
                 "depth_mm": n.state.buried_mm(),
-            }))
+            });
+            world.hands.giving_way = false;
+            Ok(ack)
         }
         Command::Syringe { action, medium } => {
             needle_mut(world)?;
@@ -523,6 +512,10 @@ fn feed(
     let tract = n.state.tract.clone();
     world::mark_entered(n, region);
     let tip_mm = n.state.tip_mm().to_array();
+    if !world.hands.hold {
+        // The needle moved without the plunger checked: the next give is a new episode.
+        world.hands.giving_way = false;
+    }
     let model = ForceModel::literature();
     let mut samples = Vec::new();
     let mut lor = None;
@@ -604,6 +597,7 @@ fn withdraw(
     let out = n.state.withdraw(mm);
     let after = n.state.buried_mm();
     let tip_mm = n.state.tip_mm().to_array();
+    world.hands.giving_way = false;
     let model = ForceModel::literature();
     let mut samples = Vec::new();
     let steps = ((before - after) / FORCE_SAMPLE_MM).ceil().max(0.0) as usize;
@@ -647,33 +641,23 @@ fn felt(
         .len()
         .saturating_sub(world.hands.lor_ledger_entries);
     let h = &mut world.hands;
-    if outlet == Tissue::Air {
-        // The opening is still outside the skin: the fluid runs out of the needle, which
-        // neither tests the tissue nor reaches the body.
-        h.giving_way = false;
-        h.lor_injected_ml += feel.injected_ml;
-        return serde_json::json!({
-            "resistance": feel.resistance,
-            "gave_way": feel.gave_way,
-            "text": feel.text,
-            "injected_ml": feel.injected_ml,
-            "remaining_ml": h.syringe.as_ref().map_or(0.0, |s| s.contents_ml()),
-        });
-    }
-    if feel.gave_way && !h.giving_way {
+    // With the opening still outside the skin the fluid runs out of the needle: it neither
+    // tests the tissue (no loss episode) nor reaches the body (nothing for the ledger).
+    let in_body = outlet != Tissue::Air;
+    if in_body && feel.gave_way && !h.giving_way {
         if is_false_loss(outlet, feel) {
             h.false_losses += 1;
         } else if outlet == Tissue::EpiduralFat && agent_injections == 0 {
             h.lor_confirmed = true;
         }
     }
-    h.giving_way = feel.gave_way;
+    h.giving_way = in_body && feel.gave_way;
     h.lor_injected_ml += feel.injected_ml;
     let saline = h
         .syringe
         .as_ref()
         .is_some_and(|s| s.medium == LorMedium::Saline);
-    if saline && feel.injected_ml > 0.0 {
+    if in_body && saline && feel.injected_ml > 0.0 {
         effects.saline_ml += feel.injected_ml;
     }
     serde_json::json!({
