@@ -25,11 +25,38 @@ fn main() -> ExitCode {
         }
     };
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build().expect("building the tokio runtime");
-    match runtime.block_on(server::startup::run(config)) {
-        Ok(()) => ExitCode::SUCCESS,
+    let outcome = runtime.block_on(server::startup::run(config));
+    // The database is stopped by now; a blocking task still running (a replay, an anatomy build)
+    // holds nothing that must be saved, so it must not hold the exit either.
+    runtime.shutdown_timeout(std::time::Duration::from_secs(2));
+    let code = match outcome {
+        Ok(()) => 0,
         Err(e) => {
             eprintln!("error: {e:#}");
-            ExitCode::FAILURE
+            1
         }
-    }
+    };
+    exit_watchdog(code);
+    ExitCode::from(code)
+}
+
+/// After this long in the C library's exit teardown (graphics drivers' `atexit` handlers, which
+/// have been seen to hang in other Vulkan programs), the process leaves without them. Everything
+/// that must be kept is stored and the database stopped before this starts. Our choice of limit.
+const EXIT_TEARDOWN_LIMIT: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// Starts a thread that ends the process with `code` if it is still alive `EXIT_TEARDOWN_LIMIT`
+/// from now; an exit that completes normally ends that thread with the process.
+fn exit_watchdog(code: u8) {
+    let _ = std::thread::Builder::new().name("exit-watchdog".into()).spawn(move || {
+        std::thread::sleep(EXIT_TEARDOWN_LIMIT);
+        eprintln!("exit teardown still running after {EXIT_TEARDOWN_LIMIT:?}; leaving without it");
+        leave_now(code);
+    });
+}
+
+#[expect(unsafe_code, reason = "_exit(2) (skip atexit handlers) has no safe wrapper in std")]
+fn leave_now(code: u8) -> ! {
+    // SAFETY: _exit takes no pointers and never returns; it skips only the atexit teardown.
+    unsafe { libc::_exit(i32::from(code)) }
 }

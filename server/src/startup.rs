@@ -1,6 +1,8 @@
 //! Start-up and shutdown: database (embedded or external), migrations, workers, HTTP server.
 
+use std::future::IntoFuture;
 use std::path::Path;
+use std::time::Duration;
 
 use anyhow::Context;
 use sqlx::PgPool;
@@ -94,16 +96,43 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
         use std::io::Write;
         let _ = writeln!(std::io::stdout().lock(), "{notice}");
     }
-    let served = axum::serve(listener, app(state).into_make_service_with_connect_info::<std::net::SocketAddr>()).with_graceful_shutdown(shutdown_signal()).await;
+    let (signalled_tx, signalled) = tokio::sync::oneshot::channel::<()>();
+    let signal = async move {
+        shutdown_signal().await;
+        let _ = signalled_tx.send(());
+    };
+    let serve = axum::serve(listener, app(state).into_make_service_with_connect_info::<std::net::SocketAddr>()).with_graceful_shutdown(signal).into_future();
+    // Graceful: in-flight requests finish; a connection still open DRAIN_LIMIT after the signal
+    // (a stuck client, an upgraded socket) is dropped rather than holding the process.
+    let served = tokio::select! {
+        r = serve => r,
+        () = async {
+            if signalled.await.is_err() {
+                std::future::pending::<()>().await;
+            }
+            tokio::time::sleep(DRAIN_LIMIT).await;
+        } => {
+            tracing::warn!(limit_s = DRAIN_LIMIT.as_secs(), "connections still open after the drain limit; closing them");
+            Ok(())
+        }
+    };
+    let stopping = std::time::Instant::now();
     tracing::info!("shutting down");
     // Session threads end (and release their GPU resources) before the process exits; their
     // commands are already stored, so they resume from their log at the next start.
     if let Some(h) = local_sessions {
         tokio::task::spawn_blocking(move || h.shutdown()).await?;
+        tracing::info!(elapsed_ms = stopping.elapsed().as_millis(), "session threads ended");
     }
-    pool.close().await;
+    // Every request has ended, so no connection should be checked out; one that is (a
+    // background task mid-query) must not hold the database's shutdown forever.
+    if tokio::time::timeout(POOL_CLOSE_LIMIT, pool.close()).await.is_err() {
+        tracing::warn!(limit_s = POOL_CLOSE_LIMIT.as_secs(), "database connections still in use; stopping anyway");
+    }
+    tracing::info!(elapsed_ms = stopping.elapsed().as_millis(), "database pool closed");
     if let Some(c) = cluster {
         tokio::task::spawn_blocking(move || c.stop()).await??;
+        tracing::info!(elapsed_ms = stopping.elapsed().as_millis(), "private cluster stopped");
     }
     served.context("HTTP server")
 }
@@ -111,6 +140,13 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
 fn show_path(p: &Path) -> String {
     p.canonicalize().unwrap_or_else(|_| p.to_owned()).display().to_string()
 }
+
+/// How long open connections may keep the server up after SIGTERM/SIGINT (our choice: a
+/// request of this platform takes well under a second; orchestrators wait 30 s before SIGKILL).
+const DRAIN_LIMIT: Duration = Duration::from_secs(10);
+
+/// How long closing the database pool may wait for checked-out connections (our choice).
+const POOL_CLOSE_LIMIT: Duration = Duration::from_secs(5);
 
 async fn shutdown_signal() {
     use tokio::signal::unix::{SignalKind, signal};

@@ -6,7 +6,9 @@ use crate::server_process::{ServerProcess, spawn_server};
 
 fn spawn_embedded(data_dir: &std::path::Path) -> ServerProcess {
     // No session here: leave the anatomy (a phantom build) to the first session.
-    spawn_server(data_dir, None, &[("PAINSIM_PREPARE_ANATOMY", "0".into())])
+    // Info level: a shutdown that hangs in CI then shows which step it reached.
+    let log = "info,sqlx=warn,wgpu_core=warn,wgpu_hal=error,naga=warn";
+    spawn_server(data_dir, None, &[("PAINSIM_PREPARE_ANATOMY", "0".into()), ("RUST_LOG", log.into())])
 }
 
 fn postgres_pids_using(data_dir: &std::path::Path) -> Vec<u32> {

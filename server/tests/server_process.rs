@@ -156,11 +156,32 @@ impl ServerProcess {
             }
             assert!(
                 Instant::now() < deadline,
-                "server did not exit after SIGTERM"
+                "server did not exit within 60 s after SIGTERM; its threads:\n{}",
+                thread_report(self.child.id())
             );
             std::thread::sleep(Duration::from_millis(20));
         }
     }
+}
+
+/// Each thread of process `pid`: name, state and the kernel function it waits in, so a hang
+/// says where it hangs.
+pub fn thread_report(pid: u32) -> String {
+    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
+        return format!("(process {pid} has no /proc entry)");
+    };
+    let mut lines: Vec<String> = tasks
+        .flatten()
+        .map(|t| {
+            let dir = t.path();
+            let read = |f: &str| std::fs::read_to_string(dir.join(f)).unwrap_or_default().trim().to_owned();
+            let stat = read("stat");
+            let state = stat.rsplit(") ").next().and_then(|r| r.split(' ').next()).unwrap_or("?").to_owned();
+            format!("{:>8} {:<20} {} {}", t.file_name().to_string_lossy(), read("comm"), state, read("wchan"))
+        })
+        .collect();
+    lines.sort();
+    lines.join("\n")
 }
 
 impl Drop for ServerProcess {
