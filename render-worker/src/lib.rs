@@ -5,6 +5,7 @@
 
 pub mod cluster;
 pub mod fluoro;
+pub mod gallery;
 pub mod gpu;
 pub mod session;
 pub mod ultrasound;
