@@ -704,8 +704,13 @@ fn loss_of_resistance_is_felt_at_the_epidural_boundary_on_twenty_trajectories() 
                     let flavum = seq.iter().position(|x| x.0 == Tissue::LigamentumFlavum);
                     let epi = seq.iter().position(|x| x.0 == Tissue::EpiduralFat);
                     if let (false, Some(f), Some(e)) = (bone, flavum, epi) {
-                        if e == f + 1 {
-                            paths.push((skin, dir, seq[e].1));
+                        // The syringe goes on in the interspinous ligament, so the line must go
+                        // from the ligament straight into the flavum: through muscle between
+                        // them the plunger rightly gives way early (a false loss). The syringe
+                        // goes on in that last ligament run.
+                        let from_ligament = f > 0 && seq[f - 1].0 == Tissue::InterspinousLigament;
+                        if e == f + 1 && from_ligament {
+                            paths.push((skin, dir, seq[e].1, seq[f - 1].1));
                             if paths.len() == 20 {
                                 break 'scan;
                             }
@@ -716,7 +721,7 @@ fn loss_of_resistance_is_felt_at_the_epidural_boundary_on_twenty_trajectories() 
         }
     }
     assert_eq!(paths.len(), 20, "trajectories found");
-    for (k, (skin, dir, boundary_tip_mm)) in paths.into_iter().enumerate() {
+    for (k, (skin, dir, boundary_tip_mm, ligament_mm)) in paths.into_iter().enumerate() {
         // The boundary for the outlet is `setback` deeper for the tip; the 0.05 mm tolerance is the
         // march's resolution.
         let boundary = boundary_tip_mm + setback;
@@ -738,7 +743,9 @@ fn loss_of_resistance_is_felt_at_the_epidural_boundary_on_twenty_trajectories() 
                 n.state.buried_mm(),
             )
         };
-        while outlet(&r).0 != Tissue::InterspinousLigament {
+        // Into the ligament that leads to the flavum (a line may graze another ligament
+        // sliver first, with muscle after it).
+        while outlet(&r).0 != Tissue::InterspinousLigament || outlet(&r).1 < ligament_mm + setback {
             t += 10;
             r.ok(t, Command::NeedleFeed { mm: 0.5 });
             assert!(

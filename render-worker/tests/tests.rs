@@ -3,6 +3,7 @@ mod contrast;
 mod driver;
 mod fluoro;
 mod fluoro_cache;
+mod gallery;
 mod gpu;
 mod modality_seam;
 mod needle_handling;

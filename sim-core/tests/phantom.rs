@@ -283,13 +283,14 @@ fn structures_are_where_anatomy_puts_them() {
             .map(|i| a.parts[i].name.clone())
             .unwrap_or_default()
     };
-    // The L3 body is centred on the origin: its width along x is the Panjabi 1992 endplate width
+    // The L3 body is centred on the origin: its width along x at its superior endplate rim (2 mm
+    // under the endplate; the body's sides are waisted) is the Panjabi 1992 endplate width
     // (45 mm); 1 mm covers the 0.25 mm sampling step and the rim rounding.
-    let extent = |axis: usize, bone: &str| {
+    let extent_at = |axis: usize, bone: &str, z_mm: f64| {
         let mut lo = f64::INFINITY;
         let mut hi = f64::NEG_INFINITY;
         for t in -400..=400 {
-            let mut p = [0.0; 3];
+            let mut p = [0.0, 0.0, z_mm];
             p[axis] = f64::from(t) * 0.25;
             if bone_of(&name_at(p)) == Some(bone) {
                 lo = lo.min(p[axis]);
@@ -298,10 +299,10 @@ fn structures_are_where_anatomy_puts_them() {
         }
         hi - lo
     };
-    let w = extent(0, "L3");
+    let w = extent_at(0, "L3", 0.5 * 27.0 - 2.0);
     assert!((w - 45.0).abs() <= 1.0, "L3 body width {w} mm");
     // Along z through the body centre: the body height (27 mm).
-    let h = extent(2, "L3");
+    let h = extent_at(2, "L3", 0.0);
     assert!((h - 27.0).abs() <= 1.0, "L3 body height {h} mm");
     // Behind the body on the midline: canal (epidural space, dural sac, cauda), then the lamina and
     // spinous process.

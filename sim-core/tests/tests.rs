@@ -3,6 +3,7 @@ mod anatomy;
 mod contrast;
 mod fluoro;
 mod laminar;
+mod morphometry;
 mod needle;
 mod needle_handling;
 mod needle_hub;

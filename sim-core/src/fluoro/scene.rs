@@ -177,26 +177,10 @@ impl Scene {
             .iter()
             .map(|e| {
                 e.bvh.all_hits(origin_mm, dir, 0.0, t_max, &mut hits);
-                let mut depth = 0i32;
-                let mut start = 0.0;
-                let mut total = 0.0;
-                for h in &hits {
-                    if h.entering {
-                        if depth == 0 {
-                            start = h.t_mm;
-                        }
-                        depth += 1;
-                    } else {
-                        depth -= 1;
-                        if depth == 0 {
-                            total += h.t_mm - start;
-                        }
-                    }
-                }
-                if depth > 0 {
-                    total += t_max - start;
-                }
-                total
+                crate::geom::inside_intervals(&hits, t_max)
+                    .iter()
+                    .map(|(a, b)| b - a)
+                    .sum::<f64>()
             })
             .collect()
     }

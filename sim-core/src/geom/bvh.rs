@@ -421,6 +421,32 @@ impl Bvh {
     }
 }
 
+/// The stretches inside a closed mesh along a ray, from its crossings sorted by `t` (as
+/// [`Bvh::all_hits`] gives them): each entering crossing at depth 0 opens one, the leaving
+/// crossing back to depth 0 closes it; one still open at the end closes at `t_max`.
+pub fn inside_intervals(hits: &[Hit], t_max: f64) -> Vec<(f64, f64)> {
+    let mut out = Vec::new();
+    let mut depth = 0i32;
+    let mut start = 0.0;
+    for h in hits {
+        if h.entering {
+            if depth == 0 {
+                start = h.t_mm;
+            }
+            depth += 1;
+        } else {
+            depth -= 1;
+            if depth == 0 {
+                out.push((start, h.t_mm));
+            }
+        }
+    }
+    if depth > 0 {
+        out.push((start, t_max));
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -577,3 +603,4 @@ mod tests {
         assert!(!bvh.contains([1.0, 1.5, -0.1]));
     }
 }
+

@@ -34,6 +34,6 @@ mod bvh;
 mod shapes;
 mod triangle;
 
-pub use bvh::{Bvh, Hit, SurfaceHit};
+pub use bvh::{Bvh, Hit, SurfaceHit, inside_intervals};
 pub use shapes::{capped_cylinder, equal_area_vertex_radius};
 pub use triangle::{RayPrecomp, intersect_triangle};

@@ -50,6 +50,7 @@
 //! ```
 
 pub mod model;
+pub mod morphometry;
 pub mod sdf;
 pub mod voxelize;
 
@@ -68,8 +69,11 @@ use crate::volume::{Volume, VolumeGrid};
 
 pub use model::{AnatomyParams, Landmark};
 
+/// The thickest cortex [`PhantomParams::effective_anatomy`] makes on a coarse grid, mm.
+const MAX_THICKENED_CORTEX_MM: f64 = 7.5;
+
 /// Generator identifier recorded in the provenance; bump the number when the model changes shape.
-pub const GENERATOR: &str = "lumbosacral-phantom/3";
+pub const GENERATOR: &str = "lumbosacral-phantom/4";
 
 /// Region name and default folder name under `assets/`.
 pub const REGION_NAME: &str = "lumbar-phantom";
@@ -387,11 +391,16 @@ impl PhantomParams {
     /// voxel thick already has a connected 0.5 level, but its mesh encloses about 12 % less than
     /// its mask (measured on the default grid); at 1.5 voxels the meshes of the shells agree with
     /// their masks within 6 % (simulator choice; on the default 1.5 mm grid the 1.5 mm cortex
-    /// becomes 2.25 mm, the skin is unchanged).
+    /// becomes 2.25 mm, the skin is unchanged). The cortex is thickened to 6 mm at most
+    /// (grids coarser than 4 mm): a thicker one would leave the smallest body (L1, waisted, 26 mm
+    /// tall) no marrow at all.
     pub fn effective_anatomy(&self) -> AnatomyParams {
         let min_layer = 1.5 * self.voxel_mm;
         AnatomyParams {
-            cortical_thickness_mm: self.anatomy.cortical_thickness_mm.max(min_layer),
+            cortical_thickness_mm: self
+                .anatomy
+                .cortical_thickness_mm
+                .max(min_layer.min(MAX_THICKENED_CORTEX_MM)),
             skin_mm: self.anatomy.skin_mm.max(min_layer),
             ..self.anatomy
         }

@@ -39,6 +39,7 @@ use crate::material::MaterialClass;
 
 mod canal;
 mod dims;
+mod frames;
 mod landmarks;
 mod parts;
 mod sacrum;
@@ -47,6 +48,7 @@ mod spine;
 mod vertebra;
 
 pub use dims::{AnatomyParams, LEFT, RIGHT};
+pub use frames::LevelFrame;
 pub use landmarks::Landmark;
 use parts::Parts;
 pub use parts::PhantomPart;
@@ -101,6 +103,11 @@ fn push_bones(parts: &mut Parts, spine: &Spine, p: &AnatomyParams, under_skin: &
     }
 }
 
+/// Each lumbar level's frame and aiming points, then the S1 frame (see [`LevelFrame`]).
+pub fn level_frames() -> Vec<LevelFrame> {
+    frames::level_frames(&Spine::new())
+}
+
 impl Anatomy {
     /// Index of the structure that owns point `p` under the painting order (the last solid that
     /// contains it), or `None` outside the body. This is what the voxelizer computes at voxel
@@ -128,9 +135,48 @@ impl Anatomy {
         soft_tissue::push_vessels(&mut parts, &spine.lumbar);
         vertebra::push_discs(&mut parts, &spine);
         push_bones(&mut parts, &spine, p, &under_skin);
-        Anatomy {
+        let mut anatomy = Anatomy {
             parts: parts.0,
             landmarks: landmarks::landmarks(&spine),
+        };
+        anatomy.fit_flavum_landmarks(&spine);
+        anatomy
+    }
+
+    /// Puts each lumbar interspace's interlaminar window centre in the middle of the ligamentum
+    /// flavum on the midline, and its posterior epidural space 1.5 mm in front of the flavum, as
+    /// the painted solids have them: a march backwards from the canal along the upper vertebra's
+    /// anterior axis (0.05 mm steps). A landmark whose march finds no flavum keeps its placement.
+    fn fit_flavum_landmarks(&mut self, spine: &Spine) {
+        for pair in spine.lumbar.windows(2) {
+            let (upper, lower) = (&pair[0], &pair[1]);
+            let key = format!("{}_{}", upper.dims.name, lower.dims.name);
+            let window_name = format!("{key}_interlaminar_window_centre");
+            let Some(window) = self.landmarks.iter().find(|l| l.name == window_name) else {
+                continue;
+            };
+            let back = -upper.frame.rotation.y_axis;
+            let start = DVec3::from(window.position_mm) - back * 10.0;
+            let owner = |p: DVec3| self.structure_at(p.to_array()).map(|i| self.parts[i].name.as_str());
+            let steps: Vec<f64> = (0..=600).map(|k| f64::from(k) * 0.05).collect();
+            let Some(&enter) = steps.iter().find(|t| owner(start + back * **t) == Some("ligamentum_flavum")) else {
+                continue;
+            };
+            let leave = steps
+                .iter()
+                .copied()
+                .find(|t| *t > enter && owner(start + back * *t) != Some("ligamentum_flavum"))
+                .unwrap_or(enter);
+            let centre = start + back * (0.5 * (enter + leave));
+            let epidural = start + back * (enter - 1.5);
+            let epidural_ok = owner(epidural) == Some("epidural_space");
+            for l in &mut self.landmarks {
+                if l.name == window_name {
+                    l.position_mm = centre.to_array();
+                } else if epidural_ok && l.name == format!("{key}_posterior_epidural_space") {
+                    l.position_mm = epidural.to_array();
+                }
+            }
         }
     }
 }

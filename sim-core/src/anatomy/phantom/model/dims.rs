@@ -22,9 +22,14 @@ pub(super) struct LevelDims {
     pub(super) pedicle_width: f64,
     /// Pedicle height (Zindrick 1987).
     pub(super) pedicle_height: f64,
-    /// Pedicle transverse angle, medial convergence (Zindrick 1987).
+    /// Pedicle transverse angle, medial convergence (Zindrick 1987; L1 raised from 11 to 14
+    /// degrees, between Zindrick's mean and the 16 degrees of Cheung et al. 1994).
     pub(super) pedicle_angle_deg: f64,
-    /// Spinal canal width (x) and depth (y).
+    /// Spinal canal width (x) and depth (y). The depth is the intended gap between the body's
+    /// nominal posterior wall and the laminae; the built canal is 1.5-2 mm deeper in the
+    /// mid-sagittal plane (the body's posterior concavity), which `phantom::morphometry`
+    /// measures: 2 mm under Panjabi's means, so the measured depths meet the CT means of Cook and
+    /// Baker 2021 (L5 15.6 +- 2.1 mm) and Abbas et al. 2021 (L1-L5 17-19 mm).
     pub(super) canal_width: f64,
     pub(super) canal_depth: f64,
     /// Transverse process tip-to-tip span.
@@ -38,7 +43,10 @@ pub(super) struct LevelDims {
     pub(super) tilt_deg: f64,
 }
 
-/// L1..L5 (Panjabi 1992 and Zindrick 1987 means, rounded; see the module docs).
+/// L1..L5 (Panjabi 1992 and Zindrick 1987 means, rounded; see the module docs). The L5 body is
+/// 26 mm tall, within two SD of both its anterior (30.3 +- 1.9 mm) and posterior (26.3 +- 1.9 mm)
+/// CT heights (Cook and Baker 2021, Table 6): the model's bodies are not wedged, so one height
+/// serves both.
 pub(super) const LUMBAR: [LevelDims; 5] = [
     LevelDims {
         name: "L1",
@@ -47,9 +55,9 @@ pub(super) const LUMBAR: [LevelDims; 5] = [
         body_height: 26.0,
         pedicle_width: 8.7,
         pedicle_height: 15.4,
-        pedicle_angle_deg: 11.0,
+        pedicle_angle_deg: 14.0,
         canal_width: 22.0,
-        canal_depth: 18.0,
+        canal_depth: 16.0,
         tp_span: 72.0,
         sp_length: 30.0,
         sp_height: 24.0,
@@ -64,7 +72,7 @@ pub(super) const LUMBAR: [LevelDims; 5] = [
         pedicle_height: 15.0,
         pedicle_angle_deg: 12.0,
         canal_width: 22.5,
-        canal_depth: 17.5,
+        canal_depth: 15.5,
         tp_span: 80.0,
         sp_length: 31.0,
         sp_height: 25.0,
@@ -79,7 +87,7 @@ pub(super) const LUMBAR: [LevelDims; 5] = [
         pedicle_height: 14.9,
         pedicle_angle_deg: 14.0,
         canal_width: 23.0,
-        canal_depth: 17.0,
+        canal_depth: 15.0,
         tp_span: 90.0,
         sp_length: 31.0,
         sp_height: 25.0,
@@ -94,7 +102,7 @@ pub(super) const LUMBAR: [LevelDims; 5] = [
         pedicle_height: 14.8,
         pedicle_angle_deg: 18.0,
         canal_width: 23.5,
-        canal_depth: 17.0,
+        canal_depth: 15.0,
         tp_span: 86.0,
         sp_length: 29.0,
         sp_height: 23.0,
@@ -104,12 +112,12 @@ pub(super) const LUMBAR: [LevelDims; 5] = [
         name: "L5",
         body_width: 49.0,
         body_depth: 35.0,
-        body_height: 25.5,
+        body_height: 26.0,
         pedicle_width: 18.0,
         pedicle_height: 14.0,
         pedicle_angle_deg: 30.0,
         canal_width: 26.0,
-        canal_depth: 17.5,
+        canal_depth: 15.5,
         tp_span: 90.0,
         sp_length: 25.0,
         sp_height: 19.0,

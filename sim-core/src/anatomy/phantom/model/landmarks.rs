@@ -42,7 +42,22 @@ pub(super) fn landmarks(spine: &Spine) -> Vec<Landmark> {
     let mut out = Landmarks::default();
     level_landmarks(&mut out, spine);
     joint_and_target_landmarks(&mut out, spine);
+    pedicle_landmarks(&mut out, spine);
     out.0
+}
+
+/// The isthmus centre of every lumbar pedicle (where the AP view shows its "eye").
+fn pedicle_landmarks(out: &mut Landmarks, spine: &Spine) {
+    for f in super::frames::level_frames(spine).iter().take(5) {
+        for (c, side) in f.pedicle_centre_mm.iter().zip(["left", "right"]) {
+            out.add(
+                &format!("{}_pedicle_{side}", f.name),
+                *c,
+                "isthmus centre of the pedicle",
+                None,
+            );
+        }
+    }
 }
 
 /// Body centre of each lumbar vertebra and, for each lumbar interspace, the interlaminar window
@@ -151,11 +166,10 @@ fn joint_and_target_landmarks(out: &mut Landmarks, spine: &Spine) {
     );
     out.add(
         "L5_spinous_tip",
-        l5.w(
-            0.0,
-            l5.canal_back_y() - l5.dims.sp_length - 0.5,
-            0.5 * (l5.lamina_z().0 + l5.lamina_z().1) - 6.0,
-        ),
+        {
+            let sp = l5.spinous();
+            l5.w(0.0, sp.tip.y - 0.5, sp.tip.z)
+        },
         "tip of the L5 spinous process, half a millimetre inside the bone",
         None,
     );

@@ -38,8 +38,9 @@ fn sacrum_solid() -> Sdf {
         .collect();
     let body_r: Vec<f64> = SACRAL_LEVELS.iter().map(|&(_, _, _, r)| r).collect();
     let mut top = body_pts.clone();
-    // Square off the S1 endplate: extend the first node to the endplate plane with a wider body.
-    top[0] = DVec3::new(0.0, 0.0, -12.0);
+    // The S1 endplate is the elliptic body's flat top (z = 0): the tube starts low enough that
+    // its rounded end (radius 16.5 mm) stays 0.5 mm under it, not a dome into the L5-S1 disc.
+    top[0] = DVec3::new(0.0, 0.0, -17.0);
     parts.push(
         Sdf::EllipticCylinder {
             rx: 25.0,

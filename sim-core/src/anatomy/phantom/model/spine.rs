@@ -43,18 +43,43 @@ impl Placed {
             self.pedicle_z(),
         )
     }
-    /// Lamina top and bottom heights (local z).
+    /// Lamina top and bottom heights (local z): the laminae shingle, the upper border at the
+    /// pedicles' mid-height and the lower one 3 mm below the inferior endplate's level, which
+    /// leaves the interlaminar window open in AP (our assumption after radiographic anatomy).
     pub(super) fn lamina_z(&self) -> (f64, f64) {
         let d = self.dims;
-        (
-            self.pedicle_z() + 0.5 * d.pedicle_height - 2.0,
-            -0.5 * d.body_height - 3.0,
-        )
+        (self.pedicle_z(), -0.5 * d.body_height - 3.0)
+    }
+    /// The spinous process (local): as tall as the laminae it rises from (at most `sp_height`),
+    /// centred on them, so the interspinous gap of a motion segment stays open in AP over the
+    /// interlaminar window (our assumption after radiographic anatomy); its tip `sp_length`
+    /// behind the canal and 3 mm lower than its root.
+    pub(super) fn spinous(&self) -> Spinous {
+        let d = self.dims;
+        let (zt, zb) = self.lamina_z();
+        let half_height = (0.5 * d.sp_height).min(0.5 * (zt - zb));
+        let zc = 0.5 * (zt + zb);
+        Spinous {
+            root: DVec3::new(0.0, self.canal_back_y() - 2.0, zc),
+            tip: DVec3::new(0.0, self.canal_back_y() - d.sp_length, zc - 3.0),
+            half_height,
+        }
     }
     /// Posterior canal wall y (local).
     pub(super) fn canal_back_y(&self) -> f64 {
         -0.5 * self.dims.body_depth - self.dims.canal_depth
     }
+}
+
+/// A spinous process in its vertebra's frame (mm).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Spinous {
+    /// Centre of its root at the laminae.
+    pub(super) root: DVec3,
+    /// Centre of its tip.
+    pub(super) tip: DVec3,
+    /// Half of its height.
+    pub(super) half_height: f64,
 }
 
 pub(super) fn rot_x(deg: f64) -> DMat3 {

@@ -34,26 +34,48 @@ pub(super) fn joint_keepout(j: &Joint, sign: f64, gap: f64) -> Sdf {
     ])
 }
 
+/// Half-height of each endplate rim of a vertebral body, mm (our assumption: the ring
+/// apophysis is 3-5 mm tall).
+const RIM_HALF_MM: f64 = 2.0;
+/// How much narrower than the endplates the body's waist is on every side, mm (our assumption:
+/// the concavity of a lumbar body's sides is 1-3 mm deep on radiographs).
+const WAIST_MM: f64 = 2.0;
+
 /// Whole-bone solid of a lumbar vertebra (before the canal and joints are carved).
 fn lumbar_bone(v: &Placed, is_l5: bool) -> Sdf {
     let d = v.dims;
     let f = v.frame;
     let mut parts = Vec::new();
-    // Body: elliptic cylinder with rounded rims, slightly kidney-shaped behind.
-    let body = Sdf::EllipticCylinder {
-        rx: 0.5 * d.body_width,
-        ry: 0.5 * d.body_depth,
-        half_h: 0.5 * d.body_height,
-        round: 2.5,
-    }
-    .smooth_minus(
+    // Body: endplate rims of the full endplate size joined by a waist 2 mm narrower all round
+    // (the concave sides of a lumbar body; our assumption for the depth of the concavity),
+    // blended into one solid with rounded rim edges, and a 1.5 mm posterior concavity (the
+    // kidney shape of the endplate; our assumption within the 1-3 mm seen on axial CT).
+    let rim = |z: f64| {
+        Sdf::EllipticCylinder {
+            rx: 0.5 * d.body_width,
+            ry: 0.5 * d.body_depth,
+            half_h: RIM_HALF_MM,
+            round: 1.5,
+        }
+        .at(DVec3::new(0.0, 0.0, z))
+    };
+    let waist = Sdf::EllipticCylinder {
+        rx: 0.5 * d.body_width - WAIST_MM,
+        ry: 0.5 * d.body_depth - WAIST_MM,
+        // Up to the rims' mid-planes: the endplate faces are the rims' own, so the smooth blend
+        // (which swells a union by up to k/4 where two surfaces meet) stays off them.
+        half_h: 0.5 * d.body_height - RIM_HALF_MM,
+        round: 1.5,
+    };
+    let top = 0.5 * d.body_height - RIM_HALF_MM;
+    let body = Sdf::SmoothUnion(vec![waist, rim(top), rim(-top)], 4.0).smooth_minus(
         Sdf::EllipticCylinder {
             rx: 20.0,
             ry: 20.0,
             half_h: d.body_height,
             round: 0.0,
         }
-        .at(DVec3::new(0.0, -0.5 * d.body_depth - 16.0, 0.0)),
+        .at(DVec3::new(0.0, -0.5 * d.body_depth - 18.5, 0.0)),
         3.0,
     );
     parts.push(body);
@@ -99,24 +121,22 @@ fn lumbar_bone(v: &Placed, is_l5: bool) -> Sdf {
             parts.push(Sdf::slab_between(base, tip, DVec3::Z, 3.0, half_z, 2.8));
         }
     }
-    // Spinous process: a sagittal plate from the laminae backwards, with a rounded tip.
-    let (zt, zb) = v.lamina_z();
-    let zc = 0.5 * (zt + zb) - 1.0;
-    let root = DVec3::new(0.0, v.canal_back_y() - 2.0, zc);
-    let tip = DVec3::new(0.0, v.canal_back_y() - d.sp_length, zc - 5.0);
+    // Spinous process: a sagittal plate from the laminae backwards, rounded all round and
+    // thickening into a club-shaped tip, sloping 3 mm caudally (see `Placed::spinous`).
+    let sp = v.spinous();
     parts.push(Sdf::slab_between(
-        root,
-        tip,
+        sp.root,
+        sp.tip,
         DVec3::Z,
         4.0,
-        0.5 * d.sp_height,
+        sp.half_height,
         3.5,
     ));
     parts.push(
         Sdf::Ellipsoid {
-            radii: DVec3::new(5.0, 5.0, 0.5 * d.sp_height + 1.0),
+            radii: DVec3::new(4.5, 4.0, sp.half_height - 1.0),
         }
-        .at(tip + DVec3::new(0.0, 3.0, 0.0)),
+        .at(sp.tip + DVec3::new(0.0, 2.0, 0.0)),
     );
     Sdf::SmoothUnion(parts, 4.0).placed(f)
 }
