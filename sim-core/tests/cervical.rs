@@ -294,3 +294,29 @@ fn default_cervical_build() {
         );
     }
 }
+
+/// Every cervical structure has the needle feel of its tissue (the names drive
+/// `Tissue::of_structure`, hence loss of resistance and vascular warnings).
+#[test]
+fn cervical_structures_map_to_their_tissues() {
+    use sim_core::needle::Tissue;
+    for (name, _) in cervical::structure_list(&cervical::params_with_voxel_mm(2.0)) {
+        let t = Tissue::of_structure(&name);
+        let expected = if bone_of(&name).is_some() {
+            Tissue::Bone
+        } else if name.contains("artery") || name.contains("vein") {
+            Tissue::Vessel
+        } else if name.contains("muscle") || name.starts_with("longus_colli") {
+            Tissue::Muscle
+        } else if name == "dural_sac" || name == "spinal_cord" {
+            Tissue::Intrathecal
+        } else if name == "epidural_space" {
+            Tissue::EpiduralFat
+        } else if name.starts_with("disc_") {
+            Tissue::Disc
+        } else {
+            continue;
+        };
+        assert_eq!(t, expected, "{name}");
+    }
+}
