@@ -242,3 +242,40 @@ fn cervical_station_targets_are_the_phantom_landmarks() {
     let medial = DVec3::from_array(p) + DVec3::X * 2.0;
     assert_eq!(reg.tissue_at(medial.to_array()), Tissue::Bone);
 }
+
+/// A needle driven from the side into the left vertebral artery between the C5 and C6
+/// transverse processes (a horizontal lateral line, bone-free: checked below) is recorded as a
+/// vertebral artery puncture, a critical failure of the medial branch block.
+#[test]
+fn a_needle_in_the_vertebral_artery_fails_the_block() {
+    let reg = region();
+    let artery = 0.5
+        * (landmark("C5_foramen_transversarium_left") + landmark("C6_foramen_transversarium_left"));
+    let far = artery - DVec3::X * 60.0;
+    let entry = reg
+        .skin_entry(far, DVec3::X, 60.0)
+        .expect("the line meets the skin");
+    let depth = entry.distance(artery);
+    for k in 0..=(depth * 4.0) as usize {
+        let p = entry + DVec3::X * (k as f64 * 0.25);
+        assert_ne!(reg.tissue_at(p.to_array()), Tissue::Bone, "bone at {p}");
+    }
+    assert_eq!(reg.tissue_at(artery.to_array()), Tissue::Vessel);
+    let mut r = Run::new(env(MBB), quiet());
+    r.ok(
+        500,
+        Command::NeedlePlace {
+            instrument: "spinal-22g-89".into(),
+            entry_mm: entry.to_array(),
+            direction: [1.0, 0.0, 0.0],
+            bevel_reference: [0.0, 0.0, 1.0],
+        },
+    );
+    r.ok(1000, Command::NeedleFeed { mm: depth });
+    let res = r
+        .ok(1500, Command::Submit)
+        .result
+        .expect("a submit returns the result");
+    assert_eq!(res.measurements["vertebral_artery_puncture_bool"], 1.0);
+    assert_eq!(res.rubric.outcome, sim_core::rubric::Outcome::NotMet);
+}
