@@ -36,7 +36,7 @@ fn env(id: &str) -> SessionEnv {
     SessionEnv::new(station_on(id, &region()), region(), Backends::cpu(1))
 }
 
-fn quiet() -> SessionConfig {
+pub(crate) fn quiet() -> SessionConfig {
     let mut c = config();
     c.fluoro.noise = false;
     c
@@ -59,7 +59,7 @@ pub(crate) fn planned_entry() -> DVec3 {
         .expect("the planned line meets the skin")
 }
 
-fn json_f64(v: &serde_json::Value, path: &[&str]) -> f64 {
+pub(crate) fn json_f64(v: &serde_json::Value, path: &[&str]) -> f64 {
     let mut x = v;
     for p in path {
         x = &x[*p];

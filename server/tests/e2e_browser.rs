@@ -547,28 +547,82 @@ async fn phantom_server(
     (addr, db, stations)
 }
 
-/// The trajectory of the scripted paramedian epidural (render-worker/tests/needle_handling.rs,
-/// `scripted_epidural`) in the browser's terms: the target in the lateral posterior epidural
-/// space left of the midline; the line 30 mm lateral at 120 mm behind it and its skin entry,
-/// as a pixel of the AP image (the C-arm centred on the L4 body centre, 512 pixels over 300 mm:
-/// `Projection::default`); the hub tilts that aim from there at the target; the oblique's angle;
-/// and the depth at which the syringe goes on: 2 mm feeds up to 25 mm short of the target, then
-/// 1 mm feeds until the outlet is in the interspinous ligament, found here with the session's
-/// needle model (puncture down the AP beam, the tilt as the browser sends it, in 0.5 degree
-/// steps). One more millimetre than the session test asks for the outlet's last millimetre to be
-/// in the ligament too: the browser's marker comes from a pixel, a few hundredths of a
-/// millimetre from the entry, and the plunger must not give way in the muscle before it. Last,
-/// the depth at which the outlet reaches the epidural fat in 0.5 mm feeds (the loss).
-fn epidural_trajectory(region: &Region) -> Value {
-    let target = [-10.0, -39.0, -54.0];
-    let far = [target[0] - 30.0, target[1] - 120.0, target[2]];
+/// A planned paramedian epidural line: the station, the target, a far point on the line behind
+/// the skin, the C-arm's isocentre, the AP view's cranio-caudal angle (whole degrees) and the
+/// contralateral oblique's orbital angle.
+struct EpiduralPlan {
+    station: &'static str,
+    target: [f64; 3],
+    far: [f64; 3],
+    isocentre: [f64; 3],
+    ap_angular_deg: f64,
+    oblique_orbital_deg: f64,
+    /// How far short of the target the 2 mm feeds stop (the session test's approach).
+    approach_short_mm: f64,
+}
+
+impl EpiduralPlan {
+    /// The lumbar plan of render-worker/tests/needle_handling.rs (`scripted_epidural`): the
+    /// target in the lateral posterior epidural space left of the midline at L4-L5, the line 30 mm
+    /// lateral at 120 mm behind it, the C-arm centred on the L4 body centre.
+    fn lumbar(region: &Region) -> EpiduralPlan {
+        let target = [-10.0, -39.0, -54.0];
+        EpiduralPlan {
+            station: "l4-l5-interlaminar-epidural",
+            target,
+            far: [target[0] - 30.0, target[1] - 120.0, target[2]],
+            isocentre: region.landmarks["L4_body_centre"],
+            ap_angular_deg: 0.0,
+            oblique_orbital_deg: 50.0,
+            approach_short_mm: 25.0,
+        }
+    }
+
+    /// The cervical plan of render-worker/tests/cervical.rs (`scripted_epidural`): the C7-T1
+    /// posterior epidural landmark, the line 25 mm left at 100 mm behind it, the C-arm centred on
+    /// the target (the station's primary target: the region has no L4), the AP view tilted to
+    /// square the C7 inferior endplate to the nearest degree, the oblique at -50 degrees (the
+    /// contralateral side of a midline target, see the fluoroscopy scorer).
+    fn cervical(region: &Region) -> EpiduralPlan {
+        let target = region.landmarks["C7_T1_posterior_epidural_space"];
+        let n = render_worker::session::anatomy::endplate_normal(region, "C7", "T1")
+            .expect("the C7 inferior endplate");
+        let n = n * n.z.signum();
+        EpiduralPlan {
+            station: "c7-t1-interlaminar-epidural",
+            target,
+            far: [target[0] - 25.0, target[1] - 100.0, target[2]],
+            isocentre: target,
+            ap_angular_deg: (-n.y).atan2(n.z).to_degrees().round(),
+            oblique_orbital_deg: -50.0,
+            // The neck's deep soft tissue lies under the fat as well as between the muscles:
+            // the syringe goes on between the muscles, 12 mm short of the target.
+            approach_short_mm: 12.0,
+        }
+    }
+}
+
+/// The trajectory of a scripted paramedian epidural (`plan`) in the browser's terms: the
+/// skin entry of the planned line as a pixel of the AP image (512 pixels over 300 mm:
+/// `Projection::default` at the plan's isocentre and AP angle); the hub tilts that aim from
+/// there at the target; the oblique's angle; and the depth at which the syringe goes on: 2 mm
+/// feeds up to the plan's approach margin short of the target, then 1 mm feeds until the
+/// outlet is in the interspinous ligament, found here with the session's needle model (puncture down the AP
+/// beam, the tilt as the browser sends it, in 0.5 degree steps). One more millimetre than the
+/// session test asks for the outlet's last millimetre to be in the ligament too: the browser's
+/// marker comes from a pixel, a few hundredths of a millimetre from the entry, and the plunger
+/// must not give way in the muscle before it. Last, the depth at which the outlet reaches the
+/// epidural fat in 0.5 mm feeds (the loss).
+fn epidural_trajectory(region: &Region, plan: &EpiduralPlan) -> Value {
+    let (target, far) = (plan.target, plan.far);
     let toward: Vec<f64> = (0..3).map(|i| target[i] - far[i]).collect();
     let entry = region
         .skin_entry(far.into(), [toward[0], toward[1], toward[2]].into(), 200.0)
         .expect("the planned line meets the skin")
         .to_array();
     let projection = Projection {
-        isocentre_mm: region.landmarks["L4_body_centre"],
+        isocentre_mm: plan.isocentre,
+        angular_deg: plan.ap_angular_deg,
         ..Projection::default()
     };
     let pixel = projection
@@ -577,12 +631,14 @@ fn epidural_trajectory(region: &Region) -> Value {
     let d: Vec<f64> = (0..3).map(|i| target[i] - entry[i]).collect();
     let half = |deg: f64| (2.0 * deg).round() / 2.0;
     let (cc, ml) = (
-        half(d[2].atan2(d[1]).to_degrees()),
+        half(d[2].atan2(d[1]).to_degrees() - plan.ap_angular_deg),
         half(-d[0].atan2(d[1]).to_degrees()),
     );
-    // The needle as the session moves it: punctured down +y with the default bevel (cranial).
+    let (sb, cb) = plan.ap_angular_deg.to_radians().sin_cos();
+    // The needle as the session moves it: punctured down the AP beam (+y tilted by the AP
+    // angle) with the default bevel (cranial).
     let profile = world::profile_for_kind("tuohy-needle").expect("a Tuohy profile");
-    let mut needle = world::new_needle(profile, entry, [0.0, 1.0, 0.0], [0.0, 0.0, 1.0])
+    let mut needle = world::new_needle(profile, entry, [0.0, cb, sb], [0.0, 0.0, 1.0])
         .expect("a needle at the entry");
     for (deg, axis) in [(cc, [0.0, 0.0, 1.0]), (ml, [-1.0, 0.0, 0.0])] {
         if deg != 0.0 {
@@ -591,7 +647,7 @@ fn epidural_trajectory(region: &Region) -> Value {
         }
     }
     let bones = region.bones();
-    let approach = d.iter().map(|v| v * v).sum::<f64>().sqrt() - 25.0;
+    let approach = d.iter().map(|v| v * v).sum::<f64>().sqrt() - plan.approach_short_mm;
     while needle.buried_mm() < approach {
         needle.feed(2.0, &bones);
     }
@@ -617,13 +673,15 @@ fn epidural_trajectory(region: &Region) -> Value {
         }
     }
     serde_json::json!({
+        "station": plan.station,
+        "apAngularDeg": plan.ap_angular_deg,
         "lorDepthMm": needle.buried_mm(),
         "markerPixel": pixel,
         "tiltCcDeg": cc,
         "tiltMlDeg": ml,
         "tiltMlExactDeg": -d[0].atan2(d[1]).to_degrees(),
         "advanceMm": advance_mm.round(),
-        "obliqueOrbitalDeg": 50,
+        "obliqueOrbitalDeg": plan.oblique_orbital_deg,
         "entryMm": entry,
     })
 }
@@ -640,7 +698,7 @@ async fn interlaminar_epidural_by_hand_in_headless_chromium() {
     }
     let _turn = BROWSER_TURN.lock().await;
     let region = phantom_region();
-    let trajectory = epidural_trajectory(&region);
+    let trajectory = epidural_trajectory(&region, &EpiduralPlan::lumbar(&region));
     eprintln!("epidural trajectory: {trajectory}");
     let (addr, db, _stations) = phantom_server("l4-l5-interlaminar-epidural", region).await;
     let report = run_script(
@@ -651,6 +709,26 @@ async fn interlaminar_epidural_by_hand_in_headless_chromium() {
     )
     .await;
     eprintln!("epidural in the browser: {report}");
+    assert_epidural_by_hand(&report, &trajectory);
+    // With the keys the hub stands at the planned tilt (the planned line keeps its height, so
+    // the tilt is across only and the hub's deviation is its size).
+    assert_eq!(trajectory["tiltCcDeg"], 0.0, "{trajectory}");
+    let ml = trajectory["tiltMlDeg"].as_f64().unwrap();
+    assert_eq!(
+        report["hub_text"],
+        format!("{:.1}°", ml.abs()),
+        "{report:#}"
+    );
+    let stored: Value = sqlx::query_scalar("SELECT measurements FROM technical_results")
+        .fetch_one(&db.pool)
+        .await
+        .unwrap();
+    assert_eq!(stored["lor_confirmed_bool"], 1.0, "{stored:#}");
+}
+
+/// What both epidurals by hand must show (`report` from `e2e_epidural.mjs`, `trajectory` from
+/// [`epidural_trajectory`]).
+fn assert_epidural_by_hand(report: &Value, trajectory: &Value) {
     let steps = strings(&report["steps"]);
     assert_eq!(
         steps,
@@ -681,19 +759,10 @@ async fn interlaminar_epidural_by_hand_in_headless_chromium() {
     assert!(m["change_far"].as_f64().unwrap() < 5.0, "{m:#}");
     assert_eq!(m["cursor_hidden_after_shot"], true, "{m:#}");
     // The two-finger drag tilted the hub by 3 degrees (24 px at 8 px a degree), the button by 2
-    // more, the Shift + drag of 8 px by 1 more; with the keys the hub stands at the planned tilt
-    // (the planned line keeps its height, so the tilt is across only and the hub's deviation is
-    // its size).
+    // more, the Shift + drag of 8 px by 1 more.
     assert_eq!(report["touch_hub"], "3.0°", "{report:#}");
     assert_eq!(report["button_hub"], "5.0°", "{report:#}");
     assert_eq!(report["drag_hub"], "6.0°", "{report:#}");
-    assert_eq!(trajectory["tiltCcDeg"], 0.0, "{trajectory}");
-    let ml = trajectory["tiltMlDeg"].as_f64().unwrap();
-    assert_eq!(
-        report["hub_text"],
-        format!("{:.1}°", ml.abs()),
-        "{report:#}"
-    );
     // The plunger gave way under held pressure where the model puts the outlet into the
     // epidural fat (within one 0.5 mm feed: the browser's entry is a few hundredths of a
     // millimetre off the planned one), and the panels never told where the tip was.
@@ -760,6 +829,51 @@ async fn interlaminar_epidural_by_hand_in_headless_chromium() {
         report["console_errors"].as_array().unwrap().is_empty(),
         "{report:#}"
     );
+}
+
+/// The cervical phantom meshed at 1.5 mm, as the render-worker cervical tests (at 2 mm its
+/// 2.5 mm flavum and posterior epidural space are about a voxel thick).
+fn cervical_region() -> Arc<Region> {
+    use sim_core::anatomy::phantom::cervical;
+    let asset = cervical::build(&cervical::params_with_voxel_mm(1.5), &mut |_| {})
+        .expect("cervical phantom");
+    Arc::new(Region::from_asset(&asset))
+}
+
+/// A whole C7-T1 interlaminar epidural through the UI only, on the cervical phantom: the same
+/// script and checks as the L4-L5 one, with the AP view tilted to square the C7 inferior
+/// endplate; then the cervical station's alignment and target criteria from the session's
+/// measurements.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cervical_interlaminar_epidural_by_hand_in_headless_chromium() {
+    if !can_run("cervical_interlaminar_epidural_by_hand_in_headless_chromium") {
+        return;
+    }
+    let _turn = BROWSER_TURN.lock().await;
+    let region = cervical_region();
+    let trajectory = epidural_trajectory(&region, &EpiduralPlan::cervical(&region));
+    eprintln!("cervical epidural trajectory: {trajectory}");
+    let (addr, db, _stations) = phantom_server("c7-t1-interlaminar-epidural", region).await;
+    let report = run_script(
+        "e2e_epidural.mjs",
+        addr,
+        "cervical-epidural",
+        &[("E2E_EPIDURAL", &trajectory.to_string())],
+    )
+    .await;
+    eprintln!("cervical epidural in the browser: {report}");
+    assert_epidural_by_hand(&report, &trajectory);
+    let ms = &report["measurements"];
+    let v = |k: &str| {
+        ms[k]
+            .as_f64()
+            .unwrap_or_else(|| panic!("measurement {k}: {ms:#}"))
+    };
+    // The station's pass bounds: AP within 2 degrees of the endplate (the whole-degree AP angle
+    // is within half a degree of square), the oblique at 50, the tip within 3 mm of the target.
+    assert!(v("ap_endplate_tilt_deg") <= 2.0, "{ms:#}");
+    assert_eq!(v("clo_angle_deg"), 50.0, "{ms:#}");
+    assert!(v("tip_to_target_mm") <= 3.0, "{ms:#}");
     let stored: Value = sqlx::query_scalar("SELECT measurements FROM technical_results")
         .fetch_one(&db.pool)
         .await

@@ -1,5 +1,6 @@
 //! Integration tests of sim-core, one module per area.
 mod anatomy;
+mod cervical;
 mod contrast;
 mod fluoro;
 mod laminar;

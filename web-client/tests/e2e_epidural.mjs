@@ -1,4 +1,5 @@
-// End-to-end L4-L5 interlaminar epidural in headless Chromium (see harness.mjs), through the UI
+// End-to-end interlaminar epidural in headless Chromium (see harness.mjs): L4-L5 on the lumbar
+// phantom, or C7-T1 on the cervical phantom (TRAJECTORY.station). Through the UI
 // only: AP shots, the skin marker dragged on the image, a shot showing it, the puncture, hub
 // tilts (keys and a two-finger touch drag), the advance under a contralateral oblique view by
 // buttons, keys and the wheel, loss of resistance with the syringe held under pressure while
@@ -22,11 +23,11 @@ if (!base) {
   process.exit(2);
 }
 
-const STATION = 'l4-l5-interlaminar-epidural';
-
-/** The scripted epidural of render-worker/tests/needle_handling.rs in the browser's terms,
+/** The scripted epidural of render-worker/tests/needle_handling.rs (or, with `station`
+ * c7-t1-interlaminar-epidural, of render-worker/tests/cervical.rs) in the browser's terms,
  * computed by the Rust test from the phantom (server/tests/e2e_browser.rs,
- * `epidural_trajectory`) and passed as JSON in E2E_EPIDURAL: the skin entry's pixel in the AP
+ * `epidural_trajectory`) and passed as JSON in E2E_EPIDURAL: the station, the AP view's
+ * cranio-caudal angle (whole degrees, squaring the endplate), the skin entry's pixel in that AP
  * image, the hub tilts that aim from there at the target (cranial and towards the patient's
  * left positive, degrees), the depth to advance before the syringe goes on, the oblique's
  * orbital angle. The most travel under pressure before the plunger must give way is the
@@ -36,6 +37,8 @@ if (!TRAJECTORY) {
   console.error('E2E_EPIDURAL (the trajectory, JSON) is not set');
   process.exit(2);
 }
+const STATION = TRAJECTORY.station || 'l4-l5-interlaminar-epidural';
+const AP_ANGULAR_DEG = TRAJECTORY.apAngularDeg || 0;
 const MAX_LOR_TRAVEL_MM = 40;
 
 /** Words a physician's hand and eyes do not give: the panels never say where the tip is. */
@@ -139,8 +142,9 @@ await runReport(async (page, report) => {
     for (const t of await readouts(page)) if (TELLTALE.test(t)) telltales.push(`${step}: ${t}`);
   };
 
-  // AP view, one shot (quantum noise is off on this server: a second shot of the same view is
-  // the same image).
+  // AP view (tilted cranio-caudally when the trajectory squares an endplate that way), one shot
+  // (quantum noise is off on this server: a second shot of the same view is the same image).
+  if (AP_ANGULAR_DEG !== 0) await carmTo(page, 0, AP_ANGULAR_DEG);
   const ap1 = await shot(page, '1-ap');
   report.dose_after_ap = await page.textContent('#dose');
   report.steps.push('ap');

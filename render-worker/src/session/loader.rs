@@ -11,8 +11,8 @@ use super::demo::{DEMO_REGION_NAME, demo_region};
 use super::region::Region;
 
 /// Loads `assets_root/<name>`, reporting the phantom build's stages to `progress` (a region that
-/// is cached or read from files reports nothing). The phantom region is built there first if
-/// missing or stale. The analytic demo region ([`DEMO_REGION_NAME`], boxes of known geometry) is
+/// is cached or read from files reports nothing). The phantom regions (lumbar and cervical) are
+/// built there first if missing or stale. The analytic demo region ([`DEMO_REGION_NAME`], boxes of known geometry) is
 /// built in memory when no folder of that name exists, so whole-process tests (the real server
 /// binary) can run sessions that render in milliseconds.
 pub fn load_region(
@@ -26,6 +26,9 @@ pub fn load_region(
     }
     let asset = if name == phantom::REGION_NAME {
         phantom::ensure_built_with(&dir, &phantom::PhantomParams::default(), progress)
+    } else if name == phantom::cervical::REGION_NAME {
+        let params = phantom::cervical::default_params();
+        phantom::cervical::ensure_built_with(&dir, &params, progress)
     } else {
         RegionAsset::load(&dir)
     }

@@ -72,13 +72,21 @@ impl Region {
                 let params: Option<phantom::PhantomParams> = parameters
                     .get("params")
                     .and_then(|p| serde_json::from_value(p.clone()).ok());
-                params_of_phantom.clone_from(&params);
+                // The cervical phantom shares the parameter type but not the anatomy: its
+                // landmarks come from its own generator, and no lumbar-phantom parameters are
+                // recorded for it (the contrast and ultrasound media rebuild the lumbar anatomy).
+                let cervical = generator == phantom::cervical::GENERATOR;
+                if !cervical {
+                    params_of_phantom.clone_from(&params);
+                }
                 let landmarks = params
                     .map(|p| {
-                        phantom::landmarks(&p)
-                            .into_iter()
-                            .map(|l| (l.name, l.position_mm))
-                            .collect()
+                        let all = if cervical {
+                            phantom::cervical::landmarks(&p)
+                        } else {
+                            phantom::landmarks(&p)
+                        };
+                        all.into_iter().map(|l| (l.name, l.position_mm)).collect()
                     })
                     .unwrap_or_default();
                 (landmarks, generator.clone())

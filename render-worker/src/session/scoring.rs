@@ -121,6 +121,13 @@ pub fn measure_needle(world: &World, out: &mut Measurements) {
         };
         out.insert("dural_puncture_bool".into(), v);
     }
+    // Regions with vertebral arteries (the cervical phantom): whether the needle entered either.
+    if world.region.entry("vertebral_artery_left").is_some() {
+        let hit = ["vertebral_artery_left", "vertebral_artery_right"]
+            .iter()
+            .any(|a| n.entered.contains(*a));
+        out.insert("vertebral_artery_puncture_bool".into(), flag(hit));
+    }
 }
 
 /// What goes with a technical result so it can be reproduced and audited.

@@ -20,8 +20,14 @@ use super::region::Region;
 pub const NEEDLE_SUBSTEP_MM: f64 = 0.5;
 
 /// Structures whose entry by the needle tip is recorded (for critical rubric items such as a
-/// dural puncture). Names of the lumbar phantom's structures.
-pub const WATCHED_STRUCTURES: [&str; 3] = ["dural_sac", "aorta", "inferior_vena_cava"];
+/// dural puncture). Names of the lumbar and cervical phantoms' structures.
+pub const WATCHED_STRUCTURES: [&str; 5] = [
+    "dural_sac",
+    "aorta",
+    "inferior_vena_cava",
+    "vertebral_artery_left",
+    "vertebral_artery_right",
+];
 
 /// A station with its targets resolved into the region's model frame.
 #[derive(Debug, Clone)]

@@ -68,7 +68,10 @@ impl Tissue {
     /// Procedural phantom names: `skin`, `subcutaneous_fat`, `deep_soft_tissue`,
     /// `psoas_left/right`, `erector_spinae_left/right`, `epidural_space`, `ligamentum_flavum`,
     /// `dural_sac`, `conus_medullaris`, `cauda_equina`, `nerve_root_*`, `aorta`,
-    /// `inferior_vena_cava`, `disc_*`, `*_cortical`, `*_cancellous`. TotalSegmentator-style names:
+    /// `inferior_vena_cava`, `disc_*`, `*_cortical`, `*_cancellous`; the cervical phantom adds
+    /// `posterior_neck_muscles_*`, `longus_colli_*` (muscle), `spinal_cord` (intrathecal),
+    /// `vertebral_artery_*`, `carotid_artery_*`, `internal_jugular_vein_*` (vessel).
+    /// TotalSegmentator-style names:
     /// `vertebrae_*`, `sacrum`, `hip_*`, `rib_*`, `femur_*` (bone), `autochthon_*`,
     /// `iliopsoas_*`, `gluteus_*` (muscle), `spinal_cord`, `spinal_canal` (intrathecal),
     /// `iliac_artery_*`, `iliac_vena_*`, `portal_vein_and_splenic_vein` (vessel),
@@ -125,9 +128,18 @@ impl Tissue {
             "iliopsoas_",
             "gluteus_",
             "quadratus_lumborum",
+            "posterior_neck_muscles_",
+            "longus_colli_",
         ]) {
             Tissue::Muscle
-        } else if prefixed(&["iliac_artery_", "iliac_vena_", "common_iliac_"]) {
+        } else if prefixed(&[
+            "iliac_artery_",
+            "iliac_vena_",
+            "common_iliac_",
+            "vertebral_artery_",
+            "carotid_artery_",
+            "internal_jugular_vein_",
+        ]) {
             Tissue::Vessel
         } else {
             Tissue::SoftTissue

@@ -49,6 +49,7 @@
 //! assert!(target.is_some());
 //! ```
 
+pub mod cervical;
 pub mod model;
 pub mod morphometry;
 pub mod sdf;
@@ -231,8 +232,14 @@ impl PhantomParams {
 
     /// SHA-256 (hex) of the generator name, pipeline version and parameters: the cache key.
     pub fn hash_hex(&self) -> String {
+        self.hash_hex_for(GENERATOR)
+    }
+
+    /// [`Self::hash_hex`] for the phantom made by `generator` (another region's generator, such
+    /// as [`cervical::GENERATOR`], keys its own cache).
+    pub fn hash_hex_for(&self, generator: &str) -> String {
         let json = serde_json::to_string(self).unwrap_or_default();
-        crate::hash::sha256_hex(format!("{GENERATOR}\n{}\n{json}", pipeline_version()).as_bytes())
+        crate::hash::sha256_hex(format!("{generator}\n{}\n{json}", pipeline_version()).as_bytes())
     }
 }
 
@@ -409,7 +416,11 @@ impl PhantomParams {
 
 /// Paints the phantom into its grid, computes partial volumes and makes the CT (no meshing).
 pub fn voxelize(params: &PhantomParams) -> PhantomVolumes {
-    let anatomy = model::Anatomy::new(&params.effective_anatomy());
+    voxelize_anatomy(params, model::Anatomy::new(&params.effective_anatomy()))
+}
+
+/// [`voxelize`] for any implicit anatomy (another region's generator) on the grid of `params`.
+pub fn voxelize_anatomy(params: &PhantomParams, anatomy: model::Anatomy) -> PhantomVolumes {
     let grid = params.grid();
     let workers = voxelize::worker_count(8);
     let solids: Vec<&sdf::Sdf> = anatomy.parts.iter().map(|p| &p.sdf).collect();
@@ -480,21 +491,6 @@ pub fn build(
     params: &PhantomParams,
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<RegionAsset, AnatomyError> {
-    progress(&Progress {
-        stage: "voxelize",
-        done: 0,
-        total: 1,
-        item: String::new(),
-    });
-    let vols = voxelize(params);
-    progress(&Progress {
-        stage: "voxelize",
-        done: 1,
-        total: 1,
-        item: String::new(),
-    });
-    let masks = vols.masks();
-    let PhantomVolumes { ct_hu, .. } = vols;
     let source = SourceInfo {
         source: Source::Phantom {
             generator: GENERATOR.to_string(),
@@ -506,19 +502,44 @@ pub fn build(
             .to_string(),
         notes: vec![format!("model frame: RAS (x = patient right, y = anterior, z = cranial), mm; origin at the L3 body centre")],
     };
-    build_region(
-        REGION_NAME,
-        &ct_hu,
-        masks,
-        &params.pipeline,
-        source,
-        progress,
-    )
+    build_anatomy(REGION_NAME, params, || voxelize(params), source, progress)
+}
+
+/// Builds a phantom region named `name` from the volumes `vols` makes (voxelize, then mesh
+/// through the shared pipeline), recording `source` as its provenance.
+pub fn build_anatomy(
+    name: &str,
+    params: &PhantomParams,
+    vols: impl FnOnce() -> PhantomVolumes,
+    source: SourceInfo,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<RegionAsset, AnatomyError> {
+    progress(&Progress {
+        stage: "voxelize",
+        done: 0,
+        total: 1,
+        item: String::new(),
+    });
+    let vols = vols();
+    progress(&Progress {
+        stage: "voxelize",
+        done: 1,
+        total: 1,
+        item: String::new(),
+    });
+    let masks = vols.masks();
+    let PhantomVolumes { ct_hu, .. } = vols;
+    build_region(name, &ct_hu, masks, &params.pipeline, source, progress)
 }
 
 /// Whether the region folder `dir` holds a phantom built with exactly `params` (and this pipeline
 /// version). Only reads the provenance; hashes are verified when the region is loaded.
 pub fn is_cached(dir: &Path, params: &PhantomParams) -> bool {
+    is_cached_for(dir, GENERATOR, params)
+}
+
+/// [`is_cached`] for the phantom made by `generator`.
+pub fn is_cached_for(dir: &Path, generator_name: &str, params: &PhantomParams) -> bool {
     let Ok(bytes) = std::fs::read(dir.join(super::asset::PROVENANCE_FILE)) else {
         return false;
     };
@@ -530,10 +551,10 @@ pub fn is_cached(dir: &Path, params: &PhantomParams) -> bool {
             generator,
             parameters,
         } => {
-            generator == GENERATOR
+            generator == generator_name
                 && prov.pipeline_version == pipeline_version()
                 && parameters.get("params_sha256").and_then(|v| v.as_str())
-                    == Some(params.hash_hex().as_str())
+                    == Some(params.hash_hex_for(generator_name).as_str())
         }
         Source::Ct { .. } => false,
     }
@@ -546,7 +567,22 @@ pub fn ensure_built_with(
     params: &PhantomParams,
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<RegionAsset, AnatomyError> {
-    if is_cached(dir, params) {
+    ensure_built_by(dir, GENERATOR, params, build, progress)
+}
+
+/// A phantom generator's build function (as [`build`]).
+pub type BuildFn =
+    fn(&PhantomParams, &mut dyn FnMut(&Progress)) -> Result<RegionAsset, AnatomyError>;
+
+/// [`ensure_built_with`] for the phantom made by `generator` with its `build` function.
+pub fn ensure_built_by(
+    dir: &Path,
+    generator: &str,
+    params: &PhantomParams,
+    build: BuildFn,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<RegionAsset, AnatomyError> {
+    if is_cached_for(dir, generator, params) {
         if let Ok(region) = RegionAsset::load(dir) {
             return Ok(region);
         }

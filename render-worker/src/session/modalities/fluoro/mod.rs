@@ -46,6 +46,11 @@ pub const PHOTONS_PER_PIXEL_PER_MA: f64 = 1500.0;
 /// An acquisition counts as an AP view when its orbital rotation is within this many degrees of
 /// zero. Simulator choice: beyond 10 degrees a view is read as oblique.
 pub const AP_MAX_OBLIQUITY_DEG: f64 = 10.0;
+
+/// The endplate that `ap_endplate_tilt_deg` measures, as (vertebra, the one below): the first
+/// pair whose landmarks the region has. The L4 inferior endplate on lumbar regions, the C7
+/// inferior endplate (squared for the C7-T1 interlaminar approach) on the cervical phantom.
+pub const AP_ENDPLATES: [(&str, &str); 2] = [("L4", "L5"), ("C7", "T1")];
 /// An acquisition counts as an oblique view from this orbital rotation on (same choice).
 pub const OBLIQUE_MIN_DEG: f64 = 10.0;
 /// Everything that decides one image's pixels.
@@ -581,7 +586,10 @@ impl Modality for FluoroModality {
             .iter()
             .map(|i| (i.projection.orbital_deg, beam_direction(&i.projection)))
             .collect();
-        if let Some(n) = endplate_normal(region, "L4", "L5") {
+        if let Some(n) = AP_ENDPLATES
+            .iter()
+            .find_map(|(upper, lower)| endplate_normal(region, upper, lower))
+        {
             let best = beams
                 .iter()
                 .filter(|(orb, _)| orb.abs() <= AP_MAX_OBLIQUITY_DEG)
@@ -590,6 +598,15 @@ impl Modality for FluoroModality {
             if let Some(v) = best {
                 out.insert("ap_endplate_tilt_deg".into(), v);
             }
+        }
+        // Lateral view: the smallest angle between an image's central ray and the patient's
+        // left-right axis (0 in a true lateral).
+        if let Some(v) = beams
+            .iter()
+            .map(|(_, b)| b.x.abs().min(1.0).acos().to_degrees())
+            .reduce(f64::min)
+        {
+            out.insert("lateral_view_residual_deg".into(), v);
         }
         // Ipsilateral oblique: the beam line runs from posterior-ipsilateral to
         // anterior-contralateral, which in this C-arm's convention is orbital = side * angle
