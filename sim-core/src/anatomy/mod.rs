@@ -21,6 +21,7 @@ pub mod error;
 mod glb;
 pub mod interfaces;
 pub mod labels;
+pub mod lumbar_ct;
 pub mod mask;
 pub mod mesher;
 pub mod nifti_import;

@@ -125,6 +125,7 @@ impl Tissue {
             "iliopsoas_",
             "gluteus_",
             "quadratus_lumborum",
+            "muscle_",
         ]) {
             Tissue::Muscle
         } else if prefixed(&["iliac_artery_", "iliac_vena_", "common_iliac_"]) {
