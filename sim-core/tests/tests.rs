@@ -3,6 +3,7 @@ mod anatomy;
 mod contrast;
 mod fluoro;
 mod laminar;
+mod lumbar_ct;
 mod needle;
 mod needle_handling;
 mod needle_hub;

@@ -324,12 +324,6 @@ pub fn spine_landmarks(
         let Some(v) = vertebrae.get(level) else {
             continue;
         };
-        let vc = centroid_mm(g, |i, j, k| {
-            canal.at(i, j, k) && {
-                // canal voxels within the vertebra's slices
-                (0..ny).any(|jj| (0..nx).any(|ii| v.at(ii, jj, k)))
-            }
-        });
         // The anterior wall of the canal: the largest canal y index in the vertebra's slices.
         let front = (0..g.dims[2])
             .filter(|&k| (0..ny).any(|j| (0..nx).any(|i| v.at(i, j, k))))
@@ -347,15 +341,32 @@ pub fn spine_landmarks(
             "centroid of the vertebral body (mask voxels anterior to the canal)",
             Some(&format!("vertebrae_{level}")),
         ));
-        if let Some(c) = vc {
-            out.push(landmark(
-                format!("{level}_canal_centre"),
-                c,
-                "centroid of the spinal canal at this vertebra (enclosed hole of the ring)",
-                Some("dural_sac"),
-            ));
-        }
         let kz = g.world_to_voxel(body)[2].round().max(0.0) as usize;
+        let in_slice = |i: usize, j: usize, k: usize| k == kz && canal.at(i, j, k);
+        if let Some(c) = centroid_mm(g, in_slice) {
+            // The canal voxel of that slice nearest to the centroid (inside a concave canal).
+            let mut best: Option<(f64, [f64; 3])> = None;
+            for j in 0..ny {
+                for i in 0..nx {
+                    if in_slice(i, j, kz) {
+                        let p = g.voxel_center_mm(i, j, kz);
+                        let d = (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2);
+                        if best.is_none_or(|(bd, _)| d < bd) {
+                            best = Some((d, p));
+                        }
+                    }
+                }
+            }
+            if let Some((_, p)) = best {
+                out.push(landmark(
+                    format!("{level}_canal_centre"),
+                    p,
+                    "spinal canal in the slice of the body centre: the canal voxel nearest to \
+                     the canal's centroid there (in the dural sac or the epidural space)",
+                    None,
+                ));
+            }
+        }
         body_z.push((level.to_string(), body[2], kz));
     }
     for pair in body_z.windows(2) {
@@ -932,7 +943,13 @@ mod tests {
         assert!((body[1] - sy / n).abs() < 1e-9, "{body:?}");
         assert!((body[2] - 14.5).abs() < 1e-9, "{body:?}");
         let canal_c = get(&l, "L5_canal_centre");
-        assert!((canal_c[0] - 14.5).abs() < 1e-9 && (canal_c[1] - 12.5).abs() < 1e-9);
+        // The canal voxel nearest to the hole's centroid (14.5, 12.5): one of the four around it.
+        assert!((canal_c[0] - 14.5).abs() == 0.5 && (canal_c[1] - 12.5).abs() == 0.5);
+        assert!(c.at(
+            canal_c[0] as usize,
+            canal_c[1] as usize,
+            canal_c[2] as usize
+        ));
         // The epidural landmark: midline column (x = 14.5 rounds to 14 or 15), the most posterior
         // canal row (j = 11), in the window (slices 8..12), between the body centres (4.5..14.5).
         let e = get(&l, "L4_L5_posterior_epidural_space");
