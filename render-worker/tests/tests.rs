@@ -4,6 +4,7 @@ mod driver;
 mod fluoro;
 mod fluoro_cache;
 mod gpu;
+mod lumbar_ct;
 mod modality_seam;
 mod needle_handling;
 mod session_host;
