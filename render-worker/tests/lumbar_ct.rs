@@ -178,7 +178,32 @@ fn a_scripted_midline_epidural_on_ct_feels_the_loss_and_scores() {
     assert_eq!(at_loss, Tissue::EpiduralFat);
     r.ok(next(), Command::PlungerHold { on: false });
     r.ok(next(), Command::Aspirate);
-    let ack = r.ok(next(), Command::Submit);
+    // Contrast through the needle: the transport grid is painted from the region's meshes
+    // (`contrast::region_grid`); 1 mL at 0.5 mL/s, then 3 s to settle.
+    r.ok(
+        next(),
+        Command::Syringe {
+            action: SyringeAction::Detach,
+            medium: None,
+        },
+    );
+    let start = Instant::now();
+    let t_inject = next();
+    r.ok(
+        t_inject,
+        Command::Inject {
+            agent: Agent::Contrast,
+            volume_ml: 1.0,
+            rate_ml_per_s: 0.5,
+        },
+    );
+    r.ok(t_inject + 2500, Command::Tick);
+    r.ok(t_inject + 5000, Command::Tick);
+    eprintln!(
+        "CT contrast: grid built and 5 s simulated in {:.2} s",
+        start.elapsed().as_secs_f64()
+    );
+    let ack = r.ok(t_inject + 5500, Command::Submit);
     let res = ack.result.expect("a submit returns the result");
     let m = &res.measurements;
     eprintln!("CT epidural measurements: {m:?}");
@@ -194,7 +219,18 @@ fn a_scripted_midline_epidural_on_ct_feels_the_loss_and_scores() {
         .iter()
         .map(|c| (c.id.as_str(), c.credit))
         .collect();
-    for id in ["tip_at_target", "loss_of_resistance", "no_dural_puncture"] {
+    assert!((m["injected_volume_ml"] - 1.0).abs() < 1e-6, "{m:?}");
+    assert_eq!(m["intrathecal_contrast_bool"], 0.0, "{m:?}");
+    assert_eq!(m["intravascular_uptake_bool"], 0.0, "{m:?}");
+    assert_eq!(m["epidural_spread_bool"], 1.0, "{m:?}");
+    for id in [
+        "tip_at_target",
+        "loss_of_resistance",
+        "no_dural_puncture",
+        "epidural_contrast_pattern",
+        "no_intravascular_injection",
+        "no_intrathecal_contrast",
+    ] {
         assert_eq!(credits[id], Some(1.0), "{id}: {credits:?}");
     }
 }
