@@ -59,6 +59,12 @@ fn the_ct_region_loads_and_an_ap_shot_shows_the_spine() {
         station.targets["posterior_epidural_l4_l5"], r0.landmarks[TARGET],
         "the target is the landmark computed from the masks"
     );
+    // The L4 inferior endplate, estimated on the CT's solid vertebra mesh, faces caudally
+    // (within 30 degrees of -z, the bound the phantom's test uses: lordotic tilt).
+    let n = render_worker::session::anatomy::endplate_normal(&r0, "L4", "L5").expect("endplate");
+    let off_axis_deg = n.dot(DVec3::NEG_Z).acos().to_degrees();
+    eprintln!("CT L4 inferior endplate normal {n:?}, {off_axis_deg:.1} degrees from -z");
+    assert!(off_axis_deg < 30.0);
     let mut r = run();
     r.ok(500, Command::Shot);
     let img = r.render(ViewId::Fluoroscopy).unwrap();
