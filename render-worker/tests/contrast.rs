@@ -435,7 +435,7 @@ fn replay_with_injections_and_ticks_is_bit_identical() {
 }
 
 /// Mean grey level in a square of `half` pixels around `px`.
-fn mean_around(image: &ViewImage, px: [f64; 2], half: i64) -> f64 {
+pub(crate) fn mean_around(image: &ViewImage, px: [f64; 2], half: i64) -> f64 {
     let (w, h) = (i64::from(image.width), i64::from(image.height));
     let (cx, cy) = (px[0] as i64, px[1] as i64);
     let mut sum = 0.0;
@@ -449,7 +449,7 @@ fn mean_around(image: &ViewImage, px: [f64; 2], half: i64) -> f64 {
     sum / n
 }
 
-fn last_projection(s: &Session) -> Projection {
+pub(crate) fn last_projection(s: &Session) -> Projection {
     let snap = s.snapshot();
     let img = snap.modalities["fluoroscopy"]["images"]
         .as_array()

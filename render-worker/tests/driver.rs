@@ -47,6 +47,32 @@ impl Run {
         }
     }
 
+    /// Places the skin marker at `position_mm` (it snaps onto the skin) and returns where it
+    /// landed.
+    pub(crate) fn skin_marker(&mut self, t_ms: u64, position_mm: [f64; 3]) -> [f64; 3] {
+        let ack = self.ok(
+            t_ms,
+            Command::SkinMarker {
+                pixel: None,
+                position_mm: Some(position_mm),
+            },
+        );
+        serde_json::from_value(ack.outcome["marker_mm"].clone()).unwrap()
+    }
+
+    /// Attaches the loss-of-resistance syringe at `t_ms` and starts constant plunger pressure
+    /// at `t_ms + 500`; returns the pressure command's acknowledgement.
+    pub(crate) fn attach_lor_and_hold(&mut self, t_ms: u64) -> Ack {
+        self.ok(
+            t_ms,
+            Command::Syringe {
+                action: SyringeAction::Attach,
+                medium: None,
+            },
+        );
+        self.ok(t_ms + 500, Command::PlungerHold { on: true })
+    }
+
     pub(crate) fn render(&mut self, view: ViewId) -> Option<ViewImage> {
         let views: BTreeSet<ViewId> = [view].into();
         self.s

@@ -93,16 +93,7 @@ pub(crate) fn scripted_epidural() -> Epidural {
     r.ok(next(), Command::Shot);
     let entry = planned_entry();
     // A point 3 mm off the skin along the beam: the marker snaps onto the skin.
-    let marker = r.ok(
-        next(),
-        Command::SkinMarker {
-            pixel: None,
-            position_mm: Some((entry - DVec3::Y * 3.0).to_array()),
-        },
-    );
-    let m = DVec3::from_array(
-        serde_json::from_value::<[f64; 3]>(marker.outcome["marker_mm"].clone()).unwrap(),
-    );
+    let m = DVec3::from_array(r.skin_marker(next(), (entry - DVec3::Y * 3.0).to_array()));
     assert!(m.distance(entry) < 1.0, "{m} vs {entry}");
     r.ok(next(), Command::Shot);
     let punct = r.ok(
@@ -168,14 +159,8 @@ pub(crate) fn scripted_epidural() -> Epidural {
         Tissue::InterspinousLigament,
         "at {depth} mm"
     );
-    r.ok(
-        next(),
-        Command::Syringe {
-            action: SyringeAction::Attach,
-            medium: None,
-        },
-    );
-    let hold = r.ok(next(), Command::PlungerHold { on: true });
+    let hold = r.attach_lor_and_hold(next());
+    next();
     assert_eq!(hold.outcome["lor"]["gave_way"], false, "{}", hold.outcome);
     let mut loss = None;
     for _ in 0..80 {

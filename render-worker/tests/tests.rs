@@ -6,6 +6,7 @@ mod fluoro;
 mod fluoro_cache;
 mod gallery;
 mod gpu;
+mod lumbar_ct;
 mod modality_seam;
 mod needle_handling;
 mod session_host;

@@ -105,8 +105,9 @@ fn repo_stations() -> std::path::PathBuf {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn first_session_request_answers_at_once_while_the_phantom_builds() {
     let assets = tempfile::tempdir().unwrap();
-    // The lumbar phantom's stations: the host is ready when their one region is (the cervical
-    // stations' region is another build, which this loader does not make).
+    // The lumbar phantom's stations only: this host builds that one phantom (the cervical
+    // stations' region is another build, and the real-CT region `lumbar-ct` loads from files;
+    // neither is what this test watches).
     let stations = sim_core::rubric::load_station_dir(&repo_stations())
         .unwrap()
         .into_iter()

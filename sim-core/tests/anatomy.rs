@@ -16,7 +16,7 @@ use sim_core::mesh::TriMesh;
 use sim_core::volume::{Volume, VolumeGrid};
 
 /// The real-CT test data. A missing folder fails loudly: these tests must not pass vacuously.
-fn data_dir() -> PathBuf {
+pub(crate) fn data_dir() -> PathBuf {
     let d = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/anatomy");
     assert!(
         d.join("README.md").is_file(),
@@ -43,7 +43,7 @@ fn phantom_source() -> SourceInfo {
 }
 
 /// Volume and volume centroid of a closed mesh (divergence theorem over tetrahedra to a point).
-fn volume_and_centroid(m: &TriMesh) -> (f64, [f64; 3]) {
+pub(crate) fn volume_and_centroid(m: &TriMesh) -> (f64, [f64; 3]) {
     let o = m.vertices_mm[0];
     let mut v_sum = 0.0;
     let mut c = [0.0; 3];

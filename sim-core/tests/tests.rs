@@ -4,6 +4,7 @@ mod cervical;
 mod contrast;
 mod fluoro;
 mod laminar;
+mod lumbar_ct;
 mod morphometry;
 mod needle;
 mod needle_handling;

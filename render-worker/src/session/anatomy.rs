@@ -51,7 +51,10 @@ pub fn angle_to_plane_deg(line: DVec3, plane_normal: DVec3) -> f64 {
 pub fn endplate_normal(region: &Region, upper: &str, lower: &str) -> Option<DVec3> {
     let c = DVec3::from_array(*region.landmarks.get(&format!("{upper}_body_centre"))?);
     let l = DVec3::from_array(*region.landmarks.get(&format!("{lower}_body_centre"))?);
-    let bone = region.entry(&format!("{upper}_cortical"))?;
+    // The phantom's cortex is `L4_cortical`; an imported CT's whole vertebra is `vertebrae_L4`.
+    let bone = region
+        .entry(&format!("{upper}_cortical"))
+        .or_else(|| region.entry(&format!("vertebrae_{upper}")))?;
     let axis = (l - c).normalize();
     let e1 = axis.any_orthonormal_vector();
     let e2 = axis.cross(e1);

@@ -61,7 +61,8 @@ impl Region {
     }
 
     /// A loaded asset; for a phantom region the landmarks are recomputed from the parameters
-    /// recorded in its provenance (the phantom is a pure function of them).
+    /// recorded in its provenance (the phantom is a pure function of them); a CT region's come
+    /// from its manifest (computed from the masks when it was built).
     pub fn from_asset(asset: &RegionAsset) -> Region {
         let mut params_of_phantom = None;
         let (landmarks, source) = match &asset.provenance.source {
@@ -91,7 +92,15 @@ impl Region {
                     .unwrap_or_default();
                 (landmarks, generator.clone())
             }
-            Source::Ct { ct_file, .. } => (BTreeMap::new(), format!("ct:{ct_file}")),
+            // A CT region carries the landmarks computed from its masks when it was built.
+            Source::Ct { ct_file, .. } => (
+                asset
+                    .landmarks
+                    .iter()
+                    .map(|l| (l.name.clone(), l.position_mm))
+                    .collect(),
+                format!("ct:{ct_file}"),
+            ),
         };
         let mut region = Region::from_structures(
             &asset.name,

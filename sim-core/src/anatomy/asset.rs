@@ -27,6 +27,7 @@ use serde::{Deserialize, Serialize};
 use super::error::AnatomyError;
 use super::glb;
 use super::params::PipelineParams;
+pub use super::phantom::Landmark;
 pub use super::structure::StructureAsset;
 use crate::material::MaterialClass;
 use crate::volume::{Volume, VolumeGrid};
@@ -129,6 +130,10 @@ pub struct RegionAsset {
     pub labels: Volume<u8>,
     /// Origin, licence, parameters and file hashes.
     pub provenance: Provenance,
+    /// Named points computed when the region was built (model frame, mm), stored in
+    /// `region.json`; empty for regions that compute theirs on load (the phantom) and for
+    /// folders written before the field existed.
+    pub landmarks: Vec<Landmark>,
 }
 
 /// `region.json`: what a reader needs to interpret the other files.
@@ -143,6 +148,9 @@ struct Manifest {
     labels: LabelsManifest,
     meshes_file: String,
     structures: Vec<StructureManifest>,
+    /// Optional (absent in older folders, which stay loadable).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    landmarks: Vec<Landmark>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -240,6 +248,7 @@ impl RegionAsset {
                     mask_volume_mm3: s.mask_volume_mm3,
                 })
                 .collect(),
+            landmarks: self.landmarks.clone(),
         };
         let region_json = serde_json::to_vec_pretty(&manifest).map_err(|e| {
             AnatomyError::invalid(&self.name, format!("serializing {REGION_FILE}: {e}"))
@@ -418,6 +427,7 @@ impl RegionAsset {
             ct_u8,
             labels,
             provenance,
+            landmarks: manifest.landmarks,
         })
     }
 }

@@ -22,25 +22,10 @@ impl StructureMask {
     /// The same mask cropped to the box of its non-zero voxels (`None` if it has none).
     pub fn cropped(&self) -> Option<StructureMask> {
         let (lo, hi) = nonzero_box(&self.mask)?;
-        let g = self.mask.grid;
-        let dims = [hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1];
-        let grid = VolumeGrid {
-            dims,
-            spacing_mm: g.spacing_mm,
-            origin_mm: g.voxel_center_mm(lo[0], lo[1], lo[2]),
-        };
-        let mut data = Vec::with_capacity(grid.len());
-        for k in lo[2]..=hi[2] {
-            for j in lo[1]..=hi[1] {
-                for i in lo[0]..=hi[0] {
-                    data.push(self.mask.get(i, j, k));
-                }
-            }
-        }
         Some(StructureMask {
             name: self.name.clone(),
             material: self.material,
-            mask: Volume { grid, data },
+            mask: crop_box(&self.mask, lo, hi),
         })
     }
 
@@ -54,6 +39,25 @@ impl StructureMask {
             .sum();
         s * self.mask.grid.voxel_volume_mm3()
     }
+}
+
+/// The voxels of `v` in the inclusive index box `lo..=hi`, on the same lattice.
+pub(crate) fn crop_box<T: Copy>(v: &Volume<T>, lo: [usize; 3], hi: [usize; 3]) -> Volume<T> {
+    let g = v.grid;
+    let grid = VolumeGrid {
+        dims: std::array::from_fn(|a| hi[a] - lo[a] + 1),
+        spacing_mm: g.spacing_mm,
+        origin_mm: g.voxel_center_mm(lo[0], lo[1], lo[2]),
+    };
+    let mut data = Vec::with_capacity(grid.len());
+    for k in lo[2]..=hi[2] {
+        for j in lo[1]..=hi[1] {
+            for i in lo[0]..=hi[0] {
+                data.push(v.get(i, j, k));
+            }
+        }
+    }
+    Volume { grid, data }
 }
 
 /// Inclusive index box of the voxels with a value above zero.

@@ -7,6 +7,8 @@
 //! [`asset::RegionAsset::write_to`] stores it atomically and [`asset::RegionAsset::load`] reads it
 //! back, verifying the SHA-256 of every file. The phantom ([`phantom`]) and real-CT import
 //! ([`nifti_import`], [`totalseg`]) are the two producers of those inputs.
+//! [`lumbar_ct`] adds, for a lumbar CT, landmarks computed from the vertebra masks and the
+//! tissues the masks lack (authored canal contents, skin, fat and muscle from HU).
 //!
 //! The `assets` binary (`sim-core/src/bin/assets.rs`) wraps real-CT import for the command line:
 //! `assets build --ct ct.nii.gz --masks segmentations/ --out assets/<region>` (or
@@ -21,6 +23,7 @@ pub mod error;
 mod glb;
 pub mod interfaces;
 pub mod labels;
+pub mod lumbar_ct;
 pub mod mask;
 pub mod mesher;
 pub mod nifti_import;

@@ -327,5 +327,6 @@ pub fn build_region(
             notes,
             files_sha256: Default::default(),
         },
+        landmarks: Vec::new(),
     })
 }

@@ -15,6 +15,7 @@ use super::error::AnatomyError;
 use super::nifti_import::{NiftiImage, RasResampler, check_same_grid, read_nifti};
 use super::pipeline::{PipelineParams, Progress, SourceInfo, StructureMask, build_region};
 use crate::material::MaterialClass;
+use crate::volume::Volume;
 
 /// HU given to resampled CT voxels outside the source volume (air).
 pub const OUTSIDE_HU: f32 = -1024.0;
@@ -305,6 +306,19 @@ fn structure_name(path: &Path) -> Option<String> {
         .map(str::to_string)
 }
 
+/// A CT and its masks read and resampled into world RAS, not yet meshed: what
+/// [`import_ct`] hands to [`build_region`], for callers that add structures first (see
+/// [`super::lumbar_ct`]).
+#[derive(Debug, Clone)]
+pub struct ImportedCt {
+    /// The CT in HU on the region grid.
+    pub ct_hu: Volume<f32>,
+    /// One mask per mapped, non-empty structure, cropped to its non-zero box.
+    pub structures: Vec<StructureMask>,
+    /// Source files, licence, attribution and import notes.
+    pub source: SourceInfo,
+}
+
 /// Imports a CT and its masks into a region (not yet written; see [`RegionAsset::write_to`]).
 pub fn import_ct(
     ct_path: &Path,
@@ -312,6 +326,25 @@ pub fn import_ct(
     options: &ImportOptions,
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<RegionAsset, AnatomyError> {
+    let imported = read_ct_and_masks(ct_path, masks, options, progress)?;
+    build_region(
+        &options.region_name,
+        &imported.ct_hu,
+        imported.structures,
+        &options.params,
+        imported.source,
+        progress,
+    )
+}
+
+/// Reads a CT and its masks and resamples them into world RAS (the first half of
+/// [`import_ct`]).
+pub fn read_ct_and_masks(
+    ct_path: &Path,
+    masks: &MaskSource,
+    options: &ImportOptions,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<ImportedCt, AnatomyError> {
     let mut notes = Vec::new();
     progress(&Progress {
         stage: "read CT",
@@ -492,14 +525,11 @@ pub fn import_ct(
         attribution: options.attribution.clone(),
         notes,
     };
-    build_region(
-        &options.region_name,
-        &ct_ras,
+    Ok(ImportedCt {
+        ct_hu: ct_ras,
         structures,
-        &options.params,
         source,
-        progress,
-    )
+    })
 }
 
 #[cfg(test)]

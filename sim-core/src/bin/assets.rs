@@ -11,8 +11,12 @@
 //!   --upsample N           up-sampling factor before extraction (default 1)
 //!   --smooth N             N Taubin (0.5 / -0.53) pairs, 1 mm cap, 2 % volume guard (default off)
 //!   --decimate F           keep about fraction F of the triangles (default off)
+//!   --decimate-error MM    largest deviation decimation may introduce, mm (default 0.3)
 //!   --licence SPDX         licence of the derived asset (default: NOASSERTION)
 //!   --attribution TEXT     attribution that travels with the asset
+//!   --lumbar               lumbar region (per-structure masks only): crop in plane to the body,
+//!                          landmarks from the vertebra masks, authored canal contents, skin, fat
+//!                          and muscle (see `sim_core::anatomy::lumbar_ct`)
 //! ```
 //!
 //! Errors name the offending file; the output folder is written atomically, so a failed build
@@ -26,14 +30,15 @@ use std::time::Instant;
 use indicatif::{ProgressBar, ProgressStyle};
 use sim_core::anatomy::asset::RegionAsset;
 use sim_core::anatomy::decimate::DecimationParams;
+use sim_core::anatomy::lumbar_ct::import_lumbar_ct;
 use sim_core::anatomy::pipeline::{PipelineParams, Progress};
 use sim_core::anatomy::smooth::TaubinParams;
 use sim_core::anatomy::totalseg::{ImportOptions, MaskSource, import_ct};
 
 const USAGE: &str = "usage:
   assets build --ct CT.nii[.gz] (--masks DIR | --multilabel FILE [--label-map MAP.json]) --out DIR
-               [--name NAME] [--include a,b,c] [--upsample N] [--smooth N] [--decimate F]
-               [--licence SPDX] [--attribution TEXT]
+               [--name NAME] [--include a,b,c] [--upsample N] [--smooth N] [--decimate F] [--decimate-error MM]
+               [--licence SPDX] [--attribution TEXT] [--lumbar]
   assets verify DIR";
 
 fn main() -> ExitCode {
@@ -73,6 +78,13 @@ fn run(args: &[String]) -> Result<(), String> {
                     s.mask_volume_mm3
                 ));
             }
+            for l in &region.landmarks {
+                let p = l.position_mm;
+                lines.push(format!(
+                    "  landmark {:<40} [{:8.2}, {:8.2}, {:8.2}] mm",
+                    l.name, p[0], p[1], p[2]
+                ));
+            }
             for line in lines {
                 if writeln!(out, "{line}").is_err() {
                     break;
@@ -95,6 +107,8 @@ fn build(args: &[String]) -> Result<(), String> {
     let mut params = PipelineParams::default();
     let mut licence = "NOASSERTION".to_string();
     let mut attribution = String::new();
+    let mut lumbar = false;
+    let mut decimate_error_mm = None;
     let mut it = args.iter();
     while let Some(flag) = it.next() {
         let mut value = || {
@@ -129,10 +143,20 @@ fn build(args: &[String]) -> Result<(), String> {
                     ..DecimationParams::default()
                 });
             }
+            "--decimate-error" => {
+                let mm: f64 = value()?
+                    .parse()
+                    .map_err(|e| format!("--decimate-error: {e}"))?;
+                decimate_error_mm = Some(mm);
+            }
             "--licence" => licence = value()?,
             "--attribution" => attribution = value()?,
+            "--lumbar" => lumbar = true,
             other => return Err(format!("unknown option {other}\n{USAGE}")),
         }
+    }
+    if let (Some(d), Some(mm)) = (params.decimation.as_mut(), decimate_error_mm) {
+        d.max_error_mm = mm;
     }
     let ct = ct.ok_or_else(|| format!("--ct is required\n{USAGE}"))?;
     let out = out.ok_or_else(|| format!("--out is required\n{USAGE}"))?;
@@ -169,7 +193,12 @@ fn build(args: &[String]) -> Result<(), String> {
         bar.set_position(p.done as u64);
         bar.set_message(format!("{}: {}", p.stage, p.item));
     };
-    let region = import_ct(&ct, &source, &options, &mut on_progress).map_err(|e| e.to_string())?;
+    let region = if lumbar {
+        import_lumbar_ct(&ct, &source, &options, &mut on_progress)
+    } else {
+        import_ct(&ct, &source, &options, &mut on_progress)
+    }
+    .map_err(|e| e.to_string())?;
     let built = start.elapsed();
     bar.set_message("writing");
     let provenance = region.write_to(&out).map_err(|e| e.to_string())?;

@@ -1,4 +1,5 @@
-//! Building the transport domains from the procedural phantom.
+//! Building the transport domains from the procedural phantom (other regions map their
+//! structures by the same [`domain_of`]; see `render-worker`'s contrast modality).
 //!
 //! The phantom's solids are painted onto a crop grid (any cell size; 1 mm by default) and mapped:
 //! - `epidural_space` -> [`Domain::Epidural`]; `dural_sac` and `cauda_equina` ->
@@ -58,6 +59,13 @@ pub fn phantom_levels(params: &PhantomParams) -> Vec<LevelSpan> {
                 .map(|l| (n.to_string(), l.position_mm[2]))
         })
         .collect();
+    levels_from_centres(&centres)
+}
+
+/// Levels from body centres `(name, z_mm)` ordered from cranial to caudal: each from the
+/// midpoint to the centre below to the midpoint to the one above (the end levels are symmetric
+/// about their centre). Empty without centres.
+pub fn levels_from_centres(centres: &[(String, f64)]) -> Vec<LevelSpan> {
     let m = centres.len();
     (0..m)
         .map(|i| {
@@ -117,7 +125,9 @@ pub fn added_vessels(anatomy: &Anatomy) -> Vec<Sdf> {
     out
 }
 
-fn domain_of(name: &str, material: MaterialClass) -> Option<Domain> {
+/// The transport domain of a structure by name and class (see the module docs), `None` for
+/// solid.
+pub fn domain_of(name: &str, material: MaterialClass) -> Option<Domain> {
     match material {
         MaterialClass::EpiduralSpace => Some(Domain::Epidural),
         MaterialClass::DuraCsf => Some(Domain::Intrathecal),
@@ -164,7 +174,20 @@ pub fn phantom_grid(params: &PhantomParams, grid: VolumeGrid) -> ContrastGrid {
             *d = Some(Domain::Vascular);
         }
     }
-    // The sac's outer cell layer is the subdural space.
+    // The cauda and the crop faces do not make a wall; anything else does.
+    with_subdural_layer(grid, domain, |n| {
+        ids.data[n] != 0 && anatomy.parts[usize::from(ids.data[n]) - 1].name != "conus_medullaris"
+    })
+}
+
+/// The grid of `domain`, with the sac's outer cell layer made [`Domain::Subdural`]: the
+/// intrathecal cells with a face neighbour that is not intrathecal and is a wall (`is_wall`,
+/// by cell index; the crop faces are never walls).
+pub fn with_subdural_layer(
+    grid: VolumeGrid,
+    mut domain: Vec<Option<Domain>>,
+    is_wall: impl Fn(usize) -> bool,
+) -> ContrastGrid {
     let sac = |d: Option<Domain>| d == Some(Domain::Intrathecal);
     let [nx, ny, nz] = grid.dims;
     let mut subdural = Vec::new();
@@ -183,11 +206,7 @@ pub fn phantom_grid(params: &PhantomParams, grid: VolumeGrid) -> ContrastGrid {
                         return false;
                     }
                     let n = grid.index(q[0] as usize, q[1] as usize, q[2] as usize);
-                    let nd = domain[n];
-                    // The cauda and the crop faces do not make a wall; anything else does.
-                    !sac(nd)
-                        && ids.data[n] != 0
-                        && anatomy.parts[usize::from(ids.data[n]) - 1].name != "conus_medullaris"
+                    !sac(domain[n]) && is_wall(n)
                 });
                 if outside {
                     subdural.push(c);

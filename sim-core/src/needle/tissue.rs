@@ -130,6 +130,7 @@ impl Tissue {
             "quadratus_lumborum",
             "posterior_neck_muscles_",
             "longus_colli_",
+            "muscle_",
         ]) {
             Tissue::Muscle
         } else if prefixed(&[

@@ -27,7 +27,10 @@
 //! # Grid
 //! The phantom's domains are painted on a crop of [`CROP_HALF_MM`] around the station's primary
 //! target at [`CELL_MM`] cells (the canal, the foramina and the paraspinal muscles at the
-//! station's levels), built once per process for each phantom and crop.
+//! station's levels), built once per process for each phantom and crop. Another region with an
+//! `epidural_space` structure (the real-CT region and its authored canal contents) is painted
+//! from its structure meshes on the same crop ([`region_grid`]), its levels from its
+//! `L1`..`L5_body_centre` landmarks; it has no added radicular vessels or epidural veins.
 
 pub mod scorers;
 
@@ -35,7 +38,10 @@ use std::sync::{Arc, Mutex};
 
 use serde::{Deserialize, Serialize};
 use sim_core::anatomy::phantom::PhantomParams;
-use sim_core::contrast::domains::{LevelSpan, crop_grid, phantom_grid, phantom_levels};
+use sim_core::contrast::domains::{
+    LevelSpan, crop_grid, domain_of, levels_from_centres, phantom_grid, phantom_levels,
+    with_subdural_layer,
+};
 use sim_core::contrast::{
     Agent as ModelAgent, ContrastError, ContrastGrid, ContrastModel, Domain,
     Injection as ModelInjection, Ledger, ModelConfig, NeedleOutlet,
@@ -248,36 +254,50 @@ impl Live {
     }
 }
 
+/// What a station's transport grid is painted from.
+#[derive(Debug, Clone)]
+enum SiteSource {
+    /// The procedural phantom's solids (a pure function of its parameters).
+    Phantom(Box<PhantomParams>),
+    /// The analytic demo region: one uniform epidural box.
+    Demo,
+    /// Any other region with an `epidural_space` structure (an imported CT with authored canal
+    /// contents): its structure meshes, by [`region_grid`].
+    Region(Arc<Region>),
+}
+
 /// The crop and grid of a station (see the module docs).
 #[derive(Debug, Clone)]
 struct Site {
-    /// The phantom; `None` for the analytic demo region (see [`site`]).
-    params: Option<PhantomParams>,
+    source: SiteSource,
     crop_lo_mm: [f64; 3],
     crop_hi_mm: [f64; 3],
     levels: Vec<LevelSpan>,
 }
 
-/// Transport grids already built in this process, by phantom and crop (a handful at most: one
-/// per phantom station).
+/// Transport grids already built in this process, by phantom or region and crop (a handful at
+/// most: one per station).
 static GRIDS: Mutex<Vec<(String, Arc<ContrastGrid>)>> = Mutex::new(Vec::new());
 
 impl Site {
     fn grid(&self) -> Arc<ContrastGrid> {
-        let key = format!(
-            "{}|{:?}|{:?}",
-            serde_json::to_string(&self.params).unwrap_or_default(),
-            self.crop_lo_mm,
-            self.crop_hi_mm
-        );
+        let source_key = match &self.source {
+            SiteSource::Phantom(p) => serde_json::to_string(p).unwrap_or_default(),
+            SiteSource::Demo => "demo".to_string(),
+            SiteSource::Region(r) => format!("{}|{:?}", r.name, r.asset_sha256),
+        };
+        let key = format!("{source_key}|{:?}|{:?}", self.crop_lo_mm, self.crop_hi_mm);
         let mut grids = GRIDS.lock().unwrap_or_else(|e| e.into_inner());
         if let Some((_, g)) = grids.iter().find(|(k, _)| *k == key) {
             return Arc::clone(g);
         }
         let crop = crop_grid(self.crop_lo_mm, self.crop_hi_mm, CELL_MM);
-        let g = Arc::new(match &self.params {
-            Some(p) => phantom_grid(p, crop),
-            None => ContrastGrid::uniform(crop, Domain::Epidural, Domain::Epidural.default_props()),
+        let g = Arc::new(match &self.source {
+            SiteSource::Phantom(p) => phantom_grid(p, crop),
+            SiteSource::Demo => {
+                ContrastGrid::uniform(crop, Domain::Epidural, Domain::Epidural.default_props())
+            }
+            SiteSource::Region(r) => region_grid(r, crop),
         });
         if grids.len() >= 8 {
             grids.remove(0);
@@ -285,6 +305,33 @@ impl Site {
         grids.push((key, Arc::clone(&g)));
         g
     }
+}
+
+/// The transport grid of a region from its structure meshes: each cell takes the domain
+/// ([`domain_of`]) of the structure that owns its centre ([`Region::structure_at`]: the last in
+/// painting order whose mesh contains it), solid outside the body; the sac's outer cell layer
+/// against anything inside the body is subdural. Used for regions that are not the phantom
+/// (an imported CT's authored `epidural_space` and `dural_sac`, its vessel and muscle masks).
+pub fn region_grid(region: &Region, grid: sim_core::volume::VolumeGrid) -> ContrastGrid {
+    let entries = region.scene.entries();
+    let owner: Vec<Option<usize>> = (0..grid.len())
+        .map(|c| {
+            let [i, j, k] = grid.ijk(c);
+            region
+                .structure_at(grid.voxel_center_mm(i, j, k))
+                .and_then(|name| region.entry(name))
+        })
+        .collect();
+    let domain = owner
+        .iter()
+        .map(|o| {
+            o.and_then(|e| match entries[e].material {
+                sim_core::fluoro::FluoroMaterial::Tissue(m) => domain_of(&entries[e].name, m),
+                sim_core::fluoro::FluoroMaterial::Steel => None,
+            })
+        })
+        .collect();
+    with_subdural_layer(grid, domain, |n| owner[n].is_some())
 }
 
 /// The contrast modality.
@@ -309,33 +356,53 @@ impl std::fmt::Debug for ContrastModality {
 /// the skin is inside it.
 pub const DEMO_HALF_MM: [f64; 3] = [8.0, 60.0, 8.0];
 
-/// The crop of a phantom region around the station's primary target; for the analytic demo
-/// region (boxes of known geometry, no phantom), one uniform epidural box of [`DEMO_HALF_MM`]
-/// around the target, so whole-process tests can inject and see contrast; no grid elsewhere.
-fn site(region: &Region, station: &StationContext) -> Option<Site> {
+/// The crop of a phantom region, or of another region with an `epidural_space` structure,
+/// around the station's primary target; for the analytic demo region (boxes of known geometry,
+/// no phantom), one uniform epidural box of [`DEMO_HALF_MM`] around the target, so
+/// whole-process tests can inject and see contrast; no grid elsewhere.
+fn site(region: &Arc<Region>, station: &StationContext) -> Option<Site> {
     let c = primary_target(station)
         .or_else(|| region.landmarks.get("L4_body_centre").copied())
         .unwrap_or([0.0; 3]);
-    let half = match &region.phantom {
-        Some(_) => CROP_HALF_MM,
-        None if region.name == crate::session::demo::DEMO_REGION_NAME => DEMO_HALF_MM,
+    let (source, half, levels) = match &region.phantom {
+        Some(p) => (
+            SiteSource::Phantom(Box::new(p.clone())),
+            CROP_HALF_MM,
+            phantom_levels(p),
+        ),
+        None if region.name == crate::session::demo::DEMO_REGION_NAME => {
+            (SiteSource::Demo, DEMO_HALF_MM, Vec::new())
+        }
+        None if region.entry("epidural_space").is_some() => {
+            let centres: Vec<(String, f64)> = ["L1", "L2", "L3", "L4", "L5"]
+                .iter()
+                .filter_map(|n| {
+                    region
+                        .landmarks
+                        .get(&format!("{n}_body_centre"))
+                        .map(|p| (n.to_string(), p[2]))
+                })
+                .collect();
+            (
+                SiteSource::Region(Arc::clone(region)),
+                CROP_HALF_MM,
+                levels_from_centres(&centres),
+            )
+        }
         None => return None,
     };
     Some(Site {
-        params: region.phantom.clone(),
+        source,
         crop_lo_mm: std::array::from_fn(|a| c[a] - half[a]),
         crop_hi_mm: std::array::from_fn(|a| c[a] + half[a]),
-        levels: region
-            .phantom
-            .as_ref()
-            .map(phantom_levels)
-            .unwrap_or_default(),
+        levels,
     })
 }
 
 /// The transport grid a contrast session of `station` in `region` uses (`None` outside a
-/// phantom or the demo region); built once per process.
-pub fn transport_grid(region: &Region, station: &StationContext) -> Option<Arc<ContrastGrid>> {
+/// phantom, a region with an `epidural_space` structure, or the demo region); built once per
+/// process.
+pub fn transport_grid(region: &Arc<Region>, station: &StationContext) -> Option<Arc<ContrastGrid>> {
     site(region, station).map(|s| s.grid())
 }
 
@@ -411,7 +478,8 @@ impl ContrastModality {
             return Err(CommandError::field(
                 "command.type",
                 ErrorCode::ModalityUnavailable,
-                "contrast transport needs a procedural phantom region; this region has none",
+                "contrast transport needs the phantom or a region with an epidural_space \
+                 structure; this region has neither",
             ));
         };
         live.step_to(quantum_of(t_ms)).map_err(|e| refused(&e))?;
