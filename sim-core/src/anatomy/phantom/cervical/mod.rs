@@ -30,13 +30,15 @@ pub mod dims;
 
 mod bones;
 mod landmarks;
+mod parts;
 mod skeleton;
 mod soft;
 
 use std::path::Path;
 
-use super::model::{Anatomy, AnatomyParams, Landmark, PhantomPart};
+use super::model::{Anatomy, AnatomyParams, Landmark};
 use super::sdf::Sdf;
+use parts::Parts;
 use super::{PhantomParams, PhantomVolumes};
 use crate::anatomy::asset::{RegionAsset, Source};
 use crate::anatomy::error::AnatomyError;
@@ -53,22 +55,6 @@ pub const REGION_NAME: &str = "cervical-phantom";
 /// 2.5 mm posterior epidural space that the lumbar phantom's 1.5 mm grid would blur (our choice).
 pub const DEFAULT_VOXEL_MM: f64 = 1.0;
 
-/// The parts list under construction, in painting order.
-#[derive(Default)]
-pub(super) struct Parts(Vec<PhantomPart>);
-
-impl Parts {
-    fn push(&mut self, name: &str, material: MaterialClass, sdf: Sdf) {
-        // The envelope layers that contain everything are meshed whole, as in the lumbar phantom.
-        let nested = name == "skin" || name == "deep_soft_tissue";
-        self.0.push(PhantomPart {
-            name: name.to_string(),
-            material,
-            sdf,
-            nested,
-        });
-    }
-}
 
 /// The default parameters.
 pub fn default_params() -> PhantomParams {
