@@ -35,7 +35,6 @@
 use glam::DVec3;
 
 use super::sdf::Sdf;
-use crate::material::MaterialClass;
 
 mod canal;
 mod dims;
@@ -50,7 +49,7 @@ mod vertebra;
 pub use dims::{AnatomyParams, LEFT, RIGHT};
 pub use frames::LevelFrame;
 pub use landmarks::Landmark;
-use parts::Parts;
+pub(crate) use parts::Parts;
 pub use parts::PhantomPart;
 use spine::Spine;
 
@@ -87,19 +86,8 @@ fn push_bones(parts: &mut Parts, spine: &Spine, p: &AnatomyParams, under_skin: &
         .collect();
     bones.push(("sacrum".to_string(), sacrum));
     bones.extend(ilia);
-    let t = p.cortical_thickness_mm;
     for (name, bone) in bones {
-        let bone = Sdf::Intersect(vec![bone, under_skin.clone()]);
-        parts.push(
-            &format!("{name}_cortical"),
-            MaterialClass::CorticalBone,
-            bone.clone(),
-        );
-        parts.push(
-            &format!("{name}_cancellous"),
-            MaterialClass::Cancellous,
-            bone.offset(-t),
-        );
+        parts.push_bone(&name, bone, under_skin, p.cortical_thickness_mm);
     }
 }
 

@@ -80,19 +80,20 @@ const REACH_MM: f64 = 250.0;
 /// 2 mm and more, discs) is that thin.
 const MERGE_GAP_MM: f64 = 0.5;
 
-/// A bone as ray-castable surfaces: its cortical and (when present) cancellous meshes.
-struct Bone {
+/// A solid as ray-castable surfaces: a bone's cortical and (when present) cancellous meshes,
+/// or one soft-tissue mesh.
+struct Solid {
     surfaces: Vec<Bvh>,
 }
 
-impl Bone {
-    fn of(asset: &RegionAsset, name: &str) -> Option<Bone> {
+impl Solid {
+    fn bone(asset: &RegionAsset, name: &str) -> Option<Solid> {
         let surfaces: Vec<Bvh> = [format!("{name}_cortical"), format!("{name}_cancellous")]
             .iter()
             .filter_map(|n| asset.structures.iter().find(|s| &s.name == n))
             .map(|s| Bvh::new(&s.mesh))
             .collect();
-        (!surfaces.is_empty()).then_some(Bone { surfaces })
+        (!surfaces.is_empty()).then_some(Solid { surfaces })
     }
 
     /// The bone intervals (union of every surface's inside) along `p + t dir`, `t` in
@@ -125,10 +126,7 @@ impl Bone {
 
     /// Length of the bone interval through `p` along `dir` (0 when `p` is not in bone).
     fn chord(&self, p: DVec3, dir: DVec3) -> f64 {
-        self.intervals(p, dir)
-            .into_iter()
-            .find(|(a, b)| *a <= 0.0 && 0.0 <= *b)
-            .map_or(0.0, |(a, b)| b - a)
+        self.chord_span(p, dir).map_or(0.0, |(a, b)| b - a)
     }
 
     /// Interval (relative parameters) of bone through `p` along `dir`.
@@ -142,8 +140,16 @@ impl Bone {
     /// (`None` when `p` is in bone or the gap is open on a side).
     fn gap(&self, p: DVec3, dir: DVec3) -> Option<f64> {
         let iv = self.intervals(p, dir);
-        let before = iv.iter().filter(|(_, b)| *b < 0.0).map(|(_, b)| *b).reduce(f64::max)?;
-        let after = iv.iter().filter(|(a, _)| *a > 0.0).map(|(a, _)| *a).reduce(f64::min)?;
+        let before = iv
+            .iter()
+            .filter(|(_, b)| *b < 0.0)
+            .map(|(_, b)| *b)
+            .reduce(f64::max)?;
+        let after = iv
+            .iter()
+            .filter(|(a, _)| *a > 0.0)
+            .map(|(a, _)| *a)
+            .reduce(f64::min)?;
         let inside = iv.iter().any(|(a, b)| *a <= 0.0 && 0.0 <= *b);
         (!inside).then_some(after - before)
     }
@@ -168,11 +174,11 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
         });
     };
     let lumbar = &frames[..5];
-    let bones: Vec<Bone> = lumbar
+    let bones: Vec<Solid> = lumbar
         .iter()
-        .map(|f| Bone::of(asset, &f.name).ok_or_else(|| format!("no {} meshes", f.name)))
+        .map(|f| Solid::bone(asset, &f.name).ok_or_else(|| format!("no {} meshes", f.name)))
         .collect::<Result<_, _>>()?;
-    let sacrum = Bone::of(asset, "sacrum").ok_or("no sacrum meshes")?;
+    let sacrum = Solid::bone(asset, "sacrum").ok_or("no sacrum meshes")?;
     let nonzero = |v: f64, what: &str, level: &str| {
         if v > 0.0 {
             Ok(v)
@@ -183,8 +189,6 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
     for (i, (f, bone)) in lumbar.iter().zip(&bones).enumerate() {
         let l = f.name.as_str();
         let top = f.centre_mm + f.up * (0.5 * f.body_height_mm - 1.5);
-        push(l, Dimension::EndplateWidth, nonzero(bone.chord(top, f.right), "endplate width", l)?);
-        push(l, Dimension::EndplateDepth, nonzero(bone.chord(top, f.anterior), "endplate depth", l)?);
         // The body's mid-height sagittal chord finds its anterior and posterior cortex (the
         // posterior wall is concave, so the intended depth would aim outside it).
         let (t_back, t_front) = bone
@@ -192,8 +196,24 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
             .ok_or(format!("{l}: no bone at the body centre"))?;
         let front = f.centre_mm + f.anterior * (t_front - 3.0);
         let back = f.centre_mm + f.anterior * (t_back + 3.0);
-        push(l, Dimension::BodyHeightAnterior, nonzero(bone.chord(front, f.up), "anterior height", l)?);
-        push(l, Dimension::BodyHeightPosterior, nonzero(bone.chord(back, f.up), "posterior height", l)?);
+        for (dimension, what, p, dir) in [
+            (Dimension::EndplateWidth, "endplate width", top, f.right),
+            (Dimension::EndplateDepth, "endplate depth", top, f.anterior),
+            (
+                Dimension::BodyHeightAnterior,
+                "anterior height",
+                front,
+                f.up,
+            ),
+            (
+                Dimension::BodyHeightPosterior,
+                "posterior height",
+                back,
+                f.up,
+            ),
+        ] {
+            push(l, dimension, nonzero(bone.chord(p, dir), what, l)?);
+        }
         let (mut widths, mut heights, mut angles) = (Vec::new(), Vec::new(), Vec::new());
         for (c, axis) in f.pedicle_centre_mm.iter().zip(&f.pedicle_axis) {
             let across = f.up.cross(*axis).normalize();
@@ -201,38 +221,84 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
             heights.push(bone.chord(*c, f.up));
             angles.push(pedicle_angle_deg(bone, f, *c, *axis));
         }
-        push(l, Dimension::PedicleWidth, nonzero(mean(&widths), "pedicle width", l)?);
-        push(l, Dimension::PedicleHeight, nonzero(mean(&heights), "pedicle height", l)?);
-        let angles: Vec<f64> = angles.into_iter().collect::<Option<_>>().ok_or(format!("{l} pedicle axis"))?;
+        push(
+            l,
+            Dimension::PedicleWidth,
+            nonzero(mean(&widths), "pedicle width", l)?,
+        );
+        push(
+            l,
+            Dimension::PedicleHeight,
+            nonzero(mean(&heights), "pedicle height", l)?,
+        );
+        let angles: Vec<f64> = angles
+            .into_iter()
+            .collect::<Option<_>>()
+            .ok_or(format!("{l} pedicle axis"))?;
         push(l, Dimension::PedicleTransverseAngle, mean(&angles));
         let c = f.canal_centre_mm;
-        push(l, Dimension::CanalWidth, bone.gap(c, f.right).ok_or(format!("{l} canal width"))?);
-        push(l, Dimension::CanalDepth, bone.gap(c, f.anterior).ok_or(format!("{l} canal depth"))?);
+        push(
+            l,
+            Dimension::CanalWidth,
+            bone.gap(c, f.right).ok_or(format!("{l} canal width"))?,
+        );
+        push(
+            l,
+            Dimension::CanalDepth,
+            bone.gap(c, f.anterior).ok_or(format!("{l} canal depth"))?,
+        );
         // The processes run laterally and backwards: the widest of several transverse rays
         // around their level.
         let span = [-6.0, -4.0, -2.0, 0.0, 2.0]
             .iter()
             .flat_map(|dy| [-2.0, 0.0, 2.0].map(|dz| (dy, dz)))
-            .filter_map(|(dy, dz)| bone.extent(f.transverse_level_mm + f.anterior * *dy + f.up * dz, f.right))
+            .filter_map(|(dy, dz)| {
+                bone.extent(
+                    f.transverse_level_mm + f.anterior * *dy + f.up * dz,
+                    f.right,
+                )
+            })
             .reduce(f64::max);
-        push(l, Dimension::TransverseProcessSpan, span.ok_or(format!("{l} transverse processes"))?);
+        push(
+            l,
+            Dimension::TransverseProcessSpan,
+            span.ok_or(format!("{l} transverse processes"))?,
+        );
         // Disc: from this body's inferior endplate to the next body's superior one, along the
         // line joining the body centres.
         let below = if i + 1 < 5 { &bones[i + 1] } else { &sacrum };
         let next = &frames[i + 1];
         let axis = (f.centre_mm - next.centre_mm).normalize();
-        let (lo_this, _) = bone.chord_span(f.centre_mm, axis).ok_or(format!("{l} body axis"))?;
+        let (lo_this, _) = bone
+            .chord_span(f.centre_mm, axis)
+            .ok_or(format!("{l} body axis"))?;
         let bottom = f.centre_mm + axis * lo_this;
-        let gap = below.intervals(bottom, axis).into_iter().filter(|(_, b)| *b < 0.0).map(|(_, b)| -b).reduce(f64::min);
-        push(l, Dimension::DiscHeight, gap.ok_or(format!("{l} disc below"))?);
+        let gap = below
+            .intervals(bottom, axis)
+            .into_iter()
+            .filter(|(_, b)| *b < 0.0)
+            .map(|(_, b)| -b)
+            .reduce(f64::min);
+        push(
+            l,
+            Dimension::DiscHeight,
+            gap.ok_or(format!("{l} disc below"))?,
+        );
     }
     let mut slopes = Vec::new();
-    for (f, bone) in frames.iter().zip(bones.iter().chain(std::iter::once(&sacrum))) {
+    for (f, bone) in frames
+        .iter()
+        .zip(bones.iter().chain(std::iter::once(&sacrum)))
+    {
         slopes.push(endplate_angle_deg(bone, f).ok_or(format!("{} superior endplate", f.name))?);
     }
     for (i, pair) in frames.windows(2).enumerate() {
         let segment = format!("{}-{}", pair[0].name, pair[1].name);
-        push(&segment, Dimension::SegmentalLordosis, slopes[i] - slopes[i + 1]);
+        push(
+            &segment,
+            Dimension::SegmentalLordosis,
+            slopes[i] - slopes[i + 1],
+        );
     }
     push("L1-S1", Dimension::LordosisL1S1, slopes[0] - slopes[5]);
     let flavum = asset
@@ -240,7 +306,7 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
         .iter()
         .find(|s| s.name == "ligamentum_flavum")
         .ok_or("no ligamentum_flavum mesh")?;
-    let flavum = Bone {
+    let flavum = Solid {
         surfaces: vec![Bvh::new(&flavum.mesh)],
     };
     for pair in lumbar.windows(2) {
@@ -251,7 +317,9 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
         let segment = format!("{}-{}", upper.name, lower.name);
         let mut chords: Vec<f64> = (0..=40)
             .filter_map(|k| {
-                let c = upper.canal_centre_mm.lerp(lower.canal_centre_mm, f64::from(k) / 40.0);
+                let c = upper
+                    .canal_centre_mm
+                    .lerp(lower.canal_centre_mm, f64::from(k) / 40.0);
                 // Behind the canal centre: the flavum lies on the canal's back wall.
                 flavum
                     .intervals(c, -upper.anterior)
@@ -262,7 +330,11 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
             .collect();
         chords.sort_by(f64::total_cmp);
         let thickness = chords.get(chords.len() / 2).copied().unwrap_or(0.0);
-        push(&segment, Dimension::FlavumThickness, nonzero(thickness, "flavum", &segment)?);
+        push(
+            &segment,
+            Dimension::FlavumThickness,
+            nonzero(thickness, "flavum", &segment)?,
+        );
     }
     Ok(out)
 }
@@ -273,9 +345,12 @@ fn mean(v: &[f64]) -> f64 {
 
 /// Angle of the pedicle's measured axis from the sagittal plane (medial convergence), degrees:
 /// the midpoints of its width chords 4 mm before and after the isthmus centre.
-fn pedicle_angle_deg(bone: &Bone, f: &LevelFrame, c: DVec3, axis: DVec3) -> Option<f64> {
+fn pedicle_angle_deg(bone: &Solid, f: &LevelFrame, c: DVec3, axis: DVec3) -> Option<f64> {
     let across = f.up.cross(axis).normalize();
-    let mid = |p: DVec3| bone.chord_span(p, across).map(|(a, b)| p + across * (0.5 * (a + b)));
+    let mid = |p: DVec3| {
+        bone.chord_span(p, across)
+            .map(|(a, b)| p + across * (0.5 * (a + b)))
+    };
     let (a, b) = (mid(c - axis * 4.0)?, mid(c + axis * 4.0)?);
     let d = b - a;
     let lateral = d.dot(f.right).abs();
@@ -286,7 +361,7 @@ fn pedicle_angle_deg(bone: &Bone, f: &LevelFrame, c: DVec3, axis: DVec3) -> Opti
 /// Sagittal slope of a superior endplate in degrees from the model's horizontal, positive when
 /// its anterior edge is higher: the top of the bone along the body's axis 8 mm in front of and
 /// behind the body centre.
-fn endplate_angle_deg(bone: &Bone, f: &LevelFrame) -> Option<f64> {
+fn endplate_angle_deg(bone: &Solid, f: &LevelFrame) -> Option<f64> {
     let top = |y: f64| {
         let p = f.centre_mm + f.anterior * y;
         bone.chord_span(p, f.up).map(|(_, b)| p + f.up * b)
@@ -315,12 +390,34 @@ pub struct Reference {
 /// coefficient of the nine dimensions of Cook and Baker 2021, Table 6 (10.2 %).
 pub const MEAN_ONLY_TOLERANCE: f64 = 2.0 * 0.102;
 
-const fn r(level: &'static str, dimension: Dimension, mean: f64, sd: f64, source: &'static str) -> Reference {
-    Reference { level, dimension, mean, sd: Some(sd), source }
+/// A value published with its standard deviation.
+const fn r(
+    level: &'static str,
+    dimension: Dimension,
+    mean: f64,
+    sd: f64,
+    source: &'static str,
+) -> Reference {
+    Reference {
+        level,
+        dimension,
+        mean,
+        sd: Some(sd),
+        source,
+    }
 }
 
-const fn m(level: &'static str, dimension: Dimension, mean: f64, source: &'static str) -> Reference {
-    Reference { level, dimension, mean, sd: None, source }
+/// A value published as a mean only.
+const fn m(
+    level: &'static str,
+    dimension: Dimension,
+    mean: f64,
+    source: &'static str,
+) -> Reference {
+    Reference {
+        sd: None,
+        ..r(level, dimension, mean, 0.0, source)
+    }
 }
 
 /// The published values (whole-population means where given), each with its source key.
@@ -336,10 +433,34 @@ pub const PUBLISHED: &[Reference] = &[
     r("L3", Dimension::PedicleWidth, 9.2, 2.2, "CHNPED94"),
     r("L4", Dimension::PedicleWidth, 11.9, 2.4, "CHNPED94"),
     r("L5", Dimension::PedicleWidth, 17.0, 2.8, "CHNPED94"),
-    r("L2", Dimension::PedicleTransverseAngle, 13.9, 4.9, "CHNPED94"),
-    r("L3", Dimension::PedicleTransverseAngle, 13.4, 5.1, "CHNPED94"),
-    r("L4", Dimension::PedicleTransverseAngle, 16.2, 5.9, "CHNPED94"),
-    r("L5", Dimension::PedicleTransverseAngle, 27.8, 7.2, "CHNPED94"),
+    r(
+        "L2",
+        Dimension::PedicleTransverseAngle,
+        13.9,
+        4.9,
+        "CHNPED94",
+    ),
+    r(
+        "L3",
+        Dimension::PedicleTransverseAngle,
+        13.4,
+        5.1,
+        "CHNPED94",
+    ),
+    r(
+        "L4",
+        Dimension::PedicleTransverseAngle,
+        16.2,
+        5.9,
+        "CHNPED94",
+    ),
+    r(
+        "L5",
+        Dimension::PedicleTransverseAngle,
+        27.8,
+        7.2,
+        "CHNPED94",
+    ),
     r("L1-L2", Dimension::SegmentalLordosis, 1.2, 3.6, "SCIREP22"),
     r("L2-L3", Dimension::SegmentalLordosis, 5.9, 4.1, "SCIREP22"),
     r("L3-L4", Dimension::SegmentalLordosis, 9.1, 4.2, "SCIREP22"),
@@ -364,15 +485,42 @@ pub const PUBLISHED: &[Reference] = &[
 
 /// The sources of [`PUBLISHED`], by key.
 pub const SOURCES: &[(&str, &str)] = &[
-    ("COOK21", "Cook WH, Baker JF. Comparative analysis of lumbar spine vertebral morphology between Maori and New Zealand Europeans: a CT study. Int J Spine Surg 2021;15(6):1072-1081, Table 6 (L5, n = 196, all patients)."),
-    ("CHNPED94", "Measurement of Chinese lumbar pedicles: with special reference to transpedicular screw fixation (CT, 100 volunteers), PubMed 8087710, abstract."),
-    ("CHEUNG94", "Cheung KM, Ruan D, Chan FL, Fang D. Computed tomographic osteometry of Asian lumbar pedicles. Spine 1994;19(13):1495-1498 (means only)."),
-    ("SCIREP22", "Segmental lumbar lordosis by pelvic incidence group, Sci Rep 2022, doi:10.1038/s41598-022-21840-x, Table 2 (n = 324, all subjects)."),
-    ("ASJ627", "Lumbar sagittal alignment in 627 asymptomatic volunteers, PMC6680033: standing T12-S1 lordosis (compared here with L1-S1)."),
-    ("KOLTE15", "Kolte VS, Khambatta S, Ambiye MV. Thickness of the ligamentum flavum. Asian Spine J 2015;9(2):245-253 (MRI, n = 200, right side)."),
-    ("ABBAS21", "Abbas J, Peled N, Hershkovitz I, Hamoud K. Vertebral morphometry in degenerative lumbar spinal stenosis. Biomed Res Int 2021:7093745 (CT, control males, means only)."),
-    ("GUJ12", "Canal/body ratio of lumbar vertebrae in dried vertebrae, Gujarat 2012 (63 dry spines, males, means only)."),
-    ("SHUKRI13", "Shukri IG, Mahmood KA, Abdulrahman SA. Morphometry of the lumbar spine in asymptomatic subjects by MRI. J Sulaimani Med Coll 2013;3(1) (n = 106, mid-sagittal disc heights, means only)."),
+    (
+        "COOK21",
+        "Cook WH, Baker JF. Comparative analysis of lumbar spine vertebral morphology between Maori and New Zealand Europeans: a CT study. Int J Spine Surg 2021;15(6):1072-1081, Table 6 (L5, n = 196, all patients).",
+    ),
+    (
+        "CHNPED94",
+        "Measurement of Chinese lumbar pedicles: with special reference to transpedicular screw fixation (CT, 100 volunteers), PubMed 8087710, abstract.",
+    ),
+    (
+        "CHEUNG94",
+        "Cheung KM, Ruan D, Chan FL, Fang D. Computed tomographic osteometry of Asian lumbar pedicles. Spine 1994;19(13):1495-1498 (means only).",
+    ),
+    (
+        "SCIREP22",
+        "Segmental lumbar lordosis by pelvic incidence group, Sci Rep 2022, doi:10.1038/s41598-022-21840-x, Table 2 (n = 324, all subjects).",
+    ),
+    (
+        "ASJ627",
+        "Lumbar sagittal alignment in 627 asymptomatic volunteers, PMC6680033: standing T12-S1 lordosis (compared here with L1-S1).",
+    ),
+    (
+        "KOLTE15",
+        "Kolte VS, Khambatta S, Ambiye MV. Thickness of the ligamentum flavum. Asian Spine J 2015;9(2):245-253 (MRI, n = 200, right side).",
+    ),
+    (
+        "ABBAS21",
+        "Abbas J, Peled N, Hershkovitz I, Hamoud K. Vertebral morphometry in degenerative lumbar spinal stenosis. Biomed Res Int 2021:7093745 (CT, control males, means only).",
+    ),
+    (
+        "GUJ12",
+        "Canal/body ratio of lumbar vertebrae in dried vertebrae, Gujarat 2012 (63 dry spines, males, means only).",
+    ),
+    (
+        "SHUKRI13",
+        "Shukri IG, Mahmood KA, Abdulrahman SA. Morphometry of the lumbar spine in asymptomatic subjects by MRI. J Sulaimani Med Coll 2013;3(1) (n = 106, mid-sagittal disc heights, means only).",
+    ),
 ];
 
 /// One row of the morphometry table: a reference and the value measured on the phantom.
@@ -387,14 +535,19 @@ pub struct Comparison {
 impl Comparison {
     /// Distance from the published mean in standard deviations (`None` for a mean-only source).
     pub fn z(&self) -> Option<f64> {
-        self.reference.sd.map(|sd| (self.measured - self.reference.mean) / sd)
+        self.reference
+            .sd
+            .map(|sd| (self.measured - self.reference.mean) / sd)
     }
 
     /// Within two standard deviations, or within [`MEAN_ONLY_TOLERANCE`] of a mean-only value.
     pub fn agrees(&self) -> bool {
         match self.z() {
             Some(z) => z.abs() <= 2.0,
-            None => (self.measured - self.reference.mean).abs() <= MEAN_ONLY_TOLERANCE * self.reference.mean,
+            None => {
+                (self.measured - self.reference.mean).abs()
+                    <= MEAN_ONLY_TOLERANCE * self.reference.mean
+            }
         }
     }
 }
@@ -408,7 +561,10 @@ pub fn compare(measured: &[Measured]) -> Result<Vec<Comparison>, String> {
             measured
                 .iter()
                 .find(|m| m.level == r.level && m.dimension == r.dimension)
-                .map(|m| Comparison { reference: *r, measured: m.value })
+                .map(|m| Comparison {
+                    reference: *r,
+                    measured: m.value,
+                })
                 .ok_or_else(|| format!("no measurement of {} {:?}", r.level, r.dimension))
         })
         .collect()
@@ -417,7 +573,9 @@ pub fn compare(measured: &[Measured]) -> Result<Vec<Comparison>, String> {
 /// The comparison as a Markdown table (level, dimension, measured, published mean and SD, z,
 /// source).
 pub fn table_markdown(rows: &[Comparison]) -> String {
-    let mut s = String::from("| level | dimension | measured | published mean | SD | z | source |\n|---|---|---|---|---|---|---|\n");
+    let mut s = String::from(
+        "| level | dimension | measured | published mean | SD | z | source |\n|---|---|---|---|---|---|---|\n",
+    );
     for c in rows {
         let r = c.reference;
         let unit = r.dimension.unit();
@@ -428,7 +586,10 @@ pub fn table_markdown(rows: &[Comparison]) -> String {
             c.measured,
             r.mean,
             r.sd.map_or("(mean only)".into(), |sd| format!("{sd:.1}")),
-            c.z().map_or(format!("{:+.0} %", 100.0 * (c.measured / r.mean - 1.0)), |z| format!("{z:+.2}")),
+            c.z().map_or(
+                format!("{:+.0} %", 100.0 * (c.measured / r.mean - 1.0)),
+                |z| format!("{z:+.2}")
+            ),
             r.source
         );
     }

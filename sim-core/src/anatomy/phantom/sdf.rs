@@ -433,6 +433,41 @@ impl Sdf {
         }
         .placed(rigid)
     }
+
+    /// An intervertebral disc: an elliptic cylinder of radii `radii` and half-height `half_h`,
+    /// turned by `rotation` about the midpoint of the two endplates, cut between the upper
+    /// body's inferior endplate (`upper`: a point on it and that body's cranial axis) and the
+    /// lower body's superior endplate (`lower`), overlapping each by 0.5 mm (bone is painted over
+    /// the overlap).
+    pub fn disc_between(
+        radii: [f64; 2],
+        half_h: f64,
+        rotation: DMat3,
+        upper: (DVec3, DVec3),
+        lower: (DVec3, DVec3),
+    ) -> Sdf {
+        let ((top, up_axis), (bottom, lo_axis)) = (upper, lower);
+        Sdf::Intersect(vec![
+            Sdf::EllipticCylinder {
+                rx: radii[0],
+                ry: radii[1],
+                half_h,
+                round: 0.0,
+            }
+            .placed(Rigid {
+                rotation,
+                translation: 0.5 * (top + bottom),
+            }),
+            Sdf::HalfSpace {
+                normal: up_axis,
+                offset: up_axis.dot(top) + 0.5,
+            },
+            Sdf::HalfSpace {
+                normal: -lo_axis,
+                offset: -lo_axis.dot(bottom) + 0.5,
+            },
+        ])
+    }
 }
 
 #[cfg(test)]

@@ -323,26 +323,11 @@ pub(super) fn discs(sk: &Skeleton) -> Vec<(String, Sdf)> {
             let top = up.w(0.0, 0.0, -0.5 * up.d.body_height);
             let bottom = lo.w(0.0, 0.0, 0.5 * lo.d.body_height);
             let rot = rot_x(0.5 * (up.d.tilt_deg + lo.d.tilt_deg));
-            let disc = Sdf::Intersect(vec![
-                Sdf::EllipticCylinder {
-                    rx: 0.5 * up.d.body_width.max(lo.d.body_width) + 0.5,
-                    ry: 0.5 * up.d.body_depth.max(lo.d.body_depth) + 0.5,
-                    half_h: 15.0,
-                    round: 0.0,
-                }
-                .placed(Rigid {
-                    rotation: rot,
-                    translation: 0.5 * (top + bottom),
-                }),
-                Sdf::HalfSpace {
-                    normal: up.up(),
-                    offset: up.up().dot(top) + 0.5,
-                },
-                Sdf::HalfSpace {
-                    normal: -lo.up(),
-                    offset: -lo.up().dot(bottom) + 0.5,
-                },
-            ])
+            let radii = [
+                0.5 * up.d.body_width.max(lo.d.body_width) + 0.5,
+                0.5 * up.d.body_depth.max(lo.d.body_depth) + 0.5,
+            ];
+            let disc = Sdf::disc_between(radii, 15.0, rot, (top, up.up()), (bottom, lo.up()))
             .minus(canal(up));
             (format!("disc_{}_{}", up.d.name, lo.d.name), disc)
         })

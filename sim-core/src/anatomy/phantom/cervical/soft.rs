@@ -4,7 +4,7 @@
 
 use glam::DVec3;
 
-use super::parts::Parts;
+use crate::anatomy::phantom::model::Parts;
 use super::dims::{
     ANTERIOR_EPIDURAL_MM, CORD_HALF_DEPTH_MM, CORD_HALF_WIDTH_MM, FLAVUM_MM, LATERAL_EPIDURAL_MM,
     POSTERIOR_EPIDURAL_MM,

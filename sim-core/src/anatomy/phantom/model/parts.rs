@@ -18,12 +18,12 @@ pub struct PhantomPart {
     pub nested: bool,
 }
 
-/// The parts list under construction, in painting order.
+/// The parts list under construction, in painting order (both phantoms build with it).
 #[derive(Default)]
-pub(super) struct Parts(pub(super) Vec<PhantomPart>);
+pub(crate) struct Parts(pub(crate) Vec<PhantomPart>);
 
 impl Parts {
-    pub(super) fn push(&mut self, name: &str, material: MaterialClass, sdf: Sdf) {
+    pub(crate) fn push(&mut self, name: &str, material: MaterialClass, sdf: Sdf) {
         // The two envelope solids that contain everything are meshed whole (nested): their
         // exclusive parts would be a thin shell (skin) and a surface wrapped round every organ
         // (deep soft tissue), both slow to mesh and of no use to a renderer that nests.
@@ -34,5 +34,22 @@ impl Parts {
             sdf,
             nested,
         });
+    }
+
+    /// Pushes a bone as its cortical solid `{name}_cortical`, then its cancellous inset
+    /// `{name}_cancellous` (`cortex_mm` thinner), both clipped to `under_skin` first so the
+    /// cortex covers the cut as well.
+    pub(crate) fn push_bone(&mut self, name: &str, bone: Sdf, under_skin: &Sdf, cortex_mm: f64) {
+        let bone = Sdf::Intersect(vec![bone, under_skin.clone()]);
+        self.push(
+            &format!("{name}_cortical"),
+            MaterialClass::CorticalBone,
+            bone.clone(),
+        );
+        self.push(
+            &format!("{name}_cancellous"),
+            MaterialClass::Cancellous,
+            bone.offset(-cortex_mm),
+        );
     }
 }

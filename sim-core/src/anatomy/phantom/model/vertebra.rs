@@ -217,31 +217,9 @@ pub(super) fn push_discs(parts: &mut Parts, spine: &Spine) {
         let top = up.w(0.0, 0.0, -0.5 * up.dims.body_height);
         let bottom = lo.w(0.0, 0.0, 0.5 * lo.dims.body_height);
         let mid_rot = rot_x(0.5 * (up.dims.tilt_deg + lo.dims.tilt_deg));
-        let centre = 0.5 * (top + bottom);
         let rx = 0.5 * up.dims.body_width.max(lo.dims.body_width) + 1.0;
         let ry = 0.5 * up.dims.body_depth.max(lo.dims.body_depth) + 1.0;
-        let disc = Sdf::Intersect(vec![
-            Sdf::EllipticCylinder {
-                rx,
-                ry,
-                half_h: 20.0,
-                round: 0.0,
-            }
-            .placed(Rigid {
-                rotation: mid_rot,
-                translation: centre,
-            }),
-            // Between the upper body's inferior endplate and the lower body's superior one,
-            // overlapping each by 0.5 mm (bone is painted over the overlap).
-            Sdf::HalfSpace {
-                normal: up.up(),
-                offset: up.up().dot(top) + 0.5,
-            },
-            Sdf::HalfSpace {
-                normal: -lo.up(),
-                offset: -lo.up().dot(bottom) + 0.5,
-            },
-        ])
+        let disc = Sdf::disc_between([rx, ry], 20.0, mid_rot, (top, up.up()), (bottom, lo.up()))
         .minus(lumbar_canal(up));
         let lo_name = if i < 4 { lo.dims.name } else { "S1" };
         parts.push(
