@@ -7,6 +7,7 @@
 //! | `PAINSIM_DATA_DIR` | `./data` | where the embedded cluster (and later caches) live |
 //! | `PAINSIM_WEB_DIR` | the repository's `web-client/` | static files of the web client |
 //! | `PAINSIM_MAX_BODY_BYTES` | `1048576` | largest accepted request body |
+//! | `PAINSIM_PUBLIC_URL` | `http://` + the bind address | the origin browsers and LMS platforms reach the server at (LTI redirect and JWKS URLs, xAPI authority and activity ids) |
 //! | `RUST_LOG` | `info` | log filter (tracing-subscriber syntax) |
 
 use std::net::SocketAddr;
@@ -27,6 +28,9 @@ pub struct Config {
     pub web_dir: PathBuf,
     /// Largest accepted request body in bytes.
     pub max_body_bytes: usize,
+    /// The server's public origin (scheme, host and port, no trailing slash): LTI 1.3 URLs given
+    /// to platforms and the IRIs of the platform's own xAPI activities are built on it.
+    pub public_url: String,
     /// Learning-records settings (sessions, passwords, TOTP, stations); see `records::config`.
     pub records: crate::records::config::RecordsConfig,
 }
@@ -51,8 +55,26 @@ impl Config {
             value: max_raw.clone(),
             reason: "expected a whole number of bytes, at least 1024".into(),
         })?;
+        let public_url = match lookup("PAINSIM_PUBLIC_URL").filter(|s| !s.trim().is_empty()) {
+            None => format!("http://{bind}"),
+            Some(raw) => {
+                let trimmed = raw.trim().trim_end_matches('/').to_owned();
+                let ok = (trimmed.starts_with("http://") || trimmed.starts_with("https://"))
+                    && !trimmed.contains(['?', '#', ' '])
+                    && trimmed.split("://").nth(1).is_some_and(|h| !h.is_empty());
+                if !ok {
+                    return Err(ConfigError {
+                        variable: "PAINSIM_PUBLIC_URL",
+                        value: raw,
+                        reason: "expected an http(s) origin such as https://sim.example.org".into(),
+                    });
+                }
+                trimmed
+            }
+        };
         Ok(Config {
             bind,
+            public_url,
             database_url: lookup("DATABASE_URL").filter(|s| !s.trim().is_empty()),
             data_dir: lookup("PAINSIM_DATA_DIR").map(PathBuf::from).unwrap_or_else(|| PathBuf::from("data")),
             web_dir: lookup("PAINSIM_WEB_DIR")
@@ -90,5 +112,9 @@ mod tests {
         let e = cfg(&[("PAINSIM_MAX_BODY_BYTES", "12")]).unwrap_err();
         assert_eq!(e.variable, "PAINSIM_MAX_BODY_BYTES");
         assert!(cfg(&[("DATABASE_URL", "  ")]).unwrap().database_url.is_none());
+        let e = cfg(&[("PAINSIM_PUBLIC_URL", "sim.example.org")]).unwrap_err();
+        assert_eq!(e.variable, "PAINSIM_PUBLIC_URL");
+        assert_eq!(cfg(&[]).unwrap().public_url, "http://127.0.0.1:8080");
+        assert_eq!(cfg(&[("PAINSIM_PUBLIC_URL", "https://sim.example.org/")]).unwrap().public_url, "https://sim.example.org");
     }
 }

@@ -96,18 +96,19 @@ impl ApiError {
     }
 }
 
+/// Logs an internal failure with its detail and returns what a client may see of it: only
+/// "internal error" (every HTTP boundary of the server answers internal failures so).
+pub fn logged_internal(what: &str, detail: &dyn std::fmt::Display) -> String {
+    tracing::error!(%detail, "{what}");
+    "internal error".to_owned()
+}
+
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let (status, code) = self.status_and_code();
         let message = match &self {
-            ApiError::Database(e) => {
-                tracing::error!(error = %e, "database error");
-                "internal error".to_owned()
-            }
-            ApiError::Internal(detail) => {
-                tracing::error!(%detail, "internal error");
-                "internal error".to_owned()
-            }
+            ApiError::Database(e) => logged_internal("database error", e),
+            ApiError::Internal(detail) => logged_internal("internal error", detail),
             other => other.to_string(),
         };
         let retry_after = match &self {

@@ -21,6 +21,7 @@ pub mod telemetry;
 #[cfg(feature = "test-support")]
 pub mod test_support;
 pub mod workers;
+pub mod xapi;
 
 use axum::Router;
 use axum::routing::{any, get};
@@ -39,6 +40,14 @@ pub fn app(state: AppState) -> Router {
     let tls = routes::headers::Tls(state.config.records.cookie_secure);
     let (records_router, mut doc) = records::router(records_state.clone());
     doc.merge(dispatch::openapi());
+    let xapi_state = xapi::XapiState {
+        pool: state.pool.clone(),
+        records: records_state.clone(),
+        public_url: state.config.public_url.as_str().into(),
+        max_body_bytes: state.config.max_body_bytes,
+    };
+    let (xapi_router, xapi_doc) = xapi::router(xapi_state);
+    doc.merge(xapi_doc);
     doc.info.title = "pain-sim API".into();
     records::routes::document_shared_refusals(&mut doc);
     let doc = std::sync::Arc::new(doc);
@@ -46,6 +55,7 @@ pub fn app(state: AppState) -> Router {
         .route("/healthz", get(routes::health::healthz))
         .route("/api/openapi.json", get(move || async move { axum::Json(doc.as_ref().clone()) }))
         .merge(records_router)
+        .merge(xapi_router)
         .merge(dispatch::router(records_state, dispatcher_for(&state)))
         .route("/api/{*rest}", any(routes::headers::api_not_found))
         .route("/api", any(routes::headers::api_not_found))

@@ -138,15 +138,15 @@ impl TestApp {
             }
             None => Body::empty(),
         };
-        let resp = self
-            .router
-            .clone()
-            .oneshot(req.body(body).unwrap())
-            .await
-            .unwrap();
+        self.request(req.body(body).unwrap()).await
+    }
+
+    /// Sends a built request through the router and reads the whole response.
+    pub async fn request(&self, req: Request<Body>) -> Response {
+        let resp = self.router.clone().oneshot(req).await.unwrap();
         let status = resp.status();
         let headers = resp.headers().clone();
-        let bytes = axum::body::to_bytes(resp.into_body(), 64 << 20)
+        let bytes = axum::body::to_bytes(resp.into_body(), 256 << 20)
             .await
             .unwrap();
         let text = String::from_utf8_lossy(&bytes).into_owned();
@@ -420,6 +420,8 @@ pub struct World {
     pub sessions: Vec<Option<Session>>,
     /// E-mail of the learner.
     pub learner_email: String,
+    /// An LRS credential of an LMS integration (created by the admin).
+    pub lrs_credential: Uuid,
 }
 
 /// Names of the matrix roles, in the order of [`World::sessions`].
@@ -471,6 +473,18 @@ impl World {
         app.store_result(learner, attempt_submitted, facet_measurements_met())
             .await
             .expect("a session result is stored");
+        let lrs_credential = Uuid::new_v4();
+        sqlx::query(
+            "INSERT INTO lrs_credentials (id, name, key, secret_sha256, can_read, can_write, authority, created_by)
+             VALUES ($1, $2, $3, sha256($2::bytea), TRUE, TRUE, '{}'::jsonb, $4)",
+        )
+        .bind(lrs_credential)
+        .bind(format!("LMS {tag}"))
+        .bind(lrs_credential.simple().to_string())
+        .bind(admin)
+        .execute(&app.db.pool)
+        .await
+        .expect("a fixture LRS credential");
         World {
             course_a,
             course_b,
@@ -484,6 +498,7 @@ impl World {
             attempt_submitted,
             sessions,
             learner_email: e("learner"),
+            lrs_credential,
         }
     }
 }

@@ -22,3 +22,5 @@ mod records_support;
 mod server_process;
 mod security_headers;
 mod session_sigkill;
+mod xapi_credentials;
+mod xapi_support;

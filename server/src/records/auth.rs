@@ -132,10 +132,15 @@ fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
 
 type SessionRow = (Uuid, String, String, String, bool, bool, String);
 
-impl FromRequestParts<RecordsState> for CurrentUser {
+impl<S> FromRequestParts<S> for CurrentUser
+where
+    S: Send + Sync,
+    RecordsState: axum::extract::FromRef<S>,
+{
     type Rejection = ApiError;
 
-    async fn from_request_parts(parts: &mut Parts, state: &RecordsState) -> Result<Self, ApiError> {
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ApiError> {
+        let state = &<RecordsState as axum::extract::FromRef<S>>::from_ref(state);
         let token = cookie_value(&parts.headers, SESSION_COOKIE).ok_or(ApiError::Unauthorized)?;
         let token_sha256 = sha256(token);
         let row: Option<SessionRow> = sqlx::query_as(

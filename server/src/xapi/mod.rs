@@ -1,0 +1,30 @@
+//! The learning record store (xAPI 2.0, IEEE 9274.1.1) under `/xapi/`, and the LMS integrations'
+//! credentials.
+//!
+//! LMS integrations, the platform's third kind of user, post and read activity records here with
+//! per-integration credentials (HTTP Basic; created and revoked by an admin in [`credentials`],
+//! checked by the [`auth::LrsClient`] extractor, scoped read and/or write; the credential's agent
+//! is the authority of every statement stored through it).
+//!
+//! Architecture invariant: the modules form layers, and each imports only from layers below it:
+//!
+//! 1. `error` ([`XapiError`], the one error type of the LRS boundary), `version` (the
+//!    `X-Experience-API-Version` header on every request and response);
+//! 2. `state` ([`XapiState`]), then `auth` (the credential extractor);
+//! 3. the resources: `about`, `credentials` (admin endpoints under `/api/admin/`);
+//! 4. `routes`: the router and its OpenAPI document.
+//!
+//! The LRS builds on the learning records (`crate::records`: the admin's session, the users) and
+//! never the reverse: the records know nothing of xAPI.
+
+pub mod about;
+pub mod auth;
+pub mod credentials;
+pub mod error;
+pub mod routes;
+pub mod state;
+pub mod version;
+
+pub use error::XapiError;
+pub use routes::router;
+pub use state::XapiState;

@@ -1,0 +1,55 @@
+//! The LRS router (`/xapi/...`, behind the version-header middleware) and the LMS-integration
+//! admin endpoints (`/api/admin/...`), with their OpenAPI document.
+
+use axum::Router;
+use utoipa::OpenApi;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::auth::LrsClient;
+use super::error::XapiError;
+use super::state::XapiState;
+use super::{about, credentials, version};
+
+#[derive(OpenApi)]
+#[openapi(tags(
+    (name = "xapi", description = "Learning record store (xAPI 2.0, IEEE 9274.1.1): HTTP Basic \
+        with an LMS integration's credential; every request but About sends \
+        `X-Experience-API-Version`"),
+    (name = "lms", description = "LMS integrations (admin): LRS credentials"),
+))]
+struct ApiDoc;
+
+/// The LRS and its admin endpoints (with their state applied), and their OpenAPI document.
+pub fn router<S: Clone + Send + Sync + 'static>(
+    state: XapiState,
+) -> (Router<S>, utoipa::openapi::OpenApi) {
+    let (lrs, mut doc) = OpenApiRouter::with_openapi(ApiDoc::openapi())
+        .routes(routes!(about::about))
+        .with_state(state.clone())
+        .split_for_parts();
+    let unknown = axum::Router::new()
+        .route("/xapi/{*rest}", axum::routing::any(unknown_resource))
+        .route("/xapi", axum::routing::any(unknown_resource))
+        .route("/xapi/", axum::routing::any(unknown_resource))
+        .with_state(state.clone());
+    let lrs = lrs
+        .merge(unknown)
+        .layer(axum::middleware::from_fn(version::version_header));
+    let (admin, admin_doc) = OpenApiRouter::<XapiState>::new()
+        .routes(routes!(
+            credentials::create_credential,
+            credentials::list_credentials
+        ))
+        .routes(routes!(credentials::revoke_credential))
+        .with_state(state)
+        .split_for_parts();
+    doc.merge(admin_doc);
+    (lrs.merge(admin), doc)
+}
+
+/// Anything under `/xapi/` that is no resource: 404 for an authenticated client (never the web
+/// client's page), 401 for anyone else, so the LRS does not tell strangers what it serves.
+async fn unknown_resource(_client: LrsClient) -> XapiError {
+    XapiError::NotFound("LRS resource".into())
+}
