@@ -9,7 +9,8 @@
 //! Architecture invariant: the modules form layers, and each imports only from layers below it:
 //!
 //! 1. `error` ([`XapiError`], the one error type of the LRS boundary), `version` (the
-//!    `X-Experience-API-Version` header on every request and response);
+//!    `X-Experience-API-Version` header on every request and response), `agent` and `validate`
+//!    (the data model: Agents and Groups, their identity keys, whole statements);
 //! 2. `state` ([`XapiState`]), then `auth` (the credential extractor);
 //! 3. the resources: `about`, `credentials` (admin endpoints under `/api/admin/`);
 //! 4. `routes`: the router and its OpenAPI document.
@@ -18,11 +19,13 @@
 //! never the reverse: the records know nothing of xAPI.
 
 pub mod about;
+pub mod agent;
 pub mod auth;
 pub mod credentials;
 pub mod error;
 pub mod routes;
 pub mod state;
+pub mod validate;
 pub mod version;
 
 pub use error::XapiError;
