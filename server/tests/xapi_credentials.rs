@@ -46,14 +46,14 @@ async fn credentials_authenticate_until_revoked() {
         "the secret is shown once only"
     );
     assert_eq!(lrs.cred.authority["account"]["name"], lrs.cred.key.as_str());
-    // Nothing can be created without a scope.
+    // A scope is one of three.
     let r = lrs
         .app
         .send(
             Method::POST,
             "/api/admin/lrs-credentials",
             Some(&lrs.admin),
-            Some(serde_json::json!({ "name": "none", "read": false, "write": false })),
+            Some(serde_json::json!({ "name": "none", "access": "none" })),
         )
         .await;
     assert_eq!(r.status, StatusCode::BAD_REQUEST);

@@ -66,13 +66,18 @@ impl Lrs {
 
     /// Creates a credential through the admin API.
     pub async fn credential(&self, name: &str, read: bool, write: bool) -> Cred {
+        let access = match (read, write) {
+            (true, true) => "read_write",
+            (true, false) => "read",
+            _ => "write",
+        };
         let r = self
             .app
             .send(
                 Method::POST,
                 "/api/admin/lrs-credentials",
                 Some(&self.admin),
-                Some(json!({ "name": name, "read": read, "write": write })),
+                Some(json!({ "name": name, "access": access })),
             )
             .await;
         assert_eq!(r.status, StatusCode::CREATED, "{}", r.text);

@@ -18,23 +18,46 @@ use crate::records::auth::{CurrentUser, Role};
 use crate::records::extract::{ApiJson, ApiPath};
 use crate::records::history::audit;
 
+/// What a credential may do at the LRS.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Access {
+    /// Read statements and documents only (e.g. an LMS gradebook or analytics).
+    Read,
+    /// Write statements and documents only (e.g. content that reports to the LRS).
+    Write,
+    /// Both.
+    ReadWrite,
+}
+
+impl Access {
+    fn scopes(self) -> (bool, bool) {
+        match self {
+            Access::Read => (true, false),
+            Access::Write => (false, true),
+            Access::ReadWrite => (true, true),
+        }
+    }
+}
+
 /// What an admin asks for.
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct NewCredential {
-    /// The integration's name, e.g. the LMS and course site (1 to 200 characters).
-    #[schema(min_length = 1, max_length = 200, pattern = "^[^\\u0000]*$")]
+    /// The integration's name, e.g. the LMS and course site (1 to 200 characters, not blank).
+    #[schema(
+        min_length = 1,
+        max_length = 200,
+        pattern = "^[^\\u0000]*[^\\s\\u0000][^\\u0000]*$"
+    )]
     pub name: String,
-    /// May read statements and documents (default true).
-    #[serde(default = "yes")]
-    pub read: bool,
-    /// May write statements and documents (default true).
-    #[serde(default = "yes")]
-    pub write: bool,
+    /// What it may do (default `read_write`).
+    #[serde(default = "read_write")]
+    pub access: Access,
 }
 
-fn yes() -> bool {
-    true
+fn read_write() -> Access {
+    Access::ReadWrite
 }
 
 /// A credential as listed (never with its secret).
@@ -119,11 +142,12 @@ pub async fn create_credential(
     if name.is_empty() || name.chars().count() > 200 {
         return Err(ApiError::BadRequest("name: 1 to 200 characters".into()));
     }
-    if !req.read && !req.write {
+    if name.contains('\0') {
         return Err(ApiError::BadRequest(
-            "a credential needs at least one of read and write".into(),
+            "name: must not contain NUL characters".into(),
         ));
     }
+    let (read, write) = req.access.scopes();
     let (id, key, secret) = (Uuid::new_v4(), random_hex(16), random_hex(32));
     let authority = json!({
         "objectType": "Agent",
@@ -139,8 +163,8 @@ pub async fn create_credential(
     .bind(name)
     .bind(&key)
     .bind(Sha256::digest(secret.as_bytes()).to_vec())
-    .bind(req.read)
-    .bind(req.write)
+    .bind(read)
+    .bind(write)
     .bind(&authority)
     .bind(user.id)
     .fetch_one(&mut *tx)
@@ -151,7 +175,7 @@ pub async fn create_credential(
         "lrs_credential_created",
         "lrs_credential",
         &id.to_string(),
-        json!({ "name": name, "read": req.read, "write": req.write }),
+        json!({ "name": name, "read": read, "write": write }),
     )
     .await?;
     tx.commit().await?;
