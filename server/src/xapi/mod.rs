@@ -18,11 +18,13 @@
 //! never the reverse: the records know nothing of xAPI.
 
 pub mod about;
+pub mod agent;
 pub mod auth;
 pub mod credentials;
 pub mod error;
 pub mod routes;
 pub mod state;
+pub mod validate;
 pub mod version;
 
 pub use error::XapiError;
