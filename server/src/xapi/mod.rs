@@ -11,7 +11,7 @@
 //! 1. `error` ([`XapiError`], the one error type of the LRS boundary), `version` (the
 //!    `X-Experience-API-Version` header on every request and response);
 //! 2. `state` ([`XapiState`]), then `auth` (the credential extractor);
-//! 3. the resources: `about`, `credentials` (admin endpoints under `/api/admin/`);
+//! 3. the resources: `about`, `statements`, `credentials` (admin endpoints under `/api/admin/`);
 //! 4. `routes`: the router and its OpenAPI document.
 //!
 //! The LRS builds on the learning records (`crate::records`: the admin's session, the users) and
@@ -24,6 +24,7 @@ pub mod credentials;
 pub mod error;
 pub mod routes;
 pub mod state;
+pub mod statements;
 pub mod validate;
 pub mod version;
 
