@@ -12,7 +12,7 @@
 //!    `X-Experience-API-Version` header on every request and response), `agent` and `validate`
 //!    (the data model: Agents and Groups, their identity keys, whole statements);
 //! 2. `state` ([`XapiState`]), then `auth` (the credential extractor);
-//! 3. the resources: `about`, `credentials` (admin endpoints under `/api/admin/`);
+//! 3. the resources: `about`, `statements`, `credentials` (admin endpoints under `/api/admin/`);
 //! 4. `routes`: the router and its OpenAPI document.
 //!
 //! The LRS builds on the learning records (`crate::records`: the admin's session, the users) and
@@ -25,6 +25,7 @@ pub mod credentials;
 pub mod error;
 pub mod routes;
 pub mod state;
+pub mod statements;
 pub mod validate;
 pub mod version;
 

@@ -9,7 +9,7 @@ use utoipa_axum::routes;
 use super::auth::LrsClient;
 use super::error::XapiError;
 use super::state::XapiState;
-use super::{about, credentials, version};
+use super::{about, credentials, statements, version};
 
 #[derive(OpenApi)]
 #[openapi(tags(
@@ -26,6 +26,11 @@ pub fn router<S: Clone + Send + Sync + 'static>(
 ) -> (Router<S>, utoipa::openapi::OpenApi) {
     let (lrs, mut doc) = OpenApiRouter::with_openapi(ApiDoc::openapi())
         .routes(routes!(about::about))
+        .routes(routes!(
+            statements::put_statement,
+            statements::post_statements,
+            statements::get_statements
+        ))
         .with_state(state.clone())
         .split_for_parts();
     let unknown = axum::Router::new()
