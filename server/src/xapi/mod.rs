@@ -23,6 +23,7 @@ pub mod credentials;
 pub mod error;
 pub mod routes;
 pub mod state;
+pub mod statements;
 pub mod version;
 
 pub use error::XapiError;

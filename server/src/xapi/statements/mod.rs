@@ -1,0 +1,2 @@
+//! TEMP placeholder (outbox branch): the statements helper's module replaces this file.
+pub mod store;
