@@ -23,4 +23,7 @@ mod server_process;
 mod security_headers;
 mod session_sigkill;
 mod xapi_credentials;
+mod xapi_forward;
+mod xapi_platform;
+mod xapi_platform_outbox;
 mod xapi_support;
