@@ -87,6 +87,20 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
         dispatcher.prepare_in_background();
     }
     let local_sessions = dispatcher.local_host().cloned();
+    // The platform's records become xAPI statements, forwarded from the durable outbox; both stop
+    // with the server (what they had not finished is in their tables, resumed at the next start).
+    let (background_stop, background_stopped) = tokio::sync::watch::channel(false);
+    let stopped = move || {
+        let mut rx = background_stopped.clone();
+        async move {
+            let _ = rx.wait_for(|s| *s).await;
+        }
+    };
+    let outbox = crate::outbox::Outbox::new(pool.clone());
+    outbox.register(crate::xapi::forward::Forwarder::new(pool.clone()));
+    let outbox_task = outbox.spawn(stopped());
+    let projector = crate::xapi::platform::Projector::new(pool.clone(), &config.public_url, Some(outbox));
+    let projector_task = projector.spawn(stopped());
     state.dispatcher = Some(dispatcher);
     let addr = listener.local_addr()?;
     tracing::info!(web = %show_path(&config.web_dir), "serving the web client");
@@ -118,6 +132,14 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
     };
     let stopping = std::time::Instant::now();
     tracing::info!("shutting down");
+    let _ = background_stop.send(true);
+    let background = async {
+        let _ = outbox_task.await;
+        let _ = projector_task.await;
+    };
+    if tokio::time::timeout(BACKGROUND_STOP_LIMIT, background).await.is_err() {
+        tracing::warn!(limit_s = BACKGROUND_STOP_LIMIT.as_secs(), "outbox or projector still running; stopping anyway");
+    }
     // Session threads end (and release their GPU resources) before the process exits; their
     // commands are already stored, so they resume from their log at the next start.
     if let Some(h) = local_sessions {
@@ -144,6 +166,10 @@ fn show_path(p: &Path) -> String {
 /// How long open connections may keep the server up after SIGTERM/SIGINT (our choice: a
 /// request of this platform takes well under a second; orchestrators wait 30 s before SIGKILL).
 const DRAIN_LIMIT: Duration = Duration::from_secs(10);
+
+/// How long the outbox workers and the xAPI projector may take to stop (our choice: they stop at
+/// their next await; a delivery in flight is abandoned and sent again after the next start).
+const BACKGROUND_STOP_LIMIT: Duration = Duration::from_secs(3);
 
 /// How long closing the database pool may wait for checked-out connections (our choice).
 const POOL_CLOSE_LIMIT: Duration = Duration::from_secs(5);

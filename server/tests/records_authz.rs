@@ -163,6 +163,30 @@ fn rows() -> Vec<Row> {
             |w| (format!("/api/admin/lrs-credentials/{}/revoke", w.lrs_credential), None),
             [401, 403, 403, 403, 403, 200],
         ),
+        // Forwarding to an external LRS: the admin's alone.
+        r(
+            M::GET,
+            "/api/admin/lrs-forwarding",
+            |_| ("/api/admin/lrs-forwarding".into(), None),
+            [401, 403, 403, 403, 403, 200],
+        ),
+        r(
+            M::PUT,
+            "/api/admin/lrs-forwarding",
+            |_| {
+                (
+                    "/api/admin/lrs-forwarding".into(),
+                    Some(json!({ "endpoint": "https://lrs.example.org/xapi/", "key": "k", "secret": "s" })),
+                )
+            },
+            [401, 403, 403, 403, 403, 200],
+        ),
+        r(
+            M::DELETE,
+            "/api/admin/lrs-forwarding",
+            |_| ("/api/admin/lrs-forwarding".into(), None),
+            [401, 403, 403, 403, 403, 204],
+        ),
         r(
             M::POST,
             "/api/courses",

@@ -27,4 +27,7 @@ mod xapi_credentials;
 mod xapi_statements;
 mod xapi_statements_attachments;
 mod xapi_statements_bench;
+mod xapi_forward;
+mod xapi_platform;
+mod xapi_platform_outbox;
 mod xapi_support;

@@ -23,6 +23,8 @@ pub mod agent;
 pub mod auth;
 pub mod credentials;
 pub mod error;
+pub mod forward;
+pub mod platform;
 pub mod routes;
 pub mod state;
 pub mod statements;

@@ -9,7 +9,7 @@ use utoipa_axum::routes;
 use super::auth::LrsClient;
 use super::error::XapiError;
 use super::state::XapiState;
-use super::{about, credentials, statements, version};
+use super::{about, credentials, forward, statements, version};
 
 #[derive(OpenApi)]
 #[openapi(tags(
@@ -47,6 +47,11 @@ pub fn router<S: Clone + Send + Sync + 'static>(
             credentials::list_credentials
         ))
         .routes(routes!(credentials::revoke_credential))
+        .routes(routes!(
+            forward::get_forwarding,
+            forward::put_forwarding,
+            forward::delete_forwarding
+        ))
         .with_state(state)
         .split_for_parts();
     doc.merge(admin_doc);

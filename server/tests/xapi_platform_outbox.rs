@@ -1,0 +1,348 @@
+//! The durable outbox (`server::outbox`): idempotent enqueue, retries with exponential backoff,
+//! permanent failures, resumption after a restart and after a crashed worker's lease, and two
+//! workers on one database delivering every item exactly once.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use futures::future::BoxFuture;
+use serde_json::{Value, json};
+use server::outbox::{self, Deliver, DeliveryError, Outbox, Timing};
+use server::test_support::test_db;
+use sqlx::PgPool;
+
+/// Short timings for tests (our choice: milliseconds instead of seconds, same ratios as the
+/// defaults: lease longer than the delivery timeout).
+fn fast() -> Timing {
+    Timing {
+        backoff_base: Duration::from_millis(100),
+        backoff_max: Duration::from_secs(2),
+        delivery_timeout: Duration::from_millis(800),
+        lease: Duration::from_millis(1200),
+        poll: Duration::from_millis(100),
+    }
+}
+
+/// A deliverer that answers with a script of outcomes (then `Ok`), and logs every call.
+struct Scripted {
+    kind: &'static str,
+    batch: usize,
+    script: Mutex<Vec<Result<(), DeliveryError>>>,
+    calls: Mutex<Vec<(Instant, Vec<Value>)>>,
+    delay: Duration,
+    hang: bool,
+}
+
+impl Scripted {
+    fn new(kind: &'static str, script: Vec<Result<(), DeliveryError>>) -> Arc<Scripted> {
+        Arc::new(Scripted {
+            kind,
+            batch: 1,
+            script: Mutex::new(script),
+            calls: Mutex::default(),
+            delay: Duration::ZERO,
+            hang: false,
+        })
+    }
+    fn calls(&self) -> Vec<(Instant, Vec<Value>)> {
+        self.calls.lock().unwrap().clone()
+    }
+}
+
+impl Deliver for Scripted {
+    fn kind(&self) -> &'static str {
+        self.kind
+    }
+    fn batch_size(&self) -> usize {
+        self.batch
+    }
+    fn deliver<'a>(&'a self, items: &'a [Value]) -> BoxFuture<'a, Result<(), DeliveryError>> {
+        Box::pin(async move {
+            self.calls
+                .lock()
+                .unwrap()
+                .push((Instant::now(), items.to_vec()));
+            if self.hang {
+                std::future::pending::<()>().await;
+            }
+            tokio::time::sleep(self.delay).await;
+            let mut s = self.script.lock().unwrap();
+            if s.is_empty() { Ok(()) } else { s.remove(0) }
+        })
+    }
+}
+
+async fn enqueue_n(pool: &PgPool, kind: &str, n: usize) {
+    let mut tx = pool.begin().await.unwrap();
+    for i in 0..n {
+        outbox::enqueue(&mut tx, kind, &format!("k{i}"), json!({ "n": i }))
+            .await
+            .unwrap();
+    }
+    tx.commit().await.unwrap();
+}
+
+async fn wait_until(limit: Duration, mut f: impl AsyncFnMut() -> bool) {
+    let start = Instant::now();
+    while !f().await {
+        assert!(
+            start.elapsed() < limit,
+            "condition not met within {limit:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+fn stopper() -> (
+    tokio::sync::oneshot::Sender<()>,
+    impl Future<Output = ()> + Send + 'static,
+) {
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    (tx, async move {
+        let _ = rx.await;
+    })
+}
+
+#[tokio::test]
+async fn enqueue_is_idempotent_by_kind_and_key_and_transactional() {
+    let db = test_db().await;
+    let mut tx = db.pool.begin().await.unwrap();
+    outbox::enqueue(&mut tx, "t", "a", json!(1)).await.unwrap();
+    outbox::enqueue(&mut tx, "t", "a", json!(2)).await.unwrap();
+    outbox::enqueue(&mut tx, "u", "a", json!(3)).await.unwrap();
+    tx.commit().await.unwrap();
+    // A rolled-back transaction leaves nothing.
+    let mut tx = db.pool.begin().await.unwrap();
+    outbox::enqueue(&mut tx, "t", "b", json!(4)).await.unwrap();
+    tx.rollback().await.unwrap();
+    let rows: Vec<(String, String, Value)> =
+        sqlx::query_as("SELECT kind, key, payload FROM outbox ORDER BY id")
+            .fetch_all(&db.pool)
+            .await
+            .unwrap();
+    assert_eq!(
+        rows,
+        vec![
+            ("t".into(), "a".into(), json!(1)),
+            ("u".into(), "a".into(), json!(3))
+        ]
+    );
+    let st = outbox::kind_status(&db.pool, "t").await.unwrap();
+    assert_eq!((st.pending, st.delivered, st.failed), (1, 0, 0));
+    assert!(st.oldest_pending_age_s.unwrap() >= 0.0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn retries_back_off_exponentially_then_deliver() {
+    let db = test_db().await;
+    let d = Scripted::new(
+        "retry",
+        vec![
+            Err(DeliveryError::Retry("down 1".into())),
+            Err(DeliveryError::Retry("down 2".into())),
+            Err(DeliveryError::Retry("down 3".into())),
+        ],
+    );
+    let ob = Outbox::with_timing(db.pool.clone(), fast());
+    ob.register(d.clone());
+    let (stop, stopped) = stopper();
+    let task = ob.spawn(stopped);
+    enqueue_n(&db.pool, "retry", 1).await;
+    wait_until(Duration::from_secs(10), async || {
+        outbox::kind_status(&db.pool, "retry")
+            .await
+            .unwrap()
+            .delivered
+            == 1
+    })
+    .await;
+    let calls = d.calls();
+    assert_eq!(calls.len(), 4, "three failures, then the delivery");
+    // Attempt k failed -> the next one waits backoff(k) in [base*2^(k-1)/2, base*2^(k-1)]
+    // (equal jitter), i.e. at least 50, 100, 200 ms with base 100 ms.
+    for (k, w) in calls.windows(2).enumerate() {
+        let gap = w[1].0 - w[0].0;
+        let floor = Duration::from_millis(50 << k);
+        eprintln!("retry gap {k}: {gap:?} (floor {floor:?})");
+        assert!(gap >= floor, "gap {k} {gap:?} < {floor:?}");
+    }
+    let st = outbox::kind_status(&db.pool, "retry").await.unwrap();
+    assert_eq!((st.pending, st.delivered, st.failed), (0, 1, 0));
+    assert_eq!(st.last_error.as_deref(), Some("down 3"));
+    let attempts: i32 = sqlx::query_scalar("SELECT attempts FROM outbox WHERE kind = 'retry'")
+        .fetch_one(&db.pool)
+        .await
+        .unwrap();
+    assert_eq!(attempts, 4);
+    stop.send(()).unwrap();
+    tokio::time::timeout(Duration::from_secs(5), task)
+        .await
+        .expect("the outbox stops")
+        .unwrap();
+}
+
+#[test]
+fn backoff_is_capped_and_jittered_within_the_upper_half() {
+    let t = fast();
+    for attempts in 1..40 {
+        let full = (t.backoff_base * 2u32.pow(u32::try_from(attempts - 1).unwrap().min(30)))
+            .min(t.backoff_max);
+        for _ in 0..20 {
+            let b = t.backoff(attempts);
+            assert!(
+                b >= full / 2 && b <= full,
+                "attempt {attempts}: {b:?} vs {full:?}"
+            );
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn permanent_errors_are_never_retried() {
+    let db = test_db().await;
+    let d = Scripted::new(
+        "perm",
+        vec![Err(DeliveryError::Permanent("rejected".into()))],
+    );
+    let ob = Outbox::with_timing(db.pool.clone(), fast());
+    ob.register(d.clone());
+    let (stop, stopped) = stopper();
+    let task = ob.spawn(stopped);
+    enqueue_n(&db.pool, "perm", 1).await;
+    wait_until(Duration::from_secs(10), async || {
+        outbox::kind_status(&db.pool, "perm").await.unwrap().failed == 1
+    })
+    .await;
+    // Several backoff periods later it has still been tried once.
+    tokio::time::sleep(Duration::from_millis(800)).await;
+    assert_eq!(d.calls().len(), 1);
+    let st = outbox::kind_status(&db.pool, "perm").await.unwrap();
+    assert_eq!((st.pending, st.delivered, st.failed), (0, 0, 1));
+    assert_eq!(st.last_error.as_deref(), Some("permanent: rejected"));
+    stop.send(()).unwrap();
+    task.await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restart_resumes_and_a_crashed_workers_items_are_delivered_again() {
+    let db = test_db().await;
+    // Items enqueued while no outbox runs (a server that is down) wait in the table.
+    enqueue_n(&db.pool, "resume", 5).await;
+    // The first worker claims items and "crashes" mid-delivery (it never answers and its task is
+    // dropped): nothing is marked delivered.
+    let hung = Arc::new(Scripted {
+        kind: "resume",
+        batch: 5,
+        script: Mutex::default(),
+        calls: Mutex::default(),
+        delay: Duration::ZERO,
+        hang: true,
+    });
+    let timing = Timing {
+        delivery_timeout: Duration::from_secs(60),
+        lease: Duration::from_millis(1500),
+        ..fast()
+    };
+    let first = Outbox::with_timing(db.pool.clone(), timing);
+    first.register(hung.clone());
+    let (stop1, stopped1) = stopper();
+    let task1 = first.spawn(stopped1);
+    wait_until(Duration::from_secs(10), async || !hung.calls().is_empty()).await;
+    stop1.send(()).unwrap();
+    task1.await.unwrap();
+    let claimed_at = Instant::now();
+    // A second process starts: it delivers them once the lease ends, not before.
+    let d = Scripted::new("resume", vec![]);
+    let second = Outbox::with_timing(db.pool.clone(), fast());
+    second.register(d.clone());
+    let (stop2, stopped2) = stopper();
+    let task2 = second.spawn(stopped2);
+    wait_until(Duration::from_secs(10), async || {
+        outbox::kind_status(&db.pool, "resume")
+            .await
+            .unwrap()
+            .delivered
+            == 5
+    })
+    .await;
+    let first_redelivery = d.calls()[0].0;
+    eprintln!(
+        "redelivered {:?} after the crash (lease 1.5 s)",
+        first_redelivery - claimed_at
+    );
+    // The lease was taken before `claimed_at`, so its end can come a little sooner; 1 s of the
+    // 1.5 s lease is a safe floor.
+    assert!(first_redelivery - claimed_at >= Duration::from_millis(1000));
+    let delivered: Vec<i64> = d
+        .calls()
+        .iter()
+        .flat_map(|c| c.1.iter().map(|v| v["n"].as_i64().unwrap()))
+        .collect();
+    assert_eq!(delivered, vec![0, 1, 2, 3, 4]);
+    stop2.send(()).unwrap();
+    task2.await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_workers_deliver_every_item_exactly_once() {
+    let db = test_db().await;
+    let n = 400;
+    enqueue_n(&db.pool, "pair", n).await;
+    let seen: Arc<Mutex<HashMap<i64, usize>>> = Arc::default();
+    let mut stops = Vec::new();
+    let mut tasks = Vec::new();
+    let mut deliverers = Vec::new();
+    for _ in 0..2 {
+        let d = Arc::new(Scripted {
+            kind: "pair",
+            batch: 7,
+            script: Mutex::default(),
+            calls: Mutex::default(),
+            delay: Duration::from_millis(5),
+            hang: false,
+        });
+        let ob = Outbox::with_timing(db.pool.clone(), fast());
+        ob.register(d.clone());
+        let (stop, stopped) = stopper();
+        tasks.push(ob.spawn(stopped));
+        stops.push(stop);
+        deliverers.push(d);
+    }
+    wait_until(Duration::from_secs(60), async || {
+        outbox::kind_status(&db.pool, "pair")
+            .await
+            .unwrap()
+            .delivered
+            == i64::try_from(n).unwrap()
+    })
+    .await;
+    for d in &deliverers {
+        for (_, items) in d.calls() {
+            for v in items {
+                *seen
+                    .lock()
+                    .unwrap()
+                    .entry(v["n"].as_i64().unwrap())
+                    .or_default() += 1;
+            }
+        }
+    }
+    let seen = seen.lock().unwrap().clone();
+    let per_worker: Vec<usize> = deliverers
+        .iter()
+        .map(|d| d.calls().iter().map(|c| c.1.len()).sum())
+        .collect();
+    eprintln!("two workers: {per_worker:?} items of {n}");
+    assert_eq!(seen.len(), n);
+    assert!(
+        seen.values().all(|&c| c == 1),
+        "an item was delivered twice"
+    );
+    for s in stops {
+        s.send(()).unwrap();
+    }
+    for t in tasks {
+        t.await.unwrap();
+    }
+}
