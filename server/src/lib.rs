@@ -13,6 +13,7 @@ pub mod db;
 pub mod dispatch;
 pub mod embedded_pg;
 pub mod error;
+pub mod outbox;
 pub mod records;
 pub mod routes;
 pub mod startup;
