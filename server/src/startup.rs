@@ -87,6 +87,11 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
         dispatcher.prepare_in_background();
     }
     let local_sessions = dispatcher.local_host().cloned();
+    // The durable outbox and the LTI grade passback that delivers through it.
+    let outbox = crate::outbox::Outbox::new(pool.clone());
+    let records_state = crate::records::RecordsState::from_parts(pool.clone(), config.records.clone());
+    crate::lti::start(pool.clone(), records_state, &config.public_url, outbox.clone());
+    outbox.spawn(std::future::pending());
     state.dispatcher = Some(dispatcher);
     let addr = listener.local_addr()?;
     tracing::info!(web = %show_path(&config.web_dir), "serving the web client");
