@@ -15,6 +15,9 @@ use crate::records::RecordsState;
 /// second; a hung one must not hold a launch or a delivery).
 pub const PLATFORM_TIMEOUT: Duration = Duration::from_secs(10);
 
+/// Access tokens by (platform, scopes): the token and when to renew it.
+pub type TokenCache = Arc<Mutex<HashMap<(Uuid, String), (String, Instant)>>>;
+
 /// State shared by the LTI handlers and the grade passback. Cheap to clone.
 #[derive(Clone)]
 pub struct LtiState {
@@ -29,7 +32,7 @@ pub struct LtiState {
     /// Platform signing keys by (platform, kid).
     pub platform_keys: Arc<Mutex<HashMap<(Uuid, String), RsaPublicKey>>>,
     /// Access tokens by (platform, scopes), with their expiry.
-    pub tokens: Arc<Mutex<HashMap<(Uuid, String), (String, Instant)>>>,
+    pub tokens: TokenCache,
 }
 
 impl LtiState {
