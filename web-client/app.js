@@ -128,6 +128,11 @@ async function learnerHome() {
       el('td', { textContent: new Date(a.updated_at).toLocaleString() }), td);
   });
   $('my-attempts').tBodies[0].replaceChildren(...rows);
+  // An LTI launch lands on /?course=...&station=...: preselect the course, point at the station.
+  const linked = new URLSearchParams(location.search);
+  if (linked.get('course')) sel.value = linked.get('course');
+  const station = linked.get('station') && $('station-list').querySelector(`button[data-station="${CSS.escape(linked.get('station'))}"]`);
+  if (station) station.focus();
 }
 
 async function newAttempt(stationId) {

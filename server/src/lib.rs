@@ -13,6 +13,7 @@ pub mod db;
 pub mod dispatch;
 pub mod embedded_pg;
 pub mod error;
+pub mod lti;
 pub mod outbox;
 pub mod records;
 pub mod routes;
@@ -49,6 +50,9 @@ pub fn app(state: AppState) -> Router {
     };
     let (xapi_router, xapi_doc) = xapi::router(xapi_state);
     doc.merge(xapi_doc);
+    let lti_state = lti::LtiState::new(state.pool.clone(), records_state.clone(), state.config.public_url.as_str());
+    let (lti_router, lti_doc) = lti::router(lti_state);
+    doc.merge(lti_doc);
     doc.info.title = "pain-sim API".into();
     records::routes::document_shared_refusals(&mut doc);
     let doc = std::sync::Arc::new(doc);
@@ -57,6 +61,7 @@ pub fn app(state: AppState) -> Router {
         .route("/api/openapi.json", get(move || async move { axum::Json(doc.as_ref().clone()) }))
         .merge(records_router)
         .merge(xapi_router)
+        .merge(lti_router)
         .merge(dispatch::router(records_state, dispatcher_for(&state)))
         .route("/api/{*rest}", any(routes::headers::api_not_found))
         .route("/api", any(routes::headers::api_not_found))

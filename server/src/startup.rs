@@ -96,8 +96,11 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
             let _ = rx.wait_for(|s| *s).await;
         }
     };
+    // LTI grade passback delivers through the same outbox.
     let outbox = crate::outbox::Outbox::new(pool.clone());
     outbox.register(crate::xapi::forward::Forwarder::new(pool.clone()));
+    let lti_records = crate::records::RecordsState::from_parts(pool.clone(), config.records.clone());
+    crate::lti::start(pool.clone(), lti_records, &config.public_url, outbox.clone());
     let outbox_task = outbox.spawn(stopped());
     let projector = crate::xapi::platform::Projector::new(pool.clone(), &config.public_url, Some(outbox));
     let projector_task = projector.spawn(stopped());

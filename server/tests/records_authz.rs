@@ -24,6 +24,19 @@ struct Row {
     expect: [u16; 6],
 }
 
+/// Settings of an LTI platform (unique per world and `tag`).
+fn lti_platform_settings(w: &World, tag: &str) -> Value {
+    json!({
+        "name": format!("LMS {tag}"),
+        "issuer": format!("https://lms.example.org/{}/{tag}", w.lti_platform),
+        "client_id": "tool",
+        "deployment_ids": ["1"],
+        "auth_url": "https://lms.example.org/auth",
+        "token_url": "https://lms.example.org/token",
+        "jwks_url": "https://lms.example.org/jwks",
+    })
+}
+
 fn rows() -> Vec<Row> {
     fn r(method: Method, route: &'static str, build: Build, expect: [u16; 6]) -> Row {
         Row {
@@ -138,6 +151,49 @@ fn rows() -> Vec<Row> {
             "/api/users",
             |_| ("/api/users".into(), None),
             [401, 403, 403, 403, 403, 200],
+        ),
+        // LTI 1.3 platforms and the tool's keys are the admin's; filling a course from its LMS is
+        // for the course's faculty and admins (the fixture courses came from no LMS: 404).
+        r(
+            M::POST,
+            "/api/admin/lti/platforms",
+            |w| ("/api/admin/lti/platforms".into(), Some(lti_platform_settings(w, "new"))),
+            [401, 403, 403, 403, 403, 201],
+        ),
+        r(
+            M::GET,
+            "/api/admin/lti/platforms",
+            |_| ("/api/admin/lti/platforms".into(), None),
+            [401, 403, 403, 403, 403, 200],
+        ),
+        r(
+            M::PUT,
+            "/api/admin/lti/platforms/{id}",
+            |w| {
+                (
+                    format!("/api/admin/lti/platforms/{}", w.lti_platform),
+                    Some(lti_platform_settings(w, "changed")),
+                )
+            },
+            [401, 403, 403, 403, 403, 200],
+        ),
+        r(
+            M::DELETE,
+            "/api/admin/lti/platforms/{id}",
+            |w| (format!("/api/admin/lti/platforms/{}", w.lti_platform), None),
+            [401, 403, 403, 403, 403, 204],
+        ),
+        r(
+            M::POST,
+            "/api/admin/lti/keys/rotate",
+            |_| ("/api/admin/lti/keys/rotate".into(), None),
+            [401, 403, 403, 403, 403, 200],
+        ),
+        r(
+            M::POST,
+            "/api/lti/courses/{id}/memberships/sync",
+            |w| (format!("/api/lti/courses/{}/memberships/sync", w.course_a), None),
+            [401, 403, 403, 404, 403, 404],
         ),
         // LMS integrations: LRS credentials are the admin's alone.
         r(

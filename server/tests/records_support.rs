@@ -422,6 +422,8 @@ pub struct World {
     pub learner_email: String,
     /// An LRS credential of an LMS integration (created by the admin).
     pub lrs_credential: Uuid,
+    /// A registered LTI platform.
+    pub lti_platform: Uuid,
 }
 
 /// Names of the matrix roles, in the order of [`World::sessions`].
@@ -485,6 +487,18 @@ impl World {
         .execute(&app.db.pool)
         .await
         .expect("a fixture LRS credential");
+        let lti_platform = Uuid::new_v4();
+        sqlx::query(
+            "INSERT INTO lti_platforms (id, name, issuer, client_id, deployment_ids, auth_url, token_url, jwks_url)
+             VALUES ($1, $2, $3, 'tool', ARRAY['1'], 'https://lms.example.org/auth',
+                     'https://lms.example.org/token', 'https://lms.example.org/jwks')",
+        )
+        .bind(lti_platform)
+        .bind(format!("LMS {tag}"))
+        .bind(format!("https://lms.example.org/{tag}"))
+        .execute(&app.db.pool)
+        .await
+        .expect("a fixture LTI platform");
         World {
             course_a,
             course_b,
@@ -499,6 +513,7 @@ impl World {
             sessions,
             learner_email: e("learner"),
             lrs_credential,
+            lti_platform,
         }
     }
 }

@@ -7,6 +7,7 @@ mod dispatch_ws_fuzz;
 mod e2e_browser;
 mod embedded;
 mod health;
+mod lti_flow;
 mod openapi_fuzz;
 mod process;
 mod records_accounts;

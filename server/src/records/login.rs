@@ -204,40 +204,13 @@ pub async fn login(
     }
     let role = Role::parse(&role)
         .ok_or_else(|| ApiError::Internal(format!("user {id} has unknown role")))?;
-    let token = random_token();
-    let csrf = random_token();
     let mut tx = state.pool.begin().await?;
     sqlx::query("DELETE FROM login_failures WHERE email = $1 AND client = $2")
         .bind(&email)
         .bind(&key.0)
         .execute(&mut *tx)
         .await?;
-    // Expired sessions of this account go now rather than lingering until a sweep.
-    sqlx::query(
-        "DELETE FROM auth_sessions WHERE user_id = $1
-           AND (expires_at <= now() OR last_seen_at <= now() - make_interval(secs => $2))",
-    )
-    .bind(id)
-    .bind(cfg.session_idle.as_secs_f64())
-    .execute(&mut *tx)
-    .await?;
-    if let Some(old) = cookie_value(&headers, SESSION_COOKIE) {
-        sqlx::query("DELETE FROM auth_sessions WHERE token_sha256 = $1")
-            .bind(sha256(old))
-            .execute(&mut *tx)
-            .await?;
-    }
-    sqlx::query(
-        "INSERT INTO auth_sessions (token_sha256, user_id, csrf_token, mfa, expires_at)
-         VALUES ($1, $2, $3, $4, now() + make_interval(secs => $5))",
-    )
-    .bind(sha256(&token))
-    .bind(id)
-    .bind(&csrf)
-    .bind(mfa)
-    .bind(cfg.session_absolute.as_secs_f64())
-    .execute(&mut *tx)
-    .await?;
+    let opened = open_session(&state, &mut tx, id, mfa, &headers).await?;
     audit(
         &mut *tx,
         Some(id),
@@ -248,7 +221,6 @@ pub async fn login(
     )
     .await?;
     tx.commit().await?;
-    let max_age = cfg.session_absolute.as_secs();
     let info = SessionInfo {
         user: UserInfo {
             id,
@@ -258,21 +230,79 @@ pub async fn login(
             is_demo,
             disabled: false,
         },
-        csrf_token: csrf.clone(),
+        csrf_token: opened.csrf.clone(),
         mfa,
         totp_enabled: mfa,
         idle_timeout_s: cfg.session_idle.as_secs(),
     };
     let mut resp = axum::Json(info).into_response();
-    resp.headers_mut().append(
-        SET_COOKIE,
-        cookie(&state, SESSION_COOKIE, &token, true, max_age),
-    );
-    resp.headers_mut().append(
-        SET_COOKIE,
-        cookie(&state, CSRF_COOKIE, &csrf, false, max_age),
-    );
+    opened.set_cookies(resp.headers_mut());
     Ok(resp)
+}
+
+/// A session just opened by [`open_session`]: its CSRF token and its two cookies.
+pub struct OpenedSession {
+    /// The session's CSRF token (also in the readable cookie).
+    pub csrf: String,
+    cookies: [HeaderValue; 2],
+}
+
+impl OpenedSession {
+    /// Appends the session and CSRF cookies to a response's headers.
+    pub fn set_cookies(self, headers: &mut HeaderMap) {
+        for c in self.cookies {
+            headers.append(SET_COOKIE, c);
+        }
+    }
+}
+
+/// Opens a new session for `user` in the caller's transaction: deletes the account's expired
+/// sessions and the session presented in `headers` (rotation), stores the new one and returns
+/// its cookies. Every way in (password login, an LTI launch) goes through here.
+pub async fn open_session(
+    state: &RecordsState,
+    tx: &mut sqlx::PgConnection,
+    user: Uuid,
+    mfa: bool,
+    headers: &HeaderMap,
+) -> Result<OpenedSession, ApiError> {
+    let cfg = &state.config;
+    let token = random_token();
+    let csrf = random_token();
+    // Expired sessions of this account go now rather than lingering until a sweep.
+    sqlx::query(
+        "DELETE FROM auth_sessions WHERE user_id = $1
+           AND (expires_at <= now() OR last_seen_at <= now() - make_interval(secs => $2))",
+    )
+    .bind(user)
+    .bind(cfg.session_idle.as_secs_f64())
+    .execute(&mut *tx)
+    .await?;
+    if let Some(old) = cookie_value(headers, SESSION_COOKIE) {
+        sqlx::query("DELETE FROM auth_sessions WHERE token_sha256 = $1")
+            .bind(sha256(old))
+            .execute(&mut *tx)
+            .await?;
+    }
+    sqlx::query(
+        "INSERT INTO auth_sessions (token_sha256, user_id, csrf_token, mfa, expires_at)
+         VALUES ($1, $2, $3, $4, now() + make_interval(secs => $5))",
+    )
+    .bind(sha256(&token))
+    .bind(user)
+    .bind(&csrf)
+    .bind(mfa)
+    .bind(cfg.session_absolute.as_secs_f64())
+    .execute(&mut *tx)
+    .await?;
+    let max_age = cfg.session_absolute.as_secs();
+    Ok(OpenedSession {
+        cookies: [
+            cookie(state, SESSION_COOKIE, &token, true, max_age),
+            cookie(state, CSRF_COOKIE, &csrf, false, max_age),
+        ],
+        csrf,
+    })
 }
 
 /// Log out: deletes the session and clears the cookies.
