@@ -18,6 +18,7 @@
 //! never the reverse: the records know nothing of xAPI.
 
 pub mod about;
+pub mod agent;
 pub mod auth;
 pub mod credentials;
 pub mod error;
