@@ -23,4 +23,5 @@ mod server_process;
 mod security_headers;
 mod session_sigkill;
 mod xapi_credentials;
+mod xapi_documents;
 mod xapi_support;
