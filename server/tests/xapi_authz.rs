@@ -85,7 +85,143 @@ fn rows() -> Vec<Row> {
             || ("/xapi/statements?limit=1".into(), None),
             [401, 401, 401, 200, 403, 200, 401],
         ),
+        // Documents: each cell names a document of its own, so a GET finds nothing (404 once
+        // the caller may read) and a write needs no precondition (a new document).
+        r(
+            M::GET,
+            "/xapi/activities/state",
+            || (state_uri(), None),
+            [401, 401, 401, 404, 403, 404, 401],
+        ),
+        r(
+            M::PUT,
+            "/xapi/activities/state",
+            || (state_uri(), Some(json!({"v": 1}))),
+            WRITE,
+        ),
+        r(
+            M::POST,
+            "/xapi/activities/state",
+            || (state_uri(), Some(json!({"v": 1}))),
+            WRITE,
+        ),
+        r(
+            M::DELETE,
+            "/xapi/activities/state",
+            || (state_uri(), None),
+            WRITE,
+        ),
+        r(
+            M::GET,
+            "/xapi/activities/profile",
+            || (activity_profile_uri(), None),
+            [401, 401, 401, 404, 403, 404, 401],
+        ),
+        r(
+            M::PUT,
+            "/xapi/activities/profile",
+            || (activity_profile_uri(), Some(json!({"v": 1}))),
+            WRITE,
+        ),
+        r(
+            M::POST,
+            "/xapi/activities/profile",
+            || (activity_profile_uri(), Some(json!({"v": 1}))),
+            WRITE,
+        ),
+        r(
+            M::DELETE,
+            "/xapi/activities/profile",
+            || (activity_profile_uri(), None),
+            WRITE,
+        ),
+        r(
+            M::GET,
+            "/xapi/agents/profile",
+            || (agent_profile_uri(), None),
+            [401, 401, 401, 404, 403, 404, 401],
+        ),
+        r(
+            M::PUT,
+            "/xapi/agents/profile",
+            || (agent_profile_uri(), Some(json!({"v": 1}))),
+            WRITE,
+        ),
+        r(
+            M::POST,
+            "/xapi/agents/profile",
+            || (agent_profile_uri(), Some(json!({"v": 1}))),
+            WRITE,
+        ),
+        r(
+            M::DELETE,
+            "/xapi/agents/profile",
+            || (agent_profile_uri(), None),
+            WRITE,
+        ),
+        r(
+            M::GET,
+            "/xapi/agents",
+            || (format!("/xapi/agents?agent={}", enc(&agent())), None),
+            READ,
+        ),
+        r(
+            M::GET,
+            "/xapi/activities",
+            || {
+                (
+                    format!("/xapi/activities?activityId={}", enc(ACTIVITY)),
+                    None,
+                )
+            },
+            READ,
+        ),
     ]
+}
+
+/// Expected statuses of a document write and of a read that finds something.
+const WRITE: [u16; 7] = [401, 401, 401, 403, 204, 204, 401];
+const READ: [u16; 7] = [401, 401, 401, 200, 403, 200, 401];
+const ACTIVITY: &str = "http://example.org/act/authz";
+
+fn agent() -> String {
+    json!({ "mbox": "mailto:authz@example.org" }).to_string()
+}
+
+fn enc(s: &str) -> String {
+    s.bytes()
+        .map(|b| match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'_' | b'.' | b'~' => {
+                (b as char).to_string()
+            }
+            _ => format!("%{b:02X}"),
+        })
+        .collect()
+}
+
+fn state_uri() -> String {
+    format!(
+        "/xapi/activities/state?activityId={}&agent={}&stateId={}",
+        enc(ACTIVITY),
+        enc(&agent()),
+        uuid::Uuid::new_v4()
+    )
+}
+
+fn activity_profile_uri() -> String {
+    format!(
+        "/xapi/activities/profile?activityId={}&profileId={}",
+        enc(ACTIVITY),
+        uuid::Uuid::new_v4()
+    )
+}
+
+fn agent_profile_uri() -> String {
+    format!(
+        "/xapi/agents/profile?agent={}&profileId={}",
+        enc(&agent()),
+        uuid::Uuid::new_v4()
+    )
 }
 
 #[tokio::test]

@@ -19,9 +19,12 @@
 //! never the reverse: the records know nothing of xAPI.
 
 pub mod about;
+pub mod activities;
 pub mod agent;
+pub mod agents;
 pub mod auth;
 pub mod credentials;
+pub mod documents;
 pub mod error;
 pub mod forward;
 pub mod platform;

@@ -9,7 +9,7 @@ use utoipa_axum::routes;
 use super::auth::LrsClient;
 use super::error::XapiError;
 use super::state::XapiState;
-use super::{about, credentials, forward, statements, version};
+use super::{about, activities, agents, credentials, documents, forward, statements, version};
 
 #[derive(OpenApi)]
 #[openapi(tags(
@@ -31,6 +31,26 @@ pub fn router<S: Clone + Send + Sync + 'static>(
             statements::post_statements,
             statements::get_statements
         ))
+        .routes(routes!(
+            documents::state::get_state,
+            documents::state::put_state,
+            documents::state::post_state,
+            documents::state::delete_state
+        ))
+        .routes(routes!(
+            documents::activity_profile::get_activity_profile,
+            documents::activity_profile::put_activity_profile,
+            documents::activity_profile::post_activity_profile,
+            documents::activity_profile::delete_activity_profile
+        ))
+        .routes(routes!(
+            documents::agent_profile::get_agent_profile,
+            documents::agent_profile::put_agent_profile,
+            documents::agent_profile::post_agent_profile,
+            documents::agent_profile::delete_agent_profile
+        ))
+        .routes(routes!(agents::get_agents))
+        .routes(routes!(activities::get_activities))
         .with_state(state.clone())
         .split_for_parts();
     let unknown = axum::Router::new()
