@@ -27,7 +27,6 @@ mod xapi_authz;
 mod xapi_credentials;
 mod xapi_statements;
 mod xapi_statements_attachments;
-mod xapi_statements_bench;
 mod xapi_forward;
 mod xapi_platform;
 mod xapi_platform_outbox;

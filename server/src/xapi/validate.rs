@@ -229,6 +229,10 @@ pub fn is_duration(s: &str) -> bool {
         },
         None => 0,
     };
+    // Weeks stand alone (ISO 8601:2004 4.4.3.2: PnW is its own format, never mixed with others).
+    if date.contains('W') && (date_count != 1 || time_count != 0) {
+        return false;
+    }
     date_count + time_count > 0
 }
 
@@ -747,13 +751,18 @@ pub fn statement(v: &Value) -> Result<(), String> {
     if let Some(a) = m.get("authority") {
         agent_or_group(a, "authority")?;
         if a.get("objectType").and_then(Value::as_str) == Some("Group") {
+            // Data 2.4.9: a Group authority is the anonymous pair of an OAuth consumer and a user.
             let members = a
                 .get("member")
                 .and_then(Value::as_array)
                 .map_or(0, Vec::len);
-            if members != 2 {
+            let identified = super::agent::IFI_PROPERTIES
+                .iter()
+                .any(|k| a.get(*k).is_some());
+            if members != 2 || identified {
                 return Err(
-                    "authority: a Group authority has exactly two Agents (OAuth consumer and user)"
+                    "authority: a Group authority is anonymous with exactly two Agents \
+                    (OAuth consumer and user)"
                         .into(),
                 );
             }
@@ -762,10 +771,12 @@ pub fn statement(v: &Value) -> Result<(), String> {
     if let Some(version) = m.get("version") {
         let ok = version.as_str().is_some_and(|s| {
             let parts: Vec<&str> = s.split('.').collect();
-            parts.len() == 3 && matches!(parts[0], "1" | "2") && parts[1] == "0" && digits(parts[2])
+            (parts.len() == 2 || parts.len() == 3 && digits(parts[2]))
+                && matches!(parts[0], "1" | "2")
+                && parts[1] == "0"
         });
         if !ok {
-            return Err("version: must be 1.0.x or 2.0.x".into());
+            return Err("version: must be 1.0, 1.0.x, 2.0 or 2.0.x".into());
         }
     }
     Ok(())
@@ -890,6 +901,7 @@ mod tests {
             ),
             (with(&["timestamp"], json!("2026-11-27")), "timestamp"),
             (with(&["version"], json!("3.0.0")), "version"),
+            (with(&["version"], json!("1.0.")), "version"),
             (with(&["Actor"], json!({})), "Actor"),
             (with(&["result"], json!(null)), "result"),
             (with(&["verb", "id"], json!(VOIDED_VERB)), "object"),
@@ -929,6 +941,16 @@ mod tests {
                 .unwrap_err()
                 .contains("not allowed for interactionType likert")
         );
+        let pair =
+            json!([{"mbox": "mailto:consumer@example.org"}, {"mbox": "mailto:user@example.org"}]);
+        let mut authority = base();
+        authority["authority"] = json!({"objectType": "Group", "member": pair});
+        assert_eq!(statement(&authority), Ok(()));
+        authority["authority"]["mbox"] = json!("mailto:group@example.org");
+        assert!(statement(&authority).unwrap_err().starts_with("authority"));
+        let mut version = base();
+        version["version"] = json!("1.0");
+        assert_eq!(statement(&version), Ok(()));
     }
 
     #[test]
@@ -955,7 +977,9 @@ mod tests {
         for ok in ["PT1H30M", "P1DT2.5S", "P3W", "P1Y2M3DT4H5M6S", "PT0S"] {
             assert!(is_duration(ok), "{ok}");
         }
-        for bad in ["P", "PT", "1H", "PT1.5M", "P1DT", "PT1S2M", "P1H"] {
+        for bad in [
+            "P", "PT", "1H", "PT1.5M", "P1DT", "PT1S2M", "P1H", "P4W1D", "P1WT1H",
+        ] {
             assert!(!is_duration(bad), "{bad}");
         }
     }

@@ -88,6 +88,7 @@ fn comparable(s: &Value) -> Value {
             o.remove(k);
         }
     }
+    super::timefmt::comparable_durations(&mut s);
     s
 }
 

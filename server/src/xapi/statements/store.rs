@@ -75,6 +75,10 @@ pub fn prepare(
         if !seen.insert(id) {
             return Err(at(format!("id {id} is used twice in this batch")));
         }
+        normalize_context_activities(o);
+        if let Some(Value::Object(sub)) = o.get_mut("object") {
+            normalize_context_activities(sub);
+        }
         let content = content_of(o);
         o.insert("id".into(), Value::String(id.to_string()));
         o.insert("stored".into(), Value::String(stored_text.clone()));
@@ -107,6 +111,23 @@ pub fn prepare(
     Ok(out)
 }
 
+/// Each contextActivities entry given as one Activity becomes an array of one (Data 2.4.6.2: "an
+/// LRS returns a ContextActivity in an array, even if only a single ContextActivity is returned"),
+/// so stored, compared and returned statements have one shape.
+fn normalize_context_activities(statement: &mut Map<String, Value>) {
+    let Some(Value::Object(ca)) = statement
+        .get_mut("context")
+        .and_then(|c| c.get_mut("contextActivities"))
+    else {
+        return;
+    };
+    for value in ca.values_mut() {
+        if value.is_object() {
+            *value = Value::Array(vec![value.take()]);
+        }
+    }
+}
+
 /// The id of a StatementRef object.
 fn statement_ref(object: &Value) -> Option<Uuid> {
     (object["objectType"].as_str() == Some("StatementRef"))
@@ -129,6 +150,7 @@ fn content_of(o: &Map<String, Value>) -> Value {
     }
     let mut v = Value::Object(c);
     sort_members(&mut v);
+    timefmt::comparable_durations(&mut v);
     v
 }
 

@@ -53,3 +53,58 @@ mod tests {
         assert!(parse("yesterday").is_none());
     }
 }
+
+/// A duration as statements are compared (xAPI 2.0 Data 4.6: precision beyond 0.01 s is not
+/// compared): the seconds' fraction truncated to two digits, trailing zeros dropped.
+pub fn comparable_duration(d: &str) -> String {
+    let Some(body) = d.strip_suffix('S') else {
+        return d.to_owned();
+    };
+    let start = body
+        .rfind(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .map_or(0, |i| i + 1);
+    let (head, seconds) = body.split_at(start);
+    let Some((whole, fraction)) = seconds.split_once('.') else {
+        return d.to_owned();
+    };
+    let kept = fraction[..fraction.len().min(2)].trim_end_matches('0');
+    if kept.is_empty() {
+        format!("{head}{whole}S")
+    } else {
+        format!("{head}{whole}.{kept}S")
+    }
+}
+
+/// Replaces `result.duration` (of the statement and of a SubStatement object) by its
+/// [`comparable_duration`].
+pub fn comparable_durations(statement: &mut serde_json::Value) {
+    for path in [
+        &["result", "duration"][..],
+        &["object", "result", "duration"][..],
+    ] {
+        let mut cur = Some(&mut *statement);
+        for key in &path[..path.len() - 1] {
+            cur = cur.and_then(|v| v.get_mut(*key));
+        }
+        if let Some(slot) = cur.and_then(|v| v.get_mut(path[path.len() - 1]))
+            && let Some(d) = slot.as_str()
+        {
+            *slot = serde_json::Value::String(comparable_duration(d));
+        }
+    }
+}
+
+#[cfg(test)]
+mod duration_tests {
+    use super::comparable_duration;
+
+    #[test]
+    fn durations_compare_to_the_hundredth() {
+        assert_eq!(comparable_duration("PT1.234S"), "PT1.23S");
+        assert_eq!(comparable_duration("PT1.239S"), "PT1.23S");
+        assert_eq!(comparable_duration("PT1.20S"), "PT1.2S");
+        assert_eq!(comparable_duration("P1DT2H3.001S"), "P1DT2H3S");
+        assert_eq!(comparable_duration("PT5M"), "PT5M");
+        assert_eq!(comparable_duration("PT12S"), "PT12S");
+    }
+}
