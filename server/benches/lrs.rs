@@ -23,6 +23,9 @@ use server::records::{auth::Role, users};
 use server::{AppState, Config, app, workers::Workers};
 use sha2::{Digest, Sha256};
 
+/// Makes one filtered GET's query string.
+type QueryFn = dyn Fn(&mut Gen) -> String;
+
 /// Learners in the generated population. Our choice: a large residency programme's cohort
 /// over several years.
 const LEARNERS: u64 = 1000;
@@ -282,7 +285,7 @@ fn main() {
         println!("| store filled to {stored} statements | {fill_s:.0} s ({:.0} statements/s) | |", missing as f64 / fill_s.max(1e-9));
 
         let mut g = Gen::seeded(99);
-        let filters: [(&str, Box<dyn Fn(&mut Gen) -> String>); 5] = [
+        let filters: [(&str, Box<QueryFn>); 5] = [
             ("agent", Box::new(|g: &mut Gen| format!("agent={}", urlencode(&learner(g.next() % LEARNERS).to_string())))),
             ("agent + verb", Box::new(|g: &mut Gen| format!("agent={}&verb={}", urlencode(&learner(g.next() % LEARNERS).to_string()), urlencode(VERBS[4])))),
             ("activity", Box::new(|g: &mut Gen| format!("activity={}", urlencode(&station(g.next() % STATIONS))))),

@@ -31,4 +31,5 @@ mod xapi_forward;
 mod xapi_platform;
 mod xapi_platform_outbox;
 mod xapi_documents;
+mod xapi_documents_resources;
 mod xapi_support;

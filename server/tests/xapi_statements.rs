@@ -153,6 +153,9 @@ async fn put_stores_and_the_lrs_fills_id_stored_authority_version_timestamp() {
     assert_eq!(count(&lrs).await, 1);
 }
 
+/// A request (method, URI, body with its content type) and the status it must get.
+type Case<'a> = (Method, String, Option<(&'a str, Vec<u8>)>, u16);
+
 #[tokio::test]
 async fn put_and_post_refusals() {
     let lrs = Lrs::new().await;
@@ -160,7 +163,7 @@ async fn put_and_post_refusals() {
     let s = stmt("bob", "attempted", "a1");
     let mut mismatched = s.clone();
     mismatched["id"] = json!(Uuid::new_v4().to_string());
-    let cases: Vec<(Method, String, Option<(&str, Vec<u8>)>, u16)> = vec![
+    let cases: Vec<Case<'_>> = vec![
         (Method::PUT, "/xapi/statements".into(), Some(("application/json", s.to_string().into_bytes())), 400),
         (Method::PUT, "/xapi/statements?statementId=nope".into(), Some(("application/json", s.to_string().into_bytes())), 400),
         (Method::PUT, format!("/xapi/statements?statementId={id}"), Some(("application/json", mismatched.to_string().into_bytes())), 400),

@@ -127,7 +127,6 @@ fn wgpu_is_pinned_exactly() {
     assert!(line.contains("\"="), "wgpu must be pinned with `=`: {line}");
 }
 
-
 /// Architecture invariant: no import cycles between the modules of a crate. Every lib and bin
 /// target of every workspace crate is scanned (`src/**/*.rs` reached through `mod`
 /// declarations, test modules excluded); a failure prints each cycle with the file and line of
@@ -164,6 +163,49 @@ fn no_import_cycles_between_modules() {
          by passing it in):\n{}",
         reports.join("\n"),
     );
+}
+
+/// The learning records know nothing of the integrations built on them: no module of
+/// `server::records` names `xapi`, `lti`, `outbox` or `dispatch` (integrations learn of new
+/// records through database triggers and queues, in the records' own transactions).
+#[test]
+fn learning_records_never_import_the_integrations() {
+    let meta = metadata();
+    let root = meta.workspace_root.as_std_path();
+    let server = meta
+        .workspace_packages()
+        .into_iter()
+        .find(|p| p.name.as_str() == "server")
+        .expect("the server package");
+    let lib = server
+        .targets
+        .iter()
+        .find(|t| t.is_lib())
+        .expect("server lib");
+    let src = lib
+        .src_path
+        .as_std_path()
+        .strip_prefix(root)
+        .expect("target inside the workspace");
+    let graph = ModuleGraph::build("server", src, |p| {
+        std::fs::read_to_string(root.join(p)).ok()
+    });
+    let edges = graph.edge_names();
+    assert!(
+        edges.iter().any(|e| e.starts_with("records")),
+        "the graph sees the records' imports: {edges:?}"
+    );
+    let bad: Vec<&String> = edges
+        .iter()
+        .filter(|e| {
+            let (from, to) = e.split_once(" -> ").expect("edge");
+            from.starts_with("records")
+                && ["xapi", "lti", "outbox", "dispatch"]
+                    .iter()
+                    .any(|m| to == *m || to.starts_with(&format!("{m}::")))
+        })
+        .collect();
+    assert!(bad.is_empty(), "records import integrations: {bad:?}");
 }
 
 /// Longest a Rust source file may be, in lines, unless listed in [`OVERSIZED_FILES`].

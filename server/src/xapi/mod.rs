@@ -12,8 +12,11 @@
 //!    `X-Experience-API-Version` header on every request and response), `agent` and `validate`
 //!    (the data model: Agents and Groups, their identity keys, whole statements);
 //! 2. `state` ([`XapiState`]), then `auth` (the credential extractor);
-//! 3. the resources: `about`, `statements`, `credentials` (admin endpoints under `/api/admin/`);
-//! 4. `routes`: the router and its OpenAPI document.
+//! 3. the resources: `about`, `statements`, `documents` (State, Activity Profile, Agent
+//!    Profile), `agents`, `activities`, and `credentials` (admin endpoints under `/api/admin/`);
+//! 4. the platform's own statements: `platform` (records become statements through a queue the
+//!    records' triggers fill) and `forward` (to an institution's LRS, from the durable outbox);
+//! 5. `routes`: the router and its OpenAPI document.
 //!
 //! The LRS builds on the learning records (`crate::records`: the admin's session, the users) and
 //! never the reverse: the records know nothing of xAPI.

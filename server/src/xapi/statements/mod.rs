@@ -161,10 +161,12 @@ async fn write(
     let prepared = store::prepare(statements, &client.authority, stored)?;
     store::store(&mut tx, &prepared).await?;
     if !parts.is_empty() {
-        let (h, (ct, c)): (Vec<String>, (Vec<String>, Vec<Vec<u8>>)) = parts
-            .into_iter()
-            .map(|p| (p.sha2, (p.content_type, p.content)))
-            .unzip();
+        let (mut h, mut ct, mut c) = (Vec::new(), Vec::new(), Vec::new());
+        for p in parts {
+            h.push(p.sha2);
+            ct.push(p.content_type);
+            c.push(p.content);
+        }
         sqlx::query(
             "INSERT INTO xapi_attachments (sha2, content_type, content)
              SELECT * FROM UNNEST($1::text[], $2::text[], $3::bytea[])

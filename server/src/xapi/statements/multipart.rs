@@ -41,8 +41,11 @@ fn find(hay: &[u8], needle: &[u8], from: usize) -> Option<usize> {
         .map(|p| p + from)
 }
 
+/// A part's headers (name, value) and its content.
+type RawPart = (Vec<(String, String)>, Vec<u8>);
+
 /// Splits a body into (headers, content) parts.
-fn split(body: &[u8], boundary: &str) -> Result<Vec<(Vec<(String, String)>, Vec<u8>)>, XapiError> {
+fn split(body: &[u8], boundary: &str) -> Result<Vec<RawPart>, XapiError> {
     let delim = format!("--{boundary}");
     let mut pos = find(body, delim.as_bytes(), 0).ok_or_else(|| bad("no opening boundary"))?;
     let mut parts = Vec::new();

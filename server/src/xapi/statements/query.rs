@@ -162,12 +162,15 @@ pub fn parse(pairs: &[(String, String)]) -> Result<Params, XapiError> {
             )));
         }
     }
+    // The first key drives the scan, the others are probed per row: most selective first
+    // (a registration is one attempt, an agent one learner, an activity one station; a verb is
+    // shared by a large part of the store).
+    if let Some(r) = registration {
+        p.keys.push(format!("r:{r}"));
+    }
     if let Some(a) = agent {
         p.keys
             .push(format!("{}{a}", if related_agents { "A:" } else { "a:" }));
-    }
-    if let Some(v) = verb {
-        p.keys.push(format!("v:{v}"));
     }
     if let Some(a) = activity {
         p.keys.push(format!(
@@ -175,8 +178,8 @@ pub fn parse(pairs: &[(String, String)]) -> Result<Params, XapiError> {
             if related_activities { "O:" } else { "o:" }
         ));
     }
-    if let Some(r) = registration {
-        p.keys.push(format!("r:{r}"));
+    if let Some(v) = verb {
+        p.keys.push(format!("v:{v}"));
     }
     p.base_query = base
         .iter()
@@ -214,11 +217,14 @@ pub async fn page(
         );
         q.push_bind(first.clone());
         for k in rest {
+            // OFFSET 0 keeps the planner from turning the EXISTS into a semi-join that scans
+            // every row of a common key (a verb's); probed per driving row, each is one index
+            // lookup (the bench: agent + verb p99 57 ms before, over 10^6 statements).
             q.push(
                 " AND EXISTS (SELECT 1 FROM xapi_statement_keys k WHERE k.seq = s.seq AND k.key = ",
             );
             q.push_bind(k.clone());
-            q.push(")");
+            q.push(" OFFSET 0)");
         }
         order_col = "k0.seq";
     } else {
