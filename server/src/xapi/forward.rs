@@ -124,6 +124,11 @@ fn normalize_endpoint(e: &str) -> Result<String, ApiError> {
     {
         return Err(bad());
     }
+    // The pattern admits URLs by their shape; the endpoint must also parse as a URL with a host
+    // (`http://[x` has the shape, names no host, and would only fail at every delivery).
+    if !reqwest::Url::parse(e).is_ok_and(|u| u.host_str().is_some_and(|h| !h.is_empty())) {
+        return Err(bad());
+    }
     let mut s = e.to_owned();
     if !s.ends_with('/') {
         s.push('/');
@@ -364,5 +369,28 @@ impl Deliver for Forwarder {
 
     fn deliver<'a>(&'a self, items: &'a [Value]) -> BoxFuture<'a, Result<(), DeliveryError>> {
         Box::pin(self.forward(items))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::normalize_endpoint;
+
+    #[test]
+    fn endpoints_are_urls_with_a_host() {
+        assert_eq!(
+            normalize_endpoint("https://lrs.example.org/xapi").unwrap(),
+            "https://lrs.example.org/xapi/"
+        );
+        assert!(normalize_endpoint("http://127.0.0.1:8080/xapi/").is_ok());
+        for bad in [
+            "http://[x",
+            "ftp://lrs.example.org/",
+            "https://u@lrs.example.org/",
+            "https://lrs.example.org/?a=1",
+            "https:///xapi",
+        ] {
+            assert!(normalize_endpoint(bad).is_err(), "{bad}");
+        }
     }
 }
