@@ -15,6 +15,7 @@ use uuid::Uuid;
 
 use super::error::XapiError;
 use super::state::XapiState;
+use crate::records::auth::constant_time_eq;
 
 /// An authenticated LMS integration.
 #[derive(Debug, Clone)]
@@ -63,10 +64,6 @@ pub fn basic_credentials(value: &str) -> Option<(String, String)> {
     let text = String::from_utf8(raw).ok()?;
     let (key, secret) = text.split_once(':')?;
     Some((key.to_owned(), secret.to_owned()))
-}
-
-fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
 impl<S> FromRequestParts<S> for LrsClient

@@ -47,6 +47,7 @@ use uuid::Uuid;
 
 use super::error::XapiError;
 use super::forward::FORWARD_KIND;
+use super::statements::query::percent_encode;
 use super::statements::store::insert_statements;
 use crate::outbox::{self, Outbox};
 
@@ -141,7 +142,7 @@ impl Vocabulary {
         }
         json!({
             "objectType": "Activity",
-            "id": format!("{}/xapi/activities/station/{}", self.public_url, encode(station_id)),
+            "id": format!("{}/xapi/activities/station/{}", self.public_url, percent_encode(station_id)),
             "definition": definition,
         })
     }
@@ -149,7 +150,7 @@ impl Vocabulary {
     fn page(&self, station_id: &str, page: &str) -> Value {
         json!({
             "objectType": "Activity",
-            "id": format!("{}/xapi/activities/station/{}/page/{}", self.public_url, encode(station_id), encode(page)),
+            "id": format!("{}/xapi/activities/station/{}/page/{}", self.public_url, percent_encode(station_id), percent_encode(page)),
             "definition": { "type": activity_types::MODULE, "name": { "en-US": page } },
         })
     }
@@ -161,19 +162,6 @@ impl Vocabulary {
             "definition": { "type": activity_types::COURSE },
         })
     }
-}
-
-/// Percent-encodes everything but RFC 3986 unreserved characters (a path segment of an IRI).
-fn encode(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for b in s.bytes() {
-        if b.is_ascii_alphanumeric() || b"-._~".contains(&b) {
-            out.push(char::from(b));
-        } else {
-            out.push_str(&format!("%{b:02X}"));
-        }
-    }
-    out
 }
 
 fn verb(id: &str, display: &str) -> Value {

@@ -30,6 +30,7 @@ use super::store::{self, DocKey, Scope, Stored};
 use crate::xapi::auth::LrsClient;
 use crate::xapi::error::XapiError;
 use crate::xapi::state::XapiState;
+use crate::xapi::statements::timefmt::http_date;
 
 /// Content-Type of a document sent without one (RFC 9110 8.3: the recipient may assume it).
 pub const DEFAULT_CONTENT_TYPE: &str = "application/octet-stream";
@@ -94,25 +95,6 @@ pub fn is_json(content_type: &str) -> bool {
 /// The ETag of some content: SHA-256 in hex.
 pub fn etag_of(content: &[u8]) -> String {
     hex::encode(Sha256::digest(content))
-}
-
-/// An HTTP-date (RFC 9110 5.6.7, IMF-fixdate), e.g. `Sun, 06 Nov 1994 08:49:37 GMT`.
-pub fn http_date(t: OffsetDateTime) -> String {
-    const DAYS: [&str; 7] = ["Mon", "Tue", "Wed", "Thu", "Fri", "Sat", "Sun"];
-    const MONTHS: [&str; 12] = [
-        "Jan", "Feb", "Mar", "Apr", "May", "Jun", "Jul", "Aug", "Sep", "Oct", "Nov", "Dec",
-    ];
-    let t = t.to_offset(time::UtcOffset::UTC);
-    format!(
-        "{}, {:02} {} {:04} {:02}:{:02}:{:02} GMT",
-        DAYS[t.weekday().number_days_from_monday() as usize],
-        t.day(),
-        MONTHS[t.month() as usize - 1],
-        t.year(),
-        t.hour(),
-        t.minute(),
-        t.second()
-    )
 }
 
 fn header(resp: &mut Response, name: HeaderName, value: &str) {

@@ -183,14 +183,15 @@ pub fn parse(pairs: &[(String, String)]) -> Result<Params, XapiError> {
     }
     p.base_query = base
         .iter()
-        .map(|(k, v)| format!("{}={}", enc(k), enc(v)))
+        .map(|(k, v)| format!("{}={}", percent_encode(k), percent_encode(v)))
         .collect::<Vec<_>>()
         .join("&");
     Ok(p)
 }
 
-/// Percent-encodes a query component.
-fn enc(s: &str) -> String {
+/// Percent-encodes everything but RFC 3986 unreserved characters (a query component, or a path
+/// segment of an IRI).
+pub fn percent_encode(s: &str) -> String {
     let mut out = String::with_capacity(s.len());
     for b in s.bytes() {
         if b.is_ascii_alphanumeric() || b"-_.~".contains(&b) {

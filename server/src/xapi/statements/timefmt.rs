@@ -1,7 +1,7 @@
 //! Timestamps of the Statement resource: ISO 8601 in UTC for `stored`, the HTTP date of
 //! `Last-Modified`, and the parsing of `since`/`until`/`timestamp`.
 
-use time::format_description::well_known::{Iso8601, Rfc2822, Rfc3339};
+use time::format_description::well_known::{Iso8601, Rfc3339};
 use time::{OffsetDateTime, UtcOffset};
 
 /// `2026-11-27T04:03:21.123Z`: UTC with milliseconds (the precision xAPI asks an LRS to keep).
@@ -25,12 +25,23 @@ pub fn iso_us(t: OffsetDateTime) -> String {
     format!("{}{:03}Z", &iso_ms(t)[..23], t.microsecond() % 1000)
 }
 
-/// An HTTP date (`Last-Modified`): `Fri, 27 Nov 2026 04:03:21 GMT`.
+/// An HTTP-date (RFC 9110 5.6.7, IMF-fixdate), e.g. `Sun, 06 Nov 1994 08:49:37 GMT`.
 pub fn http_date(t: OffsetDateTime) -> String {
+    const DAYS: [&str; 7] = ["Mon", "Tue", "Wed", "Thu", "Fri", "Sat", "Sun"];
+    const MONTHS: [&str; 12] = [
+        "Jan", "Feb", "Mar", "Apr", "May", "Jun", "Jul", "Aug", "Sep", "Oct", "Nov", "Dec",
+    ];
     let t = t.to_offset(UtcOffset::UTC);
-    t.format(&Rfc2822)
-        .map(|s| s.replace("+0000", "GMT"))
-        .unwrap_or_default()
+    format!(
+        "{}, {:02} {} {:04} {:02}:{:02}:{:02} GMT",
+        DAYS[t.weekday().number_days_from_monday() as usize],
+        t.day(),
+        MONTHS[t.month() as usize - 1],
+        t.year(),
+        t.hour(),
+        t.minute(),
+        t.second()
+    )
 }
 
 /// Parses an ISO 8601 / RFC 3339 timestamp with an offset or `Z`.
