@@ -181,12 +181,31 @@ function logLine(text) {
 const us = new UltrasoundStation({ send: (command) => (live ? live.send(command) : null), log: logLine });
 const needle = new NeedleControls({ send: (command) => (live ? live.send(command) : null), log: logLine });
 
-/** Shows the panels of the views a session renders (fluoroscopy, ultrasound and placement). */
-function showViews(views) {
+/** Views this page has panels of its own for; any other view a session's modalities offer
+ * gets a generic panel (`otherViews`). */
+const OWN_VIEWS = ['fluoroscopy', 'ultrasound', 'placement'];
+const otherViews = new Map(); // view name -> canvas
+
+/** Shows the panels of the views a session renders: the built-in ones, and one generic panel
+ * (title and image) per view of any other modality the hello lists. */
+function showViews(views, protocol) {
   const fluoro = views.includes('fluoroscopy');
   $('fluoro-viewer').hidden = !fluoro;
   $('carm-controls').hidden = !fluoro;
   us.hello(views);
+  const host = $('other-views');
+  host.replaceChildren();
+  otherViews.clear();
+  for (const name of views.filter((v) => !OWN_VIEWS.includes(v))) {
+    const info = ((protocol && protocol.views) || []).find((v) => v.name === name) || {};
+    const canvas = el('canvas', { width: 512, height: 512, className: 'other-view' });
+    canvas.setAttribute('role', 'img');
+    canvas.setAttribute('aria-label', `${name} view (${info.modality || 'modality'})`);
+    canvas.dataset.view = name;
+    host.append(el('figure', { className: 'viewer' }, canvas, el('figcaption', { textContent: `${name} (${info.modality || ''})` })));
+    otherViews.set(name, canvas);
+  }
+  host.hidden = otherViews.size === 0;
 }
 
 /** What the server says while a station's anatomy is prepared (503 `anatomy_preparing`). */
@@ -247,13 +266,19 @@ async function openSession(attemptId, stationId) {
       const views = e.detail.session.views || ['fluoroscopy'];
       window.__sim.views = views;
       live.setVisible(views);
-      showViews(views);
+      showViews(views, e.detail.session.protocol);
     });
     live.addEventListener('frame', (e) => {
       const { bitmap, frame } = e.detail;
       if (frame.view === 'fluoroscopy') {
         needle.fluoroFrame(frame);
         ctx.drawImage(bitmap, 0, 0, 512, 512);
+        bitmap.close();
+      } else if (otherViews.has(frame.view)) {
+        const canvas = otherViews.get(frame.view);
+        canvas.width = frame.width;
+        canvas.height = frame.height;
+        canvas.getContext('2d').drawImage(bitmap, 0, 0);
         bitmap.close();
       } else if (!us.frame(frame, bitmap)) {
         bitmap.close();
@@ -337,10 +362,11 @@ $('us-needle-place').addEventListener('click', () => us.placeInPlane($('instrume
 // Syringe: pressing the plunger starts an injection of the chosen volume at the chosen rate;
 // releasing it stops. While fluid moves the client sends `tick`s, which move only the session's
 // logged clock, so the contrast spreads (and live fluoroscopy shows it) in replayable steps.
-// Ticks go on for the model's settling time after the release (2 s, render_worker::session::
-// modalities::contrast::SETTLE_MS), then stop: an idle session sends nothing.
-const TICK_MS = 100;
-const SETTLE_MS = 2000;
+// Ticks go on for the model's settling time after the release, then stop: an idle session
+// sends nothing. Both numbers come from the hello (the contrast modality's `tick_ms` and
+// `settle_ms`); the fallbacks only cover the moment before the first hello.
+const tickMs = () => (live ? live.constant('contrast', 'tick_ms', 100) : 100);
+const settleMs = () => (live ? live.constant('contrast', 'settle_ms', 2000) : 2000);
 let ticker = null;
 let tickUntil = 0;
 function startTicks(ms) {
@@ -349,7 +375,7 @@ function startTicks(ms) {
   ticker = setInterval(() => {
     if (!live || performance.now() > tickUntil) { clearInterval(ticker); ticker = null; return; }
     live.send({ type: 'tick' });
-  }, TICK_MS);
+  }, tickMs());
 }
 function agentValue() {
   const a = $('agent').value;
@@ -362,14 +388,14 @@ function pressPlunger(e) {
   const rate = Number($('inject-rate').value);
   $('plunger').setAttribute('aria-pressed', 'true');
   live.send({ type: 'inject', agent: agentValue(), volume_ml: volume, rate_ml_per_s: rate });
-  startTicks(1000 * volume / Math.max(rate, 1e-3) + SETTLE_MS);
+  startTicks(1000 * volume / Math.max(rate, 1e-3) + settleMs());
 }
 function releasePlunger() {
   if (!live || $('plunger').getAttribute('aria-pressed') !== 'true') return;
   $('plunger').setAttribute('aria-pressed', 'false');
   live.send({ type: 'inject_stop' });
-  tickUntil = performance.now() + SETTLE_MS;
-  startTicks(SETTLE_MS);
+  tickUntil = performance.now() + settleMs();
+  startTicks(settleMs());
 }
 $('plunger').addEventListener('pointerdown', pressPlunger);
 $('plunger').addEventListener('pointerup', releasePlunger);

@@ -3,26 +3,27 @@
 // every command not yet acknowledged (the worker acknowledges a re-sent sequence number as a
 // duplicate, so nothing is applied twice and nothing is lost).
 
-/** Frame header length, bytes (render_worker::session::frame). */
-export const HEADER_BYTES = 40;
+// The frame layout and the views' wire codes come from the session's hello
+// (`session.protocol`, render_worker::session::offer::ProtocolInfo); this client keeps no copy.
 
-/** View codes of header byte 5 (render_worker::session::image::ViewId::code). */
-export const VIEW_NAMES = ['fluoroscopy', 'ultrasound', 'placement'];
-
-/** Parses a binary frame message: header fields and the JPEG bytes. */
-export function parseFrame(buffer) {
+/** Parses a binary frame message with the hello's `protocol`: header fields and the JPEG
+ * bytes, or null when it is not a frame of this protocol. */
+export function parseFrame(buffer, protocol) {
+  if (!protocol) return null;
   const b = new Uint8Array(buffer);
+  const headerBytes = protocol.frame_header_bytes;
   const magic = String.fromCharCode(b[0], b[1], b[2], b[3]);
-  if (b.length < HEADER_BYTES || magic !== 'SIMF' || b[4] !== 1) return null;
+  if (b.length < headerBytes || magic !== protocol.frame_magic || b[4] !== protocol.frame_header_version) return null;
+  const view = protocol.views.find((v) => v.code === b[5]);
   const dv = new DataView(buffer);
   return {
-    view: VIEW_NAMES[b[5]] || 'unknown',
+    view: view ? view.name : 'unknown',
     frameSeq: Number(dv.getBigUint64(8, true)),
     inputSeq: Number(dv.getBigUint64(16, true)),
     tMs: Number(dv.getBigUint64(24, true)),
     width: dv.getUint16(32, true),
     height: dv.getUint16(34, true),
-    jpeg: b.subarray(HEADER_BYTES),
+    jpeg: b.subarray(headerBytes),
   };
 }
 
@@ -42,6 +43,15 @@ export class LiveSession extends EventTarget {
     this.visible = null;
     this.closed = false;
     this.retryMs = 250;
+    /** The protocol of the latest hello: frame layout, views, command kinds, constants. */
+    this.protocol = null;
+  }
+
+  /** A number the hello's protocol lists for `modality` (`"session"` for the core's), or
+   * `fallback` before the first hello. */
+  constant(modality, name, fallback) {
+    const c = this.protocol && this.protocol.constants && this.protocol.constants[modality];
+    return c && typeof c[name] === 'number' ? c[name] : fallback;
   }
 
   connect() {
@@ -86,6 +96,7 @@ export class LiveSession extends EventTarget {
     switch (m.type) {
       case 'hello':
         this.retryMs = 250;
+        this.protocol = m.session.protocol || null;
         this.seq = Math.max(this.seq, m.last_seq);
         for (const [seq, t] of [...this.pending.entries()].sort((a, b) => a[0] - b[0])) {
           if (seq > m.last_seq) this.ws.send(t); else this.pending.delete(seq);
@@ -109,7 +120,7 @@ export class LiveSession extends EventTarget {
   }
 
   async onFrame(buffer) {
-    const f = parseFrame(buffer);
+    const f = parseFrame(buffer, this.protocol);
     if (!f) return;
     const now = performance.now();
     // Input-to-frame latency: from sending the newest input this frame reflects to its arrival.

@@ -1,4 +1,4 @@
-//! GPU fluoroscopy: frame time against error on the lumbar phantom (issue 4).
+//! GPU fluoroscopy: frame time against error on the lumbar phantom.
 //!
 //! For several phantom mesh resolutions (CT voxel size of the procedural phantom, which sets the
 //! marching-tetrahedra and decimation scale) it builds the scene once, uploads it, and prints:
@@ -30,6 +30,7 @@ use std::time::Instant;
 use render_worker::fluoro::{FrameTimings, GpuFluoroRenderer};
 use render_worker::gpu::GpuContext;
 use sim_core::anatomy::phantom::{self, PhantomParams};
+use sim_core::compare::Compare;
 use sim_core::fluoro::attenuation::basis_depths;
 use sim_core::fluoro::render::to_display;
 use sim_core::fluoro::{
@@ -37,6 +38,7 @@ use sim_core::fluoro::{
     render_chords, render_transmission,
 };
 use sim_core::geom::{capped_cylinder, equal_area_vertex_radius};
+use sim_core::stats::percentile;
 
 /// The phantom with a needle, the needle's entry and tip, and the build time (s).
 fn phantom_scene(voxel_mm: f64) -> (Scene, [f64; 3], [f64; 3], f64) {
@@ -162,14 +164,6 @@ fn linear_rule_ln_t(
     out
 }
 
-fn percentile(mut v: Vec<f64>, q: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * q).round() as usize]
-}
-
 fn main() {
     let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
     let ctx = match GpuContext::new_headless() {
@@ -262,15 +256,13 @@ fn main() {
                     .collect();
                 interior_n = interior.len();
                 let ln = |x: f64| x.max(1e-30).ln();
-                let errs: Vec<f64> = interior
-                    .iter()
-                    .map(|&q| (ln(f64::from(g.transmission[q])) - ln(cpu.transmission[q])).abs())
-                    .collect();
-                vs_cpu = format!(
-                    "{:.1e} / {:.1e}",
-                    percentile(errs.clone(), 0.5),
-                    percentile(errs, 0.99)
-                );
+                let gpu_ln: Vec<f64> = g.transmission.iter().map(|&x| ln(f64::from(x))).collect();
+                let cpu_ln: Vec<f64> = cpu.transmission.iter().map(|&x| ln(x)).collect();
+                let image = Compare::image(w, h);
+                let d = image
+                    .at(&gpu_ln, &cpu_ln, interior.iter().copied())
+                    .expect("ln T of the view");
+                vs_cpu = format!("{:.1e} / {:.1e}", d.median_abs, d.p99_abs);
                 // The same rays under the L-buffer's linear nesting rule, evaluated on the CPU
                 // from exact raw per-mesh chords (pixels off the needle).
                 let off_needle: Vec<usize> = interior
@@ -282,26 +274,23 @@ fn main() {
                 let e: Vec<f64> = off_needle
                     .iter()
                     .zip(&lin)
-                    .map(|(&q, l)| (ln(f64::from(g.transmission[q])) - l).abs())
+                    .map(|(&q, l)| (gpu_ln[q] - l).abs())
                     .collect();
                 vs_linear = format!(
                     "{:.1e} / {:.1e}",
-                    percentile(e.clone(), 0.5),
-                    percentile(e, 0.99)
+                    percentile(&e, 50.0),
+                    percentile(&e, 99.0)
                 );
-                grey = interior
-                    .iter()
-                    .map(|&q| (i32::from(gpu_img.pixels[q]) - i32::from(cpu_img.pixels[q])).abs())
-                    .max()
-                    .unwrap_or(0)
+                grey = image
+                    .at(&gpu_img.pixels, &cpu_img.pixels, interior.iter().copied())
+                    .expect("frames of the view")
+                    .max_abs
                     .to_string();
-                let cpu_ln: Vec<f64> = cpu.transmission.iter().map(|&x| ln(x)).collect();
                 let reference = finest.entry(n).or_insert_with(|| cpu_ln.clone());
-                let e: Vec<f64> = interior
-                    .iter()
-                    .map(|&q| (ln(f64::from(g.transmission[q])) - reference[q]).abs())
-                    .collect();
-                vs_finest = format!("{:.1e}", percentile(e, 0.5));
+                let d = image
+                    .at(&gpu_ln, reference, interior.iter().copied())
+                    .expect("ln T of the view");
+                vs_finest = format!("{:.1e}", d.median_abs);
             }
             // "-": the CPU reference was not run at this size (quick mode).
             let cpu = if cpu_ms.is_nan() {

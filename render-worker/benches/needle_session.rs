@@ -17,11 +17,7 @@ use std::time::Instant;
 use glam::DVec3;
 use render_worker::session::*;
 use sim_core::needle::Tissue;
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
+use sim_core::stats::median;
 
 fn main() {
     let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
@@ -116,17 +112,17 @@ fn main() {
     }
     println!("| command | median ms |");
     println!("|---|---:|");
-    println!("| needle_feed 1 mm (force) | {:.3} |", median(feed1));
+    println!("| needle_feed 1 mm (force) | {:.3} |", median(&feed1));
     println!(
         "| needle_feed 0.5 mm (force + held plunger) | {:.3} |",
-        median(feed05)
+        median(&feed05)
     );
     println!(
         "| needle_tilt (after a 1 degree turn's branch) | {:.3} |",
-        median(tilt)
+        median(&tilt)
     );
-    println!("| needle_withdraw 0 mm | {:.3} |", median(withdraw));
-    println!("| aspirate | {:.3} |", median(asp));
+    println!("| needle_withdraw 0 mm | {:.3} |", median(&withdraw));
+    println!("| aspirate | {:.3} |", median(&asp));
     let worst = err.iter().fold(0.0f64, |a, e| a.max(e.abs()));
     println!(
         "\nloss of resistance: given way {:.3} mm past the epidural boundary (worst of {}; the \

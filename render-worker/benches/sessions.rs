@@ -100,7 +100,7 @@ fn main() {
             // Idle starts once every session has rendered and published its frame.
             for s in &handles {
                 let mut rx = s.frames();
-                while rx.borrow_and_update().get(&ViewId::Fluoroscopy).is_none() {
+                while rx.borrow_and_update().get(&ViewId::FLUOROSCOPY).is_none() {
                     rx.changed().await.expect("session alive");
                 }
             }
@@ -156,7 +156,7 @@ fn main() {
             ),
             config(512),
         );
-        let visible: BTreeSet<ViewId> = [ViewId::Fluoroscopy].into();
+        let visible: BTreeSet<ViewId> = [ViewId::FLUOROSCOPY].into();
         let mut times = Vec::new();
         for k in 0..reps {
             let t = Instant::now();

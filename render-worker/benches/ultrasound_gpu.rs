@@ -21,6 +21,8 @@ use std::time::Instant;
 use glam::DVec3;
 use render_worker::gpu::GpuContext;
 use render_worker::ultrasound::{GpuUltrasound, layered_test_volume};
+use sim_core::compare::Compare;
+use sim_core::stats::Timing;
 use sim_core::ultrasound::{
     BModeFrame, CtMedium, NeedleShaft, ProbeKind, ProbePose, Sampling, ScanRequest, Settings, scan,
 };
@@ -35,36 +37,16 @@ fn scene() -> (Volume<f32>, Volume<u8>) {
 }
 
 fn errors(a: &BModeFrame, reference: &BModeFrame) -> (f64, f64) {
-    let idx: Vec<usize> = (0..a.pixels.len().min(reference.pixels.len()))
-        .filter(|&i| a.inside[i] && reference.inside[i])
-        .collect();
-    let n = idx.len() as f64;
-    let va: Vec<f64> = idx.iter().map(|&i| f64::from(a.pixels[i])).collect();
-    let vb: Vec<f64> = idx
+    let inside: Vec<bool> = a
+        .inside
         .iter()
-        .map(|&i| f64::from(reference.pixels[i]))
+        .zip(&reference.inside)
+        .map(|(&p, &q)| p && q)
         .collect();
-    let (ma, mb) = (va.iter().sum::<f64>() / n, vb.iter().sum::<f64>() / n);
-    let (mut sab, mut saa, mut sbb, mut mad) = (0.0, 0.0, 0.0, 0.0);
-    for (x, y) in va.iter().zip(&vb) {
-        sab += (x - ma) * (y - mb);
-        saa += (x - ma) * (x - ma);
-        sbb += (y - mb) * (y - mb);
-        mad += (x - y).abs();
-    }
-    (sab / (saa * sbb).sqrt(), mad / n)
-}
-
-fn median_ms(reps: usize, mut f: impl FnMut()) -> f64 {
-    let mut t: Vec<f64> = (0..reps)
-        .map(|_| {
-            let t0 = Instant::now();
-            f();
-            t0.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    t.sort_by(f64::total_cmp);
-    t[t.len() / 2]
+    let d = Compare::image(reference.width, reference.height)
+        .masked(&a.pixels, &reference.pixels, &inside)
+        .expect("frames on one pixel grid");
+    (d.ncc, d.mean_abs)
 }
 
 fn main() {
@@ -192,9 +174,10 @@ fn main() {
         for (name, s) in variants {
             let r = req(s);
             let mut g = us.scan(&r, &medium, 1).expect("gpu frame");
-            let gpu_ms = median_ms(reps, || g = us.scan(&r, &medium, 1).expect("gpu frame"));
+            let gpu_ms =
+                Timing::run(reps, || g = us.scan(&r, &medium, 1).expect("gpu frame")).median_ms();
             let mut c = scan(&r).expect("cpu frame");
-            let cpu_ms = median_ms(reps, || c = scan(&r).expect("cpu frame"));
+            let cpu_ms = Timing::run(reps, || c = scan(&r).expect("cpu frame")).median_ms();
             let (ncc, grey) = errors(&g, &c);
             let (fncc, fgrey) = fine
                 .as_ref()

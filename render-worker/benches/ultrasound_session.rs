@@ -15,6 +15,7 @@ use std::time::Instant;
 use glam::DVec3;
 use render_worker::session::modalities::ultrasound::snap_to_skin;
 use render_worker::session::*;
+use sim_core::stats::median;
 
 fn main() {
     let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
@@ -52,8 +53,8 @@ fn main() {
             marker_dir: [1.0, 0.0, 0.0],
         },
     );
-    let us: BTreeSet<ViewId> = [ViewId::Ultrasound].into();
-    let pl: BTreeSet<ViewId> = [ViewId::Placement].into();
+    let us: BTreeSet<ViewId> = [ViewId::ULTRASOUND].into();
+    let pl: BTreeSet<ViewId> = [ViewId::PLACEMENT].into();
     let t = Instant::now();
     let first = s.render_dirty(&us).expect("render");
     let first_s = t.elapsed().as_secs_f64();
@@ -80,10 +81,7 @@ fn main() {
         s.render_dirty(&pl).expect("render");
         place.push(t.elapsed().as_secs_f64());
     }
-    let median = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2] * 1e3
-    };
+    let median_ms = |v: &[f64]| 1e3 * median(v);
     println!("| step | time (ms) |");
     println!("|---|---:|");
     println!(
@@ -96,16 +94,16 @@ fn main() {
     );
     println!(
         "| probe_move command (skin snap), median | {:.2} |",
-        median(&mut cmd)
+        median_ms(&cmd)
     );
     println!(
         "| B-mode frame {} x {} px, median of {moves} | {:.0} |",
         img.width,
         img.height,
-        median(&mut bmode)
+        median_ms(&bmode)
     );
     println!(
         "| placement frame, median of {moves} | {:.1} |",
-        median(&mut place)
+        median_ms(&place)
     );
 }

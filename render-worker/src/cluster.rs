@@ -40,6 +40,97 @@ pub struct Registration {
     pub adapter: Option<serde_json::Value>,
 }
 
+/// Why a URL cannot be requested by this client.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum UrlError {
+    /// Not an `http://` URL (TLS is the job of the network in front).
+    #[error("{0}: only http:// URLs are supported")]
+    UnsupportedScheme(String),
+    /// Nothing between `http://` and the path.
+    #[error("{0}: no host")]
+    NoHost(String),
+}
+
+/// Why bytes read from a peer are not a complete HTTP/1.1 response.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ResponseError {
+    /// The header never ends (no blank line).
+    #[error("no complete response header")]
+    NoHeader,
+    /// The header holds bytes that are not UTF-8.
+    #[error("response header is not UTF-8")]
+    HeaderNotUtf8,
+    /// The first line has no numeric status.
+    #[error("bad status line {0:?}")]
+    BadStatusLine(String),
+    /// Fewer body bytes than the `Content-Length` header announced.
+    #[error("response body shorter than its Content-Length")]
+    BodyShort,
+    /// A chunk's size line never ends.
+    #[error("truncated chunk size")]
+    TruncatedChunkSize,
+    /// A chunk's size line holds bytes that are not UTF-8.
+    #[error("bad chunk size")]
+    ChunkSizeNotUtf8,
+    /// A chunk's size is not a hexadecimal number.
+    #[error("bad chunk size {0:?}")]
+    BadChunkSize(String),
+    /// A chunk is shorter than its size, or lacks its line end.
+    #[error("truncated chunk")]
+    TruncatedChunk,
+}
+
+/// Why a cluster-internal request got no usable answer.
+#[derive(Debug, thiserror::Error)]
+pub enum HttpError {
+    /// The URL cannot be requested.
+    #[error(transparent)]
+    Url(#[from] UrlError),
+    /// No complete answer within [`REQUEST_TIMEOUT`].
+    #[error("{method} {url}: no answer within {timeout_s} s")]
+    Timeout {
+        /// Request method.
+        method: String,
+        /// Request URL.
+        url: String,
+        /// The limit, seconds.
+        timeout_s: u64,
+    },
+    /// Connecting, writing or reading failed.
+    #[error("{method} {url}: {source}")]
+    Io {
+        /// Request method.
+        method: String,
+        /// Request URL.
+        url: String,
+        /// The socket's error.
+        source: std::io::Error,
+    },
+    /// A header name or value would split the request (CR or LF in it).
+    #[error("{method} {url}: header {header} contains a line break")]
+    HeaderLineBreak {
+        /// Request method.
+        method: String,
+        /// Request URL.
+        url: String,
+        /// The header's name.
+        header: String,
+    },
+    /// The answer is not an HTTP/1.1 response.
+    #[error("{method} {url}: {source}")]
+    Response {
+        /// Request method.
+        method: String,
+        /// Request URL.
+        url: String,
+        /// What is wrong with it.
+        source: ResponseError,
+    },
+    /// The body is not JSON ([`HttpResponse::json`]).
+    #[error("response is not JSON: {0}")]
+    NotJson(#[source] serde_json::Error),
+}
+
 /// A response: status, headers and body.
 #[derive(Debug, Clone)]
 pub struct HttpResponse {
@@ -53,22 +144,22 @@ pub struct HttpResponse {
 
 impl HttpResponse {
     /// The body as JSON.
-    pub fn json(&self) -> Result<serde_json::Value, String> {
-        serde_json::from_slice(&self.body).map_err(|e| format!("response is not JSON: {e}"))
+    pub fn json(&self) -> Result<serde_json::Value, HttpError> {
+        serde_json::from_slice(&self.body).map_err(HttpError::NotJson)
     }
 }
 
 /// Splits `http://host:port/path` into `(host:port, /path)`.
-pub fn split_url(url: &str) -> Result<(String, String), String> {
+pub fn split_url(url: &str) -> Result<(String, String), UrlError> {
     let rest = url
         .strip_prefix("http://")
-        .ok_or_else(|| format!("{url}: only http:// URLs are supported"))?;
+        .ok_or_else(|| UrlError::UnsupportedScheme(url.to_string()))?;
     let (authority, path) = match rest.find('/') {
         Some(i) => (&rest[..i], &rest[i..]),
         None => (rest, "/"),
     };
     if authority.is_empty() {
-        return Err(format!("{url}: no host"));
+        return Err(UrlError::NoHost(url.to_string()));
     }
     let authority = if authority.contains(':') {
         authority.to_string()
@@ -84,7 +175,7 @@ pub async fn request(
     url: &str,
     body: Option<&serde_json::Value>,
     bearer: Option<&str>,
-) -> Result<HttpResponse, String> {
+) -> Result<HttpResponse, HttpError> {
     let auth = bearer.map(|t| format!("Bearer {t}"));
     let headers: Vec<(&str, &str)> = auth.iter().map(|a| ("Authorization", a.as_str())).collect();
     request_with_headers(method, url, body, &headers).await
@@ -96,14 +187,13 @@ pub async fn request_with_headers(
     url: &str,
     body: Option<&serde_json::Value>,
     headers: &[(&str, &str)],
-) -> Result<HttpResponse, String> {
+) -> Result<HttpResponse, HttpError> {
     tokio::time::timeout(REQUEST_TIMEOUT, request_inner(method, url, body, headers))
         .await
-        .map_err(|_| {
-            format!(
-                "{method} {url}: no answer within {} s",
-                REQUEST_TIMEOUT.as_secs()
-            )
+        .map_err(|_| HttpError::Timeout {
+            method: method.to_string(),
+            url: url.to_string(),
+            timeout_s: REQUEST_TIMEOUT.as_secs(),
         })?
 }
 
@@ -112,18 +202,25 @@ async fn request_inner(
     url: &str,
     body: Option<&serde_json::Value>,
     headers: &[(&str, &str)],
-) -> Result<HttpResponse, String> {
+) -> Result<HttpResponse, HttpError> {
+    let io = |source: std::io::Error| HttpError::Io {
+        method: method.to_string(),
+        url: url.to_string(),
+        source,
+    };
     let (authority, path) = split_url(url)?;
-    let mut stream = TcpStream::connect(&authority)
-        .await
-        .map_err(|e| format!("{method} {url}: {e}"))?;
+    let mut stream = TcpStream::connect(&authority).await.map_err(io)?;
     let payload = body.map(|b| b.to_string()).unwrap_or_default();
     let mut head = format!(
         "{method} {path} HTTP/1.1\r\nHost: {authority}\r\nConnection: close\r\nAccept: application/json\r\n"
     );
     for (k, v) in headers {
         if k.contains(['\r', '\n']) || v.contains(['\r', '\n']) {
-            return Err(format!("{method} {url}: header {k} contains a line break"));
+            return Err(HttpError::HeaderLineBreak {
+                method: method.to_string(),
+                url: url.to_string(),
+                header: (*k).to_string(),
+            });
         }
         head.push_str(&format!("{k}: {v}\r\n"));
     }
@@ -134,37 +231,35 @@ async fn request_inner(
         ));
     }
     head.push_str("\r\n");
-    stream
-        .write_all(head.as_bytes())
-        .await
-        .map_err(|e| format!("{method} {url}: {e}"))?;
-    stream
-        .write_all(payload.as_bytes())
-        .await
-        .map_err(|e| format!("{method} {url}: {e}"))?;
+    stream.write_all(head.as_bytes()).await.map_err(io)?;
+    stream.write_all(payload.as_bytes()).await.map_err(io)?;
     let mut raw = Vec::new();
     stream
         .take(MAX_RESPONSE_BYTES as u64 + 64 * 1024)
         .read_to_end(&mut raw)
         .await
-        .map_err(|e| format!("{method} {url}: {e}"))?;
-    parse_response(&raw).map_err(|e| format!("{method} {url}: {e}"))
+        .map_err(io)?;
+    parse_response(&raw).map_err(|source| HttpError::Response {
+        method: method.to_string(),
+        url: url.to_string(),
+        source,
+    })
 }
 
 /// Parses an HTTP/1.1 response read to the end (Content-Length or chunked or read-to-close).
-pub fn parse_response(raw: &[u8]) -> Result<HttpResponse, String> {
+pub fn parse_response(raw: &[u8]) -> Result<HttpResponse, ResponseError> {
     let end = raw
         .windows(4)
         .position(|w| w == b"\r\n\r\n")
-        .ok_or("no complete response header")?;
-    let head = std::str::from_utf8(&raw[..end]).map_err(|_| "response header is not UTF-8")?;
+        .ok_or(ResponseError::NoHeader)?;
+    let head = std::str::from_utf8(&raw[..end]).map_err(|_| ResponseError::HeaderNotUtf8)?;
     let mut lines = head.split("\r\n");
     let status_line = lines.next().unwrap_or_default();
     let status: u16 = status_line
         .split_whitespace()
         .nth(1)
         .and_then(|s| s.parse().ok())
-        .ok_or_else(|| format!("bad status line {status_line:?}"))?;
+        .ok_or_else(|| ResponseError::BadStatusLine(status_line.to_string()))?;
     let mut length = None;
     let mut chunked = false;
     let mut headers = Vec::new();
@@ -183,9 +278,7 @@ pub fn parse_response(raw: &[u8]) -> Result<HttpResponse, String> {
     let body = if chunked {
         dechunk(rest)?
     } else if let Some(n) = length {
-        rest.get(..n)
-            .ok_or("response body shorter than its Content-Length")?
-            .to_vec()
+        rest.get(..n).ok_or(ResponseError::BodyShort)?.to_vec()
     } else {
         rest.to_vec()
     };
@@ -196,22 +289,23 @@ pub fn parse_response(raw: &[u8]) -> Result<HttpResponse, String> {
     })
 }
 
-fn dechunk(mut b: &[u8]) -> Result<Vec<u8>, String> {
+fn dechunk(mut b: &[u8]) -> Result<Vec<u8>, ResponseError> {
     let mut out = Vec::new();
     loop {
         let eol = b
             .windows(2)
             .position(|w| w == b"\r\n")
-            .ok_or("truncated chunk size")?;
-        let size_text = std::str::from_utf8(&b[..eol]).map_err(|_| "bad chunk size")?;
+            .ok_or(ResponseError::TruncatedChunkSize)?;
+        let size_text =
+            std::str::from_utf8(&b[..eol]).map_err(|_| ResponseError::ChunkSizeNotUtf8)?;
         let size = usize::from_str_radix(size_text.split(';').next().unwrap_or("").trim(), 16)
-            .map_err(|_| format!("bad chunk size {size_text:?}"))?;
+            .map_err(|_| ResponseError::BadChunkSize(size_text.to_string()))?;
         b = &b[eol + 2..];
         if size == 0 {
             return Ok(out);
         }
-        out.extend_from_slice(b.get(..size).ok_or("truncated chunk")?);
-        b = b.get(size + 2..).ok_or("truncated chunk")?;
+        out.extend_from_slice(b.get(..size).ok_or(ResponseError::TruncatedChunk)?);
+        b = b.get(size + 2..).ok_or(ResponseError::TruncatedChunk)?;
     }
 }
 
@@ -261,12 +355,28 @@ mod tests {
             split_url("http://w1").unwrap(),
             ("w1:80".into(), "/".into())
         );
-        assert!(split_url("https://w1").is_err());
+        assert_eq!(
+            split_url("https://w1"),
+            Err(UrlError::UnsupportedScheme("https://w1".into()))
+        );
+        assert_eq!(
+            split_url("http:///a").unwrap_err().to_string(),
+            "http:///a: no host"
+        );
         let r =
             parse_response(b"HTTP/1.1 201 Created\r\nContent-Length: 2\r\n\r\n{}extra").unwrap();
         assert_eq!((r.status, r.body.as_slice()), (201, b"{}".as_slice()));
         let r = parse_response(b"HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\n\r\n3\r\nabc\r\n2\r\nde\r\n0\r\n\r\n").unwrap();
         assert_eq!(r.body, b"abcde");
-        assert!(parse_response(b"HTTP/1.1 200 OK\r\nContent-Length: 9\r\n\r\nabc").is_err());
+        assert_eq!(
+            parse_response(b"HTTP/1.1 200 OK\r\nContent-Length: 9\r\n\r\nabc").unwrap_err(),
+            ResponseError::BodyShort
+        );
+        assert_eq!(
+            parse_response(b"HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\n\r\nzz\r\n")
+                .unwrap_err()
+                .to_string(),
+            "bad chunk size \"zz\""
+        );
     }
 }

@@ -1,4 +1,4 @@
-//! The cervical stations (issue 18) in sessions on the cervical phantom: a scripted paramedian
+//! The cervical stations in sessions on the cervical phantom: a scripted paramedian
 //! C7-T1 interlaminar epidural (AP shot, marker, puncture, contralateral oblique, advance with
 //! constant plunger pressure to the loss of resistance, aspiration, submit) and a scripted left
 //! C5 medial branch block in the lateral view (needle onto the articular pillar's centroid), each

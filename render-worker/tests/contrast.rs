@@ -1,4 +1,4 @@
-//! The contrast modality (issue 16) in sessions on the procedural phantom: each compartment's
+//! The contrast modality in sessions on the procedural phantom: each compartment's
 //! pattern from a tip placed in it, bad input refused, bit-identical replay with injections and
 //! ticks, frames that darken where the contrast is (CPU reference and GPU), and stations without
 //! contrast that never build a model.
@@ -12,6 +12,7 @@ use std::sync::{Arc, OnceLock};
 
 use render_worker::session::modalities::contrast::{self, QUANTUM_MS};
 use render_worker::session::*;
+use sim_core::compare::{Compare, Tolerance};
 use sim_core::contrast::{ContrastGrid, Domain};
 use sim_core::fluoro::Projection;
 
@@ -382,7 +383,7 @@ fn epidural_tip() -> [f64; 3] {
 
 fn run_script(env: SessionEnv, steps: &[(u64, Command)]) -> (Run, Vec<RenderedView>) {
     let mut r = Run::new(env, quiet_config());
-    let views: BTreeSet<ViewId> = [ViewId::Fluoroscopy].into();
+    let views: BTreeSet<ViewId> = [ViewId::FLUOROSCOPY].into();
     let mut frames = Vec::new();
     for (t, c) in steps {
         r.ok(*t, c.clone());
@@ -427,7 +428,7 @@ fn replay_with_injections_and_ticks_is_bit_identical() {
     let mut restored = Session::restore(env(), &half.s.snapshot(), live.s.log()).unwrap();
     assert_eq!(restored.snapshot().to_bytes(), live.s.snapshot().to_bytes());
     assert_eq!(restored.measurements(), m);
-    let views: BTreeSet<ViewId> = [ViewId::Fluoroscopy].into();
+    let views: BTreeSet<ViewId> = [ViewId::FLUOROSCOPY].into();
     let last = restored.render_dirty(&views).unwrap().pop().unwrap();
     assert_eq!(last.image, frames.last().unwrap().image);
     // Live frames came while the contrast moved, one per new field, not on idle ticks.
@@ -485,14 +486,12 @@ fn fluoroscopy_darkens_where_the_contrast_is_on_cpu_and_gpu() {
         return;
     };
     let (gpu_before, gpu_after, gd) = darkening(env_of(EPIDURAL, Backends::gpu(ctx)), tip);
-    let within_one = |a: &ViewImage, b: &ViewImage| {
-        let n = a
-            .pixels
-            .iter()
-            .zip(&b.pixels)
-            .filter(|(x, y)| (i32::from(**x) - i32::from(**y)).abs() <= 1)
-            .count();
-        n as f64 / a.pixels.len() as f64
+    let within_one = |cpu: &ViewImage, gpu: &ViewImage| {
+        Compare::image(cpu.width as usize, cpu.height as usize)
+            .tolerance(Tolerance::absolute(1.0))
+            .all(&gpu.pixels, &cpu.pixels)
+            .expect("frames of one size")
+            .fraction_within()
     };
     let (w0, w1) = (
         within_one(&before, &gpu_before),

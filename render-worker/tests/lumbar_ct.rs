@@ -1,4 +1,4 @@
-//! The real-CT lumbar region (`assets/lumbar-ct`, issue 18) in sessions: it loads through the
+//! The real-CT lumbar region (`assets/lumbar-ct`) in sessions: it loads through the
 //! worker's loader, an AP shot shows the spine, and a scripted midline L4-L5 interlaminar
 //! epidural on the `l4-l5-interlaminar-epidural-ct` station feels the loss of resistance at the
 //! landmark computed from the masks and scores it.
@@ -67,7 +67,7 @@ fn the_ct_region_loads_and_an_ap_shot_shows_the_spine() {
     assert!(off_axis_deg < 30.0);
     let mut r = run();
     r.ok(500, Command::Shot);
-    let img = r.render(ViewId::Fluoroscopy).unwrap();
+    let img = r.render(ViewId::FLUOROSCOPY).unwrap();
     let p = last_projection(&r.s);
     let body = landmark("L3_body_centre");
     let bone = mean_around(&img, p.project_point(body.to_array()).unwrap(), 3);

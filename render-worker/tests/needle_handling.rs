@@ -1,4 +1,4 @@
-//! Needle handling (issue 19) in sessions on the procedural phantom: a scripted paramedian
+//! Needle handling in sessions on the procedural phantom: a scripted paramedian
 //! L4-L5 epidural (skin marker, AP and contralateral oblique shots, puncture, hub tilt, advance
 //! with constant plunger pressure until the loss of resistance, aspiration, submit), bad commands
 //! refused naming their field, bit-identical replay, a soak of random needle commands, and the
@@ -261,7 +261,7 @@ fn a_scripted_paramedian_epidural_feels_the_loss_and_scores() {
 fn the_marker_shows_on_the_next_shot_and_the_pixel_form_lands_on_its_ray() {
     let mut r = Run::new(env(EPIDURAL), quiet());
     r.ok(500, Command::Shot);
-    let before = r.render(ViewId::Fluoroscopy).unwrap();
+    let before = r.render(ViewId::FLUOROSCOPY).unwrap();
     let entry = planned_entry();
     // The pixel where the entry point images on the shot just taken.
     let snap = r.s.snapshot();
@@ -279,9 +279,9 @@ fn the_marker_shows_on_the_next_shot_and_the_pixel_form_lands_on_its_ray() {
     let m: [f64; 3] = serde_json::from_value(ack.outcome["marker_mm"].clone()).unwrap();
     assert!(DVec3::from_array(m).distance(entry) < 1.0);
     // Last-image hold: no new frame until the next shot, which shows the steel marker.
-    assert!(r.render(ViewId::Fluoroscopy).is_none());
+    assert!(r.render(ViewId::FLUOROSCOPY).is_none());
     r.ok(1500, Command::Shot);
-    let after = r.render(ViewId::Fluoroscopy).unwrap();
+    let after = r.render(ViewId::FLUOROSCOPY).unwrap();
     let (x, y) = (px[0] as usize, px[1] as usize);
     let w = before.width as usize;
     let at = |img: &ViewImage| {
@@ -545,7 +545,7 @@ fn soak_of_random_needle_commands() {
         } else {
             Command::Aspirate
         };
-        let name = c.name();
+        let name = c.name().to_string();
         if let Ok(a) = r.try_apply(t, c) {
             accepted += 1;
             let text = serde_json::to_string(&a.outcome).unwrap();

@@ -124,7 +124,7 @@ async fn protocol_over_channels_acknowledges_every_input_and_keeps_only_the_newe
     let mut rx = h.frames();
     while rx
         .borrow_and_update()
-        .get(&ViewId::Fluoroscopy)
+        .get(&ViewId::FLUOROSCOPY)
         .is_none_or(|f| f.input_seq < 23)
     {
         rx.changed().await.unwrap();
@@ -293,7 +293,7 @@ async fn real_websocket_creates_a_session_takes_a_shot_and_streams_a_jpeg() {
     ws.close(None).await.unwrap();
 }
 
-/// Issue 20, point 3, on the worker's own socket: a client that sends 10,000 commands without
+/// On the worker's own socket: a client that sends 10,000 commands without
 /// reading, then reads, gets every answer in order, and the session takes another command.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_burst_sent_without_reading_is_answered_in_order_on_the_worker_socket() {

@@ -1,4 +1,4 @@
-//! The ultrasound modality (issue 15) in sessions on the procedural phantom: the probe on the
+//! The ultrasound modality in sessions on the procedural phantom: the probe on the
 //! skin and bad poses refused naming the field, the B-mode and placement views, speckle that
 //! stays with the tissue when the probe slides, the needle in plane and out of plane (a dot that
 //! is not the tip), freeze, the scorers of both ultrasound stations, and bit-identical replay.
@@ -12,6 +12,7 @@ use std::sync::Arc;
 use glam::DVec3;
 use render_worker::session::modalities::ultrasound::{placement, snap_to_skin};
 use render_worker::session::*;
+use sim_core::compare::{Compare, ncc};
 
 use crate::contrast::{region, station};
 use crate::driver::Run;
@@ -63,10 +64,10 @@ fn measurement(r: &Run, key: &str) -> Option<f64> {
 fn stations_build_ultrasound_only_where_listed() {
     let r = run_at(IN_PLANE);
     assert_eq!(r.s.modality_names(), vec!["ultrasound"]);
-    assert_eq!(r.s.views(), vec![ViewId::Ultrasound, ViewId::Placement]);
+    assert_eq!(r.s.views(), vec![ViewId::ULTRASOUND, ViewId::PLACEMENT]);
     let fluoro_only = Session::new(env_of("l4-l5-left-facet"), config());
     assert!(!fluoro_only.modality_names().contains(&"ultrasound"));
-    assert!(!fluoro_only.views().contains(&ViewId::Ultrasound));
+    assert!(!fluoro_only.views().contains(&ViewId::ULTRASOUND));
 }
 
 #[test]
@@ -165,7 +166,7 @@ fn the_probe_sits_on_the_skin_and_bad_poses_name_their_field() {
 fn both_views_render_and_the_image_geometry_matches_the_outcome() {
     let mut r = run_at(IN_PLANE);
     let ack = r.ok(1, transverse_over(target(IN_PLANE)));
-    let img = r.render(ViewId::Ultrasound).expect("a B-mode frame");
+    let img = r.render(ViewId::ULTRASOUND).expect("a B-mode frame");
     assert_eq!(
         (img.width as u64, img.height as u64),
         (
@@ -179,8 +180,8 @@ fn both_views_render_and_the_image_geometry_matches_the_outcome() {
         "a B-mode image, not black or white: mean {mean}"
     );
     // Nothing changed: nothing to render.
-    assert!(r.render(ViewId::Ultrasound).is_none());
-    let before = r.render(ViewId::Placement).expect("a placement frame");
+    assert!(r.render(ViewId::ULTRASOUND).is_none());
+    let before = r.render(ViewId::PLACEMENT).expect("a placement frame");
     assert_eq!(
         (before.width, before.height),
         (placement::WIDTH, placement::HEIGHT)
@@ -194,13 +195,11 @@ fn both_views_render_and_the_image_geometry_matches_the_outcome() {
             rotate_deg: 0.0,
         },
     );
-    let after = r.render(ViewId::Placement).unwrap();
-    let changed = before
-        .pixels
-        .iter()
-        .zip(&after.pixels)
-        .filter(|(a, b)| a != b)
-        .count();
+    let after = r.render(ViewId::PLACEMENT).unwrap();
+    let changed = Compare::image(before.width as usize, before.height as usize)
+        .all(&after.pixels, &before.pixels)
+        .expect("frames of one size")
+        .pixels_over;
     assert!(changed > 200, "{changed} pixels changed");
 }
 
@@ -208,25 +207,18 @@ fn both_views_render_and_the_image_geometry_matches_the_outcome() {
 /// `a[y]` against `b[y + dy]`.
 fn ncc_shifted(a: &ViewImage, b: &ViewImage, dx: i64, dy: i64) -> f64 {
     let (w, h) = (a.width as i64, a.height as i64);
-    let (mut sa, mut sb, mut saa, mut sbb, mut sab, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let (mut va, mut vb) = (Vec::new(), Vec::new());
     for y in (h / 4)..(3 * h / 4) {
         for x in (w / 4)..(3 * w / 4) {
             let (x2, y2) = (x + dx, y + dy);
             if x2 < 0 || y2 < 0 || x2 >= w || y2 >= h {
                 continue;
             }
-            let p = f64::from(a.pixels[(y * w + x) as usize]);
-            let q = f64::from(b.pixels[(y2 * w + x2) as usize]);
-            sa += p;
-            sb += q;
-            saa += p * p;
-            sbb += q * q;
-            sab += p * q;
-            n += 1.0;
+            va.push(f64::from(a.pixels[(y * w + x) as usize]));
+            vb.push(f64::from(b.pixels[(y2 * w + x2) as usize]));
         }
     }
-    let cov = sab / n - sa / n * sb / n;
-    cov / ((saa / n - (sa / n).powi(2)) * (sbb / n - (sb / n).powi(2))).sqrt()
+    ncc(&va, &vb)
 }
 
 #[test]
@@ -234,7 +226,7 @@ fn speckle_stays_with_the_tissue_when_the_probe_slides() {
     let mut r = run_at(IN_PLANE);
     let ack = r.ok(1, transverse_over(target(IN_PLANE)));
     let pixel_mm = ack.outcome["image"]["pixel_mm"].as_f64().unwrap();
-    let a = r.render(ViewId::Ultrasound).unwrap();
+    let a = r.render(ViewId::ULTRASOUND).unwrap();
     let slide = 8.715;
     r.ok(
         2,
@@ -244,7 +236,7 @@ fn speckle_stays_with_the_tissue_when_the_probe_slides() {
             rotate_deg: 0.0,
         },
     );
-    let b = r.render(ViewId::Ultrasound).unwrap();
+    let b = r.render(ViewId::ULTRASOUND).unwrap();
     // Sliding towards the marker moves the tissue away from the marker side of the image: a
     // point at column x is now at x + slide / pixel. The face follows the skin, so the rows may
     // shift by a few pixels too.
@@ -314,7 +306,7 @@ fn an_in_plane_needle_shows_its_tip_and_scores() {
     let angle = measurement(&r, "needle_plane_angle_deg").unwrap();
     assert!(angle < 1.0, "in plane: {angle} deg");
     // The tip is imaged: a bright shaft in the frame.
-    assert!(r.render(ViewId::Ultrasound).is_some());
+    assert!(r.render(ViewId::ULTRASOUND).is_some());
     // The plane slid 6 mm off the needle: the tip is no longer seen.
     clock += 10;
     r.ok(
@@ -417,17 +409,17 @@ fn freeze_holds_the_image_and_its_scores() {
     let entry = skin_above(t - DVec3::X * 35.0) - DVec3::Y * 2.0;
     let aim = t - DVec3::Y * 8.0;
     needle(&mut r, &mut clock, entry, aim, 20.0, 2);
-    r.render(ViewId::Ultrasound).unwrap();
-    r.render(ViewId::Placement).unwrap();
+    r.render(ViewId::ULTRASOUND).unwrap();
+    r.render(ViewId::PLACEMENT).unwrap();
     clock += 10;
     r.ok(clock, Command::ProbeFreeze { on: true });
-    let frozen = r.render(ViewId::Ultrasound).unwrap();
+    let frozen = r.render(ViewId::ULTRASOUND).unwrap();
     assert_eq!(measurement(&r, "tip_visible_bool"), Some(1.0));
     clock += 10;
     r.ok(clock, Command::NeedleFeed { mm: 5.0 });
     // The held image does not change; the placement view does; the tip on screen is stale.
-    assert!(r.render(ViewId::Ultrasound).is_none());
-    assert!(r.render(ViewId::Placement).is_some());
+    assert!(r.render(ViewId::ULTRASOUND).is_none());
+    assert!(r.render(ViewId::PLACEMENT).is_some());
     assert_eq!(measurement(&r, "tip_visible_bool"), Some(0.0));
     let e = r.err(Command::ProbeSettings {
         depth_mm: Some(60.0),
@@ -440,7 +432,7 @@ fn freeze_holds_the_image_and_its_scores() {
     assert_eq!(e.code, ErrorCode::State);
     clock += 10;
     r.ok(clock, Command::ProbeFreeze { on: false });
-    let live = r.render(ViewId::Ultrasound).unwrap();
+    let live = r.render(ViewId::ULTRASOUND).unwrap();
     assert_ne!(live.pixels, frozen.pixels);
     assert_eq!(measurement(&r, "tip_visible_bool"), Some(1.0));
 }
@@ -486,12 +478,12 @@ fn replay_with_probe_commands_is_bit_identical() {
         },
     );
     r.ok(clock + 3, Command::ProbeFreeze { on: true });
-    let live_frame = r.render(ViewId::Ultrasound).unwrap();
+    let live_frame = r.render(ViewId::ULTRASOUND).unwrap();
     let m = r.s.measurements();
     let mut replayed = Session::restore(env_of(IN_PLANE), &initial, r.s.log()).unwrap();
     assert_eq!(replayed.snapshot().to_bytes(), r.s.snapshot().to_bytes());
     assert_eq!(replayed.measurements(), m);
-    let views: BTreeSet<ViewId> = [ViewId::Ultrasound].into();
+    let views: BTreeSet<ViewId> = [ViewId::ULTRASOUND].into();
     let frame = replayed.render_dirty(&views).unwrap().pop().unwrap().image;
     assert_eq!(frame, live_frame, "the replayed frame is the same image");
 }
@@ -518,8 +510,8 @@ fn a_drag_on_the_placement_view_puts_the_probe_under_the_pixel() {
 fn a_station_with_both_modalities_shows_one_needle_in_both_and_the_carm_on_the_placement_view() {
     let mut ctx = (*station(IN_PLANE)).clone();
     ctx.station.modalities = vec![
-        sim_core::rubric::Modality::Fluoroscopy,
-        sim_core::rubric::Modality::Ultrasound,
+        sim_core::rubric::Modality::new("fluoroscopy").unwrap(),
+        sim_core::rubric::Modality::new("ultrasound").unwrap(),
     ];
     let env = SessionEnv::new(Arc::new(ctx), region(), Backends::cpu(0));
     let mut r = Run {
@@ -528,12 +520,12 @@ fn a_station_with_both_modalities_shows_one_needle_in_both_and_the_carm_on_the_p
     };
     assert_eq!(
         r.s.views(),
-        [ViewId::Fluoroscopy, ViewId::Ultrasound, ViewId::Placement]
+        [ViewId::FLUOROSCOPY, ViewId::ULTRASOUND, ViewId::PLACEMENT]
     );
     let t = target(IN_PLANE);
     r.ok(1, transverse_over(t));
-    r.render(ViewId::Ultrasound).unwrap();
-    let before = r.render(ViewId::Placement).unwrap();
+    r.render(ViewId::ULTRASOUND).unwrap();
+    let before = r.render(ViewId::PLACEMENT).unwrap();
     // The C-arm turns 30 degrees: only the placement view (its beam) changes.
     r.ok(
         2,
@@ -543,17 +535,17 @@ fn a_station_with_both_modalities_shows_one_needle_in_both_and_the_carm_on_the_p
             table_mm: [0.0; 3],
         },
     );
-    assert!(r.render(ViewId::Ultrasound).is_none());
-    let turned = r.render(ViewId::Placement).unwrap();
+    assert!(r.render(ViewId::ULTRASOUND).is_none());
+    let turned = r.render(ViewId::PLACEMENT).unwrap();
     assert_ne!(before.pixels, turned.pixels, "the C-arm beam moved");
     // One needle: live fluoroscopy, the B-mode and the placement view all follow it.
     r.ok(3, Command::Live { on: true });
-    r.render(ViewId::Fluoroscopy).unwrap();
+    r.render(ViewId::FLUOROSCOPY).unwrap();
     let mut clock = 10;
     let entry = skin_above(t - DVec3::X * 35.0) - DVec3::Y * 2.0;
     let aim = skin_above(t - DVec3::X * 10.0) + DVec3::Y * 20.0;
     needle(&mut r, &mut clock, entry, aim, 15.0, 1);
-    for view in [ViewId::Fluoroscopy, ViewId::Ultrasound, ViewId::Placement] {
+    for view in [ViewId::FLUOROSCOPY, ViewId::ULTRASOUND, ViewId::PLACEMENT] {
         assert!(r.render(view).is_some(), "{view:?} shows the needle move");
     }
     assert_eq!(measurement(&r, "tip_visible_bool"), Some(1.0));
@@ -566,10 +558,10 @@ fn the_gpu_backend_gives_the_session_frame_of_the_reference() {
         return;
     };
     let t = target(IN_PLANE);
-    let gpu = Backends {
-        fluoro: Backends::cpu(0).fluoro,
-        ultrasound: Arc::new(GpuUltrasoundBackend { ctx }),
-    };
+    let gpu = Backends::new(
+        Backends::cpu(0).fluoro,
+        Arc::new(GpuUltrasoundBackend { ctx }),
+    );
     let mut frames = Vec::new();
     for backends in [Backends::cpu(0), gpu] {
         let mut r = Run {
@@ -584,18 +576,14 @@ fn the_gpu_backend_gives_the_session_frame_of_the_reference() {
         let entry = skin_above(t - DVec3::X * 35.0) - DVec3::Y * 2.0;
         let aim = skin_above(t - DVec3::X * 10.0) + DVec3::Y * 20.0;
         needle(&mut r, &mut clock, entry, aim, 20.0, 1);
-        frames.push(r.render(ViewId::Ultrasound).unwrap());
+        frames.push(r.render(ViewId::ULTRASOUND).unwrap());
     }
     let (cpu, gpu) = (&frames[0], &frames[1]);
     assert_eq!((cpu.width, cpu.height), (gpu.width, gpu.height));
-    let n = cpu.pixels.len() as f64;
-    let mad = cpu
-        .pixels
-        .iter()
-        .zip(&gpu.pixels)
-        .map(|(a, b)| (f64::from(*a) - f64::from(*b)).abs())
-        .sum::<f64>()
-        / n;
+    let mad = Compare::image(cpu.width as usize, cpu.height as usize)
+        .all(&gpu.pixels, &cpu.pixels)
+        .expect("frames of one size")
+        .mean_abs;
     let ncc = ncc_shifted(cpu, gpu, 0, 0);
     eprintln!("session frame GPU vs CPU: NCC {ncc}, mean |grey| {mad}");
     // The tolerances of tests/ultrasound_gpu.rs (f32 phases and the fixed-point deposit): image

@@ -12,6 +12,7 @@
 use glam::DVec3;
 use render_worker::gpu::context_for_tests;
 use render_worker::ultrasound::{GpuUltrasound, UltrasoundGpuError, layered_test_volume};
+use sim_core::compare::{Compare, ncc};
 use sim_core::ultrasound::{
     BModeFrame, CtMedium, NeedleShaft, PointTarget, ProbeKind, ProbePose, Sampling, ScanRequest,
     Settings, scan,
@@ -87,18 +88,6 @@ fn needle() -> NeedleShaft {
     }
 }
 
-fn ncc(a: &[f64], b: &[f64]) -> f64 {
-    let n = a.len() as f64;
-    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
-    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
-    for (x, y) in a.iter().zip(b) {
-        sab += (x - ma) * (y - mb);
-        saa += (x - ma) * (x - ma);
-        sbb += (y - mb) * (y - mb);
-    }
-    sab / (saa * sbb).sqrt()
-}
-
 /// The measured agreement of a GPU frame with the CPU frame.
 #[derive(Debug)]
 struct Agreement {
@@ -125,25 +114,30 @@ fn agreement(gpu: &BModeFrame, cpu: &BModeFrame) -> Agreement {
     let eb: Vec<f64> = cpu.envelope.data.iter().map(|&v| f64::from(v)).collect();
     let floor_db = -(cpu.settings.gain_db + cpu.settings.dynamic_range_db);
     let db = |v: f64| 20.0 * v.max(1e-12).log10();
-    let shown: Vec<(f64, f64)> = ea
+    let (shown_gpu, shown_cpu): (Vec<f64>, Vec<f64>) = ea
         .iter()
         .zip(&eb)
         .map(|(&a, &b)| (db(a), db(b)))
         .filter(|&(_, b)| b > floor_db)
+        .unzip();
+    let shown = Compare::values(shown_cpu.len())
+        .all(&shown_gpu, &shown_cpu)
+        .expect("paired samples");
+    let inside: Vec<bool> = gpu
+        .inside
+        .iter()
+        .zip(&cpu.inside)
+        .map(|(&g, &c)| g && c)
         .collect();
-    let n = shown.len() as f64;
-    let idx: Vec<usize> = (0..gpu.pixels.len())
-        .filter(|&i| gpu.inside[i] && cpu.inside[i])
-        .collect();
-    let ga: Vec<f64> = idx.iter().map(|&i| f64::from(gpu.pixels[i])).collect();
-    let gb: Vec<f64> = idx.iter().map(|&i| f64::from(cpu.pixels[i])).collect();
+    let grey = Compare::image(cpu.width, cpu.height)
+        .masked(&gpu.pixels, &cpu.pixels, &inside)
+        .expect("frames of one size");
     Agreement {
         envelope_ncc: ncc(&ea, &eb),
-        mean_abs_db: shown.iter().map(|(a, b)| (a - b).abs()).sum::<f64>() / n,
-        mean_db: shown.iter().map(|(a, b)| a - b).sum::<f64>() / n,
-        image_ncc: ncc(&ga, &gb),
-        mean_abs_grey: ga.iter().zip(&gb).map(|(a, b)| (a - b).abs()).sum::<f64>()
-            / ga.len() as f64,
+        mean_abs_db: shown.mean_abs,
+        mean_db: shown.mean_signed,
+        image_ncc: grey.ncc,
+        mean_abs_grey: grey.mean_abs,
     }
 }
 

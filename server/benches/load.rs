@@ -27,6 +27,7 @@ use serde_json::{Value, json};
 use server::dispatch::Dispatcher;
 use server::records::config::Argon2Cost;
 use server::{AppState, Config, app, workers::Workers};
+use sim_core::stats::{percentile_of_sorted, sorted};
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 
@@ -151,13 +152,6 @@ async fn run_session(
     figures
 }
 
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    sorted[((p / 100.0) * (sorted.len() - 1) as f64).round() as usize]
-}
-
 /// Runs the rows of one renderer: a server whose in-process worker renders with `backends`.
 async fn bench_backend(
     name: &str,
@@ -260,14 +254,14 @@ async fn bench_backend(
             fps += f.frames as f64 / f.seconds.max(1e-9);
             all.extend(f.latencies_ms);
         }
-        all.sort_by(f64::total_cmp);
+        let all = sorted(all);
         println!(
             "| {name} | {n} | {} | {frames} | {:.1} | {:.1} | {:.1} | {:.1} |",
             all.len(),
             fps / n as f64,
-            percentile(&all, 50.0),
-            percentile(&all, 99.0),
-            all.last().copied().unwrap_or(f64::NAN)
+            percentile_of_sorted(&all, 50.0),
+            percentile_of_sorted(&all, 99.0),
+            percentile_of_sorted(&all, 100.0)
         );
     }
     // Session threads release their GPU resources before the process exits.

@@ -8,16 +8,29 @@
 use std::io::BufRead;
 use std::process::ExitCode;
 
-use crate::Config;
+use crate::config::Config;
 use crate::records::users::{CreateUserError, create_admin};
 
+/// Why the arguments of `create-admin` are not understood.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum UsageError {
+    /// `--email` without its address.
+    #[error("--email needs an address")]
+    MissingAddress,
+    /// Anything else than one `--email` option.
+    #[error(
+        "usage: server create-admin --email ADDRESS  (password from PAINSIM_ADMIN_PASSWORD or stdin)"
+    )]
+    Usage,
+}
+
 /// Parses `--email ADDRESS` (or `--email=ADDRESS`).
-pub fn parse_email(args: &[String]) -> Result<String, String> {
+pub fn parse_email(args: &[String]) -> Result<String, UsageError> {
     match args {
         [one] if one.starts_with("--email=") => Ok(one["--email=".len()..].to_owned()),
         [flag, address] if flag == "--email" => Ok(address.clone()),
-        [flag] if flag == "--email" => Err("--email needs an address".to_owned()),
-        _ => Err("usage: server create-admin --email ADDRESS  (password from PAINSIM_ADMIN_PASSWORD or stdin)".into()),
+        [flag] if flag == "--email" => Err(UsageError::MissingAddress),
+        _ => Err(UsageError::Usage),
     }
 }
 
@@ -30,9 +43,9 @@ pub fn create_admin_main(args: &[String]) -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let password = match std::env::var("PAINSIM_ADMIN_PASSWORD") {
-        Ok(p) => p,
-        Err(_) => {
+    let password = match crate::config::admin_password(crate::config::env) {
+        Some(p) => p,
+        None => {
             eprintln!("password for {email} (one line on standard input):");
             let mut line = String::new();
             if std::io::stdin().lock().read_line(&mut line).is_err() {
@@ -84,15 +97,21 @@ pub fn create_admin_main(args: &[String]) -> ExitCode {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_email;
+    use super::{UsageError, parse_email};
 
     #[test]
     fn email_argument_forms() {
         let s = |v: &[&str]| v.iter().map(|x| x.to_string()).collect::<Vec<_>>();
         assert_eq!(parse_email(&s(&["--email", "a@b.c"])).unwrap(), "a@b.c");
         assert_eq!(parse_email(&s(&["--email=a@b.c"])).unwrap(), "a@b.c");
-        assert!(parse_email(&s(&[])).is_err());
-        assert!(parse_email(&s(&["--email"])).is_err());
-        assert!(parse_email(&s(&["--password", "x"])).is_err());
+        assert_eq!(parse_email(&s(&[])), Err(UsageError::Usage));
+        assert_eq!(
+            parse_email(&s(&["--email"])),
+            Err(UsageError::MissingAddress)
+        );
+        assert_eq!(
+            parse_email(&s(&["--password", "x"])),
+            Err(UsageError::Usage)
+        );
     }
 }

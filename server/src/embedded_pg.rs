@@ -160,7 +160,7 @@ fn run_as() -> Result<Option<RunAs>, EmbeddedPgError> {
     if !is_root() {
         return Ok(None);
     }
-    let user = std::env::var("PAINSIM_PG_USER").unwrap_or_else(|_| "postgres".to_owned());
+    let user = crate::config::embedded_pg_user(crate::config::env);
     let passwd = fs::read_to_string("/etc/passwd").map_err(io_err("reading /etc/passwd"))?;
     passwd
         .lines()

@@ -64,6 +64,17 @@ pub enum ApiError {
     /// Any other internal error: logged, shown to the client as `internal`.
     #[error("internal error")]
     Internal(String),
+    /// A failure that one protocol area words itself (an LRS precondition, a refused LTI launch):
+    /// the area's error enum converts into this, so that its response is built here like any.
+    #[error("{message}")]
+    Protocol {
+        /// Its status.
+        status: StatusCode,
+        /// Its stable machine-readable code.
+        code: &'static str,
+        /// What the client is told.
+        message: String,
+    },
 }
 
 #[derive(Serialize)]
@@ -92,6 +103,7 @@ impl ApiError {
             ApiError::TooManyRequests(_) => (StatusCode::TOO_MANY_REQUESTS, "too_many_requests"),
             ApiError::Unavailable(_) => (StatusCode::SERVICE_UNAVAILABLE, "unavailable"),
             ApiError::Database(_) | ApiError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
+            ApiError::Protocol { status, code, .. } => (*status, code),
         }
     }
 }

@@ -73,12 +73,12 @@ pub fn app(state: AppState) -> Router {
         .with_state(state)
 }
 
-/// The dispatcher attached to `state`, else the default from the environment and the learning
-/// records' stations folder.
+/// The dispatcher attached to `state`, else the default from its configuration.
 fn dispatcher_for(state: &AppState) -> dispatch::Dispatcher {
     dispatch::Dispatcher::for_app(
         state.dispatcher.as_ref(),
         &state.workers,
-        state.config.records.stations_dir.clone(),
+        &state.config.dispatch,
+        &state.config.records.stations_dir,
     )
 }

@@ -81,9 +81,10 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
     let dispatcher = crate::dispatch::Dispatcher::for_app(
         state.dispatcher.as_ref(),
         &state.workers,
-        state.config.records.stations_dir.clone(),
+        &state.config.dispatch,
+        &state.config.records.stations_dir,
     );
-    if crate::dispatch::DispatchConfig::from_env(config.records.stations_dir.clone()).prepare_at_start {
+    if config.dispatch.prepare_at_start {
         dispatcher.prepare_in_background();
     }
     let local_sessions = dispatcher.local_host().cloned();

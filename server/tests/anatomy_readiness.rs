@@ -13,6 +13,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use render_worker::cluster::request_with_headers;
+use render_worker::session::loader::RegionLoadError;
 use render_worker::session::region::Region;
 use render_worker::session::{Backends, HostConfig, SessionConfig, SessionHost, sha256_hex};
 use serde_json::{Value, json};
@@ -124,7 +125,10 @@ async fn first_session_request_answers_at_once_while_the_phantom_builds() {
                 &PhantomParams::with_voxel_mm(4.0),
                 progress,
             )
-            .map_err(|e| e.to_string())?;
+            .map_err(|source| RegionLoadError::Asset {
+                name: name.to_string(),
+                source,
+            })?;
             Ok(Region::from_asset(&asset))
         },
         Backends::cpu(0),

@@ -899,8 +899,8 @@ async fn idle_sessions_are_closed_only_without_a_connection_and_then_resume() {
     );
 }
 
-/// A browser message over the relay's limit closes the socket with 1009 and a reason (issue 20,
-/// point 8; the library default accepted 64 MiB), nothing of it is applied, and a reconnect
+/// A browser message over the relay's limit closes the socket with 1009 and a reason (the
+/// library default accepted 64 MiB), nothing of it is applied, and a reconnect
 /// carries on with the same session.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_oversized_message_closes_the_socket_with_1009_and_the_session_goes_on() {
@@ -940,7 +940,7 @@ async fn an_oversized_message_closes_the_socket_with_1009_and_the_session_goes_o
     ws.until(&mut got, |r| acked(r) == vec![1]).await;
 }
 
-/// One learner cannot take the render worker from everyone (issue 20, point 2): a third live
+/// One learner cannot take the render worker from everyone: a third live
 /// session is refused with 429 naming the limit, the running ones are still returned, another
 /// learner still gets a session, and `/healthz` reports the free slots.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -1,4 +1,4 @@
-//! Sessions under hostile or absent clients (issue 20, points 2 and 3): bursts of commands with
+//! Sessions under hostile or absent clients: bursts of commands with
 //! and without reading, a log write the database refuses for good, the relay after a submit
 //! whose client left, idle sessions with their socket open, and the per-course limit. All
 //! against the real database and the in-process worker on the demo station.
@@ -151,7 +151,7 @@ async fn refuse_log_writes(srv: &DemoServer, when: &str, errcode: &str) {
     }
 }
 
-/// Issue 20, point 3: 10,000 commands sent in one go without reading (before: about 80 applied,
+/// 10,000 commands sent in one go without reading (before: about 80 applied,
 /// then the connection stalled), then read: every command is answered, in order (acknowledged,
 /// or refused naming the field), in bounded time, and the session takes another command.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -236,7 +236,7 @@ async fn a_burst_of_10000_commands_read_while_sending_is_answered_in_order() {
     ws.until(&mut got, |r| acked(r) == [N + 1]).await;
 }
 
-/// Issue 20, point 3: a log write the database refuses for good (here a trigger of the test's
+/// A log write the database refuses for good (here a trigger of the test's
 /// database stands for any permanent error) is not retried for ever: the session ends with close
 /// code 1011 and a reason, an audit entry is written, its worker slot is freed, the refused
 /// command was never acknowledged, and the attempt resumes from what was stored.
@@ -314,7 +314,7 @@ async fn a_transient_log_write_failure_is_retried_and_then_acknowledged() {
     assert!(retried >= 3, "refused twice, then stored: {retried}");
 }
 
-/// Issue 20, point 3: after a submit, a client that has gone does not keep the relay and its
+/// After a submit, a client that has gone does not keep the relay and its
 /// worker slot.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn after_a_submit_whose_client_left_the_slot_is_freed() {
@@ -333,7 +333,7 @@ async fn after_a_submit_whose_client_left_the_slot_is_freed() {
     assert_eq!(detail["attempt"]["state"], "submitted", "{detail}");
 }
 
-/// Issue 20, point 2: a session that gets no command for the idle limit is closed even with its
+/// A session that gets no command for the idle limit is closed even with its
 /// websocket open (close code 4001 and a reason), audited, its slot freed; commands keep it
 /// open; the attempt resumes from its log.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -371,7 +371,7 @@ async fn a_connected_session_without_commands_is_closed_as_idle_and_resumes() {
     );
 }
 
-/// Issue 20, point 2: one course cannot take the render worker from the others: at the
+/// One course cannot take the render worker from the others: at the
 /// per-course limit a new session is refused with 429 naming the course limit, even for a user
 /// under the per-user limit, while a session in another course still opens.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -1,4 +1,4 @@
-//! Websocket fuzzing of the session relay (issue 20, point 10, the websocket half): malformed
+//! Websocket fuzzing of the session relay (the websocket half of the fuzzing): malformed
 //! JSON, oversized messages, out-of-range and wrong-typed values, unknown fields, seeded random
 //! mutations of valid commands, and bursts of bad input with and without reading. Every bad
 //! input gets an error naming the field (or, for an oversized message, close code 1009), nothing

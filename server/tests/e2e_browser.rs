@@ -214,7 +214,7 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
         "keyboard and drag rotated the C-arm: {report:#}"
     );
     // The needle went in at a skin marker dragged on the image, and the feeds report the force
-    // on the hub (issue 19).
+    // on the hub.
     assert!(
         report["marker_text"]
             .as_str()

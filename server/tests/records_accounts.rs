@@ -1,4 +1,4 @@
-//! Account management (issue 20, point 5): changing one's password, an admin disabling an
+//! Account management: changing one's password, an admin disabling an
 //! account (its sessions revoked at once) and enabling it again, and an admin-started password
 //! reset completed with a one-time token.
 

@@ -19,8 +19,8 @@ fn cookies(r: &crate::records_support::Response) -> Vec<String> {
 async fn cookies_expiry_rotation_and_logout() {
     let app = TestApp::new(&[
         ("PAINSIM_COOKIE_SECURE", "true"),
-        ("PAINSIM_SESSION_IDLE_SECS", "600"),
-        ("PAINSIM_SESSION_ABSOLUTE_SECS", "3600"),
+        ("PAINSIM_LOGIN_IDLE_SECS", "600"),
+        ("PAINSIM_LOGIN_ABSOLUTE_SECS", "3600"),
     ])
     .await;
     app.user("u@example.org", Role::Learner).await;
@@ -374,7 +374,7 @@ async fn an_edited_published_station_revision_is_refused() {
     assert_eq!(revisions, 2);
 }
 
-/// Failures are throttled per client and account together (issue 20, point 5): a client that
+/// Failures are throttled per client and account together: a client that
 /// guesses wrong is throttled for that account, but the real user on another client still logs
 /// in, and the attacker is not throttled on other accounts either.
 #[tokio::test]

@@ -1,4 +1,4 @@
-//! Demo accounts (published passwords) only where they are safe (issue 20, point 6): on a
+//! Demo accounts (published passwords) only where they are safe: on a
 //! loopback bind with the embedded database, or when asked for explicitly; never by default on
 //! a public bind, and start-up says which.
 

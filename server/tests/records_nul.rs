@@ -1,4 +1,4 @@
-//! NUL in client text or JSON (issue 20, point 4): PostgreSQL stores no NUL in text or jsonb,
+//! NUL in client text or JSON: PostgreSQL stores no NUL in text or jsonb,
 //! so every body holding one is refused with 400 naming the field, never a 500.
 
 use axum::http::{Method, StatusCode};

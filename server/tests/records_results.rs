@@ -1,4 +1,4 @@
-//! The result path from a simulation session (issues 14 and 20): the server's rubric evaluation
+//! The result path from a simulation session: the server's rubric evaluation
 //! is the authority, a worker whose own evaluation differs stores nothing, impossible
 //! measurements are refused, and no client of any role can post a result.
 

@@ -1,5 +1,5 @@
-//! Security headers on every response and a JSON 404 for unknown API paths (issue 20, points 7
-//! and 8): one test per header, over the web client's page, a public API route, an
+//! Security headers on every response and a JSON 404 for unknown API paths: one test per
+//! header, over the web client's page, a public API route, an
 //! authenticated API route and an error.
 
 use axum::http::{Method, StatusCode};

@@ -1,6 +1,7 @@
 //! Integration tests of the server against a real PostgreSQL, one module per area.
 
 mod anatomy_readiness;
+mod configuration;
 mod dispatch;
 mod dispatch_hardening;
 mod dispatch_ws_fuzz;
@@ -8,6 +9,7 @@ mod e2e_browser;
 mod embedded;
 mod health;
 mod lti_flow;
+mod modality_extension;
 mod openapi_fuzz;
 mod process;
 mod records_accounts;
@@ -31,5 +33,10 @@ mod xapi_forward;
 mod xapi_platform;
 mod xapi_platform_outbox;
 mod xapi_documents;
+mod xapi_documents_bad_input;
+mod xapi_documents_concurrency;
 mod xapi_documents_resources;
+mod xapi_documents_scopes;
+mod xapi_documents_support;
+mod xapi_query_params;
 mod xapi_support;

@@ -1,12 +1,10 @@
-//! The Agents and Activities resources of the LRS, and the authorization matrix of the document
-//! resources (split from `xapi_documents.rs`, whose helpers they use).
-
-#![allow(clippy::wildcard_imports)]
+//! The Agents and Activities resources of the LRS, the authorization matrix of every route of
+//! these and the document resources, and the body limit of document writes.
 
 use axum::http::{Method, StatusCode};
 use serde_json::{Value, json};
 
-use crate::xapi_documents::*;
+use crate::xapi_documents_support::{ACTIVITY, exchange, get_json, mbox_agent, query, state_uri};
 use crate::xapi_support::{Cred, Lrs};
 
 #[tokio::test]

@@ -592,7 +592,7 @@ async fn the_platform_stores_statements_in_its_own_transaction() {
     let e = server::xapi::statements::store::insert_statements(&mut conn, vec![s], &authority)
         .await
         .unwrap_err();
-    assert!(matches!(e, server::xapi::XapiError::Conflict(_)), "{e:?}");
+    assert!(matches!(e, server::ApiError::Conflict(_)), "{e:?}");
     let g = get(&lrs, &format!("statementId={}", ids[0])).await;
     assert_eq!(g.json["authority"], authority);
 }

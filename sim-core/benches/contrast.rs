@@ -20,6 +20,7 @@ use sim_core::contrast::{
     Multigrid, NeedleOutlet, StopRule,
 };
 use sim_core::rng::SplitMix64;
+use sim_core::stats::median;
 use sim_core::volume::VolumeGrid;
 
 /// Bytes per cell of one Jacobi-PCG iteration: matvec 48 (4 stencil arrays, x, y), two updates
@@ -122,14 +123,12 @@ fn solver_rows(n: usize, reps: usize, triad: f64) {
             iters = s.iterations;
             assert!(s.converged, "{name} {n}: {s:?}");
         }
-        times.sort_by(f64::total_cmp);
-        setup.sort_by(f64::total_cmp);
-        let t = times[times.len() / 2];
+        let t = median(&times);
         let per_it = t / iters as f64;
         let floor = bytes * cells / (triad * 1e9);
         println!(
             "| {n}^3 | {name} | {iters} | {:.3} | {:.3} | {:.2} | {:.2} | {:.1} |",
-            setup[setup.len() / 2],
+            median(&setup),
             t,
             per_it * 1e3,
             floor * 1e3,

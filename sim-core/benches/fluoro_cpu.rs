@@ -1,4 +1,4 @@
-//! CPU fluoroscopy reference: frame time against error for the analytic sphere phantom (issue 4).
+//! CPU fluoroscopy reference: frame time against error for the analytic sphere phantom.
 //!
 //! For each mesh resolution (icosphere subdivisions, volume-matched) and image size it prints the
 //! scene build time (icospheres and BVHs), the chord pass (one ray per pixel), a full 80 kVp

@@ -8,16 +8,13 @@
 //!
 //! `BENCH_QUICK=1` runs fewer repetitions (CI).
 
-mod common;
-
 use std::hint::black_box;
-
-use common::median_seconds;
 
 use glam::DVec3;
 use sim_core::geom::Bvh;
 use sim_core::mesh::TriMesh;
 use sim_core::needle::{BoneSurface, InitialResponse, InstrumentProfile, NeedleState, NoBone};
+use sim_core::stats::Timing;
 
 fn insert_100mm(substep_mm: f64, bone: &dyn BoneSurface) -> DVec3 {
     let mut st = NeedleState::new(
@@ -57,12 +54,14 @@ fn main() {
             "the untouched bone must not change the path"
         );
         let err = tip.distance(reference);
-        let t_free = median_seconds(reps, || {
+        let t_free = Timing::run(reps, || {
             black_box(insert_100mm(black_box(h), &NoBone));
-        });
-        let t_bone = median_seconds(reps, || {
+        })
+        .median_s();
+        let t_bone = Timing::run(reps, || {
             black_box(insert_100mm(black_box(h), &bone));
-        });
+        })
+        .median_s();
         let steps = (20.0 / h).ceil() + (80.0 / h).ceil();
         println!(
             "| {h} | {steps} | {err:.3e} | {:.1} | {:.1} |",

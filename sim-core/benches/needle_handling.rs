@@ -10,14 +10,11 @@
 //!
 //! `BENCH_QUICK=1` runs fewer repetitions (CI).
 
-mod common;
-
 use std::hint::black_box;
-
-use common::median_seconds;
 
 use sim_core::fluoro::dose::{DoseExposure, air_kerma_ugy_per_mas_at_1m, incident_dose};
 use sim_core::needle::{ForceModel, ForceState, LayerStack, LorMedium, LorSyringe, Tissue};
+use sim_core::stats::Timing;
 
 fn path() -> LayerStack {
     LayerStack::new(vec![
@@ -72,9 +69,10 @@ fn main() {
     println!("|---:|---:|---:|---:|---:|");
     for h in [2.0, 1.0, 0.5, 0.25, 0.1] {
         let (pop_at, loss_at) = insert_100mm(&stack, &model, h);
-        let t = median_seconds(reps, || {
+        let t = Timing::run(reps, || {
             black_box(insert_100mm(&stack, &model, black_box(h)));
-        });
+        })
+        .median_s();
         println!(
             "| {h} | {} | {:.2} | {:.2} | {:.1} |",
             (100.0 / h).round(),
@@ -86,9 +84,10 @@ fn main() {
     println!();
     // The kerma sum: 119 bins, tables parsed once before timing.
     let k80 = air_kerma_ugy_per_mas_at_1m(80).unwrap_or(f64::NAN);
-    let t_sum = median_seconds(reps, || {
+    let t_sum = Timing::run(reps, || {
         black_box(air_kerma_ugy_per_mas_at_1m(black_box(80)));
-    });
+    })
+    .median_s();
     let e = DoseExposure {
         kvp: 82.5,
         ma: 2.0,
@@ -97,9 +96,10 @@ fn main() {
         field_area_at_detector_mm2: 40_000.0,
         source_to_detector_mm: 1000.0,
     };
-    let t_dose = median_seconds(reps, || {
+    let t_dose = Timing::run(reps, || {
         black_box(incident_dose(black_box(&e)));
-    });
+    })
+    .median_s();
     println!("| dose | result | time (us) |");
     println!("|---|---:|---:|");
     println!(

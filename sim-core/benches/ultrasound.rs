@@ -10,13 +10,11 @@
 //!
 //! `BENCH_QUICK=1` runs one repetition and a shorter list (CI, under 5 s).
 
-mod common;
-
 use std::hint::black_box;
 
-use common::median_seconds;
-
 use glam::DVec3;
+use sim_core::compare::Compare;
+use sim_core::stats::Timing;
 use sim_core::ultrasound::tissue::{CORTICAL_BONE, FAT, MUSCLE};
 use sim_core::ultrasound::{
     AcousticMedium, AcousticProps, BModeFrame, NeedleShaft, ProbeKind, ProbePose, Sampling,
@@ -38,24 +36,16 @@ impl AcousticMedium for Layers {
 }
 
 fn errors(a: &BModeFrame, reference: &BModeFrame) -> (f64, f64) {
-    let idx: Vec<usize> = (0..a.pixels.len())
-        .filter(|&i| a.inside[i] && reference.inside[i])
-        .collect();
-    let n = idx.len() as f64;
-    let va: Vec<f64> = idx.iter().map(|&i| f64::from(a.pixels[i])).collect();
-    let vb: Vec<f64> = idx
+    let inside: Vec<bool> = a
+        .inside
         .iter()
-        .map(|&i| f64::from(reference.pixels[i]))
+        .zip(&reference.inside)
+        .map(|(&p, &q)| p && q)
         .collect();
-    let (ma, mb) = (va.iter().sum::<f64>() / n, vb.iter().sum::<f64>() / n);
-    let (mut sab, mut saa, mut sbb, mut mad) = (0.0, 0.0, 0.0, 0.0);
-    for (x, y) in va.iter().zip(&vb) {
-        sab += (x - ma) * (y - mb);
-        saa += (x - ma) * (x - ma);
-        sbb += (y - mb) * (y - mb);
-        mad += (x - y).abs();
-    }
-    (sab / (saa * sbb).sqrt(), mad / n)
+    let d = Compare::image(reference.width, reference.height)
+        .masked(&a.pixels, &reference.pixels, &inside)
+        .expect("frames on one pixel grid");
+    (d.ncc, d.mean_abs)
 }
 
 fn main() {
@@ -134,9 +124,10 @@ fn main() {
             };
             let frame = scan(&req(sampling)).expect("valid request");
             let (ncc, mad) = errors(&frame, &reference);
-            let t = median_seconds(reps, || {
+            let t = Timing::run(reps, || {
                 black_box(scan(black_box(&req(sampling))).expect("valid request"));
-            });
+            })
+            .median_s();
             println!(
                 "| {lines} | {samples} | {march} | {:.1} | {ncc:.3} | {mad:.2} |",
                 t * 1e3
@@ -149,9 +140,10 @@ fn main() {
             pose: ProbePose::from_rotation(DVec3::ZERO, DVec3::new(0.1, 0.2, 1.0), 17.0),
             ..req(Sampling { lines: 256, ..base })
         };
-        let t = median_seconds(reps, || {
+        let t = Timing::run(reps, || {
             black_box(scan(black_box(&oblique)).expect("valid request"));
-        });
+        })
+        .median_s();
         println!();
         println!(
             "Oblique pose (beam (0.1, 0.2, 1), 17 degrees), 256 lines: {:.1} ms",

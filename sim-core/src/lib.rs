@@ -14,6 +14,7 @@
 //! ```
 
 pub mod anatomy;
+pub mod compare;
 pub mod contrast;
 pub mod fluoro;
 pub mod geom;
@@ -23,5 +24,6 @@ pub mod mesh;
 pub mod needle;
 pub mod rng;
 pub mod rubric;
+pub mod stats;
 pub mod ultrasound;
 pub mod volume;

@@ -202,7 +202,10 @@ fn analytic_sphere_and_box_are_meshed_where_they_are() {
                 mesh.triangles.len(),
                 100.0 * vol_err
             );
-            // Thresholds from the issue: mean distance under 0.1 voxel, volume error under 1 %.
+            // Mean distance under 0.1 voxel, volume error under 1 %: Simulator choice, well under
+            // the half voxel a binary mask's surface is uncertain by, so meshing adds nothing
+            // comparable to the segmentation's own error (measured at most 0.077 voxel and 0.72 %,
+            // in the table this test prints).
             assert!(mean < 0.1, "{name} x{upsample}: mean distance {mean} voxel");
             assert!(
                 vol_err.abs() < 0.01,
@@ -337,7 +340,9 @@ fn check_bone(
         s.mask_volume_mm3
     );
     let rel = (v - mask_volume) / mask_volume;
-    // Issue threshold: mesh volume within 5 % of the mask volume.
+    // Mesh volume within 5 % of the mask volume. Simulator choice: room for the smoothing and
+    // decimation that shrink convex parts (measured at most 2.23 %, L2 smoothed and decimated,
+    // in the tables the tests print), while a lost or spurious part of a bone is more.
     assert!(
         rel.abs() < 0.05,
         "{name}: mesh volume {v} vs mask {mask_volume} ({:.2}%)",
@@ -350,8 +355,9 @@ fn check_bone(
             .max((mlo[a] - lo[a]).abs())
             .max((mhi[a] - hi[a]).abs());
     }
-    // Issue threshold: bounding boxes within one voxel. (A binary mask's surface lies half a
-    // voxel outside its extreme voxel centres.)
+    // Bounding boxes within one voxel. Simulator choice: a binary mask's surface lies half a
+    // voxel outside its extreme voxel centres, and smoothing may move it by as much again
+    // (measured 1.5 mm at 3 mm voxels, 2.48 mm for the smoothed sacrum).
     assert!(
         worst <= voxel_mm + 1e-6,
         "{name}: mesh box {mlo:?}..{mhi:?} vs mask centres {lo:?}..{hi:?}"

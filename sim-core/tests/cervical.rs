@@ -1,4 +1,4 @@
-//! The procedural cervical phantom (issue 18): landmarks where their names say, the vertebral
+//! The procedural cervical phantom: landmarks where their names say, the vertebral
 //! arteries in their foramina transversaria, the cord in the sac, a morphometry table against the
 //! published means, and closed meshes from the shared pipeline.
 

@@ -1,4 +1,4 @@
-//! Contrast transport (issue 16): solver convergence, the face law, conservation and bounds
+//! Contrast transport: solver convergence, the face law, conservation and bounds
 //! under a long random soak, saline after contrast, domain patterns and input refusal.
 
 use sim_core::contrast::grid::DISPERSION_MM2_S;
@@ -237,8 +237,8 @@ fn layered_grid(nx: usize, ny: usize, nz: usize) -> ContrastGrid {
 fn check_state(m: &ContrastModel, what: &str) {
     let retained = m.retained_mm3();
     let err = m.ledger().balance_error(retained);
-    // 1e-9: the issue's bound; each exchange is added to one cell and subtracted from another,
-    // so only summation round-off (~1e-16 per operation) accumulates.
+    // 1e-9: Simulator choice, a bound for round-off only. Each exchange is added to one cell and
+    // subtracted from another, so only summation round-off (~1e-16 per operation) accumulates.
     assert!(
         err < 1e-9,
         "{what}: balance error {err} ({:?}, retained {retained})",

@@ -1,4 +1,4 @@
-//! The shipped real-CT lumbar region (`assets/lumbar-ct`, issue 18) against the masks it was
+//! The shipped real-CT lumbar region (`assets/lumbar-ct`) against the masks it was
 //! built from (`shared/data/anatomy/totalseg_example_abdomen_pelvis/segmentations_v1`): vertebra
 //! mesh volumes and positions, landmarks inside the structures they name, and bone never given
 //! to an authored soft tissue.
@@ -21,8 +21,10 @@ fn region() -> RegionAsset {
 }
 
 /// L1-L5: mesh volume within 5 % of the mask's voxel volume and mesh volume centroid within
-/// 0.1 voxel of the centroid of the mask's voxel centres (both thresholds from issue 18's
-/// "done when"), measured against the source masks, not the asset's own record.
+/// 0.1 voxel of the centroid of the mask's voxel centres, measured against the source masks, not
+/// the asset's own record. Simulator choice: the thresholds the mesher's own tests hold the same
+/// masks and the analytic shapes to (`tests/anatomy.rs`); measured -1.16 to -1.45 % and 0.041
+/// to 0.069 voxel (in the table this test prints).
 #[test]
 fn vertebra_meshes_match_their_source_masks() {
     let region = region();

@@ -2,7 +2,8 @@
 //! population means and standard deviations.
 
 use sim_core::anatomy::phantom::morphometry::{
-    MEAN_ONLY_TOLERANCE, Measured, SOURCES, compare, measure, table_markdown,
+    MEAN_ONLY_TOLERANCE, Measured, MorphometryError, PUBLISHED, SOURCES, compare, measure,
+    table_markdown,
 };
 use sim_core::anatomy::asset::RegionAsset;
 use sim_core::anatomy::phantom::{self, PhantomParams};
@@ -27,8 +28,9 @@ fn measured() -> &'static [Measured] {
     M.get_or_init(|| measure(default_phantom()).expect("every dimension measurable"))
 }
 
-/// Every published dimension: within two standard deviations of its mean (the bar), or
-/// within `MEAN_ONLY_TOLERANCE` of a mean published without one.
+/// Every published dimension: within two standard deviations of its mean (Simulator choice: the
+/// range of about 95 % of a normally distributed population, so every level is an ordinary
+/// adult's), or within `MEAN_ONLY_TOLERANCE` of a mean published without one.
 #[test]
 fn every_dimension_is_within_two_sd_of_its_published_mean() {
     let rows = compare(measured()).expect("every reference has a measurement");
@@ -59,4 +61,19 @@ fn every_level_is_measured_on_the_meshes() {
             assert!(x.value.is_finite() && x.value > lo && x.value < hi, "{level} {:?} = {}", x.dimension, x.value);
         }
     }
+}
+
+/// A published reference without a measurement is named in the error, not skipped.
+#[test]
+fn a_reference_without_a_measurement_is_named() {
+    let first = &PUBLISHED[0];
+    let err = compare(&[]).unwrap_err();
+    assert_eq!(
+        err,
+        MorphometryError::NoMeasurement {
+            level: first.level,
+            dimension: first.dimension,
+        }
+    );
+    assert!(err.to_string().contains(first.level), "{err}");
 }

@@ -1,4 +1,4 @@
-//! Hub tilt, partial withdrawal and redirection (issue 19): the transmitted tip turn, branching
+//! Hub tilt, partial withdrawal and redirection: the transmitted tip turn, branching
 //! from the old channel, the deviation limit, the redirection count on scripted paths, a soak of
 //! random commands and bit-identical replay.
 

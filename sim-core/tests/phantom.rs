@@ -553,11 +553,12 @@ fn default_parameters_build() {
     }
 }
 
-/// Issue 18: the default AP shot of the L4-L5 stations (the session's C-arm: AP, isocentre at
-/// `L4_body_centre`, 512 pixels over a 300 mm detector) showed a sharp horizontal step through
-/// both flanks at mid-height, in every view: the iliac wings were bowls cut by a horizontal
-/// plane, whose level rim projects to one straight edge across the field. The body and its
-/// bones continue above and below the field, so nothing in the flanks may end at one height.
+/// A regression guard: the default AP shot of the L4-L5 stations (the session's C-arm: AP,
+/// isocentre at `L4_body_centre`, 512 pixels over a 300 mm detector) once showed a sharp
+/// horizontal step through both flanks at mid-height, in every view: the iliac wings were bowls
+/// cut by a horizontal plane, whose level rim projects to one straight edge across the field.
+/// The body and its bones continue above and below the field, so nothing in the flanks may end
+/// at one height.
 ///
 /// The flanks are the outer 120 columns on each side (beyond 39 mm from the midline at the
 /// isocentre: psoas, erector spinae, transverse-process tips and the iliac wings; the vertebral

@@ -462,8 +462,8 @@ fn invalid_stations_are_rejected_with_the_rule_they_break() {
             "modality",
         ),
         (
-            station_toml(0.5, &ok_crit).replace("\"fluoroscopy\"", "\"xray\""),
-            "unknown variant `xray`",
+            station_toml(0.5, &ok_crit).replace("\"fluoroscopy\"", "\"X-ray\""),
+            "modality \"X-ray\" must be lower-case snake case",
         ),
         (
             station_toml(0.5, &ok_crit).replace("test-station", "Test Station"),
@@ -570,7 +570,9 @@ fn invalid_stations_are_rejected_with_the_rule_they_break() {
         let is_parse = matches!(err, StationError::Parse { .. });
         assert_eq!(
             is_parse,
-            fragment.contains("field") || fragment.contains("variant"),
+            fragment.contains("field")
+                || fragment.contains("variant")
+                || fragment.contains("snake case"),
             "row {i}"
         );
     }
@@ -819,7 +821,7 @@ fn impossible_measurements_are_refused_not_scored() {
         assert_ne!(r.outcome, Outcome::Met, "{key} = {bad}");
         assert!(r.incomplete_criteria.contains(&c.id), "{key} = {bad}");
         let e = sim_core::rubric::check_measurements(&m).unwrap_err();
-        assert!(e.contains(key), "{e}");
+        assert!(e.to_string().contains(key), "{e}");
     }
     // Keys no criterion reads are checked by their suffix as well.
     let mut m = measure(&good);
@@ -827,7 +829,31 @@ fn impossible_measurements_are_refused_not_scored() {
     assert!(
         sim_core::rubric::check_measurements(&m)
             .unwrap_err()
+            .to_string()
             .contains("needle_depth_mm")
+    );
+    // The error says which rule the value breaks: not a number at all, or outside the range.
+    use sim_core::rubric::{RangeError, Unit, check_value};
+    assert_eq!(
+        check_value("tip_to_target_mm", Unit::Mm, f64::INFINITY),
+        Err(RangeError::NonFinite {
+            key: "tip_to_target_mm".into(),
+            value: f64::INFINITY
+        })
+    );
+    assert_eq!(
+        check_value("tip_to_target_mm", Unit::Mm, -0.5),
+        Err(RangeError::OutOfRange {
+            key: "tip_to_target_mm".into(),
+            value: -0.5,
+            range: "0 to 1000 mm"
+        })
+    );
+    assert_eq!(
+        check_value("tip_to_target_mm", Unit::Mm, -0.5)
+            .unwrap_err()
+            .to_string(),
+        "tip_to_target_mm: -0.5 is outside the physical range 0 to 1000 mm"
     );
 }
 

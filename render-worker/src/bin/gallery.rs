@@ -58,10 +58,10 @@ fn run(args: &[String]) -> Result<(), String> {
     let settings = gallery::settings(0);
     for name in &regions {
         let t = Instant::now();
-        let region = load_region(&assets, name, &mut |p| eprintln!("{name}: {p:?}"))?;
+        let region = load_region(&assets, name, &mut |p| eprintln!("{name}: {p:?}")).map_err(|e| e.to_string())?;
         let loaded = t.elapsed();
-        let shots = gallery::shots(&region, &settings)?;
-        for path in gallery::write(&region, &shots, &out)? {
+        let shots = gallery::shots(&region, &settings).map_err(|e| e.to_string())?;
+        for path in gallery::write(&region, &shots, &out).map_err(|e| e.to_string())? {
             println!("{}", path.display());
         }
         eprintln!("{name}: loaded in {loaded:.1?}, rendered {} views in {:.1?}", shots.len(), t.elapsed() - loaded);

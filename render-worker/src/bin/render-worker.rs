@@ -1,35 +1,36 @@
 //! The `render-worker` process: hosts training sessions over HTTP and websockets (see
 //! `render_worker::session::http`) and reports health at `GET /healthz`.
 //!
-//! Environment: `RENDER_WORKER_BIND` (default `127.0.0.1:8081`), `RENDER_WORKER_ASSETS` (region
-//! folders and `stations/`, default `assets`), `RENDER_WORKER_CAPACITY` (sessions, default 8).
-//! With `RENDER_WORKER_REGISTER_URL` (the server's `/api/workers`) and `RENDER_WORKER_TOKEN` (its
-//! `PAINSIM_WORKER_TOKEN`) it registers with the server, announcing `RENDER_WORKER_PUBLIC_URL`
-//! (default `http://` and the bound address).
+//! Its settings come from the environment, as described (with their defaults) by
+//! `render_worker::session::config::WORKER_SETTINGS` and the README: where it listens, the
+//! assets folder, its capacity, and, to join a server, the server's `/api/workers` and the
+//! cluster token. A value that is refused stops start-up with the variable named.
 //!
 //! In the embedded default the server runs a `SessionHost` in-process and this binary is not
 //! needed; it is the unit that scales out (see docker-compose.yml).
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 
+use render_worker::session::config::{self, WorkerConfig, WorkerRegistration};
 use render_worker::session::{Backends, HostConfig, SessionConfig, SessionHost, http};
 
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
+        .with_env_filter(WorkerConfig::log_filter(config::env))
         .init();
-    let bind = std::env::var("RENDER_WORKER_BIND").unwrap_or_else(|_| "127.0.0.1:8081".to_owned());
-    let assets = PathBuf::from(
-        std::env::var("RENDER_WORKER_ASSETS").unwrap_or_else(|_| "assets".to_owned()),
-    );
-    let capacity = std::env::var("RENDER_WORKER_CAPACITY")
-        .ok()
-        .and_then(|c| c.parse().ok())
-        .unwrap_or(8);
+    let WorkerConfig {
+        bind,
+        assets,
+        capacity,
+        registration,
+        public_url,
+    } = match WorkerConfig::from_lookup(config::env) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("render-worker: {e}");
+            return ExitCode::from(2);
+        }
+    };
     // Sessions render on the GPU when one opens, passes its self-test and has what the
     // renderers need; otherwise on the CPU references (a worker without an adapter still
     // serves, more slowly). The choice is `Backends::open`, shared with the server.
@@ -68,21 +69,15 @@ fn main() -> ExitCode {
         };
         let addr = listener.local_addr().map(|a| a.to_string()).unwrap_or(bind);
         // Cluster mode: announce this worker to the server (see render_worker::cluster).
-        if let (Ok(register), Ok(token)) = (
-            std::env::var("RENDER_WORKER_REGISTER_URL"),
-            std::env::var("RENDER_WORKER_TOKEN"),
-        ) {
+        if let Some(WorkerRegistration { url, token }) = registration {
             let health = host.health();
             let me = render_worker::cluster::Registration {
-                url: std::env::var("RENDER_WORKER_PUBLIC_URL")
-                    .unwrap_or_else(|_| format!("http://{addr}")),
+                url: public_url.unwrap_or_else(|| format!("http://{addr}")),
                 capacity: health.capacity,
                 renderer: serde_json::to_value(&health.renderer).unwrap_or_default(),
                 adapter: health.adapter,
             };
-            tokio::spawn(render_worker::cluster::register_forever(
-                register, token, me,
-            ));
+            tokio::spawn(render_worker::cluster::register_forever(url, token, me));
         }
         println!(
             "render-worker ready at http://{addr}/healthz (stations: {})",

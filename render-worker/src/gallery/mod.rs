@@ -13,9 +13,42 @@ pub mod png;
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
+use sim_core::fluoro::spectrum::UnknownKvp;
 use sim_core::fluoro::{Image, Projection, RenderSettings, render_frame};
 
 use crate::session::region::Region;
+
+/// Why a gallery shot could not be rendered or written.
+#[derive(Debug, thiserror::Error)]
+pub enum GalleryError {
+    /// The beam's tube voltage has no spectrum.
+    #[error(transparent)]
+    Render(#[from] UnknownKvp),
+    /// The output folder could not be created.
+    #[error("creating {}: {source}", .dir.display())]
+    CreateDir {
+        /// The folder.
+        dir: PathBuf,
+        /// The file system's error.
+        source: std::io::Error,
+    },
+    /// A shot could not be encoded as PNG.
+    #[error("encoding {}: {source}", .path.display())]
+    Encode {
+        /// The file it was meant for.
+        path: PathBuf,
+        /// The encoder's error.
+        source: std::io::Error,
+    },
+    /// A PNG file could not be written.
+    #[error("writing {}: {source}", .path.display())]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// The file system's error.
+        source: std::io::Error,
+    },
+}
 
 /// A C-arm position of the gallery.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -133,9 +166,14 @@ pub fn settings(threads: usize) -> RenderSettings {
 }
 
 /// Renders `view` of `region` centred on `centre`.
-pub fn shot(region: &Region, view: View, centre: DVec3, settings: &RenderSettings) -> Result<Shot, String> {
+pub fn shot(
+    region: &Region,
+    view: View,
+    centre: DVec3,
+    settings: &RenderSettings,
+) -> Result<Shot, GalleryError> {
     let projection = projection(view, centre);
-    let image = render_frame(&region.scene, None, &projection, settings).map_err(|e| e.to_string())?;
+    let image = render_frame(&region.scene, None, &projection, settings)?;
     Ok(Shot {
         view,
         projection,
@@ -144,7 +182,7 @@ pub fn shot(region: &Region, view: View, centre: DVec3, settings: &RenderSetting
 }
 
 /// Renders every view of [`VIEWS`] of `region`.
-pub fn shots(region: &Region, settings: &RenderSettings) -> Result<Vec<Shot>, String> {
+pub fn shots(region: &Region, settings: &RenderSettings) -> Result<Vec<Shot>, GalleryError> {
     let centre = centre_of(region);
     VIEWS
         .iter()
@@ -153,15 +191,22 @@ pub fn shots(region: &Region, settings: &RenderSettings) -> Result<Vec<Shot>, St
 }
 
 /// Writes `shots` of `region` into `dir` as `<region>_<view>.png`; returns the paths.
-pub fn write(region: &Region, shots: &[Shot], dir: &Path) -> Result<Vec<PathBuf>, String> {
-    std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
+pub fn write(region: &Region, shots: &[Shot], dir: &Path) -> Result<Vec<PathBuf>, GalleryError> {
+    std::fs::create_dir_all(dir).map_err(|source| GalleryError::CreateDir {
+        dir: dir.to_path_buf(),
+        source,
+    })?;
     shots
         .iter()
         .map(|s| {
             let path = dir.join(format!("{}_{}.png", region.name, s.view.name));
-            let bytes = png::encode_grey(s.image.width, s.image.height, &s.image.pixels)
-                .map_err(|e| format!("encoding {}: {e}", path.display()))?;
-            std::fs::write(&path, bytes).map_err(|e| format!("writing {}: {e}", path.display()))?;
+            let bytes = match png::encode_grey(s.image.width, s.image.height, &s.image.pixels) {
+                Ok(b) => b,
+                Err(source) => return Err(GalleryError::Encode { path, source }),
+            };
+            if let Err(source) = std::fs::write(&path, bytes) {
+                return Err(GalleryError::Write { path, source });
+            }
             Ok(path)
         })
         .collect()

@@ -9,9 +9,10 @@ use std::sync::Arc;
 
 use crate::gpu::{AdapterSummary, GpuContext, saxpy};
 
-use super::modalities::fluoro::{CpuFluoroBackend, FluoroBackend, GpuFluoroBackend};
+use super::modalities::Renderers;
+use super::modalities::fluoro::{self, CpuFluoroBackend, FluoroBackend, GpuFluoroBackend};
 use super::modalities::ultrasound::{
-    CpuUltrasoundBackend, GpuUltrasoundBackend, UltrasoundBackend,
+    self, CpuUltrasoundBackend, GpuUltrasoundBackend, UltrasoundBackend,
 };
 
 /// Why a GPU is not used.
@@ -89,13 +90,17 @@ pub fn ultrasound_on_gpu(ctx: &GpuContext, choice: Option<&str>) -> bool {
     }
 }
 
-/// The renderer of each modality on one device, shared by every session there.
+/// The renderer of each modality on one device, shared by every session there. The built-in
+/// modalities' renderers are fields (the device report names them); an embedder's modality adds
+/// its own with [`Backends::with_renderer`]. Modalities see them all as [`Renderers`].
 #[derive(Clone)]
 pub struct Backends {
     /// Fluoroscopy.
     pub fluoro: Arc<dyn FluoroBackend>,
     /// Ultrasound B-mode.
     pub ultrasound: Arc<dyn UltrasoundBackend>,
+    /// Renderers of other modalities.
+    others: Renderers,
 }
 
 impl std::fmt::Debug for Backends {
@@ -120,6 +125,33 @@ impl DeviceError {
 }
 
 impl Backends {
+    /// The given built-in renderers and no other.
+    pub fn new(fluoro: Arc<dyn FluoroBackend>, ultrasound: Arc<dyn UltrasoundBackend>) -> Backends {
+        Backends {
+            fluoro,
+            ultrasound,
+            others: Renderers::new(),
+        }
+    }
+
+    /// Adds the renderer of another modality (what its builder asks [`Renderers::get`] for).
+    pub fn with_renderer<T: std::any::Any + Send + Sync>(
+        mut self,
+        modality: &'static str,
+        renderer: T,
+    ) -> Backends {
+        self.others = self.others.with(modality, renderer);
+        self
+    }
+
+    /// Every renderer by modality name, as modalities see them.
+    pub fn renderers(&self) -> Renderers {
+        self.others
+            .clone()
+            .with(fluoro::SPEC.name, Arc::clone(&self.fluoro))
+            .with(ultrasound::SPEC.name, Arc::clone(&self.ultrasound))
+    }
+
     /// The GPU renderers on `gpu` (a context from [`open_gpu`]), else the CPU references.
     pub fn for_device(gpu: Option<GpuContext>) -> Backends {
         match gpu {
@@ -130,24 +162,23 @@ impl Backends {
 
     /// The GPU renderers on `ctx`.
     pub fn gpu(ctx: GpuContext) -> Backends {
-        let ultrasound: Arc<dyn UltrasoundBackend> =
-            if ultrasound_on_gpu(&ctx, std::env::var(ULTRASOUND_RENDERER_ENV).ok().as_deref()) {
-                Arc::new(GpuUltrasoundBackend { ctx: ctx.clone() })
-            } else {
-                Arc::new(CpuUltrasoundBackend)
-            };
-        Backends {
-            fluoro: Arc::new(GpuFluoroBackend { ctx }),
-            ultrasound,
-        }
+        let ultrasound: Arc<dyn UltrasoundBackend> = if ultrasound_on_gpu(
+            &ctx,
+            crate::session::config::ultrasound_renderer(crate::session::config::env).as_deref(),
+        ) {
+            Arc::new(GpuUltrasoundBackend { ctx: ctx.clone() })
+        } else {
+            Arc::new(CpuUltrasoundBackend)
+        };
+        Backends::new(Arc::new(GpuFluoroBackend { ctx }), ultrasound)
     }
 
     /// The CPU references, with `threads` render threads per frame (0: all cores).
     pub fn cpu(threads: usize) -> Backends {
-        Backends {
-            fluoro: Arc::new(CpuFluoroBackend { threads }),
-            ultrasound: Arc::new(CpuUltrasoundBackend),
-        }
+        Backends::new(
+            Arc::new(CpuFluoroBackend { threads }),
+            Arc::new(CpuUltrasoundBackend),
+        )
     }
 
     /// Opens this machine's GPU with [`open_gpu`] and chooses: the GPU renderers when it is

@@ -6,7 +6,7 @@
 //! |--------|--------------------------------------------------------|
 //! | 0..4   | magic `SIMF`                                           |
 //! | 4      | header version (1)                                     |
-//! | 5      | view code (0 fluoroscopy, 1 ultrasound, 2 placement)   |
+//! | 5      | view code (`ViewId::code`; the hello lists every view) |
 //! | 6..8   | reserved (0)                                           |
 //! | 8..16  | frame sequence (per session, increasing)               |
 //! | 16..24 | last accepted input sequence the frame reflects        |
@@ -23,6 +23,8 @@ use super::image::ViewId;
 pub const HEADER_BYTES: usize = 40;
 /// Magic bytes.
 pub const MAGIC: &[u8; 4] = b"SIMF";
+/// Header version (byte 4).
+pub const HEADER_VERSION: u8 = 1;
 /// JPEG quality. Simulator choice: 85 keeps grey-level steps of 1 to 2 at 512 x 512 in about
 /// 30 to 60 kB per frame.
 pub const JPEG_QUALITY: u8 = 85;
@@ -107,7 +109,7 @@ impl EncodedFrame {
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut b = Vec::with_capacity(HEADER_BYTES + self.jpeg.len());
         b.extend_from_slice(MAGIC);
-        b.push(1);
+        b.push(HEADER_VERSION);
         b.push(self.view.code());
         b.extend_from_slice(&[0, 0]);
         b.extend_from_slice(&self.frame_seq.to_le_bytes());
@@ -122,7 +124,7 @@ impl EncodedFrame {
 
     /// Parses a binary message.
     pub fn parse(b: &[u8]) -> Result<EncodedFrame, FrameError> {
-        if b.len() < HEADER_BYTES || &b[0..4] != MAGIC || b[4] != 1 {
+        if b.len() < HEADER_BYTES || &b[0..4] != MAGIC || b[4] != HEADER_VERSION {
             return Err(FrameError::NotAFrame);
         }
         let u64_at = |i: usize| u64::from_le_bytes(b[i..i + 8].try_into().unwrap_or([0; 8]));
@@ -150,7 +152,7 @@ mod tests {
             height: 8,
             pixels: (0..128).map(|i| (i * 2) as u8).collect(),
         };
-        let f = EncodedFrame::new(ViewId::Fluoroscopy, 7, 42, 1234, &image).unwrap();
+        let f = EncodedFrame::new(ViewId::FLUOROSCOPY, 7, 42, 1234, &image).unwrap();
         assert_eq!(&f.jpeg[0..2], &[0xFF, 0xD8], "JPEG SOI marker");
         assert_eq!(
             &f.jpeg[f.jpeg.len() - 2..],

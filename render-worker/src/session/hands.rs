@@ -20,6 +20,7 @@ use sim_core::needle::{
 use super::command::{Command, CommandError, ErrorCode, MAX_PROBE_SNAP_MM, SyringeAction};
 use super::region::Region;
 pub use super::world::Hands;
+use super::world::ImageRayError;
 use super::world::{self, NeedleInstrument, World};
 
 /// Spacing of the force samples along a feed or withdrawal, mm: the session needles' substep
@@ -56,7 +57,7 @@ pub struct Context<'a> {
     pub seed: u64,
     /// The ray through the pixel of a `skin_marker` command on the displayed fluoroscopy image:
     /// origin and unit direction, or why there is none.
-    pub pixel_ray: Option<Result<(DVec3, DVec3), String>>,
+    pub pixel_ray: Option<Result<(DVec3, DVec3), ImageRayError>>,
 }
 
 fn state_error(message: impl Into<String>) -> CommandError {
@@ -332,7 +333,7 @@ fn insert_needle(
     }
     check()?;
     let state = world::new_needle(profile, entry.to_array(), direction, bevel_reference)
-        .map_err(|e| CommandError::field("command.direction", ErrorCode::Invalid, e))?;
+        .map_err(|e| CommandError::field("command.direction", ErrorCode::Invalid, e.to_string()))?;
     let h = &mut world.hands;
     if let Some(old) = &world.needle {
         h.redirections_before += old.state.redirections;
@@ -382,7 +383,7 @@ fn marker_point(
                 return Err(CommandError::field(
                     "command.pixel",
                     ErrorCode::Invalid,
-                    why.clone(),
+                    why.to_string(),
                 ));
             }
             None => {

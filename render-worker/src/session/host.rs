@@ -22,6 +22,7 @@ use super::config::SessionConfig;
 use super::devices::Backends;
 use super::frame::EncodedFrame;
 use super::image::ViewId;
+use super::loader::RegionLoadError;
 use super::machine::{Ack, Session, SessionEnv, SessionSnapshot};
 use super::modalities::fluoro::BackendProfile;
 use super::region::Region;
@@ -195,12 +196,15 @@ pub struct SessionInfo {
     pub id: String,
     /// Station id.
     pub station_id: String,
-    /// Views the session renders.
-    pub views: Vec<ViewId>,
+    /// Names of the views the session renders.
+    pub views: Vec<String>,
     /// Modalities it runs.
     pub modalities: Vec<String>,
     /// Station modalities this worker cannot provide.
     pub unavailable_modalities: Vec<String>,
+    /// The protocol's constants and what each modality offers (views with wire codes, command
+    /// kinds, client constants).
+    pub protocol: super::offer::ProtocolInfo,
 }
 
 /// Health and load, for `/healthz` and dispatch by least load.
@@ -330,7 +334,8 @@ fn closed(seq: u64) -> CommandError {
     }
 }
 
-type RegionLoader = dyn Fn(&str, &mut dyn FnMut(&Progress)) -> Result<Region, String> + Send + Sync;
+type RegionLoader =
+    dyn Fn(&str, &mut dyn FnMut(&Progress)) -> Result<Region, RegionLoadError> + Send + Sync;
 
 struct Inner {
     stations: BTreeMap<String, (Station, String)>,
@@ -344,6 +349,9 @@ struct Inner {
     /// [`SessionHost::shutdown`]).
     actors: Mutex<Vec<std::thread::JoinHandle<()>>>,
     backends: Backends,
+    /// The modalities sessions are built with (the standard ones unless an embedder sets its
+    /// own with [`SessionHost::set_modalities`]).
+    modalities: std::sync::RwLock<super::modalities::ModalityFactory>,
     capacity: usize,
     session_config: SessionConfig,
     adapter: Option<serde_json::Value>,
@@ -407,7 +415,7 @@ impl SessionHost {
                 .into_iter()
                 .map(|(s, h)| (s.id.clone(), (s, h)))
                 .collect(),
-            Box::new(|name, _| Err(format!("region {name} is not loaded in this host"))),
+            Box::new(|name, _| Err(RegionLoadError::NotLoaded(name.to_string()))),
             backends,
             capacity,
             session_config,
@@ -439,6 +447,7 @@ impl SessionHost {
                 sessions: Mutex::new(BTreeMap::new()),
                 actors: Mutex::new(Vec::new()),
                 backends,
+                modalities: std::sync::RwLock::new(super::modalities::ModalityFactory::standard()),
                 capacity,
                 session_config,
                 adapter,
@@ -470,7 +479,7 @@ impl SessionHost {
     /// states, and for servers that find regions elsewhere.
     pub fn with_loader(
         stations: Vec<(Station, String)>,
-        loader: impl Fn(&str, &mut dyn FnMut(&Progress)) -> Result<Region, String>
+        loader: impl Fn(&str, &mut dyn FnMut(&Progress)) -> Result<Region, RegionLoadError>
         + Send
         + Sync
         + 'static,
@@ -619,12 +628,12 @@ impl SessionHost {
         if let Ok(mut prep) = self.inner.prep.lock() {
             let state = match &result {
                 Ok(_) => Prep::Ready { prepare_s },
-                Err(e) => Prep::Failed(e.clone()),
+                Err(e) => Prep::Failed(e.to_string()),
             };
             prep.insert(region.to_string(), state);
         }
         self.inner.prepared.notify_all();
-        result.map_err(HostError::Region)
+        result.map_err(|e| HostError::Region(e.to_string()))
     }
 
     /// The region, loading it here if nobody is (blocking: possibly a whole phantom build), or
@@ -700,11 +709,23 @@ impl SessionHost {
             .cloned()
             .ok_or_else(|| HostError::UnknownStation(station_id.to_string()))?;
         let region = self.region_blocking(&station.region)?;
-        Ok(SessionEnv::new(
+        let mut env = SessionEnv::new(
             Arc::new(StationContext::new(station, sha, &region)),
             region,
             self.inner.backends.clone(),
-        ))
+        );
+        if let Ok(f) = self.inner.modalities.read() {
+            env.modalities = f.clone();
+        }
+        Ok(env)
+    }
+
+    /// Builds the sessions started from now on with the modalities of `factory` (the standard
+    /// ones plus an embedder's own, say); sessions already running keep theirs.
+    pub fn set_modalities(&self, factory: super::modalities::ModalityFactory) {
+        if let Ok(mut f) = self.inner.modalities.write() {
+            *f = factory;
+        }
     }
 
     /// Creates a session at a station (blocking while a region loads the first time; call from
@@ -799,7 +820,12 @@ impl SessionHost {
         let info = SessionInfo {
             id: id.clone(),
             station_id: session.env().station.station.id.clone(),
-            views: session.views(),
+            views: session
+                .views()
+                .iter()
+                .map(|v| v.name().to_string())
+                .collect(),
+            protocol: super::offer::ProtocolInfo::of(&session),
             modalities: session
                 .modality_names()
                 .iter()

@@ -3,12 +3,29 @@
 
 use std::path::Path;
 
+use sim_core::anatomy::AnatomyError;
 use sim_core::anatomy::asset::RegionAsset;
 use sim_core::anatomy::phantom;
 use sim_core::anatomy::pipeline::Progress;
 
 use super::demo::{DEMO_REGION_NAME, demo_region};
 use super::region::Region;
+
+/// Why a region could not be loaded or built.
+#[derive(Debug, thiserror::Error)]
+pub enum RegionLoadError {
+    /// Its files could not be read, or its phantom could not be built.
+    #[error("region {name}: {source}")]
+    Asset {
+        /// Region name.
+        name: String,
+        /// What went wrong.
+        source: AnatomyError,
+    },
+    /// The host was given its regions ready-made and this is not one of them.
+    #[error("region {0} is not loaded in this host")]
+    NotLoaded(String),
+}
 
 /// Loads `assets_root/<name>`, reporting the phantom build's stages to `progress` (a region that
 /// is cached or read from files reports nothing). The phantom regions (lumbar and cervical) are
@@ -19,7 +36,7 @@ pub fn load_region(
     assets_root: &Path,
     name: &str,
     progress: &mut dyn FnMut(&Progress),
-) -> Result<Region, String> {
+) -> Result<Region, RegionLoadError> {
     let dir = assets_root.join(name);
     if name == DEMO_REGION_NAME && !dir.exists() {
         return Ok(demo_region());
@@ -32,6 +49,9 @@ pub fn load_region(
     } else {
         RegionAsset::load(&dir)
     }
-    .map_err(|e| format!("region {name}: {e}"))?;
+    .map_err(|source| RegionLoadError::Asset {
+        name: name.to_string(),
+        source,
+    })?;
     Ok(Region::from_asset(&asset))
 }

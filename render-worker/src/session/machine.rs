@@ -7,11 +7,11 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use sim_core::hash::sha256_hex;
-use sim_core::rubric::{Measurements, Modality as StationModality};
+use sim_core::rubric::Measurements;
 
 use super::command::{
-    Agent, Command, CommandClass, CommandError, Envelope, ErrorCode, LogEntry, MAX_SEQ,
-    SyringeAction,
+    Agent, CORE_COMMANDS, Command, CommandClass, CommandError, Engagement, Envelope, ErrorCode,
+    LogEntry, MAX_SEQ, SyringeAction,
 };
 use super::config::SessionConfig;
 use super::devices::Backends;
@@ -65,15 +65,6 @@ impl std::fmt::Debug for SessionEnv {
             .field("backends", &self.backends)
             .field("modalities", &self.modalities)
             .finish()
-    }
-}
-
-/// The name a station uses for its modality, the key of the modality factory.
-pub fn station_modality_name(m: StationModality) -> &'static str {
-    match m {
-        StationModality::Fluoroscopy => "fluoroscopy",
-        StationModality::Ultrasound => "ultrasound",
-        StationModality::Contrast => "contrast",
     }
 }
 
@@ -159,6 +150,10 @@ pub struct Ack {
     pub duplicate: bool,
     /// What happened (needle outcome, exposure so far, annotation error, ...).
     pub outcome: serde_json::Value,
+    /// The engagement event the command stands for in the learning records, as the session core
+    /// or the modality that handled it declares (absent when it is none, and on duplicates).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub engagement: Option<Engagement>,
     /// The technical result, on the acknowledgement of a submit (and only there): the one typed
     /// form in which a result leaves the worker.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -207,14 +202,15 @@ impl Session {
     pub fn new(env: SessionEnv, config: SessionConfig) -> Session {
         let mut modalities: Vec<Box<dyn Modality>> = Vec::new();
         let mut unavailable = Vec::new();
+        let renderers = env.backends.renderers();
         let ctx = ModalityContext {
             config: &config,
             station: &env.station,
             region: &env.region,
-            backends: &env.backends,
+            renderers: &renderers,
         };
-        for &m in &env.station.station.modalities {
-            let name = station_modality_name(m);
+        for m in &env.station.station.modalities {
+            let name = m.as_str();
             match env.modalities.build(name, &ctx) {
                 Some(built) => modalities.push(built),
                 None => unavailable.push(name.to_string()),
@@ -368,6 +364,11 @@ impl Session {
             .collect()
     }
 
+    /// What each modality of this session declares, in the station's order.
+    pub fn specs(&self) -> Vec<&'static super::modalities::ModalitySpec> {
+        self.modalities.iter().map(|m| m.spec()).collect()
+    }
+
     /// Modality names this session runs.
     pub fn modality_names(&self) -> Vec<&'static str> {
         self.modalities.iter().map(|m| m.name()).collect()
@@ -412,6 +413,7 @@ impl Session {
                         seq: env.seq,
                         t_ms: e.t_ms,
                         duplicate: true,
+                        engagement: None,
                         outcome: serde_json::Value::Null,
                         result: None,
                     });
@@ -448,7 +450,7 @@ impl Session {
         let dispatched = self.dispatch(&env.command);
         self.sync_iodine();
         match dispatched {
-            Ok(outcome) => {
+            Ok((outcome, engagement)) => {
                 if self.world.iodine_version != iodine_before.1 {
                     self.notify(&WorldChange::Iodine);
                 }
@@ -470,6 +472,7 @@ impl Session {
                     seq: env.seq,
                     t_ms: self.world.clock_ms,
                     duplicate: false,
+                    engagement,
                     outcome,
                     result,
                 })
@@ -482,61 +485,74 @@ impl Session {
         }
     }
 
-    fn dispatch(&mut self, command: &Command) -> Result<serde_json::Value, CommandError> {
+    /// Applies a validated command: the core's own (needle and hands, tick, submit), or the one
+    /// modality whose spec declares its kind. Returns the outcome and the engagement event.
+    fn dispatch(
+        &mut self,
+        command: &Command,
+    ) -> Result<(serde_json::Value, Option<Engagement>), CommandError> {
+        let core_engagement = || {
+            CORE_COMMANDS
+                .iter()
+                .find(|c| c.kind == command.name())
+                .and_then(|c| c.engagement)
+        };
         match command.class() {
-            CommandClass::Needle => self.apply_needle(command),
-            CommandClass::Session if *command == Command::Tick => {
-                Ok(serde_json::json!({ "t_ms": self.world.clock_ms }))
-            }
+            CommandClass::Needle => Ok((self.apply_needle(command)?, core_engagement())),
+            CommandClass::Session if *command == Command::Tick => Ok((
+                serde_json::json!({ "t_ms": self.world.clock_ms }),
+                core_engagement(),
+            )),
             CommandClass::Session => {
                 // The submit itself is logged by the caller; the record's log hash covers the
                 // commands before it. The result travels typed in the acknowledgement.
                 self.submitted = Some(self.score());
-                Ok(serde_json::Value::Null)
+                Ok((serde_json::Value::Null, core_engagement()))
             }
-            class => {
-                let Some(m) = self
-                    .modalities
-                    .iter_mut()
-                    .find(|m| m.accepts().contains(&class))
-                else {
-                    let what = match class {
-                        CommandClass::Ultrasound => "ultrasound",
-                        CommandClass::Contrast => "contrast injection",
-                        _ => "fluoroscopy",
-                    };
-                    let why = if self.unavailable.iter().any(|u| u == what) {
-                        "is listed by this station but not implemented by this worker yet"
-                    } else {
-                        "is not available at this station"
-                    };
-                    return Err(CommandError::field(
-                        "command.type",
-                        ErrorCode::ModalityUnavailable,
-                        format!("modality not available at this station: {what} {why}"),
-                    ));
+            CommandClass::Modality => {
+                let kind = command.name();
+                let Some(m) = self.modalities.iter_mut().find(|m| m.spec().handles(kind)) else {
+                    return Err(self.unhandled(kind));
                 };
-                if command.class() == CommandClass::Contrast
-                    && matches!(command, Command::Inject { .. })
-                    && self.world.hands.syringe.is_some()
-                {
-                    return Err(CommandError::field(
-                        "command.type",
-                        ErrorCode::State,
-                        "the loss-of-resistance syringe is on the needle: detach it before injecting",
-                    ));
-                }
                 let outcome = m.apply(command, &self.world)?;
-                if let Command::Inject {
-                    agent,
-                    volume_ml,
-                    rate_ml_per_s,
-                } = *command
-                {
-                    self.record_injection(agent, volume_ml, rate_ml_per_s);
+                let engagement = m.engagement(command);
+                if let Some(fluid) = m.take_fluid() {
+                    self.record_injection(fluid.agent, fluid.volume_ml, fluid.rate_ml_per_s);
                 }
-                Ok(outcome)
+                Ok((outcome, engagement))
             }
+        }
+    }
+
+    /// The refusal of a command kind no modality of this session handles: which modality would
+    /// (by the factory's specs), and whether the station lists it.
+    fn unhandled(&self, kind: &str) -> CommandError {
+        let spec = self
+            .env
+            .modalities
+            .handler_of(kind)
+            .or_else(|| ModalityFactory::standard().handler_of(kind));
+        match spec {
+            Some(spec) => {
+                let why = if self.unavailable.iter().any(|u| u == spec.name) {
+                    "is listed by this station but not implemented by this worker"
+                } else {
+                    "is not available at this station"
+                };
+                CommandError::field(
+                    "command.type",
+                    ErrorCode::ModalityUnavailable,
+                    format!(
+                        "modality not available at this station: {} {why}",
+                        spec.label
+                    ),
+                )
+            }
+            None => CommandError::field(
+                "command.type",
+                ErrorCode::Malformed,
+                format!("unknown command type {kind:?}: no modality of this worker declares it"),
+            ),
         }
     }
 

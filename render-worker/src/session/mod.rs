@@ -37,7 +37,7 @@
 //! let mut s = Session::new(env, SessionConfig::default());
 //! let ack = s.apply(Envelope { seq: 1, command: Command::Shot }, 0).unwrap();
 //! assert_eq!(ack.seq, 1);
-//! let frames = s.render_dirty(&[ViewId::Fluoroscopy].into()).unwrap();
+//! let frames = s.render_dirty(&[ViewId::FLUOROSCOPY].into()).unwrap();
 //! assert_eq!(frames.len(), 1);
 //! # }
 //! ```
@@ -56,13 +56,15 @@ pub mod image;
 pub mod loader;
 pub mod machine;
 pub mod modalities;
+pub mod offer;
 pub mod protocol;
 pub mod region;
 pub mod scoring;
 pub mod world;
 
 pub use command::{
-    Agent, Command, CommandClass, CommandError, Envelope, ErrorCode, LogEntry, SyringeAction,
+    Agent, Command, CommandClass, CommandError, CommandSpec, Engagement, Envelope, ErrorCode,
+    LogEntry, ModalityCommand, SyringeAction,
 };
 pub use config::SessionConfig;
 pub use devices::Backends;
@@ -72,13 +74,17 @@ pub use host::{HostConfig, HostError, SessionHandle, SessionHost, SessionInfo};
 pub use image::{ViewId, ViewImage};
 pub use machine::{
     Ack, RenderedView, Replay, SNAPSHOT_FORMAT, Session, SessionEnv, SessionSnapshot,
-    region_fingerprint, replay_attempt, station_modality_name,
+    region_fingerprint, replay_attempt,
 };
 pub use modalities::fluoro::{
     BackendProfile, CpuFluoroBackend, FluoroBackend, FluoroConfig, FluoroModality, FluoroRenderer,
     GpuFluoroBackend,
 };
-pub use modalities::{Modality, ModalityContext, ModalityError, ModalityFactory};
+pub use modalities::{
+    FluidDelivery, Modality, ModalityContext, ModalityError, ModalityFactory, ModalitySpec,
+    RegistrationError, Renderers,
+};
+pub use offer::{CommandInfo, ProtocolInfo, ViewInfo};
 pub use region::Region;
 pub use scoring::{ReproducibilityRecord, SubmitResult};
 pub use sim_core::hash::sha256_hex;

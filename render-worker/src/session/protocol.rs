@@ -8,9 +8,12 @@
 //! Worker to client:
 //! - text `{"type":"hello","session":{...SessionInfo},"last_seq":N}` on connect (a reconnecting
 //!   client re-sends its commands above `last_seq`; re-sent ones at or below are acknowledged as
-//!   duplicates);
-//! - text `{"type":"ack","seq":7,"t_ms":..,"duplicate":false,"outcome":{..}}` for every accepted
-//!   command, in order (the submit's outcome is the `SubmitResult`);
+//!   duplicates). `session.protocol` ([`super::offer::ProtocolInfo`]) carries the frame header's
+//!   constants, the views with their wire codes, the command kinds and the numbers a client
+//!   needs, all read from the modalities' specs: a client copies none of them;
+//! - text `{"type":"ack","seq":7,"t_ms":..,"duplicate":false,"engagement":"view_changed",
+//!   "outcome":{..}}` for every accepted command, in order (the submit's outcome is the
+//!   `SubmitResult`; `engagement` is the learning-record event it stands for, if any);
 //! - text `{"type":"error","seq":7,"error":{"field":"command.orbital_deg","code":"out_of_range",
 //!   "message":".."}}` for every rejected one;
 //! - binary frames (see [`super::frame`]): the newest frame of each view. Frames that were
@@ -128,7 +131,7 @@ pub fn parse_client_message(text: &str) -> Result<ClientMessage, (Option<u64>, C
                     CommandError::field("command", ErrorCode::Malformed, "missing command"),
                 )
             })?;
-            let command: Command = serde_path_to_error::deserialize(raw).map_err(|e| {
+            let command: Command = parse_command(raw).map_err(|e| {
                 let path = e.path().to_string();
                 let field = if path.is_empty() || path == "." {
                     "command".to_string()
@@ -184,6 +187,30 @@ pub fn parse_client_message(text: &str) -> Result<ClientMessage, (Option<u64>, C
     }
 }
 
+/// A built-in command parsed by the derived parser, so that `serde_path_to_error` sees the
+/// field paths; any other kind is a modality's command (see [`Command::from_json`]).
+struct Builtin(Command);
+
+impl<'de> Deserialize<'de> for Builtin {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Builtin, D::Error> {
+        Command::deserialize_builtin(d).map(Builtin)
+    }
+}
+
+fn parse_command(
+    raw: &serde_json::Value,
+) -> Result<Command, serde_path_to_error::Error<serde_json::Error>> {
+    let builtin = raw
+        .get("type")
+        .and_then(serde_json::Value::as_str)
+        .is_none_or(|k| super::command::BUILTIN_KINDS.contains(&k));
+    if builtin {
+        serde_path_to_error::deserialize::<_, Builtin>(raw).map(|b| b.0)
+    } else {
+        serde_path_to_error::deserialize::<_, Command>(raw)
+    }
+}
+
 fn quoted_after<'a>(message: &'a str, prefix: &str) -> Option<&'a str> {
     message.strip_prefix(prefix)?.split('`').next()
 }
@@ -218,19 +245,32 @@ fn text(m: &ServerMessage) -> WsMessage {
     WsMessage::Text(serde_json::to_string(m).unwrap_or_default())
 }
 
+/// Why a client connection ended other than by the client closing it or the session ending.
+/// Each variant carries the transport's own message: the sink and stream are generic, so their
+/// error types are not known here.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ConnectionError {
+    /// A message could not be sent to the client.
+    #[error("send failed: {0}")]
+    Send(String),
+    /// The client's stream failed.
+    #[error("receive failed: {0}")]
+    Receive(String),
+}
+
 /// Serves one client connection of `handle` until the client closes or the session ends.
 pub async fn serve_connection<Si, St, E>(
     handle: SessionHandle,
     mut sink: Si,
     mut stream: St,
-) -> Result<(), String>
+) -> Result<(), ConnectionError>
 where
     Si: Sink<WsMessage> + Unpin,
     Si::Error: Display,
     St: Stream<Item = Result<WsMessage, E>> + Unpin,
     E: Display,
 {
-    let send_err = |e: Si::Error| format!("send failed: {e}");
+    let send_err = |e: Si::Error| ConnectionError::Send(e.to_string());
     let last_seq = handle.snapshot().await.map_or(0, |(s, _)| s.last_seq);
     sink.send(text(&ServerMessage::Hello {
         session: handle.info.clone(),
@@ -259,7 +299,7 @@ where
             }
             msg = stream.next() => match msg {
                 None | Some(Ok(WsMessage::Close)) => break,
-                Some(Err(e)) => return Err(format!("receive failed: {e}")),
+                Some(Err(e)) => return Err(ConnectionError::Receive(e.to_string())),
                 Some(Ok(WsMessage::Binary(_))) => {
                     let error = CommandError::field("message", ErrorCode::Malformed, "binary client messages are not understood; send JSON text");
                     sink.send(text(&ServerMessage::Error { seq: None, error })).await.map_err(send_err)?;

@@ -115,7 +115,7 @@ pub fn new_needle(
     entry_mm: [f64; 3],
     direction: [f64; 3],
     bevel_reference: [f64; 3],
-) -> Result<NeedleState, String> {
+) -> Result<NeedleState, sim_core::needle::NeedleError> {
     NeedleState::new(
         profile,
         DVec3::from_array(entry_mm),
@@ -124,7 +124,6 @@ pub fn new_needle(
         NEEDLE_SUBSTEP_MM,
         InitialResponse::Relaxed,
     )
-    .map_err(|e| e.to_string())
 }
 
 /// What the hands hold and have done (part of the session snapshot; see
@@ -263,4 +262,25 @@ pub fn mark_entered(n: &mut NeedleInstrument, region: &Region) {
             n.entered.insert(name.to_string());
         }
     }
+}
+
+/// Why a modality has no ray through a pixel of the image it displays.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ImageRayError {
+    /// No image has been taken yet.
+    #[error("no {modality} image yet: take a shot first")]
+    NoImage {
+        /// Modality name.
+        modality: &'static str,
+    },
+    /// The pixel lies outside the image.
+    #[error("{pixel:?} is outside the {width} x {height} image")]
+    OutsideImage {
+        /// The continuous pixel asked for.
+        pixel: [f64; 2],
+        /// Image width, pixels.
+        width: u32,
+        /// Image height, pixels.
+        height: u32,
+    },
 }

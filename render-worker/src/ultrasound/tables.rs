@@ -172,6 +172,11 @@ pub struct UltrasoundTimings {
     pub finish_ms: f64,
 }
 
+/// Milliseconds since `t` (for [`UltrasoundTimings`]).
+pub(super) fn ms(t: std::time::Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
 /// The layered test scene of the GPU tests and bench on `grid`: fat (-100 HU) down to 8 mm over
 /// muscle (50 HU), and a 3 mm cortical plate at 45 mm under `x < 0` given by the label volume
 /// (its HU say muscle: the label wins). Only with the `test-support` feature.

@@ -5,7 +5,7 @@
 //! Before, the relay sent to the browser inline. A client that sent hundreds of commands
 //! without reading filled its socket, the relay's send waited, the relay stopped reading the
 //! worker, the worker stopped reading the relay, and the relay's send to the worker waited too:
-//! a cycle of bounded channels that wedged the connection (issue 20, point 3). Now the relay
+//! a cycle of bounded channels that wedged the connection. Now the relay
 //! hands texts to this task through an unbounded queue and never awaits the browser; what
 //! bounds the queue is the relay's admission rule: it stops *reading* the browser while too many
 //! answers wait here ([`BrowserWriter::unsent`]), so TCP backpressure holds a client that runs

@@ -149,30 +149,15 @@ pub const IDLE_CLOSE: std::time::Duration = std::time::Duration::from_secs(20 * 
 /// session resumes from its log when the attempt is opened again).
 pub const DEFAULT_SESSION_IDLE: std::time::Duration = std::time::Duration::from_secs(10 * 60);
 
-/// `PAINSIM_SESSION_IDLE_SECS` (at least 1), else [`DEFAULT_SESSION_IDLE`].
-pub fn session_idle_from_env() -> std::time::Duration {
-    let default = DEFAULT_SESSION_IDLE.as_secs() as usize;
-    std::time::Duration::from_secs(limit_from_env("PAINSIM_SESSION_IDLE_SECS", default) as u64)
-}
-
 /// Default most live (unsubmitted) sessions of one course at once. Simulator choice: six of
 /// the in-process worker's default eight slots, so one course's lab cannot take the whole
 /// worker from the others; a deployment with remote workers raises it.
 pub const DEFAULT_SESSIONS_PER_COURSE: usize = 6;
 
-/// `PAINSIM_SESSIONS_PER_COURSE` (at least 1), else [`DEFAULT_SESSIONS_PER_COURSE`].
-pub fn sessions_per_course_from_env() -> usize {
-    limit_from_env("PAINSIM_SESSIONS_PER_COURSE", DEFAULT_SESSIONS_PER_COURSE)
-}
-
-/// The environment variable `name` as a limit of at least 1, else `default`.
-fn limit_from_env(name: &str, default: usize) -> usize {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.trim().parse::<usize>().ok())
-        .filter(|n| *n >= 1)
-        .unwrap_or(default)
-}
+/// Default sessions the server's in-process worker hosts at once (`PAINSIM_IN_PROCESS_CAPACITY`).
+/// Simulator choice: a small lab group on the one machine of the embedded default, as a
+/// `render-worker`'s default; a deployment with remote workers may set 0.
+pub const DEFAULT_IN_PROCESS_CAPACITY: usize = 8;
 
 /// The server's copy of a session.
 #[derive(Debug, Clone)]
@@ -230,43 +215,55 @@ impl From<HostError> for PlaceError {
     }
 }
 
-/// Settings of dispatch.
-#[derive(Debug, Clone)]
-pub struct DispatchConfig {
-    /// Region folders (`assets/`).
-    pub assets_root: std::path::PathBuf,
-    /// Station files (`assets/stations/`).
-    pub stations_dir: std::path::PathBuf,
-    /// Sessions the in-process worker takes.
-    pub in_process_capacity: usize,
-    /// Token workers present to register; `None` refuses registrations.
-    pub worker_token: Option<String>,
-    /// Whether the server starts loading (building) the stations' anatomy at start-up.
-    pub prepare_at_start: bool,
+/// Why a recorded session could not be restored on any worker.
+#[derive(Debug, thiserror::Error)]
+pub enum RestoreError {
+    /// The in-process restore task did not finish (it panicked or was cancelled).
+    #[error(transparent)]
+    Task(#[from] tokio::task::JoinError),
+    /// The in-process host refused the snapshot and log.
+    #[error(transparent)]
+    Host(#[from] HostError),
+    /// No in-process host, and every registered worker failed (their errors, in turn).
+    #[error("no worker could take the session over: {}", registry::joined(.0))]
+    NoWorker(Vec<registry::WorkerCallError>),
 }
 
-impl DispatchConfig {
-    /// From the environment: `PAINSIM_ASSETS_DIR` (default: the repository's `assets/`),
-    /// `PAINSIM_IN_PROCESS_SESSIONS` (default 8), `PAINSIM_WORKER_TOKEN` (unset: no remote
-    /// workers), `PAINSIM_PREPARE_ANATOMY` (default on; `0`/`false`/`off` leaves the anatomy to
-    /// the first session), with the stations folder of the learning records.
-    pub fn from_env(stations_dir: std::path::PathBuf) -> DispatchConfig {
-        DispatchConfig {
-            assets_root: std::env::var("PAINSIM_ASSETS_DIR")
-                .map(Into::into)
-                .unwrap_or_else(|_| concat!(env!("CARGO_MANIFEST_DIR"), "/../assets").into()),
-            stations_dir,
-            in_process_capacity: std::env::var("PAINSIM_IN_PROCESS_SESSIONS")
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(8),
-            worker_token: std::env::var("PAINSIM_WORKER_TOKEN")
-                .ok()
-                .filter(|t| t.len() >= 16),
-            prepare_at_start: std::env::var("PAINSIM_PREPARE_ANATOMY")
-                .map(|v| !matches!(v.trim(), "0" | "false" | "off" | "no"))
-                .unwrap_or(true),
-        }
+/// Settings of dispatch, read with the rest of the configuration by [`crate::config`] (whose
+/// table names each variable). The stations are the learning records' (`PAINSIM_STATIONS_DIR`).
+/// Its `Debug` leaves the cluster token out (the configuration may be logged).
+#[derive(Clone)]
+pub struct DispatchConfig {
+    /// Region folders (`PAINSIM_ASSETS_DIR`).
+    pub assets_root: std::path::PathBuf,
+    /// Sessions the in-process worker takes (`PAINSIM_IN_PROCESS_CAPACITY`; 0: none).
+    pub in_process_capacity: usize,
+    /// Token workers present to register (`PAINSIM_WORKER_TOKEN`); `None` refuses
+    /// registrations.
+    pub worker_token: Option<String>,
+    /// Whether the server starts loading (building) the stations' anatomy at start-up
+    /// (`PAINSIM_PREPARE_ANATOMY`).
+    pub prepare_at_start: bool,
+    /// Most live sessions of one user (`PAINSIM_SESSIONS_PER_USER`).
+    pub sessions_per_user: usize,
+    /// Most live sessions of one course (`PAINSIM_SESSIONS_PER_COURSE`).
+    pub sessions_per_course: usize,
+    /// Longest time a live session stays open without a command
+    /// (`PAINSIM_LIVE_SESSION_IDLE_SECS`).
+    pub live_session_idle: std::time::Duration,
+}
+
+impl std::fmt::Debug for DispatchConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DispatchConfig")
+            .field("assets_root", &self.assets_root)
+            .field("in_process_capacity", &self.in_process_capacity)
+            .field("worker_token", &self.worker_token.as_ref().map(|_| "<set>"))
+            .field("prepare_at_start", &self.prepare_at_start)
+            .field("sessions_per_user", &self.sessions_per_user)
+            .field("sessions_per_course", &self.sessions_per_course)
+            .field("live_session_idle", &self.live_session_idle)
+            .finish()
     }
 }
 
@@ -332,11 +329,6 @@ pub(super) struct Inner {
 /// single learner can fill an in-process worker (capacity 8).
 pub const DEFAULT_SESSIONS_PER_USER: usize = 2;
 
-/// `PAINSIM_SESSIONS_PER_USER` (at least 1), else [`DEFAULT_SESSIONS_PER_USER`].
-pub fn sessions_per_user_from_env() -> usize {
-    limit_from_env("PAINSIM_SESSIONS_PER_USER", DEFAULT_SESSIONS_PER_USER)
-}
-
 /// Session dispatch: the in-process host, registered workers, and the live sessions.
 #[derive(Clone)]
 pub struct Dispatcher {
@@ -353,7 +345,8 @@ impl std::fmt::Debug for Dispatcher {
 
 impl Dispatcher {
     /// A dispatcher over an in-process host (`local`, `None` for remote-only), a host used for
-    /// replays, and the cluster token.
+    /// replays, and the cluster token, with the default limits ([`Dispatcher::from_config`]
+    /// applies the configured ones).
     pub fn new(
         local: Option<SessionHost>,
         replay: SessionHost,
@@ -366,12 +359,12 @@ impl Dispatcher {
                 remote: registry::Registry::default(),
                 sessions: Mutex::new(HashMap::new()),
                 worker_token,
-                sessions_per_user: std::sync::atomic::AtomicUsize::new(sessions_per_user_from_env()),
+                sessions_per_user: std::sync::atomic::AtomicUsize::new(DEFAULT_SESSIONS_PER_USER),
                 sessions_per_course: std::sync::atomic::AtomicUsize::new(
-                    sessions_per_course_from_env(),
+                    DEFAULT_SESSIONS_PER_COURSE,
                 ),
                 session_idle_ms: std::sync::atomic::AtomicU64::new(
-                    session_idle_from_env().as_millis() as u64,
+                    DEFAULT_SESSION_IDLE.as_millis() as u64,
                 ),
                 reaper_wake: Arc::new(tokio::sync::Notify::new()),
                 records: Mutex::new(None),
@@ -441,7 +434,7 @@ impl Dispatcher {
         }
     }
 
-    /// Most time a session stays open without a command (`PAINSIM_SESSION_IDLE_SECS`).
+    /// Most time a session stays open without a command (`PAINSIM_LIVE_SESSION_IDLE_SECS`).
     pub fn session_idle(&self) -> std::time::Duration {
         std::time::Duration::from_millis(
             self.inner
@@ -450,7 +443,7 @@ impl Dispatcher {
         )
     }
 
-    /// Sets the idle limit instead of `PAINSIM_SESSION_IDLE_SECS` (tests use a short one).
+    /// Sets the idle limit instead of `PAINSIM_LIVE_SESSION_IDLE_SECS` (tests use a short one).
     pub fn set_session_idle(&self, idle: std::time::Duration) {
         self.inner.session_idle_ms.store(
             (idle.as_millis() as u64).max(1),
@@ -498,47 +491,52 @@ impl Dispatcher {
         self.close_taken(&s).await;
     }
 
-    /// The default: an in-process host over `config`'s stations and regions (regions load on
-    /// first use) rendering with `backends`.
-    pub fn from_config(config: &DispatchConfig, backends: Backends) -> Result<Dispatcher, String> {
+    /// The default: an in-process host over the stations of `stations_dir` and `config`'s
+    /// regions (regions load on first use) rendering with `backends`, with `config`'s limits.
+    pub fn from_config(
+        config: &DispatchConfig,
+        stations_dir: &std::path::Path,
+        backends: Backends,
+    ) -> Result<Dispatcher, HostError> {
         let host = SessionHost::new(
             HostConfig {
                 assets_root: config.assets_root.clone(),
-                stations_dir: config.stations_dir.clone(),
+                stations_dir: stations_dir.to_path_buf(),
                 capacity: config.in_process_capacity,
                 session: SessionConfig::default(),
             },
             backends,
             None,
-        )
-        .map_err(|e| e.to_string())?;
-        Ok(Dispatcher::new(
-            Some(host.clone()),
-            host,
-            config.worker_token.clone(),
-        ))
+        )?;
+        let d = Dispatcher::new(Some(host.clone()), host, config.worker_token.clone());
+        d.apply_limits(config);
+        Ok(d)
+    }
+
+    /// Sets the per-user, per-course and idle limits of `config`.
+    fn apply_limits(&self, config: &DispatchConfig) {
+        self.set_sessions_per_user(config.sessions_per_user);
+        self.set_sessions_per_course(config.sessions_per_course);
+        self.set_session_idle(config.live_session_idle);
     }
 
     /// The dispatcher of [`crate::app`]: `state.dispatcher` when set, else the default
-    /// from the environment and the learning records' stations folder. A station folder that
-    /// does not load leaves an in-process host without stations (start-up reports the folder).
+    /// from `config` over the stations of `stations_dir`. A station folder that does not load
+    /// leaves an in-process host without stations (start-up reports the folder).
     pub fn for_app(
         attached: Option<&Dispatcher>,
         workers: &crate::workers::Workers,
-        stations_dir: std::path::PathBuf,
+        config: &DispatchConfig,
+        stations_dir: &std::path::Path,
     ) -> Dispatcher {
         if let Some(d) = attached {
             return d.clone();
         }
-        let config = DispatchConfig::from_env(stations_dir);
         let in_process = Arc::new(InProcessBackend {
             workers: workers.clone(),
         });
-        let backends = Backends {
-            fluoro: in_process.clone(),
-            ultrasound: in_process,
-        };
-        Dispatcher::from_config(&config, backends).unwrap_or_else(|e| {
+        let backends = Backends::new(in_process.clone(), in_process);
+        Dispatcher::from_config(config, stations_dir, backends).unwrap_or_else(|e| {
             tracing::error!("no in-process sessions: {e}");
             let empty = SessionHost::with_regions(
                 Vec::new(),
@@ -547,7 +545,9 @@ impl Dispatcher {
                 0,
                 SessionConfig::default(),
             );
-            Dispatcher::new(None, empty, config.worker_token)
+            let d = Dispatcher::new(None, empty, config.worker_token.clone());
+            d.apply_limits(config);
+            d
         })
     }
 
@@ -727,7 +727,7 @@ impl Dispatcher {
             return Err(PlaceError::Failed(if errors.is_empty() {
                 "no render worker is registered".into()
             } else {
-                errors.join("; ")
+                registry::joined(&errors)
             }));
         };
         let h = host.create(station_id).await?;
@@ -747,7 +747,7 @@ impl Dispatcher {
     pub(super) async fn restore_anywhere(
         &self,
         record: &SessionRecord,
-    ) -> Result<Placement, String> {
+    ) -> Result<Placement, RestoreError> {
         let nowhere = Placement::Local {
             worker_session: String::new(),
         };
@@ -760,7 +760,7 @@ impl Dispatcher {
         &self,
         failed: &Placement,
         record: &SessionRecord,
-    ) -> Result<Placement, String> {
+    ) -> Result<Placement, RestoreError> {
         if let Placement::Remote { worker_url, .. } = failed {
             self.inner.remote.mark_dead(worker_url);
         }
@@ -782,18 +782,13 @@ impl Dispatcher {
         }
         if let Some(host) = &self.inner.local {
             let (h, initial, log) = (host.clone(), record.initial.clone(), record.log.clone());
-            let handle = tokio::task::spawn_blocking(move || h.restore_blocking(&initial, &log))
-                .await
-                .map_err(|e| e.to_string())?
-                .map_err(|e| e.to_string())?;
+            let handle =
+                tokio::task::spawn_blocking(move || h.restore_blocking(&initial, &log)).await??;
             return Ok(Placement::Local {
                 worker_session: handle.info.id.clone(),
             });
         }
-        Err(format!(
-            "no worker could take the session over: {}",
-            errors.join("; ")
-        ))
+        Err(RestoreError::NoWorker(errors))
     }
 
     pub(super) fn insert(&self, s: Arc<LiveSession>) {

@@ -21,7 +21,7 @@
 //! A user holds at most `PAINSIM_SESSIONS_PER_USER` live sessions and a course's attempts at
 //! most `PAINSIM_SESSIONS_PER_COURSE` (429 `session_limit`, `scope` naming which). The server
 //! ends a session itself, with a close code and reason on its sockets and an audit entry, when it
-//! got no command for `PAINSIM_SESSION_IDLE_SECS` (code [`CLOSE_IDLE`], 4001; audit
+//! got no command for `PAINSIM_LIVE_SESSION_IDLE_SECS` (code [`CLOSE_IDLE`], 4001; audit
 //! `session_closed_idle`) or when the database refuses its log for good (code
 //! [`CLOSE_LOG_REFUSED`], 1011; audit `session_ended_log_refused`), or when the learner's
 //! account is revoked (code [`CLOSE_REVOKED`], 4003); in each case the slot is freed and opening
@@ -56,6 +56,6 @@ mod upstream;
 mod verify;
 
 pub use dispatcher::*;
-pub use registry::{RemoteWorker, WorkerView};
+pub use registry::{RemoteWorker, WorkerCallError, WorkerView};
 pub use relay::{MAX_CLIENT_MESSAGE_BYTES, MAX_IN_FLIGHT, MAX_UNREAD_ANSWERS};
 pub use routes::{DispatchApi, openapi, router};

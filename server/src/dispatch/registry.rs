@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use render_worker::cluster::{Registration, request};
+use render_worker::cluster::{HttpError, HttpResponse, Registration, request};
 use render_worker::session::{LogEntry, SessionSnapshot};
 use serde::Serialize;
 
@@ -189,19 +189,52 @@ impl Registry {
     }
 }
 
-fn worker_error(what: &str, r: &render_worker::cluster::HttpResponse) -> String {
-    format!(
-        "{what}: worker answered {}: {}",
-        r.status,
-        String::from_utf8_lossy(&r.body)
-    )
+/// Why a call that creates or restores a session on a registered worker failed.
+#[derive(Debug, thiserror::Error)]
+pub enum WorkerCallError {
+    /// The request got no usable answer.
+    #[error(transparent)]
+    Http(#[from] HttpError),
+    /// The worker answered with another status than the call expects.
+    #[error("{call}: worker answered {status}: {body}")]
+    Status {
+        /// The call (`create`, `snapshot`, `restore`).
+        call: &'static str,
+        /// The HTTP status.
+        status: u16,
+        /// The answer's body, as text.
+        body: String,
+    },
+    /// The answer lacks the new session's id.
+    #[error("{0}: no session id in the answer")]
+    NoSessionId(&'static str),
+    /// The snapshot in the answer does not parse.
+    #[error("snapshot: {0}")]
+    Snapshot(#[source] serde_json::Error),
+}
+
+/// The errors of several workers tried in turn, in words, separated by `; `.
+pub fn joined(errors: &[WorkerCallError]) -> String {
+    errors
+        .iter()
+        .map(ToString::to_string)
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+fn worker_error(call: &'static str, r: &HttpResponse) -> WorkerCallError {
+    WorkerCallError::Status {
+        call,
+        status: r.status,
+        body: String::from_utf8_lossy(&r.body).into_owned(),
+    }
 }
 
 /// Creates a session on a worker; returns its id there and its initial snapshot.
 pub async fn create_remote(
     url: &str,
     station_id: &str,
-) -> Result<(String, SessionSnapshot), String> {
+) -> Result<(String, SessionSnapshot), WorkerCallError> {
     let r = request(
         "POST",
         &format!("{url}/sessions"),
@@ -214,14 +247,14 @@ pub async fn create_remote(
     }
     let id = r.json()?["session"]["id"]
         .as_str()
-        .ok_or("create: no session id in the answer")?
+        .ok_or(WorkerCallError::NoSessionId("create"))?
         .to_string();
     let r = request("GET", &format!("{url}/sessions/{id}/snapshot"), None, None).await?;
     if r.status != 200 {
         return Err(worker_error("snapshot", &r));
     }
-    let snapshot: SessionSnapshot = serde_json::from_value(r.json()?["snapshot"].clone())
-        .map_err(|e| format!("snapshot: {e}"))?;
+    let snapshot: SessionSnapshot =
+        serde_json::from_value(r.json()?["snapshot"].clone()).map_err(WorkerCallError::Snapshot)?;
     Ok((id, snapshot))
 }
 
@@ -230,7 +263,7 @@ pub async fn restore_remote(
     url: &str,
     snapshot: &SessionSnapshot,
     log: &[LogEntry],
-) -> Result<String, String> {
+) -> Result<String, WorkerCallError> {
     let body = serde_json::json!({ "snapshot": snapshot, "log": log });
     let r = request(
         "POST",
@@ -244,6 +277,6 @@ pub async fn restore_remote(
     }
     Ok(r.json()?["session"]["id"]
         .as_str()
-        .ok_or("restore: no session id in the answer")?
+        .ok_or(WorkerCallError::NoSessionId("restore"))?
         .to_string())
 }

@@ -21,7 +21,7 @@ use futures::{SinkExt, StreamExt};
 use render_worker::session::protocol::{
     ClientMessage, ServerMessage, WsMessage, parse_client_message,
 };
-use render_worker::session::{Ack, Command, LogEntry, sha256_hex};
+use render_worker::session::{Ack, Command, Engagement as Declared, LogEntry, sha256_hex};
 use serde_json::json;
 use tokio::sync::mpsc;
 
@@ -42,37 +42,16 @@ const MAX_FAILOVERS_IN_A_ROW: u32 = 3;
 /// default was 64 MiB).
 pub const MAX_CLIENT_MESSAGE_BYTES: usize = 64 * 1024;
 
-/// The engagement event a command stands for, if any.
-fn activity_of(command: &Command) -> Option<ActivityKind> {
-    Some(match command {
-        Command::CarmPose { .. }
-        | Command::ProbeSelect { .. }
-        | Command::ProbePose { .. }
-        | Command::ProbeMove { .. }
-        | Command::ProbeDrag { .. }
-        | Command::ProbeSettings { .. }
-        | Command::Technique { .. } => ActivityKind::ViewChanged,
-        Command::Shot | Command::Live { on: true } => ActivityKind::ImageAcquired,
-        Command::NeedlePlace { .. }
-        | Command::NeedlePuncture { .. }
-        | Command::NeedleFeed { .. }
-        | Command::NeedleRoll { .. }
-        | Command::NeedleTilt { .. }
-        | Command::NeedleWithdraw { .. } => ActivityKind::NeedleAdjusted,
-        Command::Inject { .. } | Command::Plunger { .. } => ActivityKind::Injection,
-        Command::Live { on: false }
-        | Command::SkinMarker { .. }
-        | Command::Syringe { .. }
-        | Command::PlungerHold { .. }
-        | Command::Aspirate
-        | Command::ProbeFreeze { .. }
-        | Command::InjectStop
-        | Command::Annotate { .. }
-        | Command::Tick
-        | Command::Submit => {
-            return None;
-        }
-    })
+/// The learning-record event of an engagement the worker declared in an acknowledgement (the
+/// session core or the modality that handled the command decides it; the relay keeps no list of
+/// command kinds).
+fn activity_of(engagement: Declared) -> ActivityKind {
+    match engagement {
+        Declared::ViewChanged => ActivityKind::ViewChanged,
+        Declared::ImageAcquired => ActivityKind::ImageAcquired,
+        Declared::NeedleAdjusted => ActivityKind::NeedleAdjusted,
+        Declared::Injection => ActivityKind::Injection,
+    }
 }
 
 /// Saves the frame hash of a session (its commands are written as they are acknowledged).
@@ -100,9 +79,9 @@ pub const MAX_IN_FLIGHT: usize = 1024;
 
 /// Most answers (acknowledgements, errors, notices) waiting for the browser to read them
 /// before the relay stops reading the browser. Simulator choice: above the 10,000-command
-/// burst of issue 20 (a client may send that many without reading and still get every answer
-/// once it reads), a few megabytes of small JSON at most; a client that runs further ahead is
-/// held by TCP backpressure, never by a wedged relay.
+/// burst of `tests/dispatch_hardening.rs` (a client may send that many without reading and
+/// still get every answer once it reads), a few megabytes of small JSON at most; a client that
+/// runs further ahead is held by TCP backpressure, never by a wedged relay.
 pub const MAX_UNREAD_ANSWERS: usize = 16_384;
 
 /// How long a relay whose browser left goes on taking the worker's answers to commands it had
@@ -347,7 +326,7 @@ impl Relay {
             st.log.len()
         };
         self.writer.kick();
-        self.record_engagement(&command, ack.seq);
+        self.record_engagement(&command, ack.engagement, ack.seq);
         let mut result_message = None;
         if command == Command::Submit {
             // The result is stored only after the log it scores.
@@ -384,7 +363,7 @@ impl Relay {
     /// when the browser is slow).
     async fn on_frame(&mut self, b: Vec<u8>) -> Flow {
         use render_worker::session::frame::HEADER_BYTES;
-        if b.get(5) == Some(&render_worker::session::ViewId::Fluoroscopy.code()) {
+        if b.get(5) == Some(&render_worker::session::ViewId::FLUOROSCOPY.code()) {
             let jpeg = b.get(HEADER_BYTES..).unwrap_or_default();
             self.session.state.lock().await.last_frame_sha256 = Some(sha256_hex(jpeg));
         }
@@ -553,8 +532,8 @@ impl Relay {
     }
 
     /// The engagement event of an acknowledged command, recorded in the background.
-    fn record_engagement(&self, command: &Command, seq: u64) {
-        let Some(kind) = activity_of(command) else {
+    fn record_engagement(&self, command: &Command, engagement: Option<Declared>, seq: u64) {
+        let Some(kind) = engagement.map(activity_of) else {
             return;
         };
         let detail =

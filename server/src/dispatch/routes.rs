@@ -21,7 +21,7 @@ use sha2::{Digest, Sha256};
 use uuid::Uuid;
 
 use super::{Dispatcher, LiveSession, PlaceError, Placement, SessionRecord, relay, revoke, store, verify};
-use crate::ApiError;
+use crate::error::ApiError;
 use crate::records::RecordsState;
 use crate::records::activity::{ActivityKind, record_activity};
 use crate::records::auth::{CurrentUser, Role};

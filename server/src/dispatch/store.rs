@@ -164,17 +164,26 @@ pub fn is_transient(e: &sqlx::Error) -> bool {
     }
 }
 
+/// Why PostgreSQL's `jsonb` cannot store a JSON value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum JsonbError {
+    /// A string value holds U+0000.
+    #[error("a string holds U+0000, which jsonb cannot store")]
+    NulInString,
+    /// An object key holds U+0000.
+    #[error("a key holds U+0000, which jsonb cannot store")]
+    NulInKey,
+}
+
 /// Refuses a JSON value PostgreSQL's `jsonb` cannot store: a string (or key) holding U+0000.
 /// (Non-finite numbers cannot occur: `serde_json` has no JSON form for them.)
-pub fn jsonb_storable(v: &serde_json::Value) -> Result<(), String> {
+pub fn jsonb_storable(v: &serde_json::Value) -> Result<(), JsonbError> {
     match v {
-        serde_json::Value::String(s) if s.contains('\0') => {
-            Err("a string holds U+0000, which jsonb cannot store".into())
-        }
+        serde_json::Value::String(s) if s.contains('\0') => Err(JsonbError::NulInString),
         serde_json::Value::Array(a) => a.iter().try_for_each(jsonb_storable),
         serde_json::Value::Object(o) => o.iter().try_for_each(|(k, v)| {
             if k.contains('\0') {
-                return Err("a key holds U+0000, which jsonb cannot store".into());
+                return Err(JsonbError::NulInKey);
             }
             jsonb_storable(v)
         }),
@@ -229,22 +238,43 @@ pub async fn append_commands(
     Ok(())
 }
 
+/// Why the stored log of a session could not be read back.
+#[derive(Debug, thiserror::Error)]
+pub enum LoadLogError {
+    /// The query failed.
+    #[error(transparent)]
+    Database(#[from] sqlx::Error),
+    /// A stored sequence number is negative.
+    #[error("stored seq {0}")]
+    Seq(i64),
+    /// A stored simulation time is negative.
+    #[error("stored t_ms {0}")]
+    TimeMs(i64),
+    /// A stored command no longer parses.
+    #[error("stored command {seq}: {source}")]
+    Command {
+        /// Its sequence number.
+        seq: i64,
+        /// The parser's error.
+        source: serde_json::Error,
+    },
+}
+
 /// The logged commands of session `id`, in order.
-pub async fn load_commands(pool: &PgPool, id: Uuid) -> Result<Vec<LogEntry>, String> {
+pub async fn load_commands(pool: &PgPool, id: Uuid) -> Result<Vec<LogEntry>, LoadLogError> {
     let rows: Vec<(i64, i64, serde_json::Value)> = sqlx::query_as(
         "SELECT seq, t_ms, command FROM live_session_commands WHERE session_id = $1 ORDER BY seq",
     )
     .bind(id)
     .fetch_all(pool)
-    .await
-    .map_err(|e| e.to_string())?;
+    .await?;
     rows.into_iter()
         .map(|(seq, t_ms, command)| {
             Ok(LogEntry {
-                seq: u64::try_from(seq).map_err(|_| format!("stored seq {seq}"))?,
-                t_ms: u64::try_from(t_ms).map_err(|_| format!("stored t_ms {t_ms}"))?,
+                seq: u64::try_from(seq).map_err(|_| LoadLogError::Seq(seq))?,
+                t_ms: u64::try_from(t_ms).map_err(|_| LoadLogError::TimeMs(t_ms))?,
                 command: serde_json::from_value(command)
-                    .map_err(|e| format!("stored command {seq}: {e}"))?,
+                    .map_err(|source| LoadLogError::Command { seq, source })?,
             })
         })
         .collect()
@@ -265,6 +295,14 @@ mod tests {
         ] {
             assert!(jsonb_storable(&bad).is_err(), "{bad}");
         }
+        assert_eq!(
+            jsonb_storable(&serde_json::json!({ "k\u{0}": "v\u{0}" })),
+            Err(JsonbError::NulInKey)
+        );
+        assert_eq!(
+            jsonb_storable(&serde_json::json!(["ok", "v\u{0}"])),
+            Err(JsonbError::NulInString)
+        );
     }
 
     #[test]

@@ -4,6 +4,7 @@
 use std::pin::Pin;
 
 use futures::{Sink, SinkExt, Stream, StreamExt};
+use render_worker::cluster::UrlError;
 use render_worker::session::protocol::{WsMessage, serve_connection};
 use tokio_tungstenite::tungstenite::Message as TMessage;
 
@@ -14,17 +15,41 @@ pub type UpSink = Pin<Box<dyn Sink<WsMessage, Error = String> + Send>>;
 /// Messages from the worker.
 pub type UpStream = Pin<Box<dyn Stream<Item = Result<WsMessage, String>> + Send>>;
 
+/// Why the worker side of a session could not be opened.
+#[derive(Debug, thiserror::Error)]
+pub enum UpstreamError {
+    /// The session is placed in-process but this server has no in-process worker.
+    #[error("no in-process worker")]
+    NoInProcessWorker,
+    /// The in-process host no longer holds the session.
+    #[error("the in-process session has ended")]
+    SessionEnded,
+    /// The worker's URL cannot be turned into its socket's.
+    #[error(transparent)]
+    Url(#[from] UrlError),
+    /// The worker's session socket did not open.
+    #[error("{url}: {source}")]
+    Connect {
+        /// The socket's URL.
+        url: String,
+        /// The websocket client's error.
+        source: tokio_tungstenite::tungstenite::Error,
+    },
+}
+
 /// Opens the worker side of a session.
 pub async fn connect(
     dispatcher: &Dispatcher,
     placement: &Placement,
-) -> Result<(UpSink, UpStream), String> {
+) -> Result<(UpSink, UpStream), UpstreamError> {
     match placement {
         Placement::Local { worker_session } => {
-            let host = dispatcher.local_host().ok_or("no in-process worker")?;
+            let host = dispatcher
+                .local_host()
+                .ok_or(UpstreamError::NoInProcessWorker)?;
             let handle = host
                 .session(worker_session)
-                .ok_or("the in-process session has ended")?;
+                .ok_or(UpstreamError::SessionEnded)?;
             // Bounded towards the relay: when the browser is slow, the session's connection waits
             // here and, its frames being a latest-only watch, skips superseded frames.
             let (to_relay, from_worker) = futures::channel::mpsc::channel::<WsMessage>(2);
@@ -47,9 +72,10 @@ pub async fn connect(
         } => {
             let (authority, _) = render_worker::cluster::split_url(worker_url)?;
             let url = format!("ws://{authority}/sessions/{worker_session}/ws");
-            let (ws, _) = tokio_tungstenite::connect_async(&url)
-                .await
-                .map_err(|e| format!("{url}: {e}"))?;
+            let (ws, _) = match tokio_tungstenite::connect_async(&url).await {
+                Ok(c) => c,
+                Err(source) => return Err(UpstreamError::Connect { url, source }),
+            };
             let (sink, stream) = ws.split();
             let sink = sink.sink_map_err(|e| e.to_string()).with(|m: WsMessage| {
                 futures::future::ready(Ok::<TMessage, String>(match m {

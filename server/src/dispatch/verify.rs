@@ -19,7 +19,7 @@ use serde_json::json;
 use uuid::Uuid;
 
 use super::Dispatcher;
-use crate::ApiError;
+use crate::error::ApiError;
 use crate::records::RecordsState;
 use crate::records::results::{ReplayVerdict, record_replay_check};
 
@@ -58,7 +58,7 @@ pub(super) async fn replay_on(
         let views = s
             .render_dirty(&visible)
             .map_err(|e| ApiError::Internal(format!("replay render: {e}")))?;
-        let jpeg = match views.into_iter().find(|v| v.view == ViewId::Fluoroscopy) {
+        let jpeg = match views.into_iter().find(|v| v.view == ViewId::FLUOROSCOPY) {
             Some(v) => Some(
                 render_worker::session::frame::encode_jpeg(&v.image)
                     .map_err(|e| ApiError::Internal(e.to_string()))?,

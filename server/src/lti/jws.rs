@@ -50,27 +50,47 @@ impl Parsed {
     }
 }
 
+/// Why a token is not a usable compact JWS.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum JwsError {
+    /// Not three dot-separated parts.
+    #[error("the token is not a compact JWS (three parts)")]
+    NotCompact,
+    /// A part (`header`, `payload`, `signature`) does not decode.
+    #[error("the token's {0} is not base64url")]
+    NotBase64url(&'static str),
+    /// The header or the payload (named) is not JSON.
+    #[error("the token's {0} is not JSON")]
+    NotJson(&'static str),
+    /// Signed with another algorithm than RS256 (never `none`, never HMAC).
+    #[error("the token is not signed with RS256")]
+    NotRs256,
+    /// The payload is JSON but no object.
+    #[error("the token's claims are not a JSON object")]
+    ClaimsNotObject,
+}
+
 /// Splits and decodes a compact JWS; only RS256 is accepted (never `none`, never HMAC).
-pub fn parse(token: &str) -> Result<Parsed, String> {
+pub fn parse(token: &str) -> Result<Parsed, JwsError> {
     let mut parts = token.split('.');
     let (Some(h), Some(p), Some(s), None) =
         (parts.next(), parts.next(), parts.next(), parts.next())
     else {
-        return Err("the token is not a compact JWS (three parts)".into());
+        return Err(JwsError::NotCompact);
     };
-    let decode = |part: &str, what: &str| {
+    let decode = |part: &str, what: &'static str| {
         B64.decode(part.trim_end_matches('='))
-            .map_err(|_| format!("the token's {what} is not base64url"))
+            .map_err(|_| JwsError::NotBase64url(what))
     };
-    let header: Value = serde_json::from_slice(&decode(h, "header")?)
-        .map_err(|_| "the token's header is not JSON".to_string())?;
-    let claims: Value = serde_json::from_slice(&decode(p, "payload")?)
-        .map_err(|_| "the token's payload is not JSON".to_string())?;
+    let header: Value =
+        serde_json::from_slice(&decode(h, "header")?).map_err(|_| JwsError::NotJson("header"))?;
+    let claims: Value =
+        serde_json::from_slice(&decode(p, "payload")?).map_err(|_| JwsError::NotJson("payload"))?;
     if header.get("alg").and_then(Value::as_str) != Some("RS256") {
-        return Err("the token is not signed with RS256".into());
+        return Err(JwsError::NotRs256);
     }
     if !claims.is_object() {
-        return Err("the token's claims are not a JSON object".into());
+        return Err(JwsError::ClaimsNotObject);
     }
     Ok(Parsed {
         header,
@@ -102,33 +122,53 @@ pub fn thumbprint(key: &RsaPublicKey) -> String {
     B64.encode(Sha256::digest(canonical.as_bytes()))
 }
 
+/// Why a JWK is not a usable RS256 signing key.
+#[derive(Debug, thiserror::Error)]
+pub enum JwkError {
+    /// `kty` is not `RSA`.
+    #[error("not an RSA key")]
+    NotRsa,
+    /// `use` names another use than `sig`.
+    #[error("not a signing key")]
+    NotSigning,
+    /// `alg` names another algorithm than RS256.
+    #[error("not an RS256 key")]
+    NotRs256,
+    /// The modulus `n` or exponent `e` is missing or does not decode.
+    #[error("JWK member {0} is missing or not base64url")]
+    Member(&'static str),
+    /// The modulus and exponent make no RSA key.
+    #[error("bad RSA key: {0}")]
+    Key(#[from] rsa::Error),
+}
+
 /// An RSA public key from a JWK (`kty` RSA; a JWK for another use or algorithm is refused).
-pub fn key_from_jwk(jwk: &Value) -> Result<RsaPublicKey, String> {
+pub fn key_from_jwk(jwk: &Value) -> Result<RsaPublicKey, JwkError> {
     if jwk.get("kty").and_then(Value::as_str) != Some("RSA") {
-        return Err("not an RSA key".into());
+        return Err(JwkError::NotRsa);
     }
     if jwk
         .get("use")
         .and_then(Value::as_str)
         .is_some_and(|u| u != "sig")
     {
-        return Err("not a signing key".into());
+        return Err(JwkError::NotSigning);
     }
     if jwk
         .get("alg")
         .and_then(Value::as_str)
         .is_some_and(|a| a != "RS256")
     {
-        return Err("not an RS256 key".into());
+        return Err(JwkError::NotRs256);
     }
-    let field = |name: &str| {
+    let field = |name: &'static str| {
         jwk.get(name)
             .and_then(Value::as_str)
             .and_then(|v| B64.decode(v.trim_end_matches('=')).ok())
             .map(|b| BigUint::from_bytes_be(&b))
-            .ok_or_else(|| format!("JWK member {name} is missing or not base64url"))
+            .ok_or(JwkError::Member(name))
     };
-    RsaPublicKey::new(field("n")?, field("e")?).map_err(|e| format!("bad RSA key: {e}"))
+    Ok(RsaPublicKey::new(field("n")?, field("e")?)?)
 }
 
 /// Random bytes as lower-case hex (state, nonce, tokens).

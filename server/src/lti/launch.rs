@@ -26,6 +26,7 @@ use super::jws::{self, random_hex, sha256};
 use super::keys;
 use super::platforms::{self, Platform};
 use super::state::LtiState;
+use crate::error::ApiError;
 use crate::records::auth::Role;
 use crate::records::history::audit;
 
@@ -104,9 +105,10 @@ async fn platform_for(
             )));
         }
         _ => {
-            return Err(LtiError::BadRequest(
+            return Err(ApiError::BadRequest(
                 "several registrations share this issuer: the login must name the client_id".into(),
-            ));
+            )
+            .into());
         }
     };
     platforms::get(&state.pool, id)
@@ -140,10 +142,11 @@ async fn login(state: &LtiState, p: LoginParams) -> Result<Response, LtiError> {
     }
     let target = p.target_link_uri.trim();
     if !target.starts_with(&format!("{}/", state.public_url)) {
-        return Err(LtiError::BadRequest(format!(
+        return Err(ApiError::BadRequest(format!(
             "target_link_uri must be on this tool ({}/...)",
             state.public_url
-        )));
+        ))
+        .into());
     }
     let (st, nonce, browser) = (random_hex(32), random_hex(32), random_hex(32));
     sqlx::query("DELETE FROM lti_login_states WHERE expires_at < now()")
@@ -183,7 +186,7 @@ async fn login(state: &LtiState, p: LoginParams) -> Result<Response, LtiError> {
     let h = resp.headers_mut();
     h.insert(
         LOCATION,
-        HeaderValue::from_str(url.as_str()).map_err(|_| LtiError::BadRequest("bad URL".into()))?,
+        HeaderValue::from_str(url.as_str()).map_err(|_| ApiError::BadRequest("bad URL".into()))?,
     );
     h.append(
         SET_COOKIE,
@@ -412,7 +415,7 @@ pub async fn course(
     let cid = context["id"]
         .as_str()
         .filter(|s| !s.is_empty())
-        .ok_or_else(|| LtiError::BadRequest("the launch has no context (course) id".into()))?;
+        .ok_or_else(|| ApiError::BadRequest("the launch has no context (course) id".into()))?;
     if let Some(id) = sqlx::query_scalar(
         "SELECT course_id FROM lti_contexts WHERE platform_id = $1 AND context_id = $2",
     )
@@ -530,11 +533,9 @@ pub async fn launch(
         )));
     }
     let (Some(token), Some(st)) = (f.id_token, f.state) else {
-        return Err(LtiError::BadRequest(
-            "the launch needs id_token and state".into(),
-        ));
+        return Err(ApiError::BadRequest("the launch needs id_token and state".into()).into());
     };
-    let parsed = jws::parse(&token).map_err(LtiError::Refused)?;
+    let parsed = jws::parse(&token).map_err(|e| LtiError::Refused(e.to_string()))?;
     // The state is used up whatever follows.
     let row: Option<(String, Vec<u8>, Uuid, bool)> = sqlx::query_as(
         "DELETE FROM lti_login_states WHERE state_sha256 = $1
@@ -801,7 +802,7 @@ pub async fn deep_link_choose(
         .records
         .stations
         .get(&f.station_id)
-        .ok_or_else(|| LtiError::BadRequest(format!("no station {:?}", f.station_id)))?
+        .ok_or_else(|| ApiError::BadRequest(format!("no station {:?}", f.station_id)))?
         .station
         .clone();
     let row: Option<(Uuid, String, String, Option<String>)> = sqlx::query_as(
@@ -845,7 +846,7 @@ pub async fn deep_link_choose(
     let jwt = keys::sign(&state.pool, &claims).await?;
     let origin = reqwest::Url::parse(&return_url)
         .map(|u| u.origin().ascii_serialization())
-        .map_err(|_| LtiError::BadRequest("bad return URL".into()))?;
+        .map_err(|_| ApiError::BadRequest("bad return URL".into()))?;
     let body = format!(
         "<!doctype html><html lang=\"en\"><meta charset=\"utf-8\"><title>Returning to the course</title>\
          <form id=\"deep-link-return\" method=\"post\" action=\"{}\"><input type=\"hidden\" name=\"JWT\" value=\"{}\">\
@@ -859,7 +860,7 @@ pub async fn deep_link_choose(
         HeaderValue::from_str(&format!(
             "default-src 'none'; script-src 'self'; form-action {origin}; frame-ancestors 'none'; base-uri 'none'"
         ))
-        .map_err(|_| LtiError::BadRequest("bad return URL".into()))?,
+        .map_err(|_| ApiError::BadRequest("bad return URL".into()))?,
     );
     Ok(resp)
 }

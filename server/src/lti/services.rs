@@ -54,12 +54,39 @@ pub const NRPS_MAX_PAGES: usize = 200;
 /// A token is renewed this long before the platform says it expires (our choice).
 const TOKEN_MARGIN: Duration = Duration::from_secs(30);
 
+/// Why no access token could be had from a platform's token endpoint.
+#[derive(Debug, thiserror::Error)]
+pub enum TokenError {
+    /// The tool's client assertion could not be signed (its key store failed).
+    #[error("{0}")]
+    Assertion(ApiError),
+    /// The token request did not complete.
+    #[error("token request: {0}")]
+    Request(reqwest::Error),
+    /// The answer is not JSON.
+    #[error("token response ({status}): {source}")]
+    Response {
+        /// The answer's status.
+        status: reqwest::StatusCode,
+        /// Why its body does not parse.
+        source: reqwest::Error,
+    },
+    /// The platform answered without a token (an error status, or no `access_token`).
+    #[error("token endpoint answered {status}: {body}")]
+    Refused {
+        /// The answer's status.
+        status: reqwest::StatusCode,
+        /// Its body.
+        body: Value,
+    },
+}
+
 /// An access token for `scopes` at `platform` (cached until shortly before it expires).
 pub async fn access_token(
     state: &LtiState,
     platform: &Platform,
     scopes: &str,
-) -> Result<String, String> {
+) -> Result<String, TokenError> {
     let key = (platform.id, scopes.to_owned());
     if let Some((t, until)) = state.tokens.lock().expect("token cache").get(&key)
         && *until > Instant::now()
@@ -75,7 +102,7 @@ pub async fn access_token(
         }),
     )
     .await
-    .map_err(|e| e.to_string())?;
+    .map_err(TokenError::Assertion)?;
     let form = [
         ("grant_type", "client_credentials"),
         (
@@ -91,17 +118,19 @@ pub async fn access_token(
         .form(&form)
         .send()
         .await
-        .map_err(|e| format!("token request: {e}"))?;
+        .map_err(TokenError::Request)?;
     let status = resp.status();
     let body: Value = resp
         .json()
         .await
-        .map_err(|e| format!("token response ({status}): {e}"))?;
-    let token = body["access_token"]
+        .map_err(|source| TokenError::Response { status, source })?;
+    let Some(token) = body["access_token"]
         .as_str()
         .filter(|_| status.is_success())
-        .ok_or_else(|| format!("token endpoint answered {status}: {body}"))?
-        .to_owned();
+        .map(str::to_owned)
+    else {
+        return Err(TokenError::Refused { status, body });
+    };
     let life = Duration::from_secs(body["expires_in"].as_u64().unwrap_or(3600));
     state.tokens.lock().expect("token cache").insert(
         key,
@@ -156,7 +185,7 @@ impl ScoreDelivery {
             .ok_or_else(|| DeliveryError::Permanent("bad line item URL".into()))?;
         let token = access_token(&self.state, &platform, SCOPES_AGS)
             .await
-            .map_err(DeliveryError::Retry)?;
+            .map_err(|e| DeliveryError::Retry(e.to_string()))?;
         let resp = self
             .state
             .http
@@ -366,7 +395,7 @@ pub async fn sync_memberships(
     let bad = LtiError::Platform;
     let token = access_token(&state, &platform, SCOPE_NRPS)
         .await
-        .map_err(bad)?;
+        .map_err(|e| bad(e.to_string()))?;
     let mut members = Vec::new();
     let mut pages = 0;
     loop {

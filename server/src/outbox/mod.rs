@@ -46,21 +46,14 @@ pub async fn enqueue(
 }
 
 /// Why a delivery failed.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum DeliveryError {
     /// Try again later (network down, receiver busy or failing, not configured yet).
+    #[error("retry: {0}")]
     Retry(String),
     /// Never try these items again (the receiver rejects them as they are).
+    #[error("permanent: {0}")]
     Permanent(String),
-}
-
-impl std::fmt::Display for DeliveryError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            DeliveryError::Retry(e) => write!(f, "retry: {e}"),
-            DeliveryError::Permanent(e) => write!(f, "permanent: {e}"),
-        }
-    }
 }
 
 /// A deliverer of one kind of item.

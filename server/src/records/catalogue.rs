@@ -4,7 +4,6 @@
 use axum::extract::State;
 use axum::http::StatusCode;
 use serde::{Deserialize, Serialize};
-use sim_core::rubric::Modality;
 use time::OffsetDateTime;
 use utoipa::ToSchema;
 use uuid::Uuid;
@@ -311,14 +310,6 @@ pub struct StationSummary {
     pub file_sha256: String,
 }
 
-fn modality_name(m: Modality) -> String {
-    match m {
-        Modality::Fluoroscopy => "fluoroscopy".into(),
-        Modality::Ultrasound => "ultrasound".into(),
-        Modality::Contrast => "contrast".into(),
-    }
-}
-
 /// Every station (current revisions).
 #[utoipa::path(get, path = "/api/stations", tag = "stations",
     responses((status = 200, body = Vec<StationSummary>), (status = 401)))]
@@ -339,7 +330,11 @@ pub async fn list_stations(
                     rubric_revision: s.rubric.revision,
                     title: s.title.clone(),
                     region: s.region.clone(),
-                    modalities: s.modalities.iter().map(|m| modality_name(*m)).collect(),
+                    modalities: s
+                        .modalities
+                        .iter()
+                        .map(|m| m.as_str().to_string())
+                        .collect(),
                     pass_threshold: s.rubric.pass_threshold,
                     criteria: s.rubric.criteria.len(),
                     critical_criteria: s.rubric.criteria.iter().filter(|c| c.critical).count(),

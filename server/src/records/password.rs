@@ -12,18 +12,25 @@ pub const MIN_PASSWORD_CHARS: usize = 12;
 /// Longest accepted password (bounds the hashing work an attacker can request).
 pub const MAX_PASSWORD_CHARS: usize = 256;
 
-/// Checks a new password's length; the message is safe to show.
-pub fn check_new_password(password: &str) -> Result<(), String> {
+/// Why a new password is refused; the message is safe to show.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum PasswordPolicyError {
+    /// Fewer than [`MIN_PASSWORD_CHARS`] characters.
+    #[error("password must have at least {MIN_PASSWORD_CHARS} characters")]
+    TooShort,
+    /// More than [`MAX_PASSWORD_CHARS`] characters.
+    #[error("password must have at most {MAX_PASSWORD_CHARS} characters")]
+    TooLong,
+}
+
+/// Checks a new password's length.
+pub fn check_new_password(password: &str) -> Result<(), PasswordPolicyError> {
     let n = password.chars().count();
     if n < MIN_PASSWORD_CHARS {
-        return Err(format!(
-            "password must have at least {MIN_PASSWORD_CHARS} characters"
-        ));
+        return Err(PasswordPolicyError::TooShort);
     }
     if n > MAX_PASSWORD_CHARS {
-        return Err(format!(
-            "password must have at most {MAX_PASSWORD_CHARS} characters"
-        ));
+        return Err(PasswordPolicyError::TooLong);
     }
     Ok(())
 }
@@ -79,8 +86,18 @@ mod tests {
 
     #[test]
     fn password_length_rules() {
-        assert!(check_new_password("short").is_err());
+        assert_eq!(
+            check_new_password("short"),
+            Err(PasswordPolicyError::TooShort)
+        );
         assert!(check_new_password(&"x".repeat(12)).is_ok());
-        assert!(check_new_password(&"x".repeat(257)).is_err());
+        assert_eq!(
+            check_new_password(&"x".repeat(257)),
+            Err(PasswordPolicyError::TooLong)
+        );
+        assert_eq!(
+            PasswordPolicyError::TooShort.to_string(),
+            "password must have at least 12 characters"
+        );
     }
 }

@@ -77,7 +77,8 @@ pub async fn create_user(
             "display_name must have 1 to 200 characters".into(),
         ));
     }
-    password::check_new_password(password_plain).map_err(CreateUserError::Invalid)?;
+    password::check_new_password(password_plain)
+        .map_err(|e| CreateUserError::Invalid(e.to_string()))?;
     let pw = password_plain.to_owned();
     let hash = tokio::task::spawn_blocking(move || password::hash_password(&pw, cost))
         .await

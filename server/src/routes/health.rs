@@ -7,7 +7,7 @@ use axum::extract::State;
 use axum::http::StatusCode;
 use serde::Serialize;
 
-use crate::AppState;
+use crate::state::AppState;
 use crate::workers::WorkerStatus;
 use render_worker::session::host::RegionReadiness;
 

@@ -12,19 +12,27 @@ use serde_json::{Value, json};
 use utoipa::IntoParams;
 
 use super::auth::LrsClient;
-use super::documents::params::Params;
-use super::documents::{Iri, VersionHeader};
+use super::documents::params::{Iri, Params, QueryParams};
 use super::error::XapiError;
 use super::state::XapiState;
+use super::version::VersionHeader;
+use crate::error::ApiError;
 
 /// Parameters of the Activities resource.
 #[derive(Debug, IntoParams)]
 #[into_params(parameter_in = Query)]
-#[allow(dead_code)]
 pub struct ActivitiesQuery {
     /// The Activity's IRI.
     #[param(inline, rename = "activityId")]
     activity_id: Iri,
+}
+
+impl QueryParams for ActivitiesQuery {
+    fn read(p: &Params) -> Result<Self, ApiError> {
+        Ok(ActivitiesQuery {
+            activity_id: p.activity_id()?,
+        })
+    }
 }
 
 /// The Activity object: `objectType`, `id` and, when the LRS holds one, `definition`.
@@ -56,7 +64,8 @@ pub async fn get_activities(
     RawQuery(query): RawQuery,
 ) -> Result<Json<Value>, XapiError> {
     client.require_read()?;
-    let p = Params::parse(query.as_deref(), &["activityId"])?;
-    let activity_id = p.activity_id()?;
-    Ok(Json(activity(&state.pool, &activity_id).await?))
+    let activity_id = ActivitiesQuery::parse(query.as_deref())?.activity_id;
+    Ok(Json(
+        activity(&state.pool, &activity_id.into_string()).await?,
+    ))
 }

@@ -9,6 +9,8 @@
 
 use serde_json::{Map, Value};
 
+use super::error::{Invalid, fault};
+
 /// The property names of an IFI.
 pub const IFI_PROPERTIES: [&str; 4] = ["mbox", "mbox_sha1sum", "openid", "account"];
 
@@ -40,25 +42,29 @@ pub fn is_mailto(s: &str) -> bool {
     is_iri(s) && !local.is_empty() && !domain.is_empty() && !domain.contains('@')
 }
 
-fn object<'a>(v: &'a Value, path: &str) -> Result<&'a Map<String, Value>, String> {
+fn object<'a>(v: &'a Value, path: &str) -> Result<&'a Map<String, Value>, Invalid> {
     v.as_object()
-        .ok_or_else(|| format!("{path}: must be a JSON object"))
+        .ok_or_else(|| fault!("{path}: must be a JSON object"))
 }
 
-fn string<'a>(m: &'a Map<String, Value>, key: &str, path: &str) -> Result<Option<&'a str>, String> {
+fn string<'a>(
+    m: &'a Map<String, Value>,
+    key: &str,
+    path: &str,
+) -> Result<Option<&'a str>, Invalid> {
     match m.get(key) {
         None => Ok(None),
         Some(Value::String(s)) => Ok(Some(s)),
-        Some(_) => Err(format!("{path}.{key}: must be a string")),
+        Some(_) => Err(fault!("{path}.{key}: must be a string")),
     }
 }
 
 /// Checks the IFI properties of an Agent or identified Group `m`; returns how many it has.
-fn check_ifis(m: &Map<String, Value>, path: &str) -> Result<usize, String> {
+fn check_ifis(m: &Map<String, Value>, path: &str) -> Result<usize, Invalid> {
     let mut count = 0;
     if let Some(mbox) = string(m, "mbox", path)? {
         if !is_mailto(mbox) {
-            return Err(format!(
+            return Err(fault!(
                 "{path}.mbox: must be a mailto: IRI, e.g. mailto:a@example.org"
             ));
         }
@@ -66,7 +72,7 @@ fn check_ifis(m: &Map<String, Value>, path: &str) -> Result<usize, String> {
     }
     if let Some(sum) = string(m, "mbox_sha1sum", path)? {
         if sum.len() != 40 || !sum.bytes().all(|b| b.is_ascii_hexdigit()) {
-            return Err(format!(
+            return Err(fault!(
                 "{path}.mbox_sha1sum: must be 40 hexadecimal digits (SHA-1)"
             ));
         }
@@ -74,7 +80,7 @@ fn check_ifis(m: &Map<String, Value>, path: &str) -> Result<usize, String> {
     }
     if let Some(openid) = string(m, "openid", path)? {
         if !is_iri(openid) {
-            return Err(format!("{path}.openid: must be a URI"));
+            return Err(fault!("{path}.openid: must be a URI"));
         }
         count += 1;
     }
@@ -82,18 +88,16 @@ fn check_ifis(m: &Map<String, Value>, path: &str) -> Result<usize, String> {
         let a = object(account, &format!("{path}.account"))?;
         for key in a.keys() {
             if key != "homePage" && key != "name" {
-                return Err(format!(
-                    "{path}.account.{key}: not a property of an Account"
-                ));
+                return Err(fault!("{path}.account.{key}: not a property of an Account"));
             }
         }
         match a.get("homePage") {
             Some(Value::String(h)) if is_iri(h) => {}
-            _ => return Err(format!("{path}.account.homePage: required, an IRL")),
+            _ => return Err(fault!("{path}.account.homePage: required, an IRL")),
         }
         match a.get("name") {
             Some(Value::String(_)) => {}
-            _ => return Err(format!("{path}.account.name: required, a string")),
+            _ => return Err(fault!("{path}.account.name: required, a string")),
         }
         count += 1;
     }
@@ -101,28 +105,28 @@ fn check_ifis(m: &Map<String, Value>, path: &str) -> Result<usize, String> {
 }
 
 /// Validates an Agent (`objectType` absent or `"Agent"`), at `path` in the statement.
-pub fn agent(v: &Value, path: &str) -> Result<(), String> {
+pub fn agent(v: &Value, path: &str) -> Result<(), Invalid> {
     let m = object(v, path)?;
     for key in m.keys() {
         if !matches!(
             key.as_str(),
             "objectType" | "name" | "mbox" | "mbox_sha1sum" | "openid" | "account"
         ) {
-            return Err(format!("{path}.{key}: not a property of an Agent"));
+            return Err(fault!("{path}.{key}: not a property of an Agent"));
         }
     }
     match m.get("objectType") {
         None => {}
         Some(Value::String(t)) if t == "Agent" => {}
-        Some(_) => return Err(format!("{path}.objectType: must be \"Agent\"")),
+        Some(_) => return Err(fault!("{path}.objectType: must be \"Agent\"")),
     }
     string(m, "name", path)?;
     match check_ifis(m, path)? {
         1 => Ok(()),
-        0 => Err(format!(
+        0 => Err(fault!(
             "{path}: an Agent needs exactly one of mbox, mbox_sha1sum, openid, account"
         )),
-        _ => Err(format!(
+        _ => Err(fault!(
             "{path}: an Agent must have only one of mbox, mbox_sha1sum, openid, account"
         )),
     }
@@ -130,36 +134,36 @@ pub fn agent(v: &Value, path: &str) -> Result<(), String> {
 
 /// Validates a Group (`objectType` `"Group"`): anonymous (members, no IFI) or identified (one IFI,
 /// members optional). Members are Agents, never Groups.
-pub fn group(v: &Value, path: &str) -> Result<(), String> {
+pub fn group(v: &Value, path: &str) -> Result<(), Invalid> {
     let m = object(v, path)?;
     for key in m.keys() {
         if !matches!(
             key.as_str(),
             "objectType" | "name" | "member" | "mbox" | "mbox_sha1sum" | "openid" | "account"
         ) {
-            return Err(format!("{path}.{key}: not a property of a Group"));
+            return Err(fault!("{path}.{key}: not a property of a Group"));
         }
     }
     if m.get("objectType") != Some(&Value::String("Group".into())) {
-        return Err(format!(
+        return Err(fault!(
             "{path}.objectType: a Group needs objectType \"Group\""
         ));
     }
     string(m, "name", path)?;
     let ifis = check_ifis(m, path)?;
     if ifis > 1 {
-        return Err(format!(
+        return Err(fault!(
             "{path}: a Group must have at most one of mbox, mbox_sha1sum, openid, account"
         ));
     }
     match m.get("member") {
-        None if ifis == 0 => Err(format!(
+        None if ifis == 0 => Err(fault!(
             "{path}.member: an anonymous Group needs its members"
         )),
         None => Ok(()),
         Some(Value::Array(members)) => {
             if ifis == 0 && members.is_empty() {
-                return Err(format!(
+                return Err(fault!(
                     "{path}.member: an anonymous Group needs at least one member"
                 ));
             }
@@ -168,12 +172,12 @@ pub fn group(v: &Value, path: &str) -> Result<(), String> {
             }
             Ok(())
         }
-        Some(_) => Err(format!("{path}.member: must be an array of Agents")),
+        Some(_) => Err(fault!("{path}.member: must be an array of Agents")),
     }
 }
 
 /// Validates an Agent or a Group, told apart by `objectType`.
-pub fn agent_or_group(v: &Value, path: &str) -> Result<(), String> {
+pub fn agent_or_group(v: &Value, path: &str) -> Result<(), Invalid> {
     if v.get("objectType").and_then(Value::as_str) == Some("Group") {
         group(v, path)
     } else {
@@ -184,7 +188,7 @@ pub fn agent_or_group(v: &Value, path: &str) -> Result<(), String> {
 /// The canonical key of the IFI of a valid Agent or identified Group: `mbox:<iri>`,
 /// `mbox_sha1sum:<lower-case hex>`, `openid:<uri>` or `account:<JSON [homePage, name]>`. Fails for
 /// an anonymous Group (it has no identity of its own).
-pub fn ifi_key(agent: &Value) -> Result<String, String> {
+pub fn ifi_key(agent: &Value) -> Result<String, Invalid> {
     if let Some(mbox) = agent.get("mbox").and_then(Value::as_str) {
         return Ok(format!("mbox:{mbox}"));
     }
@@ -211,10 +215,10 @@ pub fn ifi_key(agent: &Value) -> Result<String, String> {
 
 /// Parses and validates the `agent` query parameter of the LRS resources: the JSON of an Agent or
 /// an identified Group.
-pub fn parse_agent_param(raw: &str) -> Result<Value, String> {
-    let v: Value = serde_json::from_str(raw).map_err(|e| format!("agent: not valid JSON ({e})"))?;
+pub fn parse_agent_param(raw: &str) -> Result<Value, Invalid> {
+    let v: Value = serde_json::from_str(raw).map_err(|e| fault!("agent: not valid JSON ({e})"))?;
     agent_or_group(&v, "agent")?;
-    ifi_key(&v).map_err(|e| format!("agent: {e}"))?;
+    ifi_key(&v).map_err(|e| fault!("agent: {e}"))?;
     Ok(v)
 }
 

@@ -14,18 +14,26 @@ use serde_json::Value;
 use utoipa::{IntoParams, ToSchema};
 
 use super::auth::LrsClient;
-use super::documents::params::Params;
-use super::documents::{AgentJson, VersionHeader};
+use super::documents::params::{AgentJson, Params, QueryParams};
 use super::error::XapiError;
+use super::version::VersionHeader;
+use crate::error::ApiError;
 
 /// Parameters of the Agents resource.
 #[derive(Debug, IntoParams)]
 #[into_params(parameter_in = Query)]
-#[allow(dead_code)]
 pub struct AgentsQuery {
     /// The Agent (JSON; not a Group).
     #[param(inline)]
     agent: AgentJson,
+}
+
+impl QueryParams for AgentsQuery {
+    fn read(p: &Params) -> Result<Self, ApiError> {
+        Ok(AgentsQuery {
+            agent: p.agent(false)?,
+        })
+    }
 }
 
 /// An xAPI Person object: the names and identifiers of one person, each an array.
@@ -88,7 +96,6 @@ pub async fn get_agents(
     RawQuery(query): RawQuery,
 ) -> Result<Json<Person>, XapiError> {
     client.require_read()?;
-    let p = Params::parse(query.as_deref(), &["agent"])?;
-    let (agent, _) = p.agent(false)?;
-    Ok(Json(Person::of_agent(&agent)))
+    let agent = AgentsQuery::parse(query.as_deref())?.agent.into_agent();
+    Ok(Json(Person::of_agent(&agent.json)))
 }

@@ -15,6 +15,7 @@ use uuid::Uuid;
 
 use super::error::XapiError;
 use super::state::XapiState;
+use crate::error::ApiError;
 use crate::records::auth::constant_time_eq;
 
 /// An authenticated LMS integration.
@@ -34,20 +35,20 @@ pub struct LrsClient {
 
 impl LrsClient {
     /// 403 unless the credential may read.
-    pub fn require_read(&self) -> Result<(), XapiError> {
+    pub fn require_read(&self) -> Result<(), ApiError> {
         if self.can_read {
             Ok(())
         } else {
-            Err(XapiError::Forbidden("this credential may not read".into()))
+            Err(ApiError::Forbidden("this credential may not read".into()))
         }
     }
 
     /// 403 unless the credential may write.
-    pub fn require_write(&self) -> Result<(), XapiError> {
+    pub fn require_write(&self) -> Result<(), ApiError> {
         if self.can_write {
             Ok(())
         } else {
-            Err(XapiError::Forbidden("this credential may not write".into()))
+            Err(ApiError::Forbidden("this credential may not write".into()))
         }
     }
 }

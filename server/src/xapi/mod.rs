@@ -8,9 +8,10 @@
 //!
 //! Architecture invariant: the modules form layers, and each imports only from layers below it:
 //!
-//! 1. `error` ([`XapiError`], the one error type of the LRS boundary), `version` (the
-//!    `X-Experience-API-Version` header on every request and response), `agent` and `validate`
-//!    (the data model: Agents and Groups, their identity keys, whole statements);
+//! 1. `error` ([`XapiError`], the failures only the LRS answers, converting into the API's
+//!    [`crate::error::ApiError`], and [`error::Invalid`], data that breaks the data model),
+//!    `version` (the `X-Experience-API-Version` header on every request and response), `agent`
+//!    and `validate` (the data model: Agents and Groups, their identity keys, whole statements);
 //! 2. `state` ([`XapiState`]), then `auth` (the credential extractor);
 //! 3. the resources: `about`, `statements`, `documents` (State, Activity Profile, Agent
 //!    Profile), `agents`, `activities`, and `credentials` (admin endpoints under `/api/admin/`);

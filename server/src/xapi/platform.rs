@@ -45,10 +45,10 @@ use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use uuid::Uuid;
 
-use super::error::XapiError;
 use super::forward::FORWARD_KIND;
 use super::statements::query::percent_encode;
 use super::statements::store::insert_statements;
+use crate::error::ApiError;
 use crate::outbox::{self, Outbox};
 
 /// Namespace of the statement ids (UUID v5, RFC 9562 section 5.5): our choice, a fixed random
@@ -443,9 +443,9 @@ impl Vocabulary {
         conn: &mut sqlx::PgConnection,
         source: &str,
         record_id: &str,
-    ) -> Result<Vec<Value>, XapiError> {
+    ) -> Result<Vec<Value>, ApiError> {
         let bad = |e: &dyn std::fmt::Display| {
-            XapiError::Internal(format!("record {source} {record_id}: {e}"))
+            ApiError::Internal(format!("record {source} {record_id}: {e}"))
         };
         match source {
             "activity_event" => {
@@ -498,7 +498,7 @@ impl Projector {
 
     /// Projects one batch of queued records; returns how many queue rows it settled (projected
     /// or marked failed), 0 when the queue is empty.
-    pub async fn project_batch(&self) -> Result<usize, XapiError> {
+    pub async fn project_batch(&self) -> Result<usize, ApiError> {
         let mut tx = self.pool.begin().await?;
         let rows: Vec<(i64, String, String)> = sqlx::query_as(
             "SELECT id, source, record_id FROM xapi_projection_queue WHERE failed_at IS NULL
@@ -558,7 +558,7 @@ impl Projector {
         &self,
         tx: &mut sqlx::PgConnection,
         rows: &[(i64, String, String)],
-    ) -> Result<(), XapiError> {
+    ) -> Result<(), ApiError> {
         let mut statements = Vec::new();
         for (_, source, record_id) in rows {
             statements.extend(self.vocabulary.record(tx, source, record_id).await?);
@@ -579,7 +579,7 @@ impl Projector {
     }
 
     /// Projects until the queue is empty.
-    pub async fn drain(&self) -> Result<usize, XapiError> {
+    pub async fn drain(&self) -> Result<usize, ApiError> {
         let mut total = 0;
         loop {
             let n = self.project_batch().await?;

@@ -7,9 +7,9 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::auth::LrsClient;
-use super::error::XapiError;
 use super::state::XapiState;
 use super::{about, activities, agents, credentials, documents, forward, statements, version};
+use crate::error::ApiError;
 
 #[derive(OpenApi)]
 #[openapi(tags(
@@ -80,6 +80,6 @@ pub fn router<S: Clone + Send + Sync + 'static>(
 
 /// Anything under `/xapi/` that is no resource: 404 for an authenticated client (never the web
 /// client's page), 401 for anyone else, so the LRS does not tell strangers what it serves.
-async fn unknown_resource(_client: LrsClient) -> XapiError {
-    XapiError::NotFound("LRS resource".into())
+async fn unknown_resource(_client: LrsClient) -> ApiError {
+    ApiError::NotFound("LRS resource".into())
 }

@@ -14,6 +14,7 @@
 use serde_json::{Map, Value};
 
 use super::agent::{agent, agent_or_group, group, is_iri};
+use super::error::{Invalid, fault};
 
 /// The verb IRI of voiding (Data 2.4.3.1, "Voided").
 pub const VOIDED_VERB: &str = "http://adlnet.gov/expapi/verbs/voided";
@@ -32,38 +33,42 @@ const INTERACTION_TYPES: [&str; 10] = [
     "other",
 ];
 
-type R = Result<(), String>;
+type R = Result<(), Invalid>;
 
-fn obj<'a>(v: &'a Value, path: &str) -> Result<&'a Map<String, Value>, String> {
+fn obj<'a>(v: &'a Value, path: &str) -> Result<&'a Map<String, Value>, Invalid> {
     v.as_object()
-        .ok_or_else(|| format!("{path}: must be a JSON object"))
+        .ok_or_else(|| fault!("{path}: must be a JSON object"))
 }
 
 fn only(m: &Map<String, Value>, allowed: &[&str], path: &str, what: &str) -> R {
     for (key, value) in m {
         if !allowed.contains(&key.as_str()) {
-            return Err(format!("{path}.{key}: not a property of {what}"));
+            return Err(fault!("{path}.{key}: not a property of {what}"));
         }
         if value.is_null() {
-            return Err(format!("{path}.{key}: must not be null"));
+            return Err(fault!("{path}.{key}: must not be null"));
         }
     }
     Ok(())
 }
 
-fn str_at<'a>(m: &'a Map<String, Value>, key: &str, path: &str) -> Result<Option<&'a str>, String> {
+fn str_at<'a>(
+    m: &'a Map<String, Value>,
+    key: &str,
+    path: &str,
+) -> Result<Option<&'a str>, Invalid> {
     match m.get(key) {
         None => Ok(None),
         Some(Value::String(s)) => Ok(Some(s)),
-        Some(_) => Err(format!("{path}.{key}: must be a string")),
+        Some(_) => Err(fault!("{path}.{key}: must be a string")),
     }
 }
 
 fn iri_at(m: &Map<String, Value>, key: &str, path: &str, required: bool) -> R {
     match str_at(m, key, path)? {
         Some(s) if is_iri(s) => Ok(()),
-        Some(_) => Err(format!("{path}.{key}: must be an absolute IRI")),
-        None if required => Err(format!("{path}.{key}: required")),
+        Some(_) => Err(fault!("{path}.{key}: must be an absolute IRI")),
+        None if required => Err(fault!("{path}.{key}: required")),
         None => Ok(()),
     }
 }
@@ -71,7 +76,7 @@ fn iri_at(m: &Map<String, Value>, key: &str, path: &str, required: bool) -> R {
 fn bool_at(m: &Map<String, Value>, key: &str, path: &str) -> R {
     match m.get(key) {
         None | Some(Value::Bool(_)) => Ok(()),
-        Some(_) => Err(format!("{path}.{key}: must be true or false")),
+        Some(_) => Err(fault!("{path}.{key}: must be true or false")),
     }
 }
 
@@ -98,10 +103,10 @@ fn language_map(v: &Value, path: &str) -> R {
     let m = obj(v, path)?;
     for (tag, text) in m {
         if !is_language_tag(tag) {
-            return Err(format!("{path}: \"{tag}\" is not an RFC 5646 language tag"));
+            return Err(fault!("{path}: \"{tag}\" is not an RFC 5646 language tag"));
         }
         if !text.is_string() {
-            return Err(format!("{path}.{tag}: must be a string"));
+            return Err(fault!("{path}.{tag}: must be a string"));
         }
     }
     Ok(())
@@ -111,7 +116,7 @@ fn extensions(v: &Value, path: &str) -> R {
     let m = obj(v, path)?;
     for key in m.keys() {
         if !is_iri(key) {
-            return Err(format!(
+            return Err(fault!(
                 "{path}: extension key \"{key}\" is not an absolute IRI"
             ));
         }
@@ -239,7 +244,7 @@ pub fn is_duration(s: &str) -> bool {
 fn interaction_components(v: &Value, path: &str) -> R {
     let list = v
         .as_array()
-        .ok_or_else(|| format!("{path}: must be an array of interaction components"))?;
+        .ok_or_else(|| fault!("{path}: must be an array of interaction components"))?;
     let mut seen = std::collections::HashSet::new();
     for (i, c) in list.iter().enumerate() {
         let p = format!("{path}[{i}]");
@@ -248,10 +253,10 @@ fn interaction_components(v: &Value, path: &str) -> R {
         match str_at(m, "id", &p)? {
             Some(id) if !id.is_empty() => {
                 if !seen.insert(id.to_owned()) {
-                    return Err(format!("{p}.id: \"{id}\" is used twice"));
+                    return Err(fault!("{p}.id: \"{id}\" is used twice"));
                 }
             }
-            _ => return Err(format!("{p}.id: required, a non-empty string")),
+            _ => return Err(fault!("{p}.id: required, a non-empty string")),
         }
         if let Some(d) = m.get("description") {
             language_map(d, &format!("{p}.description"))?;
@@ -294,22 +299,22 @@ fn activity_definition(v: &Value, path: &str) -> R {
     let interaction = str_at(m, "interactionType", path)?;
     if let Some(t) = interaction {
         if !INTERACTION_TYPES.contains(&t) {
-            return Err(format!(
+            return Err(fault!(
                 "{path}.interactionType: \"{t}\" is not an interaction type"
             ));
         }
     }
     if let Some(p) = m.get("correctResponsesPattern") {
         if interaction.is_none() {
-            return Err(format!(
+            return Err(fault!(
                 "{path}.correctResponsesPattern: needs an interactionType"
             ));
         }
-        let list = p.as_array().ok_or_else(|| {
-            format!("{path}.correctResponsesPattern: must be an array of strings")
-        })?;
+        let list = p
+            .as_array()
+            .ok_or_else(|| fault!("{path}.correctResponsesPattern: must be an array of strings"))?;
         if list.iter().any(|x| !x.is_string()) {
-            return Err(format!(
+            return Err(fault!(
                 "{path}.correctResponsesPattern: must be an array of strings"
             ));
         }
@@ -324,7 +329,7 @@ fn activity_definition(v: &Value, path: &str) -> R {
     for key in ["choices", "scale", "source", "target", "steps"] {
         if let Some(x) = m.get(key) {
             if !allowed.contains(&key) {
-                return Err(format!(
+                return Err(fault!(
                     "{path}.{key}: not allowed for interactionType {}",
                     interaction.unwrap_or("(none)")
                 ));
@@ -340,7 +345,7 @@ fn activity(v: &Value, path: &str) -> R {
     only(m, &["objectType", "id", "definition"], path, "an Activity")?;
     match str_at(m, "objectType", path)? {
         None | Some("Activity") => {}
-        Some(_) => return Err(format!("{path}.objectType: must be \"Activity\"")),
+        Some(_) => return Err(fault!("{path}.objectType: must be \"Activity\"")),
     }
     iri_at(m, "id", path, true)?;
     if let Some(d) = m.get("definition") {
@@ -353,11 +358,11 @@ fn statement_ref(v: &Value, path: &str) -> R {
     let m = obj(v, path)?;
     only(m, &["objectType", "id"], path, "a StatementRef")?;
     if str_at(m, "objectType", path)? != Some("StatementRef") {
-        return Err(format!("{path}.objectType: must be \"StatementRef\""));
+        return Err(fault!("{path}.objectType: must be \"StatementRef\""));
     }
     match str_at(m, "id", path)? {
         Some(id) if is_uuid(id) => Ok(()),
-        _ => Err(format!("{path}.id: required, a UUID")),
+        _ => Err(fault!("{path}.id: required, a UUID")),
     }
 }
 
@@ -371,11 +376,11 @@ fn verb(v: &Value, path: &str) -> R {
     Ok(())
 }
 
-fn number(m: &Map<String, Value>, key: &str, path: &str) -> Result<Option<f64>, String> {
+fn number(m: &Map<String, Value>, key: &str, path: &str) -> Result<Option<f64>, Invalid> {
     match m.get(key) {
         None => Ok(None),
         Some(Value::Number(n)) => Ok(n.as_f64()),
-        Some(_) => Err(format!("{path}.{key}: must be a number")),
+        Some(_) => Err(fault!("{path}.{key}: must be a number")),
     }
 }
 
@@ -400,7 +405,7 @@ fn result(v: &Value, path: &str) -> R {
         only(sm, &["scaled", "raw", "min", "max"], &p, "a Score")?;
         if let Some(scaled) = number(sm, "scaled", &p)? {
             if !(-1.0..=1.0).contains(&scaled) {
-                return Err(format!("{p}.scaled: must be between -1 and 1"));
+                return Err(fault!("{p}.scaled: must be between -1 and 1"));
             }
         }
         let (raw, min, max) = (
@@ -410,15 +415,15 @@ fn result(v: &Value, path: &str) -> R {
         );
         if let (Some(lo), Some(hi)) = (min, max) {
             if lo >= hi {
-                return Err(format!("{p}.min: must be less than max"));
+                return Err(fault!("{p}.min: must be less than max"));
             }
         }
         if let Some(r) = raw {
             if min.is_some_and(|lo| r < lo) {
-                return Err(format!("{p}.raw: must not be less than min"));
+                return Err(fault!("{p}.raw: must not be less than min"));
             }
             if max.is_some_and(|hi| r > hi) {
-                return Err(format!("{p}.raw: must not be more than max"));
+                return Err(fault!("{p}.raw: must not be more than max"));
             }
         }
     }
@@ -427,7 +432,7 @@ fn result(v: &Value, path: &str) -> R {
     str_at(m, "response", path)?;
     if let Some(d) = str_at(m, "duration", path)? {
         if !is_duration(d) {
-            return Err(format!(
+            return Err(fault!(
                 "{path}.duration: must be an ISO 8601 duration, e.g. PT1H30M"
             ));
         }
@@ -456,12 +461,12 @@ fn relevant_types(m: &Map<String, Value>, path: &str) -> R {
         Some(Value::Array(list)) if !list.is_empty() => {
             for (i, t) in list.iter().enumerate() {
                 if !t.as_str().is_some_and(is_iri) {
-                    return Err(format!("{path}.relevantTypes[{i}]: must be an IRI"));
+                    return Err(fault!("{path}.relevantTypes[{i}]: must be an IRI"));
                 }
             }
             Ok(())
         }
-        Some(_) => Err(format!(
+        Some(_) => Err(fault!(
             "{path}.relevantTypes: must be a non-empty array of IRIs"
         )),
     }
@@ -482,17 +487,17 @@ fn context_members(
     };
     let list = list
         .as_array()
-        .ok_or_else(|| format!("{path}.{key}: must be an array"))?;
+        .ok_or_else(|| fault!("{path}.{key}: must be an array"))?;
     for (i, member) in list.iter().enumerate() {
         let p = format!("{path}.{key}[{i}]");
         let cm = obj(member, &p)?;
         only(cm, &["objectType", inner, "relevantTypes"], &p, object_type)?;
         if str_at(cm, "objectType", &p)? != Some(object_type) {
-            return Err(format!("{p}.objectType: must be \"{object_type}\""));
+            return Err(fault!("{p}.objectType: must be \"{object_type}\""));
         }
         let value = cm
             .get(inner)
-            .ok_or_else(|| format!("{p}.{inner}: required"))?;
+            .ok_or_else(|| fault!("{p}.{inner}: required"))?;
         check(value, &format!("{p}.{inner}"))?;
         relevant_types(cm, &p)?;
     }
@@ -521,7 +526,7 @@ fn context(v: &Value, path: &str, object_is_activity: bool) -> R {
     )?;
     if let Some(r) = str_at(m, "registration", path)? {
         if !is_uuid(r) {
-            return Err(format!("{path}.registration: must be a UUID"));
+            return Err(fault!("{path}.registration: must be a UUID"));
         }
     }
     if let Some(i) = m.get("instructor") {
@@ -547,14 +552,14 @@ fn context(v: &Value, path: &str, object_is_activity: bool) -> R {
     context_members(m, "contextGroups", "contextGroup", "group", group, path)?;
     for key in ["revision", "platform"] {
         if str_at(m, key, path)?.is_some() && !object_is_activity {
-            return Err(format!(
+            return Err(fault!(
                 "{path}.{key}: only allowed when the object is an Activity"
             ));
         }
     }
     if let Some(lang) = str_at(m, "language", path)? {
         if !is_language_tag(lang) {
-            return Err(format!("{path}.language: must be an RFC 5646 language tag"));
+            return Err(fault!("{path}.language: must be an RFC 5646 language tag"));
         }
     }
     if let Some(s) = m.get("statement") {
@@ -569,7 +574,7 @@ fn context(v: &Value, path: &str, object_is_activity: bool) -> R {
 fn attachments(v: &Value, path: &str) -> R {
     let list = v
         .as_array()
-        .ok_or_else(|| format!("{path}: must be an array of Attachments"))?;
+        .ok_or_else(|| fault!("{path}: must be an array of Attachments"))?;
     for (i, a) in list.iter().enumerate() {
         let p = format!("{path}[{i}]");
         let m = obj(a, &p)?;
@@ -590,7 +595,7 @@ fn attachments(v: &Value, path: &str) -> R {
         iri_at(m, "usageType", &p, true)?;
         language_map(
             m.get("display")
-                .ok_or_else(|| format!("{p}.display: required"))?,
+                .ok_or_else(|| fault!("{p}.display: required"))?,
             &format!("{p}.display"),
         )?;
         if let Some(d) = m.get("description") {
@@ -599,17 +604,19 @@ fn attachments(v: &Value, path: &str) -> R {
         match str_at(m, "contentType", &p)? {
             Some(ct)
                 if ct.contains('/') && (ct.contains(';') || !ct.contains(char::is_whitespace)) => {}
-            _ => return Err(format!("{p}.contentType: required, an Internet media type")),
+            _ => {
+                return Err(fault!("{p}.contentType: required, an Internet media type"));
+            }
         }
         match m.get("length") {
             Some(Value::Number(n)) if n.as_u64().is_some() => {}
-            _ => return Err(format!("{p}.length: required, a whole number of octets")),
+            _ => return Err(fault!("{p}.length: required, a whole number of octets")),
         }
         match str_at(m, "sha2", &p)? {
             Some(h)
                 if (h.len() == 64 || h.len() == 96 || h.len() == 128 || h.len() == 56)
                     && h.bytes().all(|b| b.is_ascii_hexdigit()) => {}
-            _ => return Err(format!("{p}.sha2: required, the hex SHA-2 of the content")),
+            _ => return Err(fault!("{p}.sha2: required, the hex SHA-2 of the content")),
         }
         iri_at(m, "fileUrl", &p, false)?;
     }
@@ -625,10 +632,10 @@ fn object(v: &Value, path: &str, sub: bool) -> R {
         Some(Some("Group")) => group(v, path),
         Some(Some("StatementRef")) => statement_ref(v, path),
         Some(Some("SubStatement")) if sub => {
-            Err(format!("{path}: a SubStatement cannot hold a SubStatement"))
+            Err(fault!("{path}: a SubStatement cannot hold a SubStatement"))
         }
         Some(Some("SubStatement")) => sub_statement(v, path),
-        _ => Err(format!(
+        _ => Err(fault!(
             "{path}.objectType: one of Activity, Agent, Group, StatementRef, SubStatement"
         )),
     }
@@ -665,17 +672,17 @@ fn core(m: &Map<String, Value>, path: &str, sub: bool) -> R {
     };
     agent_or_group(
         m.get("actor")
-            .ok_or_else(|| format!("{}: required", p("actor")))?,
+            .ok_or_else(|| fault!("{}: required", p("actor")))?,
         &p("actor"),
     )?;
     verb(
         m.get("verb")
-            .ok_or_else(|| format!("{}: required", p("verb")))?,
+            .ok_or_else(|| fault!("{}: required", p("verb")))?,
         &p("verb"),
     )?;
     let o = m
         .get("object")
-        .ok_or_else(|| format!("{}: required", p("object")))?;
+        .ok_or_else(|| fault!("{}: required", p("object")))?;
     object(o, &p("object"), sub)?;
     let is_activity = matches!(
         o.get("objectType").and_then(Value::as_str),
@@ -689,13 +696,13 @@ fn core(m: &Map<String, Value>, path: &str, sub: bool) -> R {
     }
     if let Some(t) = str_at(m, "timestamp", path)? {
         if !is_timestamp(t) {
-            return Err(format!(
+            return Err(fault!(
                 "{}: must be an ISO 8601 timestamp with date and time",
                 p("timestamp")
             ));
         }
     } else if m.contains_key("timestamp") {
-        return Err(format!("{}: must be a string", p("timestamp")));
+        return Err(fault!("{}: must be a string", p("timestamp")));
     }
     if let Some(a) = m.get("attachments") {
         attachments(a, &p("attachments"))?;
@@ -706,7 +713,7 @@ fn core(m: &Map<String, Value>, path: &str, sub: bool) -> R {
         == Some(VOIDED_VERB)
         && o.get("objectType").and_then(Value::as_str) != Some("StatementRef")
     {
-        return Err(format!(
+        return Err(fault!(
             "{}: a voiding statement's object must be a StatementRef",
             p("object")
         ));
@@ -715,7 +722,7 @@ fn core(m: &Map<String, Value>, path: &str, sub: bool) -> R {
 }
 
 /// Validates one statement as a client sends it.
-pub fn statement(v: &Value) -> Result<(), String> {
+pub fn statement(v: &Value) -> Result<(), Invalid> {
     let m = v.as_object().ok_or("a statement must be a JSON object")?;
     for (key, value) in m {
         if !matches!(
@@ -731,10 +738,10 @@ pub fn statement(v: &Value) -> Result<(), String> {
                 | "version"
                 | "attachments"
         ) {
-            return Err(format!("{key}: not a property of a Statement"));
+            return Err(fault!("{key}: not a property of a Statement"));
         }
         if value.is_null() {
-            return Err(format!("{key}: must not be null"));
+            return Err(fault!("{key}: must not be null"));
         }
     }
     if let Some(id) = m.get("id") {
@@ -785,6 +792,11 @@ pub fn statement(v: &Value) -> Result<(), String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The message of a statement's first fault.
+    fn fault_of(s: &Value) -> String {
+        statement(s).unwrap_err().0
+    }
     use serde_json::json;
 
     fn base() -> Value {
@@ -915,39 +927,31 @@ mod tests {
         ];
         for (s, path) in cases {
             let e = statement(&s).expect_err(&s.to_string());
-            assert!(e.starts_with(path), "{path}: {e}");
+            assert!(e.0.starts_with(path), "{path}: {e}");
         }
         let mut s = base();
         s["object"] = json!({"objectType": "Agent", "mbox": "mailto:a@example.org"});
         s["context"] = json!({"platform": "web"});
-        assert!(statement(&s).unwrap_err().starts_with("context.platform"));
+        assert!(fault_of(&s).starts_with("context.platform"));
         let mut sub = base();
         sub["object"] = json!({"objectType": "SubStatement", "actor": base()["actor"], "verb": base()["verb"],
             "object": {"objectType": "SubStatement"}});
-        assert!(
-            statement(&sub)
-                .unwrap_err()
-                .contains("cannot hold a SubStatement")
-        );
+        assert!(fault_of(&sub).contains("cannot hold a SubStatement"));
         let mut sub_id = base();
         sub_id["object"] = json!({"objectType": "SubStatement", "id": "fd41c918-b88b-4b20-a0a5-a4c32391aaa0",
             "actor": base()["actor"], "verb": base()["verb"], "object": base()["object"]});
-        assert!(statement(&sub_id).unwrap_err().starts_with("object.id"));
+        assert!(fault_of(&sub_id).starts_with("object.id"));
         let mut likert = base();
         likert["object"]["definition"] =
             json!({"interactionType": "likert", "choices": [{"id": "a"}]});
-        assert!(
-            statement(&likert)
-                .unwrap_err()
-                .contains("not allowed for interactionType likert")
-        );
+        assert!(fault_of(&likert).contains("not allowed for interactionType likert"));
         let pair =
             json!([{"mbox": "mailto:consumer@example.org"}, {"mbox": "mailto:user@example.org"}]);
         let mut authority = base();
         authority["authority"] = json!({"objectType": "Group", "member": pair});
         assert_eq!(statement(&authority), Ok(()));
         authority["authority"]["mbox"] = json!("mailto:group@example.org");
-        assert!(statement(&authority).unwrap_err().starts_with("authority"));
+        assert!(fault_of(&authority).starts_with("authority"));
         let mut version = base();
         version["version"] = json!("1.0");
         assert_eq!(statement(&version), Ok(()));

@@ -7,11 +7,12 @@
 //! added). Anything else, or no header, is refused with 400 before a handler runs.
 
 use axum::extract::Request;
-use axum::http::{HeaderValue, Method};
+use axum::http::{HeaderMap, HeaderValue, Method};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
+use utoipa::IntoParams;
 
-use super::error::XapiError;
+use crate::error::ApiError;
 
 /// Name of the header.
 pub const VERSION_HEADER: &str = "x-experience-api-version";
@@ -33,6 +34,43 @@ pub fn accepted(version: &str) -> bool {
     matches!(major, "1" | "2") && minor == "0" && patch_ok && parts.next().is_none()
 }
 
+/// The version header every LRS request but About sends: documented by the routes that take
+/// it, and read by the middleware into this struct.
+#[derive(Debug, IntoParams)]
+#[into_params(parameter_in = Header)]
+pub struct VersionHeader {
+    /// The xAPI version the client speaks: 2.0.x (this LRS's) or 1.0.x.
+    #[param(
+        rename = "X-Experience-API-Version",
+        pattern = r"^[12]\.0(\.[0-9]{1,4})?$"
+    )]
+    version: String,
+}
+
+impl VersionHeader {
+    /// The request's header, or 400 when it is missing or names a version this LRS does not
+    /// accept.
+    pub fn read(headers: &HeaderMap) -> Result<VersionHeader, ApiError> {
+        match headers.get(VERSION_HEADER).map(|v| v.to_str()) {
+            None => Err(ApiError::BadRequest(
+                "the X-Experience-API-Version header is required (e.g. 2.0.0)".into(),
+            )),
+            Some(Ok(v)) if accepted(v.trim()) => Ok(VersionHeader {
+                version: v.trim().to_owned(),
+            }),
+            Some(_) => Err(ApiError::BadRequest(format!(
+                "unsupported X-Experience-API-Version; this LRS speaks {} (and accepts 1.0.x)",
+                LRS_VERSION
+            ))),
+        }
+    }
+
+    /// The version the client speaks (1.0.x or 2.0.x).
+    pub fn version(&self) -> &str {
+        &self.version
+    }
+}
+
 /// Middleware of the `/xapi/` router: checks the request's header and sets the response's.
 pub async fn version_header(req: Request, next: Next) -> Response {
     let about = req.uri().path().trim_end_matches('/') == "/xapi/about";
@@ -40,17 +78,9 @@ pub async fn version_header(req: Request, next: Next) -> Response {
     let mut resp = if about || preflight {
         next.run(req).await
     } else {
-        match req.headers().get(VERSION_HEADER).map(|v| v.to_str()) {
-            None => XapiError::BadRequest(
-                "the X-Experience-API-Version header is required (e.g. 2.0.0)".into(),
-            )
-            .into_response(),
-            Some(Ok(v)) if accepted(v.trim()) => next.run(req).await,
-            Some(_) => XapiError::BadRequest(format!(
-                "unsupported X-Experience-API-Version; this LRS speaks {} (and accepts 1.0.x)",
-                LRS_VERSION
-            ))
-            .into_response(),
+        match VersionHeader::read(req.headers()) {
+            Ok(_) => next.run(req).await,
+            Err(e) => e.into_response(),
         }
     };
     resp.headers_mut()
@@ -60,7 +90,9 @@ pub async fn version_header(req: Request, next: Next) -> Response {
 
 #[cfg(test)]
 mod tests {
-    use super::accepted;
+    use axum::http::{HeaderMap, HeaderValue};
+
+    use super::{VERSION_HEADER, VersionHeader, accepted};
 
     #[test]
     fn versions() {
@@ -72,5 +104,17 @@ mod tests {
         ] {
             assert!(!accepted(bad), "{bad}");
         }
+    }
+
+    #[test]
+    fn the_header_is_read_trimmed_or_refused() {
+        let mut headers = HeaderMap::new();
+        let missing = VersionHeader::read(&headers).unwrap_err().to_string();
+        assert!(missing.contains("is required"), "{missing}");
+        headers.insert(VERSION_HEADER, HeaderValue::from_static(" 2.0.1 "));
+        assert_eq!(VersionHeader::read(&headers).unwrap().version(), "2.0.1");
+        headers.insert(VERSION_HEADER, HeaderValue::from_static("0.95"));
+        let old = VersionHeader::read(&headers).unwrap_err().to_string();
+        assert!(old.contains("unsupported"), "{old}");
     }
 }

@@ -1,4 +1,4 @@
-//! Contrast and saline transport in the spinal compartments: the f64 CPU reference (issue 16).
+//! Contrast and saline transport in the spinal compartments: the f64 CPU reference.
 //!
 //! Fluid injected through a needle flows through masked voxel domains (epidural, intrathecal,
 //! subdural, vascular, intraneural, local pooling) under a Darcy-type pressure solve, carrying

@@ -183,9 +183,11 @@ impl AnalyticScene {
     }
 }
 
-/// The validation phantom: a soft-tissue sphere (radius 100 mm) holding a bone sphere
-/// (radius 30 mm, off-centre) and a steel needle (0.72 mm, 22 G) that runs from the tissue into
-/// the bone.
+/// The validation phantom: a soft-tissue sphere (radius 100 mm) holding a bone sphere (radius
+/// 30 mm, off-centre) and a steel needle (0.72 mm, 22 G: ISO 9626's regular-wall 22 G tube is
+/// 0.698 to 0.730 mm across) that runs from the tissue into the bone. Simulator choice: the
+/// three materials of a spinal injection in shapes whose chords are known in closed form, a
+/// torso-sized sphere and a vertebra-sized one.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SpherePhantom {
     /// Icosphere subdivisions of both sphere meshes (7: 327,680 triangles each).

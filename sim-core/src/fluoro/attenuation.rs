@@ -4,7 +4,7 @@
 //! where `A_b = sum_m mu_m(60 keV) L_m` is the 60 keV optical depth of the materials whose energy
 //! dependence is basis `b`, and `R_b(E) = (mu/rho)_b(E) / (mu/rho)_b(60 keV)`.
 //!
-//! Choice (documented, as the issue asks): tissue coefficients keep the methods page's 60 keV
+//! Simulator choice: tissue coefficients keep the methods page's 60 keV
 //! values (cortical bone 0.52, trabecular 0.27, soft tissue 0.20 per cm) and take their energy
 //! dependence from NIST compact bone or water. The page's own spectral model does the same, so our
 //! images keep its calibrated bone and soft-tissue contrast at 60 keV. Iodine and steel are

@@ -20,7 +20,7 @@
 //! - [`state`]: the serializable [`NeedleState`], the commands and the replayable [`Needle`] log.
 //! - [`placement`]: automatic placement toward a target by duty-cycled 180 degree flips.
 //!
-//! Handling (issue 19), pure models the session drives once per 0.5 mm substep:
+//! Handling, pure models the session drives once per 0.5 mm substep:
 //! - [`tissue`]: the mechanical [`Tissue`] class of a structure name.
 //! - [`force`]: the insertion force along the path after Okamura, Simone & O'Leary (2004):
 //!   capsule stiffness up to a puncture ("pop"), cutting at the tip, friction along the shaft.
@@ -64,7 +64,7 @@ pub use force::{ForceModel, ForceParams, ForcePhase, ForceSample, ForceState};
 pub use kinematics::Pose;
 pub use placement::{PlacementConfig, PlacementFailure, PlacementReport, place_toward};
 pub use play::TorsionalPlay;
-pub use profile::{InstrumentProfile, Opening, PathModel, TipGeometry};
+pub use profile::{InstrumentProfile, Opening, PathModel, ProfileError, TipGeometry};
 pub use state::{
     ArrestReason, CommandOutcome, ContactArrest, FeedOutcome, FeedStop, InitialResponse, Needle,
     NeedleCommand, NeedleError, NeedleState, OutletFootprint, RollOutcome, TiltOutcome,

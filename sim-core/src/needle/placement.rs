@@ -43,7 +43,9 @@ pub struct PlacementConfig {
     /// Nominal heading change per full limb, degrees (10: the reference simulator's profile
     /// target; simulator choice).
     pub heading_change_per_limb_deg: f64,
-    /// Distance from the target that counts as reached, millimetres (1 mm: issue 5's criterion).
+    /// Distance from the target that counts as reached, millimetres. Simulator choice: 1 mm,
+    /// about the outer diameter of the modelled needles (0.70 to 1.27 mm), so a reached tip
+    /// covers the target point with its own cross-section.
     pub tolerance_mm: f64,
     /// Largest bevel misalignment left after a flip or alignment roll before the hub is topped
     /// up, degrees (simulator choice).

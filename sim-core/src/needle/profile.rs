@@ -133,9 +133,11 @@ impl InstrumentProfile {
         }
     }
 
-    /// The same 22G Quincke needle with bevel steering switched on, using the path radius fitted
-    /// to published gel-phantom deflection of a 22G Quincke needle (about 360 mm, the figure
-    /// quoted in issue 5; the fit itself was not re-derived here). Roll stays one-to-one.
+    /// The same 22G Quincke needle with bevel steering switched on, with the path radius of a
+    /// published gel-phantom deflection: Rand et al. (Anesth Pain Med 2016;6(5):e36607) measured
+    /// 8.89 mm of deflection after 80 mm of a 22G Quincke needle in ballistic gel, and a circular
+    /// path tangent at entry with that deflection has a radius of L^2 / (2 d) = 360 mm. Roll
+    /// stays one-to-one.
     pub fn spinal_22g_quincke_gel_fit() -> Self {
         Self {
             id: "spinal-22g-quincke-gel-fit".into(),
@@ -223,22 +225,28 @@ impl InstrumentProfile {
     }
 
     /// Check that every number is finite and in its physical range.
-    pub fn validate(&self) -> Result<(), String> {
-        let positive = |name: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
+    pub fn validate(&self) -> Result<(), ProfileError> {
+        let positive = |field: &'static str, value: f64| {
+            if value.is_finite() && value > 0.0 {
                 Ok(())
             } else {
-                Err(format!("{name} must be > 0, got {v}"))
+                Err(ProfileError::NotPositive { field, value })
+            }
+        };
+        let non_negative = |field: &'static str, value: f64| {
+            if value.is_finite() && value >= 0.0 {
+                Ok(())
+            } else {
+                Err(ProfileError::Negative { field, value })
             }
         };
         positive("outer_diameter_mm", self.outer_diameter_mm)?;
         positive("shaft_length_mm", self.shaft_length_mm)?;
         positive("opening.length_mm", self.opening.length_mm)?;
-        if !(self.opening.distal_edge_from_tip_mm.is_finite()
-            && self.opening.distal_edge_from_tip_mm >= 0.0)
-        {
-            return Err("opening.distal_edge_from_tip_mm must be >= 0".into());
-        }
+        non_negative(
+            "opening.distal_edge_from_tip_mm",
+            self.opening.distal_edge_from_tip_mm,
+        )?;
         if let PathModel::Curved {
             nominal_radius_mm,
             response_length_mm,
@@ -247,11 +255,31 @@ impl InstrumentProfile {
             positive("nominal_radius_mm", nominal_radius_mm)?;
             positive("response_length_mm", response_length_mm)?;
         }
-        if !(self.torsional_play_deg_at_100mm.is_finite()
-            && self.torsional_play_deg_at_100mm >= 0.0)
-        {
-            return Err("torsional_play_deg_at_100mm must be >= 0".into());
-        }
+        non_negative(
+            "torsional_play_deg_at_100mm",
+            self.torsional_play_deg_at_100mm,
+        )?;
         Ok(())
     }
+}
+
+/// Why an instrument profile was refused: the field at fault and its value.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ProfileError {
+    /// A length that must be finite and positive is not.
+    #[error("{field} must be > 0, got {value}")]
+    NotPositive {
+        /// The offending field.
+        field: &'static str,
+        /// The value given.
+        value: f64,
+    },
+    /// A length or angle that must be finite and not negative is not.
+    #[error("{field} must be >= 0, got {value}")]
+    Negative {
+        /// The offending field.
+        field: &'static str,
+        /// The value given.
+        value: f64,
+    },
 }

@@ -10,7 +10,7 @@ use super::contact::{
 use super::hub::{MAX_HUB_DEVIATION_DEG, REDIRECT_MIN_DISCARD_MM, tip_turn_fraction};
 use super::kinematics::{Pose, arc_pose, mean_response};
 use super::play::{TorsionalPlay, window_rad};
-use super::profile::{InstrumentProfile, PathModel};
+use super::profile::{InstrumentProfile, PathModel, ProfileError};
 use super::tract::{SegmentKind, Tract, TractCursor, TractSegment};
 
 /// Largest number of contact events resolved inside one substep before the tip is arrested.
@@ -35,7 +35,7 @@ pub enum NeedleError {
     InvalidCommand(NeedleCommand),
     /// The profile failed validation.
     #[error("invalid instrument profile: {0}")]
-    InvalidProfile(String),
+    InvalidProfile(ProfileError),
     /// The substep is not a finite positive length.
     #[error("substep must be finite and > 0 mm, got {0}")]
     InvalidSubstep(f64),

@@ -145,7 +145,8 @@ impl Station {
             // A physically impossible value is refused before the tolerance sees it.
             let scored = value.map(|v| {
                 super::range::check_value(&c.measurement, c.unit, v)
-                    .and_then(|()| c.tolerance.credit(v))
+                    .map_err(|e| e.to_string())
+                    .and_then(|()| c.tolerance.credit(v).map_err(|e| e.to_string()))
             });
             let (credit, status, note) = match scored {
                 None => (None, CriterionStatus::Missing, None),

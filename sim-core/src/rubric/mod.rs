@@ -59,10 +59,10 @@ pub use engine::{
     TECHNICAL_RESULT_NOTICE,
 };
 pub use range::{
-    MAX_ABS_DEG, MAX_ABS_MM, MAX_COUNT, MAX_SECONDS, SIGNED_KEYS, check_measurements, check_value,
-    is_magnitude_key, unit_of_key,
+    MAX_ABS_DEG, MAX_ABS_MM, MAX_COUNT, MAX_SECONDS, RangeError, SIGNED_KEYS, check_measurements,
+    check_value, is_magnitude_key, unit_of_key,
 };
 pub use station::{
-    Criterion, Instrument, Modality, Rubric, Station, StationError, StationFile, Target, Tolerance,
-    Unit, load_station_dir,
+    Criterion, Instrument, Modality, ModalityNameError, Rubric, Station, StationError, StationFile,
+    Target, Tolerance, Unit, Unscorable, load_station_dir,
 };

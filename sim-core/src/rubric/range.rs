@@ -62,16 +62,45 @@ pub fn is_magnitude_key(key: &str) -> bool {
     key.contains("_to_") && !SIGNED_KEYS.contains(&key)
 }
 
+/// Why a measurement cannot be scored: it names the key and the value, and says why in words for
+/// people (the message is what a technical result's note and the server's refusal show).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RangeError {
+    /// The value is NaN or infinite.
+    #[error("{key}: {value} is not a finite number")]
+    NonFinite {
+        /// The measurement key.
+        key: String,
+        /// The value given.
+        value: f64,
+    },
+    /// The value is finite but outside the physical range of the unit its key names.
+    #[error("{key}: {value} is outside the physical range {range}")]
+    OutOfRange {
+        /// The measurement key.
+        key: String,
+        /// The value given.
+        value: f64,
+        /// The range, in words with its unit (`0 to 1000 mm`).
+        range: &'static str,
+    },
+}
+
 /// Checks that `value` of measurement `key` in `unit` is physically possible; the error says why
-/// not, in words for people.
-pub fn check_value(key: &str, unit: Unit, value: f64) -> Result<(), String> {
+/// not.
+pub fn check_value(key: &str, unit: Unit, value: f64) -> Result<(), RangeError> {
     if !value.is_finite() {
-        return Err(format!("{key}: {value} is not a finite number"));
+        return Err(RangeError::NonFinite {
+            key: key.to_owned(),
+            value,
+        });
     }
-    let out = |range: &str| {
-        Err(format!(
-            "{key}: {value} is outside the physical range {range}"
-        ))
+    let out = |range: &'static str| {
+        Err(RangeError::OutOfRange {
+            key: key.to_owned(),
+            value,
+            range,
+        })
     };
     let magnitude = is_magnitude_key(key);
     match unit {
@@ -94,12 +123,15 @@ pub fn check_value(key: &str, unit: Unit, value: f64) -> Result<(), String> {
 /// Checks every measurement: finite, and within the physical range of the unit its key names.
 pub fn check_measurements<'a>(
     measurements: impl IntoIterator<Item = (&'a String, &'a f64)>,
-) -> Result<(), String> {
+) -> Result<(), RangeError> {
     for (key, &value) in measurements {
         match unit_of_key(key) {
             Some(unit) => check_value(key, unit, value)?,
             None if !value.is_finite() => {
-                return Err(format!("{key}: {value} is not a finite number"));
+                return Err(RangeError::NonFinite {
+                    key: key.clone(),
+                    value,
+                });
             }
             None => {}
         }

@@ -9,18 +9,77 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-/// An imaging modality a station uses.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Modality {
-    /// X-ray fluoroscopy (C-arm).
-    Fluoroscopy,
+/// The name of a modality a station uses: lower-case snake case, 1 to
+/// [`Modality::MAX_CHARS`] characters. The names are open: which ones a render worker can run is
+/// decided by the modalities registered with it (the worker's modality factory), and a session
+/// whose station lists a modality its worker lacks says so. The workspace's own are
+/// [`Modality::FLUOROSCOPY`] (the C-arm), [`Modality::ULTRASOUND`] (B-mode) and
+/// [`Modality::CONTRAST`] (contrast and saline injected through the needle, transported in the
+/// spinal compartments by `sim_core::contrast` and seen on fluoroscopy; a station without it
+/// builds no transport model).
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub struct Modality(String);
+
+impl Modality {
+    /// X-ray fluoroscopy.
+    pub const FLUOROSCOPY: &'static str = "fluoroscopy";
     /// B-mode ultrasound.
-    Ultrasound,
-    /// Contrast and saline injected through the needle, transported in the spinal compartments
-    /// (`sim_core::contrast`) and seen on fluoroscopy. A station without it builds no transport
-    /// model.
-    Contrast,
+    pub const ULTRASOUND: &'static str = "ultrasound";
+    /// Contrast transport.
+    pub const CONTRAST: &'static str = "contrast";
+    /// Longest name, characters. Simulator choice: names are single words or short phrases.
+    pub const MAX_CHARS: usize = 32;
+
+    /// A modality name, checked.
+    pub fn new(name: &str) -> Result<Modality, ModalityNameError> {
+        let ok = !name.is_empty()
+            && name.len() <= Modality::MAX_CHARS
+            && name.starts_with(|c: char| c.is_ascii_lowercase())
+            && name
+                .bytes()
+                .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_');
+        if ok {
+            Ok(Modality(name.to_string()))
+        } else {
+            Err(ModalityNameError(name.to_string()))
+        }
+    }
+
+    /// The name.
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+}
+
+/// A modality name that is not lower-case snake case of 1 to [`Modality::MAX_CHARS`] characters.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("modality {0:?} must be lower-case snake case, 1 to 32 characters")]
+pub struct ModalityNameError(pub String);
+
+impl TryFrom<String> for Modality {
+    type Error = ModalityNameError;
+    fn try_from(s: String) -> Result<Modality, ModalityNameError> {
+        Modality::new(&s)
+    }
+}
+
+impl From<Modality> for String {
+    fn from(m: Modality) -> String {
+        m.0
+    }
+}
+
+impl std::fmt::Display for Modality {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl PartialEq<str> for Modality {
+    fn eq(&self, other: &str) -> bool {
+        self.0 == other
+    }
 }
 
 /// The unit of a criterion's measurement. The measurement key must end in `_<unit>` (for example
@@ -104,11 +163,22 @@ pub enum Tolerance {
     },
 }
 
+/// A measured value a tolerance cannot score.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum Unscorable {
+    /// NaN or infinite.
+    #[error("measured value {0} is not a finite number")]
+    NotFinite(f64),
+    /// A yes/no measurement other than 1 or 0.
+    #[error("yes/no measurement must be 1 or 0, got {0}")]
+    NotBoolean(f64),
+}
+
 impl Tolerance {
     /// Credit in 0..=1 for a measured value, or why the value cannot be scored.
-    pub fn credit(&self, value: f64) -> Result<f64, String> {
+    pub fn credit(&self, value: f64) -> Result<f64, Unscorable> {
         if !value.is_finite() {
-            return Err(format!("measured value {value} is not a finite number"));
+            return Err(Unscorable::NotFinite(value));
         }
         let lower_is_better = |v: f64, pass_within: f64, fail_beyond: f64| {
             if v <= pass_within {
@@ -147,7 +217,7 @@ impl Tolerance {
                 } else if value == 0.0 {
                     false
                 } else {
-                    return Err(format!("yes/no measurement must be 1 or 0, got {value}"));
+                    return Err(Unscorable::NotBoolean(value));
                 };
                 if observed == expected { 1.0 } else { 0.0 }
             }
@@ -413,7 +483,7 @@ impl Station {
         }
         let mut seen = BTreeSet::new();
         for m in &self.modalities {
-            if !seen.insert(*m) {
+            if !seen.insert(m) {
                 p.push(format!("modality {m:?} listed twice"));
             }
         }

@@ -12,8 +12,9 @@ pub const ASSUMED_SPEED_M_S: f64 = 1540.0;
 /// FWHM / sigma of a Gaussian: 2 sqrt(2 ln 2).
 pub const FWHM_PER_SIGMA: f64 = 2.354_820_045_030_949;
 
-/// Axial FWHM of the pulse-echo envelope, mm: 0.45 mm at 5 MHz (the figure, a pulse of
-/// about two cycles), scaling with 1/f at a constant fractional bandwidth.
+/// Axial FWHM of the pulse-echo envelope, mm: 0.45 mm at 5 MHz, the reference atlas's nominal
+/// axial width (methods page, "Coherent scatter and the point-spread function"), a pulse of
+/// about two cycles. Simulator choice: it scales with 1/f, a constant fractional bandwidth.
 pub fn axial_fwhm_mm(frequency_mhz: f64) -> f64 {
     0.45 * 5.0 / frequency_mhz
 }

@@ -22,8 +22,11 @@ pub enum ProbeKind {
     Curvilinear,
 }
 
-/// Fixed properties of a transducer. Footprint, band and sector are the figures; the
-/// apertures and elevation lens are our choice, typical of musculoskeletal and abdominal probes.
+/// Fixed properties of a transducer. Simulator choice for all of them: footprint and band are
+/// those of common point-of-care probes (a 38 mm linear array of about 6-13 MHz and a 60 mm
+/// radius convex array of 2-5 MHz, such as FUJIFILM SonoSite's HFL38x and C60x), the 60 degree
+/// sector a round figure; apertures and elevation lens are typical of musculoskeletal and
+/// abdominal probes.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ProbeSpec {
     /// The transducer.

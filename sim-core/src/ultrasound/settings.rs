@@ -4,7 +4,7 @@ use serde::{Deserialize, Serialize};
 
 use super::beam::Beam;
 use super::error::{UltrasoundError, check_range};
-use super::probe::{ProbeSpec, check_depth};
+use super::probe::{ProbeKind, ProbeSpec, check_depth};
 
 /// Number of time-gain-compensation bands, equally spaced over the display depth.
 pub const TGC_BANDS: usize = 6;
@@ -36,8 +36,8 @@ impl Settings {
     /// focus at half depth, 20 dB gain, TGC off, 60 dB dynamic range.
     pub fn default_for(spec: &ProbeSpec) -> Settings {
         let depth_mm = match spec.kind {
-            super::ProbeKind::Linear => 40.0,
-            super::ProbeKind::Curvilinear => 100.0,
+            ProbeKind::Linear => 40.0,
+            ProbeKind::Curvilinear => 100.0,
         };
         Settings {
             depth_mm,
@@ -124,10 +124,8 @@ impl Sampling {
             .map(|i| {
                 let z = settings.depth_mm * f64::from(i) / 100.0;
                 let width = match spec.kind {
-                    super::ProbeKind::Linear => spec.footprint_mm,
-                    super::ProbeKind::Curvilinear => {
-                        (spec.radius_mm + z) * spec.sector_deg.to_radians()
-                    }
+                    ProbeKind::Linear => spec.footprint_mm,
+                    ProbeKind::Curvilinear => (spec.radius_mm + z) * spec.sector_deg.to_radians(),
                 };
                 2.0 * width / beam.lateral_fwhm_mm(z)
             })

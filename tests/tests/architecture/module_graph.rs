@@ -1,20 +1,32 @@
 //! The module graph of one crate target, built from [`rust_scan`](super::rust_scan) results, and
-//! its cycles.
+//! its cycles between files and between folders.
 //!
 //! A node is a module file (`mod.rs` is its directory's module; inline `mod x { ... }` blocks
 //! belong to their file's node). There is an edge A -> B when A names a path into B: an item
 //! defined in B, or B itself. Paths are resolved the way rustc resolves them, as far as a scanner
 //! can: `crate::`, `super::`, `self::`, child modules, names brought in by `use` (private or
-//! public, followed through re-exports and globs to the module that defines the item). A name a
-//! module only re-exports therefore leads to the module that defines it, and a re-export
-//! (`pub use child::X;`) or a `mod child;` declaration is not by itself an edge: a facade module
-//! does not depend on what it re-exports. Any other `use`, and every path in code, is an edge,
-//! including one to the module's own ancestors (a child importing its parent's state while the
-//! parent builds a router from the child's handlers is a cycle).
+//! public, followed through re-exports and globs to the module that defines the item). A path
+//! that reaches its item through another module's `use` (a re-export, a glob) depends on that
+//! module too: `use crate::x::Y`, where `x/mod.rs` re-exports `Y` from `x/z.rs`, is an edge to
+//! `x/mod.rs` and one to `x/z.rs`. The re-export itself (`pub use z::Y;` in `x/mod.rs`) and a
+//! `mod z;` declaration are not edges: a facade module does not depend on what it re-exports.
+//! Any other `use`, and every path in code, is an edge, including one to the module's own
+//! ancestors (a child importing its parent's state while the parent builds a router from the
+//! child's handlers is a cycle).
+//!
+//! Folders: every folder below the target's root folder (`src/` for a library) is also looked at
+//! as a unit. Inside a folder F, each entry (a file of F, or a subfolder of F with everything
+//! under it) is a node, and a file edge a -> b is an edge between the entries of F that hold a
+//! and b, where F is the deepest folder holding both. A cycle between entries of a folder that
+//! passes through a subfolder is a folder cycle even when no single file cycle exists: a
+//! subfolder imports a sibling file that imports back into the subfolder. (A cycle of files only
+//! is already a file cycle and is not reported twice.) `x.rs` next to its folder `x/` is the
+//! folder's module file, as `x/mod.rs` would be.
 
-use std::collections::{BTreeMap, BTreeSet, VecDeque};
-use std::path::{Path, PathBuf};
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Component, Path, PathBuf};
 
+use super::digraph::{Cycle, Digraph};
 use super::rust_scan::{self, Binding, FileScan};
 
 type ModPath = Vec<String>;
@@ -48,23 +60,24 @@ pub struct Evidence {
     pub text: String,
 }
 
-/// One strongly connected component of more than one module.
-#[derive(Debug)]
-pub struct Cycle {
-    /// `"<target>: <module>, <module>, ..."`, members sorted: names the component exactly.
-    pub key: String,
-    /// A readable account: one shortest cycle, then every edge inside the component with the
-    /// file and line where it first occurs.
-    pub report: String,
+/// One module file.
+struct Node {
+    path: ModPath,
+    file: PathBuf,
+    /// The folders holding the file, below the target's root folder, then the file's name. A
+    /// file with child modules in a folder of its own (`x.rs` beside `x/`) is placed inside it.
+    place: Vec<String>,
 }
 
-/// Recursion limit for following `use` chains (re-exports of re-exports); real chains are short.
+/// Recursion limit for following `use` chains (re-exports of re-exports). Simulator choice: real
+/// chains are two or three deep, and the limit only stops a pathological loop of re-exports.
 const FUEL: u32 = 16;
 
 pub struct ModuleGraph {
     name: String,
-    /// Module path and file of each node.
-    nodes: Vec<(ModPath, PathBuf)>,
+    /// The target's root folder (`src/` for a library), as given.
+    root_dir: PathBuf,
+    nodes: Vec<Node>,
     edges: BTreeMap<(usize, usize), Evidence>,
 }
 
@@ -77,7 +90,7 @@ impl ModuleGraph {
         let mut scans: Vec<(ModPath, FileScan)> = Vec::new();
         let root_dir = root.parent().unwrap_or(Path::new("")).to_path_buf();
         // (candidate files, module path, directory of its child modules' files)
-        let mut queue = vec![(vec![root.to_path_buf()], Vec::new(), root_dir)];
+        let mut queue = vec![(vec![root.to_path_buf()], Vec::new(), root_dir.clone())];
         while let Some((candidates, path, child_dir)) = queue.pop() {
             let (file, src) = candidates
                 .iter()
@@ -93,7 +106,30 @@ impl ModuleGraph {
                 continue;
             }
             let node = nodes.len();
-            nodes.push((path.clone(), file));
+            let folder = if scan.mods.is_empty() {
+                file.parent().unwrap_or(Path::new("")).to_path_buf()
+            } else {
+                child_dir.clone()
+            };
+            let file_name = file
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            let place = folder
+                .strip_prefix(&root_dir)
+                .unwrap_or(&folder)
+                .components()
+                .filter_map(|c| match c {
+                    Component::Normal(c) => Some(c.to_string_lossy().into_owned()),
+                    _ => None,
+                })
+                .chain([file_name])
+                .collect();
+            nodes.push(Node {
+                path: path.clone(),
+                file,
+                place,
+            });
             modules.insert(
                 path.clone(),
                 Module {
@@ -158,13 +194,14 @@ impl ModuleGraph {
         let edges = Resolver { modules: &modules }.edges(&scans);
         Self {
             name: name.to_owned(),
+            root_dir,
             nodes,
             edges,
         }
     }
 
     fn node_name(&self, node: usize) -> String {
-        let path = &self.nodes[node].0;
+        let path = &self.nodes[node].path;
         if path.is_empty() {
             "crate".to_owned()
         } else {
@@ -172,150 +209,115 @@ impl ModuleGraph {
         }
     }
 
-    /// Every edge as `"from -> to"` (for tests).
+    /// The file graph: one node per module file, named by its module path.
+    fn file_graph(&self) -> Digraph {
+        let mut g = Digraph::new((0..self.nodes.len()).map(|n| self.node_name(n)).collect());
+        for (&(from, to), e) in &self.edges {
+            let file = self.nodes[from].file.display();
+            g.add(from, to, format!("{file}:{}: {}", e.line, e.text));
+        }
+        g
+    }
+
+    /// Every edge between files as `"from -> to"`, by module path (for tests).
     pub fn edge_names(&self) -> BTreeSet<String> {
-        self.edges
-            .keys()
-            .map(|&(a, b)| format!("{} -> {}", self.node_name(a), self.node_name(b)))
-            .collect()
+        self.file_graph().edge_names()
     }
 
-    /// Strongly connected components of more than one module, sorted by key.
+    /// Cycles between module files (strongly connected components of more than one file),
+    /// sorted by key.
     pub fn cycles(&self) -> Vec<Cycle> {
-        let mut cycles: Vec<Cycle> = self
-            .components()
-            .into_iter()
-            .filter(|c| c.len() > 1)
-            .map(|members| self.describe(&members))
-            .collect();
-        cycles.sort_by(|a, b| a.key.cmp(&b.key));
-        cycles
+        self.file_graph().cycles(&self.name, |_| true)
     }
 
-    fn successors(&self, node: usize) -> impl Iterator<Item = usize> + '_ {
-        self.edges
-            .range((node, 0)..(node + 1, 0))
-            .map(|(&(_, to), _)| to)
-    }
-
-    /// Tarjan's strongly connected components.
-    fn components(&self) -> Vec<Vec<usize>> {
-        struct State {
-            index: Vec<Option<usize>>,
-            low: Vec<usize>,
-            on_stack: Vec<bool>,
-            stack: Vec<usize>,
-            next: usize,
-            out: Vec<Vec<usize>>,
+    /// The graph of each folder's entries, by folder (components below the root folder). An
+    /// entry is named `name/` for a subfolder and by its file name for a file.
+    fn folder_graphs(&self) -> BTreeMap<Vec<String>, Digraph> {
+        // (folder, from entry, to entry) -> (from file, line, text) of each file edge, with the
+        // files it reaches (one line can reach a facade and the file behind it).
+        type Key<'a> = (&'a [String], String, String);
+        type Occurrences<'a> = BTreeMap<(&'a Path, u32, &'a str), Vec<&'a Path>>;
+        let mut found: BTreeMap<Key<'_>, Occurrences<'_>> = BTreeMap::new();
+        for (&(a, b), e) in &self.edges {
+            let (pa, pb) = (&self.nodes[a].place, &self.nodes[b].place);
+            let (fa, fb) = (&pa[..pa.len() - 1], &pb[..pb.len() - 1]);
+            let k = fa.iter().zip(fb).take_while(|(x, y)| x == y).count();
+            let entry = |place: &[String], folders: &[String]| match folders.get(k) {
+                Some(sub) => format!("{sub}/"),
+                None => place[place.len() - 1].clone(),
+            };
+            found
+                .entry((&fa[..k], entry(pa, fa), entry(pb, fb)))
+                .or_default()
+                .entry((&self.nodes[a].file, e.line, &e.text))
+                .or_default()
+                .push(&self.nodes[b].file);
         }
-        fn visit(g: &ModuleGraph, s: &mut State, v: usize) {
-            s.index[v] = Some(s.next);
-            s.low[v] = s.next;
-            s.next += 1;
-            s.stack.push(v);
-            s.on_stack[v] = true;
-            for w in g.successors(v) {
-                match s.index[w] {
-                    None => {
-                        visit(g, s, w);
-                        s.low[v] = s.low[v].min(s.low[w]);
-                    }
-                    Some(iw) if s.on_stack[w] => s.low[v] = s.low[v].min(iw),
-                    Some(_) => {}
-                }
-            }
-            if Some(s.low[v]) == s.index[v] {
-                let mut component = Vec::new();
-                while let Some(w) = s.stack.pop() {
-                    s.on_stack[w] = false;
-                    component.push(w);
-                    if w == v {
-                        break;
-                    }
-                }
-                s.out.push(component);
-            }
+        let mut by_folder: BTreeMap<&[String], Vec<(String, String, Occurrences<'_>)>> =
+            BTreeMap::new();
+        for ((folder, from, to), occurrences) in found {
+            by_folder
+                .entry(folder)
+                .or_default()
+                .push((from, to, occurrences));
         }
-        let n = self.nodes.len();
-        let mut s = State {
-            index: vec![None; n],
-            low: vec![0; n],
-            on_stack: vec![false; n],
-            stack: Vec::new(),
-            next: 0,
-            out: Vec::new(),
-        };
-        for v in 0..n {
-            if s.index[v].is_none() {
-                visit(self, &mut s, v);
-            }
-        }
-        s.out
-    }
-
-    fn describe(&self, members: &[usize]) -> Cycle {
-        let inside: BTreeSet<usize> = members.iter().copied().collect();
-        let mut names: Vec<(String, usize)> =
-            members.iter().map(|&m| (self.node_name(m), m)).collect();
-        names.sort();
-        let key = format!(
-            "{}: {}",
-            self.name,
-            names
+        let mut graphs = BTreeMap::new();
+        for (folder, edges) in by_folder {
+            let names: Vec<String> = edges
                 .iter()
-                .map(|(n, _)| n.as_str())
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
-        // The shortest cycle through the first member, by breadth-first search inside the component.
-        let start = names[0].1;
-        let mut previous: BTreeMap<usize, usize> = BTreeMap::new();
-        let mut queue = VecDeque::from([start]);
-        'search: while let Some(v) = queue.pop_front() {
-            for w in self.successors(v).filter(|w| inside.contains(w)) {
-                if w == start {
-                    previous.insert(start, v);
-                    break 'search;
-                }
-                if let std::collections::btree_map::Entry::Vacant(e) = previous.entry(w) {
-                    e.insert(v);
-                    queue.push_back(w);
+                .flat_map(|(from, to, _)| [from.clone(), to.clone()])
+                .collect::<BTreeSet<String>>()
+                .into_iter()
+                .collect();
+            let id = |name: &String| names.binary_search(name).expect("an entry of the folder");
+            let mut g = Digraph::new(names.clone());
+            for (from, to, occurrences) in &edges {
+                for ((file, line, text), targets) in occurrences {
+                    let mut targets: Vec<String> =
+                        targets.iter().map(|t| t.display().to_string()).collect();
+                    targets.sort();
+                    let file = file.display();
+                    let targets = targets.join(", ");
+                    g.add(
+                        id(from),
+                        id(to),
+                        format!("{file}:{line}: {text} (to {targets})"),
+                    );
                 }
             }
+            graphs.insert(folder.to_vec(), g);
         }
-        let mut cycle = vec![start];
-        let mut at = previous[&start];
-        while at != start {
-            cycle.push(at);
-            at = previous[&at];
+        graphs
+    }
+
+    /// Cycles between the entries of a folder that pass through at least one subfolder, every
+    /// folder of the target, sorted by key. The key names the target and the folder.
+    pub fn folder_cycles(&self) -> Vec<Cycle> {
+        let mut out = Vec::new();
+        for (folder, g) in self.folder_graphs() {
+            let dir = folder.iter().fold(self.root_dir.clone(), |d, s| d.join(s));
+            let prefix = format!("{}, folder {}/", self.name, dir.display());
+            out.extend(g.cycles(&prefix, |members| {
+                members.iter().any(|&m| g.name(m).ends_with('/'))
+            }));
         }
-        cycle.push(start);
-        cycle.reverse();
-        let mut report = format!(
-            "{key}\n    cycle: {}\n",
-            cycle
-                .iter()
-                .map(|&m| self.node_name(m))
-                .collect::<Vec<_>>()
-                .join(" -> ")
-        );
-        let mut lines: Vec<String> = self
-            .edges
-            .iter()
-            .filter(|((from, to), _)| inside.contains(from) && inside.contains(to))
-            .map(|(&(from, to), evidence)| {
-                let (file, line, text) =
-                    (self.nodes[from].1.display(), evidence.line, &evidence.text);
-                format!(
-                    "    {} -> {}   {file}:{line}: {text}\n",
-                    self.node_name(from),
-                    self.node_name(to)
-                )
-            })
-            .collect();
-        lines.sort();
-        report.extend(lines);
-        Cycle { key, report }
+        out.sort_by(|a, b| a.key.cmp(&b.key));
+        out
+    }
+
+    /// Every edge between entries of a folder as `"folder: from -> to"` (for tests; the root
+    /// folder is `.`).
+    pub fn folder_edge_names(&self) -> BTreeSet<String> {
+        let mut out = BTreeSet::new();
+        for (folder, g) in self.folder_graphs() {
+            let folder = if folder.is_empty() {
+                ".".to_owned()
+            } else {
+                folder.join("/")
+            };
+            out.extend(g.edge_names().into_iter().map(|e| format!("{folder}: {e}")));
+        }
+        out
     }
 }
 
@@ -348,34 +350,50 @@ impl Resolver<'_> {
                 .iter()
                 .map(|p| (&p.scope, &p.path, p.line, p.path.join("::"), true));
             for (scope, segments, line, text, module_counts) in uses.chain(paths) {
-                let target = match self.resolve(&[path.as_slice(), scope].concat(), segments, FUEL)
-                {
-                    Target::Item(m) => m,
+                let ctx = [path.as_slice(), scope].concat();
+                let mut via = Vec::new();
+                let target = match self.resolve(&ctx, segments, FUEL, &mut via) {
+                    Target::Item(m) => Some(m),
                     // `use a::b;` of a module only binds a name; a glob or a path in code that
                     // ends at a module uses it.
-                    Target::Module(m) if module_counts => m,
-                    Target::Module(_) | Target::External => continue,
+                    Target::Module(m) if module_counts => Some(m),
+                    Target::Module(_) => continue,
+                    // Something outside the crate, reached through a module's `use` (a prelude
+                    // of re-exports): an edge to that module only.
+                    Target::External => None,
                 };
-                let to = self.modules[&target].node;
-                if to == from {
-                    continue;
+                for module in via.iter().chain(&target) {
+                    let to = self.modules[module].node;
+                    if to == from {
+                        continue;
+                    }
+                    let evidence = Evidence {
+                        line,
+                        text: text.clone(),
+                    };
+                    edges
+                        .entry((from, to))
+                        .and_modify(|e| {
+                            if line < e.line {
+                                *e = evidence.clone()
+                            }
+                        })
+                        .or_insert(evidence);
                 }
-                let evidence = Evidence { line, text };
-                edges
-                    .entry((from, to))
-                    .and_modify(|e| {
-                        if line < e.line {
-                            *e = evidence.clone()
-                        }
-                    })
-                    .or_insert(evidence);
             }
         }
         edges
     }
 
-    /// Resolves `path` as written in module `ctx`.
-    fn resolve(&self, ctx: &[String], path: &[String], fuel: u32) -> Target {
+    /// Resolves `path` as written in module `ctx`. Each module whose `use` (a binding or a glob)
+    /// the resolution goes through is added to `via`.
+    fn resolve(
+        &self,
+        ctx: &[String],
+        path: &[String],
+        fuel: u32,
+        via: &mut Vec<ModPath>,
+    ) -> Target {
         let Some(first) = path.first() else {
             return Target::External;
         };
@@ -393,7 +411,7 @@ impl Resolver<'_> {
                 }
                 (ctx[..ctx.len() - ups].to_vec(), &path[ups..])
             }
-            name => match self.lookup(ctx, name, fuel - 1) {
+            name => match self.lookup(ctx, name, fuel - 1, via) {
                 Some(Target::Module(m)) => (m, &path[1..]),
                 Some(other) => return other,
                 // A local name, a type, an extern crate.
@@ -401,7 +419,7 @@ impl Resolver<'_> {
             },
         };
         for segment in rest {
-            match self.lookup(&module, segment, fuel - 1) {
+            match self.lookup(&module, segment, fuel - 1, via) {
                 Some(Target::Module(m)) => module = m,
                 Some(other) => return other,
                 // Not found by the scanner (made by a macro, say): it is named in this module.
@@ -412,8 +430,15 @@ impl Resolver<'_> {
     }
 
     /// What `name` means in `module`: a child module, an item defined there, a name it imports
-    /// or re-exports (followed to its definition), or a name from one of its glob imports.
-    fn lookup(&self, module: &[String], name: &str, fuel: u32) -> Option<Target> {
+    /// or re-exports (followed to its definition, with `module` added to `via`), or a name from
+    /// one of its glob imports (likewise).
+    fn lookup(
+        &self,
+        module: &[String],
+        name: &str,
+        fuel: u32,
+        via: &mut Vec<ModPath>,
+    ) -> Option<Target> {
         let here = self.modules.get(module)?;
         if here.children.contains(name) {
             return Some(Target::Module([module, &[name.to_owned()]].concat()));
@@ -425,13 +450,18 @@ impl Resolver<'_> {
             return None;
         }
         if let Some(bound) = here.bindings.get(name) {
-            return Some(self.resolve(module, bound, fuel - 1));
+            via.push(module.to_vec());
+            return Some(self.resolve(module, bound, fuel - 1, via));
         }
-        here.globs
-            .iter()
-            .find_map(|glob| match self.resolve(module, glob, fuel - 1) {
-                Target::Module(m) if m != module => self.lookup(&m, name, fuel - 1),
+        here.globs.iter().find_map(|glob| {
+            // Only the glob that provides the name counts: try each on a copy of `via`.
+            let mut tried = vec![module.to_vec()];
+            let found = match self.resolve(module, glob, fuel - 1, &mut tried) {
+                Target::Module(m) if m != module => self.lookup(&m, name, fuel - 1, &mut tried),
                 _ => None,
-            })
+            }?;
+            via.extend(tried);
+            Some(found)
+        })
     }
 }

@@ -219,7 +219,7 @@ fn tokenize(src: &str) -> Vec<Token> {
 }
 
 /// Skips a string body starting after its opening quote; returns the index after the closing one.
-fn skip_string(s: &[char], mut i: usize, line: &mut u32) -> usize {
+pub fn skip_string(s: &[char], mut i: usize, line: &mut u32) -> usize {
     while i < s.len() && s[i] != '"' {
         if s[i] == '\\' {
             i += 1;
@@ -233,7 +233,7 @@ fn skip_string(s: &[char], mut i: usize, line: &mut u32) -> usize {
 }
 
 /// Skips a raw string whose hashes (or opening quote) start at `i`.
-fn skip_raw_string(s: &[char], mut i: usize, line: &mut u32) -> usize {
+pub fn skip_raw_string(s: &[char], mut i: usize, line: &mut u32) -> usize {
     let mut hashes = 0;
     while s.get(i) == Some(&'#') {
         hashes += 1;

@@ -23,6 +23,10 @@ fn keys(g: &ModuleGraph) -> Vec<String> {
     g.cycles().into_iter().map(|c| c.key).collect()
 }
 
+fn folder_keys(g: &ModuleGraph) -> Vec<String> {
+    g.folder_cycles().into_iter().map(|c| c.key).collect()
+}
+
 #[test]
 fn a_three_module_cycle_is_found_with_its_evidence() {
     let g = graph(&[
@@ -64,10 +68,12 @@ fn a_parent_that_only_declares_and_re_exports_its_children_is_no_cycle() {
             "use crate::records::State;\npub fn list_users() {}\n",
         ),
     ]);
-    // The root's calls go through the facade to the modules that define the functions.
+    // The root's calls go through the facade to the modules that define the functions, and
+    // depend on the facade too; the facade's re-exports are no edges of its own.
     assert_eq!(
         edges(&g),
         [
+            "crate -> records",
             "crate -> records::attempts",
             "crate -> records::users",
             "records::attempts -> records",
@@ -75,6 +81,7 @@ fn a_parent_that_only_declares_and_re_exports_its_children_is_no_cycle() {
         ]
     );
     assert!(keys(&g).is_empty());
+    assert!(folder_keys(&g).is_empty());
 
     // A parent that uses a child's function (to build a router, say) depends on it.
     let builds_router = format!("{records}fn router() {{\n    attempts::create();\n}}\n");
@@ -240,4 +247,152 @@ fn items_and_inline_modules_are_scoped() {
         ("src/b.rs", "pub fn h() {}\n"),
     ]);
     assert_eq!(edges(&g), ["a -> b"]);
+}
+
+/// A session folder whose modalities subfolder reaches the session's device registry through
+/// the session's facade (`crate::session::Backends`, re-exported from `devices.rs`), while the
+/// facade's own code calls into the modalities.
+const SESSION_FACADE: &str = "pub mod devices;\npub mod modalities;\npub use devices::Backends;\n\
+                              pub fn open() {\n    modalities::fluoro::start();\n}\n";
+
+#[test]
+fn a_folder_cycle_through_a_re_export_is_found_with_its_evidence() {
+    let g = graph(&[
+        ("src/lib.rs", "pub mod session;\n"),
+        ("src/session/mod.rs", SESSION_FACADE),
+        ("src/session/devices.rs", "pub struct Backends;\n"),
+        (
+            "src/session/modalities/mod.rs",
+            "pub mod fluoro;\nmod modality;\npub use modality::Modality;\n",
+        ),
+        (
+            "src/session/modalities/modality.rs",
+            "use crate::session::Backends;\npub trait Modality {\n    fn b(&self) -> Backends;\n}\n",
+        ),
+        (
+            "src/session/modalities/fluoro/mod.rs",
+            "mod backend;\npub use backend::start;\n",
+        ),
+        (
+            "src/session/modalities/fluoro/backend.rs",
+            "pub fn start() {}\n",
+        ),
+    ]);
+    // `use crate::session::Backends` depends on the facade that re-exports it and on the file
+    // that defines it.
+    assert_eq!(
+        edges(&g),
+        [
+            "session -> session::modalities::fluoro",
+            "session -> session::modalities::fluoro::backend",
+            "session::modalities::modality -> session",
+            "session::modalities::modality -> session::devices",
+        ]
+    );
+    // No file cycle: the fluoroscopy backend imports nothing back.
+    assert!(keys(&g).is_empty());
+    assert_eq!(
+        g.folder_edge_names().into_iter().collect::<Vec<_>>(),
+        [
+            "session: mod.rs -> modalities/",
+            "session: modalities/ -> devices.rs",
+            "session: modalities/ -> mod.rs",
+        ]
+    );
+    // The subfolder and the facade file import each other: a folder cycle, reported with the
+    // file and line of each file edge that makes it.
+    let cycles = g.folder_cycles();
+    assert_eq!(cycles.len(), 1);
+    assert_eq!(
+        cycles[0].report,
+        "t, folder src/session/: mod.rs, modalities/\n    cycle: mod.rs -> modalities/ -> mod.rs\n    \
+         mod.rs -> modalities/   src/session/mod.rs:5: modalities::fluoro::start (to \
+         src/session/modalities/fluoro/backend.rs, src/session/modalities/fluoro/mod.rs)\n    \
+         modalities/ -> mod.rs   src/session/modalities/modality.rs:1: use crate::session::Backends \
+         (to src/session/mod.rs)\n"
+    );
+
+    // Importing the definition directly (`crate::session::devices::Backends`) leaves the facade
+    // out, and the folder cycle goes with it.
+    let direct = graph(&[
+        ("src/lib.rs", "pub mod session;\n"),
+        ("src/session/mod.rs", SESSION_FACADE),
+        ("src/session/devices.rs", "pub struct Backends;\n"),
+        (
+            "src/session/modalities/mod.rs",
+            "pub mod fluoro;\nmod modality;\n",
+        ),
+        (
+            "src/session/modalities/modality.rs",
+            "use crate::session::devices::Backends;\n",
+        ),
+        (
+            "src/session/modalities/fluoro/mod.rs",
+            "pub fn start() {}\n",
+        ),
+    ]);
+    assert!(keys(&direct).is_empty());
+    assert!(folder_keys(&direct).is_empty());
+}
+
+#[test]
+fn a_layered_tree_has_no_file_or_folder_cycle() {
+    // The device registry sits above the modalities and names their backends; the modalities
+    // use only a leaf of the session (its configuration) and each other's shared trait.
+    let g = graph(&[
+        ("src/lib.rs", "pub mod gpu;\npub mod session;\n"),
+        ("src/gpu.rs", "pub struct Context;\n"),
+        (
+            "src/session/mod.rs",
+            "pub mod config;\npub mod devices;\npub mod modalities;\npub use config::Config;\n",
+        ),
+        ("src/session/config.rs", "pub struct Config;\n"),
+        (
+            "src/session/devices.rs",
+            "use crate::gpu::Context;\nuse super::modalities::fluoro::Backend;\n\
+             pub fn open(_c: Context) -> Backend {\n    Backend\n}\n",
+        ),
+        (
+            "src/session/modalities/mod.rs",
+            "pub mod fluoro;\nmod modality;\npub use modality::Modality;\n",
+        ),
+        (
+            "src/session/modalities/modality.rs",
+            "use crate::session::Config;\npub trait Modality {\n    fn c(&self) -> Config;\n}\n",
+        ),
+        (
+            "src/session/modalities/fluoro.rs",
+            "mod backend;\npub use backend::Backend;\n",
+        ),
+        (
+            "src/session/modalities/fluoro/backend.rs",
+            "use super::super::Modality;\npub struct Backend;\n",
+        ),
+    ]);
+    assert_eq!(
+        edges(&g),
+        [
+            "session::devices -> gpu",
+            "session::devices -> session::modalities::fluoro",
+            "session::devices -> session::modalities::fluoro::backend",
+            "session::modalities::fluoro::backend -> session::modalities",
+            "session::modalities::fluoro::backend -> session::modalities::modality",
+            "session::modalities::modality -> session",
+            "session::modalities::modality -> session::config",
+        ]
+    );
+    // `fluoro.rs` beside its folder `fluoro/` is that folder's module file.
+    assert_eq!(
+        g.folder_edge_names().into_iter().collect::<Vec<_>>(),
+        [
+            ".: session/ -> gpu.rs",
+            "session/modalities: fluoro/ -> mod.rs",
+            "session/modalities: fluoro/ -> modality.rs",
+            "session: devices.rs -> modalities/",
+            "session: modalities/ -> config.rs",
+            "session: modalities/ -> mod.rs",
+        ]
+    );
+    assert!(keys(&g).is_empty());
+    assert!(folder_keys(&g).is_empty());
 }

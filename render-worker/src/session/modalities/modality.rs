@@ -4,12 +4,11 @@ use std::sync::Arc;
 
 use sim_core::rubric::Measurements;
 
-use crate::session::command::{Command, CommandClass, CommandError};
+use crate::session::command::{Agent, Command, CommandError, CommandSpec, Engagement};
 use crate::session::config::SessionConfig;
-use crate::session::devices::Backends;
 use crate::session::image::{ViewId, ViewImage};
 use crate::session::region::Region;
-use crate::session::world::{StationContext, World, WorldChange};
+use crate::session::world::{ImageRayError, StationContext, World, WorldChange};
 
 /// Why a modality could not render or restore.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -32,17 +31,74 @@ pub enum ModalityError {
     },
 }
 
+/// What a modality declares about itself: the data from which the session core routes
+/// commands, the protocol tells clients what a session offers (views and their wire codes,
+/// command kinds), and the server records engagement. Nothing outside the modality's folder
+/// lists these.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct ModalitySpec {
+    /// Stable name: the station's modality name and the key of its state in snapshots
+    /// (`"fluoroscopy"`).
+    pub name: &'static str,
+    /// What a learner calls it, for messages (`"contrast injection"`).
+    pub label: &'static str,
+    /// Views it can render.
+    pub views: &'static [ViewId],
+    /// Command kinds it handles, each with its engagement event.
+    pub commands: &'static [CommandSpec],
+    /// Numbers a client needs to drive it (for the contrast modality, the tick interval of its
+    /// logged clock), by name with their unit suffix; sent in the session protocol's hello.
+    pub constants: &'static [(&'static str, f64)],
+}
+
+impl ModalitySpec {
+    /// Whether this modality handles commands of kind `kind`.
+    pub fn handles(&self, kind: &str) -> bool {
+        self.commands.iter().any(|c| c.kind == kind)
+    }
+}
+
+/// Fluid a modality pushed through the needle while applying a command; the session books it in
+/// the world's injection ledger and tells every modality ([`WorldChange::FluidInjected`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FluidDelivery {
+    /// What was injected.
+    pub agent: Agent,
+    /// Volume, ml.
+    pub volume_ml: f64,
+    /// Rate, ml/s.
+    pub rate_ml_per_s: f64,
+}
+
 /// One modality of a session.
 pub trait Modality: Send {
-    /// Stable name, used as the key of its state in snapshots (`"fluoroscopy"`); the same as the
-    /// station's modality name.
-    fn name(&self) -> &'static str;
+    /// What this modality declares (the same value its factory registration carries).
+    fn spec(&self) -> &'static ModalitySpec;
 
-    /// Command classes this modality handles.
-    fn accepts(&self) -> &'static [CommandClass];
+    /// Stable name ([`ModalitySpec::name`]).
+    fn name(&self) -> &'static str {
+        self.spec().name
+    }
 
-    /// Views it can render.
-    fn views(&self) -> &'static [ViewId];
+    /// Views it can render ([`ModalitySpec::views`]).
+    fn views(&self) -> &'static [ViewId] {
+        self.spec().views
+    }
+
+    /// The engagement event an accepted `command` of this modality stands for; by default the
+    /// one its [`ModalitySpec`] declares for the kind.
+    fn engagement(&self, command: &Command) -> Option<Engagement> {
+        self.spec()
+            .commands
+            .iter()
+            .find(|c| c.kind == command.name())
+            .and_then(|c| c.engagement)
+    }
+
+    /// Fluid pushed through the needle by the command just applied (taken once).
+    fn take_fluid(&mut self) -> Option<FluidDelivery> {
+        None
+    }
 
     /// Applies a validated command of an accepted class at simulation time `world.clock_ms`;
     /// returns a JSON outcome for the acknowledgement.
@@ -79,7 +135,10 @@ pub trait Modality: Send {
     /// fluoroscopy modality: from the focal spot through that pixel of the last image), as
     /// origin and unit direction in the model frame, or why there is none; `None` from a
     /// modality without such an image.
-    fn image_ray(&self, _pixel: [f64; 2]) -> Option<Result<(glam::DVec3, glam::DVec3), String>> {
+    fn image_ray(
+        &self,
+        _pixel: [f64; 2],
+    ) -> Option<Result<(glam::DVec3, glam::DVec3), ImageRayError>> {
         None
     }
 
@@ -124,6 +183,6 @@ pub struct ModalityContext<'a> {
     pub station: &'a Arc<StationContext>,
     /// Anatomy.
     pub region: &'a Arc<Region>,
-    /// The renderers this device offers.
-    pub backends: &'a Backends,
+    /// The renderers this device offers, by modality name.
+    pub renderers: &'a super::renderers::Renderers,
 }

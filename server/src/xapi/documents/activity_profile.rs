@@ -7,20 +7,31 @@ use axum::extract::rejection::BytesRejection;
 use axum::extract::{RawQuery, State};
 use axum::http::HeaderMap;
 use axum::response::Response;
+use time::OffsetDateTime;
 use utoipa::IntoParams;
 
-use super::ops::{self, Write, WriteRequest};
-use super::params::Params;
+use super::ops::{Preconditions, Write};
+use super::params::{DocumentId, Iri, Params, QueryParams};
+use super::resource::{self, DocumentResource, NamesDocument, NamesTarget, Target};
 use super::store::{DocKey, Kind, Scope};
-use super::{DocumentId, Iri, Preconditions, VersionHeader};
+use crate::error::ApiError;
 use crate::xapi::auth::LrsClient;
 use crate::xapi::error::XapiError;
 use crate::xapi::state::XapiState;
+use crate::xapi::version::VersionHeader;
+
+/// The Activity Profile resource, for the generic implementation of [`resource`].
+pub struct ActivityProfileResource;
+
+impl DocumentResource for ActivityProfileResource {
+    type Get = ActivityProfileQuery;
+    type Write = ActivityProfileDocument;
+    type Delete = ActivityProfileDocument;
+}
 
 /// Parameters of PUT, POST and DELETE: one document.
 #[derive(Debug, IntoParams)]
 #[into_params(parameter_in = Query)]
-#[allow(dead_code)]
 pub struct ActivityProfileDocument {
     /// The Activity's IRI.
     #[param(inline, rename = "activityId")]
@@ -33,7 +44,6 @@ pub struct ActivityProfileDocument {
 /// Parameters of GET: one document with `profileId`, else the ids of all.
 #[derive(Debug, IntoParams)]
 #[into_params(parameter_in = Query)]
-#[allow(dead_code)]
 pub struct ActivityProfileQuery {
     /// The Activity's IRI.
     #[param(inline, rename = "activityId")]
@@ -42,27 +52,53 @@ pub struct ActivityProfileQuery {
     #[param(inline, rename = "profileId")]
     profile_id: Option<DocumentId>,
     /// Without `profileId`: only ids of documents stored after this time (exclusive).
-    #[param(format = DateTime)]
-    since: Option<String>,
+    #[param(value_type = Option<String>, format = DateTime)]
+    since: Option<OffsetDateTime>,
 }
 
-const WRITE_PARAMS: [&str; 2] = ["activityId", "profileId"];
-const GET_PARAMS: [&str; 3] = ["activityId", "profileId", "since"];
-
-fn scope(p: &Params) -> Result<Scope, XapiError> {
-    Ok(Scope {
+/// The profiles of one Activity.
+fn scope(activity_id: Iri) -> Scope {
+    Scope {
         kind: Kind::ActivityProfile,
-        activity_id: p.activity_id()?,
+        activity_id: activity_id.into_string(),
         agent_key: String::new(),
-    })
+    }
 }
 
-fn doc_key(p: &Params) -> Result<DocKey, XapiError> {
-    Ok(DocKey {
-        scope: scope(p)?,
-        registration: None,
-        document_id: p.document_id("profileId")?,
-    })
+impl QueryParams for ActivityProfileDocument {
+    fn read(p: &Params) -> Result<Self, ApiError> {
+        Ok(ActivityProfileDocument {
+            activity_id: p.activity_id()?,
+            profile_id: p.document_id("profileId")?,
+        })
+    }
+}
+
+impl NamesDocument for ActivityProfileDocument {
+    fn key(self) -> DocKey {
+        DocKey {
+            scope: scope(self.activity_id),
+            registration: None,
+            document_id: self.profile_id.into_string(),
+        }
+    }
+}
+
+impl QueryParams for ActivityProfileQuery {
+    fn read(p: &Params) -> Result<Self, ApiError> {
+        Ok(ActivityProfileQuery {
+            activity_id: p.activity_id()?,
+            since: p.since()?,
+            profile_id: p.optional_document_id("profileId")?,
+        })
+    }
+}
+
+impl NamesTarget for ActivityProfileQuery {
+    fn target(self) -> Target {
+        let scope = scope(self.activity_id);
+        Target::of(scope, None, self.profile_id, self.since)
+    }
 }
 
 /// Fetch one activity profile document, or the Activity's profile ids.
@@ -82,21 +118,7 @@ pub async fn get_activity_profile(
     State(state): State<XapiState>,
     RawQuery(query): RawQuery,
 ) -> Result<Response, XapiError> {
-    client.require_read()?;
-    let p = Params::parse(query.as_deref(), &GET_PARAMS)?;
-    let scope = scope(&p)?;
-    let since = p.since()?;
-    match p.optional_document_id("profileId")? {
-        Some(document_id) => {
-            let key = DocKey {
-                scope,
-                registration: None,
-                document_id,
-            };
-            ops::get_one(&state.pool, &key).await
-        }
-        None => ops::get_ids(&state.pool, &scope, None, since).await,
-    }
+    resource::get::<ActivityProfileResource>(client, &state, query).await
 }
 
 /// Store an activity profile document, replacing any (a document that exists needs `If-Match`).
@@ -121,8 +143,8 @@ pub async fn put_activity_profile(
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
 ) -> Result<Response, XapiError> {
-    let req = WriteRequest::new(client, query, &WRITE_PARAMS, headers, body);
-    req.run(&state, doc_key, Write::Put).await
+    resource::write::<ActivityProfileResource>(client, &state, query, headers, body, Write::Put)
+        .await
 }
 
 /// Store an activity profile document, merging a JSON object into a stored JSON object.
@@ -146,8 +168,8 @@ pub async fn post_activity_profile(
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
 ) -> Result<Response, XapiError> {
-    let req = WriteRequest::new(client, query, &WRITE_PARAMS, headers, body);
-    req.run(&state, doc_key, Write::Post).await
+    resource::write::<ActivityProfileResource>(client, &state, query, headers, body, Write::Post)
+        .await
 }
 
 /// Delete one activity profile document.
@@ -165,7 +187,5 @@ pub async fn delete_activity_profile(
     RawQuery(query): RawQuery,
     headers: HeaderMap,
 ) -> Result<Response, XapiError> {
-    client.require_write()?;
-    let key = doc_key(&Params::parse(query.as_deref(), &WRITE_PARAMS)?)?;
-    ops::delete_one(&state.pool, &key, &headers).await
+    resource::delete::<ActivityProfileResource>(client, &state, query, headers).await
 }

@@ -10,20 +10,31 @@ use axum::extract::rejection::BytesRejection;
 use axum::extract::{RawQuery, State};
 use axum::http::HeaderMap;
 use axum::response::Response;
+use time::OffsetDateTime;
 use utoipa::IntoParams;
 
-use super::ops::{self, Write, WriteRequest};
-use super::params::Params;
+use super::ops::{Preconditions, Write};
+use super::params::{AgentJson, DocumentId, Params, QueryParams};
+use super::resource::{self, DocumentResource, NamesDocument, NamesTarget, Target};
 use super::store::{DocKey, Kind, Scope};
-use super::{AgentJson, DocumentId, Preconditions, VersionHeader};
+use crate::error::ApiError;
 use crate::xapi::auth::LrsClient;
 use crate::xapi::error::XapiError;
 use crate::xapi::state::XapiState;
+use crate::xapi::version::VersionHeader;
+
+/// The Agent Profile resource, for the generic implementation of [`resource`].
+pub struct AgentProfileResource;
+
+impl DocumentResource for AgentProfileResource {
+    type Get = AgentProfileQuery;
+    type Write = AgentProfileDocument;
+    type Delete = AgentProfileDocument;
+}
 
 /// Parameters of PUT, POST and DELETE: one document.
 #[derive(Debug, IntoParams)]
 #[into_params(parameter_in = Query)]
-#[allow(dead_code)]
 pub struct AgentProfileDocument {
     /// The Agent (JSON).
     #[param(inline)]
@@ -36,7 +47,6 @@ pub struct AgentProfileDocument {
 /// Parameters of GET: one document with `profileId`, else the ids of all.
 #[derive(Debug, IntoParams)]
 #[into_params(parameter_in = Query)]
-#[allow(dead_code)]
 pub struct AgentProfileQuery {
     /// The Agent (JSON).
     #[param(inline)]
@@ -45,28 +55,53 @@ pub struct AgentProfileQuery {
     #[param(inline, rename = "profileId")]
     profile_id: Option<DocumentId>,
     /// Without `profileId`: only ids of documents stored after this time (exclusive).
-    #[param(format = DateTime)]
-    since: Option<String>,
+    #[param(value_type = Option<String>, format = DateTime)]
+    since: Option<OffsetDateTime>,
 }
 
-const WRITE_PARAMS: [&str; 2] = ["agent", "profileId"];
-const GET_PARAMS: [&str; 3] = ["agent", "profileId", "since"];
-
-fn scope(p: &Params) -> Result<Scope, XapiError> {
-    let (_, agent_key) = p.agent(true)?;
-    Ok(Scope {
+/// The profiles of one Agent.
+fn scope(agent: AgentJson) -> Scope {
+    Scope {
         kind: Kind::AgentProfile,
         activity_id: String::new(),
-        agent_key,
-    })
+        agent_key: agent.into_agent().key,
+    }
 }
 
-fn doc_key(p: &Params) -> Result<DocKey, XapiError> {
-    Ok(DocKey {
-        scope: scope(p)?,
-        registration: None,
-        document_id: p.document_id("profileId")?,
-    })
+impl QueryParams for AgentProfileDocument {
+    fn read(p: &Params) -> Result<Self, ApiError> {
+        Ok(AgentProfileDocument {
+            agent: p.agent(true)?,
+            profile_id: p.document_id("profileId")?,
+        })
+    }
+}
+
+impl NamesDocument for AgentProfileDocument {
+    fn key(self) -> DocKey {
+        DocKey {
+            scope: scope(self.agent),
+            registration: None,
+            document_id: self.profile_id.into_string(),
+        }
+    }
+}
+
+impl QueryParams for AgentProfileQuery {
+    fn read(p: &Params) -> Result<Self, ApiError> {
+        Ok(AgentProfileQuery {
+            agent: p.agent(true)?,
+            since: p.since()?,
+            profile_id: p.optional_document_id("profileId")?,
+        })
+    }
+}
+
+impl NamesTarget for AgentProfileQuery {
+    fn target(self) -> Target {
+        let scope = scope(self.agent);
+        Target::of(scope, None, self.profile_id, self.since)
+    }
 }
 
 /// Fetch one agent profile document, or the Agent's profile ids.
@@ -86,21 +121,7 @@ pub async fn get_agent_profile(
     State(state): State<XapiState>,
     RawQuery(query): RawQuery,
 ) -> Result<Response, XapiError> {
-    client.require_read()?;
-    let p = Params::parse(query.as_deref(), &GET_PARAMS)?;
-    let scope = scope(&p)?;
-    let since = p.since()?;
-    match p.optional_document_id("profileId")? {
-        Some(document_id) => {
-            let key = DocKey {
-                scope,
-                registration: None,
-                document_id,
-            };
-            ops::get_one(&state.pool, &key).await
-        }
-        None => ops::get_ids(&state.pool, &scope, None, since).await,
-    }
+    resource::get::<AgentProfileResource>(client, &state, query).await
 }
 
 /// Store an agent profile document, replacing any (a document that exists needs `If-Match`).
@@ -125,8 +146,7 @@ pub async fn put_agent_profile(
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
 ) -> Result<Response, XapiError> {
-    let req = WriteRequest::new(client, query, &WRITE_PARAMS, headers, body);
-    req.run(&state, doc_key, Write::Put).await
+    resource::write::<AgentProfileResource>(client, &state, query, headers, body, Write::Put).await
 }
 
 /// Store an agent profile document, merging a JSON object into a stored JSON object.
@@ -150,8 +170,7 @@ pub async fn post_agent_profile(
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
 ) -> Result<Response, XapiError> {
-    let req = WriteRequest::new(client, query, &WRITE_PARAMS, headers, body);
-    req.run(&state, doc_key, Write::Post).await
+    resource::write::<AgentProfileResource>(client, &state, query, headers, body, Write::Post).await
 }
 
 /// Delete one agent profile document.
@@ -169,7 +188,5 @@ pub async fn delete_agent_profile(
     RawQuery(query): RawQuery,
     headers: HeaderMap,
 ) -> Result<Response, XapiError> {
-    client.require_write()?;
-    let key = doc_key(&Params::parse(query.as_deref(), &WRITE_PARAMS)?)?;
-    ops::delete_one(&state.pool, &key, &headers).await
+    resource::delete::<AgentProfileResource>(client, &state, query, headers).await
 }

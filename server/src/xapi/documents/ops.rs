@@ -23,13 +23,12 @@ use serde_json::Value;
 use sha2::{Digest, Sha256};
 use sqlx::PgPool;
 use time::OffsetDateTime;
+use utoipa::IntoParams;
 use uuid::Uuid;
 
-use super::params::Params;
 use super::store::{self, DocKey, Scope, Stored};
-use crate::xapi::auth::LrsClient;
+use crate::error::ApiError;
 use crate::xapi::error::XapiError;
-use crate::xapi::state::XapiState;
 use crate::xapi::statements::timefmt::http_date;
 
 /// Content-Type of a document sent without one (RFC 9110 8.3: the recipient may assume it).
@@ -55,19 +54,19 @@ impl Incoming {
         headers: &HeaderMap,
         body: Result<Bytes, BytesRejection>,
         max_body_bytes: usize,
-    ) -> Result<Incoming, XapiError> {
+    ) -> Result<Incoming, ApiError> {
         let body = body.map_err(|r| {
             if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
-                XapiError::PayloadTooLarge(max_body_bytes)
+                ApiError::PayloadTooLarge(max_body_bytes)
             } else {
-                XapiError::BadRequest(format!("unreadable body: {}", r.body_text()))
+                ApiError::BadRequest(format!("unreadable body: {}", r.body_text()))
             }
         })?;
         let content_type = match headers.get(CONTENT_TYPE) {
             None => DEFAULT_CONTENT_TYPE.to_owned(),
             Some(v) => {
                 let v = v.to_str().map_err(|_| {
-                    XapiError::BadRequest("Content-Type: must be visible ASCII".into())
+                    ApiError::BadRequest("Content-Type: must be visible ASCII".into())
                 })?;
                 match v.trim() {
                     "" => DEFAULT_CONTENT_TYPE.to_owned(),
@@ -76,7 +75,7 @@ impl Incoming {
             }
         };
         if is_json(&content_type) && serde_json::from_slice::<Value>(&body).is_err() {
-            return Err(XapiError::BadRequest(
+            return Err(ApiError::BadRequest(
                 "the document's Content-Type is application/json but it is not valid JSON".into(),
             ));
         }
@@ -104,15 +103,40 @@ fn header(resp: &mut Response, name: HeaderName, value: &str) {
 }
 
 /// The values of a header that may repeat, joined as one list (RFC 9110 5.3).
-fn header_list(headers: &HeaderMap, name: HeaderName) -> Result<Option<String>, XapiError> {
+fn header_list(headers: &HeaderMap, name: HeaderName) -> Result<Option<String>, ApiError> {
     let mut values = Vec::new();
     for v in headers.get_all(&name) {
         values.push(
             v.to_str()
-                .map_err(|_| XapiError::BadRequest(format!("{name}: must be visible ASCII")))?,
+                .map_err(|_| ApiError::BadRequest(format!("{name}: must be visible ASCII")))?,
         );
     }
     Ok((!values.is_empty()).then(|| values.join(",")))
+}
+
+/// The concurrency headers of document writes, as the routes document them and
+/// [`check_preconditions`] reads them.
+#[derive(Debug, IntoParams)]
+#[into_params(parameter_in = Header)]
+pub struct Preconditions {
+    /// Write only if the document's ETag is one of these (or `*`: if it exists); else 412.
+    #[param(rename = "If-Match")]
+    if_match: Option<String>,
+    /// Write only if the document's ETag is none of these (or `*`: if it does not exist); else
+    /// 412.
+    #[param(rename = "If-None-Match")]
+    if_none_match: Option<String>,
+}
+
+impl Preconditions {
+    /// The request's `If-Match` and `If-None-Match`, each of its lines joined as one list; 400
+    /// when one is not visible ASCII.
+    pub fn read(headers: &HeaderMap) -> Result<Preconditions, ApiError> {
+        Ok(Preconditions {
+            if_match: header_list(headers, IF_MATCH)?,
+            if_none_match: header_list(headers, IF_NONE_MATCH)?,
+        })
+    }
 }
 
 /// Whether an `If-Match`/`If-None-Match` list names `etag` (`*` names any document). A weak
@@ -149,13 +173,15 @@ pub enum Write {
 /// The concurrency rules for a write to a document whose current ETag is `current` (`None`: it
 /// does not exist).
 pub fn check_preconditions(
-    headers: &HeaderMap,
+    preconditions: &Preconditions,
     current: Option<&str>,
     write: Write,
 ) -> Result<(), XapiError> {
-    let if_match = header_list(headers, IF_MATCH)?;
-    let if_none_match = header_list(headers, IF_NONE_MATCH)?;
-    if let Some(list) = &if_match {
+    let Preconditions {
+        if_match,
+        if_none_match,
+    } = preconditions;
+    if let Some(list) = if_match {
         let holds = current.is_some_and(|etag| list_matches(list, etag, true));
         if !holds {
             return Err(XapiError::PreconditionFailed(match current {
@@ -164,7 +190,7 @@ pub fn check_preconditions(
             }));
         }
     }
-    if let (Some(list), Some(etag)) = (&if_none_match, current)
+    if let (Some(list), Some(etag)) = (if_none_match, current)
         && list_matches(list, etag, false)
     {
         return Err(XapiError::PreconditionFailed(
@@ -172,11 +198,12 @@ pub fn check_preconditions(
         ));
     }
     if write == Write::Put && current.is_some() && if_match.is_none() && if_none_match.is_none() {
-        return Err(XapiError::Conflict(
+        return Err(ApiError::Conflict(
             "the document exists: send If-Match with its ETag to replace it (or If-None-Match: * \
              to create it only if absent)"
                 .into(),
-        ));
+        )
+        .into());
     }
     Ok(())
 }
@@ -211,11 +238,11 @@ fn no_content(etag: Option<&str>) -> Response {
 }
 
 /// GET of one document: 200, or 404 when there is none.
-pub async fn get_one(pool: &PgPool, key: &DocKey) -> Result<Response, XapiError> {
+pub async fn get_one(pool: &PgPool, key: &DocKey) -> Result<Response, ApiError> {
     store::get(pool, key)
         .await?
         .map(document_response)
-        .ok_or_else(|| XapiError::NotFound("document".into()))
+        .ok_or_else(|| ApiError::NotFound("document".into()))
 }
 
 /// GET of the ids of a scope's documents: a JSON array (maybe empty), with Last-Modified of the
@@ -225,7 +252,7 @@ pub async fn get_ids(
     scope: &Scope,
     registration: Option<Uuid>,
     since: Option<OffsetDateTime>,
-) -> Result<Response, XapiError> {
+) -> Result<Response, ApiError> {
     let rows = store::list(pool, scope, registration, since).await?;
     let newest = rows.iter().map(|(_, t)| *t).max();
     let ids: Vec<String> = rows.into_iter().map(|(id, _)| id).collect();
@@ -248,17 +275,20 @@ pub async fn store(
         (Write::Post, true) => match serde_json::from_slice::<Value>(&doc.body) {
             Ok(Value::Object(map)) => Some(map),
             _ => {
-                return Err(XapiError::BadRequest(
+                return Err(ApiError::BadRequest(
                     "a POSTed application/json document must be a JSON object".into(),
-                ));
+                )
+                .into());
             }
         },
         _ => None,
     };
+    let preconditions = Preconditions::read(headers)?;
     for _ in 0..WRITE_ATTEMPTS {
         let mut tx = pool.begin().await?;
         let existing = store::get_for_update(&mut tx, key).await?;
-        check_preconditions(headers, existing.as_ref().map(|d| d.etag.as_str()), write)?;
+        let current = existing.as_ref().map(|d| d.etag.as_str());
+        check_preconditions(&preconditions, current, write)?;
         let merged = match (&existing, write) {
             (Some(old), Write::Post) => Some(merge(old, posted_object.as_ref())?),
             _ => None,
@@ -277,52 +307,7 @@ pub async fn store(
         tx.commit().await?;
         return Ok(no_content(Some(&etag)));
     }
-    Err(XapiError::Conflict(
-        "the document was changed by concurrent requests; retry".into(),
-    ))
-}
-
-/// A PUT or POST request to a document resource, as its handler receives it.
-pub struct WriteRequest<'a> {
-    client: LrsClient,
-    query: Option<String>,
-    allowed: &'a [&'a str],
-    headers: HeaderMap,
-    body: Result<Bytes, BytesRejection>,
-}
-
-impl<'a> WriteRequest<'a> {
-    /// The request: its client, raw query (with the parameters the resource allows), headers
-    /// and body.
-    pub fn new(
-        client: LrsClient,
-        query: Option<String>,
-        allowed: &'a [&'a str],
-        headers: HeaderMap,
-        body: Result<Bytes, BytesRejection>,
-    ) -> WriteRequest<'a> {
-        WriteRequest {
-            client,
-            query,
-            allowed,
-            headers,
-            body,
-        }
-    }
-
-    /// Checks the credential (403), the parameters (400, `key` reads the document's key from
-    /// them) and the document, then stores it.
-    pub async fn run(
-        self,
-        state: &XapiState,
-        key: impl FnOnce(&Params) -> Result<DocKey, XapiError>,
-        write: Write,
-    ) -> Result<Response, XapiError> {
-        self.client.require_write()?;
-        let key = key(&Params::parse(self.query.as_deref(), self.allowed)?)?;
-        let doc = Incoming::read(&self.headers, self.body, state.max_body_bytes)?;
-        store(&state.pool, &key, &self.headers, write, doc).await
-    }
+    Err(ApiError::Conflict("the document was changed by concurrent requests; retry".into()).into())
 }
 
 /// The merge of POST (Communication 2.2 "JSON Procedure"): both documents JSON objects; the
@@ -330,23 +315,23 @@ impl<'a> WriteRequest<'a> {
 fn merge(
     old: &Stored,
     posted: Option<&serde_json::Map<String, Value>>,
-) -> Result<Vec<u8>, XapiError> {
+) -> Result<Vec<u8>, ApiError> {
     let Some(posted) = posted else {
-        return Err(XapiError::BadRequest(
+        return Err(ApiError::BadRequest(
             "a document exists: a POST merges into it, so it must be an application/json \
              JSON object"
                 .into(),
         ));
     };
     if !is_json(&old.content_type) {
-        return Err(XapiError::BadRequest(
+        return Err(ApiError::BadRequest(
             "the stored document is not application/json, so nothing can be merged into it: \
              PUT replaces it"
                 .into(),
         ));
     }
     let Ok(Value::Object(mut merged)) = serde_json::from_slice::<Value>(&old.content) else {
-        return Err(XapiError::BadRequest(
+        return Err(ApiError::BadRequest(
             "the stored document is not a JSON object, so nothing can be merged into it: PUT \
              replaces it"
                 .into(),
@@ -355,7 +340,7 @@ fn merge(
     for (k, v) in posted {
         merged.insert(k.clone(), v.clone());
     }
-    serde_json::to_vec(&Value::Object(merged)).map_err(|e| XapiError::Internal(e.to_string()))
+    serde_json::to_vec(&Value::Object(merged)).map_err(|e| ApiError::Internal(e.to_string()))
 }
 
 /// DELETE of one document (204 whether or not it existed, unless a precondition fails).
@@ -366,11 +351,9 @@ pub async fn delete_one(
 ) -> Result<Response, XapiError> {
     let mut tx = pool.begin().await?;
     let existing = store::get_for_update(&mut tx, key).await?;
-    check_preconditions(
-        headers,
-        existing.as_ref().map(|d| d.etag.as_str()),
-        Write::Delete,
-    )?;
+    let preconditions = Preconditions::read(headers)?;
+    let current = existing.as_ref().map(|d| d.etag.as_str());
+    check_preconditions(&preconditions, current, Write::Delete)?;
     if existing.is_some() {
         store::delete(&mut tx, key).await?;
     }
@@ -383,7 +366,7 @@ pub async fn delete_all(
     pool: &PgPool,
     scope: &Scope,
     registration: Option<Uuid>,
-) -> Result<Response, XapiError> {
+) -> Result<Response, ApiError> {
     store::delete_all(pool, scope, registration).await?;
     Ok(no_content(None))
 }
@@ -407,7 +390,8 @@ mod tests {
     fn preconditions() {
         let tag = "abc";
         let ok = |h: &[(&str, &str)], cur: Option<&str>, w| {
-            check_preconditions(&headers(h), cur, w).map_err(|e| e.status_and_code().0.as_u16())
+            let pre = Preconditions::read(&headers(h)).unwrap();
+            check_preconditions(&pre, cur, w).map_err(|e| e.status_and_code().0.as_u16())
         };
         assert_eq!(ok(&[], None, Write::Put), Ok(()));
         assert_eq!(ok(&[], Some(tag), Write::Put), Err(409));

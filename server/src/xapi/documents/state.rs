@@ -11,21 +11,32 @@ use axum::extract::rejection::BytesRejection;
 use axum::extract::{RawQuery, State};
 use axum::http::HeaderMap;
 use axum::response::Response;
+use time::OffsetDateTime;
 use utoipa::IntoParams;
 use uuid::Uuid;
 
-use super::ops::{self, Write};
-use super::params::Params;
+use super::ops::{Preconditions, Write};
+use super::params::{AgentJson, DocumentId, Iri, Params, QueryParams};
+use super::resource::{self, DocumentResource, NamesDocument, NamesTarget, Target};
 use super::store::{DocKey, Kind, Scope};
-use super::{AgentJson, DocumentId, Iri, Preconditions, VersionHeader};
+use crate::error::ApiError;
 use crate::xapi::auth::LrsClient;
 use crate::xapi::error::XapiError;
 use crate::xapi::state::XapiState;
+use crate::xapi::version::VersionHeader;
+
+/// The State resource, for the generic implementation of [`resource`].
+pub struct StateResource;
+
+impl DocumentResource for StateResource {
+    type Get = StateQuery;
+    type Write = StateDocument;
+    type Delete = StateDelete;
+}
 
 /// Parameters of PUT and POST: one document.
 #[derive(Debug, IntoParams)]
 #[into_params(parameter_in = Query)]
-#[allow(dead_code)]
 pub struct StateDocument {
     /// The Activity's IRI.
     #[param(inline, rename = "activityId")]
@@ -43,7 +54,6 @@ pub struct StateDocument {
 /// Parameters of GET: one document with `stateId`, else the ids of all.
 #[derive(Debug, IntoParams)]
 #[into_params(parameter_in = Query)]
-#[allow(dead_code)]
 pub struct StateQuery {
     /// The Activity's IRI.
     #[param(inline, rename = "activityId")]
@@ -58,14 +68,13 @@ pub struct StateQuery {
     #[param(inline, rename = "stateId")]
     state_id: Option<DocumentId>,
     /// Without `stateId`: only ids of documents stored after this time (exclusive).
-    #[param(format = DateTime)]
-    since: Option<String>,
+    #[param(value_type = Option<String>, format = DateTime)]
+    since: Option<OffsetDateTime>,
 }
 
 /// Parameters of DELETE: one document with `stateId`, else all.
 #[derive(Debug, IntoParams)]
 #[into_params(parameter_in = Query)]
-#[allow(dead_code)]
 pub struct StateDelete {
     /// The Activity's IRI.
     #[param(inline, rename = "activityId")]
@@ -81,25 +90,71 @@ pub struct StateDelete {
     state_id: Option<DocumentId>,
 }
 
-const WRITE_PARAMS: [&str; 4] = ["activityId", "agent", "registration", "stateId"];
-const GET_PARAMS: [&str; 5] = ["activityId", "agent", "registration", "stateId", "since"];
-
-fn scope(p: &Params) -> Result<Scope, XapiError> {
-    let activity_id = p.activity_id()?;
-    let (_, agent_key) = p.agent(true)?;
-    Ok(Scope {
+/// The states of one Activity and Agent.
+fn scope(activity_id: Iri, agent: AgentJson) -> Scope {
+    Scope {
         kind: Kind::State,
-        activity_id,
-        agent_key,
-    })
+        activity_id: activity_id.into_string(),
+        agent_key: agent.into_agent().key,
+    }
 }
 
-fn doc_key(p: &Params) -> Result<DocKey, XapiError> {
-    Ok(DocKey {
-        scope: scope(p)?,
-        registration: p.registration()?,
-        document_id: p.document_id("stateId")?,
-    })
+impl QueryParams for StateDocument {
+    fn read(p: &Params) -> Result<Self, ApiError> {
+        Ok(StateDocument {
+            activity_id: p.activity_id()?,
+            agent: p.agent(true)?,
+            registration: p.registration()?,
+            state_id: p.document_id("stateId")?,
+        })
+    }
+}
+
+impl NamesDocument for StateDocument {
+    fn key(self) -> DocKey {
+        DocKey {
+            scope: scope(self.activity_id, self.agent),
+            registration: self.registration,
+            document_id: self.state_id.into_string(),
+        }
+    }
+}
+
+impl QueryParams for StateQuery {
+    fn read(p: &Params) -> Result<Self, ApiError> {
+        Ok(StateQuery {
+            activity_id: p.activity_id()?,
+            agent: p.agent(true)?,
+            registration: p.registration()?,
+            since: p.since()?,
+            state_id: p.optional_document_id("stateId")?,
+        })
+    }
+}
+
+impl NamesTarget for StateQuery {
+    fn target(self) -> Target {
+        let scope = scope(self.activity_id, self.agent);
+        Target::of(scope, self.registration, self.state_id, self.since)
+    }
+}
+
+impl QueryParams for StateDelete {
+    fn read(p: &Params) -> Result<Self, ApiError> {
+        Ok(StateDelete {
+            activity_id: p.activity_id()?,
+            agent: p.agent(true)?,
+            registration: p.registration()?,
+            state_id: p.optional_document_id("stateId")?,
+        })
+    }
+}
+
+impl NamesTarget for StateDelete {
+    fn target(self) -> Target {
+        let scope = scope(self.activity_id, self.agent);
+        Target::of(scope, self.registration, self.state_id, None)
+    }
 }
 
 /// Fetch one state document, or the ids of the matching ones.
@@ -119,22 +174,7 @@ pub async fn get_state(
     State(state): State<XapiState>,
     RawQuery(query): RawQuery,
 ) -> Result<Response, XapiError> {
-    client.require_read()?;
-    let p = Params::parse(query.as_deref(), &GET_PARAMS)?;
-    let scope = scope(&p)?;
-    let registration = p.registration()?;
-    let since = p.since()?;
-    match p.optional_document_id("stateId")? {
-        Some(document_id) => {
-            let key = DocKey {
-                scope,
-                registration,
-                document_id,
-            };
-            ops::get_one(&state.pool, &key).await
-        }
-        None => ops::get_ids(&state.pool, &scope, registration, since).await,
-    }
+    resource::get::<StateResource>(client, &state, query).await
 }
 
 /// Store a state document, replacing any (a document that exists needs `If-Match`).
@@ -159,8 +199,7 @@ pub async fn put_state(
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
 ) -> Result<Response, XapiError> {
-    let req = ops::WriteRequest::new(client, query, &WRITE_PARAMS, headers, body);
-    req.run(&state, doc_key, Write::Put).await
+    resource::write::<StateResource>(client, &state, query, headers, body, Write::Put).await
 }
 
 /// Store a state document, merging a JSON object into a stored JSON object.
@@ -184,8 +223,7 @@ pub async fn post_state(
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
 ) -> Result<Response, XapiError> {
-    let req = ops::WriteRequest::new(client, query, &WRITE_PARAMS, headers, body);
-    req.run(&state, doc_key, Write::Post).await
+    resource::write::<StateResource>(client, &state, query, headers, body, Write::Post).await
 }
 
 /// Delete one state document, or all the matching ones.
@@ -204,19 +242,5 @@ pub async fn delete_state(
     RawQuery(query): RawQuery,
     headers: HeaderMap,
 ) -> Result<Response, XapiError> {
-    client.require_write()?;
-    let p = Params::parse(query.as_deref(), &WRITE_PARAMS)?;
-    let scope = scope(&p)?;
-    let registration = p.registration()?;
-    match p.optional_document_id("stateId")? {
-        Some(document_id) => {
-            let key = DocKey {
-                scope,
-                registration,
-                document_id,
-            };
-            ops::delete_one(&state.pool, &key, &headers).await
-        }
-        None => ops::delete_all(&state.pool, &scope, registration).await,
-    }
+    resource::delete::<StateResource>(client, &state, query, headers).await
 }

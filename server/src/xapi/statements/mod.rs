@@ -34,6 +34,8 @@ use self::signature::SIGNATURE_USAGE;
 use super::auth::LrsClient;
 use super::error::XapiError;
 use super::state::XapiState;
+use super::version::VersionHeader;
+use crate::error::ApiError;
 use crate::records::extract::nul_field;
 
 /// The response header naming the time through which all statements are available.
@@ -41,15 +43,15 @@ pub const CONSISTENT_THROUGH: &str = "x-experience-api-consistent-through";
 
 type Pairs = Result<Query<Vec<(String, String)>>, QueryRejection>;
 
-fn pairs(q: Pairs) -> Result<Vec<(String, String)>, XapiError> {
+fn pairs(q: Pairs) -> Result<Vec<(String, String)>, ApiError> {
     q.map(|Query(p)| p)
-        .map_err(|e| XapiError::BadRequest(format!("query string: {}", e.body_text())))
+        .map_err(|e| ApiError::BadRequest(format!("query string: {}", e.body_text())))
 }
 
 /// The time through which every statement stored is visible: the start of the oldest
 /// transaction now open on the database (a statement's `stored` is its transaction's start),
 /// less a millisecond for the truncation of `stored`.
-async fn consistent_through(state: &XapiState) -> Result<HeaderValue, XapiError> {
+async fn consistent_through(state: &XapiState) -> Result<HeaderValue, ApiError> {
     let (t,): (OffsetDateTime,) = sqlx::query_as(
         "SELECT COALESCE(min(xact_start), now()) - interval '1 millisecond'
            FROM pg_stat_activity
@@ -58,19 +60,19 @@ async fn consistent_through(state: &XapiState) -> Result<HeaderValue, XapiError>
     )
     .fetch_one(&state.pool)
     .await?;
-    HeaderValue::from_str(&timefmt::iso_ms(t)).map_err(|e| XapiError::Internal(e.to_string()))
+    HeaderValue::from_str(&timefmt::iso_ms(t)).map_err(|e| ApiError::Internal(e.to_string()))
 }
 
 /// The request body, within the server's limit.
-async fn read_body(state: &XapiState, body: Body) -> Result<Vec<u8>, XapiError> {
+async fn read_body(state: &XapiState, body: Body) -> Result<Vec<u8>, ApiError> {
     axum::body::to_bytes(body, state.max_body_bytes)
         .await
         .map(|b| b.to_vec())
-        .map_err(|_| XapiError::PayloadTooLarge(state.max_body_bytes))
+        .map_err(|_| ApiError::PayloadTooLarge(state.max_body_bytes))
 }
 
 /// The statements of a PUT/POST body and its attachments' raw data.
-fn parse_body(headers: &HeaderMap, body: &[u8]) -> Result<(Value, Vec<Part>), XapiError> {
+fn parse_body(headers: &HeaderMap, body: &[u8]) -> Result<(Value, Vec<Part>), ApiError> {
     let ct = headers
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
@@ -85,25 +87,25 @@ fn parse_body(headers: &HeaderMap, body: &[u8]) -> Result<(Value, Vec<Part>), Xa
         "application/json" => (body.to_vec(), Vec::new()),
         "multipart/mixed" => multipart::parse(body, ct)?,
         _ => {
-            return Err(XapiError::BadRequest(format!(
+            return Err(ApiError::BadRequest(format!(
                 "Content-Type {essence}: statements are sent as application/json or multipart/mixed \
                  (the alternate request syntax was removed in xAPI 2.0)"
             )));
         }
     };
     if let Some(field) = nul_field(&json) {
-        return Err(XapiError::BadRequest(format!(
+        return Err(ApiError::BadRequest(format!(
             "{field}: must not contain NUL characters (U+0000)"
         )));
     }
     let v: Value = serde_json::from_slice(&json)
-        .map_err(|e| XapiError::BadRequest(format!("body is not JSON: {e}")))?;
+        .map_err(|e| ApiError::BadRequest(format!("body is not JSON: {e}")))?;
     Ok((v, parts))
 }
 
 /// Attachment rules of a request: every attachment without `fileUrl` has its raw data in a part,
 /// every part belongs to an attachment, signatures are well formed and match their statement.
-fn check_attachments(statements: &[Value], parts: &[Part]) -> Result<(), XapiError> {
+fn check_attachments(statements: &[Value], parts: &[Part]) -> Result<(), ApiError> {
     let by_hash: HashMap<&str, &Part> = parts.iter().map(|p| (p.sha2.as_str(), p)).collect();
     let mut used = HashSet::new();
     for (i, s) in statements.iter().enumerate() {
@@ -117,30 +119,30 @@ fn check_attachments(statements: &[Value], parts: &[Part]) -> Result<(), XapiErr
                 used.insert(sha2.clone());
             }
             if part.is_none() && a.get("fileUrl").is_none() {
-                return Err(XapiError::BadRequest(format!(
+                return Err(ApiError::BadRequest(format!(
                     "statement {i}: attachment {sha2} has neither fileUrl nor raw data \
                      (send it as multipart/mixed)"
                 )));
             }
             if a["usageType"].as_str() == Some(SIGNATURE_USAGE) {
                 if a["contentType"].as_str() != Some("application/octet-stream") {
-                    return Err(XapiError::BadRequest(format!(
+                    return Err(ApiError::BadRequest(format!(
                         "statement {i}: a signature attachment's contentType is \
                          application/octet-stream"
                     )));
                 }
                 let part = part.ok_or_else(|| {
-                    XapiError::BadRequest(format!(
+                    ApiError::BadRequest(format!(
                         "statement {i}: a signature attachment needs its JWS as raw data"
                     ))
                 })?;
                 signature::verify(&part.content, s)
-                    .map_err(|e| XapiError::BadRequest(format!("statement {i}: signature: {e}")))?;
+                    .map_err(|e| ApiError::BadRequest(format!("statement {i}: signature: {e}")))?;
             }
         }
     }
     if let Some(p) = parts.iter().find(|p| !used.contains(&p.sha2)) {
-        return Err(XapiError::BadRequest(format!(
+        return Err(ApiError::BadRequest(format!(
             "part {}: no attachment of the statements has this sha2",
             p.sha2
         )));
@@ -154,7 +156,7 @@ async fn write(
     client: &LrsClient,
     statements: Vec<Value>,
     parts: Vec<Part>,
-) -> Result<Vec<Uuid>, XapiError> {
+) -> Result<Vec<Uuid>, ApiError> {
     check_attachments(&statements, &parts)?;
     let mut tx = state.pool.begin().await?;
     let stored = store::transaction_start(&mut tx).await?;
@@ -182,15 +184,15 @@ async fn write(
     Ok(prepared.iter().map(|p| p.id).collect())
 }
 
-fn refuse_params(pairs: &[(String, String)], allowed: &[&str]) -> Result<(), XapiError> {
+fn refuse_params(pairs: &[(String, String)], allowed: &[&str]) -> Result<(), ApiError> {
     for (k, _) in pairs {
         if k == "method" {
-            return Err(XapiError::BadRequest(
+            return Err(ApiError::BadRequest(
                 "the alternate request syntax (method=) was removed in xAPI 2.0".into(),
             ));
         }
         if !allowed.contains(&k.as_str()) {
-            return Err(XapiError::BadRequest(format!("unknown parameter {k:?}")));
+            return Err(ApiError::BadRequest(format!("unknown parameter {k:?}")));
         }
     }
     Ok(())
@@ -199,8 +201,7 @@ fn refuse_params(pairs: &[(String, String)], allowed: &[&str]) -> Result<(), Xap
 /// Stores one statement under the given id.
 #[utoipa::path(put, path = "/xapi/statements", tag = "xapi",
     params(
-        ("X-Experience-API-Version" = String, Header, pattern = r"^[12]\.0(\.[0-9]{1,4})?$",
-            description = "xAPI version of the client (2.0.x or 1.0.x)"),
+        VersionHeader,
         ("statementId" = Uuid, Query, description = "The statement's id")),
     request_body(content = Object, content_type = "application/json",
         description = "One statement (also accepted as multipart/mixed with attachments' raw data)"),
@@ -223,14 +224,12 @@ pub async fn put_statement(
         .iter()
         .find(|(k, _)| k == "statementId")
         .map(|(_, v)| Uuid::parse_str(v))
-        .ok_or_else(|| XapiError::BadRequest("statementId: required".into()))?
-        .map_err(|_| XapiError::BadRequest("statementId: must be a UUID".into()))?;
+        .ok_or_else(|| ApiError::BadRequest("statementId: required".into()))?
+        .map_err(|_| ApiError::BadRequest("statementId: must be a UUID".into()))?;
     let body = read_body(&state, body).await?;
     let (mut statement, parts) = parse_body(&headers, &body)?;
     let Some(o) = statement.as_object_mut() else {
-        return Err(XapiError::BadRequest(
-            "PUT takes one statement (an object)".into(),
-        ));
+        return Err(ApiError::BadRequest("PUT takes one statement (an object)".into()).into());
     };
     match o.get("id").map(|v| v.as_str().map(Uuid::parse_str)) {
         None => {
@@ -238,9 +237,9 @@ pub async fn put_statement(
         }
         Some(Some(Ok(given))) if given == id => {}
         Some(_) => {
-            return Err(XapiError::BadRequest(
-                "the statement's id differs from statementId".into(),
-            ));
+            return Err(
+                ApiError::BadRequest("the statement's id differs from statementId".into()).into(),
+            );
         }
     }
     write(&state, &client, vec![statement], parts).await?;
@@ -253,8 +252,7 @@ pub async fn put_statement(
 /// Stores one statement or a batch; answers their ids in order.
 #[utoipa::path(post, path = "/xapi/statements", tag = "xapi",
     params(
-        ("X-Experience-API-Version" = String, Header, pattern = r"^[12]\.0(\.[0-9]{1,4})?$",
-            description = "xAPI version of the client (2.0.x or 1.0.x)")),
+        VersionHeader),
     request_body(content = Object, content_type = "application/json",
         description = "One statement or an array of statements (also accepted as \
             multipart/mixed with attachments' raw data)"),
@@ -276,7 +274,7 @@ pub async fn post_statements(
     let (v, parts) = parse_body(&headers, &body)?;
     let statements = match v {
         Value::Array(a) if a.is_empty() => {
-            return Err(XapiError::BadRequest("an empty batch".into()));
+            return Err(ApiError::BadRequest("an empty batch".into()).into());
         }
         Value::Array(a) => a,
         other => vec![other],
@@ -301,8 +299,7 @@ fn shaped(mut s: Value, format: Format, langs: &[String], defs: &HashMap<String,
 /// Reads one statement, or a page of statements matching the filters.
 #[utoipa::path(get, path = "/xapi/statements", tag = "xapi",
     params(
-        ("X-Experience-API-Version" = String, Header, pattern = r"^[12]\.0(\.[0-9]{1,4})?$",
-            description = "xAPI version of the client (2.0.x or 1.0.x)"),
+        VersionHeader,
         ("statementId" = Option<Uuid>, Query, description = "One statement (not voided)"),
         ("voidedStatementId" = Option<Uuid>, Query, description = "One voided statement"),
         ("agent" = Option<String>, Query, description = "JSON Agent or identified Group: actor \
@@ -375,7 +372,7 @@ async fn read_statements(
             Some((seq, s, stored, voided)) if voided == p.voided_statement_id.is_some() => {
                 (vec![(seq, s, stored)], None)
             }
-            _ => return Err(XapiError::NotFound("statement".into())),
+            _ => return Err(ApiError::NotFound("statement".into()).into()),
         }
     } else {
         let (rows, more) = query::page(&mut conn, &p).await?;
@@ -415,7 +412,7 @@ async fn read_statements(
         None => statements.into_iter().next().unwrap_or(Value::Null),
         Some(more) => json!({ "statements": statements, "more": more }),
     };
-    let json = serde_json::to_vec(&body).map_err(|e| XapiError::Internal(e.to_string()))?;
+    let json = serde_json::to_vec(&body).map_err(|e| ApiError::Internal(e.to_string()))?;
     let mut resp = if p.attachments {
         hashes.sort();
         hashes.dedup();

@@ -5,7 +5,7 @@
 
 use sha2::{Digest, Sha256};
 
-use crate::xapi::error::XapiError;
+use crate::error::ApiError;
 
 /// One attachment's raw data.
 #[derive(Debug, Clone)]
@@ -18,12 +18,12 @@ pub struct Part {
     pub content: Vec<u8>,
 }
 
-fn bad(msg: impl Into<String>) -> XapiError {
-    XapiError::BadRequest(format!("multipart/mixed body: {}", msg.into()))
+fn bad(msg: impl Into<String>) -> ApiError {
+    ApiError::BadRequest(format!("multipart/mixed body: {}", msg.into()))
 }
 
 /// The `boundary` parameter of a `multipart/mixed` content type.
-pub fn boundary(content_type: &str) -> Result<String, XapiError> {
+pub fn boundary(content_type: &str) -> Result<String, ApiError> {
     content_type
         .split(';')
         .skip(1)
@@ -45,7 +45,7 @@ fn find(hay: &[u8], needle: &[u8], from: usize) -> Option<usize> {
 type RawPart = (Vec<(String, String)>, Vec<u8>);
 
 /// Splits a body into (headers, content) parts.
-fn split(body: &[u8], boundary: &str) -> Result<Vec<RawPart>, XapiError> {
+fn split(body: &[u8], boundary: &str) -> Result<Vec<RawPart>, ApiError> {
     let delim = format!("--{boundary}");
     let mut pos = find(body, delim.as_bytes(), 0).ok_or_else(|| bad("no opening boundary"))?;
     let mut parts = Vec::new();
@@ -90,7 +90,7 @@ fn header<'a>(h: &'a [(String, String)], name: &str) -> Option<&'a str> {
 }
 
 /// Parses a request body: the statement JSON of the first part and the attachments' raw data.
-pub fn parse(body: &[u8], content_type: &str) -> Result<(Vec<u8>, Vec<Part>), XapiError> {
+pub fn parse(body: &[u8], content_type: &str) -> Result<(Vec<u8>, Vec<Part>), ApiError> {
     let b = boundary(content_type)?;
     let mut parts = split(body, &b)?.into_iter();
     let (h, json) = parts.next().ok_or_else(|| bad("no parts"))?;

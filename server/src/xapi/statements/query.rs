@@ -14,8 +14,8 @@ use uuid::Uuid;
 use super::format::Format;
 use super::keys::agent_key;
 use super::timefmt;
+use crate::error::ApiError;
 use crate::xapi::agent::parse_agent_param;
-use crate::xapi::error::XapiError;
 
 /// Largest page (simulator choice: a page of realistic statements stays well under 1 MiB... at
 /// about 1 KiB each, 250 is about 250 KiB).
@@ -48,11 +48,11 @@ pub struct Params {
     pub base_query: String,
 }
 
-fn bad(msg: impl Into<String>) -> XapiError {
-    XapiError::BadRequest(msg.into())
+fn bad(msg: impl Into<String>) -> ApiError {
+    ApiError::BadRequest(msg.into())
 }
 
-fn boolean(name: &str, v: &str) -> Result<bool, XapiError> {
+fn boolean(name: &str, v: &str) -> Result<bool, ApiError> {
     match v {
         "true" => Ok(true),
         "false" => Ok(false),
@@ -60,11 +60,11 @@ fn boolean(name: &str, v: &str) -> Result<bool, XapiError> {
     }
 }
 
-fn uuid(name: &str, v: &str) -> Result<Uuid, XapiError> {
+fn uuid(name: &str, v: &str) -> Result<Uuid, ApiError> {
     Uuid::parse_str(v).map_err(|_| bad(format!("{name}: must be a UUID")))
 }
 
-fn iri(name: &str, v: &str) -> Result<String, XapiError> {
+fn iri(name: &str, v: &str) -> Result<String, ApiError> {
     let scheme_ok = v.split_once(':').is_some_and(|(s, rest)| {
         !s.is_empty()
             && !rest.is_empty()
@@ -78,12 +78,12 @@ fn iri(name: &str, v: &str) -> Result<String, XapiError> {
     Ok(v.to_owned())
 }
 
-fn timestamp(name: &str, v: &str) -> Result<OffsetDateTime, XapiError> {
+fn timestamp(name: &str, v: &str) -> Result<OffsetDateTime, ApiError> {
     timefmt::parse(v).ok_or_else(|| bad(format!("{name}: must be an ISO 8601 timestamp")))
 }
 
 /// Parses the parameters (each at most once; unknown ones are refused).
-pub fn parse(pairs: &[(String, String)]) -> Result<Params, XapiError> {
+pub fn parse(pairs: &[(String, String)]) -> Result<Params, ApiError> {
     let mut p = Params {
         limit: MAX_LIMIT,
         ..Params::default()
@@ -103,7 +103,7 @@ pub fn parse(pairs: &[(String, String)]) -> Result<Params, XapiError> {
             "statementId" => p.statement_id = Some(uuid(k, v)?),
             "voidedStatementId" => p.voided_statement_id = Some(uuid(k, v)?),
             "agent" => {
-                let a = parse_agent_param(v).map_err(bad)?;
+                let a = parse_agent_param(v)?;
                 agent = Some(
                     agent_key(&a)
                         .ok_or_else(|| bad("agent: must be an Agent or an identified Group"))?,
@@ -207,7 +207,7 @@ pub fn percent_encode(s: &str) -> String {
 pub async fn page(
     conn: &mut PgConnection,
     p: &Params,
-) -> Result<(Vec<(i64, serde_json::Value, OffsetDateTime)>, String), XapiError> {
+) -> Result<(Vec<(i64, serde_json::Value, OffsetDateTime)>, String), ApiError> {
     let mut q: QueryBuilder<'_, Postgres> =
         QueryBuilder::new("SELECT s.seq, s.statement, s.stored ");
     let order_col;

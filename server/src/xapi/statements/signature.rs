@@ -22,40 +22,82 @@ use sha2::{Sha256, Sha384, Sha512};
 /// usageType of a signature attachment.
 pub const SIGNATURE_USAGE: &str = "http://adlnet.gov/expapi/attachments/signature";
 
+/// Why a statement's signature is refused (each a 400 at the HTTP boundary).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SignatureError {
+    /// The attachment's raw data is not UTF-8.
+    #[error("the signature is not text")]
+    NotText,
+    /// Not three dot-separated parts.
+    #[error("the signature is not a JWS in compact serialization")]
+    NotCompact,
+    /// A part (`header`, `payload`, `signature`) does not decode.
+    #[error("the JWS {0} is not base64url")]
+    NotBase64url(&'static str),
+    /// The protected header does not parse.
+    #[error("the JWS header is not JSON")]
+    HeaderNotJson,
+    /// The payload is not a JSON object.
+    #[error("the JWS payload is not a JSON statement")]
+    PayloadNotStatement,
+    /// An algorithm other than RS256, RS384 and RS512.
+    #[error("JWS algorithm {0:?}: signed statements use RS256, RS384 or RS512")]
+    Algorithm(String),
+    /// The payload names another statement.
+    #[error("the JWS payload's id is not the statement's")]
+    IdMismatch,
+    /// The payload is not logically equivalent to the statement.
+    #[error("the JWS payload does not match the statement")]
+    PayloadMismatch,
+    /// `x5c` is no list of base64 certificates.
+    #[error("x5c: not a list of base64 certificates")]
+    ChainNotList,
+    /// Its first entry is no X.509 certificate.
+    #[error("x5c: not an X.509 certificate")]
+    NotCertificate,
+    /// The certificate's key is not an RSA key.
+    #[error("x5c: the certificate's key is not RSA")]
+    KeyNotRsa,
+    /// The signature bytes are no RSA signature.
+    #[error("bad signature")]
+    BadSignature,
+    /// The signature does not verify with the certificate's key.
+    #[error("the JWS signature does not verify against its x5c certificate")]
+    DoesNotVerify,
+}
+
 /// Checks the JWS `jws` of `statement` (as received); the error says what is wrong.
-pub fn verify(jws: &[u8], statement: &Value) -> Result<(), String> {
-    let text = std::str::from_utf8(jws).map_err(|_| "the signature is not text".to_owned())?;
+pub fn verify(jws: &[u8], statement: &Value) -> Result<(), SignatureError> {
+    let text = std::str::from_utf8(jws).map_err(|_| SignatureError::NotText)?;
     let parts: Vec<&str> = text.trim().split('.').collect();
     let [h64, p64, s64] = parts[..] else {
-        return Err("the signature is not a JWS in compact serialization".into());
+        return Err(SignatureError::NotCompact);
     };
-    let decode = |s: &str, what: &str| {
+    let decode = |s: &str, what: &'static str| {
         URL_SAFE_NO_PAD
             .decode(s.trim_end_matches('='))
-            .map_err(|_| format!("the JWS {what} is not base64url"))
+            .map_err(|_| SignatureError::NotBase64url(what))
     };
     let header: Value = serde_json::from_slice(&decode(h64, "header")?)
-        .map_err(|_| "the JWS header is not JSON".to_owned())?;
+        .map_err(|_| SignatureError::HeaderNotJson)?;
     let payload: Value = serde_json::from_slice(&decode(p64, "payload")?)
-        .map_err(|_| "the JWS payload is not a JSON statement".to_owned())?;
+        .map_err(|_| SignatureError::PayloadNotStatement)?;
     let sig = decode(s64, "signature")?;
     let alg = header["alg"].as_str().unwrap_or("");
     if !matches!(alg, "RS256" | "RS384" | "RS512") {
-        return Err(format!(
-            "JWS algorithm {alg:?}: signed statements use RS256, RS384 or RS512"
-        ));
+        return Err(SignatureError::Algorithm(alg.to_owned()));
     }
     if !payload.is_object() {
-        return Err("the JWS payload is not a JSON statement".into());
+        return Err(SignatureError::PayloadNotStatement);
     }
     let id = |v: &Value| v["id"].as_str().map(str::to_ascii_lowercase);
     if let (Some(a), Some(b)) = (id(&payload), id(statement))
         && a != b
     {
-        return Err("the JWS payload's id is not the statement's".into());
+        return Err(SignatureError::IdMismatch);
     }
     if comparable(&payload) != comparable(statement) {
-        return Err("the JWS payload does not match the statement".into());
+        return Err(SignatureError::PayloadMismatch);
     }
     let Some(chain) = header.get("x5c") else {
         return Ok(());
@@ -65,18 +107,17 @@ pub fn verify(jws: &[u8], statement: &Value) -> Result<(), String> {
         .and_then(|c| c.first())
         .and_then(Value::as_str)
         .and_then(|c| STANDARD.decode(c).ok())
-        .ok_or_else(|| "x5c: not a list of base64 certificates".to_owned())?;
-    let spki = certificate_spki(&cert).ok_or_else(|| "x5c: not an X.509 certificate".to_owned())?;
-    let key = RsaPublicKey::from_public_key_der(spki)
-        .map_err(|_| "x5c: the certificate's key is not RSA".to_owned())?;
+        .ok_or(SignatureError::ChainNotList)?;
+    let spki = certificate_spki(&cert).ok_or(SignatureError::NotCertificate)?;
+    let key = RsaPublicKey::from_public_key_der(spki).map_err(|_| SignatureError::KeyNotRsa)?;
     let signed = format!("{h64}.{p64}");
-    let sig = Signature::try_from(sig.as_slice()).map_err(|_| "bad signature".to_owned())?;
+    let sig = Signature::try_from(sig.as_slice()).map_err(|_| SignatureError::BadSignature)?;
     let ok = match alg {
         "RS256" => VerifyingKey::<Sha256>::new(key).verify(signed.as_bytes(), &sig),
         "RS384" => VerifyingKey::<Sha384>::new(key).verify(signed.as_bytes(), &sig),
         _ => VerifyingKey::<Sha512>::new(key).verify(signed.as_bytes(), &sig),
     };
-    ok.map_err(|_| "the JWS signature does not verify against its x5c certificate".to_owned())
+    ok.map_err(|_| SignatureError::DoesNotVerify)
 }
 
 /// A statement for comparison with a signature's payload: without the properties the LRS sets

@@ -15,7 +15,7 @@ use uuid::Uuid;
 
 use super::keys::statement_keys;
 use super::timefmt;
-use crate::xapi::error::XapiError;
+use crate::error::ApiError;
 use crate::xapi::validate;
 use crate::xapi::version::LRS_VERSION;
 
@@ -45,7 +45,7 @@ pub fn prepare(
     statements: Vec<Value>,
     authority: &Value,
     stored: OffsetDateTime,
-) -> Result<Vec<Prepared>, XapiError> {
+) -> Result<Vec<Prepared>, ApiError> {
     let batch = statements.len() > 1;
     let stored_text = timefmt::iso_ms(stored);
     let mut seen = HashSet::new();
@@ -53,9 +53,9 @@ pub fn prepare(
     for (i, mut s) in statements.into_iter().enumerate() {
         let at = |msg: String| {
             if batch {
-                XapiError::BadRequest(format!("statement {i}: {msg}"))
+                ApiError::BadRequest(format!("statement {i}: {msg}"))
             } else {
-                XapiError::BadRequest(msg)
+                ApiError::BadRequest(msg)
             }
         };
         if let Some(o) = s.as_object_mut()
@@ -64,7 +64,7 @@ pub fn prepare(
             // A null timestamp says "none": the LRS fills it like an absent one.
             o.remove("timestamp");
         }
-        validate::statement(&s).map_err(at)?;
+        validate::statement(&s).map_err(|e| at(e.0))?;
         let o = s
             .as_object_mut()
             .ok_or_else(|| at("must be an object".into()))?;
@@ -181,7 +181,7 @@ pub async fn insert_statements(
     conn: &mut PgConnection,
     statements: Vec<Value>,
     authority: &Value,
-) -> Result<Vec<Uuid>, XapiError> {
+) -> Result<Vec<Uuid>, ApiError> {
     let stored = transaction_start(conn).await?;
     let prepared = prepare(statements, authority, stored)?;
     store(conn, &prepared).await?;
@@ -191,7 +191,7 @@ pub async fn insert_statements(
 /// The start of the connection's transaction truncated to milliseconds: the `stored` of the
 /// statements it writes (so `X-Experience-API-Consistent-Through`, the start of the oldest open
 /// transaction, never passes a statement not yet committed).
-pub async fn transaction_start(conn: &mut PgConnection) -> Result<OffsetDateTime, XapiError> {
+pub async fn transaction_start(conn: &mut PgConnection) -> Result<OffsetDateTime, ApiError> {
     let (t,): (OffsetDateTime,) = sqlx::query_as("SELECT date_trunc('milliseconds', now())")
         .fetch_one(&mut *conn)
         .await?;
@@ -199,14 +199,14 @@ pub async fn transaction_start(conn: &mut PgConnection) -> Result<OffsetDateTime
 }
 
 /// Stores prepared statements (see [`insert_statements`]).
-pub async fn store(conn: &mut PgConnection, prepared: &[Prepared]) -> Result<(), XapiError> {
+pub async fn store(conn: &mut PgConnection, prepared: &[Prepared]) -> Result<(), ApiError> {
     if prepared.is_empty() {
         return Ok(());
     }
     let stored = prepared[0].statement["stored"]
         .as_str()
         .and_then(timefmt::parse)
-        .ok_or_else(|| XapiError::Internal("stored unset".into()))?;
+        .ok_or_else(|| ApiError::Internal("stored unset".into()))?;
     let ids: Vec<Uuid> = prepared.iter().map(|p| p.id).collect();
     let statements: Vec<Value> = prepared.iter().map(|p| p.statement.clone()).collect();
     let contents: Vec<Value> = prepared.iter().map(|p| p.content.clone()).collect();
@@ -247,7 +247,7 @@ pub async fn store(conn: &mut PgConnection, prepared: &[Prepared]) -> Result<(),
         .fetch_optional(&mut *conn)
         .await?;
         if let Some((id,)) = differing {
-            return Err(XapiError::Conflict(format!(
+            return Err(ApiError::Conflict(format!(
                 "statement {id} is already stored with other content (statements are immutable)"
             )));
         }

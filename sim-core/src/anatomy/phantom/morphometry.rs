@@ -161,9 +161,45 @@ impl Solid {
     }
 }
 
+/// Why the morphometry could not be measured or compared: the bone, structure, level or
+/// dimension at fault.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MorphometryError {
+    /// The asset has no meshes of this bone.
+    #[error("no {0} meshes")]
+    MissingBone(String),
+    /// The asset has no mesh of this soft-tissue structure.
+    #[error("no {0} mesh")]
+    MissingStructure(String),
+    /// A measuring ray that must cross bone found none.
+    #[error("{level} {what}: the measuring ray found no bone")]
+    NoBone {
+        /// Level or segment (`L3`, `L4-L5`).
+        level: String,
+        /// The dimension being measured.
+        what: &'static str,
+    },
+    /// The rays found no interval to measure (a gap open on one side, a missing chord).
+    #[error("{level} {what}: no interval to measure on the meshes")]
+    Unmeasurable {
+        /// Level or segment.
+        level: String,
+        /// What was being measured.
+        what: &'static str,
+    },
+    /// A published reference has no measurement to compare with.
+    #[error("no measurement of {level} {dimension:?}")]
+    NoMeasurement {
+        /// Level or segment of the reference.
+        level: &'static str,
+        /// Its dimension.
+        dimension: Dimension,
+    },
+}
+
 /// Measures every [`Dimension`] of L1..L5 (and the L1-S1 lordosis) on `asset`, a built
 /// lumbosacral phantom. Errors name a missing bone or a ray that found no bone where one must be.
-pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
+pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, MorphometryError> {
     let frames = level_frames();
     let mut out = Vec::new();
     let mut push = |level: &str, dimension: Dimension, value: f64| {
@@ -176,15 +212,25 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
     let lumbar = &frames[..5];
     let bones: Vec<Solid> = lumbar
         .iter()
-        .map(|f| Solid::bone(asset, &f.name).ok_or_else(|| format!("no {} meshes", f.name)))
+        .map(|f| {
+            Solid::bone(asset, &f.name).ok_or_else(|| MorphometryError::MissingBone(f.name.clone()))
+        })
         .collect::<Result<_, _>>()?;
-    let sacrum = Solid::bone(asset, "sacrum").ok_or("no sacrum meshes")?;
-    let nonzero = |v: f64, what: &str, level: &str| {
+    let sacrum = Solid::bone(asset, "sacrum")
+        .ok_or_else(|| MorphometryError::MissingBone("sacrum".into()))?;
+    let nonzero = |v: f64, what: &'static str, level: &str| {
         if v > 0.0 {
             Ok(v)
         } else {
-            Err(format!("{level} {what}: the measuring ray found no bone"))
+            Err(MorphometryError::NoBone {
+                level: level.to_owned(),
+                what,
+            })
         }
+    };
+    let unmeasurable = |level: &str, what: &'static str| MorphometryError::Unmeasurable {
+        level: level.to_owned(),
+        what,
     };
     for (i, (f, bone)) in lumbar.iter().zip(&bones).enumerate() {
         let l = f.name.as_str();
@@ -193,7 +239,7 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
         // posterior wall is concave, so the intended depth would aim outside it).
         let (t_back, t_front) = bone
             .chord_span(f.centre_mm, f.anterior)
-            .ok_or(format!("{l}: no bone at the body centre"))?;
+            .ok_or_else(|| unmeasurable(l, "body centre chord"))?;
         let front = f.centre_mm + f.anterior * (t_front - 3.0);
         let back = f.centre_mm + f.anterior * (t_back + 3.0);
         for (dimension, what, p, dir) in [
@@ -234,18 +280,20 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
         let angles: Vec<f64> = angles
             .into_iter()
             .collect::<Option<_>>()
-            .ok_or(format!("{l} pedicle axis"))?;
+            .ok_or_else(|| unmeasurable(l, "pedicle axis"))?;
         push(l, Dimension::PedicleTransverseAngle, mean(&angles));
         let c = f.canal_centre_mm;
         push(
             l,
             Dimension::CanalWidth,
-            bone.gap(c, f.right).ok_or(format!("{l} canal width"))?,
+            bone.gap(c, f.right)
+                .ok_or_else(|| unmeasurable(l, "canal width"))?,
         );
         push(
             l,
             Dimension::CanalDepth,
-            bone.gap(c, f.anterior).ok_or(format!("{l} canal depth"))?,
+            bone.gap(c, f.anterior)
+                .ok_or_else(|| unmeasurable(l, "canal depth"))?,
         );
         // The processes run laterally and backwards: the widest of several transverse rays
         // around their level.
@@ -262,7 +310,7 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
         push(
             l,
             Dimension::TransverseProcessSpan,
-            span.ok_or(format!("{l} transverse processes"))?,
+            span.ok_or_else(|| unmeasurable(l, "transverse processes"))?,
         );
         // Disc: from this body's inferior endplate to the next body's superior one, along the
         // line joining the body centres.
@@ -271,7 +319,7 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
         let axis = (f.centre_mm - next.centre_mm).normalize();
         let (lo_this, _) = bone
             .chord_span(f.centre_mm, axis)
-            .ok_or(format!("{l} body axis"))?;
+            .ok_or_else(|| unmeasurable(l, "body axis"))?;
         let bottom = f.centre_mm + axis * lo_this;
         let gap = below
             .intervals(bottom, axis)
@@ -282,7 +330,7 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
         push(
             l,
             Dimension::DiscHeight,
-            gap.ok_or(format!("{l} disc below"))?,
+            gap.ok_or_else(|| unmeasurable(l, "disc below"))?,
         );
     }
     let mut slopes = Vec::new();
@@ -290,7 +338,10 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
         .iter()
         .zip(bones.iter().chain(std::iter::once(&sacrum)))
     {
-        slopes.push(endplate_angle_deg(bone, f).ok_or(format!("{} superior endplate", f.name))?);
+        slopes.push(
+            endplate_angle_deg(bone, f)
+                .ok_or_else(|| unmeasurable(&f.name, "superior endplate"))?,
+        );
     }
     for (i, pair) in frames.windows(2).enumerate() {
         let segment = format!("{}-{}", pair[0].name, pair[1].name);
@@ -305,7 +356,7 @@ pub fn measure(asset: &RegionAsset) -> Result<Vec<Measured>, String> {
         .structures
         .iter()
         .find(|s| s.name == "ligamentum_flavum")
-        .ok_or("no ligamentum_flavum mesh")?;
+        .ok_or_else(|| MorphometryError::MissingStructure("ligamentum_flavum".into()))?;
     let flavum = Solid {
         surfaces: vec![Bvh::new(&flavum.mesh)],
     };
@@ -554,7 +605,7 @@ impl Comparison {
 
 /// Pairs every [`PUBLISHED`] value with its measurement; errors name a reference that has no
 /// measurement.
-pub fn compare(measured: &[Measured]) -> Result<Vec<Comparison>, String> {
+pub fn compare(measured: &[Measured]) -> Result<Vec<Comparison>, MorphometryError> {
     PUBLISHED
         .iter()
         .map(|r| {
@@ -565,7 +616,10 @@ pub fn compare(measured: &[Measured]) -> Result<Vec<Comparison>, String> {
                     reference: *r,
                     measured: m.value,
                 })
-                .ok_or_else(|| format!("no measurement of {} {:?}", r.level, r.dimension))
+                .ok_or(MorphometryError::NoMeasurement {
+                    level: r.level,
+                    dimension: r.dimension,
+                })
         })
         .collect()
 }

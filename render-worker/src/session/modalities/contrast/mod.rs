@@ -49,9 +49,9 @@ use sim_core::contrast::{
 use sim_core::fluoro::IodineField;
 use sim_core::rubric::Measurements;
 
-use super::modality::{Modality, ModalityContext, ModalityError};
+use super::modality::{FluidDelivery, Modality, ModalityContext, ModalityError, ModalitySpec};
 use crate::session::anatomy::primary_target;
-use crate::session::command::{Agent, Command, CommandClass, CommandError, ErrorCode};
+use crate::session::command::{Agent, Command, CommandError, CommandSpec, Engagement, ErrorCode};
 use crate::session::image::{ViewId, ViewImage};
 use crate::session::region::Region;
 use crate::session::world::{StationContext, World, WorldChange};
@@ -65,7 +65,7 @@ pub const QUANTUM_MS: u64 = 100;
 /// order of 1 per second) has removed most vascular contrast after two seconds; later changes
 /// (epidural clearance over tens of minutes) are too slow to see during a session.
 pub const SETTLE_MS: u64 = 2000;
-/// Transport cell size, mm (the reference model's 1 mm cells, issue 16).
+/// Transport cell size, mm. Simulator choice: the 1 mm cells of sim-core's contrast tests.
 pub const CELL_MM: f64 = 1.0;
 /// Half extent of the transport crop around the station's primary target, mm (x, y, z).
 /// Simulator choice: 26 mm laterally reaches from a foraminal target past the midline canal;
@@ -339,6 +339,8 @@ pub struct ContrastModality {
     state: ContrastState,
     site: Option<Site>,
     live: Option<Live>,
+    /// The injection the last command started, until the session books it.
+    delivered: Option<FluidDelivery>,
 }
 
 impl std::fmt::Debug for ContrastModality {
@@ -413,6 +415,7 @@ pub fn build(ctx: &ModalityContext<'_>) -> Box<dyn Modality> {
         state: ContrastState::default(),
         site: site(ctx.region, ctx.station),
         live: None,
+        delivered: None,
     })
 }
 
@@ -507,17 +510,29 @@ impl ContrastModality {
     }
 }
 
+/// What the contrast modality offers: injections through the needle; no view of its own (the
+/// fluoroscopy modality images its iodine).
+pub static SPEC: ModalitySpec = ModalitySpec {
+    name: "contrast",
+    label: "contrast injection",
+    views: &[],
+    commands: &[
+        CommandSpec::new("inject", Some(Engagement::Injection)),
+        CommandSpec::new("inject_stop", None),
+    ],
+    constants: &[
+        ("tick_ms", QUANTUM_MS as f64),
+        ("settle_ms", SETTLE_MS as f64),
+    ],
+};
+
 impl Modality for ContrastModality {
-    fn name(&self) -> &'static str {
-        "contrast"
+    fn spec(&self) -> &'static ModalitySpec {
+        &SPEC
     }
 
-    fn accepts(&self) -> &'static [CommandClass] {
-        &[CommandClass::Contrast]
-    }
-
-    fn views(&self) -> &'static [ViewId] {
-        &[]
+    fn take_fluid(&mut self) -> Option<FluidDelivery> {
+        self.delivered.take()
     }
 
     fn apply(
@@ -531,6 +546,13 @@ impl Modality for ContrastModality {
                 volume_ml,
                 rate_ml_per_s,
             } => {
+                if world.hands.syringe.is_some() {
+                    return Err(CommandError::field(
+                        "command.type",
+                        ErrorCode::State,
+                        "the loss-of-resistance syringe is on the needle: detach it before injecting",
+                    ));
+                }
                 let Some(outlet) = Outlet::of_needle(world) else {
                     return Err(CommandError::field(
                         "command.type",
@@ -547,6 +569,11 @@ impl Modality for ContrastModality {
                         rate_ml_s: rate_ml_per_s,
                     },
                 )?;
+                self.delivered = Some(FluidDelivery {
+                    agent,
+                    volume_ml,
+                    rate_ml_per_s,
+                });
             }
             Command::InjectStop => {
                 if self.model().is_some_and(ContrastModel::injecting) {

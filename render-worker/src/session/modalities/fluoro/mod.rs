@@ -28,13 +28,14 @@ pub use backend::{
 };
 use dose::DoseTally;
 
-use super::modality::{Modality, ModalityContext, ModalityError};
+use super::modality::{Modality, ModalityContext, ModalityError, ModalitySpec};
 use crate::session::anatomy::{
     angle_to_plane_deg, endplate_normal, facet_joint_normal, primary_target, target_side,
 };
-use crate::session::command::{Command, CommandClass, CommandError, ErrorCode};
+use crate::session::command::{Command, CommandError, CommandSpec, Engagement, ErrorCode};
 use crate::session::hands::{MARKER_LENGTH_MM, MARKER_RADIUS_MM};
 use crate::session::image::{ViewId, ViewImage};
+use crate::session::world::ImageRayError;
 use crate::session::world::{World, WorldChange};
 
 /// Fluoroscopy time booked for one single-shot acquisition, ms. Simulator choice: C-arms display
@@ -350,21 +351,49 @@ pub fn build(ctx: &ModalityContext<'_>) -> Box<dyn Modality> {
         ctx.config.fluoro,
         isocentre,
         ctx.config.seed,
-        Arc::clone(&ctx.backends.fluoro),
+        renderer(ctx),
     ))
 }
 
+/// What the fluoroscopy modality offers: the C-arm image and its commands.
+pub static SPEC: ModalitySpec = ModalitySpec {
+    name: "fluoroscopy",
+    label: "fluoroscopy",
+    views: &[ViewId::FLUOROSCOPY],
+    commands: &[
+        CommandSpec::new("carm_pose", Some(Engagement::ViewChanged)),
+        CommandSpec::new("technique", Some(Engagement::ViewChanged)),
+        CommandSpec::new("shot", Some(Engagement::ImageAcquired)),
+        CommandSpec::new("live", Some(Engagement::ImageAcquired)),
+        CommandSpec::new("annotate", None),
+    ],
+    constants: &[],
+};
+
+/// The device's fluoroscopy renderer, or the CPU reference on all cores when the device offers
+/// none (a host built with renderers for other modalities only).
+fn renderer(ctx: &ModalityContext<'_>) -> Arc<dyn FluoroBackend> {
+    ctx.renderers
+        .get::<Arc<dyn FluoroBackend>>(SPEC.name)
+        .cloned()
+        .unwrap_or_else(|| Arc::new(CpuFluoroBackend { threads: 0 }))
+}
+
 impl Modality for FluoroModality {
-    fn name(&self) -> &'static str {
-        "fluoroscopy"
+    fn spec(&self) -> &'static ModalitySpec {
+        &SPEC
     }
 
-    fn accepts(&self) -> &'static [CommandClass] {
-        &[CommandClass::Fluoroscopy]
-    }
-
-    fn views(&self) -> &'static [ViewId] {
-        &[ViewId::Fluoroscopy]
+    /// Stopping live fluoroscopy acquires nothing; starting it does.
+    fn engagement(&self, command: &Command) -> Option<Engagement> {
+        match command {
+            Command::Live { on: false } => None,
+            other => SPEC
+                .commands
+                .iter()
+                .find(|c| c.kind == other.name())
+                .and_then(|c| c.engagement),
+        }
     }
 
     fn apply(
@@ -490,15 +519,19 @@ impl Modality for FluoroModality {
         }
     }
 
-    fn image_ray(&self, pixel: [f64; 2]) -> Option<Result<(DVec3, DVec3), String>> {
+    fn image_ray(&self, pixel: [f64; 2]) -> Option<Result<(DVec3, DVec3), ImageRayError>> {
         let Some(image) = self.state.images.last() else {
-            return Some(Err(
-                "no fluoroscopy image yet: take a shot first".to_string()
-            ));
+            return Some(Err(ImageRayError::NoImage {
+                modality: SPEC.name,
+            }));
         };
         let [w, h] = image.projection.detector_pixels;
         if !(0.0..=f64::from(w)).contains(&pixel[0]) || !(0.0..=f64::from(h)).contains(&pixel[1]) {
-            return Some(Err(format!("{pixel:?} is outside the {w} x {h} image")));
+            return Some(Err(ImageRayError::OutsideImage {
+                pixel,
+                width: w,
+                height: h,
+            }));
         }
         let r = image.projection.pixel_ray(pixel);
         Some(Ok((
@@ -518,7 +551,7 @@ impl Modality for FluoroModality {
     fn dirty_views(&self) -> Vec<ViewId> {
         let last = self.state.images.last().map(|i| i.index);
         if last.is_some() && last != self.rendered {
-            vec![ViewId::Fluoroscopy]
+            vec![ViewId::FLUOROSCOPY]
         } else {
             Vec::new()
         }

@@ -1,11 +1,23 @@
 //! Who computes B-mode frames: the sim-core CPU reference, or the wgpu compute path checked
 //! against it (`crate::ultrasound`), chosen once per device in `session::devices`.
 
-use sim_core::ultrasound::{BModeFrame, ScanRequest};
+use sim_core::ultrasound::{BModeFrame, ScanRequest, UltrasoundError};
 
 use super::medium::AcousticVolume;
 use crate::gpu::GpuContext;
-use crate::ultrasound::GpuUltrasound;
+use crate::ultrasound::{GpuUltrasound, UltrasoundGpuError};
+
+/// Why a B-mode renderer could not make a frame (the counterpart of the fluoroscopy seam's
+/// `FluoroRenderError`).
+#[derive(Debug, thiserror::Error)]
+pub enum UltrasoundRenderError {
+    /// The CPU reference refused the request (it names the offending field).
+    #[error(transparent)]
+    Cpu(#[from] UltrasoundError),
+    /// The GPU path failed (an invalid request, buffer limits, readback).
+    #[error(transparent)]
+    Gpu(#[from] UltrasoundGpuError),
+}
 
 /// A B-mode renderer kind on one device, shared by every session there.
 pub trait UltrasoundBackend: Send + Sync {
@@ -23,7 +35,7 @@ pub trait UltrasoundRenderer: Send {
         &mut self,
         req: &ScanRequest<'_>,
         volume: &AcousticVolume,
-    ) -> Result<BModeFrame, String>;
+    ) -> Result<BModeFrame, UltrasoundRenderError>;
 }
 
 /// The sim-core reference (`sim_core::ultrasound::scan`).
@@ -45,8 +57,8 @@ impl UltrasoundRenderer for CpuUltrasoundBackend {
         &mut self,
         req: &ScanRequest<'_>,
         _volume: &AcousticVolume,
-    ) -> Result<BModeFrame, String> {
-        sim_core::ultrasound::scan(req).map_err(|e| e.to_string())
+    ) -> Result<BModeFrame, UltrasoundRenderError> {
+        Ok(sim_core::ultrasound::scan(req)?)
     }
 }
 
@@ -82,14 +94,11 @@ impl UltrasoundRenderer for GpuUltrasoundRenderer {
         &mut self,
         req: &ScanRequest<'_>,
         volume: &AcousticVolume,
-    ) -> Result<BModeFrame, String> {
+    ) -> Result<BModeFrame, UltrasoundRenderError> {
         let gpu = match &mut self.gpu {
             Some(g) => g,
-            None => self
-                .gpu
-                .insert(GpuUltrasound::new(&self.ctx).map_err(|e| e.to_string())?),
+            None => self.gpu.insert(GpuUltrasound::new(&self.ctx)?),
         };
-        gpu.scan(req, &volume.medium(), volume.key)
-            .map_err(|e| e.to_string())
+        Ok(gpu.scan(req, &volume.medium(), volume.key)?)
     }
 }

@@ -66,7 +66,7 @@ impl AcousticVolume {
     }
 }
 
-/// Classes that carry their own acoustic properties (the label overrides).
+/// Classes that carry their own acoustic properties (label overrides: the class, not the HU).
 fn overrides(class: MaterialClass) -> bool {
     !matches!(class, MaterialClass::Fat | MaterialClass::SoftTissue)
 }

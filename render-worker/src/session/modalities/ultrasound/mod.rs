@@ -36,14 +36,17 @@ use sim_core::ultrasound::{
 };
 
 pub use backend::{
-    CpuUltrasoundBackend, GpuUltrasoundBackend, UltrasoundBackend, UltrasoundRenderer,
+    CpuUltrasoundBackend, GpuUltrasoundBackend, UltrasoundBackend, UltrasoundRenderError,
+    UltrasoundRenderer,
 };
 pub use medium::AcousticVolume;
 pub use scene::{ScanScene, needle_shaft, scene_needle_view};
 
-use super::modality::{Modality, ModalityContext, ModalityError};
+use super::modality::{Modality, ModalityContext, ModalityError, ModalitySpec};
 use crate::session::anatomy::primary_target;
-use crate::session::command::{Command, CommandClass, CommandError, ErrorCode, MAX_PROBE_SNAP_MM};
+use crate::session::command::{
+    Command, CommandError, CommandSpec, Engagement, ErrorCode, MAX_PROBE_SNAP_MM,
+};
 use crate::session::image::{ViewId, ViewImage};
 use crate::session::region::Region;
 use crate::session::world::{World, WorldChange};
@@ -199,7 +202,11 @@ pub fn build(ctx: &ModalityContext<'_>) -> Box<dyn Modality> {
             site_mm: site,
             history: scorers::History::default(),
         },
-        backend: Arc::clone(&ctx.backends.ultrasound),
+        backend: ctx
+            .renderers
+            .get::<Arc<dyn UltrasoundBackend>>(SPEC.name)
+            .cloned()
+            .unwrap_or_else(|| Arc::new(CpuUltrasoundBackend)),
         renderer: None,
         region: Arc::clone(ctx.region),
         volume: None,
@@ -364,17 +371,26 @@ fn rotate(v: DVec3, axis: DVec3, deg: f64) -> DVec3 {
     glam::DQuat::from_axis_angle(axis, deg.to_radians()) * v
 }
 
+/// What the ultrasound modality offers: the B-mode image, the placement view, and the probe's
+/// commands.
+pub static SPEC: ModalitySpec = ModalitySpec {
+    name: "ultrasound",
+    label: "ultrasound",
+    views: &[ViewId::ULTRASOUND, ViewId::PLACEMENT],
+    commands: &[
+        CommandSpec::new("probe_select", Some(Engagement::ViewChanged)),
+        CommandSpec::new("probe_pose", Some(Engagement::ViewChanged)),
+        CommandSpec::new("probe_move", Some(Engagement::ViewChanged)),
+        CommandSpec::new("probe_drag", Some(Engagement::ViewChanged)),
+        CommandSpec::new("probe_settings", Some(Engagement::ViewChanged)),
+        CommandSpec::new("probe_freeze", None),
+    ],
+    constants: &[],
+};
+
 impl Modality for UltrasoundModality {
-    fn name(&self) -> &'static str {
-        "ultrasound"
-    }
-
-    fn accepts(&self) -> &'static [CommandClass] {
-        &[CommandClass::Ultrasound]
-    }
-
-    fn views(&self) -> &'static [ViewId] {
-        &[ViewId::Ultrasound, ViewId::Placement]
+    fn spec(&self) -> &'static ModalitySpec {
+        &SPEC
     }
 
     fn apply(
@@ -547,7 +563,7 @@ impl Modality for UltrasoundModality {
     }
 
     fn dirty_views(&self) -> Vec<ViewId> {
-        [ViewId::Ultrasound, ViewId::Placement]
+        [ViewId::ULTRASOUND, ViewId::PLACEMENT]
             .into_iter()
             .zip(self.versions.iter().zip(&self.rendered))
             .filter(|(_, (v, r))| **r != Some(**v))
@@ -556,12 +572,8 @@ impl Modality for UltrasoundModality {
     }
 
     fn render(&mut self, view: ViewId, world: &World) -> Result<Option<ViewImage>, ModalityError> {
-        let err = |message: String| ModalityError::Render {
-            modality: "ultrasound",
-            message,
-        };
         match view {
-            ViewId::Ultrasound => {
+            ViewId::ULTRASOUND => {
                 let scene = self.displayed_scene(world);
                 let volume = self.volume();
                 let medium = volume.medium();
@@ -577,7 +589,12 @@ impl Modality for UltrasoundModality {
                     seed: self.state.seed,
                 };
                 let renderer = self.renderer.get_or_insert_with(|| self.backend.renderer());
-                let frame = renderer.scan(&req, &volume).map_err(err)?;
+                let frame = renderer
+                    .scan(&req, &volume)
+                    .map_err(|e| ModalityError::Render {
+                        modality: "ultrasound",
+                        message: e.to_string(),
+                    })?;
                 self.rendered[0] = Some(self.versions[0]);
                 Ok(Some(ViewImage {
                     width: frame.width as u32,
@@ -585,7 +602,7 @@ impl Modality for UltrasoundModality {
                     pixels: frame.pixels,
                 }))
             }
-            ViewId::Placement => {
+            ViewId::PLACEMENT => {
                 let cam = placement::Camera::for_site(&self.region, self.state.site_mm);
                 let image = placement::render(
                     &self.region,
@@ -597,7 +614,7 @@ impl Modality for UltrasoundModality {
                 self.rendered[1] = Some(self.versions[1]);
                 Ok(Some(image))
             }
-            ViewId::Fluoroscopy => Ok(None),
+            _ => Ok(None),
         }
     }
 

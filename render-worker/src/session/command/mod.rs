@@ -9,6 +9,12 @@
 use serde::{Deserialize, Serialize};
 use sim_core::needle::NeedleCommand;
 
+mod extension;
+mod spec;
+
+pub use extension::{BUILTIN_KINDS, ModalityCommand};
+pub use spec::{CORE_COMMANDS, CommandSpec, Engagement};
+
 /// Largest |orbital| rotation, degrees. Simulator choice: beyond both true laterals (90) with
 /// margin; mobile C-arms reach about +-95 to +-135 depending on the model.
 pub const MAX_ORBITAL_DEG: f64 = 135.0;
@@ -57,8 +63,16 @@ pub const MAX_INSTRUMENT_CHARS: usize = 64;
 
 /// What an operator can do at a station. JSON form: `{"type": "carm_pose", "orbital_deg": 20,
 /// ...}`.
+///
+/// Commands of a modality this crate does not define travel as [`Command::Modality`] with the
+/// same JSON shape (`{"type": "<kind the modality declares>", ...}`); see [`ModalityCommand`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(
+    remote = "Self",
+    tag = "type",
+    rename_all = "snake_case",
+    deny_unknown_fields
+)]
 pub enum Command {
     /// Move the C-arm (absolute pose).
     CarmPose {
@@ -254,6 +268,11 @@ pub enum Command {
     Tick,
     /// End the attempt and score it.
     Submit,
+    /// A command of a modality registered with the
+    /// [`ModalityFactory`](crate::session::modalities::ModalityFactory) whose kind is not one
+    /// of the built-in kinds above; the modality that declares the kind validates its fields.
+    #[serde(skip)]
+    Modality(ModalityCommand),
 }
 
 /// What to do with the loss-of-resistance syringe.
@@ -295,38 +314,24 @@ impl Agent {
     }
 }
 
-/// Which part of the session a command belongs to.
+/// Which part of the session handles a command: the session core (needle and hands, submit and
+/// tick) or a modality. Which modality is data: the command kinds each modality declares in its
+/// [`ModalitySpec`](crate::session::modalities::ModalitySpec).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum CommandClass {
-    /// C-arm, technique, shots, live fluoroscopy, annotations on its image.
-    Fluoroscopy,
-    /// Probe pose and settings.
-    Ultrasound,
-    /// Injections.
-    Contrast,
-    /// The needle (an instrument, shared by every modality).
+    /// The needle and the learner's hands (an instrument, shared by every modality).
     Needle,
     /// Submit and tick.
     Session,
+    /// A modality's command, routed by its kind.
+    Modality,
 }
 
 impl Command {
     /// The part of the session that handles this command.
     pub fn class(&self) -> CommandClass {
         match self {
-            Command::CarmPose { .. }
-            | Command::Technique { .. }
-            | Command::Shot
-            | Command::Live { .. }
-            | Command::Annotate { .. } => CommandClass::Fluoroscopy,
-            Command::ProbeSelect { .. }
-            | Command::ProbePose { .. }
-            | Command::ProbeMove { .. }
-            | Command::ProbeDrag { .. }
-            | Command::ProbeSettings { .. }
-            | Command::ProbeFreeze { .. } => CommandClass::Ultrasound,
-            Command::Inject { .. } | Command::InjectStop => CommandClass::Contrast,
             Command::NeedlePlace { .. }
             | Command::NeedleFeed { .. }
             | Command::NeedleRoll { .. }
@@ -339,12 +344,14 @@ impl Command {
             | Command::PlungerHold { .. }
             | Command::Aspirate => CommandClass::Needle,
             Command::Tick | Command::Submit => CommandClass::Session,
+            _ => CommandClass::Modality,
         }
     }
 
     /// The snake_case name used in JSON (`"carm_pose"`, ...).
-    pub fn name(&self) -> &'static str {
+    pub fn name(&self) -> &str {
         match self {
+            Command::Modality(c) => c.kind(),
             Command::CarmPose { .. } => "carm_pose",
             Command::Technique { .. } => "technique",
             Command::Shot => "shot",
@@ -425,6 +432,7 @@ impl Command {
                 }
                 range("command.ma", *ma, MA_RANGE.0, MA_RANGE.1)
             }
+            Command::Modality(c) => c.validate(),
             Command::Shot
             | Command::Live { .. }
             | Command::Tick
@@ -820,7 +828,7 @@ mod tests {
         assert!(Command::Technique { kvp: 85, ma: 2.0 }.validate().is_ok());
     }
 
-    /// Issue 20, point 3: every string a command carries is checked against what the server's
+    /// Every string a command carries is checked against what the server's
     /// log (PostgreSQL text and jsonb) stores before the command can be acknowledged: no NUL,
     /// bounded length; every number is finite (jsonb has no NaN or infinity).
     #[test]

@@ -1,0 +1,149 @@
+//! When frames are rendered (only on exposure, only for visible views, on every change while
+//! live) and how the GPU backend's session frames compare with the CPU reference's.
+
+use std::collections::BTreeSet;
+
+use render_worker::session::*;
+use sim_core::compare::{Compare, Tolerance};
+
+use super::support::{Driver, config, env, fluoro_only, place, pose, script};
+
+#[test]
+fn frames_are_rendered_only_on_exposure_and_only_for_visible_views() {
+    let mut d = Driver::new();
+    assert!(
+        d.s.render_dirty(&fluoro_only()).unwrap().is_empty(),
+        "no image before any exposure"
+    );
+    d.ok(0, pose(20.0, 5.0));
+    d.ok(0, place([12.0, -100.0, 0.0], [0.0, 1.0, 0.0]));
+    d.ok(0, Command::NeedleFeed { mm: 20.0 });
+    assert!(
+        d.s.render_dirty(&fluoro_only()).unwrap().is_empty(),
+        "moving without exposure keeps the last image"
+    );
+    d.ok(100, Command::Shot);
+    assert!(
+        d.s.render_dirty(&BTreeSet::new()).unwrap().is_empty(),
+        "hidden views are not rendered"
+    );
+    let frames = d.s.render_dirty(&fluoro_only()).unwrap();
+    assert_eq!(frames.len(), 1);
+    assert_eq!(frames[0].input_seq, 4);
+    assert_eq!((frames[0].image.width, frames[0].image.height), (128, 128));
+    assert!(
+        d.s.render_dirty(&fluoro_only()).unwrap().is_empty(),
+        "nothing changed since"
+    );
+    // The image is not blank: bone and needle make a range of grey levels.
+    let px = &frames[0].image.pixels;
+    let (lo, hi) = (px.iter().min().unwrap(), px.iter().max().unwrap());
+    assert!(hi - lo > 60, "grey range {lo}..{hi}");
+}
+
+#[test]
+fn live_fluoroscopy_renders_on_every_change_and_books_its_time() {
+    let mut d = Driver::new();
+    d.ok(1000, Command::Live { on: true });
+    assert_eq!(d.s.render_dirty(&fluoro_only()).unwrap().len(), 1);
+    d.ok(1500, pose(-15.0, 0.0));
+    let a = d.s.render_dirty(&fluoro_only()).unwrap();
+    d.ok(1700, place([12.0, -100.0, 0.0], [0.0, 1.0, 0.0]));
+    let b = d.s.render_dirty(&fluoro_only()).unwrap();
+    assert_eq!(
+        (a.len(), b.len()),
+        (1, 1),
+        "a pose change and a needle move each make a live frame"
+    );
+    assert_ne!(a[0].image, b[0].image, "the needle appears");
+    d.ok(3000, Command::Live { on: false });
+    assert!(
+        d.s.render_dirty(&fluoro_only()).unwrap().is_empty(),
+        "beam off: last image hold"
+    );
+    d.ok(4000, Command::Shot);
+    let m = d.s.measurements();
+    // Live from 1000 to 3000 ms (2 s) plus one shot (SHOT_EXPOSURE_MS = 100 ms).
+    assert_eq!(m["fluoro_exposure_s"], 2.1);
+    assert_eq!(m["fluoro_acquisitions_count"], 2.0);
+    // Clock never runs backwards: an earlier time stamp is applied "now".
+    let ack = d.ok(10, Command::Shot);
+    assert_eq!(ack.t_ms, 4000);
+}
+
+/// Runs `steps` on a CPU-reference session and a GPU session; returns the fraction of pixels of
+/// the final frame within one grey level, and the largest difference.
+fn gpu_vs_cpu(steps: &[(u64, Command)]) -> Option<(f64, i32)> {
+    let ctx = render_worker::gpu::context_for_tests()?;
+    let mut gpu_env = env();
+    gpu_env.backends = Backends::gpu(ctx);
+    let mut cpu = Session::new(env(), config());
+    let mut gpu = Session::new(gpu_env, config());
+    // Render after every step, as a session thread does, so renderer state carries over.
+    let (mut c, mut g) = (None, None);
+    for (k, (t, command)) in steps.iter().enumerate() {
+        for (s, last) in [(&mut cpu, &mut c), (&mut gpu, &mut g)] {
+            let env = Envelope {
+                seq: k as u64 + 1,
+                command: command.clone(),
+            };
+            s.apply(env, *t).unwrap();
+            if let Some(f) = s.render_dirty(&fluoro_only()).unwrap().pop() {
+                *last = Some(f.image);
+            }
+        }
+    }
+    let (c, g) = (c.unwrap(), g.unwrap());
+    // State and scores do not depend on the renderer.
+    assert_eq!(cpu.snapshot().to_bytes(), gpu.snapshot().to_bytes());
+    assert_eq!(cpu.measurements(), gpu.measurements());
+    assert_eq!(gpu.score().record.renderer.kind, "gpu");
+    let d = Compare::image(c.width as usize, c.height as usize)
+        .tolerance(Tolerance::absolute(1.0))
+        .all(&g.pixels, &c.pixels)
+        .expect("frames of one size");
+    let (within_one, max) = (d.fraction_within(), d.max_abs as i32);
+    eprintln!(
+        "GPU vs CPU session frame: {:.1} % of pixels within one grey level, max difference {max}",
+        100.0 * within_one
+    );
+    Some((within_one, max))
+}
+
+#[test]
+fn gpu_backend_session_matches_the_cpu_reference_session() {
+    // AP views, needle in, live and single shots, technique change.
+    let steps = vec![
+        (100, Command::Technique { kvp: 75, ma: 2.5 }),
+        (200, place([12.0, -100.0, 1.0], [0.0, 1.0, 0.05])),
+        (300, Command::NeedleFeed { mm: 30.0 }),
+        (400, Command::Live { on: true }),
+        (500, Command::NeedleFeed { mm: 15.0 }),
+        (600, Command::Live { on: false }),
+        (700, Command::Shot),
+    ];
+    let Some((within_one, _)) = gpu_vs_cpu(&steps) else {
+        return;
+    };
+    // render-worker/tests/fluoro.rs shows interior pixels within one grey level (2e-3 in ln T);
+    // silhouette pixels of the demo's box edges, supersampled differently, are about 1.5 % of
+    // this 128 x 128 view (measured 98.7 % within one level when written), so 97 %.
+    assert!(within_one >= 0.97, "{within_one}");
+}
+
+/// Regression test: in the scripted attempt, the live frame made when the C-arm turns to orbital
+/// -20 degrees with the needle 60 mm in differed from the CPU reference almost everywhere (0.3 %
+/// of pixels within one grey level, up to 65 levels) although the two transmissions agreed (the
+/// ROI median of `ln T` within 0.005). The cause was the automatic brightness, metered on the
+/// noisy frame: with about 12 quanta per pixel behind the spine, the median was one of a few
+/// integer counts 0.087 apart in `ln T`, and the small difference flipped it by one count (6
+/// grey levels everywhere). sim-core now meters on the noise-free transmission
+/// (`sim_core::fluoro::render::finish_frame`).
+#[test]
+fn gpu_session_oblique_view_with_needle_matches_the_cpu() {
+    let steps = script()[..9].to_vec();
+    let Some((within_one, _)) = gpu_vs_cpu(&steps) else {
+        return;
+    };
+    assert!(within_one >= 0.97, "{within_one}");
+}

@@ -1,0 +1,441 @@
+//! The deposit: every lattice scatterer within reach of the frame, weighted by the elevation
+//! profile at its distance from the slice, turned by its carrier phase and deposited bilinearly
+//! on the (line, sample) grid, before any convolution.
+
+use glam::DVec3;
+
+use super::super::beam::{Beam, FWHM_PER_SIGMA};
+use super::super::probe::{ProbeFrame, ScanGeometry};
+use super::super::tissue::{AcousticMedium, Texture};
+use super::amplitude::iq_of_hash;
+use super::fascicle::fascicle_factor;
+use super::grid::{CellSum, IqGrid};
+use super::lookup::{EXP_LEN, cis, exp_neg_in, exp_table};
+use super::tables::BeamTables;
+use crate::rng::splitmix64;
+
+/// Elevation reach of the scatter sum, in FWHM of the slice at each depth.
+const ELEV_REACH_FWHM: f64 = 1.0;
+
+/// The tissue's scatterer lattice: cell side and seed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct ScatterField {
+    pub cell_mm: f64,
+    pub seed: u64,
+}
+
+/// The lattice cells a frame can reach, and how its columns run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LatticeBounds {
+    /// Lowest cell index per region axis.
+    pub lo_cell: [i64; 3],
+    /// Highest cell index per region axis.
+    pub hi_cell: [i64; 3],
+    /// The region axis closest to the elevation direction: lattice columns run along it.
+    pub column_axis: usize,
+    /// The two other region axes, in increasing order.
+    pub across: (usize, usize),
+}
+
+/// The lattice cells (side `cell_mm`) of the box around image extent `(x0, x1, y0, y1)` (mm,
+/// already widened by the in-plane PSF reach) and `+-reach_elev_mm` across the slice, in the
+/// region frame; shared by the CPU deposit and the GPU path so both visit the same cells.
+pub fn lattice_bounds(
+    f: &ProbeFrame,
+    (x0, x1, y0, y1): (f64, f64, f64, f64),
+    reach_elev_mm: f64,
+    cell_mm: f64,
+) -> LatticeBounds {
+    let mut lo = DVec3::splat(f64::INFINITY);
+    let mut hi = DVec3::splat(f64::NEG_INFINITY);
+    for x in [x0, x1] {
+        for y in [y0, y1] {
+            for e in [-reach_elev_mm, reach_elev_mm] {
+                let p = f.to_region(DVec3::new(x, y, e));
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
+        }
+    }
+    let ev = f.elevation.to_array();
+    let column_axis = (0..3)
+        .max_by(|&a, &b| ev[a].abs().total_cmp(&ev[b].abs()))
+        .unwrap_or(2);
+    let across = match column_axis {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    };
+    LatticeBounds {
+        lo_cell: std::array::from_fn(|a| (lo[a] / cell_mm).floor() as i64),
+        hi_cell: std::array::from_fn(|a| (hi[a] / cell_mm).ceil() as i64),
+        column_axis,
+        across,
+    }
+}
+
+/// Deposits every lattice scatterer within reach of the frame into `grid` (not yet convolved).
+pub(crate) fn deposit_scatterers(
+    grid: &mut IqGrid,
+    geo: &ScanGeometry,
+    beam: &Beam,
+    tables: &BeamTables,
+    medium: &dyn AcousticMedium,
+    field: ScatterField,
+    part: u64,
+) {
+    let ScatterField { cell_mm, seed } = field;
+    let f = &geo.frame;
+    let h = cell_mm;
+    // Reach: in elevation 1 FWHM at the column's depth (the Gaussian's energy beyond it is
+    // erfc(2.355) = 0.1 %), in plane the lateral/axial PSF tails.
+    let t_e = ELEV_REACH_FWHM * tables.max_elev_fwhm_mm;
+    let m = 1.5 * tables.max_lat_fwhm_mm + 4.0 * tables.axial_sigma_mm;
+    let (x0, x1, y0, y1) = geo.image_extent_mm();
+    let (x0, x1, y0, y1) = (x0 - m, x1 + m, y0 - m, y1 + m);
+    let LatticeBounds {
+        lo_cell,
+        hi_cell,
+        column_axis: am,
+        across: (aa, ab),
+    } = lattice_bounds(f, (x0, x1, y0, y1), t_e, h);
+    let idx_lo = |a: usize| lo_cell[a];
+    let idx_hi = |a: usize| hi_cell[a];
+    let mut unit = [DVec3::ZERO; 3];
+    for (a, u) in unit.iter_mut().enumerate() {
+        *u = f.to_probe(f.origin + DVec3::AXES[a]);
+    }
+    let step_m = unit[am] * h;
+    let em = unit[am].z;
+    // A lattice column (along axis `am`) drifts this far in plane per mm of elevation, and the
+    // slice thickness changes at most `lip` mm per mm of depth (the elevation cone).
+    let drift = unit[am].x.hypot(unit[am].y) / em.abs();
+    let lip = beam.elevation_aperture_mm / beam.elevation_focus_mm / std::f64::consts::SQRT_2;
+    let mut echo = EchoCache {
+        db: f64::NAN,
+        amp: 0.0,
+    };
+    let k0 = 2.0 * std::f64::consts::PI / beam.wavelength_mm();
+    let norm = amplitude_norm(beam, tables, h);
+    let lines_max = (geo.lines - 1) as f64;
+    let reach_u = grid.pad_l as f64;
+    let reach_s = grid.pad_s as f64 * tables.dz;
+    let depth = geo.depth_mm;
+    let mut p = [0i64; 3];
+    let mut row_hash: Vec<u64> = Vec::new();
+    let mut cells = CellSum::new();
+    // The scatterers of a lattice column share their in-plane point whenever the column is
+    // along the slice normal (a probe square to the lattice); everything that depends only on
+    // that point is computed once and the column's sum is deposited once.
+    let mut at = PlanePoint::none();
+    // The sum over the scatterers seen at `at` so far of their weighted I and Q before the
+    // carrier turn (which they share); locals, so that they stay in registers.
+    let (mut sum_i, mut sum_q) = (0.0, 0.0);
+    let reach = Reach {
+        u: (-reach_u, lines_max + reach_u),
+        z: (-reach_s, depth + reach_s),
+    };
+    let exp_tab = exp_table();
+    let cx = ScatterContext {
+        geo,
+        tables,
+        medium,
+        exp_tab,
+        reach,
+        k0,
+        h,
+        norm,
+        seed,
+    };
+    // Square to the lattice, a column keeps its in-plane point exactly (steps of zero).
+    let square = step_m.x == 0.0 && step_m.y == 0.0;
+    for ia in idx_lo(aa)..=idx_hi(aa) {
+        // Two interleaved halves of the lattice (a fixed split, so the sum is deterministic).
+        if ia.rem_euclid(2) as u64 != part {
+            continue;
+        }
+        // With the column along axis 0 or 1, `ib` is the last index the hash takes: its first
+        // two levels depend on `ia` and `k` only, so they are computed once for the whole row.
+        row_hash.clear();
+        if am < 2 {
+            row_hash.extend((idx_lo(am)..=idx_hi(am)).map(|k| {
+                let (first, second) = if am == 0 { (k, ia) } else { (ia, k) };
+                splitmix64(splitmix64(seed ^ first as u64) ^ second as u64)
+            }));
+        }
+        for ib in idx_lo(ab)..=idx_hi(ab) {
+            let mut base = DVec3::ZERO;
+            base[aa] = ia as f64 * h;
+            base[ab] = ib as f64 * h;
+            let q0 = f.to_probe(base);
+            // Elevation is q0.z + x_m * em; keep |e| <= the reach at this column's depth.
+            let qc = q0 - unit[am] * (q0.z / em);
+            let (uc, zc) = geo.plane_to_line(qc.x, qc.y);
+            let wander = t_e * drift;
+            let t_col = (ELEV_REACH_FWHM
+                * (beam.elevation_fwhm_mm(zc.clamp(0.0, depth)) + lip * wander))
+                .min(t_e);
+            let (mut a, mut b) = ((-t_col - q0.z) / em, (t_col - q0.z) / em);
+            if a > b {
+                std::mem::swap(&mut a, &mut b);
+            }
+            let k_lo = ((a / h).ceil() as i64).max(idx_lo(am));
+            let k_hi = ((b / h).floor() as i64).min(idx_hi(am));
+            if k_lo > k_hi {
+                continue;
+            }
+            let q = q0 + unit[am] * (k_lo as f64 * h);
+            p[aa] = ia;
+            p[ab] = ib;
+            let pos = base;
+            // Along axis 2, the hash's two leading levels stay fixed along the column.
+            let prefix = if am == 2 {
+                splitmix64(splitmix64(seed ^ p[0] as u64) ^ p[1] as u64)
+            } else {
+                0
+            };
+            if square && !at.is(q.x, q.y) {
+                at.deposit(grid, &mut cells, sum_i, sum_q);
+                (sum_i, sum_q) = (0.0, 0.0);
+                // Square, qc is q bit for bit (the column's steps are zero in plane).
+                let line = if qc.x.to_bits() == q.x.to_bits() && qc.y.to_bits() == q.y.to_bits() {
+                    (uc, zc)
+                } else {
+                    geo.plane_to_line(q.x, q.y)
+                };
+                at = PlanePoint::new(q.x, q.y, line, tables, k0, &cx.reach);
+            }
+            if square && !at.inside {
+                continue;
+            }
+            let col = Column {
+                k: k_lo..k_hi + 1,
+                q,
+                step: step_m,
+                p,
+                prefix,
+                row_hash: &row_hash,
+                k_first: idx_lo(am),
+                pos,
+            };
+            let state = (&mut at, &mut *grid, &mut cells, &mut echo);
+            let sums = (sum_i, sum_q);
+            (sum_i, sum_q) = if square {
+                column_on_axis::<true>(am, &cx, &col, state, sums)
+            } else {
+                column_on_axis::<false>(am, &cx, &col, state, sums)
+            };
+        }
+    }
+    at.deposit(grid, &mut cells, sum_i, sum_q);
+    cells.flush(grid);
+}
+
+/// What every column of one deposit shares.
+struct ScatterContext<'a> {
+    geo: &'a ScanGeometry,
+    tables: &'a BeamTables,
+    medium: &'a dyn AcousticMedium,
+    exp_tab: &'a [f64; EXP_LEN],
+    reach: Reach,
+    /// Wavenumber, rad/mm.
+    k0: f64,
+    /// Lattice cell, mm.
+    h: f64,
+    /// Amplitude scale (see [`amplitude_norm`]).
+    norm: f64,
+    seed: u64,
+}
+
+/// One lattice column: its cells `k` along axis `AM`, the probe-frame point of the first
+/// and the step between cells, the other two indices (in `p`), the hash levels that do not
+/// depend on `k` (axis 2) or on the column (axes 0 and 1, per row), and the region point with
+/// the fixed coordinates set.
+struct Column<'a> {
+    k: std::ops::Range<i64>,
+    q: DVec3,
+    step: DVec3,
+    p: [i64; 3],
+    /// For `AM` 2: the hash's first two levels.
+    prefix: u64,
+    /// For `AM` 0 or 1: the hash's first two levels for every `k` of the row, from `k_first`.
+    row_hash: &'a [u64],
+    k_first: i64,
+    pos: DVec3,
+}
+
+/// The last echogenicity seen (dB) and its amplitude (the `powf` is done on change only).
+struct EchoCache {
+    db: f64,
+    amp: f64,
+}
+
+/// [`column_sum`] for column axis `am` (each compiled on its own).
+#[inline(always)]
+fn column_on_axis<const SQUARE: bool>(
+    am: usize,
+    cx: &ScatterContext<'_>,
+    col: &Column<'_>,
+    (at, grid, cells, echo): (&mut PlanePoint, &mut IqGrid, &mut CellSum, &mut EchoCache),
+    sums: (f64, f64),
+) -> (f64, f64) {
+    match am {
+        0 => column_sum::<0, SQUARE>(cx, col, at, grid, cells, echo, sums),
+        1 => column_sum::<1, SQUARE>(cx, col, at, grid, cells, echo, sums),
+        _ => column_sum::<2, SQUARE>(cx, col, at, grid, cells, echo, sums),
+    }
+}
+
+/// Adds the column's scatterers to the running sum `(sum_i, sum_q)` at `at`, depositing it and
+/// moving `at` whenever the in-plane point changes (`SQUARE`: it never does within a column,
+/// and `at` is already the column's point). Generic over the column axis `AM` and `SQUARE`, so
+/// that each of the six loops is compiled with its indices and checks fixed.
+#[inline(always)]
+fn column_sum<const AM: usize, const SQUARE: bool>(
+    cx: &ScatterContext<'_>,
+    col: &Column<'_>,
+    at: &mut PlanePoint,
+    grid: &mut IqGrid,
+    cells: &mut CellSum,
+    echo: &mut EchoCache,
+    (mut sum_i, mut sum_q): (f64, f64),
+) -> (f64, f64) {
+    let geo = cx.geo;
+    let f = &geo.frame;
+    let lines_max = (geo.lines - 1) as f64;
+    let mut q = col.q;
+    let mut pos = col.pos;
+    let p2 = col.p[2] as u64;
+    for k in col.k.clone() {
+        let here = q;
+        q += col.step;
+        if !SQUARE && !at.is(here.x, here.y) {
+            at.deposit(grid, cells, sum_i, sum_q);
+            (sum_i, sum_q) = (0.0, 0.0);
+            let line = geo.plane_to_line(here.x, here.y);
+            *at = PlanePoint::new(here.x, here.y, line, cx.tables, cx.k0, &cx.reach);
+        }
+        if !SQUARE && !at.inside {
+            continue;
+        }
+        let ku = k as u64;
+        let hsh = match AM {
+            0 | 1 => splitmix64(col.row_hash[(k - col.k_first) as usize] ^ p2),
+            _ => splitmix64(col.prefix ^ ku),
+        };
+        pos[AM] = k as f64 * cx.h;
+        let tissue = cx.medium.props(pos);
+        if tissue.scatter_density < 1.0 {
+            let keep = crate::rng::unit_f64(splitmix64(hsh));
+            if keep >= tissue.scatter_density {
+                continue;
+            }
+        }
+        if tissue.echogenicity_db != echo.db {
+            echo.db = tissue.echogenicity_db;
+            echo.amp = cx.norm * 10f64.powf(echo.db / 20.0);
+        }
+        let mut w =
+            echo.amp * (exp_neg_in(cx.exp_tab, here.z * here.z * at.elev_inv2s2) * at.elev_energy);
+        if tissue.texture == Texture::Fascicular {
+            let ([_, _], [dx, dy]) = geo.line_in_plane(at.u.clamp(0.0, lines_max));
+            let dir = f.lateral * dx + f.beam * dy;
+            w *= fascicle_factor(pos, cx.medium.fibre_axis(pos), dir, cx.seed);
+        }
+        let (ci, cq) = iq_of_hash(hsh);
+        sum_i += ci * w;
+        sum_q += cq * w;
+    }
+    (sum_i, sum_q)
+}
+
+/// The in-plane reach of the scatter sum: line index and depth (mm) ranges.
+struct Reach {
+    u: (f64, f64),
+    z: (f64, f64),
+}
+
+/// Everything a scatterer's deposit needs that depends only on its in-plane point (the
+/// scatterers seen there are summed and deposited together: their bilinear weights are equal).
+struct PlanePoint {
+    x: u64,
+    y: u64,
+    u: f64,
+    /// Fractional sample index `z / dz`.
+    s: f64,
+    elev_inv2s2: f64,
+    elev_energy: f64,
+    carrier: (f64, f64),
+    /// Whether the point is within the reach (scatterers outside it are skipped).
+    inside: bool,
+}
+
+impl PlanePoint {
+    /// A point no scatterer has (NaN coordinates).
+    fn none() -> PlanePoint {
+        PlanePoint {
+            x: f64::NAN.to_bits(),
+            y: f64::NAN.to_bits(),
+            u: f64::NAN,
+            s: f64::NAN,
+            elev_inv2s2: 0.0,
+            elev_energy: 0.0,
+            carrier: (0.0, 0.0),
+            inside: false,
+        }
+    }
+
+    /// The point `(x, y)` whose line index and depth are `(u, z)`.
+    fn new(
+        x: f64,
+        y: f64,
+        (u, z): (f64, f64),
+        tables: &BeamTables,
+        k0: f64,
+        reach: &Reach,
+    ) -> PlanePoint {
+        if !(u >= reach.u.0 && u <= reach.u.1 && z >= reach.z.0 && z <= reach.z.1) {
+            // Out of reach: its scatterers are skipped, nothing else is needed.
+            return PlanePoint {
+                x: x.to_bits(),
+                y: y.to_bits(),
+                ..PlanePoint::none()
+            };
+        }
+        let s = z / tables.dz;
+        let i = tables.sample_at(s);
+        PlanePoint {
+            x: x.to_bits(),
+            y: y.to_bits(),
+            u,
+            s,
+            elev_inv2s2: tables.elev_inv2s2[i],
+            elev_energy: tables.elev_energy[i],
+            carrier: cis(2.0 * k0 * z),
+            inside: true,
+        }
+    }
+
+    /// Whether `(x, y)` is this point, bit for bit.
+    #[inline]
+    fn is(&self, x: f64, y: f64) -> bool {
+        self.x == x.to_bits() && self.y == y.to_bits()
+    }
+
+    /// Turns the sum `(i, q)` of the scatterers seen here by the carrier and deposits it.
+    fn deposit(&self, grid: &mut IqGrid, cells: &mut CellSum, i: f64, q: f64) {
+        if i != 0.0 || q != 0.0 {
+            let (cs, sn) = self.carrier;
+            cells.deposit(grid, self.u, self.s, i * cs - q * sn, i * sn + q * cs);
+        }
+    }
+}
+
+/// Scale making uniform tissue's mean squared speckle amplitude `10^(echogenicity/10)`:
+/// `E|s|^2 = (1/h^3) (1/3) pi^(3/2) sigma_a sigma_l,focus sigma_e,focus` for unit amplitude.
+fn amplitude_norm(beam: &Beam, tables: &BeamTables, h: f64) -> f64 {
+    let sl = beam.lateral_fwhm_mm(beam.focus_mm) / FWHM_PER_SIGMA;
+    let se = beam.elevation_fwhm_mm(beam.elevation_focus_mm) / FWHM_PER_SIGMA;
+    let integral = std::f64::consts::PI.powf(1.5) * tables.axial_sigma_mm * sl * se;
+    (3.0 * h * h * h / integral).sqrt()
+}
