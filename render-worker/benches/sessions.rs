@@ -4,6 +4,11 @@
 //! Scene: the analytic demo region (`render_worker::session::demo`), CPU reference renderer,
 //! 512 x 512 detector, 2 x 2 adaptive supersampling, quantum noise on. `BENCH_QUICK=1` shortens
 //! every phase (CI, under a minute on 2 cores in the dev profile).
+//!
+//! Last, resident memory with 0, 1, 8 and 16 live sessions on the default lumbar phantom station
+//! (the phantom is built once into the target folder, about 70 s on 2 cores, and read back from
+//! there in about 5 s afterwards), against the baseline of one anatomy upload per session.
+//! `cargo bench -p render-worker --bench sessions -- memory` runs that section alone.
 
 use std::collections::BTreeSet;
 use std::sync::Arc;
@@ -62,12 +67,9 @@ fn host_with(capacity: usize, extra: &[&str], backends: Backends) -> SessionHost
     )
 }
 
+/// [`sim_core::stats::percentile`] of `v` with `p` as a fraction (0.5 for the median).
 fn percentile(v: &mut [f64], p: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * p).round() as usize]
+    sim_core::stats::percentile(v, 100.0 * p)
 }
 
 fn main() {
@@ -77,6 +79,10 @@ fn main() {
         .enable_all()
         .build()
         .expect("runtime");
+    if std::env::args().skip(1).any(|a| a == "memory") {
+        memory(&rt, quick);
+        return;
+    }
 
     // 1. Idle sessions.
     println!("## Idle sessions (process CPU while no input arrives)\n");
@@ -335,6 +341,138 @@ fn main() {
                 percentile(&mut lat, 0.99)
             );
         }
+    }
+    memory(&rt, quick);
+}
+
+/// Resident memory of an in-process host on the default lumbar phantom station (the default
+/// session configuration, as the server runs it) with 0, 1, 8 and 16 live sessions, on this
+/// machine's device (the GPU renderer when one opens, as the server chooses). Each session takes
+/// a shot (its renderer is made on its first exposure), then its needle goes in through the skin
+/// towards the station's facet target and a second shot shows it.
+fn memory(rt: &tokio::runtime::Runtime, quick: bool) {
+    use sim_core::anatomy::phantom;
+    let root = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("regions");
+    let t = Instant::now();
+    let region = Arc::new(
+        render_worker::session::loader::load_region(&root, phantom::REGION_NAME, &mut |_| {})
+            .expect("default lumbar phantom"),
+    );
+    let stations_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/stations");
+    let station = sim_core::rubric::load_station_dir(&stations_dir)
+        .expect("stations")
+        .into_iter()
+        .find(|f| f.station.id == "l4-l5-left-facet")
+        .expect("facet station");
+    let station = (station.station, sha256_hex(station.text.as_bytes()));
+    // From behind (-y) towards the target, entering where that line meets the skin.
+    let target = glam::DVec3::from(station.0.targets[0].position_mm);
+    let dir = glam::DVec3::new(0.1, 1.0, 0.0).normalize();
+    let far = target - 150.0 * dir;
+    let skin = region.skin_entry(far, dir, 200.0).expect("skin entry");
+    let needle = Command::NeedlePlace {
+        instrument: station.0.instruments[0].id.clone(),
+        entry_mm: skin.to_array(),
+        direction: dir.to_array(),
+        bevel_reference: [1.0, 0.0, 0.0],
+    };
+    println!(
+        "\n## Resident memory per live session (default lumbar phantom, {} triangles, loaded in {:.1} s)\n",
+        region.scene.triangle_count(),
+        t.elapsed().as_secs_f64()
+    );
+    println!(
+        "Each session: a shot, its needle placed and fed 20 mm, a second shot. The first \
+         session's increment includes a shared upload.\n"
+    );
+    // As `Backends::open` chooses (the GPU when it opens and passes its self-test), plus, on a
+    // GPU, the baseline of one anatomy upload per session (what every session cost before the
+    // uploads were shared); in quick mode the baseline stops at one session.
+    let mut variants: Vec<(&str, Backends, &[usize])> = Vec::new();
+    match render_worker::session::devices::open_gpu() {
+        Ok(ctx) => {
+            variants.push(("one per region", Backends::gpu(ctx.clone()), &[0, 1, 8, 16]));
+            let private = Backends::new(
+                Arc::new(GpuFluoroBackend::with_private_uploads(ctx.clone())),
+                Backends::gpu(ctx).ultrasound,
+            );
+            let counts: &[usize] = if quick { &[0, 1] } else { &[0, 1, 8, 16] };
+            variants.push(("one per session (baseline)", private, counts));
+        }
+        Err(e) => {
+            println!("(no usable GPU: {e}; CPU reference renderer)");
+            // A CPU shot of the default phantom takes seconds: one session in quick mode.
+            let counts: &[usize] = if quick { &[0, 1] } else { &[0, 1, 8, 16] };
+            variants.push(("the region's scene", Backends::cpu(0), counts));
+        }
+    }
+    println!(
+        "| renderer | anatomy upload | live sessions | RSS (MiB) | added per session since the row above (MiB) | session set-up and both shots, mean (ms) |"
+    );
+    println!("|---|---|---:|---:|---:|---:|");
+    for (label, backends, counts) in variants {
+        let profile = backends.fluoro.profile();
+        let top = counts.iter().copied().max().unwrap_or(0);
+        let h = SessionHost::with_regions(
+            vec![station.clone()],
+            vec![Arc::clone(&region)],
+            backends,
+            top.max(1),
+            SessionConfig::default(),
+        );
+        let mut handles = Vec::new();
+        let mut last_mb = None;
+        for &n in counts {
+            let t = Instant::now();
+            let added = n - handles.len();
+            while handles.len() < n {
+                let s = h.create_blocking(&station.0.id).expect("session");
+                rt.block_on(async {
+                    for (seq, command) in [
+                        (1, Command::Shot),
+                        (2, needle.clone()),
+                        (3, Command::NeedleFeed { mm: 20.0 }),
+                        (4, Command::Shot),
+                    ] {
+                        s.command(Envelope { seq, command }).await.expect("command");
+                    }
+                    frame_of(&s, 4).await;
+                });
+                handles.push(s);
+            }
+            let per_ms = t.elapsed().as_secs_f64() * 1000.0 / added.max(1) as f64;
+            std::thread::sleep(Duration::from_millis(200));
+            let rss = rss_mb();
+            let per = match last_mb {
+                Some((m, k)) if n > k => format!("{:.1}", (rss - m) / (n - k) as f64),
+                _ => "-".to_string(),
+            };
+            last_mb = Some((rss, n));
+            let per_ms = if added == 0 {
+                "-".to_string()
+            } else {
+                format!("{per_ms:.0}")
+            };
+            println!(
+                "| {} {} | {label} | {n} | {rss:.0} | {per} | {per_ms} |",
+                profile.kind, profile.device
+            );
+        }
+        // Session threads release their GPU resources before the next variant.
+        h.shutdown();
+        drop(handles);
+    }
+}
+
+/// Waits until the session has published a fluoroscopy frame showing input `seq`.
+async fn frame_of(s: &SessionHandle, seq: u64) {
+    let mut rx = s.frames();
+    while rx
+        .borrow_and_update()
+        .get(&ViewId::FLUOROSCOPY)
+        .is_none_or(|f| f.input_seq < seq)
+    {
+        rx.changed().await.expect("session alive");
     }
 }
 

@@ -1,5 +1,6 @@
-//! The L-buffer passes (see the module map in `fluoro`): the anatomy's vertex buffer and culling
-//! chunks, the per-mesh slot weights of each layout, and the recording of the passes.
+//! The L-buffer passes (see the module map in `fluoro`): one renderer's needle, view uniforms,
+//! per-mesh slot weights of each layout and culling boxes over the shared anatomy
+//! (`anatomy.rs`), and the recording of the passes.
 //!
 //! - Geometric part: every anatomy triangle is drawn without depth test or culling, with
 //!   additive blending, into an `R32Float` target if its mesh only changes the water-basis
@@ -29,13 +30,16 @@
 //! 0.02 mm on the needle's long, thin side triangles seen nearly edge-on.) The anatomy's
 //! triangles are not that thin, and its axial depths agree with the CPU as closely as the plane
 //! did (the sphere and phantom chord tests in `tests/fluoro.rs`).
+use std::sync::Arc;
+
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
-use sim_core::fluoro::nesting::{NestedMesh, soup_box, triangle_cross};
-use sim_core::fluoro::{FluoroMaterial, Projection, Scene};
+use sim_core::fluoro::nesting::{NestedMesh, soup_box};
+use sim_core::fluoro::{FluoroMaterial, Projection};
 use sim_core::material::MaterialClass;
 use wgpu::util::DeviceExt;
 
+use super::anatomy::{GpuAnatomy, MeshBuffers, triangle_vertices, upload};
 use super::pipelines::{Pipelines, Targets};
 use super::types::{
     CANCELLOUS, CHANNELS, CHORD_CHANNELS, CORTICAL, Layout, NO_NEEDLE, Passes, PixelRect, SLOTS,
@@ -43,31 +47,17 @@ use super::types::{
 };
 use crate::gpu::GpuContext;
 
-/// The L-buffer passes' state: the anatomy as drawn (uploaded once), the needle (replaced
-/// whenever it moves), the per-region view uniforms and the per-mesh slot weights.
+/// The L-buffer passes' state of one renderer: the shared anatomy as drawn (uploaded once per
+/// scene and device, see `anatomy.rs`), and this renderer's own needle (replaced whenever it
+/// moves), per-region view uniforms, per-mesh slot weights and culling boxes.
 pub(super) struct LBuffer {
-    /// The nesting plan, in drawing order: the meshes that add to the water-basis channel only
-    /// first (drawn into the one-channel target).
-    pub(super) meshes: Vec<NestedMesh>,
-    anatomy: AnatomyBuffers,
+    pub(super) anatomy: Arc<GpuAnatomy>,
     /// Each anatomy chunk's pixel bounding box under one projection (see `culled`).
     chunk_boxes: Option<(Projection, Vec<[f32; 4]>)>,
     needle: Option<Needle>,
     /// Uniforms of the full image (0) and of the supersampled needle region (1).
     view_buf: [wgpu::Buffer; 2],
     weights_buf: wgpu::Buffer,
-}
-
-/// The anatomy as drawn: one vertex buffer (the scalar meshes' triangles first, then the rest,
-/// each mesh's in its BVH's order) and its culling chunks.
-struct AnatomyBuffers {
-    /// `None` when no mesh is drawn.
-    bufs: Option<MeshBuffers>,
-    /// Runs of [`CHUNK_TRIANGLES`] consecutive anatomy triangles with their bounding boxes, for
-    /// culling on the CPU.
-    chunks: Vec<Chunk>,
-    /// The scalar meshes come first: the number of their chunks.
-    scalar_chunks: usize,
 }
 
 #[repr(C)]
@@ -91,25 +81,10 @@ struct Needle {
     vertices_mm: Vec<[f64; 3]>,
 }
 
-struct MeshBuffers {
-    vertices: wgpu::Buffer,
-    indices: wgpu::Buffer,
-    index_count: u32,
-}
-
-/// A run of consecutive anatomy triangles (in drawing order) and its bounding box, mm.
-struct Chunk {
-    first_vertex: u32,
-    vertices: u32,
-    lo: [f32; 3],
-    hi: [f32; 3],
-}
-
 impl LBuffer {
-    /// Uploads the anatomy of `meshes` (the nesting plan of `scene`, the scalar meshes first);
-    /// no needle yet.
-    pub(super) fn new(device: &wgpu::Device, scene: &Scene, meshes: Vec<NestedMesh>) -> LBuffer {
-        let anatomy = AnatomyBuffers::upload(device, scene, &meshes);
+    /// This renderer's state over `anatomy`; no needle yet.
+    pub(super) fn new(anatomy: Arc<GpuAnatomy>) -> LBuffer {
+        let device = &anatomy.ctx.device;
         let view_buf = [0, 1].map(|_| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("fluoro view"),
@@ -120,12 +95,11 @@ impl LBuffer {
         });
         let weights_buf = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("fluoro weights"),
-            size: (meshes.len().max(1) * 3 * 16) as u64,
+            size: (anatomy.meshes.len().max(1) * 3 * 16) as u64,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         LBuffer {
-            meshes,
             anatomy,
             chunk_boxes: None,
             needle: None,
@@ -184,58 +158,6 @@ fn is_scalar(mesh: &NestedMesh) -> bool {
         .iter()
         .all(|&x| x == 0.0)
 }
-
-impl AnatomyBuffers {
-    /// Uploads the triangles of `meshes` (the scalar ones first, as the renderer orders them).
-    pub(super) fn upload(
-        device: &wgpu::Device,
-        scene: &Scene,
-        meshes: &[NestedMesh],
-    ) -> AnatomyBuffers {
-        let entries = scene.entries();
-        let scalar_meshes = meshes.partition_point(NestedMesh::water_basis_only);
-        let add = |vertices: &mut Vec<Vertex>, ids: std::ops::Range<usize>| {
-            for id in ids {
-                let tris = entries[meshes[id].entry].bvh.triangles_mm();
-                vertices.extend(tris.iter().flat_map(|t| triangle_vertices(t, id as u32)));
-            }
-        };
-        let mut vertices: Vec<Vertex> = Vec::new();
-        add(&mut vertices, 0..scalar_meshes);
-        let mut chunks = chunks_of(&vertices, 0);
-        let scalar_chunks = chunks.len();
-        let scalar_vertices = vertices.len();
-        add(&mut vertices, scalar_meshes..meshes.len());
-        // Chunks never straddle the two groups.
-        chunks.extend(chunks_of(&vertices, scalar_vertices));
-        AnatomyBuffers {
-            bufs: (!vertices.is_empty()).then(|| upload(device, &vertices)),
-            chunks,
-            scalar_chunks,
-        }
-    }
-}
-
-/// The three vertices of a triangle with its unit normal.
-fn triangle_vertices(t: &[[f64; 3]; 3], mesh: u32) -> [Vertex; 3] {
-    let c = triangle_cross(*t);
-    let len = c.length();
-    let normal = if len > 0.0 {
-        (c / len).to_array().map(|x| x as f32)
-    } else {
-        [0.0; 3]
-    };
-    t.map(|v| Vertex {
-        pos: v.map(|x| x as f32),
-        mesh,
-        normal,
-        pad: 0,
-    })
-}
-
-/// Triangles per culling chunk. Simulator choice: 32 keeps the per-projection box work at
-/// 8 corners per 32 triangles while a needle box still draws only nearby chunks.
-const CHUNK_TRIANGLES: usize = 32;
 
 /// Per-material weights of the transmission layout: `g` multiplies the signed distance, `d`
 /// the signed part inside the needle (so each channel accumulates `w (L - L_displaced)`).
@@ -375,8 +297,8 @@ impl LBuffer {
         };
         let queue = &ctx.queue;
         queue.write_buffer(&self.view_buf[ri], 0, bytemuck::bytes_of(&view));
-        let mut w: Vec<[f32; 4]> = Vec::with_capacity(self.meshes.len() * 3);
-        for mesh in &self.meshes {
+        let mut w: Vec<[f32; 4]> = Vec::with_capacity(self.anatomy.meshes.len() * 3);
+        for mesh in &self.anatomy.meshes {
             let (g, d) = net_weights(mesh, layout);
             let tref = DVec3::from(mesh.centre_mm).distance(DVec3::from(src)) as f32;
             let c = mesh.centre_mm;
@@ -413,15 +335,29 @@ impl LBuffer {
         // displaced pass. `None`: the whole list; `Some(None)`: no triangle reaches it.
         // In the transmission layout the scalar meshes go to their own target.
         let split = layout == Layout::Transmission;
-        let (scalar, chunks) = (self.anatomy.scalar_chunks, self.anatomy.chunks.len());
+        let (scalar, chunks) = (
+            self.anatomy.buffers.scalar_chunks,
+            self.anatomy.buffers.chunks.len(),
+        );
         let groups = if split {
             [0..scalar, scalar..chunks]
         } else {
             [0..0, 0..chunks]
         };
         // The vertices of a run of chunks (they cover the vertex buffer in order).
-        let total = self.anatomy.bufs.as_ref().map_or(0, |b| b.index_count);
-        let vertex_at = |k: usize| self.anatomy.chunks.get(k).map_or(total, |c| c.first_vertex);
+        let total = self
+            .anatomy
+            .buffers
+            .bufs
+            .as_ref()
+            .map_or(0, |b| b.index_count);
+        let vertex_at = |k: usize| {
+            self.anatomy
+                .buffers
+                .chunks
+                .get(k)
+                .map_or(total, |c| c.first_vertex)
+        };
         let whole = groups.clone().map(|g| vertex_at(g.start)..vertex_at(g.end));
         let geo_lists = (culling && passes.geometry).then(|| {
             let r = to_pixels([0, 0, size[0], size[1]]);
@@ -524,7 +460,7 @@ impl LBuffer {
                 let bind = anatomy_bind(pipeline, false);
                 let attachments = [attach(view, 0.0)];
                 let mut pass = encoder.begin_render_pass(&pass_desc(label, &attachments));
-                let Some(bufs) = &self.anatomy.bufs else {
+                let Some(bufs) = &self.anatomy.buffers.bufs else {
                     continue;
                 };
                 let (indices, range) = match &list {
@@ -563,7 +499,7 @@ impl LBuffer {
             let bind = anatomy_bind(&pipelines.displaced, true);
             let attachments = [attach(&vd, 0.0)];
             let mut pass = encoder.begin_render_pass(&pass_desc("fluoro displaced", &attachments));
-            if let (Some(bufs), Some([x, y, w, h])) = (&self.anatomy.bufs, rect) {
+            if let (Some(bufs), Some([x, y, w, h])) = (&self.anatomy.buffers.bufs, rect) {
                 let (indices, count) = match &disp_list {
                     Some(Some((b, c))) => (b, *c),
                     Some(None) => (&bufs.indices, 0),
@@ -613,6 +549,7 @@ impl LBuffer {
             ];
             let boxes = self
                 .anatomy
+                .buffers
                 .chunks
                 .iter()
                 .map(|c| {
@@ -644,7 +581,7 @@ impl LBuffer {
         }
         let boxes = &self.chunk_boxes.as_ref()?.1;
         let mut indices: Vec<u32> = Vec::new();
-        for (c, b) in self.anatomy.chunks[chunks.clone()]
+        for (c, b) in self.anatomy.buffers.chunks[chunks.clone()]
             .iter()
             .zip(&boxes[chunks])
         {
@@ -661,46 +598,6 @@ impl LBuffer {
             });
             (buffer, indices.len() as u32)
         })
-    }
-}
-
-/// Culling chunks of `vertices[start..]`: runs of [`CHUNK_TRIANGLES`] triangles and their boxes.
-fn chunks_of(vertices: &[Vertex], start: usize) -> Vec<Chunk> {
-    vertices[start..]
-        .chunks(3 * CHUNK_TRIANGLES)
-        .enumerate()
-        .map(|(k, vs)| {
-            let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-            for v in vs {
-                for a in 0..3 {
-                    lo[a] = lo[a].min(v.pos[a]);
-                    hi[a] = hi[a].max(v.pos[a]);
-                }
-            }
-            Chunk {
-                first_vertex: (start + k * 3 * CHUNK_TRIANGLES) as u32,
-                vertices: vs.len() as u32,
-                lo,
-                hi,
-            }
-        })
-        .collect()
-}
-
-fn upload(device: &wgpu::Device, vertices: &[Vertex]) -> MeshBuffers {
-    let indices: Vec<u32> = (0..vertices.len() as u32).collect();
-    MeshBuffers {
-        vertices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("fluoro vertices"),
-            contents: bytemuck::cast_slice(vertices),
-            usage: wgpu::BufferUsages::VERTEX,
-        }),
-        indices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("fluoro indices"),
-            contents: bytemuck::cast_slice(&indices),
-            usage: wgpu::BufferUsages::INDEX,
-        }),
-        index_count: indices.len() as u32,
     }
 }
 

@@ -5,15 +5,20 @@
 //!
 //! # Map
 //! The modules form a DAG: `types` (shared constants, formats, pixel rectangles, errors) at the
-//! bottom; `pipelines` (pipelines, target formats, per-size targets) on it; the passes
-//! `lbuffer`, `resolve`, `cache` and `chords` on those, each owning its state in its own struct
-//! with methods taking explicit inputs; this module's [`GpuFluoroRenderer`] on top, composing
+//! bottom; `pipelines` (pipelines, target formats, per-size targets) on it; `anatomy` (the
+//! shared read-only anatomy and its pipelines) on that; the passes `lbuffer`, `resolve`, `cache`
+//! and `chords` on those, each owning its state in its own struct with methods taking explicit
+//! inputs; this module's [`GpuFluoroRenderer`] on top, composing
 //! them and orchestrating a frame.
-//! - Construction, [`GpuFluoroRenderer::new`]: sim-core's [`nesting_plan`] decides which mesh
-//!   adds its chord to which material and subtracts it from which container (CPU geometry,
-//!   tested in sim-core); `LBuffer::new` (`lbuffer.rs`) uploads the drawn triangles, the meshes
-//!   that only touch the water-basis channel first; `Pipelines::new` (`pipelines.rs`) builds
-//!   every pass.
+//! - Construction, [`GpuAnatomy::new`] (`anatomy.rs`), once per scene and device: sim-core's
+//!   [`nesting_plan`] decides which mesh adds its chord to which material and subtracts it from
+//!   which container (CPU geometry, tested in sim-core); the drawn triangles are uploaded, the
+//!   meshes that only touch the water-basis channel first; `Pipelines::new` (`pipelines.rs`)
+//!   builds every pass. This is read-only and shared behind an `Arc` by every renderer of that
+//!   scene on that device ([`GpuFluoroRenderer::with_anatomy`]; a session server keeps one per
+//!   region). Each renderer adds its own state: `LBuffer::new` (`lbuffer.rs`: needle, uniforms,
+//!   culling boxes), targets, `ResolvePass` and `FrameCache`. [`GpuFluoroRenderer::new`] does
+//!   both for one scene.
 //! - Pass 1, geometric anatomy L-buffer (`lbuffer.rs`, `LBuffer::encode`; `lbuffer.wgsl`
 //!   `fs_anatomy`, `fs_anatomy_scalar`): signed axial depths times per-mesh weights, additive
 //!   blending, no depth test; independent of the needle.
@@ -44,6 +49,7 @@
 //! - Iodine: midpoint rule with steps of at most [`GpuFluoroRenderer::iodine_step_fraction`]
 //!   voxels (the CPU integrates the trilinear field exactly).
 
+mod anatomy;
 mod cache;
 mod chords;
 mod lbuffer;
@@ -51,37 +57,41 @@ mod pipelines;
 mod resolve;
 mod types;
 
-use sim_core::fluoro::nesting::{NestedMesh, nesting_plan};
+use sim_core::fluoro::nesting::NestedMesh;
+#[cfg(doc)]
+use sim_core::fluoro::nesting::nesting_plan;
 use sim_core::fluoro::{
     EnergyModel, FluoroMaterial, Image, IodineField, Projection, RenderSettings, Scene,
     SpectralModel, TransmissionImage,
 };
 use sim_core::mesh::TriMesh;
+use std::sync::Arc;
 use std::time::Instant;
 
 use crate::gpu::GpuContext;
 use cache::{FrameCache, FrameKey, FullPlan};
 use lbuffer::LBuffer;
-use pipelines::{Pipelines, Targets};
+use pipelines::Targets;
 use resolve::{ResolveInput, ResolvePass};
 use types::{
     CHORD_CHANNELS, CHORD_PASSES, Layout, Passes, Pending, PixelRect, PixelRectOut, union_rect,
 };
 
+pub use anatomy::{AnatomyCache, GpuAnatomy};
 pub use types::{CHANNELS, FluoroGpuError, FrameTimings, GpuTransmission};
 
-/// The GPU fluoroscopy renderer of one scene: static anatomy uploaded once, a needle that can
-/// move every frame.
+/// The GPU fluoroscopy renderer of one scene: static anatomy uploaded once (and shareable with
+/// other renderers of the same scene, see [`GpuAnatomy`]), a needle that can move every frame.
 pub struct GpuFluoroRenderer {
     ctx: GpuContext,
-    /// The L-buffer passes' state: the drawn anatomy, the needle, their uniforms.
+    /// The shared static anatomy (pipelines, nesting plan, drawn triangles).
+    anatomy: Arc<GpuAnatomy>,
+    /// The L-buffer passes' state: this renderer's needle, uniforms and culling boxes.
     lbuffer: LBuffer,
-    pipelines: Pipelines,
     /// Targets of the full image (0) and of the supersampled needle region (1).
     targets: [Option<Targets>; 2],
     resolve: ResolvePass,
     cache: FrameCache,
-    cortical_shell_mm: f64,
     /// Bumped whenever the needle changes.
     needle_generation: u64,
     /// Use the caches (default `true`; `false` renders every frame from scratch, for the
@@ -106,35 +116,11 @@ struct FullFrame {
 
 impl GpuFluoroRenderer {
     /// Uploads a scene: every non-steel entry is anatomy (nesting resolved once, here, by
-    /// sim-core's [`nesting_plan`]); the steel entries, if any, become the initial needle (see
-    /// [`GpuFluoroRenderer::update_needle`]).
+    /// sim-core's [`nesting_plan`], see [`GpuAnatomy::new`]); the steel entries, if any, become
+    /// the initial needle (see [`GpuFluoroRenderer::update_needle`]). The anatomy is this
+    /// renderer's alone; [`GpuFluoroRenderer::with_anatomy`] shares one.
     pub fn new(ctx: &GpuContext, scene: &Scene) -> Result<GpuFluoroRenderer, FluoroGpuError> {
-        let needed = wgpu::Features::FLOAT32_BLENDABLE;
-        if !ctx.device.features().contains(needed) {
-            return Err(FluoroGpuError::MissingFeature(needed));
-        }
-        let needed = wgpu::DownlevelFlags::FRAGMENT_WRITABLE_STORAGE;
-        if !ctx.downlevel.contains(needed) {
-            return Err(FluoroGpuError::MissingDownlevel(needed));
-        }
-        // The meshes that add to the water-basis channel only (soft tissue in soft tissue) come
-        // first, for the scalar pass (a stable sort: entry order within each group).
-        let mut meshes = nesting_plan(scene);
-        meshes.sort_by_cached_key(|d| !d.water_basis_only());
-        let mut r = GpuFluoroRenderer {
-            ctx: ctx.clone(),
-            lbuffer: LBuffer::new(&ctx.device, scene, meshes),
-            pipelines: Pipelines::new(ctx),
-            targets: [None, None],
-            resolve: ResolvePass::new(ctx),
-            cache: FrameCache::default(),
-            cortical_shell_mm: scene.cortical_shell_mm,
-            needle_generation: 0,
-            caching: true,
-            culling: true,
-            timings: FrameTimings::default(),
-            iodine_step_fraction: 0.25,
-        };
+        let mut r = GpuFluoroRenderer::with_anatomy(GpuAnatomy::new(ctx, scene)?);
         let steel: Vec<[[f64; 3]; 3]> = scene
             .entries()
             .iter()
@@ -143,6 +129,32 @@ impl GpuFluoroRenderer {
             .collect();
         r.set_needle_soup(&steel);
         Ok(r)
+    }
+
+    /// A renderer drawing `anatomy` (on the anatomy's device), no needle yet. Every renderer of
+    /// the same anatomy reads its buffers and pipelines; what this one allocates is its own
+    /// needle, uniforms, targets (sized on the first frame) and caches. Its frames are those of
+    /// a renderer made by [`GpuFluoroRenderer::new`] from the same scene, bit for bit.
+    pub fn with_anatomy(anatomy: Arc<GpuAnatomy>) -> GpuFluoroRenderer {
+        let ctx = anatomy.ctx.clone();
+        GpuFluoroRenderer {
+            lbuffer: LBuffer::new(Arc::clone(&anatomy)),
+            targets: [None, None],
+            resolve: ResolvePass::new(&ctx),
+            cache: FrameCache::default(),
+            needle_generation: 0,
+            caching: true,
+            culling: true,
+            timings: FrameTimings::default(),
+            iodine_step_fraction: 0.25,
+            anatomy,
+            ctx,
+        }
+    }
+
+    /// The static anatomy this renderer draws (shared with the renderers made from it).
+    pub fn anatomy(&self) -> &Arc<GpuAnatomy> {
+        &self.anatomy
     }
 
     /// Builds a scene from `(name, material, priority, mesh)` and uploads it (see
@@ -166,12 +178,12 @@ impl GpuFluoroRenderer {
     /// The drawn anatomy meshes with their nesting (what the L-buffer adds and subtracts), the
     /// ones that add to the water-basis channel only ([`NestedMesh::water_basis_only`]) first.
     pub fn drawn(&self) -> &[NestedMesh] {
-        &self.lbuffer.meshes
+        self.anatomy.drawn()
     }
 
     /// Number of anatomy meshes drawn (meshes that add nothing after nesting are dropped).
     pub fn drawn_meshes(&self) -> usize {
-        self.lbuffer.meshes.len()
+        self.anatomy.meshes.len()
     }
 
     /// Replaces the needle (a closed, outward-wound steel mesh; convex along each ray for an
@@ -361,15 +373,16 @@ impl GpuFluoroRenderer {
         let g = self.render_transmission_supersampled(projection, settings, iodine)?;
         let started = Instant::now();
         // The collimator mask depends on the detector and the blades only, not on the C-arm's
-        // pose: kept across C-arm moves, and so is the image's storage (a 1024 x 1024 frame's
-        // f64 transmission is 8 MB to allocate and fault in).
-        let image = self
-            .cache
-            .finishing_image(projection, g.width, g.height, g.transmission.len());
-        for (out, &x) in image.transmission.iter_mut().zip(&g.transmission) {
-            *out = f64::from(x);
-        }
-        let frame = sim_core::fluoro::render::finish_frame(image, settings);
+        // pose: kept across C-arm moves. The f32 transmission is finished as it is, without an
+        // f64 copy (8 MB at 1024 x 1024 to allocate and fault in, and to hold per session).
+        let exposed = self.cache.exposure_mask(projection);
+        let frame = sim_core::fluoro::render::finish_frame_f32(
+            g.width,
+            g.height,
+            &g.transmission,
+            exposed,
+            settings,
+        );
         self.timings.finish_ms = started.elapsed().as_secs_f64() * 1e3;
         Ok(frame)
     }
@@ -411,7 +424,7 @@ impl GpuFluoroRenderer {
         let t = self.targets[ri].as_ref().expect("targets");
         let needle_rect = self.lbuffer.encode(
             &self.ctx,
-            &self.pipelines,
+            &self.anatomy.pipelines,
             t,
             enc,
             projection,
@@ -443,12 +456,12 @@ impl GpuFluoroRenderer {
             rect,
             needle_rect,
             has_needle: self.lbuffer.has_needle(),
-            cortical_shell_mm: self.cortical_shell_mm,
+            cortical_shell_mm: self.anatomy.cortical_shell_mm,
             iodine_step_fraction: self.iodine_step_fraction,
         };
         let bytes = self
             .resolve
-            .encode(&self.ctx, &self.pipelines, t, enc, &input);
+            .encode(&self.ctx, &self.anatomy.pipelines, t, enc, &input);
         self.timings.resolved_samples += u64::from(rect[2]) * u64::from(rect[3]);
         self.timings.encode_ms += started.elapsed().as_secs_f64() * 1e3;
         Pending {
@@ -536,7 +549,7 @@ impl GpuFluoroRenderer {
             let t = self.targets[0].as_ref().expect("targets");
             self.lbuffer.encode(
                 &self.ctx,
-                &self.pipelines,
+                &self.anatomy.pipelines,
                 t,
                 &mut enc,
                 projection,
@@ -551,7 +564,11 @@ impl GpuFluoroRenderer {
             let has_needle = self.lbuffer.has_needle();
             chords::read_pass(&self.ctx, t, pass, has_needle, &scale, &mut raw, &mut steel)?;
         }
-        Ok(chords::resolve_chords(&raw, &steel, self.cortical_shell_mm))
+        Ok(chords::resolve_chords(
+            &raw,
+            &steel,
+            self.anatomy.cortical_shell_mm,
+        ))
     }
 }
 

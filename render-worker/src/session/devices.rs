@@ -170,7 +170,7 @@ impl Backends {
         } else {
             Arc::new(CpuUltrasoundBackend)
         };
-        Backends::new(Arc::new(GpuFluoroBackend { ctx }), ultrasound)
+        Backends::new(Arc::new(GpuFluoroBackend::new(ctx)), ultrasound)
     }
 
     /// The CPU references, with `threads` render threads per frame (0: all cores).

@@ -59,5 +59,5 @@ pub use render::{
     Exposure, Image, QuantumNoise, RenderSettings, TransmissionImage, render_chords, render_frame,
     render_transmission,
 };
-pub use scene::{ChordScratch, NOMINAL_CORTICAL_SHELL_MM, RayChords, Scene, SceneEntry};
+pub use scene::{ChordScratch, NOMINAL_CORTICAL_SHELL_MM, RayChords, Scene, SceneEntry, SceneRef};
 pub use spectrum::{AttenuationTables, Basis, Spectrum};

@@ -195,9 +195,80 @@ impl Scene {
         t_max: f64,
         s: &mut ChordScratch,
     ) -> RayChords {
+        SceneRef::from(self).ray_chords(origin_mm, dir, t_max, s)
+    }
+
+    /// This scene with `overlay`'s entries after its own, read in place (see [`SceneRef`]).
+    pub fn with_overlay<'a>(&'a self, overlay: &'a Scene) -> SceneRef<'a> {
+        SceneRef {
+            base: &self.entries,
+            overlay: &overlay.entries,
+            cortical_shell_mm: self.cortical_shell_mm,
+        }
+    }
+}
+
+/// A scene read in place, optionally with more entries after its own: what the renderers take.
+///
+/// `base.with_overlay(&overlay)` renders exactly as a copy of `base` to which `overlay`'s entries
+/// were added in order: entry `i < base.len()` is `base`'s entry `i` and entry `base.len() + k`
+/// is `overlay`'s entry `k`, so the order that breaks nesting ties between equal priorities and
+/// the bits of [`RayChords::signature`] are the same, and the cortical shell is `base`'s. A
+/// session's needle is such an overlay on the region's anatomy: a few prisms instead of a copy
+/// of every anatomy BVH each time the needle moves.
+#[derive(Debug, Clone, Copy)]
+pub struct SceneRef<'a> {
+    base: &'a [SceneEntry],
+    overlay: &'a [SceneEntry],
+    /// Cortical shell used by the cancellous clamp, mm (the base scene's).
+    pub cortical_shell_mm: f64,
+}
+
+impl<'a> From<&'a Scene> for SceneRef<'a> {
+    fn from(scene: &'a Scene) -> SceneRef<'a> {
+        SceneRef {
+            base: &scene.entries,
+            overlay: &[],
+            cortical_shell_mm: scene.cortical_shell_mm,
+        }
+    }
+}
+
+impl<'a> SceneRef<'a> {
+    /// Number of entries, the base scene's and the overlay's.
+    pub fn len(&self) -> usize {
+        self.base.len() + self.overlay.len()
+    }
+
+    /// Whether there is no entry at all.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Entry `e` in the combined order (the base scene's first).
+    pub fn entry(&self, e: usize) -> &'a SceneEntry {
+        match self.base.get(e) {
+            Some(entry) => entry,
+            None => &self.overlay[e - self.base.len()],
+        }
+    }
+
+    /// Every entry in the combined order.
+    pub fn entries(&self) -> impl Iterator<Item = &'a SceneEntry> + use<'a> {
+        self.base.iter().chain(self.overlay)
+    }
+
+    /// [`Scene::ray_chords`] of the combined scene.
+    pub fn ray_chords(
+        &self,
+        origin_mm: [f64; 3],
+        dir: [f64; 3],
+        t_max: f64,
+        s: &mut ChordScratch,
+    ) -> RayChords {
         let mut signature = 0u64;
         s.events.clear();
-        for (e, entry) in self.entries.iter().enumerate() {
+        for (e, entry) in self.entries().enumerate() {
             entry.bvh.all_hits(origin_mm, dir, 0.0, t_max, &mut s.hits);
             if !s.hits.is_empty() {
                 signature |= 1 << (e % 64);
@@ -214,7 +285,7 @@ impl Scene {
         }
         s.events.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         s.depth.clear();
-        s.depth.resize(self.entries.len(), 0);
+        s.depth.resize(self.len(), 0);
         s.active.clear();
         let cort = FluoroMaterial::Tissue(MaterialClass::CorticalBone).index();
         let canc = FluoroMaterial::Tissue(MaterialClass::Cancellous).index();
@@ -230,31 +301,31 @@ impl Scene {
                 // `base` is the highest non-steel one (what the steel displaces).
                 let by_priority = |&a: &u32, &b: &u32| {
                     let (pa, pb) = (
-                        self.entries[a as usize].priority,
-                        self.entries[b as usize].priority,
+                        self.entry(a as usize).priority,
+                        self.entry(b as usize).priority,
                     );
                     pa.cmp(&pb).then(a.cmp(&b))
                 };
                 let steel = s
                     .active
                     .iter()
-                    .any(|&a| self.entries[a as usize].material == FluoroMaterial::Steel);
+                    .any(|&a| self.entry(a as usize).material == FluoroMaterial::Steel);
                 let owner = s.active.iter().copied().max_by(by_priority);
                 let base = if steel {
                     s.active
                         .iter()
                         .copied()
-                        .filter(|&a| self.entries[a as usize].material != FluoroMaterial::Steel)
+                        .filter(|&a| self.entry(a as usize).material != FluoroMaterial::Steel)
                         .max_by(by_priority)
                 } else {
                     owner
                 };
-                let owner_is_steel = owner
-                    .is_some_and(|o| self.entries[o as usize].material == FluoroMaterial::Steel);
+                let owner_is_steel =
+                    owner.is_some_and(|o| self.entry(o as usize).material == FluoroMaterial::Steel);
                 if owner_is_steel {
                     chords[FluoroMaterial::Steel.index()] += seg;
                 }
-                match base.map(|o| self.entries[o as usize].material) {
+                match base.map(|o| self.entry(o as usize).material) {
                     Some(m) if m.index() == cort => {
                         run.cortical_mm += seg;
                         if owner_is_steel {
@@ -438,6 +509,43 @@ mod tests {
             r.chords_mm
         );
         assert!((r.chords_mm[BONE.index()] - 1.8).abs() < 1e-9);
+    }
+
+    /// An overlay reads exactly as a copy of the base with the overlay's entries added: equal
+    /// priorities are broken by the combined entry order (two soft-tissue-priority meshes of
+    /// different materials overlapping, one in the base and one in the overlay, so the later one
+    /// must win), and the signature bits follow the combined indices.
+    #[test]
+    fn an_overlay_is_a_copy_with_entries_added() {
+        let fat = FluoroMaterial::Tissue(MaterialClass::Fat);
+        let mut base = Scene::new();
+        base.add("body", SOFT, &cube([0.0; 3], 100.0));
+        base.add_with_priority("left", BONE, 5, &cube([-5.0, 0.0, 0.0], 20.0));
+        let mut overlay = Scene::new();
+        overlay.add_with_priority("right", fat, 5, &cube([5.0, 0.0, 0.0], 20.0));
+        overlay.add(
+            "needle",
+            FluoroMaterial::Steel,
+            &capped_cylinder([0.0, -60.0, 0.0], [0.0, 2.0, 0.0], 0.36, 12),
+        );
+        let mut copy = base.clone();
+        for e in overlay.entries() {
+            copy.entries.push(e.clone());
+        }
+        let layered = base.with_overlay(&overlay);
+        assert_eq!(layered.len(), 4);
+        let mut sc = ChordScratch::default();
+        for x in [-30.0, -10.0, 0.0, 0.1, 10.0, 30.0] {
+            let (o, d) = ([x, -500.0, 0.3], [0.0, 1.0, 0.0]);
+            let a = layered.ray_chords(o, d, 1000.0, &mut sc);
+            let b = copy.ray_chords(o, d, 1000.0, &mut sc);
+            assert_eq!(a, b, "x = {x}");
+        }
+        // The overlap of the two equal-priority cubes (x in [-15, 15]) is fat, the later entry.
+        let r = layered.ray_chords([0.0, -500.0, 10.0], [0.0, 1.0, 0.0], 1000.0, &mut sc);
+        assert_eq!(r.chords_mm[fat.index()], 40.0);
+        assert_eq!(r.chords_mm[BONE.index()], 0.0);
+        assert_eq!(r.signature, 0b0111);
     }
 
     #[test]

@@ -27,26 +27,86 @@ pub fn exposure_centre(
     exposure: &Exposure,
     noise: Option<&QuantumNoise>,
 ) -> f64 {
-    let (w, h) = (t.width as usize, t.height as usize);
-    let floor = ln_t_floor(noise);
-    // The median of ln max(T, floor) is ln of the median of max(T, floor) (ln is increasing):
-    // one logarithm instead of one per pixel.
-    let clamped = |p: usize| t.transmission[p].max(floor);
-    let (rx0, rx1) = roi(w, exposure.roi_fraction);
-    let (ry0, ry1) = roi(h, exposure.roi_fraction);
-    let mut vals: Vec<f64> = (ry0..ry1)
-        .flat_map(|j| (rx0..rx1).map(move |i| j * w + i))
-        .filter(|&p| t.exposed[p])
-        .map(clamped)
-        .collect();
-    if vals.is_empty() {
-        vals = (0..w * h).filter(|&p| t.exposed[p]).map(clamped).collect();
+    Samples::of(t).exposure_centre(exposure, noise)
+}
+
+/// A transmission image's values (in `f64`, or in `f32` as the GPU renderer reads them back,
+/// widened exactly where they are read) and its exposure mask, row-major.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Samples<'a, T> {
+    pub(super) width: usize,
+    pub(super) height: usize,
+    pub(super) transmission: &'a [T],
+    pub(super) exposed: &'a [bool],
+}
+
+impl<'a> Samples<'a, f64> {
+    pub(super) fn of(t: &'a TransmissionImage) -> Samples<'a, f64> {
+        Samples {
+            width: t.width as usize,
+            height: t.height as usize,
+            transmission: &t.transmission,
+            exposed: &t.exposed,
+        }
     }
-    if vals.is_empty() {
-        0.0
-    } else {
-        let mid = vals.len() / 2;
-        vals.select_nth_unstable_by(mid, f64::total_cmp).1.ln()
+}
+
+impl<T: Copy + Into<f64>> Samples<'_, T> {
+    /// Transmission of pixel `p`.
+    pub(super) fn at(self, p: usize) -> f64 {
+        self.transmission[p].into()
+    }
+
+    /// See [`exposure_centre`].
+    pub(super) fn exposure_centre(self, exposure: &Exposure, noise: Option<&QuantumNoise>) -> f64 {
+        let (w, h) = (self.width, self.height);
+        let floor = ln_t_floor(noise);
+        // The median of ln max(T, floor) is ln of the median of max(T, floor) (ln is
+        // increasing): one logarithm instead of one per pixel.
+        let clamped = |p: usize| self.at(p).max(floor);
+        let (rx0, rx1) = roi(w, exposure.roi_fraction);
+        let (ry0, ry1) = roi(h, exposure.roi_fraction);
+        let mut vals: Vec<f64> = (ry0..ry1)
+            .flat_map(|j| (rx0..rx1).map(move |i| j * w + i))
+            .filter(|&p| self.exposed[p])
+            .map(clamped)
+            .collect();
+        if vals.is_empty() {
+            vals = (0..w * h)
+                .filter(|&p| self.exposed[p])
+                .map(clamped)
+                .collect();
+        }
+        if vals.is_empty() {
+            0.0
+        } else {
+            let mid = vals.len() / 2;
+            vals.select_nth_unstable_by(mid, f64::total_cmp).1.ln()
+        }
+    }
+
+    /// See [`to_display_centred`].
+    pub(super) fn display_centred(
+        self,
+        exposure: &Exposure,
+        invert: bool,
+        noise: Option<&QuantumNoise>,
+        centre: f64,
+    ) -> Image {
+        let floor = ln_t_floor(noise);
+        let pixels = (0..self.width * self.height)
+            .map(|p| {
+                if !self.exposed[p] {
+                    return SHUTTER_GREY;
+                }
+                grey(exposure, invert, centre, self.at(p).max(floor).ln())
+            })
+            .collect();
+        Image {
+            width: self.width as u32,
+            height: self.height as u32,
+            pixels,
+        }
     }
 }
 
@@ -59,22 +119,7 @@ pub fn to_display_centred(
     noise: Option<&QuantumNoise>,
     centre: f64,
 ) -> Image {
-    let (w, h) = (t.width as usize, t.height as usize);
-    let floor = ln_t_floor(noise);
-    let ln_t = |p: usize| t.transmission[p].max(floor).ln();
-    let pixels = (0..w * h)
-        .map(|p| {
-            if !t.exposed[p] {
-                return SHUTTER_GREY;
-            }
-            grey(exposure, invert, centre, ln_t(p))
-        })
-        .collect();
-    Image {
-        width: t.width,
-        height: t.height,
-        pixels,
-    }
+    Samples::of(t).display_centred(exposure, invert, noise, centre)
 }
 
 /// The grey level of `ln T` around the set point `centre`.

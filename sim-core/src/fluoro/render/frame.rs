@@ -1,20 +1,22 @@
 //! The whole CPU reference frame, and the finish (metering, noise, tone mapping) that the CPU
 //! reference and the GPU renderer share.
 
-use super::display::{exposure_centre, grey, ln_t_floor, to_display_centred};
+use super::display::{Samples, grey, ln_t_floor};
 use super::noise::noisy_count;
 use super::rows::{par_rows, thread_count};
 use super::settings::{Image, RenderSettings, SHUTTER_GREY, TransmissionImage};
 use super::transmission::render_transmission;
 use crate::fluoro::contrast::IodineField;
 use crate::fluoro::geometry::Projection;
-use crate::fluoro::scene::Scene;
+use crate::fluoro::scene::SceneRef;
 use crate::fluoro::spectrum::UnknownKvp;
 
 /// The full CPU reference frame: transmission, noise, automatic brightness, tone mapping and
-/// shutters. The GPU renderer is compared against this.
-pub fn render_frame(
-    scene: &Scene,
+/// shutters. The GPU renderer is compared against this. `scene` is a
+/// [`Scene`](crate::fluoro::Scene) or a [`SceneRef`] (a scene with an overlay, such as a
+/// session's needle on a shared anatomy).
+pub fn render_frame<'a>(
+    scene: impl Into<SceneRef<'a>>,
     iodine: Option<&IodineField>,
     projection: &Projection,
     settings: &RenderSettings,
@@ -37,15 +39,49 @@ pub fn render_frame(
 /// CPU's everywhere (render-worker's `gpu_session_oblique_view_with_needle_matches_the_cpu`).
 ///
 /// With noise the result equals [`apply_noise`](super::noise::apply_noise) then
-/// [`to_display_centred`] bit for bit, but faster: the grey of a count `k` is taken from a table
+/// [`to_display_centred`](super::display::to_display_centred) bit for bit, but faster: the grey of a count `k` is taken from a table
 /// over `k` built per frame (the same arithmetic on the same `k / photons`), and the rows are
 /// split over `settings.threads` workers (each pixel's noise has its own seed, so the split does
 /// not change the frame).
 pub fn finish_frame(t: &TransmissionImage, settings: &RenderSettings) -> Image {
+    finish(Samples::of(t), settings)
+}
+
+/// [`finish_frame`] of a transmission held in `f32` (what the GPU renderer reads back), row-major
+/// `width x height`, with its exposure mask: each value is widened to `f64` where it is read,
+/// exactly as an `f64` copy would hold it, so the frame equals `finish_frame` of that copy bit
+/// for bit without making it (8 MB at 1024 x 1024).
+pub fn finish_frame_f32(
+    width: u32,
+    height: u32,
+    transmission: &[f32],
+    exposed: &[bool],
+    settings: &RenderSettings,
+) -> Image {
+    let (w, h) = (width as usize, height as usize);
+    assert!(
+        transmission.len() == w * h && exposed.len() == w * h,
+        "a {width} x {height} image has {} pixels (transmission {}, mask {})",
+        w * h,
+        transmission.len(),
+        exposed.len()
+    );
+    finish(
+        Samples {
+            width: w,
+            height: h,
+            transmission,
+            exposed,
+        },
+        settings,
+    )
+}
+
+fn finish<T: Copy + Into<f64> + Sync>(t: Samples<'_, T>, settings: &RenderSettings) -> Image {
     let noise = settings.noise.as_ref();
-    let centre = exposure_centre(t, &settings.exposure, noise);
+    let centre = t.exposure_centre(&settings.exposure, noise);
     let Some(noise) = noise else {
-        return to_display_centred(t, &settings.exposure, settings.invert, None, centre);
+        return t.display_centred(&settings.exposure, settings.invert, None, centre);
     };
     let (e, invert) = (&settings.exposure, settings.invert);
     let floor = ln_t_floor(Some(noise));
@@ -55,13 +91,13 @@ pub fn finish_frame(t: &TransmissionImage, settings: &RenderSettings) -> Image {
     // entries; rarer or larger counts are mapped directly.
     let table_len = (n + 8.0 * n.sqrt() + 16.0).clamp(16.0, 65_536.0) as usize;
     let table: Vec<u8> = (0..table_len).map(|k| grey_of_count(k as f64)).collect();
-    let w = t.width as usize;
+    let w = t.width;
     let mut pixels = vec![SHUTTER_GREY; t.transmission.len()];
     par_rows(&mut pixels, w, thread_count(settings.threads), |j, row| {
         for (i, out) in row.iter_mut().enumerate() {
             let p = j * w + i;
             if t.exposed[p] {
-                let k = noisy_count(noise, p, t.transmission[p]);
+                let k = noisy_count(noise, p, t.at(p));
                 *out = table
                     .get(k as usize)
                     .copied()
@@ -70,8 +106,8 @@ pub fn finish_frame(t: &TransmissionImage, settings: &RenderSettings) -> Image {
         }
     });
     Image {
-        width: t.width,
-        height: t.height,
+        width: t.width as u32,
+        height: t.height as u32,
         pixels,
     }
 }

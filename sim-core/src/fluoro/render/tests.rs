@@ -416,3 +416,85 @@ fn iodine_column_darkens_the_frame_where_the_contrast_is() {
     // Away from the pool nothing changes.
     assert_eq!(at(&with, 10, 20), at(&without, 10, 20));
 }
+
+/// A needle overlaid on an anatomy scene gives the frame of one scene holding both, bit for bit:
+/// supersampling (silhouettes and steel edges), noise and metering included.
+#[test]
+fn a_needle_overlay_renders_as_one_scene() {
+    let combined = body_with_needle(3.3);
+    let mut body = Scene::new();
+    body.add(
+        "body",
+        FluoroMaterial::Tissue(MaterialClass::SoftTissue),
+        &TriMesh::icosphere([0.0; 3], 40.0, 3),
+    );
+    let mut needle = Scene::new();
+    let r = equal_area_vertex_radius(0.36, 16);
+    needle.add(
+        "needle",
+        FluoroMaterial::Steel,
+        &capped_cylinder([3.3, 0.0, -25.0], [3.3, 0.0, 25.0], r, 16),
+    );
+    let p = small_projection(48);
+    let settings = RenderSettings {
+        noise: Some(QuantumNoise {
+            photons_per_pixel: 2000.0,
+            seed: 7,
+        }),
+        ..RenderSettings::default()
+    };
+    let layered = body.with_overlay(&needle);
+    let a = render_transmission(layered, None, &p, &settings).unwrap();
+    let b = render_transmission(&combined, None, &p, &settings).unwrap();
+    assert!(a.supersampled_pixels > 0);
+    assert_eq!(a.supersampled_pixels, b.supersampled_pixels);
+    assert_eq!(a.transmission, b.transmission);
+    assert_eq!(
+        render_frame(layered, None, &p, &settings).unwrap(),
+        render_frame(&combined, None, &p, &settings).unwrap()
+    );
+    assert_eq!(
+        render_chords(layered, &p, 1),
+        render_chords(&combined, &p, 1)
+    );
+}
+
+/// The finish of an `f32` transmission equals the finish of its `f64` copy, with and without
+/// noise, with shutters closing part of the image.
+#[test]
+fn the_f32_finish_equals_the_finish_of_the_widened_copy() {
+    let p = Projection {
+        collimation: crate::fluoro::Collimation {
+            x_min_mm: -40.0,
+            x_max_mm: 40.0,
+            y_min_mm: -30.0,
+            y_max_mm: 30.0,
+            iris_radius_mm: None,
+        },
+        ..small_projection(48)
+    };
+    let t =
+        render_transmission(&body_with_needle(3.3), None, &p, &RenderSettings::default()).unwrap();
+    let narrow: Vec<f32> = t.transmission.iter().map(|&x| x as f32).collect();
+    let widened = TransmissionImage {
+        transmission: narrow.iter().map(|&x| f64::from(x)).collect(),
+        ..t.clone()
+    };
+    assert!(t.exposed.iter().any(|e| !e), "shutters close part of it");
+    for noise in [
+        None,
+        Some(QuantumNoise {
+            photons_per_pixel: 2000.0,
+            seed: 5,
+        }),
+    ] {
+        let settings = RenderSettings {
+            noise,
+            ..RenderSettings::default()
+        };
+        assert_eq!(
+            finish_frame_f32(t.width, t.height, &narrow, &t.exposed, &settings),
+            finish_frame(&widened, &settings)
+        );
+    }
+}

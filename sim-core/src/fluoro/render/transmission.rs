@@ -6,11 +6,11 @@ use super::settings::{RenderSettings, TransmissionImage};
 use crate::fluoro::attenuation::{FluoroMaterial, MaterialChords, SpectralModel, basis_depths};
 use crate::fluoro::contrast::IodineField;
 use crate::fluoro::geometry::{DetectorFrame, Projection, ray_through};
-use crate::fluoro::scene::{ChordScratch, RayChords, Scene};
+use crate::fluoro::scene::{ChordScratch, RayChords, SceneRef};
 use crate::fluoro::spectrum::UnknownKvp;
 
 struct Ctx<'a> {
-    scene: &'a Scene,
+    scene: SceneRef<'a>,
     iodine: Option<&'a IodineField>,
     projection: &'a Projection,
     frame: DetectorFrame,
@@ -48,8 +48,14 @@ impl Ctx<'_> {
 }
 
 /// Exact per-material chords at every pixel centre (no supersampling): what the GPU's path-length
-/// pass must reproduce. Pixels outside the collimator get chords too (geometry only).
-pub fn render_chords(scene: &Scene, projection: &Projection, threads: usize) -> Vec<RayChords> {
+/// pass must reproduce. Pixels outside the collimator get chords too (geometry only). `scene` is
+/// a [`Scene`](crate::fluoro::Scene) or a [`SceneRef`] (a scene with an overlay).
+pub fn render_chords<'a>(
+    scene: impl Into<SceneRef<'a>>,
+    projection: &Projection,
+    threads: usize,
+) -> Vec<RayChords> {
+    let scene = scene.into();
     let frame = projection.frame();
     let [w, h] = projection.detector_pixels.map(|x| x as usize);
     let empty = RayChords {
@@ -67,13 +73,15 @@ pub fn render_chords(scene: &Scene, projection: &Projection, threads: usize) -> 
     out
 }
 
-/// Transmission per pixel: centre samples, then `n x n` supersampling where needed.
-pub fn render_transmission(
-    scene: &Scene,
+/// Transmission per pixel: centre samples, then `n x n` supersampling where needed. `scene` is a
+/// [`Scene`](crate::fluoro::Scene) or a [`SceneRef`] (a scene with an overlay).
+pub fn render_transmission<'a>(
+    scene: impl Into<SceneRef<'a>>,
     iodine: Option<&IodineField>,
     projection: &Projection,
     settings: &RenderSettings,
 ) -> Result<TransmissionImage, UnknownKvp> {
+    let scene = scene.into();
     let ctx = Ctx {
         scene,
         iodine,
@@ -142,10 +150,15 @@ pub fn render_transmission(
 
 /// Flags every pixel within 1.5 pixels of a projected edge of a steel mesh, so an instrument
 /// thinner than a pixel (which centre rays can miss entirely) is still supersampled.
-fn mark_steel_edges(scene: &Scene, projection: &Projection, flag: &mut [bool], w: usize, h: usize) {
+fn mark_steel_edges(
+    scene: SceneRef<'_>,
+    projection: &Projection,
+    flag: &mut [bool],
+    w: usize,
+    h: usize,
+) {
     for entry in scene
         .entries()
-        .iter()
         .filter(|e| e.material == FluoroMaterial::Steel)
     {
         mark_projected_edges(
@@ -205,9 +218,14 @@ pub fn mark_projected_edges(
 }
 
 /// Chord channels of one pixel-centre ray (a convenience for tests and picking overlays).
-pub fn pixel_chords(scene: &Scene, projection: &Projection, px: [f64; 2]) -> MaterialChords {
+pub fn pixel_chords<'a>(
+    scene: impl Into<SceneRef<'a>>,
+    projection: &Projection,
+    px: [f64; 2],
+) -> MaterialChords {
     let ray = projection.pixel_ray(px);
     scene
+        .into()
         .ray_chords(
             ray.origin_mm,
             ray.dir,

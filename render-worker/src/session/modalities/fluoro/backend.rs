@@ -4,7 +4,9 @@
 use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
-use sim_core::fluoro::{FluoroMaterial, Image, IodineField, Projection, RenderSettings, Scene};
+use sim_core::fluoro::{
+    FluoroMaterial, Image, IodineField, Projection, RenderSettings, Scene, SceneRef,
+};
 use sim_core::geom::{capped_cylinder, equal_area_vertex_radius};
 
 use crate::session::region::Region;
@@ -76,17 +78,18 @@ impl FluoroBackend for CpuFluoroBackend {
         Ok(Box::new(CpuRenderer {
             region: Arc::clone(region),
             threads: self.threads,
-            cache: None,
+            needle: None,
         }))
     }
 }
 
-/// The CPU renderer of one session: the region's scene plus the needle's prisms, rebuilt only
-/// when the needle moved.
+/// The CPU renderer of one session: the region's scene, shared with every other session, with
+/// the needle's prisms as an overlay (a small scene of its own, rebuilt only when the needle
+/// moved; the anatomy's BVHs are never copied).
 struct CpuRenderer {
     region: Arc<Region>,
     threads: usize,
-    cache: Option<(NeedleShaft, Scene)>,
+    needle: Option<(NeedleShaft, Scene)>,
 }
 
 impl FluoroRenderer for CpuRenderer {
@@ -101,21 +104,22 @@ impl FluoroRenderer for CpuRenderer {
             threads: self.threads,
             ..*settings
         };
-        let scene = match needle {
-            None => &self.region.scene,
-            Some(n) => {
-                if self.cache.as_ref().is_none_or(|(c, _)| c != n) {
-                    let mut scene = self.region.scene.clone();
-                    for (k, mesh) in needle_meshes(n).iter().enumerate() {
-                        scene.add(format!("needle_{k}"), FluoroMaterial::Steel, mesh);
-                    }
-                    self.cache = Some((n.clone(), scene));
+        match needle {
+            None => self.needle = None,
+            Some(n) if self.needle.as_ref().is_none_or(|(c, _)| c != n) => {
+                let mut scene = Scene::new();
+                for (k, mesh) in needle_meshes(n).iter().enumerate() {
+                    scene.add(format!("needle_{k}"), FluoroMaterial::Steel, mesh);
                 }
-                match &self.cache {
-                    Some((_, s)) => s,
-                    None => &self.region.scene,
-                }
+                self.needle = Some((n.clone(), scene));
             }
+            Some(_) => {}
+        }
+        // The needle's entries come after every anatomy entry, as if added to a copy of the
+        // region's scene: the same frame, bit for bit (see `SceneRef`).
+        let scene = match &self.needle {
+            Some((_, overlay)) => self.region.scene.with_overlay(overlay),
+            None => SceneRef::from(&self.region.scene),
         };
         Ok(sim_core::fluoro::render_frame(
             scene, iodine, projection, &settings,
@@ -123,11 +127,44 @@ impl FluoroRenderer for CpuRenderer {
     }
 }
 
-/// The GPU renderer of `render_worker::fluoro` on a worker's device.
+/// The GPU renderer of `render_worker::fluoro` on a worker's device. The sessions of one region
+/// draw one read-only upload of its anatomy (a [`crate::fluoro::GpuAnatomy`]: on a software
+/// adapter such as lavapipe, hundreds of megabytes of host memory for the default phantom),
+/// made by the region's first renderer and freed with its last; each session's renderer holds
+/// only its needle, targets and caches.
 #[derive(Debug, Clone)]
 pub struct GpuFluoroBackend {
     /// The device shared by every session.
     pub ctx: crate::gpu::GpuContext,
+    /// `false`: every renderer uploads its own copy of the anatomy (what each session cost
+    /// before the uploads were shared; the memory benchmark's baseline).
+    share_anatomy: bool,
+    anatomies: Arc<crate::fluoro::AnatomyCache>,
+}
+
+impl GpuFluoroBackend {
+    /// The GPU renderer on `ctx`, one anatomy upload per region shared by its sessions.
+    pub fn new(ctx: crate::gpu::GpuContext) -> GpuFluoroBackend {
+        GpuFluoroBackend {
+            ctx,
+            share_anatomy: true,
+            anatomies: Arc::default(),
+        }
+    }
+
+    /// The GPU renderer on `ctx` with one anatomy upload per session (same frames, the memory
+    /// of one upload per session): the baseline the memory benchmark compares against.
+    pub fn with_private_uploads(ctx: crate::gpu::GpuContext) -> GpuFluoroBackend {
+        GpuFluoroBackend {
+            share_anatomy: false,
+            ..GpuFluoroBackend::new(ctx)
+        }
+    }
+
+    /// Shared anatomy uploads that some session's renderer still holds.
+    pub fn shared_anatomies(&self) -> usize {
+        self.anatomies.live()
+    }
 }
 
 impl FluoroBackend for GpuFluoroBackend {
@@ -139,9 +176,14 @@ impl FluoroBackend for GpuFluoroBackend {
     }
 
     fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, FluoroRenderError> {
-        let r = crate::fluoro::GpuFluoroRenderer::new(&self.ctx, &region.scene)?;
+        let anatomy = if self.share_anatomy {
+            self.anatomies
+                .get_or_upload(&self.ctx, region, |r| &r.scene)?
+        } else {
+            crate::fluoro::GpuAnatomy::new(&self.ctx, &region.scene)?
+        };
         Ok(Box::new(GpuRenderer {
-            renderer: r,
+            renderer: crate::fluoro::GpuFluoroRenderer::with_anatomy(anatomy),
             needle: None,
         }))
     }
