@@ -217,15 +217,17 @@ function preparingMessage(detail) {
   return `${text}. The session starts by itself when it is ready.`;
 }
 
-/** Opens the attempt's session; while the anatomy is being prepared, shows the progress and asks
- * again after the server's Retry-After (never a request held for the build). */
+/** Opens the attempt's session; while the anatomy is being prepared (or every session slot is
+ * taken), shows why and asks again after the server's Retry-After (never a request held). */
 async function startSession(attemptId) {
   for (;;) {
     try {
       return await api('POST', `/api/attempts/${attemptId}/session`);
     } catch (e) {
-      if (!(e instanceof ApiError) || e.code !== 'anatomy_preparing') throw e;
-      say(preparingMessage(e.detail));
+      if (!(e instanceof ApiError) || !['anatomy_preparing', 'at_capacity'].includes(e.code)) throw e;
+      // Every live-session slot taken: the server's message says so, and the page asks again
+      // after its Retry-After (sessions already running are not slowed by the wait).
+      say(e.code === 'at_capacity' ? `${e.message}. Waiting for a free slot…` : preparingMessage(e.detail));
       const waitS = Math.min(10, Math.max(1, Number(e.detail.retry_after_s) || 2));
       await new Promise((resolve) => setTimeout(resolve, 1000 * waitS));
     }

@@ -99,6 +99,16 @@ pub async fn demo_server_for(
     worker_token: Option<&str>,
     station_toml: &str,
 ) -> DemoServer {
+    demo_server_sized(in_process, worker_token, station_toml, 8).await
+}
+
+/// [`demo_server_for`] whose in-process host holds at most `capacity` sessions.
+pub async fn demo_server_sized(
+    in_process: bool,
+    worker_token: Option<&str>,
+    station_toml: &str,
+    capacity: usize,
+) -> DemoServer {
     let station = Station::from_toml_str(station_toml)
         .unwrap_or_else(|e| panic!("test station: {e}\n{station_toml}"));
     let hash = render_worker::session::sha256_hex(station_toml.as_bytes());
@@ -121,7 +131,7 @@ pub async fn demo_server_for(
     server::records::prepare(&db.pool, &config.records, true)
         .await
         .expect("stations and demo accounts");
-    let host = demo_host_for(8, (station, hash));
+    let host = demo_host_for(capacity, (station, hash));
     let dispatcher = Dispatcher::new(
         in_process.then(|| host.clone()),
         host,

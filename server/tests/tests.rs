@@ -3,6 +3,7 @@
 mod anatomy_readiness;
 mod configuration;
 mod dispatch;
+mod dispatch_capacity;
 mod dispatch_support;
 mod dispatch_hardening;
 mod dispatch_ws_fuzz;

@@ -193,6 +193,11 @@ pub enum PlaceError {
     },
     /// The anatomy could not be prepared.
     AnatomyFailed(String),
+    /// Every session slot of the in-process worker is taken (and no registered worker took it).
+    AtCapacity {
+        /// The worker's capacity, sessions.
+        capacity: usize,
+    },
     /// No worker could take it.
     Failed(String),
 }
@@ -210,6 +215,7 @@ impl From<HostError> for PlaceError {
                 retry_after_s,
             },
             HostError::Region(reason) => PlaceError::AnatomyFailed(reason),
+            HostError::Full(capacity) => PlaceError::AtCapacity { capacity },
             other => PlaceError::Failed(other.to_string()),
         }
     }

@@ -15,12 +15,14 @@ use axum::routing::{get, post};
 use render_worker::cluster::Registration;
 use render_worker::session::{LogEntry, Session, SessionSnapshot};
 use serde::{Deserialize, Serialize};
-use utoipa::{IntoParams, OpenApi, ToSchema};
 use serde_json::json;
 use sha2::{Digest, Sha256};
+use utoipa::{IntoParams, OpenApi, ToSchema};
 use uuid::Uuid;
 
-use super::{Dispatcher, LiveSession, PlaceError, Placement, SessionRecord, relay, revoke, store, verify};
+use super::{
+    Dispatcher, LiveSession, PlaceError, Placement, SessionRecord, relay, revoke, store, verify,
+};
 use crate::error::ApiError;
 use crate::records::RecordsState;
 use crate::records::activity::{ActivityKind, record_activity};
@@ -28,6 +30,11 @@ use crate::records::auth::{CurrentUser, Role};
 use crate::records::authz::attempt_visible;
 use crate::records::extract::{ApiJson, ApiPath, ApiQuery};
 use crate::records::results::ReplayVerdict;
+
+/// Seconds a learner refused for capacity is asked to wait (`Retry-After`). Simulator choice: a
+/// live session ends by submit or by its idle limit, so slots free up within minutes; half a
+/// minute lets the client retry without hammering a full server.
+const AT_CAPACITY_RETRY_S: u64 = 30;
 
 /// State of the dispatch routes.
 #[derive(Clone)]
@@ -149,15 +156,17 @@ pub struct DispatchApi;
 pub fn openapi() -> utoipa::openapi::OpenApi {
     use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
     let mut doc = DispatchApi::openapi();
-    doc.components.get_or_insert_with(Default::default).add_security_scheme(
-        "bearer",
-        SecurityScheme::Http(
-            HttpBuilder::new()
-                .scheme(HttpAuthScheme::Bearer)
-                .description(Some("The cluster token (PAINSIM_WORKER_TOKEN)"))
-                .build(),
-        ),
-    );
+    doc.components
+        .get_or_insert_with(Default::default)
+        .add_security_scheme(
+            "bearer",
+            SecurityScheme::Http(
+                HttpBuilder::new()
+                    .scheme(HttpAuthScheme::Bearer)
+                    .description(Some("The cluster token (PAINSIM_WORKER_TOKEN)"))
+                    .build(),
+            ),
+        );
     doc
 }
 
@@ -419,6 +428,24 @@ fn not_placed(attempt_id: Uuid, e: PlaceError) -> Response {
             } });
             (StatusCode::SERVICE_UNAVAILABLE, axum::Json(body)).into_response()
         }
+        PlaceError::AtCapacity { capacity } => {
+            tracing::warn!(attempt = %attempt_id, capacity, "session refused: every slot is taken");
+            let body = json!({ "error": {
+                "code": "at_capacity",
+                "message": format!(
+                    "all {capacity} live-session slots of this server are in use; sessions already \
+                     running are not affected. Try again in {AT_CAPACITY_RETRY_S} s"
+                ),
+                "capacity": capacity,
+                "retry_after_s": AT_CAPACITY_RETRY_S,
+            } });
+            (
+                StatusCode::SERVICE_UNAVAILABLE,
+                [(RETRY_AFTER, AT_CAPACITY_RETRY_S.to_string())],
+                axum::Json(body),
+            )
+                .into_response()
+        }
         PlaceError::Failed(e) => {
             tracing::error!(attempt = %attempt_id, "no session could be created: {e}");
             ApiError::Unavailable("render worker").into_response()
@@ -507,7 +534,9 @@ async fn session_ws(
         .is_some_and(|k| {
             k.len() == 24
                 && k.ends_with("==")
-                && k[..22].bytes().all(|b| b.is_ascii_alphanumeric() || b == b'+' || b == b'/')
+                && k[..22]
+                    .bytes()
+                    .all(|b| b.is_ascii_alphanumeric() || b == b'+' || b == b'/')
         });
     if !key_ok {
         return Err(ApiError::BadRequest(
@@ -608,7 +637,13 @@ async fn replay_to(
     initial: SessionSnapshot,
     log: Vec<LogEntry>,
 ) -> Result<(Session, Option<Vec<u8>>), ApiError> {
-    verify::replay_on(state.dispatcher.inner.replay.clone(), station_id, initial, log).await
+    verify::replay_on(
+        state.dispatcher.inner.replay.clone(),
+        station_id,
+        initial,
+        log,
+    )
+    .await
 }
 
 /// A recorded session's initial snapshot (stored JSON) and its logged commands.
@@ -670,7 +705,11 @@ async fn replay(
     };
     let differing_measurements = detail["measurements"]["differing_keys"]
         .as_array()
-        .map(|a| a.iter().filter_map(|k| k.as_str().map(str::to_owned)).collect())
+        .map(|a| {
+            a.iter()
+                .filter_map(|k| k.as_str().map(str::to_owned))
+                .collect()
+        })
         .unwrap_or_default();
     Ok(axum::Json(ReplayView {
         session_id,
