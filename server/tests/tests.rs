@@ -42,3 +42,4 @@ mod xapi_documents_scopes;
 mod xapi_documents_support;
 mod xapi_query_params;
 mod xapi_support;
+mod xapi_v103;

@@ -15,6 +15,7 @@ use uuid::Uuid;
 
 use super::error::XapiError;
 use super::state::XapiState;
+use super::version::Spoken;
 use crate::error::ApiError;
 use crate::records::auth::constant_time_eq;
 
@@ -31,6 +32,8 @@ pub struct LrsClient {
     pub can_write: bool,
     /// The xAPI Agent set as `authority` of the statements it stores.
     pub authority: Value,
+    /// The xAPI line this request speaks (its `X-Experience-API-Version` header).
+    pub spoken: Spoken,
 }
 
 impl LrsClient {
@@ -104,6 +107,7 @@ where
             can_read,
             can_write,
             authority,
+            spoken: Spoken::of(&parts.headers),
         })
     }
 }

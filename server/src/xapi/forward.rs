@@ -3,7 +3,11 @@
 //!
 //! Every statement the platform produces ([`super::platform`]) is enqueued in the outbox with its
 //! id as key. The [`Forwarder`] POSTs them in batches of up to [`BATCH_STATEMENTS`] to
-//! `<endpoint>/statements` with `X-Experience-API-Version: 2.0.0` and HTTP Basic. Statement ids
+//! `<endpoint>/statements` with HTTP Basic, speaking the version the LRS announces in its About
+//! resource (`<endpoint>/about`, read before each delivery): 2.0.0 when it lists a 2.0.x, else
+//! 1.0.3 when it lists a 1.0.x (statements then lose the properties 2.0 added, see
+//! [`statement_as_1_0`]), else 2.0.0 (an LRS whose About cannot be read is spoken to as 2.0 and fails or
+//! succeeds on its own terms). Statement ids
 //! make this idempotent: a redelivery after a crash finds the statements already there. An LRS
 //! answers a batch that holds one already-stored id with 409 (immutability) and stores nothing
 //! of it, so on 409 (and on 400 or 413, to find the one statement at fault) the batch is sent
@@ -28,6 +32,7 @@ use time::OffsetDateTime;
 use utoipa::ToSchema;
 
 use super::state::XapiState;
+use super::version::{Spoken, statement_as_1_0};
 use crate::error::ApiError;
 use crate::outbox::{self, Deliver, DeliveryError, KindStatus};
 use crate::records::auth::{CurrentUser, Role};
@@ -279,13 +284,35 @@ impl Forwarder {
         Arc::new(Forwarder { pool, client })
     }
 
-    fn request(&self, s: &Settings, method: reqwest::Method, url: &str) -> reqwest::RequestBuilder {
+    fn request(
+        &self,
+        s: &Settings,
+        spoken: Spoken,
+        method: reqwest::Method,
+        url: &str,
+    ) -> reqwest::RequestBuilder {
         let basic =
             base64::engine::general_purpose::STANDARD.encode(format!("{}:{}", s.key, s.secret));
         self.client
             .request(method, url)
-            .header("X-Experience-API-Version", "2.0.0")
+            .header("X-Experience-API-Version", spoken.answer())
             .header("Authorization", format!("Basic {basic}"))
+    }
+
+    /// The line the external LRS speaks, from its About resource.
+    async fn negotiate(&self, s: &Settings) -> Spoken {
+        let about = self
+            .client
+            .get(format!("{}about", s.endpoint))
+            .send()
+            .await
+            .ok()
+            .filter(|r| r.status().is_success());
+        let versions = match about {
+            Some(r) => r.json::<Value>().await.unwrap_or(Value::Null),
+            None => Value::Null,
+        };
+        spoken_by(&versions)
     }
 
     async fn forward(&self, items: &[Value]) -> Result<(), DeliveryError> {
@@ -293,9 +320,18 @@ impl Forwarder {
             .await
             .map_err(|e| DeliveryError::Retry(format!("reading the settings: {e}")))?
             .ok_or_else(|| DeliveryError::Retry("no external LRS is configured".into()))?;
+        let spoken = self.negotiate(&s).await;
+        let converted: Vec<Value>;
+        let items = match spoken {
+            Spoken::V2_0 => items,
+            Spoken::V1_0 => {
+                converted = items.iter().cloned().map(statement_as_1_0).collect();
+                &converted[..]
+            }
+        };
         let url = format!("{}statements", s.endpoint);
         let resp = self
-            .request(&s, reqwest::Method::POST, &url)
+            .request(&s, spoken, reqwest::Method::POST, &url)
             .json(items)
             .send()
             .await
@@ -306,7 +342,7 @@ impl Forwarder {
         }
         let body = resp.text().await.unwrap_or_default();
         match status.as_u16() {
-            400 | 409 | 413 if items.len() > 1 => self.one_by_one(&s, &url, items).await,
+            400 | 409 | 413 if items.len() > 1 => self.one_by_one(&s, spoken, &url, items).await,
             409 => Ok(()),
             _ => Err(classify(status, &format!("POST {url}"), &body)),
         }
@@ -316,6 +352,7 @@ impl Forwarder {
     async fn one_by_one(
         &self,
         s: &Settings,
+        spoken: Spoken,
         url: &str,
         items: &[Value],
     ) -> Result<(), DeliveryError> {
@@ -323,7 +360,7 @@ impl Forwarder {
         for item in items {
             let id = item["id"].as_str().unwrap_or_default();
             let resp = self
-                .request(s, reqwest::Method::PUT, url)
+                .request(s, spoken, reqwest::Method::PUT, url)
                 .query(&[("statementId", id)])
                 .json(item)
                 .send()
@@ -344,6 +381,21 @@ impl Forwarder {
         } else {
             Err(DeliveryError::Permanent(permanent.join("; ")))
         }
+    }
+}
+
+/// The line to speak to an LRS whose About resource answered `about`: 2.0 when its `version`
+/// list names a 2.0.x, else 1.0 when it names a 1.0.x, else 2.0.
+pub fn spoken_by(about: &Value) -> Spoken {
+    let listed: Vec<&str> = about["version"]
+        .as_array()
+        .map(|v| v.iter().filter_map(Value::as_str).collect())
+        .unwrap_or_default();
+    let speaks = |line: &str| listed.iter().any(|v| v.starts_with(line));
+    if !speaks("2.0") && speaks("1.0") {
+        Spoken::V1_0
+    } else {
+        Spoken::V2_0
     }
 }
 
@@ -374,7 +426,23 @@ impl Deliver for Forwarder {
 
 #[cfg(test)]
 mod tests {
-    use super::normalize_endpoint;
+    use serde_json::json;
+
+    use super::{Spoken, normalize_endpoint, spoken_by};
+
+    #[test]
+    fn the_version_spoken_is_the_newest_line_the_about_lists() {
+        assert_eq!(
+            spoken_by(&json!({"version": ["1.0.3", "2.0.0"]})),
+            Spoken::V2_0
+        );
+        assert_eq!(
+            spoken_by(&json!({"version": ["1.0.3", "1.0.2"]})),
+            Spoken::V1_0
+        );
+        assert_eq!(spoken_by(&json!({"version": ["0.95"]})), Spoken::V2_0);
+        assert_eq!(spoken_by(&json!(null)), Spoken::V2_0);
+    }
 
     #[test]
     fn endpoints_are_urls_with_a_host() {

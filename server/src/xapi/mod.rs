@@ -12,7 +12,8 @@
 //!    [`crate::error::ApiError`], and [`error::Invalid`], data that breaks the data model),
 //!    `version` (the `X-Experience-API-Version` header on every request and response), `agent`
 //!    and `validate` (the data model: Agents and Groups, their identity keys, whole statements);
-//! 2. `state` ([`XapiState`]), then `auth` (the credential extractor);
+//! 2. `state` ([`XapiState`]), then `auth` (the credential extractor) and `alternate` (the
+//!    xAPI 1.0.3 Alternate Request Syntax, rewritten into ordinary requests);
 //! 3. the resources: `about`, `statements`, `documents` (State, Activity Profile, Agent
 //!    Profile), `agents`, `activities`, and `credentials` (admin endpoints under `/api/admin/`);
 //! 4. the platform's own statements: `platform` (records become statements through a queue the
@@ -26,6 +27,7 @@ pub mod about;
 pub mod activities;
 pub mod agent;
 pub mod agents;
+pub mod alternate;
 pub mod auth;
 pub mod credentials;
 pub mod documents;

@@ -8,7 +8,9 @@ use utoipa_axum::routes;
 
 use super::auth::LrsClient;
 use super::state::XapiState;
-use super::{about, activities, agents, credentials, documents, forward, statements, version};
+use super::{
+    about, activities, agents, alternate, credentials, documents, forward, statements, version,
+};
 use crate::error::ApiError;
 
 #[derive(OpenApi)]
@@ -24,7 +26,7 @@ struct ApiDoc;
 pub fn router<S: Clone + Send + Sync + 'static>(
     state: XapiState,
 ) -> (Router<S>, utoipa::openapi::OpenApi) {
-    let (lrs, mut doc) = OpenApiRouter::with_openapi(ApiDoc::openapi())
+    let (lrs, mut doc): (Router<()>, _) = OpenApiRouter::with_openapi(ApiDoc::openapi())
         .routes(routes!(about::about))
         .routes(routes!(
             statements::put_statement,
@@ -61,6 +63,17 @@ pub fn router<S: Clone + Send + Sync + 'static>(
     let lrs = lrs
         .merge(unknown)
         .layer(axum::middleware::from_fn(version::version_header));
+    // The Alternate Request Syntax changes a request's method and query, so it must run before
+    // the routes are matched: it wraps the routed LRS as one service, which the three paths
+    // under `/xapi` hand their requests to whole (path included).
+    let lrs = tower::Layer::layer(
+        &axum::middleware::from_fn_with_state(state.clone(), alternate::alternate_syntax),
+        lrs,
+    );
+    let lrs = Router::new()
+        .route_service("/xapi", lrs.clone())
+        .route_service("/xapi/", lrs.clone())
+        .route_service("/xapi/{*rest}", lrs);
     let (admin, admin_doc) = OpenApiRouter::<XapiState>::new()
         .routes(routes!(
             credentials::create_credential,

@@ -1,6 +1,10 @@
 //! The `X-Experience-API-Version` header (xAPI 2.0, Communication 3.3 "Versioning"): every
-//! response carries the version the LRS speaks, and every request but `GET /xapi/about` must name
-//! the version the client speaks.
+//! request but `GET /xapi/about` must name the version the client speaks, and every response
+//! carries the version the request is answered in: 1.0.3 for a 1.0.x request, 2.0.0 for any
+//! other (see [`Spoken`]).
+//!
+//! Statements are stored once, as sent; a 1.0.x client reads them converted by
+//! [`statement_as_1_0`] (the properties 2.0 added dropped, a 2.0 `version` named 1.0.0).
 //!
 //! We accept `2.0.x` and, like other 2.0 LRSs, `1.0.x` (1.0.3 clients are the majority of
 //! deployed LMS content; their statements are valid 2.0 statements but for the few properties 2.0
@@ -10,6 +14,7 @@ use axum::extract::Request;
 use axum::http::{HeaderMap, HeaderValue, Method};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
+use serde_json::Value;
 use utoipa::IntoParams;
 
 use crate::error::ApiError;
@@ -18,6 +23,9 @@ use crate::error::ApiError;
 pub const VERSION_HEADER: &str = "x-experience-api-version";
 /// The version this LRS speaks (sent on every response).
 pub const LRS_VERSION: &str = "2.0.0";
+/// The version this LRS answers 1.0.x requests with: the last patch of 1.0 (xAPI 1.0.3,
+/// Communication 3.3: "the latest patch version after 1.0.0").
+pub const LRS_VERSION_1_0: &str = "1.0.3";
 /// Versions listed by the About resource.
 pub const SUPPORTED_VERSIONS: [&str; 2] = ["2.0.0", "1.0.3"];
 
@@ -32,6 +40,38 @@ pub fn accepted(version: &str) -> bool {
         Some(p) => !p.is_empty() && p.len() <= 4 && p.bytes().all(|b| b.is_ascii_digit()),
     };
     matches!(major, "1" | "2") && minor == "0" && patch_ok && parts.next().is_none()
+}
+
+/// The xAPI line a request speaks, which picks the rules it is answered by: 1.0.x requests get
+/// 1.0.3 semantics (SHA-1 ETags, Agent and Activity Profile PUTs that must carry a precondition,
+/// State PUTs that overwrite, the 1.0.3 version header), 2.0.x requests and requests without a
+/// usable header get 2.0.0's. Stored statements and documents are the same either way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Spoken {
+    /// xAPI 1.0.x (answered as 1.0.3).
+    V1_0,
+    /// xAPI 2.0.x (answered as 2.0.0).
+    #[default]
+    V2_0,
+}
+
+impl Spoken {
+    /// The line of the request's `X-Experience-API-Version` header; 2.0 when it is missing or not
+    /// one this LRS accepts (such requests are refused before a handler runs).
+    pub fn of(headers: &HeaderMap) -> Spoken {
+        match headers.get(VERSION_HEADER).and_then(|v| v.to_str().ok()) {
+            Some(v) if accepted(v.trim()) && v.trim().starts_with("1.") => Spoken::V1_0,
+            _ => Spoken::V2_0,
+        }
+    }
+
+    /// The version the response's header names.
+    pub fn answer(self) -> &'static str {
+        match self {
+            Spoken::V1_0 => LRS_VERSION_1_0,
+            Spoken::V2_0 => LRS_VERSION,
+        }
+    }
 }
 
 /// The version header every LRS request but About sends: documented by the routes that take
@@ -71,10 +111,36 @@ impl VersionHeader {
     }
 }
 
+/// A statement as 1.0.3 reads it (a 1.0.x client reading this LRS, or a 1.0.3 LRS this LRS
+/// forwards to): without the context properties 2.0 added
+/// (`contextAgents`, `contextGroups`), and with a 2.0 `version` property named 1.0.0 (xAPI 1.0.3,
+/// Data 2.4.10: an LRS rejects a statement whose version does not start with "1.0.").
+pub fn statement_as_1_0(mut statement: Value) -> Value {
+    fn strip(statement: &mut Value) {
+        if let Some(context) = statement.get_mut("context").and_then(Value::as_object_mut) {
+            context.remove("contextAgents");
+            context.remove("contextGroups");
+        }
+        if let Some(v) = statement.get_mut("version")
+            && v.as_str().is_some_and(|v| v.starts_with("2."))
+        {
+            *v = Value::String("1.0.0".into());
+        }
+    }
+    strip(&mut statement);
+    if let Some(sub) = statement.get_mut("object")
+        && sub["objectType"] == "SubStatement"
+    {
+        strip(sub);
+    }
+    statement
+}
+
 /// Middleware of the `/xapi/` router: checks the request's header and sets the response's.
 pub async fn version_header(req: Request, next: Next) -> Response {
     let about = req.uri().path().trim_end_matches('/') == "/xapi/about";
     let preflight = req.method() == Method::OPTIONS;
+    let spoken = Spoken::of(req.headers());
     let mut resp = if about || preflight {
         next.run(req).await
     } else {
@@ -84,7 +150,7 @@ pub async fn version_header(req: Request, next: Next) -> Response {
         }
     };
     resp.headers_mut()
-        .insert(VERSION_HEADER, HeaderValue::from_static(LRS_VERSION));
+        .insert(VERSION_HEADER, HeaderValue::from_static(spoken.answer()));
     resp
 }
 
@@ -92,7 +158,9 @@ pub async fn version_header(req: Request, next: Next) -> Response {
 mod tests {
     use axum::http::{HeaderMap, HeaderValue};
 
-    use super::{VERSION_HEADER, VersionHeader, accepted};
+    use serde_json::json;
+
+    use super::{Spoken, VERSION_HEADER, VersionHeader, accepted, statement_as_1_0};
 
     #[test]
     fn versions() {
@@ -116,5 +184,24 @@ mod tests {
         headers.insert(VERSION_HEADER, HeaderValue::from_static("0.95"));
         let old = VersionHeader::read(&headers).unwrap_err().to_string();
         assert!(old.contains("unsupported"), "{old}");
+        assert_eq!(Spoken::of(&headers), Spoken::V2_0);
+        headers.insert(VERSION_HEADER, HeaderValue::from_static("1.0.1"));
+        assert_eq!(Spoken::of(&headers), Spoken::V1_0);
+        assert_eq!(Spoken::of(&headers).answer(), "1.0.3");
+        headers.remove(VERSION_HEADER);
+        assert_eq!(Spoken::of(&headers), Spoken::V2_0);
+    }
+
+    #[test]
+    fn statements_for_1_0_lose_2_0_context_properties() {
+        let s = json!({"version": "2.0.0", "context": {"contextAgents": [], "contextGroups": [],
+            "registration": "0f8a7b0e-0a1e-4c5c-9a4c-2f7f8e1b2c3d"},
+            "object": {"objectType": "SubStatement", "context": {"contextAgents": []}}});
+        let v = statement_as_1_0(s);
+        assert_eq!(v["version"], "1.0.0");
+        assert!(v["context"].get("contextAgents").is_none());
+        assert!(v["context"].get("contextGroups").is_none());
+        assert!(v["context"]["registration"].is_string());
+        assert!(v["object"]["context"].get("contextAgents").is_none());
     }
 }

@@ -7,7 +7,10 @@
 //! - POST to a missing document stores it as PUT would; POST to an existing one merges: both must
 //!   be `application/json` JSON objects (else 400 and nothing changes), and each top-level
 //!   property posted replaces the stored one.
-//! - ETag: the SHA-256 of the content in hex, quoted (a strong tag). `If-Match` (a list or `*`)
+//! - ETag: the SHA-256 of the content in hex, quoted (a strong tag); for 1.0.x requests the
+//!   SHA-1 of the content in hex, quoted (xAPI 1.0.3, Communication 3.1 "Concurrency": "the
+//!   value SHOULD be calculated as a SHA1 hexadecimal value"), computed from the stored bytes so
+//!   both lines see one document. `If-Match` (a list or `*`)
 //!   and `If-None-Match` (a list or `*`) are honoured on PUT, POST and DELETE as RFC 9110
 //!   describes: 412 when one fails, and nothing changes. A PUT with neither header to a document
 //!   that exists is a 409 (the 2.0 rule: the client must say what it overwrites).
@@ -20,16 +23,18 @@ use axum::http::header::{CONTENT_TYPE, ETAG, IF_MATCH, IF_NONE_MATCH, LAST_MODIF
 use axum::http::{HeaderMap, HeaderName, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use serde_json::Value;
+use sha1::Sha1;
 use sha2::{Digest, Sha256};
 use sqlx::PgPool;
 use time::OffsetDateTime;
 use utoipa::IntoParams;
 use uuid::Uuid;
 
-use super::store::{self, DocKey, Scope, Stored};
+use super::store::{self, DocKey, Kind, Scope, Stored};
 use crate::error::ApiError;
 use crate::xapi::error::XapiError;
 use crate::xapi::statements::timefmt::http_date;
+use crate::xapi::version::Spoken;
 
 /// Content-Type of a document sent without one (RFC 9110 8.3: the recipient may assume it).
 pub const DEFAULT_CONTENT_TYPE: &str = "application/octet-stream";
@@ -94,6 +99,15 @@ pub fn is_json(content_type: &str) -> bool {
 /// The ETag of some content: SHA-256 in hex.
 pub fn etag_of(content: &[u8]) -> String {
     hex::encode(Sha256::digest(content))
+}
+
+/// The ETag a request of line `spoken` sees for a stored document: the stored SHA-256 for 2.0,
+/// the SHA-1 of the same bytes for 1.0.
+fn etag_seen(spoken: Spoken, doc: &Stored) -> String {
+    match spoken {
+        Spoken::V1_0 => hex::encode(Sha1::digest(&doc.content)),
+        Spoken::V2_0 => doc.etag.clone(),
+    }
 }
 
 fn header(resp: &mut Response, name: HeaderName, value: &str) {
@@ -176,6 +190,8 @@ pub fn check_preconditions(
     preconditions: &Preconditions,
     current: Option<&str>,
     write: Write,
+    kind: Kind,
+    spoken: Spoken,
 ) -> Result<(), XapiError> {
     let Preconditions {
         if_match,
@@ -197,7 +213,23 @@ pub fn check_preconditions(
             "If-None-Match: the document exists".into(),
         ));
     }
-    if write == Write::Put && current.is_some() && if_match.is_none() && if_none_match.is_none() {
+    let unconditional = write == Write::Put && if_match.is_none() && if_none_match.is_none();
+    if unconditional && spoken == Spoken::V1_0 {
+        return match (kind, current) {
+            (Kind::State, _) => Ok(()),
+            (_, None) => Err(ApiError::BadRequest(
+                "a profile PUT needs If-Match with the document's ETag, or If-None-Match: * to \
+                 create it only if absent"
+                    .into(),
+            )
+            .into()),
+            (_, Some(_)) => Err(ApiError::Conflict(
+                "the document exists: send If-Match with its ETag to replace it".into(),
+            )
+            .into()),
+        };
+    }
+    if unconditional && current.is_some() {
         return Err(ApiError::Conflict(
             "the document exists: send If-Match with its ETag to replace it (or If-None-Match: * \
              to create it only if absent)"
@@ -209,12 +241,13 @@ pub fn check_preconditions(
 }
 
 /// `200` with one stored document: its bytes, Content-Type, ETag and Last-Modified.
-fn document_response(doc: Stored) -> Response {
+fn document_response(doc: Stored, spoken: Spoken) -> Response {
+    let etag = etag_seen(spoken, &doc);
     let Stored {
         content_type,
         content,
-        etag,
         updated_at,
+        ..
     } = doc;
     let mut resp = (StatusCode::OK, content).into_response();
     match HeaderValue::from_str(&content_type) {
@@ -238,10 +271,10 @@ fn no_content(etag: Option<&str>) -> Response {
 }
 
 /// GET of one document: 200, or 404 when there is none.
-pub async fn get_one(pool: &PgPool, key: &DocKey) -> Result<Response, ApiError> {
+pub async fn get_one(pool: &PgPool, key: &DocKey, spoken: Spoken) -> Result<Response, ApiError> {
     store::get(pool, key)
         .await?
-        .map(document_response)
+        .map(|doc| document_response(doc, spoken))
         .ok_or_else(|| ApiError::NotFound("document".into()))
 }
 
@@ -270,6 +303,7 @@ pub async fn store(
     headers: &HeaderMap,
     write: Write,
     doc: Incoming,
+    spoken: Spoken,
 ) -> Result<Response, XapiError> {
     let posted_object = match (write, is_json(&doc.content_type)) {
         (Write::Post, true) => match serde_json::from_slice::<Value>(&doc.body) {
@@ -287,8 +321,14 @@ pub async fn store(
     for _ in 0..WRITE_ATTEMPTS {
         let mut tx = pool.begin().await?;
         let existing = store::get_for_update(&mut tx, key).await?;
-        let current = existing.as_ref().map(|d| d.etag.as_str());
-        check_preconditions(&preconditions, current, write)?;
+        let current = existing.as_ref().map(|d| etag_seen(spoken, d));
+        check_preconditions(
+            &preconditions,
+            current.as_deref(),
+            write,
+            key.scope.kind,
+            spoken,
+        )?;
         let merged = match (&existing, write) {
             (Some(old), Write::Post) => Some(merge(old, posted_object.as_ref())?),
             _ => None,
@@ -305,7 +345,11 @@ pub async fn store(
             continue;
         }
         tx.commit().await?;
-        return Ok(no_content(Some(&etag)));
+        let seen = match spoken {
+            Spoken::V1_0 => hex::encode(Sha1::digest(content)),
+            Spoken::V2_0 => etag,
+        };
+        return Ok(no_content(Some(&seen)));
     }
     Err(ApiError::Conflict("the document was changed by concurrent requests; retry".into()).into())
 }
@@ -348,12 +392,19 @@ pub async fn delete_one(
     pool: &PgPool,
     key: &DocKey,
     headers: &HeaderMap,
+    spoken: Spoken,
 ) -> Result<Response, XapiError> {
     let mut tx = pool.begin().await?;
     let existing = store::get_for_update(&mut tx, key).await?;
     let preconditions = Preconditions::read(headers)?;
-    let current = existing.as_ref().map(|d| d.etag.as_str());
-    check_preconditions(&preconditions, current, Write::Delete)?;
+    let current = existing.as_ref().map(|d| etag_seen(spoken, d));
+    check_preconditions(
+        &preconditions,
+        current.as_deref(),
+        Write::Delete,
+        key.scope.kind,
+        spoken,
+    )?;
     if existing.is_some() {
         store::delete(&mut tx, key).await?;
     }
@@ -391,8 +442,18 @@ mod tests {
         let tag = "abc";
         let ok = |h: &[(&str, &str)], cur: Option<&str>, w| {
             let pre = Preconditions::read(&headers(h)).unwrap();
-            check_preconditions(&pre, cur, w).map_err(|e| e.status_and_code().0.as_u16())
+            check_preconditions(&pre, cur, w, Kind::AgentProfile, Spoken::V2_0)
+                .map_err(|e| e.status_and_code().0.as_u16())
         };
+        let v1 = |kind, cur: Option<&str>| {
+            let pre = Preconditions::read(&headers(&[])).unwrap();
+            check_preconditions(&pre, cur, Write::Put, kind, Spoken::V1_0)
+                .map_err(|e| e.status_and_code().0.as_u16())
+        };
+        assert_eq!(v1(Kind::AgentProfile, None), Err(400));
+        assert_eq!(v1(Kind::ActivityProfile, Some(tag)), Err(409));
+        assert_eq!(v1(Kind::State, Some(tag)), Ok(()));
+        assert_eq!(v1(Kind::State, None), Ok(()));
         assert_eq!(ok(&[], None, Write::Put), Ok(()));
         assert_eq!(ok(&[], Some(tag), Write::Put), Err(409));
         assert_eq!(ok(&[], Some(tag), Write::Post), Ok(()));

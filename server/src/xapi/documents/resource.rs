@@ -102,7 +102,7 @@ pub async fn get<R: DocumentResource>(
 ) -> Result<Response, XapiError> {
     client.require_read()?;
     Ok(match R::Get::parse(query.as_deref())?.target() {
-        Target::One(key) => ops::get_one(&state.pool, &key).await?,
+        Target::One(key) => ops::get_one(&state.pool, &key, client.spoken).await?,
         Target::All {
             scope,
             registration,
@@ -123,7 +123,7 @@ pub async fn write<R: DocumentResource>(
     client.require_write()?;
     let key = R::Write::parse(query.as_deref())?.key();
     let doc = Incoming::read(&headers, body, state.max_body_bytes)?;
-    ops::store(&state.pool, &key, &headers, write, doc).await
+    ops::store(&state.pool, &key, &headers, write, doc, client.spoken).await
 }
 
 /// DELETE: of one document (its preconditions honoured), or of all the scope's; 204.
@@ -135,7 +135,7 @@ pub async fn delete<R: DocumentResource>(
 ) -> Result<Response, XapiError> {
     client.require_write()?;
     match R::Delete::parse(query.as_deref())?.target() {
-        Target::One(key) => ops::delete_one(&state.pool, &key, &headers).await,
+        Target::One(key) => ops::delete_one(&state.pool, &key, &headers, client.spoken).await,
         Target::All {
             scope,
             registration,

@@ -34,7 +34,7 @@ use self::signature::SIGNATURE_USAGE;
 use super::auth::LrsClient;
 use super::error::XapiError;
 use super::state::XapiState;
-use super::version::VersionHeader;
+use super::version::{Spoken, VersionHeader, statement_as_1_0};
 use crate::error::ApiError;
 use crate::records::extract::nul_field;
 
@@ -352,6 +352,7 @@ async fn read_statements(
 ) -> Result<Response, XapiError> {
     let state = state.clone();
     client.require_read()?;
+    let spoken = client.spoken;
     let p = query::parse(&pairs(query)?)?;
     let format = p.format.unwrap_or(Format::Exact);
     let langs = headers
@@ -407,6 +408,10 @@ async fn read_statements(
     let statements: Vec<Value> = rows
         .into_iter()
         .map(|(_, s, _)| shaped(s, format, &langs, &defs))
+        .map(|s| match spoken {
+            Spoken::V1_0 => statement_as_1_0(s),
+            Spoken::V2_0 => s,
+        })
         .collect();
     let body = match more {
         None => statements.into_iter().next().unwrap_or(Value::Null),
