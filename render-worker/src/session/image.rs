@@ -64,12 +64,7 @@ impl ViewId {
     /// Adds `view` to the process-wide view table (idempotent for the same view); refuses a
     /// view whose name or code another view already has.
     pub fn register(view: ViewId) -> Result<(), ViewConflict> {
-        let valid_name = !view.name.is_empty()
-            && view
-                .name
-                .bytes()
-                .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_');
-        if !valid_name {
+        if !crate::session::command::is_snake_case(view.name) {
             return Err(ViewConflict::BadName(view.name));
         }
         let mut t = table().write().map_err(|_| ViewConflict::Poisoned)?;

@@ -491,12 +491,7 @@ impl Session {
         &mut self,
         command: &Command,
     ) -> Result<(serde_json::Value, Option<Engagement>), CommandError> {
-        let core_engagement = || {
-            CORE_COMMANDS
-                .iter()
-                .find(|c| c.kind == command.name())
-                .and_then(|c| c.engagement)
-        };
+        let core_engagement = || super::command::engagement_of(CORE_COMMANDS, command.name());
         match command.class() {
             CommandClass::Needle => Ok((self.apply_needle(command)?, core_engagement())),
             CommandClass::Session if *command == Command::Tick => Ok((

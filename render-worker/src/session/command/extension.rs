@@ -134,11 +134,7 @@ impl ModalityCommand {
 /// Whether `kind` can name a modality command: lower-case snake case of 1 to
 /// [`MAX_KIND_CHARS`] characters. Anything else is refused as an unknown variant.
 fn is_kind(kind: &str) -> bool {
-    !kind.is_empty()
-        && kind.len() <= MAX_KIND_CHARS
-        && kind
-            .bytes()
-            .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_')
+    kind.len() <= MAX_KIND_CHARS && super::spec::is_snake_case(kind)
 }
 
 impl Command {

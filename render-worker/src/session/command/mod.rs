@@ -13,7 +13,7 @@ mod extension;
 mod spec;
 
 pub use extension::{BUILTIN_KINDS, ModalityCommand};
-pub use spec::{CORE_COMMANDS, CommandSpec, Engagement};
+pub use spec::{CORE_COMMANDS, CommandSpec, Engagement, engagement_of, is_snake_case};
 
 /// Largest |orbital| rotation, degrees. Simulator choice: beyond both true laterals (90) with
 /// margin; mobile C-arms reach about +-95 to +-135 depending on the model.

@@ -36,6 +36,23 @@ impl CommandSpec {
     }
 }
 
+/// The engagement `specs` declare for commands of kind `kind` (none for a kind they do not list).
+pub fn engagement_of(specs: &[CommandSpec], kind: &str) -> Option<Engagement> {
+    specs
+        .iter()
+        .find(|c| c.kind == kind)
+        .and_then(|c| c.engagement)
+}
+
+/// Whether `name` is lower-case snake case (`a`-`z`, `0`-`9`, `_`), the form of every name on
+/// the session protocol: modality names, command kinds, view names.
+pub fn is_snake_case(name: &str) -> bool {
+    !name.is_empty()
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_')
+}
+
 /// The kinds the session core handles itself: the needle and the learner's hands, tick and
 /// submit.
 pub const CORE_COMMANDS: &[CommandSpec] = &[

@@ -120,11 +120,7 @@ impl ModalityFactory {
         spec: &'static ModalitySpec,
         builder: impl Fn(&ModalityContext<'_>) -> Box<dyn Modality> + Send + Sync + 'static,
     ) -> Result<ModalityFactory, RegistrationError> {
-        let snake = |n: &str| {
-            !n.is_empty()
-                && n.bytes()
-                    .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_')
-        };
+        let snake = crate::session::command::is_snake_case;
         if !snake(spec.name) {
             return Err(RegistrationError::BadName(spec.name));
         }

@@ -88,11 +88,7 @@ pub trait Modality: Send {
     /// The engagement event an accepted `command` of this modality stands for; by default the
     /// one its [`ModalitySpec`] declares for the kind.
     fn engagement(&self, command: &Command) -> Option<Engagement> {
-        self.spec()
-            .commands
-            .iter()
-            .find(|c| c.kind == command.name())
-            .and_then(|c| c.engagement)
+        crate::session::command::engagement_of(self.spec().commands, command.name())
     }
 
     /// Fluid pushed through the needle by the command just applied (taken once).

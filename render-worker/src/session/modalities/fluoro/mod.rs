@@ -388,11 +388,7 @@ impl Modality for FluoroModality {
     fn engagement(&self, command: &Command) -> Option<Engagement> {
         match command {
             Command::Live { on: false } => None,
-            other => SPEC
-                .commands
-                .iter()
-                .find(|c| c.kind == other.name())
-                .and_then(|c| c.engagement),
+            other => crate::session::command::engagement_of(SPEC.commands, other.name()),
         }
     }
 
