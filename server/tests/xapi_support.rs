@@ -64,21 +64,15 @@ impl Lrs {
         lrs
     }
 
-    /// Creates a credential through the admin API.
-    pub async fn credential(&self, name: &str, read: bool, write: bool) -> Cred {
-        let access = match (read, write) {
-            (true, true) => "read_write",
-            (true, false) => "read",
-            _ => "write",
-        };
+    /// Sends an admin API request with the admin's session.
+    pub async fn as_admin(&self, method: Method, uri: &str, body: Option<Value>) -> Response {
+        self.app.send(method, uri, Some(&self.admin), body).await
+    }
+
+    /// Creates a credential from an admin's request body (201 asserted).
+    pub async fn credential_from(&self, body: Value) -> Cred {
         let r = self
-            .app
-            .send(
-                Method::POST,
-                "/api/admin/lrs-credentials",
-                Some(&self.admin),
-                Some(json!({ "name": name, "access": access })),
-            )
+            .as_admin(Method::POST, "/api/admin/lrs-credentials", Some(body))
             .await;
         assert_eq!(r.status, StatusCode::CREATED, "{}", r.text);
         Cred {
@@ -87,6 +81,17 @@ impl Lrs {
             secret: r.json["secret"].as_str().unwrap().to_owned(),
             authority: r.json["authority"].clone(),
         }
+    }
+
+    /// Creates a credential through the admin API.
+    pub async fn credential(&self, name: &str, read: bool, write: bool) -> Cred {
+        let access = match (read, write) {
+            (true, true) => "read_write",
+            (true, false) => "read",
+            _ => "write",
+        };
+        self.credential_from(json!({ "name": name, "access": access }))
+            .await
     }
 
     /// Sends an LRS request with `cred` (if any), the version header 2.0.0, the extra `headers`

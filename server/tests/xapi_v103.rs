@@ -376,3 +376,134 @@ async fn xapi_v103_statements_stored_once_read_in_each_line_s_format() {
     assert_eq!(listed["id"], id.as_str());
     assert_eq!(listed["version"], "1.0.0");
 }
+
+/// A request that names no version (or one this LRS does not accept) is refused with 400 in every
+/// version; the answer names the version its credential was registered as speaking, because 1.0.3
+/// and 2.0.0 each require their own version there (Communication 3.3) and nothing else in such a
+/// request tells them apart. The version a request names always wins.
+#[tokio::test]
+async fn xapi_v103_a_request_without_a_version_is_answered_in_its_credential_s_version() {
+    let lrs = Lrs::new().await;
+    let old = lrs
+        .credential_from(json!({ "name": "SCORM Cloud 1.0.3", "xapi_version": "1.0.3" }))
+        .await;
+    // The default credential is a 2.0.0 one.
+    let listed = lrs
+        .as_admin(Method::GET, "/api/admin/lrs-credentials", None)
+        .await;
+    let versions: Vec<(String, String)> = listed
+        .json
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            (
+                c["key"].as_str().unwrap().to_owned(),
+                c["xapi_version"].as_str().unwrap().to_owned(),
+            )
+        })
+        .collect();
+    assert!(
+        versions.contains(&(lrs.cred.key.clone(), "2.0.0".into())),
+        "{versions:?}"
+    );
+    assert!(
+        versions.contains(&(old.key.clone(), "1.0.3".into())),
+        "{versions:?}"
+    );
+
+    let statement = json!({"actor": mbox_agent(), "verb": {"id": "http://adlnet.gov/expapi/verbs/attempted"},
+        "object": {"id": ACTIVITY}});
+    let id = uuid::Uuid::new_v4();
+    let requests = [
+        (Method::GET, "/xapi/statements?limit=1".to_owned(), None),
+        (
+            Method::POST,
+            "/xapi/statements".to_owned(),
+            Some(("application/json", statement.to_string().into_bytes())),
+        ),
+        (
+            Method::PUT,
+            format!("/xapi/statements?statementId={id}"),
+            Some(("application/json", statement.to_string().into_bytes())),
+        ),
+    ];
+    for (method, uri, body) in &requests {
+        for sent in [None, Some("0.95"), Some("3.0.0")] {
+            for (cred, answered) in [(&old, "1.0.3"), (&lrs.cred, "2.0.0")] {
+                let mut req = axum::http::Request::builder()
+                    .method(method.clone())
+                    .uri(uri.as_str())
+                    .header("authorization", cred.basic());
+                if let Some(v) = sent {
+                    req = req.header("x-experience-api-version", v);
+                }
+                let body = match body {
+                    Some((ct, bytes)) => {
+                        req = req.header("content-type", *ct);
+                        axum::body::Body::from(bytes.clone())
+                    }
+                    None => axum::body::Body::empty(),
+                };
+                let r = lrs.app.request(req.body(body).unwrap()).await;
+                assert_eq!(r.status, StatusCode::BAD_REQUEST, "{method} {uri} {sent:?}");
+                assert_eq!(
+                    answered_version(&r),
+                    answered,
+                    "{method} {uri} {sent:?} {}",
+                    cred.key
+                );
+            }
+        }
+    }
+    // A wrong secret for the 1.0.3 key tells nothing about the credential: 2.0.0.
+    let mut wrong = old.clone();
+    wrong.secret = "0".repeat(64);
+    let r = lrs
+        .app
+        .request(
+            axum::http::Request::builder()
+                .uri("/xapi/statements?limit=1")
+                .header("authorization", wrong.basic())
+                .body(axum::body::Body::empty())
+                .unwrap(),
+        )
+        .await;
+    assert_eq!(r.status, StatusCode::BAD_REQUEST);
+    assert_eq!(answered_version(&r), "2.0.0");
+    // A 1.0.3 credential speaking 2.0 is answered in 2.0, and the reverse.
+    let old_lrs = Lrs {
+        app: lrs.app,
+        admin: lrs.admin,
+        cred: old,
+    };
+    let r = send_as(
+        &old_lrs,
+        Some("2.0.0"),
+        Method::GET,
+        "/xapi/statements?limit=1",
+        &[],
+        None,
+    )
+    .await;
+    assert_eq!((r.status, answered_version(&r)), (StatusCode::OK, "2.0.0"));
+    let r = send_as(
+        &old_lrs,
+        Some("1.0.3"),
+        Method::GET,
+        "/xapi/statements?limit=1",
+        &[],
+        None,
+    )
+    .await;
+    assert_eq!((r.status, answered_version(&r)), (StatusCode::OK, "1.0.3"));
+    // Nothing but the two versions is taken.
+    for bad in [json!("1.0.2"), json!("2.0"), json!(2), json!(null)] {
+        let body = json!({ "name": "x", "xapi_version": bad });
+        let r = old_lrs
+            .as_admin(Method::POST, "/api/admin/lrs-credentials", Some(body))
+            .await;
+        assert_eq!(r.status, StatusCode::BAD_REQUEST, "{bad}: {}", r.text);
+        assert!(r.text.contains("xapi_version"), "{bad}: {}", r.text);
+    }
+}

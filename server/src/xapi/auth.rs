@@ -6,6 +6,7 @@
 //! one (401), from the next request on.
 
 use axum::extract::{FromRef, FromRequestParts};
+use axum::http::HeaderMap;
 use axum::http::header::AUTHORIZATION;
 use axum::http::request::Parts;
 use base64::Engine;
@@ -79,37 +80,74 @@ where
 
     async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, XapiError> {
         let state = XapiState::from_ref(state);
-        let (key, secret) = parts
-            .headers
-            .get(AUTHORIZATION)
-            .and_then(|v| v.to_str().ok())
-            .and_then(basic_credentials)
-            .ok_or(XapiError::Unauthorized)?;
-        if key.is_empty() || key.len() > 64 {
-            return Err(XapiError::Unauthorized);
-        }
-        let row: Option<(Uuid, String, bool, bool, Value, Vec<u8>)> = sqlx::query_as(
-            "SELECT id, name, can_read, can_write, authority, secret_sha256 FROM lrs_credentials
-              WHERE key = $1 AND revoked_at IS NULL",
-        )
-        .bind(&key)
-        .fetch_optional(&state.pool)
-        .await?;
-        let Some((credential_id, name, can_read, can_write, authority, stored)) = row else {
-            return Err(XapiError::Unauthorized);
-        };
-        if !constant_time_eq(&Sha256::digest(secret.as_bytes()), &stored) {
-            return Err(XapiError::Unauthorized);
-        }
+        let c = authenticate(&state, &parts.headers).await?;
         Ok(LrsClient {
-            credential_id,
-            name,
-            can_read,
-            can_write,
-            authority,
+            credential_id: c.id,
+            name: c.name,
+            can_read: c.can_read,
+            can_write: c.can_write,
+            authority: c.authority,
             spoken: Spoken::of(&parts.headers),
         })
     }
+}
+
+/// The credential a request's `Authorization: Basic` header names, with its secret checked.
+pub struct Authenticated {
+    /// Credential id.
+    pub id: Uuid,
+    /// The integration's name.
+    pub name: String,
+    /// May read.
+    pub can_read: bool,
+    /// May write.
+    pub can_write: bool,
+    /// The authority of the statements it stores.
+    pub authority: Value,
+    /// The xAPI line the integration speaks (its credential's `xapi_version`).
+    pub speaks: Spoken,
+}
+
+/// Checks a request's HTTP Basic credential: 401 ([`XapiError::Unauthorized`]) for a missing,
+/// malformed, unknown, revoked or wrong one.
+pub async fn authenticate(
+    state: &XapiState,
+    headers: &HeaderMap,
+) -> Result<Authenticated, XapiError> {
+    let (key, secret) = headers
+        .get(AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(basic_credentials)
+        .ok_or(XapiError::Unauthorized)?;
+    if key.is_empty() || key.len() > 64 {
+        return Err(XapiError::Unauthorized);
+    }
+    type Row = (Uuid, String, bool, bool, Value, Vec<u8>, String);
+    let row: Option<Row> = sqlx::query_as(
+        "SELECT id, name, can_read, can_write, authority, secret_sha256, xapi_version
+           FROM lrs_credentials WHERE key = $1 AND revoked_at IS NULL",
+    )
+    .bind(&key)
+    .fetch_optional(&state.pool)
+    .await?;
+    let Some((id, name, can_read, can_write, authority, stored, version)) = row else {
+        return Err(XapiError::Unauthorized);
+    };
+    if !constant_time_eq(&Sha256::digest(secret.as_bytes()), &stored) {
+        return Err(XapiError::Unauthorized);
+    }
+    Ok(Authenticated {
+        id,
+        name,
+        can_read,
+        can_write,
+        authority,
+        speaks: if version.starts_with("1.") {
+            Spoken::V1_0
+        } else {
+            Spoken::V2_0
+        },
+    })
 }
 
 #[cfg(test)]

@@ -54,10 +54,45 @@ pub struct NewCredential {
     /// What it may do (default `read_write`).
     #[serde(default = "read_write")]
     pub access: Access,
+    /// The xAPI version the integration speaks (default `2.0.0`).
+    #[serde(default)]
+    pub xapi_version: XapiVersion,
 }
 
 fn read_write() -> Access {
     Access::ReadWrite
+}
+
+/// The xAPI version an LMS integration speaks. Each request is still answered by the rules of the
+/// version its `X-Experience-API-Version` header names; this one is named in the 400 answer to a
+/// request that names none (or one this LRS does not accept).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema, Default)]
+pub enum XapiVersion {
+    /// xAPI 1.0.3 (most deployed LMS plugins, authoring tools and cmi5 players).
+    #[serde(rename = "1.0.3")]
+    V1_0_3,
+    /// xAPI 2.0.0 (IEEE 9274.1.1).
+    #[default]
+    #[serde(rename = "2.0.0")]
+    V2_0_0,
+}
+
+impl XapiVersion {
+    /// The value stored in `lrs_credentials.xapi_version`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            XapiVersion::V1_0_3 => "1.0.3",
+            XapiVersion::V2_0_0 => "2.0.0",
+        }
+    }
+
+    fn from_column(s: &str) -> XapiVersion {
+        if s == "1.0.3" {
+            XapiVersion::V1_0_3
+        } else {
+            XapiVersion::V2_0_0
+        }
+    }
 }
 
 /// A credential as listed (never with its secret).
@@ -76,6 +111,8 @@ pub struct Credential {
     /// The xAPI Agent set as authority of the statements stored through it.
     #[schema(value_type = Object)]
     pub authority: Value,
+    /// The xAPI version the integration speaks.
+    pub xapi_version: XapiVersion,
     /// When it was created.
     #[serde(with = "time::serde::rfc3339")]
     pub created_at: OffsetDateTime,
@@ -111,6 +148,7 @@ type Row = (
     Value,
     OffsetDateTime,
     Option<OffsetDateTime>,
+    String,
 );
 
 fn from_row(r: Row) -> Credential {
@@ -123,10 +161,12 @@ fn from_row(r: Row) -> Credential {
         authority: r.5,
         created_at: r.6,
         revoked_at: r.7,
+        xapi_version: XapiVersion::from_column(&r.8),
     }
 }
 
-const COLUMNS: &str = "id, name, key, can_read, can_write, authority, created_at, revoked_at";
+const COLUMNS: &str =
+    "id, name, key, can_read, can_write, authority, created_at, revoked_at, xapi_version";
 
 /// Create an LRS credential for an LMS integration (admin). The secret is in this response only.
 #[utoipa::path(post, path = "/api/admin/lrs-credentials", tag = "lms", request_body = NewCredential,
@@ -138,8 +178,9 @@ pub async fn create_credential(
     ApiJson(req): ApiJson<NewCredential>,
 ) -> Result<(StatusCode, Json<CreatedCredential>), ApiError> {
     user.require(&[Role::Admin])?;
+    // The documented limit is on the name as sent (the trimmed one is stored).
     let name = req.name.trim();
-    if name.is_empty() || name.chars().count() > 200 {
+    if name.is_empty() || req.name.chars().count() > 200 {
         return Err(ApiError::BadRequest("name: 1 to 200 characters".into()));
     }
     if name.contains('\0') {
@@ -156,8 +197,9 @@ pub async fn create_credential(
     });
     let mut tx = state.pool.begin().await?;
     let row: Row = sqlx::query_as(&format!(
-        "INSERT INTO lrs_credentials (id, name, key, secret_sha256, can_read, can_write, authority, created_by)
-         VALUES ($1, $2, $3, $4, $5, $6, $7, $8) RETURNING {COLUMNS}"
+        "INSERT INTO lrs_credentials
+           (id, name, key, secret_sha256, can_read, can_write, authority, created_by, xapi_version)
+         VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9) RETURNING {COLUMNS}"
     ))
     .bind(id)
     .bind(name)
@@ -167,6 +209,7 @@ pub async fn create_credential(
     .bind(write)
     .bind(&authority)
     .bind(user.id)
+    .bind(req.xapi_version.as_str())
     .fetch_one(&mut *tx)
     .await?;
     audit(
@@ -175,7 +218,8 @@ pub async fn create_credential(
         "lrs_credential_created",
         "lrs_credential",
         &id.to_string(),
-        json!({ "name": name, "read": read, "write": write }),
+        json!({ "name": name, "read": read, "write": write,
+            "xapi_version": req.xapi_version.as_str() }),
     )
     .await?;
     tx.commit().await?;

@@ -12,8 +12,10 @@
 //!    [`crate::error::ApiError`], and [`error::Invalid`], data that breaks the data model),
 //!    `version` (the `X-Experience-API-Version` header on every request and response), `agent`
 //!    and `validate` (the data model: Agents and Groups, their identity keys, whole statements);
-//! 2. `state` ([`XapiState`]), then `auth` (the credential extractor) and `alternate` (the
-//!    xAPI 1.0.3 Alternate Request Syntax, rewritten into ordinary requests);
+//! 2. `state` ([`XapiState`]), then `auth` (the credential extractor), `version_gate` (the
+//!    middleware that refuses a request without an accepted version, answered in the version
+//!    of its credential) and `alternate` (the xAPI 1.0.3 Alternate Request Syntax, rewritten into
+//!    ordinary requests);
 //! 3. the resources: `about`, `statements`, `documents` (State, Activity Profile, Agent
 //!    Profile), `agents`, `activities`, and `credentials` (admin endpoints under `/api/admin/`);
 //! 4. the platform's own statements: `platform` (records become statements through a queue the
@@ -39,6 +41,7 @@ pub mod state;
 pub mod statements;
 pub mod validate;
 pub mod version;
+pub mod version_gate;
 
 pub use error::XapiError;
 pub use routes::router;

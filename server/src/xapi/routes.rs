@@ -9,7 +9,7 @@ use utoipa_axum::routes;
 use super::auth::LrsClient;
 use super::state::XapiState;
 use super::{
-    about, activities, agents, alternate, credentials, documents, forward, statements, version,
+    about, activities, agents, alternate, credentials, documents, forward, statements, version_gate,
 };
 use crate::error::ApiError;
 
@@ -62,7 +62,10 @@ pub fn router<S: Clone + Send + Sync + 'static>(
         .with_state(state.clone());
     let lrs = lrs
         .merge(unknown)
-        .layer(axum::middleware::from_fn(version::version_header));
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            version_gate::version_header,
+        ));
     // The Alternate Request Syntax changes a request's method and query, so it must run before
     // the routes are matched: it wraps the routed LRS as one service, which the three paths
     // under `/xapi` hand their requests to whole (path included).

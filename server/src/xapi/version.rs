@@ -10,10 +10,7 @@
 //! deployed LMS content; their statements are valid 2.0 statements but for the few properties 2.0
 //! added). Anything else, or no header, is refused with 400 before a handler runs.
 
-use axum::extract::Request;
-use axum::http::{HeaderMap, HeaderValue, Method};
-use axum::middleware::Next;
-use axum::response::{IntoResponse, Response};
+use axum::http::HeaderMap;
 use serde_json::Value;
 use utoipa::IntoParams;
 
@@ -134,24 +131,6 @@ pub fn statement_as_1_0(mut statement: Value) -> Value {
         strip(sub);
     }
     statement
-}
-
-/// Middleware of the `/xapi/` router: checks the request's header and sets the response's.
-pub async fn version_header(req: Request, next: Next) -> Response {
-    let about = req.uri().path().trim_end_matches('/') == "/xapi/about";
-    let preflight = req.method() == Method::OPTIONS;
-    let spoken = Spoken::of(req.headers());
-    let mut resp = if about || preflight {
-        next.run(req).await
-    } else {
-        match VersionHeader::read(req.headers()) {
-            Ok(_) => next.run(req).await,
-            Err(e) => e.into_response(),
-        }
-    };
-    resp.headers_mut()
-        .insert(VERSION_HEADER, HeaderValue::from_static(spoken.answer()));
-    resp
 }
 
 #[cfg(test)]
