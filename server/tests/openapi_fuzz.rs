@@ -18,6 +18,10 @@
 //!
 //! Bounded for CI: [`MAX_EXAMPLES`] cases per operation and phase, a fixed [`SEED`], one worker.
 //! Each run's full output and JUnit report land in `target/openapi-fuzz/`, beside the document.
+//! A run's exit status alone would also pass a run that tested nothing, so each run must also show
+//! every operation the document lists, less the exclusions below, as tested: a JUnit test case per
+//! operation, none skipped, the summary's selected and tested counts, every one of them run by the
+//! coverage and the fuzzing phases, and at least two generated cases per operation.
 //!
 //! Exclusions, and why: only `POST /api/auth/logout` is left out of the three logged-in runs,
 //! because it ends the very session the run authenticates with (everything after it would test
@@ -36,7 +40,8 @@
 //! is fuzzed: nothing here lists operations. The server has the in-process dispatcher
 //! over the render worker's demo region and station, as in `dispatch.rs`.
 
-use std::path::PathBuf;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
@@ -152,6 +157,143 @@ fn counts(output: &str) -> RunCounts {
     }
 }
 
+/// The operations a document lists, as schemathesis names them (`GET /api/auth/me`).
+fn documented_operations(doc: &serde_json::Value) -> BTreeSet<String> {
+    const METHODS: [&str; 8] = [
+        "get", "put", "post", "delete", "patch", "head", "options", "trace",
+    ];
+    doc["paths"]
+        .as_object()
+        .expect("the document lists paths")
+        .iter()
+        .flat_map(|(path, item)| {
+            METHODS
+                .iter()
+                .filter(|m| item.get(**m).is_some())
+                .map(move |m| format!("{} {path}", m.to_uppercase()))
+        })
+        .collect()
+}
+
+/// The operations one JUnit report has a test case for (its stateful-phase case left out), and
+/// how many cases it reports skipped.
+fn junit_operations(xml: &str) -> (BTreeSet<String>, usize) {
+    let names = xml
+        .split("<testcase name=\"")
+        .skip(1)
+        .filter_map(|rest| rest.split('"').next())
+        .map(|name| {
+            name.replace("&quot;", "\"")
+                .replace("&lt;", "<")
+                .replace("&gt;", ">")
+                .replace("&apos;", "'")
+                .replace("&amp;", "&")
+        })
+        .filter(|name| name != "Stateful tests")
+        .collect();
+    (names, xml.matches("<skipped").count())
+}
+
+/// How many operations a phase of the run exercised (passed or failed) and how many it skipped
+/// or could not run, from the line below its heading (`✅ 62 passed  ❌  1 failed`); `None`
+/// when the output has no such phase.
+fn phase_counts(lines: &[&str], phase: &str) -> Option<(u64, u64)> {
+    let at = lines
+        .iter()
+        .position(|l| l.contains(&format!("{phase} (in ")))?;
+    let line = lines[at + 1..].iter().find(|l| !l.is_empty())?;
+    let words: Vec<&str> = line.split_whitespace().collect();
+    let (mut exercised, mut not_run) = (0, 0);
+    for pair in words.windows(2) {
+        if let Ok(n) = pair[0].parse::<u64>() {
+            if pair[1].starts_with("passed") || pair[1].starts_with("failed") {
+                exercised += n;
+            } else {
+                not_run += n;
+            }
+        }
+    }
+    Some((exercised, not_run))
+}
+
+/// What shows that one run tested every operation it was meant to, each through the coverage
+/// and fuzzing phases: its JUnit report (in `report`, which the run had to itself) and its
+/// output. Returns each shortfall found.
+fn coverage_problems(
+    text: &str,
+    report: &Path,
+    expected: &BTreeSet<String>,
+    documented: usize,
+) -> Vec<String> {
+    let mut problems = Vec::new();
+    let reports: Vec<PathBuf> = std::fs::read_dir(report)
+        .map(|d| d.filter_map(Result::ok).map(|e| e.path()).collect())
+        .unwrap_or_default();
+    match reports.as_slice() {
+        [one] => {
+            let xml = std::fs::read_to_string(one).expect("read the JUnit report");
+            let (tested, skipped) = junit_operations(&xml);
+            let missing: Vec<_> = expected.difference(&tested).collect();
+            let unknown: Vec<_> = tested.difference(expected).collect();
+            if !missing.is_empty() || !unknown.is_empty() {
+                problems.push(format!(
+                    "JUnit report: {} of {} operations tested; missing {missing:?}, \
+                     not documented or excluded {unknown:?}",
+                    tested.len(),
+                    expected.len()
+                ));
+            }
+            if skipped > 0 {
+                problems.push(format!("JUnit report: {skipped} test cases skipped"));
+            }
+        }
+        other => problems.push(format!("expected one JUnit report, found {other:?}")),
+    }
+    let lines: Vec<&str> = text.lines().map(str::trim).collect();
+    let field = |name: &str| lines.iter().rev().find_map(|l| l.strip_prefix(name));
+    let selected = format!("{}/{documented}", expected.len());
+    if field("Selected: ") != Some(selected.as_str()) {
+        problems.push(format!(
+            "selected {:?}, expected {selected}",
+            field("Selected: ")
+        ));
+    }
+    let tested = expected.len().to_string();
+    if field("Tested: ") != Some(tested.as_str()) {
+        problems.push(format!(
+            "tested {:?} operations, expected {tested}",
+            field("Tested: ")
+        ));
+    }
+    // Every operation runs in the coverage phase and in the fuzzing phase (the examples phase
+    // skips those without examples, and the stateful phase follows links), so both report
+    // every operation, none skipped.
+    let operations = expected.len() as u64;
+    for phase in ["Coverage", "Fuzzing"] {
+        match phase_counts(&lines, phase) {
+            Some((exercised, 0)) if exercised == operations => {}
+            found => problems.push(format!(
+                "{phase} phase: (exercised, skipped or not run) = {found:?}, \
+                 expected {operations} exercised"
+            )),
+        }
+    }
+    // At least one generated case per operation in each of those two phases.
+    let generated = lines
+        .iter()
+        .position(|l| *l == "Test cases:")
+        .and_then(|i| lines.get(i + 1))
+        .and_then(|l| l.split_whitespace().next())
+        .and_then(|n| n.parse::<u64>().ok());
+    if generated.is_none_or(|n| n < 2 * operations) {
+        problems.push(format!(
+            "{generated:?} test cases generated, fewer than two per operation ({})",
+            2 * operations
+        ));
+    }
+    problems
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_documented_operation_holds_under_schemathesis() {
     let cli = schemathesis();
@@ -253,6 +395,17 @@ async fn every_documented_operation_holds_under_schemathesis() {
         .expect("fetch the document");
     assert_eq!(doc.status, 200);
     std::fs::write(out_dir.join("openapi.json"), &doc.body).expect("write openapi.json");
+    let documented = documented_operations(&doc.json().expect("the document is JSON"));
+    // The operations left out (see the module doc): each is documented, so leaving it out is
+    // what keeps it from the run, and every other one must be tested.
+    const WEBSOCKET: &str = "GET /api/sessions/{session_id}/ws";
+    const LOGOUT: &str = "POST /api/auth/logout";
+    for left_out in [WEBSOCKET, LOGOUT] {
+        assert!(
+            documented.contains(left_out),
+            "{left_out} is not documented"
+        );
+    }
 
     let identities: [(&str, Option<&(String, String)>); 4] = [
         ("anonymous", None),
@@ -262,6 +415,7 @@ async fn every_documented_operation_holds_under_schemathesis() {
     ];
     let started = Instant::now();
     let mut failed = Vec::new();
+    let mut untested = Vec::new();
     for (who, auth) in identities {
         let mut cmd = Command::new(&cli);
         cmd.arg("--config-file")
@@ -289,7 +443,19 @@ async fn every_documented_operation_holds_under_schemathesis() {
                 .args(["--exclude-path", "/api/auth/logout"]);
         }
         let report = out_dir.join(who);
+        // The run's report is the only one in its folder, so the check below reads this run's.
+        match std::fs::remove_dir_all(&report) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                panic!("clear {}: {e}", report.display())
+            }
+            _ => {}
+        }
         cmd.args(["--report", "junit", "--report-dir"]).arg(&report);
+        let mut expected = documented.clone();
+        expected.remove(WEBSOCKET);
+        if auth.is_some() {
+            expected.remove(LOGOUT);
+        }
         let run_started = Instant::now();
         let out = tokio::task::spawn_blocking(move || cmd.output())
             .await
@@ -315,8 +481,17 @@ async fn every_documented_operation_holds_under_schemathesis() {
             println!("(also in target/openapi-fuzz/{who}.log)");
             failed.push(who);
         }
+        // A run that tested nothing also exits 0: it must have tested every operation.
+        for problem in coverage_problems(&text, &report, &expected, documented.len()) {
+            untested.push(format!("{who}: {problem}"));
+        }
     }
     println!("openapi fuzz: four runs in {:.0?}", started.elapsed());
+    assert!(
+        untested.is_empty(),
+        "schemathesis did not test every operation:\n{}",
+        untested.join("\n")
+    );
     assert!(
         failed.is_empty(),
         "schemathesis found failures as {failed:?} (output above)"

@@ -230,27 +230,94 @@ async fn a_result_that_does_not_replay_is_voided_and_incomplete_results_are_flag
     );
 }
 
+/// Counts every row of the projection queue.
+async fn queue_len(app: &TestApp) -> i64 {
+    sqlx::query_scalar("SELECT count(*) FROM xapi_projection_queue")
+        .fetch_one(app.pool())
+        .await
+        .unwrap()
+}
+
+/// Counts the queue rows of one activity event, so a test can tell its own record's row apart
+/// from those the world's fixtures queued.
+async fn queued_rows(app: &TestApp, event: i64) -> i64 {
+    sqlx::query_scalar(
+        "SELECT count(*) FROM xapi_projection_queue \
+         WHERE source = 'activity_event' AND record_id = $1",
+    )
+    .bind(event.to_string())
+    .fetch_one(app.pool())
+    .await
+    .unwrap()
+}
+
+/// Inserts one `injection` event in its own transaction and commits or rolls it back.
+async fn insert_event(app: &TestApp, w: &World, commit: bool) -> i64 {
+    let mut tx = app.pool().begin().await.unwrap();
+    let id: i64 = sqlx::query_scalar(
+        "INSERT INTO activity_events (attempt_id, user_id, kind) \
+         VALUES ($1, $2, 'injection') RETURNING id",
+    )
+    .bind(w.attempt_open)
+    .bind(w.learner)
+    .fetch_one(&mut *tx)
+    .await
+    .unwrap();
+    if commit {
+        tx.commit().await.unwrap();
+    } else {
+        tx.rollback().await.unwrap();
+    }
+    id
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_rolled_back_record_is_never_projected() {
     let app = TestApp::new(&[]).await;
     let w = World::build(&app, "xr").await;
-    let before: i64 = sqlx::query_scalar("SELECT count(*) FROM xapi_projection_queue")
-        .fetch_one(app.pool())
+
+    // Positive control: the same insert, committed, is queued by its trigger. Without it the
+    // rollback check below would pass even if nothing were ever queued.
+    let before = queue_len(&app).await;
+    let kept = insert_event(&app, &w, true).await;
+    assert_eq!(
+        queue_len(&app).await,
+        before + 1,
+        "a committed record is queued once"
+    );
+    assert_eq!(
+        queued_rows(&app, kept).await,
+        1,
+        "the queued row is this record's"
+    );
+
+    let before = queue_len(&app).await;
+    let dropped = insert_event(&app, &w, false).await;
+    assert_eq!(
+        queue_len(&app).await,
+        before,
+        "a rolled-back record leaves no queue row"
+    );
+    assert_eq!(queued_rows(&app, dropped).await, 0);
+
+    // The projector turns the committed record into a statement and nothing into one for the
+    // rolled-back record.
+    Projector::new(app.pool().clone(), PUBLIC, None)
+        .drain()
         .await
         .unwrap();
-    let mut tx = app.pool().begin().await.unwrap();
-    sqlx::query(
-        "INSERT INTO activity_events (attempt_id, user_id, kind) VALUES ($1, $2, 'injection')",
-    )
-    .bind(w.attempt_open)
-    .bind(w.learner)
-    .execute(&mut *tx)
-    .await
-    .unwrap();
-    tx.rollback().await.unwrap();
-    let after: i64 = sqlx::query_scalar("SELECT count(*) FROM xapi_projection_queue")
-        .fetch_one(app.pool())
+    let ids: Vec<Value> = forwarded(&app)
         .await
-        .unwrap();
-    assert_eq!(before, after);
+        .into_iter()
+        .map(|s| s["id"].clone())
+        .collect();
+    let id_of = |event: i64| json!(statement_id("activity_event", &event.to_string()));
+    assert!(
+        ids.contains(&id_of(kept)),
+        "the committed record is projected: {ids:?}"
+    );
+    assert!(
+        !ids.contains(&id_of(dropped)),
+        "the rolled-back record is not projected"
+    );
 }

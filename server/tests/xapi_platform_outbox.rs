@@ -184,17 +184,52 @@ async fn retries_back_off_exponentially_then_deliver() {
 
 #[test]
 fn backoff_is_capped_and_jittered_within_the_upper_half() {
+    // Samples per attempt count. With uniform jitter the chance that all of them miss the lowest
+    // (or highest) quarter of the range is 0.75^400, about 1e-50, and the sample mean's standard
+    // deviation is range / sqrt(12 * 400), about 1.4 % of the range, so the 10 % bound on the
+    // mean below is a 7-sigma margin: a correct implementation fails neither by chance.
+    const SAMPLES: usize = 400;
     let t = fast();
+    let mut previous_max = Duration::ZERO;
+    let mut previous_full = Duration::ZERO;
     for attempts in 1..40 {
         let full = (t.backoff_base * 2u32.pow(u32::try_from(attempts - 1).unwrap().min(30)))
             .min(t.backoff_max);
-        for _ in 0..20 {
-            let b = t.backoff(attempts);
+        let half = full / 2;
+        let range = full - half;
+        let drawn: Vec<Duration> = (0..SAMPLES).map(|_| t.backoff(attempts)).collect();
+        for b in &drawn {
             assert!(
-                b >= full / 2 && b <= full,
+                *b >= half && *b <= full,
                 "attempt {attempts}: {b:?} vs {full:?}"
             );
         }
+        // Jittered: the delays for one attempt spread over the whole upper half, centred on its
+        // middle, instead of being one constant value inside it.
+        let min = *drawn.iter().min().unwrap();
+        let max = *drawn.iter().max().unwrap();
+        assert!(
+            min < half + range / 4 && max > full - range / 4,
+            "attempt {attempts}: delays span only {min:?}..{max:?} of {half:?}..{full:?}"
+        );
+        let mean = drawn.iter().sum::<Duration>() / u32::try_from(SAMPLES).unwrap();
+        let middle = half + range / 2;
+        let off = mean.abs_diff(middle);
+        assert!(
+            off < range / 10,
+            "attempt {attempts}: mean {mean:?} is {off:?} from the middle {middle:?}"
+        );
+        // Exponential until the cap: while the full delay doubles, no delay of this attempt is
+        // shorter than any of the previous one (its upper half starts where the previous range
+        // ends).
+        if full == previous_full * 2 {
+            assert!(
+                min >= previous_max,
+                "attempt {attempts}: {min:?} < the previous attempt's {previous_max:?}"
+            );
+        }
+        previous_full = full;
+        previous_max = max;
     }
 }
 

@@ -272,9 +272,9 @@ fn coarse_cervical_build_is_deterministic_and_closed() {
     );
 }
 
-/// The default grid (1 mm): every mesh closed; prints the structure table and the build time.
+/// The default grid (1 mm), the cervical phantom every learner gets: every mesh closed; prints
+/// the structure table and the build time. A check of what ships, so it runs with the suite.
 #[test]
-#[ignore = "slow: builds the default cervical phantom"]
 fn default_cervical_build() {
     let params = cervical::default_params();
     let t0 = std::time::Instant::now();

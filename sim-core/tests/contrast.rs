@@ -101,19 +101,8 @@ fn two_material_face_transmissibility_is_the_standard_0_08() {
         f.transmissibility[0][0]
     );
     assert!((harmonic_face(1.0, 1.0, 0.2, 1.0, 0.05) - 0.08).abs() < 1e-15);
-    // The flux it drives: one step of 0.1 s with c = (1, 0) and no flow moves 0.08 * 0.1 * 1.
-    let mut m = ContrastModel::new(g, ModelConfig::default());
-    let out = NeedleOutlet::tuohy([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]);
-    m.start_injection(
-        &out,
-        &Injection {
-            agent: Agent::CONTRAST,
-            volume_ml: 1e-9,
-            rate_ml_s: 1e-3,
-        },
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    assert!(m.retained_mm3() == 0.0);
+    // The flux this face drives, 0.08 mm^3/s times the concentration difference, is checked on
+    // the transport update itself (`contrast::transport` unit tests).
 }
 
 /// A masked 1000x-contrast grid: an outer pooling box with a vascular tube, an epidural slab
@@ -199,6 +188,35 @@ fn stop_rule_delivers_the_requested_energy_norm_pressure_error() {
             assert!(energy <= tol, "{pc:?} {tol}: energy-norm error {energy}");
         }
     }
+}
+
+/// Multigrid-PCG converges to the benchmark's 1e-6 energy-norm error in at most 30 iterations at
+/// 128^3 on the benchmark's own grid (1000x mobility contrast, solid lattice, drains), and the
+/// count does not grow from 64^3 to 128^3 by more than a few iterations: the mesh-independence a
+/// multigrid preconditioner is for (a Jacobi-PCG count roughly doubles with each halving of h).
+/// A convergence property, not a speed goal: the times are the benchmark's. The bound 30 is the
+/// multigrid module's stated design target; 64^3 needs 12 (contrast bench).
+#[test]
+fn multigrid_pcg_needs_at_most_30_iterations_at_128_cubed() {
+    let rule = StopRule {
+        rel_error: 1e-6,
+        max_iter: 200,
+    };
+    let mut counts = Vec::new();
+    for n in [64, 128] {
+        let (g, q) = sim_core::contrast::benchmark::solver_grid(n);
+        let (_, stats) = steady_pressure(&g, &q, Preconditioner::Multigrid, rule);
+        println!("multigrid-PCG {n}^3: {} iterations", stats.iterations);
+        assert!(stats.converged, "{n}^3: {stats:?}");
+        counts.push(stats.iterations);
+    }
+    assert!(counts[1] <= 30, "128^3 took {} iterations", counts[1]);
+    assert!(
+        counts[1] <= counts[0] + 4,
+        "iterations grew from {} at 64^3 to {} at 128^3",
+        counts[0],
+        counts[1]
+    );
 }
 
 /// Layers along y (pooling, epidural, subdural, intrathecal), a vessel along z through the

@@ -7,6 +7,7 @@
 //! and file length.
 
 mod digraph;
+mod ignored;
 mod module_graph;
 mod rust_scan;
 mod scanner_tests;
@@ -339,5 +340,41 @@ fn no_source_file_over_1000_lines() {
         "files over {LINE_LIMIT} lines (split them, or list them in OVERSIZED_FILES with a \
          reason): {unlisted:?}\nOVERSIZED_FILES entries now under the limit or gone (remove \
          them): {stale:?}"
+    );
+}
+
+/// Architecture invariant: no test of what ships is ignored in CI. An `#[ignore]`d test that holds
+/// an assertion (see `ignored` for what counts) must be run by `.ci/test` with `--ignored`, by
+/// name; ignored tests without assertions (reports, pictures for a person) may stay ignored.
+#[test]
+fn no_asserting_test_is_ignored_unless_ci_runs_it() {
+    let meta = metadata();
+    let root = meta.workspace_root.as_std_path();
+    let ci = std::fs::read_to_string(root.join(".ci/test")).expect(".ci/test");
+    let mut files = Vec::new();
+    for krate in ["sim-core", "render-worker", "server", "tests"] {
+        rust_files(&root.join(krate), &mut files);
+    }
+    files.sort();
+    let (mut seen, mut hidden) = (0, Vec::new());
+    for file in &files {
+        let src = std::fs::read_to_string(file).expect("source file");
+        for t in ignored::ignored_tests(&src) {
+            seen += 1;
+            if t.asserts && !ignored::ci_runs_ignored(&ci, &t.name) {
+                hidden.push(format!(
+                    "{}:{} {}",
+                    file.strip_prefix(root).unwrap_or(file).display(),
+                    t.line,
+                    t.name
+                ));
+            }
+        }
+    }
+    assert!(seen > 0, "the scan finds the workspace's ignored tests");
+    assert!(
+        hidden.is_empty(),
+        "ignored tests that assert something, which CI never runs: {hidden:?} (un-ignore them, \
+         or run them from .ci/test with `--ignored` and their name)"
     );
 }

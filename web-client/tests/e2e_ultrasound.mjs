@@ -351,7 +351,8 @@ await runReport(async (page, report) => {
 
   // Rock (Shift+Left: 2 degrees in the scan plane), rotate (Q: 5 degrees about the beam), and
   // back (E, then Shift+Right): each an exact inverse about the same axis.
-  const angle = (a, b) => (Math.acos(Math.min(1, Math.abs(dot(norm(a), norm(b))))) * 180) / Math.PI;
+  // Signed: a direction turned over (180 degrees) reads as 180, not as 0 as it would from |dot|.
+  const angle = (a, b) => (Math.acos(Math.max(-1, Math.min(1, dot(norm(a), norm(b))))) * 180) / Math.PI;
   await page.focus('#bmode');
   const p0 = await outcome(page);
   await page.keyboard.press('Shift+ArrowLeft');

@@ -31,6 +31,20 @@ export async function login(page, email, code) {
   await page.click('#login-submit');
 }
 
+/** HTTP error answers the client meets by design, by path: the session probe before login is
+ * refused with 401 (no session yet), and health answers 503 while the render worker's GPU check
+ * runs. Any other error answer, every other 5xx included, is a console error of the run. */
+const EXPECTED_HTTP_ERRORS = [
+  { path: '/api/auth/me', status: 401 },
+  { path: '/healthz', status: 503 },
+];
+
+function isExpectedHttpError(url, status) {
+  let path;
+  try { path = new URL(url).pathname; } catch { return false; }
+  return EXPECTED_HTTP_ERRORS.some((e) => e.path === path && e.status === status);
+}
+
 /** Starts Chromium with a fresh profile in `profile`; collects script errors. */
 export async function launch(profile) {
   const context = await chromium.launchPersistentContext(profile, {
@@ -42,9 +56,17 @@ export async function launch(profile) {
   });
   const page = context.pages()[0] || await context.newPage();
   const consoleErrors = [];
-  // Script errors; the browser's own "Failed to load resource" lines for expected HTTP errors
-  // (401 from /api/auth/me before login, 503 health while the GPU check runs) are not ours.
-  page.on('console', (m) => { if (m.type() === 'error' && !m.text().startsWith('Failed to load resource')) consoleErrors.push(m.text()); });
+  // Script errors, and the browser's own "Failed to load resource" line for every HTTP error
+  // answer except those the client meets by design (EXPECTED_HTTP_ERRORS): an API 500, or any
+  // other refusal the client did not ask for, fails the run even when the page carries on.
+  page.on('console', (m) => {
+    if (m.type() !== 'error') return;
+    const text = m.text();
+    const failed = /^Failed to load resource: the server responded with a status of (\d+)/.exec(text);
+    const url = m.location().url || '';
+    if (failed && isExpectedHttpError(url, Number(failed[1]))) return;
+    consoleErrors.push(url ? `${text} (${url})` : text);
+  });
   page.on('pageerror', (e) => consoleErrors.push(String(e)));
   page.setDefaultTimeout(STEP_TIMEOUT_MS);
   return { context, page, consoleErrors };

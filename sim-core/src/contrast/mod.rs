@@ -36,6 +36,7 @@
 //! assert!(model.ledger().balance_error(model.retained_mm3()) < 1e-12);
 //! ```
 
+pub mod benchmark;
 mod cells;
 pub mod classify;
 pub mod domains;

@@ -125,23 +125,7 @@ fn tokenize(src: &str) -> Vec<Token> {
                 i += 1;
             }
         } else if c == '/' && at(i + 1) == '*' {
-            // Block comments nest in Rust.
-            let mut nest = 0;
-            while i < s.len() {
-                if s[i] == '/' && at(i + 1) == '*' {
-                    nest += 1;
-                    i += 2;
-                } else if s[i] == '*' && at(i + 1) == '/' {
-                    nest -= 1;
-                    i += 2;
-                    if nest == 0 {
-                        break;
-                    }
-                } else {
-                    line += u32::from(s[i] == '\n');
-                    i += 1;
-                }
-            }
+            i = skip_block_comment(&s, i, &mut line);
         } else if c == '"' {
             i = skip_string(&s, i + 1, &mut line);
             push(Tok::Literal);
@@ -216,6 +200,29 @@ fn tokenize(src: &str) -> Vec<Token> {
         }
     }
     toks
+}
+
+/// Skips a block comment whose `/*` starts at `i` (block comments nest in Rust); returns the
+/// index after its closing `*/`, counting the newlines it passes in `line`.
+pub fn skip_block_comment(s: &[char], mut i: usize, line: &mut u32) -> usize {
+    let at = |k: usize| s.get(k).copied().unwrap_or('\0');
+    let mut nest = 0;
+    while i < s.len() {
+        if s[i] == '/' && at(i + 1) == '*' {
+            nest += 1;
+            i += 2;
+        } else if s[i] == '*' && at(i + 1) == '/' {
+            nest -= 1;
+            i += 2;
+            if nest == 0 {
+                break;
+            }
+        } else {
+            *line += u32::from(s[i] == '\n');
+            i += 1;
+        }
+    }
+    i
 }
 
 /// Skips a string body starting after its opening quote; returns the index after the closing one.
