@@ -253,6 +253,9 @@ async function openSession(attemptId, stationId) {
     ctx.fillStyle = '#000';
     ctx.fillRect(0, 0, 512, 512);
     live = new LiveSession(s.ws);
+    // A new session starts with the beam off.
+    $('live').setAttribute('aria-pressed', 'false');
+    restartLiveTicks();
     us.reset(station);
     needle.reset(station);
     $('dose').textContent = '–';
@@ -269,6 +272,7 @@ async function openSession(attemptId, stationId) {
       window.__sim.views = views;
       live.setVisible(views);
       showViews(views, e.detail.session.protocol);
+      $('pps').value = String(live.constant('fluoroscopy', 'default_pulse_rate_pps', 7.5));
     });
     live.addEventListener('frame', (e) => {
       const { bitmap, frame } = e.detail;
@@ -295,6 +299,8 @@ async function openSession(attemptId, stationId) {
       if (o.depth_mm != null) $('depth').textContent = `${fmt(o.depth_mm, 1)} mm`;
       if (o.injected_ml != null) $('injected').textContent = `${fmt(o.injected_ml, 2)} mL`;
       if (o.dose) $('dose').textContent = doseWords(o.dose);
+      // The rate the session runs at, as the fluoroscopy modality acknowledged it.
+      if (o.pulse_rate_pps != null) { $('pps').value = String(o.pulse_rate_pps); window.__sim.pulseRate = o.pulse_rate_pps; }
     });
     live.addEventListener('commanderror', (e) => {
       needle.error(e.detail);
@@ -352,11 +358,28 @@ function sendTechnique() {
 $('kvp').addEventListener('change', sendTechnique);
 $('ma').addEventListener('change', sendTechnique);
 $('shot').addEventListener('click', () => live && live.send({ type: 'shot' }));
+// Pulsed fluoroscopy: the learner's pulse rate (the session starts at the hello's
+// `default_pulse_rate_pps`). While live runs the client ticks the session clock once per pulse,
+// so a change that came between two pulses is imaged by the next one (ticks move only the
+// logged clock; a pulse with nothing new renders nothing).
+let liveTicker = null;
+function pulsePeriodMs() { return 1000 / Number($('pps').value || 7.5); }
+function restartLiveTicks() {
+  if (liveTicker) { clearInterval(liveTicker); liveTicker = null; }
+  if (!live || $('live').getAttribute('aria-pressed') !== 'true') return;
+  liveTicker = setInterval(() => { if (live) live.send({ type: 'tick' }); }, pulsePeriodMs());
+}
 $('live').addEventListener('click', (e) => {
   if (!live) return;
   const on = e.target.getAttribute('aria-pressed') !== 'true';
   e.target.setAttribute('aria-pressed', String(on));
   live.send({ type: 'live', on });
+  restartLiveTicks();
+});
+$('pps').addEventListener('change', () => {
+  if (!live) return;
+  live.send({ type: 'pulse_rate', pps: Number($('pps').value) });
+  restartLiveTicks();
 });
 
 $('us-needle-place').addEventListener('click', () => us.placeInPlane($('instrument').value));

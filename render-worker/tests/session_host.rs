@@ -53,14 +53,11 @@ async fn protocol_over_channels_acknowledges_every_input_and_keeps_only_the_newe
         text(from_worker.next().await.unwrap()),
         ServerMessage::Hello { last_seq: 0, .. }
     ));
-    // 1: live on; then 2..=12: C-arm moves, each a live frame; one bad command in between.
-    to_worker
-        .send(Ok(cmd_text(1, &Command::Live { on: true })))
-        .await
-        .unwrap();
-    for k in 2..=12u64 {
+    // 1..=12: shots, each a new image (live fluoroscopy would image them once per pulse); one
+    // bad command after them.
+    for k in 1..=12u64 {
         to_worker
-            .send(Ok(cmd_text(k, &pose(k as f64, 0.0))))
+            .send(Ok(cmd_text(k, &Command::Shot)))
             .await
             .unwrap();
     }
@@ -110,12 +107,12 @@ async fn protocol_over_channels_acknowledges_every_input_and_keeps_only_the_newe
     let (snap, log) = h.snapshot().await.unwrap();
     assert_eq!((snap.last_seq, log.len()), (12, 12));
 
-    // A client that stops reading: eleven more live frames are made while it sleeps; when it
-    // reads again it gets at most the frame the worker was blocked on and then the newest one.
+    // A client that stops reading: eleven more shots are imaged while it sleeps; when it reads
+    // again it gets at most the frame the worker was blocked on and then the newest one.
     for k in 13..=23u64 {
         h.command(Envelope {
             seq: k,
-            command: pose(k as f64, 0.0),
+            command: Command::Shot,
         })
         .await
         .unwrap();

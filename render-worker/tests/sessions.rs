@@ -5,6 +5,7 @@
 //! frame renders in milliseconds. The fixtures live in `sessions/support.rs` (other test modules
 //! use them through this module); the tests are grouped by concern in `sessions/`.
 
+mod pulsed;
 mod rendering;
 mod replay;
 mod scoring;
@@ -41,7 +42,13 @@ fn scripted_frames_sha256(env: SessionEnv) -> (String, usize) {
         ),
         (1200, Command::Submit),
     ];
-    let mut s = Session::new(env, config());
+    // The script predates pulsed fluoroscopy: it runs on a session without a pulse rate (one
+    // recorded before pulsing), which keeps the continuous beam the hashes were recorded with.
+    let mut initial = Session::new(env.clone(), config()).snapshot();
+    if let Some(f) = initial.modalities.get_mut("fluoroscopy") {
+        f.as_object_mut().unwrap().remove("pulse_rate_pps");
+    }
+    let mut s = Session::restore(env, &initial, &[]).unwrap();
     let mut h = Sha256::new();
     let mut frames = 0;
     for (k, (t, command)) in steps.into_iter().enumerate() {

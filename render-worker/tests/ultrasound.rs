@@ -545,6 +545,10 @@ fn a_station_with_both_modalities_shows_one_needle_in_both_and_the_carm_on_the_p
     let entry = skin_above(t - DVec3::X * 35.0) - DVec3::Y * 2.0;
     let aim = skin_above(t - DVec3::X * 10.0) + DVec3::Y * 20.0;
     needle(&mut r, &mut clock, entry, aim, 15.0, 1);
+    // Live fluoroscopy images the move at its next pulse (7.5 per second: within 134 ms; the
+    // client ticks the clock once per pulse).
+    clock += 134;
+    r.ok(clock, Command::Tick);
     for view in [ViewId::FLUOROSCOPY, ViewId::ULTRASOUND, ViewId::PLACEMENT] {
         assert!(r.render(view).is_some(), "{view:?} shows the needle move");
     }

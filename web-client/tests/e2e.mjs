@@ -184,6 +184,10 @@ await runReport(async (page, report) => {
 
   // Contrast: live fluoroscopy, then hold the plunger (0.5 mL at 0.5 mL/s) for 1.2 s and
   // release; the client ticks the session clock while fluid moves and for 2 s after.
+  // Pulsed fluoroscopy at 15 pulses per second for this run (the session starts at 7.5).
+  if (await page.inputValue('#pps') !== '7.5') throw new Error('the pulse rate does not start at 7.5 /s');
+  await page.selectOption('#pps', '15');
+  await waitUntil(page, () => window.__sim.live.pending.size === 0 && window.__sim.pulseRate === 15);
   await act(page, () => page.click('#live'));
   const beforeContrast = await capture(page, '4-live-before-contrast');
   const framesBeforeInjection = await framesSoFar(page);

@@ -11,6 +11,7 @@
 
 mod backend;
 pub mod dose;
+pub mod pulse;
 
 use std::sync::Arc;
 
@@ -116,6 +117,14 @@ pub struct FluoroState {
     pub shots: u32,
     /// Live runs started.
     pub live_runs: u32,
+    /// Pulses per second of live fluoroscopy (see [`pulse`]); absent in sessions recorded before
+    /// pulsing, which keep the continuous beam.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pulse_rate_pps: Option<f64>,
+    /// A change waits for the next pulse to be imaged (live runs, and a pulse period has not
+    /// passed since the last image).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub pulse_pending: bool,
     /// Every image acquired (shots and live frames), oldest first; the last one is displayed.
     pub images: Vec<AcquiredImage>,
     /// Marks placed on images.
@@ -171,6 +180,8 @@ impl FluoroModality {
                 exposure_ms: 0,
                 shots: 0,
                 live_runs: 0,
+                pulse_rate_pps: Some(pulse::DEFAULT_PULSE_RATE_PPS),
+                pulse_pending: false,
                 images: Vec::new(),
                 annotations: Vec::new(),
                 seed,
@@ -221,6 +232,26 @@ impl FluoroModality {
                 .map_or(0, |s| now_ms.saturating_sub(s))
     }
 
+    /// The fraction of the continuous beam a live second delivers at the session's pulse rate.
+    fn live_duty(&self) -> f64 {
+        pulse::duty(self.state.pulse_rate_pps)
+    }
+
+    /// A change while live runs: imaged now if a pulse is due, else by the next pulse (see
+    /// [`pulse`]); nothing without live fluoroscopy (last-image hold).
+    fn live_change(&mut self, world: &World) {
+        let Some(since) = self.state.live_since_ms else {
+            return;
+        };
+        let last = self.state.images.last().map(|i| i.t_ms);
+        if pulse::pulse_due(self.state.pulse_rate_pps, since, last, world.clock_ms) {
+            self.state.pulse_pending = false;
+            self.acquire(world, true);
+        } else {
+            self.state.pulse_pending = true;
+        }
+    }
+
     /// Books the live fluoroscopy since the last booking with the current pose and technique.
     fn book_live(&mut self, world: &World) {
         // A snapshot written before dose booking existed has a live run without a booking
@@ -233,7 +264,8 @@ impl FluoroModality {
         if let Some(t0) = mark {
             let p = self.projection();
             let seconds = world.clock_ms.saturating_sub(t0) as f64 / 1000.0;
-            let (kvp, ma) = (self.state.kvp, self.state.ma);
+            // A live second carries `duty` of the continuous beam's charge (see `pulse`).
+            let (kvp, ma) = (self.state.kvp, self.state.ma * self.live_duty());
             self.state.dose.book(&world.region, &p, kvp, ma, seconds);
             self.state.dose.live_booked_to_ms = Some(world.clock_ms);
         }
@@ -248,7 +280,7 @@ impl FluoroModality {
                 &world.region,
                 &self.projection(),
                 self.state.kvp,
-                self.state.ma,
+                self.state.ma * self.live_duty(),
                 world.clock_ms.saturating_sub(t0) as f64 / 1000.0,
             )
         });
@@ -366,8 +398,9 @@ pub static SPEC: ModalitySpec = ModalitySpec {
         CommandSpec::new("shot", Some(Engagement::ImageAcquired)),
         CommandSpec::new("live", Some(Engagement::ImageAcquired)),
         CommandSpec::new("annotate", None),
+        CommandSpec::new(pulse::PULSE_RATE_KIND, None),
     ],
-    constants: &[],
+    constants: &[("default_pulse_rate_pps", pulse::DEFAULT_PULSE_RATE_PPS)],
 };
 
 /// The device's fluoroscopy renderer, or the CPU reference on all cores when the device offers
@@ -409,17 +442,13 @@ impl Modality for FluoroModality {
                 self.state.orbital_deg = *orbital_deg;
                 self.state.angular_deg = *angular_deg;
                 self.state.table_mm = *table_mm;
-                if live {
-                    self.acquire(world, true);
-                }
+                self.live_change(world);
             }
             Command::Technique { kvp, ma } => {
                 self.book_live(world);
                 self.state.kvp = *kvp;
                 self.state.ma = *ma;
-                if live {
-                    self.acquire(world, true);
-                }
+                self.live_change(world);
             }
             Command::Shot => {
                 self.state.shots += 1;
@@ -439,12 +468,15 @@ impl Modality for FluoroModality {
                     self.state.live_runs += 1;
                     self.state.live_since_ms = Some(now);
                     self.state.dose.live_booked_to_ms = Some(now);
+                    self.state.pulse_pending = false;
                     self.acquire(world, true);
                 }
             }
             Command::Live { on: false } => {
                 self.book_live(world);
                 self.state.dose.live_booked_to_ms = None;
+                // The pedal is released: the last pulse's image stays (last-image hold).
+                self.state.pulse_pending = false;
                 if let Some(since) = self.state.live_since_ms.take() {
                     self.state.exposure_ms += now.saturating_sub(since);
                 }
@@ -476,6 +508,12 @@ impl Modality for FluoroModality {
                 let error = annotation_error_mm(self.state.annotations.last(), world);
                 return Ok(serde_json::json!({ "annotation_error_mm": error }));
             }
+            Command::Modality(c) if c.kind() == pulse::PULSE_RATE_KIND => {
+                let pps = pulse::parse(c)?;
+                // The live run so far is booked at the rate it ran at.
+                self.book_live(world);
+                self.state.pulse_rate_pps = Some(pps);
+            }
             other => {
                 return Err(CommandError::field(
                     "command.type",
@@ -485,6 +523,7 @@ impl Modality for FluoroModality {
             }
         }
         Ok(serde_json::json!({
+            "pulse_rate_pps": self.state.pulse_rate_pps,
             "acquisitions": self.state.shots + self.state.live_runs,
             "exposure_s": self.exposure_ms_at(now) as f64 / 1000.0,
             "image": self.state.images.last().map(|i| i.index),
@@ -492,13 +531,17 @@ impl Modality for FluoroModality {
         }))
     }
 
+    /// A change that waited for the next pulse is imaged once a pulse period has passed (the
+    /// clock moves only by logged commands, so replay images it at the same moment).
+    fn advance(&mut self, _from_ms: u64, world: &World) {
+        if self.state.pulse_pending {
+            self.live_change(world);
+        }
+    }
+
     fn world_changed(&mut self, change: &WorldChange, world: &World) {
         match change {
-            WorldChange::Needle | WorldChange::Marker => {
-                if self.state.live_since_ms.is_some() {
-                    self.acquire(world, true);
-                }
-            }
+            WorldChange::Needle | WorldChange::Marker => self.live_change(world),
             // Injected fluid shows through the contrast modality's iodine field, which makes
             // its own world change when it does.
             WorldChange::FluidInjected(_) => {}
@@ -508,8 +551,8 @@ impl Modality for FluoroModality {
             // newer than the last image's.
             WorldChange::Iodine => {
                 let imaged = self.state.images.last().and_then(|i| i.iodine_version);
-                if self.state.live_since_ms.is_some() && imaged != Some(world.iodine_version) {
-                    self.acquire(world, true);
+                if imaged != Some(world.iodine_version) {
+                    self.live_change(world);
                 }
             }
         }

@@ -1,0 +1,195 @@
+//! Pulsed fluoroscopy: the learner's pulse rate (4, 7.5, 15 or 30 per second, 7.5 by default)
+//! sets the live dose rate and how often live images are made, is logged and replayed, and is
+//! checked; sessions recorded before pulsing keep the continuous beam.
+
+use render_worker::session::*;
+use serde_json::json;
+
+use super::support::{Driver, config, env, place, pose};
+
+fn pulse_rate(pps: f64) -> Command {
+    serde_json::from_value(json!({ "type": "pulse_rate", "pps": pps })).unwrap()
+}
+
+/// Live images acquired so far.
+fn live_images(s: &Session) -> Vec<u64> {
+    s.snapshot().modalities["fluoroscopy"]["images"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|i| i["live"] == true)
+        .map(|i| i["t_ms"].as_u64().unwrap())
+        .collect()
+}
+
+/// A single shot of 0.1 s at 2 mA is 0.2 mAs; ten seconds of live fluoroscopy at `pps` deliver
+/// `pps / 30` of the continuous 20 mAs (each pulse one video frame's charge), so the kerma of the
+/// live run is `100 * pps / 30` shots' worth. The fluoroscopy time is the pedal time whatever the
+/// rate. Exact up to round-off (1e-9 relative: the same kerma per mAs and skin distance).
+#[test]
+fn live_dose_follows_the_pulse_rate() {
+    for pps in [4.0, 7.5, 15.0, 30.0] {
+        let mut d = Driver::new();
+        d.ok(500, Command::Shot);
+        let shot = d.s.measurements()["air_kerma_mgy"];
+        d.ok(600, pulse_rate(pps));
+        d.ok(1000, Command::Live { on: true });
+        d.ok(11_000, Command::Live { on: false });
+        let m = d.s.measurements();
+        let want = 1.0 + 100.0 * pps / 30.0;
+        assert!(
+            (m["air_kerma_mgy"] / shot - want).abs() < 1e-9 * want,
+            "{pps} pps: {} shots' worth, expected {want}",
+            m["air_kerma_mgy"] / shot
+        );
+        assert!((m["fluoro_time_s"] - 10.1).abs() < 1e-9, "{pps} pps");
+    }
+    // A new session runs at 7.5 pulses per second until the learner picks another rate, and a
+    // change of rate mid-run books the seconds before it at the old rate.
+    let mut d = Driver::new();
+    d.ok(500, Command::Shot);
+    let shot = d.s.measurements()["air_kerma_mgy"];
+    d.ok(1000, Command::Live { on: true });
+    d.ok(5000, pulse_rate(30.0));
+    d.ok(7000, Command::Live { on: false });
+    let ratio = d.s.measurements()["air_kerma_mgy"] / shot;
+    let want = 1.0 + 4.0 * 10.0 * 0.25 + 2.0 * 10.0;
+    assert!((ratio - want).abs() < 1e-9 * want, "{ratio} vs {want}");
+}
+
+/// While live runs, a change is imaged at most once per pulse (pulses on a grid from the pedal
+/// press): a C-arm drag of about 60 poses a second makes about 7.5 images a second at 7.5 pps and
+/// about 30 at 30 pps; the last pose waits for the next pulse (a tick in it images it), and after
+/// the pedal is released nothing more is imaged (last-image hold).
+#[test]
+fn live_images_come_at_most_one_per_pulse() {
+    for (pps, lo, hi) in [(7.5, 7, 9), (30.0, 28, 31)] {
+        let mut d = Driver::new();
+        d.ok(0, pulse_rate(pps));
+        d.ok(1000, Command::Live { on: true });
+        // A drag for one second: a pose every 16 ms (about 60 a second).
+        let mut t = 1000;
+        let mut k = 0;
+        while t < 2000 {
+            t += 16;
+            k += 1;
+            d.ok(t, pose(f64::from(k) * 0.1, 0.0));
+        }
+        let times = live_images(&d.s);
+        let n = times.len();
+        eprintln!("{pps} pps: {n} live images in a 1 s drag of {k} poses");
+        assert!(
+            (lo..=hi).contains(&n),
+            "{pps} pps: {n} live images in 1 s: {times:?}"
+        );
+        let period = 1000.0 / pps;
+        let pulse = |t: u64| ((t - 1000) as f64 / period).floor() as u64;
+        for w in times.windows(2) {
+            assert!(
+                pulse(w[1]) > pulse(w[0]),
+                "{pps} pps: two images in one pulse: {times:?}"
+            );
+        }
+        // The last pose is imaged by the first logged moment a period after the last image.
+        let last = *times.last().unwrap();
+        let imaged_pose = |s: &Session| {
+            s.snapshot().modalities["fluoroscopy"]["images"]
+                .as_array()
+                .unwrap()
+                .last()
+                .unwrap()["projection"]["orbital_deg"]
+                .as_f64()
+                .unwrap()
+        };
+        let final_pose = f64::from(k) * 0.1;
+        let due = 1000 + ((pulse(last) + 1) as f64 * period).ceil() as u64;
+        if imaged_pose(&d.s) != final_pose {
+            d.ok(due.max(t + 1), Command::Tick);
+        }
+        assert_eq!(imaged_pose(&d.s), final_pose, "{pps} pps");
+        // Released: later changes and ticks image nothing.
+        let released = live_images(&d.s).len();
+        d.ok(due.max(t + 1) + 10, Command::Live { on: false });
+        d.ok(due.max(t + 1) + 20, pose(-10.0, 0.0));
+        d.ok(due.max(t + 1) + 500, Command::Tick);
+        assert_eq!(
+            live_images(&d.s).len(),
+            released,
+            "{pps} pps: last-image hold"
+        );
+    }
+}
+
+/// The rate is one of four, named in the error otherwise; the command is logged and replays
+/// bit for bit, ticks and all.
+#[test]
+fn the_pulse_rate_is_checked_logged_and_replayed() {
+    let mut d = Driver::new();
+    for bad in [json!(10.0), json!(0.0), json!(-7.5), json!(1e9)] {
+        let c: Command =
+            serde_json::from_value(json!({ "type": "pulse_rate", "pps": bad })).unwrap();
+        let e = d.err(c);
+        assert_eq!(e.field, "command.pps", "{bad}: {e}");
+    }
+    for bad in [
+        json!({ "type": "pulse_rate", "pps": "7.5" }),
+        json!({ "type": "pulse_rate" }),
+        json!({ "type": "pulse_rate", "pps": 7.5, "extra": 1 }),
+    ] {
+        let c: Command = serde_json::from_value(bad.clone()).unwrap();
+        let e = d.err(c);
+        assert!(e.field.starts_with("command"), "{bad}: {e}");
+    }
+    let ack = d.ok(100, pulse_rate(15.0));
+    assert_eq!(ack.outcome["pulse_rate_pps"], 15.0);
+    d.ok(200, place([12.0, -100.0, 1.0], [0.0, 1.0, 0.05]));
+    d.ok(300, Command::Live { on: true });
+    for (k, t) in (310..900).step_by(30).enumerate() {
+        if k % 3 == 2 {
+            d.ok(t as u64, Command::Tick);
+        } else {
+            d.ok(t as u64, Command::NeedleFeed { mm: 1.0 });
+        }
+    }
+    d.ok(950, pulse_rate(4.0));
+    d.ok(1200, Command::NeedleFeed { mm: 1.0 });
+    d.ok(1500, Command::Live { on: false });
+    let initial = Session::new(env(), config()).snapshot();
+    let replayed = Session::restore(env(), &initial, d.s.log()).unwrap();
+    assert_eq!(replayed.snapshot().to_bytes(), d.s.snapshot().to_bytes());
+    assert_eq!(replayed.measurements(), d.s.measurements());
+}
+
+/// A session whose state has no pulse rate, as one recorded before pulsing.
+fn recorded_before_pulsing() -> Session {
+    let mut snapshot = Session::new(env(), config()).snapshot();
+    let fluoro = snapshot.modalities.get_mut("fluoroscopy").unwrap();
+    assert_eq!(
+        fluoro["pulse_rate_pps"], 7.5,
+        "a new session starts at 7.5 pps"
+    );
+    fluoro.as_object_mut().unwrap().remove("pulse_rate_pps");
+    Session::restore(env(), &snapshot, &[]).unwrap()
+}
+
+/// A session recorded before pulsing runs the continuous beam: every change while live is imaged
+/// at once and a live second books the full current, so its replay gives what was recorded.
+#[test]
+fn a_session_recorded_before_pulsing_keeps_the_continuous_beam() {
+    let apply = |s: &mut Session, seq: u64, t: u64, command: Command| {
+        s.apply(Envelope { seq, command }, t).unwrap();
+    };
+    let mut s = recorded_before_pulsing();
+    apply(&mut s, 1, 1000, Command::Live { on: true });
+    for k in 1..=10 {
+        apply(&mut s, 1 + k, 1000 + 16 * k, pose(k as f64, 0.0));
+    }
+    assert_eq!(live_images(&s).len(), 11, "every change imaged at once");
+    let mut s = recorded_before_pulsing();
+    apply(&mut s, 1, 500, Command::Shot);
+    let shot = s.measurements()["air_kerma_mgy"];
+    apply(&mut s, 2, 1000, Command::Live { on: true });
+    apply(&mut s, 3, 11_000, Command::Live { on: false });
+    let ratio = s.measurements()["air_kerma_mgy"] / shot;
+    assert!((ratio - 101.0).abs() < 1e-6, "{ratio}");
+}
