@@ -498,34 +498,49 @@ async fn client(addr: std::net::SocketAddr, inputs: u64, station_id: &str) -> (V
     let mut latencies = Vec::new();
     let started = Instant::now();
     let mut frames = 0u64;
-    for seq in 1..=inputs + 1 {
-        let command = if seq == 1 {
-            Command::Live { on: true }
-        } else {
-            Command::CarmPose {
-                orbital_deg: seq as f64,
-                angular_deg: 0.0,
-                table_mm: [0.0; 3],
-            }
+    // Live fluoroscopy at 30 pulses per second (the most demanding rate): a pose that lands in
+    // a pulse that already made an image is imaged by the next pulse, at the client's tick, as
+    // the web client does; the latency counts that wait.
+    let pulse = Duration::from_millis(34);
+    let mut seq = 0u64;
+    for k in 0..=inputs + 1 {
+        let command = match k {
+            0 => serde_json::json!({ "type": "pulse_rate", "pps": 30.0 }),
+            1 => serde_json::json!({ "type": "live", "on": true }),
+            _ => serde_json::json!({ "type": "carm_pose", "orbital_deg": k as f64,
+                "angular_deg": 0.0, "table_mm": [0.0, 0.0, 0.0] }),
         };
+        seq += 1;
+        let want = seq;
         let msg =
             serde_json::json!({ "type": "command", "seq": seq, "command": command }).to_string();
         let t = Instant::now();
         ws.send(Message::Text(msg.into())).await.expect("send");
+        if k == 0 {
+            continue;
+        }
         loop {
-            match ws.next().await {
-                Some(Ok(Message::Binary(b))) => {
+            match tokio::time::timeout(pulse, ws.next()).await {
+                Err(_) => {
+                    // No pulse has imaged it yet: tick the clock into the next pulse.
+                    seq += 1;
+                    let tick = serde_json::json!({ "type": "command", "seq": seq,
+                        "command": { "type": "tick" } })
+                    .to_string();
+                    ws.send(Message::Text(tick.into())).await.expect("send");
+                }
+                Ok(Some(Ok(Message::Binary(b)))) => {
                     let f = EncodedFrame::parse(&b).expect("frame");
                     frames += 1;
-                    if f.input_seq >= seq {
+                    if f.input_seq >= want {
                         break;
                     }
                 }
-                Some(Ok(_)) => {}
-                _ => return (latencies, 0.0),
+                Ok(Some(Ok(_))) => {}
+                Ok(_) => return (latencies, 0.0),
             }
         }
-        if seq > 1 {
+        if k > 1 {
             latencies.push(t.elapsed().as_secs_f64() * 1000.0);
         }
     }

@@ -2,12 +2,12 @@
 //!
 //! N learners' sessions run at once on the in-process worker, each over a real websocket through
 //! the server's relay (`/api/sessions/{id}/ws`), exactly as browsers use it. Each session turns
-//! live fluoroscopy on and then moves the C-arm at 20 Hz (a scripted drag); every pose command
-//! makes a new image. Reported per N: input-to-frame latency (from sending a pose command to
-//! receiving the first frame that reflects it, by the frame header's input sequence) at p50,
-//! p99 and max, and frames per second per session. Frames are 512 x 512 fluoroscopy of the
-//! analytic demo region, rendered by the GPU renderer (a real adapter, or lavapipe) and by the
-//! f64 CPU reference.
+//! live fluoroscopy on (30 pulses per second) and then moves the C-arm at 20 Hz (a scripted
+//! drag); every pose command makes a new image. Reported per N: input-to-frame latency (from
+//! sending a pose command to receiving the first frame that reflects it, by the frame header's
+//! input sequence) at p50, p99 and max, and frames per second per session. Frames are 512 x 512
+//! fluoroscopy of the analytic demo region, rendered by the GPU renderer (a real adapter, or
+//! lavapipe) and by the f64 CPU reference.
 //!
 //! `BENCH_QUICK=1`: GPU N = 1, 4, 8 and CPU N = 1, 4 s each (under a minute with start-up).
 
@@ -20,9 +20,7 @@ use render_worker::cluster::request_with_headers;
 use render_worker::gpu::GpuContext;
 use render_worker::session::demo::{demo_region, demo_station, demo_station_toml};
 use render_worker::session::frame::EncodedFrame;
-use render_worker::session::{
-    Backends, SessionConfig, SessionHost,
-};
+use render_worker::session::{Backends, SessionConfig, SessionHost};
 use serde_json::{Value, json};
 use server::dispatch::Dispatcher;
 use server::records::config::Argon2Cost;
@@ -108,12 +106,17 @@ async fn run_session(
                 .into(),
         )
     };
-    tx.send(send(1, json!({ "type": "live", "on": true })))
+    // Live fluoroscopy at 30 pulses per second, the most demanding rate: with poses every
+    // 50 ms each lands in a pulse of its own and makes a new image.
+    tx.send(send(1, json!({ "type": "pulse_rate", "pps": 30.0 })))
+        .await
+        .unwrap();
+    tx.send(send(2, json!({ "type": "live", "on": true })))
         .await
         .unwrap();
     let mut sent_at: HashMap<u64, Instant> = HashMap::new();
     let mut figures = SessionFigures::default();
-    let mut seq = 1u64;
+    let mut seq = 2u64;
     let mut newest_reflected = 0u64;
     tokio::time::sleep_until(start_at.into()).await;
     let began = Instant::now();
@@ -153,12 +156,7 @@ async fn run_session(
 }
 
 /// Runs the rows of one renderer: a server whose in-process worker renders with `backends`.
-async fn bench_backend(
-    name: &str,
-    backends: Backends,
-    counts: &[usize],
-    run_for: Duration,
-) {
+async fn bench_backend(name: &str, backends: Backends, counts: &[usize], run_for: Duration) {
     let stations = tempfile::tempdir().expect("stations folder");
     std::fs::write(
         stations.path().join("demo-station.toml"),
