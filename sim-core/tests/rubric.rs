@@ -857,6 +857,50 @@ fn impossible_measurements_are_refused_not_scored() {
     );
 }
 
+/// Every unit's range at its edges, for keys whether a criterion reads them or not (found by
+/// cargo-mutants: the yes/no, dose and signed-angle ranges, the edges of the signed ones, and
+/// non-finite values of keys without a unit were never checked). Each edge value is accepted and
+/// the next representable step beyond it refused.
+#[test]
+fn every_unit_s_range_holds_at_its_edges() {
+    use sim_core::rubric::check_measurements;
+    let check = |key: &str, value: f64| check_measurements(&measure(&[(key, value)]));
+    let beyond = |v: f64| if v > 0.0 { v.next_up() } else { v.next_down() };
+    for (key, edges) in [
+        // Signed millimetres and degrees (no `_to_` in the key): both signs up to the bound.
+        ("needle_depth_mm", &[-1000.0, 1000.0][..]),
+        ("ap_endplate_tilt_deg", &[-180.0, 180.0][..]),
+        // Magnitudes (`_to_`): 0 up to the bound.
+        ("tip_to_target_mm", &[0.0, 1000.0][..]),
+        ("beam_to_joint_plane_deg", &[0.0, 180.0][..]),
+        ("fluoro_exposure_s", &[0.0, 86_400.0][..]),
+        ("needle_in_plane_fraction", &[0.0, 1.0][..]),
+        ("fluoro_acquisitions_count", &[0.0, 1e6][..]),
+        ("air_kerma_mgy", &[0.0, 1e5][..]),
+        ("kerma_area_product_gycm2", &[0.0, 1e4][..]),
+    ] {
+        for &edge in edges {
+            assert!(check(key, edge).is_ok(), "{key} = {edge}");
+            let out = if edge == 0.0 { -1e-9 } else { beyond(edge) };
+            let e = check(key, out).unwrap_err();
+            assert!(e.to_string().contains(key), "{key} = {out}: {e}");
+        }
+    }
+    // Yes or no: exactly 1 or 0.
+    for ok in [0.0, 1.0] {
+        assert!(check("bone_contact_bool", ok).is_ok());
+    }
+    for bad in [0.5, -1.0, 2.0] {
+        assert!(check("bone_contact_bool", bad).is_err(), "{bad}");
+    }
+    // A key without a unit suffix takes any finite value, and no NaN or infinity.
+    assert!(check("pattern", 12345.0).is_ok());
+    assert!(check("pattern", -3.5).is_ok());
+    for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+        assert!(check("pattern", bad).is_err(), "{bad}");
+    }
+}
+
 #[test]
 fn a_target_may_name_a_landmark_with_a_valid_name() {
     let base = station_toml(0.5, &dist("d", 1.0, false));
