@@ -142,11 +142,7 @@ pub async fn authenticate(
         can_read,
         can_write,
         authority,
-        speaks: if version.starts_with("1.") {
-            Spoken::V1_0
-        } else {
-            Spoken::V2_0
-        },
+        speaks: Spoken::of_version(&version),
     })
 }
 

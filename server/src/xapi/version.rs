@@ -56,9 +56,20 @@ impl Spoken {
     /// The line of the request's `X-Experience-API-Version` header; 2.0 when it is missing or not
     /// one this LRS accepts (such requests are refused before a handler runs).
     pub fn of(headers: &HeaderMap) -> Spoken {
-        match headers.get(VERSION_HEADER).and_then(|v| v.to_str().ok()) {
-            Some(v) if accepted(v.trim()) && v.trim().starts_with("1.") => Spoken::V1_0,
-            _ => Spoken::V2_0,
+        headers
+            .get(VERSION_HEADER)
+            .and_then(|v| v.to_str().ok())
+            .map_or(Spoken::V2_0, Spoken::of_version)
+    }
+
+    /// The line of a version string (a header's value, or an LRS credential's `xapi_version`):
+    /// 1.0 for an accepted 1.0.x, else 2.0.
+    pub fn of_version(version: &str) -> Spoken {
+        let v = version.trim();
+        if accepted(v) && v.starts_with("1.") {
+            Spoken::V1_0
+        } else {
+            Spoken::V2_0
         }
     }
 

@@ -121,8 +121,8 @@ pub struct FluoroState {
     /// pulsing, which keep the continuous beam.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pulse_rate_pps: Option<f64>,
-    /// A change waits for the next pulse to be imaged (live runs, and a pulse period has not
-    /// passed since the last image).
+    /// A change waits for the next pulse to be imaged (live runs, and the pulse it came in had
+    /// already made an image; see [`pulse::pulse_due`]).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub pulse_pending: bool,
     /// Every image acquired (shots and live frames), oldest first; the last one is displayed.
