@@ -9,6 +9,7 @@
 mod digraph;
 mod ignored;
 mod module_graph;
+mod profiles;
 mod rust_scan;
 mod scanner_tests;
 mod signatures;
