@@ -26,7 +26,7 @@ fn main() {
     let region = common::phantom_region(2.0);
     let station = common::station("l4-l5-interlaminar-epidural", &region);
     println!(
-        "Needle handling on the 2 mm phantom (built in {:.1} s)\n",
+        "Needle handling on the 2 mm phantom (ready in {:.1} s: built, or loaded from the tests' cache)\n",
         t0.elapsed().as_secs_f64()
     );
     // The line of the session tests' scripted epidural.

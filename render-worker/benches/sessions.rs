@@ -221,7 +221,12 @@ fn main() {
     // its frame cost on the CPU is in sim-core's fluoro bench).
     let voxel_mm = if quick { 4.0 } else { 2.0 };
     let t = Instant::now();
-    let asset = sim_core::anatomy::phantom::build(
+    // Cached by parameter hash where the tests cache this grid (`phantom-lumbar-<voxel>mm` in
+    // the workspace's test scratch folder): the bench times sessions, not meshing.
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("phantom-lumbar-{voxel_mm}mm"));
+    let asset = sim_core::anatomy::phantom::ensure_built_with(
+        &dir,
         &sim_core::anatomy::phantom::PhantomParams::with_voxel_mm(voxel_mm),
         &mut |_| {},
     )
@@ -235,7 +240,7 @@ fn main() {
         .expect("facet station");
     let facet = (facet.station, sha256_hex(facet.text.as_bytes()));
     println!(
-        "\n(phantom at {voxel_mm} mm: {} triangles, built in {:.1} s)",
+        "\n(phantom at {voxel_mm} mm: {} triangles, ready in {:.1} s)",
         phantom.scene.triangle_count(),
         t.elapsed().as_secs_f64()
     );

@@ -25,7 +25,7 @@ fn main() {
     let station = common::station("l4-l5-left-facet-ultrasound", &region);
     let target = DVec3::from_array(station.targets["left_l4_l5_facet_posterior_joint_line"]);
     println!(
-        "Ultrasound session on the 4 mm phantom (built in {:.1} s)\n",
+        "Ultrasound session on the 4 mm phantom (ready in {:.1} s: built, or loaded from the tests' cache)\n",
         t0.elapsed().as_secs_f64()
     );
     let mut s = Session::new(

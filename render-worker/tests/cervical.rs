@@ -25,7 +25,12 @@ pub(crate) fn region() -> Arc<Region> {
     static REGION: OnceLock<Arc<Region>> = OnceLock::new();
     Arc::clone(REGION.get_or_init(|| {
         use sim_core::anatomy::phantom::cervical;
-        let asset = cervical::build(&cervical::params_with_voxel_mm(1.5), &mut |_| {}).unwrap();
+        // Cached by parameter hash in the shared test scratch folder (the server's browser
+        // tests load the same build).
+        let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("phantom-cervical-1.5mm");
+        let asset =
+            cervical::ensure_built_with(&dir, &cervical::params_with_voxel_mm(1.5), &mut |_| {})
+                .unwrap();
         Arc::new(Region::from_asset(&asset))
     }))
 }

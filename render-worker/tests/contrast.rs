@@ -19,12 +19,16 @@ use sim_core::fluoro::Projection;
 use crate::driver::Run;
 use crate::sessions::config;
 
-/// The phantom meshed at 4 mm, built once per test binary (shared with the ultrasound tests).
+/// The phantom meshed at 4 mm, loaded once per test binary (shared with the ultrasound tests).
 pub(crate) fn region() -> Arc<Region> {
     static REGION: OnceLock<Arc<Region>> = OnceLock::new();
     Arc::clone(REGION.get_or_init(|| {
         use sim_core::anatomy::phantom::{self, PhantomParams};
-        let asset = phantom::build(&PhantomParams::with_voxel_mm(4.0), &mut |_| {}).unwrap();
+        // Cached by parameter hash in the shared test scratch folder.
+        let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("phantom-lumbar-4mm");
+        let asset =
+            phantom::ensure_built_with(&dir, &PhantomParams::with_voxel_mm(4.0), &mut |_| {})
+                .unwrap();
         Arc::new(Region::from_asset(&asset))
     }))
 }

@@ -27,7 +27,12 @@ pub(crate) fn region() -> Arc<Region> {
     static REGION: OnceLock<Arc<Region>> = OnceLock::new();
     Arc::clone(REGION.get_or_init(|| {
         use sim_core::anatomy::phantom::{self, PhantomParams};
-        let asset = phantom::build(&PhantomParams::with_voxel_mm(2.0), &mut |_| {}).unwrap();
+        // Cached by parameter hash in the shared test scratch folder: the server's browser tests
+        // load the same build instead of meshing it again.
+        let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("phantom-lumbar-2mm");
+        let asset =
+            phantom::ensure_built_with(&dir, &PhantomParams::with_voxel_mm(2.0), &mut |_| {})
+                .unwrap();
         Arc::new(Region::from_asset(&asset))
     }))
 }
@@ -486,9 +491,10 @@ fn replay_of_needle_handling_is_bit_identical() {
     assert_eq!(replayed.measurements(), live.measurements());
 }
 
-/// 10^5 random hub, feed, withdraw, roll, marker, puncture and syringe commands: no NaN in any
-/// acknowledgement or measurement, the tip always on its recorded channel, the syringe never
-/// below empty, and replay of the whole log bit-identical.
+/// 5 x 10^4 random hub, feed, withdraw, roll, marker, puncture and syringe commands on the 2 mm
+/// phantom session: no NaN in any acknowledgement or measurement, the tip always on its recorded
+/// channel, the syringe never below empty, and replay of the whole log bit-identical. (10^5 took
+/// 188 s of CI's 2 cores with its replay; sim-core's own needle soak keeps 10^5 on the core.)
 #[test]
 fn soak_of_random_needle_commands() {
     let mut r = Run::new(env(EPIDURAL), quiet());
@@ -497,7 +503,7 @@ fn soak_of_random_needle_commands() {
     r.ok(1, Command::Shot);
     let mut t = 1;
     let mut accepted = 0;
-    for i in 0..100_000 {
+    for i in 0..50_000 {
         t += 10;
         let u = rng.next_f64();
         let c = if u < 0.3 {
@@ -580,7 +586,7 @@ fn soak_of_random_needle_commands() {
             assert!(syr.contents_ml() >= 0.0, "step {i}");
         }
     }
-    assert!(accepted > 50_000, "{accepted} accepted");
+    assert!(accepted > 25_000, "{accepted} accepted");
     let m = r.s.measurements();
     assert!(m.values().all(|v| v.is_finite()), "{m:?}");
     let initial = Session::new(env(EPIDURAL), quiet()).snapshot();

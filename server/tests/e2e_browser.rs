@@ -495,8 +495,16 @@ tolerance = { law = "boolean", expected = true }
 /// The phantom meshed at 2 mm, as the render-worker needle-handling tests (at 4 mm the 3.5 mm
 /// ligamentum flavum is not resolved).
 fn phantom_region() -> Arc<Region> {
-    let asset = phantom::build(&PhantomParams::with_voxel_mm(2.0), &mut |_| {}).expect("phantom");
-    Arc::new(Region::from_asset(&asset))
+    static REGION: std::sync::OnceLock<Arc<Region>> = std::sync::OnceLock::new();
+    Arc::clone(REGION.get_or_init(|| {
+        // The build the render-worker tests cache by parameter hash in the shared test scratch
+        // folder (made here when this binary runs first).
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("phantom-lumbar-2mm");
+        let asset =
+            phantom::ensure_built_with(&dir, &PhantomParams::with_voxel_mm(2.0), &mut |_| {})
+                .expect("phantom");
+        Arc::new(Region::from_asset(&asset))
+    }))
 }
 
 /// A server whose only station is `station_id` from `assets/stations`, on `region`, sessions
@@ -835,8 +843,11 @@ fn assert_epidural_by_hand(report: &Value, trajectory: &Value) {
 /// 2.5 mm flavum and posterior epidural space are about a voxel thick).
 fn cervical_region() -> Arc<Region> {
     use sim_core::anatomy::phantom::cervical;
-    let asset = cervical::build(&cervical::params_with_voxel_mm(1.5), &mut |_| {})
-        .expect("cervical phantom");
+    // Cached as the lumbar one above (one browser test uses it, so no lock is needed).
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("phantom-cervical-1.5mm");
+    let asset =
+        cervical::ensure_built_with(&dir, &cervical::params_with_voxel_mm(1.5), &mut |_| {})
+            .expect("cervical phantom");
     Arc::new(Region::from_asset(&asset))
 }
 

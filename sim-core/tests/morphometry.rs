@@ -9,12 +9,15 @@ use sim_core::anatomy::asset::RegionAsset;
 use sim_core::anatomy::phantom::{self, PhantomParams};
 
 /// The default phantom (the one the platform ships, 1.5 mm grid), built once per test binary
-/// and cached by parameter hash under the test target's scratch folder (a rerun loads it).
+/// and cached by parameter hash under the test target's scratch folder (a rerun loads it). The
+/// folder is the one the render-worker tests prepare the shipped lumbar region in
+/// (`regions/lumbar-phantom`, the same generator, parameters and cache check), so a workspace
+/// run meshes it once.
 pub(crate) fn default_phantom() -> &'static RegionAsset {
     static A: std::sync::OnceLock<RegionAsset> = std::sync::OnceLock::new();
     A.get_or_init(|| {
         let t = std::time::Instant::now();
-        let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("default-phantom");
+        let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("regions/lumbar-phantom");
         let asset = phantom::ensure_built_with(&dir, &PhantomParams::default(), &mut |_| {})
             .expect("phantom builds");
         eprintln!("default phantom ready in {:.1?}", t.elapsed());

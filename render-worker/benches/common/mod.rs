@@ -5,9 +5,14 @@ use std::sync::Arc;
 
 use render_worker::session::{Region, StationContext, sha256_hex};
 
-/// The phantom meshed at `voxel_mm`, built in memory.
+/// The phantom meshed at `voxel_mm`, cached by parameter hash in the workspace's test scratch
+/// folder under the name the tests use (`phantom-lumbar-<voxel>mm`), so a bench run after the
+/// tests loads their build (what is timed here is the session, not the meshing).
 pub fn phantom_region(voxel_mm: f64) -> Arc<Region> {
-    let asset = sim_core::anatomy::phantom::build(
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("phantom-lumbar-{voxel_mm}mm"));
+    let asset = sim_core::anatomy::phantom::ensure_built_with(
+        &dir,
         &sim_core::anatomy::phantom::PhantomParams::with_voxel_mm(voxel_mm),
         &mut |_| {},
     )

@@ -120,16 +120,14 @@ fn view_alignment_is_scored_from_the_anatomy() {
     assert!((e - 11.6).abs() < 0.5, "{e}");
 }
 
-/// The real facet station on the procedural phantom (coarse 4 mm grid, built in memory): targets
+/// The real facet station on the procedural phantom (coarse 4 mm grid, as the contrast tests): targets
 /// land in the phantom's frame, and the scorers' anatomy-derived references are plausible.
 #[test]
 fn facet_station_runs_on_the_phantom() {
-    use sim_core::anatomy::phantom::{self, PhantomParams};
     let started = std::time::Instant::now();
-    let asset = phantom::build(&PhantomParams::with_voxel_mm(4.0), &mut |_| {}).unwrap();
-    let region = Arc::new(Region::from_asset(&asset));
+    let region = crate::contrast::region();
     eprintln!(
-        "phantom 4 mm built and loaded in {:.1} s",
+        "phantom 4 mm ready and loaded in {:.1} s",
         started.elapsed().as_secs_f64()
     );
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/stations");
