@@ -208,10 +208,21 @@ function showViews(views, protocol) {
   host.hidden = otherViews.size === 0;
 }
 
+/** The anatomy pipeline's stages (`sim_core::anatomy::pipeline`) in words. */
+const PREPARATION_STAGES = {
+  start: 'starting',
+  'read CT': 'reading the CT',
+  'read masks': 'reading the segmentation',
+  voxelize: 'building the body from its parameters',
+  labels: 'labelling the structures',
+  mesh: 'meshing the structures',
+};
+
 /** What the server says while a station's anatomy is prepared (503 `anatomy_preparing`). */
 function preparingMessage(detail) {
   const r = detail.readiness || {};
   let text = `Preparing the anatomy (${detail.region || 'region'})`;
+  if (typeof r.stage === 'string') text += `, ${PREPARATION_STAGES[r.stage] || r.stage}`;
   if (typeof r.fraction === 'number') text += `: ${Math.round(100 * r.fraction)} % done`;
   if (typeof r.remaining_s === 'number') text += `, about ${Math.max(1, Math.ceil(r.remaining_s))} s left`;
   return `${text}. The session starts by itself when it is ready.`;
@@ -228,7 +239,10 @@ async function startSession(attemptId) {
       // Every live-session slot taken: the server's message says so, and the page asks again
       // after its Retry-After (sessions already running are not slowed by the wait).
       say(e.code === 'at_capacity' ? `${e.message}. Waiting for a free slot…` : preparingMessage(e.detail));
-      const waitS = Math.min(10, Math.max(1, Number(e.detail.retry_after_s) || 2));
+      // While the anatomy is prepared, ask every second so the progress shown keeps moving
+      // (the answer is immediate and cheap); a full server is asked less often.
+      const cap = e.code === 'anatomy_preparing' ? 1 : 10;
+      const waitS = Math.min(cap, Math.max(1, Number(e.detail.retry_after_s) || 2));
       await new Promise((resolve) => setTimeout(resolve, 1000 * waitS));
     }
   }

@@ -1,4 +1,5 @@
 //! Integration tests of render-worker, one module per area.
+mod calibration;
 mod cervical;
 mod contrast;
 mod driver;

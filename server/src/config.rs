@@ -13,8 +13,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 
 use crate::dispatch::{
-    DEFAULT_IN_PROCESS_CAPACITY, DEFAULT_SESSION_IDLE, DEFAULT_SESSIONS_PER_COURSE,
-    DEFAULT_SESSIONS_PER_USER, DispatchConfig,
+    DEFAULT_SESSION_IDLE, DEFAULT_SESSIONS_PER_COURSE, DEFAULT_SESSIONS_PER_USER, DispatchConfig,
 };
 pub use crate::error::ConfigError;
 use crate::records::config::{Argon2Cost, RecordsConfig};
@@ -166,9 +165,15 @@ pub const SETTINGS: &[Setting] = &[
     },
     Setting {
         name: "PAINSIM_IN_PROCESS_CAPACITY",
-        default: Number(DEFAULT_IN_PROCESS_CAPACITY as u64),
+        default: Derived(
+            "calibrated at start-up: the sessions of a scripted learner that this machine's \
+             faster fluoroscopy renderer (GPU or CPU reference, both timed on the heaviest \
+             station) holds at half CPU load, shown in `/healthz` (`render_worker.calibration`); \
+             8 until the calibration is made",
+        ),
         meaning: "most live simulation sessions the server's own (in-process) worker hosts at \
-                  once; `0` = none, sessions run only on registered render workers",
+                  once; `0` = none, sessions run only on registered render workers; a number \
+                  fixes it (the calibration still chooses the renderer)",
     },
     Setting {
         name: "PAINSIM_SESSIONS_PER_USER",
@@ -377,7 +382,11 @@ fn dispatch(s: &Settings<'_>) -> Result<DispatchConfig, ConfigError> {
             .value("PAINSIM_ASSETS_DIR")
             .map(PathBuf::from)
             .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../assets"))),
-        in_process_capacity: s.count("PAINSIM_IN_PROCESS_CAPACITY", 0usize)?,
+        in_process_capacity: s.parse_set(
+            "PAINSIM_IN_PROCESS_CAPACITY",
+            "a whole number, at least 0",
+            |_: &usize| true,
+        )?,
         worker_token,
         prepare_at_start: s.switch("PAINSIM_PREPARE_ANATOMY")?.unwrap_or(true),
         sessions_per_user: s.count("PAINSIM_SESSIONS_PER_USER", 1usize)?,
@@ -457,7 +466,7 @@ mod tests {
         );
         assert_eq!(c.records.session_idle, Duration::from_secs(1800));
         assert_eq!(c.dispatch.live_session_idle, DEFAULT_SESSION_IDLE);
-        assert_eq!(c.dispatch.in_process_capacity, DEFAULT_IN_PROCESS_CAPACITY);
+        assert_eq!(c.dispatch.in_process_capacity, None);
         assert!(c.dispatch.assets_root.join("stations").is_dir());
         assert!(c.dispatch.prepare_at_start && c.dispatch.worker_token.is_none());
         assert_eq!(embedded_pg_user(|_| None), "postgres");
@@ -521,14 +530,14 @@ mod tests {
                 .unwrap()
                 .dispatch
                 .in_process_capacity,
-            0
+            Some(0)
         );
         assert_eq!(
             cfg(&[("PAINSIM_IN_PROCESS_CAPACITY", "3")])
                 .unwrap()
                 .dispatch
                 .in_process_capacity,
-            3
+            Some(3)
         );
         for bad in ["on", "-1", "2.5"] {
             assert_eq!(

@@ -88,6 +88,13 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
         dispatcher.prepare_in_background();
     }
     let local_sessions = dispatcher.local_host().cloned();
+    // Which renderer the in-process worker uses and how many sessions it takes come from timing
+    // both on this machine, once the GPU settled and a station's anatomy is loaded.
+    if let Some(host) = &local_sessions
+        && config.dispatch.in_process_capacity != Some(0)
+    {
+        state.workers.calibrate_in_background(host.clone(), config.dispatch.in_process_capacity);
+    }
     // The platform's records become xAPI statements, forwarded from the durable outbox; both stop
     // with the server (what they had not finished is in their tables, resumed at the next start).
     let (background_stop, background_stopped) = tokio::sync::watch::channel(false);

@@ -27,7 +27,7 @@ use crate::dispatch::{Client, base_workers};
 use crate::records_support::test_config;
 
 /// A server over `host` whose learning records read stations from `stations_dir`.
-async fn server_with(host: SessionHost, stations_dir: &Path) -> (SocketAddr, TestDb) {
+pub(crate) async fn server_with(host: SessionHost, stations_dir: &Path) -> (SocketAddr, TestDb) {
     let config = test_config(&[("PAINSIM_STATIONS_DIR", &stations_dir.display().to_string())]);
     let db = test_db().await;
     server::records::prepare(&db.pool, &config.records, true)
@@ -46,6 +46,34 @@ async fn server_with(host: SessionHost, stations_dir: &Path) -> (SocketAddr, Tes
     let router = app(state);
     tokio::spawn(async move { axum::serve(listener, router).await });
     (addr, db)
+}
+
+/// A host over `stations` whose region, the lumbar phantom at 4 mm voxels, the real pipeline
+/// builds under `root` on first use (seconds; CPU reference renderer, 4 sessions).
+pub(crate) fn phantom_building_host(
+    stations: Vec<(sim_core::rubric::Station, String)>,
+    root: &Path,
+) -> SessionHost {
+    let root = root.to_owned();
+    SessionHost::with_loader(
+        stations,
+        move |name: &str, progress: &mut dyn FnMut(&Progress)| {
+            assert_eq!(name, phantom::REGION_NAME);
+            let asset = phantom::ensure_built_with(
+                &root.join(name),
+                &PhantomParams::with_voxel_mm(4.0),
+                progress,
+            )
+            .map_err(|source| RegionLoadError::Asset {
+                name: name.to_string(),
+                source,
+            })?;
+            Ok(Region::from_asset(&asset))
+        },
+        Backends::cpu(0),
+        4,
+        SessionConfig::default(),
+    )
 }
 
 /// An attempt of the demo learner at `station` in the demo course.
@@ -115,26 +143,7 @@ async fn first_session_request_answers_at_once_while_the_phantom_builds() {
         .filter(|f| f.station.region == phantom::REGION_NAME)
         .map(|f| (f.station, sha256_hex(f.text.as_bytes())))
         .collect();
-    let root = assets.path().to_owned();
-    let host = SessionHost::with_loader(
-        stations,
-        move |name: &str, progress: &mut dyn FnMut(&Progress)| {
-            assert_eq!(name, phantom::REGION_NAME);
-            let asset = phantom::ensure_built_with(
-                &root.join(name),
-                &PhantomParams::with_voxel_mm(4.0),
-                progress,
-            )
-            .map_err(|source| RegionLoadError::Asset {
-                name: name.to_string(),
-                source,
-            })?;
-            Ok(Region::from_asset(&asset))
-        },
-        Backends::cpu(0),
-        4,
-        SessionConfig::default(),
-    );
+    let host = phantom_building_host(stations, assets.path());
     let (addr, _db) = server_with(host, &repo_stations()).await;
     let health = anatomy_health(addr).await;
     assert_eq!(health["ready"], false, "{health}");

@@ -59,7 +59,7 @@ fn missing_prerequisite() -> Option<String> {
 
 /// Whether the browser test `name` can run; `false` (after saying why) when a prerequisite is
 /// missing outside CI. Under CI / `REQUIRE_GPU=1` a missing prerequisite fails the test.
-fn can_run(name: &str) -> bool {
+pub(crate) fn can_run(name: &str) -> bool {
     let Some(why) = missing_prerequisite() else {
         return true;
     };
@@ -75,13 +75,18 @@ fn can_run(name: &str) -> bool {
 
 /// One browser test at a time: each runs Chromium, a server and CPU rendering, and on a small
 /// machine two at once starve each other past the scripts' 60 s step timeout (seen with three).
-static BROWSER_TURN: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+pub(crate) static BROWSER_TURN: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
 /// Runs `web-client/tests/<script>` against `addr` and returns its JSON report after checking
 /// that the run succeeded. Canvas captures go to `PAINSIM_E2E_SCREENSHOTS/<subdir>` when that
 /// is set (for a person to look at), else to a temporary folder. `env` is added to the
 /// script's environment.
-async fn run_script(script: &str, addr: SocketAddr, subdir: &str, env: &[(&str, &str)]) -> Value {
+pub(crate) async fn run_script(
+    script: &str,
+    addr: SocketAddr,
+    subdir: &str,
+    env: &[(&str, &str)],
+) -> Value {
     let shots = tempfile::tempdir().expect("screenshot folder");
     let shots_dir = std::env::var("PAINSIM_E2E_SCREENSHOTS")
         .map(|d| PathBuf::from(d).join(subdir))

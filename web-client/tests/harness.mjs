@@ -42,7 +42,14 @@ const EXPECTED_HTTP_ERRORS = [
 function isExpectedHttpError(url, status) {
   let path;
   try { path = new URL(url).pathname; } catch { return false; }
-  return EXPECTED_HTTP_ERRORS.some((e) => e.path === path && e.status === status);
+  return EXPECTED_HTTP_ERRORS.some((e) => (e.pattern ? e.pattern.test(path) : e.path === path) && e.status === status);
+}
+
+/** Adds an error answer that a script provokes on purpose (for example the 503 of a session
+ * request while the anatomy is prepared): paths matching `pattern` with `status` are then not
+ * console errors of the run. */
+export function expectHttpError(pattern, status) {
+  EXPECTED_HTTP_ERRORS.push({ pattern, status });
 }
 
 /** Starts Chromium with a fresh profile in `profile`; collects script errors. */

@@ -225,6 +225,10 @@ pub struct Health {
     /// Readiness of each region the stations use.
     #[serde(default)]
     pub regions: BTreeMap<String, RegionReadiness>,
+    /// The start-up calibration that chose the renderer and the capacity, once made (a
+    /// [`super::calibration::Calibration`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<serde_json::Value>,
 }
 
 /// Latest frame of each view.
@@ -352,7 +356,9 @@ struct Inner {
     /// The modalities sessions are built with (the standard ones unless an embedder sets its
     /// own with [`SessionHost::set_modalities`]).
     modalities: std::sync::RwLock<super::modalities::ModalityFactory>,
-    capacity: usize,
+    /// Most sessions (set at start, or by a calibration).
+    capacity: std::sync::atomic::AtomicUsize,
+    calibration: Mutex<Option<serde_json::Value>>,
     session_config: SessionConfig,
     adapter: Option<serde_json::Value>,
 }
@@ -366,7 +372,7 @@ pub struct SessionHost {
 impl std::fmt::Debug for SessionHost {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("SessionHost")
-            .field("capacity", &self.inner.capacity)
+            .field("capacity", &self.capacity())
             .finish()
     }
 }
@@ -448,7 +454,8 @@ impl SessionHost {
                 actors: Mutex::new(Vec::new()),
                 backends,
                 modalities: std::sync::RwLock::new(super::modalities::ModalityFactory::standard()),
-                capacity,
+                capacity: capacity.into(),
+                calibration: Mutex::new(None),
                 session_config,
                 adapter,
             }),
@@ -467,11 +474,59 @@ impl SessionHost {
             status: "ok".into(),
             renderer: self.inner.backends.fluoro.profile(),
             adapter: self.inner.adapter.clone(),
-            capacity: self.inner.capacity,
+            capacity: self.capacity(),
             sessions,
-            load: sessions as f64 / self.inner.capacity.max(1) as f64,
+            load: sessions as f64 / self.capacity().max(1) as f64,
             regions: self.regions_readiness(),
+            calibration: self.inner.calibration.lock().ok().and_then(|c| c.clone()),
         }
+    }
+
+    /// Most sessions this host takes now.
+    pub fn capacity(&self) -> usize {
+        self.inner
+            .capacity
+            .load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Sets the most sessions; sessions beyond it that are already running keep running.
+    pub fn set_capacity(&self, capacity: usize) {
+        self.inner
+            .capacity
+            .store(capacity, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// The configuration of this host's sessions.
+    pub fn session_config(&self) -> SessionConfig {
+        self.inner.session_config
+    }
+
+    /// Records the calibration that health reports.
+    pub fn set_calibration(&self, calibration: &super::calibration::Calibration) {
+        if let Ok(mut c) = self.inner.calibration.lock() {
+            *c = serde_json::to_value(calibration).ok();
+        }
+    }
+
+    /// The loaded region of each station that shows fluoroscopy, with the station and its file
+    /// hash (what a calibration drives).
+    pub fn fluoroscopy_stations(&self) -> Vec<((Station, String), Arc<Region>)> {
+        let regions = self
+            .inner
+            .regions
+            .lock()
+            .map(|r| r.clone())
+            .unwrap_or_default();
+        self.inner
+            .stations
+            .values()
+            .filter(|(st, _)| {
+                st.modalities
+                    .iter()
+                    .any(|m| m.as_str() == sim_core::rubric::Modality::FLUOROSCOPY)
+            })
+            .filter_map(|st| Some((st.clone(), Arc::clone(regions.get(&st.0.region)?))))
+            .collect()
     }
 
     /// A new host over given stations with a custom region loader (`loader(name, progress)`
@@ -762,8 +817,9 @@ impl SessionHost {
 
     fn check_capacity(&self) -> Result<(), HostError> {
         let n = self.inner.sessions.lock().map_or(0, |s| s.len());
-        if n >= self.inner.capacity {
-            return Err(HostError::Full(self.inner.capacity));
+        let capacity = self.capacity();
+        if n >= capacity {
+            return Err(HostError::Full(capacity));
         }
         Ok(())
     }

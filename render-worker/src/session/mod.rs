@@ -43,6 +43,7 @@
 //! ```
 
 pub mod anatomy;
+pub mod calibration;
 pub mod command;
 pub mod config;
 pub mod demo;

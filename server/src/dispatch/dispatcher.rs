@@ -154,9 +154,9 @@ pub const DEFAULT_SESSION_IDLE: std::time::Duration = std::time::Duration::from_
 /// worker from the others; a deployment with remote workers raises it.
 pub const DEFAULT_SESSIONS_PER_COURSE: usize = 6;
 
-/// Default sessions the server's in-process worker hosts at once (`PAINSIM_IN_PROCESS_CAPACITY`).
-/// Simulator choice: a small lab group on the one machine of the embedded default, as a
-/// `render-worker`'s default; a deployment with remote workers may set 0.
+/// Sessions the server's in-process worker hosts at once until the start-up calibration sets
+/// its capacity (`PAINSIM_IN_PROCESS_CAPACITY` unset). Simulator choice: a small lab group on the
+/// one machine of the embedded default, as a `render-worker`'s default.
 pub const DEFAULT_IN_PROCESS_CAPACITY: usize = 8;
 
 /// The server's copy of a session.
@@ -242,8 +242,9 @@ pub enum RestoreError {
 pub struct DispatchConfig {
     /// Region folders (`PAINSIM_ASSETS_DIR`).
     pub assets_root: std::path::PathBuf,
-    /// Sessions the in-process worker takes (`PAINSIM_IN_PROCESS_CAPACITY`; 0: none).
-    pub in_process_capacity: usize,
+    /// Sessions the in-process worker takes (`PAINSIM_IN_PROCESS_CAPACITY`; 0: none); `None`:
+    /// from the start-up calibration ([`DEFAULT_IN_PROCESS_CAPACITY`] until it is made).
+    pub in_process_capacity: Option<usize>,
     /// Token workers present to register (`PAINSIM_WORKER_TOKEN`); `None` refuses
     /// registrations.
     pub worker_token: Option<String>,
@@ -274,33 +275,60 @@ impl std::fmt::Debug for DispatchConfig {
 }
 
 /// The in-process worker's renderer: the GPU renderer once the server's GPU is open and passed
-/// its self-test (a real adapter or lavapipe), the CPU reference before that or without one.
+/// its self-test (a real adapter or lavapipe), the CPU reference before that, without one, or
+/// when the start-up calibration ([`crate::workers::Workers::calibrate_in_background`]) measured
+/// the CPU reference faster.
 /// A session keeps the renderer it got at its first exposure; a session that began in the
 /// first seconds after start-up, before the GPU was ready, may therefore render on the CPU
 /// while its record (read at submit) names the GPU.
+///
+/// The GPU renderers are the worker's ([`crate::workers::Workers::gpu_renderers`]), made once
+/// and shared by every session.
 struct InProcessBackend {
     workers: crate::workers::Workers,
 }
 
 impl InProcessBackend {
+    fn new(workers: crate::workers::Workers) -> InProcessBackend {
+        InProcessBackend { workers }
+    }
+
+    /// The GPU renderers once the worker's GPU is ready, unless the start-up calibration found
+    /// the CPU reference faster on this machine.
+    fn gpu(&self) -> Option<&crate::workers::GpuRenderers> {
+        if self.workers.prefers_cpu() {
+            return None;
+        }
+        self.workers.gpu_renderers()
+    }
+
     pub(super) fn current(&self) -> Arc<dyn FluoroBackend> {
-        Backends::for_device(self.workers.gpu()).fluoro
+        match self.gpu() {
+            Some(r) => Arc::clone(&r.fluoro),
+            None => Backends::cpu(0).fluoro,
+        }
+    }
+
+    fn current_ultrasound(
+        &self,
+    ) -> Arc<dyn render_worker::session::modalities::ultrasound::UltrasoundBackend> {
+        // The calibration times fluoroscopy only; ultrasound keeps its own choice.
+        match self.workers.gpu_renderers() {
+            Some(r) => Arc::clone(&r.ultrasound),
+            None => Backends::cpu(0).ultrasound,
+        }
     }
 }
 
 impl render_worker::session::modalities::ultrasound::UltrasoundBackend for InProcessBackend {
     fn describe(&self) -> String {
-        Backends::for_device(self.workers.gpu())
-            .ultrasound
-            .describe()
+        self.current_ultrasound().describe()
     }
 
     fn renderer(
         &self,
     ) -> Box<dyn render_worker::session::modalities::ultrasound::UltrasoundRenderer> {
-        Backends::for_device(self.workers.gpu())
-            .ultrasound
-            .renderer()
+        self.current_ultrasound().renderer()
     }
 }
 
@@ -508,7 +536,9 @@ impl Dispatcher {
             HostConfig {
                 assets_root: config.assets_root.clone(),
                 stations_dir: stations_dir.to_path_buf(),
-                capacity: config.in_process_capacity,
+                capacity: config
+                    .in_process_capacity
+                    .unwrap_or(DEFAULT_IN_PROCESS_CAPACITY),
                 session: SessionConfig::default(),
             },
             backends,
@@ -538,9 +568,7 @@ impl Dispatcher {
         if let Some(d) = attached {
             return d.clone();
         }
-        let in_process = Arc::new(InProcessBackend {
-            workers: workers.clone(),
-        });
+        let in_process = Arc::new(InProcessBackend::new(workers.clone()));
         let backends = Backends::new(in_process.clone(), in_process);
         Dispatcher::from_config(config, stations_dir, backends).unwrap_or_else(|e| {
             tracing::error!("no in-process sessions: {e}");

@@ -140,6 +140,9 @@ pub struct GpuFluoroBackend {
     /// before the uploads were shared; the memory benchmark's baseline).
     share_anatomy: bool,
     anatomies: Arc<crate::fluoro::AnatomyCache>,
+    /// `Some`: every anatomy this backend uploads is held here as long as the backend lives, so
+    /// a region's next first session finds it uploaded (see [`GpuFluoroBackend::keeping_uploads`]).
+    kept: Option<Arc<std::sync::Mutex<Vec<Arc<crate::fluoro::GpuAnatomy>>>>>,
 }
 
 impl GpuFluoroBackend {
@@ -149,6 +152,19 @@ impl GpuFluoroBackend {
             ctx,
             share_anatomy: true,
             anatomies: Arc::default(),
+            kept: None,
+        }
+    }
+
+    /// The GPU renderer on `ctx` that keeps each region's anatomy uploaded once made, while this
+    /// backend lives, instead of freeing it with the region's last session: a server whose
+    /// regions stay loaded pays the upload (about half a second for the default phantom on
+    /// lavapipe) once, at its start-up calibration, not at the first shot of every learner who
+    /// finds the station empty. Memory: one upload per region, as the regions themselves.
+    pub fn keeping_uploads(ctx: crate::gpu::GpuContext) -> GpuFluoroBackend {
+        GpuFluoroBackend {
+            kept: Some(Arc::default()),
+            ..GpuFluoroBackend::new(ctx)
         }
     }
 
@@ -182,6 +198,14 @@ impl FluoroBackend for GpuFluoroBackend {
         } else {
             crate::fluoro::GpuAnatomy::new(&self.ctx, &region.scene)?
         };
+        if let Some(kept) = &self.kept {
+            let mut kept = kept
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            if !kept.iter().any(|a| Arc::ptr_eq(a, &anatomy)) {
+                kept.push(Arc::clone(&anatomy));
+            }
+        }
         Ok(Box::new(GpuRenderer {
             renderer: crate::fluoro::GpuFluoroRenderer::with_anatomy(anatomy),
             needle: None,

@@ -1,0 +1,455 @@
+//! Start-up calibration: which fluoroscopy renderer serves learners best on this machine, and how
+//! many live sessions it holds.
+//!
+//! Each candidate renderer (the GPU renderer on whatever adapter opened, a real GPU or lavapipe,
+//! and the CPU reference) runs one real session of a station on its region, as a learner drives
+//! it: a first shot (the renderer is made and, on a GPU, the anatomy uploaded), C-arm moves each
+//! followed by a shot, needle steps of 1 mm each followed by a shot, and shots with nothing
+//! changed. Each frame is timed from its command to the frame that shows it (wall time), and the
+//! process CPU time over the timed frames gives the machine's cost of a frame (a renderer that
+//! uses every core costs more than its wall time).
+//!
+//! A learner's demand follows the scripted learner of the `capacity` benchmark
+//! (`server/benches/capacity.rs`): per action, 0.40 C-arm adjustments (one C-arm-moved frame),
+//! 0.48 needle steps (one needle-moved frame), 0.12 seconds of live fluoroscopy at the default
+//! 7.5 pulses per second (7.5 C-arm-moved frames), and a pause of 1.5 s on average; see
+//! [`LearnerModel`]. The capacity is the number of such learners that keep the machine's CPU
+//! [`TARGET_UTILISATION`] busy, at least 1. The renderer whose learner costs the least CPU is
+//! chosen; renderers within [`SAME_COST`] of that cost count as equal, and of those the one
+//! with the faster C-arm-moved frame (what a learner waits for) is chosen.
+//!
+//! A candidate whose first frame already takes [`GIVE_UP_FACTOR`] times the best candidate's
+//! C-arm-moved frame cannot win and is stopped there (the CPU reference on a GPU machine), so
+//! calibration costs a few seconds of start-up.
+
+use std::collections::BTreeSet;
+use std::sync::Arc;
+use std::time::Instant;
+
+use serde::Serialize;
+use sim_core::rubric::Station;
+
+use super::command::{Command, Envelope};
+use super::config::SessionConfig;
+use super::devices::Backends;
+use super::host::{SessionHandle, SessionHost};
+use super::image::ViewId;
+use super::modalities::fluoro::{BackendProfile, FluoroBackend};
+use super::modalities::ultrasound::backend::CpuUltrasoundBackend;
+use super::region::Region;
+
+/// Share of the machine's CPU the learners of a full worker keep busy. Our choice: at half load a
+/// queue of frames of near-constant cost keeps its 99th-percentile wait within about three frame
+/// times (M/D/1 queue: mean wait rho / (2 (1 - rho)) service times at rho = 0.5), and the other
+/// half is left for relaying, encoding, contrast transport and the web server.
+pub const TARGET_UTILISATION: f64 = 0.5;
+
+/// Most sessions a calibration grants, whatever the renderer's speed. Our choice: beyond this one
+/// process's relay, memory (about 20 MB per session) and database pool are the limits.
+pub const MAX_CALIBRATED_CAPACITY: usize = 64;
+
+/// A candidate stops after its first frame when that frame took this many times the best
+/// candidate's C-arm-moved frame. Our choice: a first frame includes the renderer's set-up
+/// (about twice a later frame on lavapipe), so a factor 8 only stops renderers that are
+/// several times slower.
+pub const GIVE_UP_FACTOR: f64 = 8.0;
+
+/// Learner costs within this factor of the cheapest count as equal. Our choice: process CPU time
+/// is read in 10 ms ticks over a few frames, so costs closer than this are not told apart.
+pub const SAME_COST: f64 = 1.15;
+
+/// Timed frames of each kind per candidate.
+const FRAMES_PER_KIND: usize = 3;
+
+/// The scripted learner whose demand sets the capacity (the `capacity` benchmark's learner).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct LearnerModel {
+    /// Share of actions that are C-arm adjustments followed by a shot.
+    pub carm_share: f64,
+    /// Share of actions that are needle steps followed by a shot.
+    pub needle_share: f64,
+    /// Share of actions that are a second of live fluoroscopy.
+    pub live_share: f64,
+    /// C-arm-moved frames in one live second (the default pulse rate, pulses per second).
+    pub live_frames: f64,
+    /// Mean time of one action besides waiting for its frames (pose commands 60 ms apart, the
+    /// live second, and the pause of 1 to 2 s), s.
+    pub action_s: f64,
+}
+
+impl LearnerModel {
+    /// The `capacity` benchmark's learner: 0.40 / 0.48 / 0.12, bursts of 3 to 5 poses 60 ms
+    /// apart (0.24 s), 1 s live, pauses of 1.5 s on average, 7.5 pulses per second.
+    pub const SCRIPTED: LearnerModel = LearnerModel {
+        carm_share: 0.40,
+        needle_share: 0.48,
+        live_share: 0.12,
+        live_frames: 7.5,
+        action_s: 0.40 * 0.24 + 0.12 * 1.0 + 1.5,
+    };
+
+    /// Frames per action: (C-arm moved, needle moved).
+    fn frames(&self) -> (f64, f64) {
+        (
+            self.carm_share + self.live_share * self.live_frames,
+            self.needle_share,
+        )
+    }
+}
+
+/// What one candidate renderer measured.
+#[derive(Debug, Clone, Serialize)]
+pub struct RendererTiming {
+    /// The renderer.
+    pub renderer: BackendProfile,
+    /// The session's first shot, renderer set-up included, ms.
+    pub first_frame_ms: f64,
+    /// Median C-arm move and shot, command to frame, ms.
+    pub carm_moved_ms: Option<f64>,
+    /// Median 1 mm needle step and shot, ms.
+    pub needle_moved_ms: Option<f64>,
+    /// Median shot with nothing changed, ms.
+    pub new_shot_ms: Option<f64>,
+    /// Process CPU time per C-arm-moved frame, ms (all threads: lavapipe's or the CPU
+    /// reference's workers).
+    pub carm_moved_cpu_ms: Option<f64>,
+    /// Process CPU time per needle-moved frame, ms.
+    pub needle_moved_cpu_ms: Option<f64>,
+    /// Share of this machine's CPU one scripted learner takes with this renderer.
+    pub learner_load: Option<f64>,
+    /// Sessions this renderer holds ([`TARGET_UTILISATION`] over the learner's load).
+    pub capacity: Option<usize>,
+    /// Why it was not measured to the end (stopped as too slow, or failed).
+    pub stopped: Option<String>,
+}
+
+/// The outcome of a calibration.
+#[derive(Debug, Clone, Serialize)]
+pub struct Calibration {
+    /// The station whose session was driven.
+    pub station: String,
+    /// Its region.
+    pub region: String,
+    /// Cores of this machine.
+    pub cores: usize,
+    /// Every candidate, in the order tried.
+    pub timings: Vec<RendererTiming>,
+    /// Index into `timings` of the chosen renderer.
+    pub chosen: usize,
+    /// The chosen renderer.
+    pub renderer: BackendProfile,
+    /// Sessions the chosen renderer holds.
+    pub capacity: usize,
+    /// The learner the capacity is for.
+    pub learner: LearnerModel,
+    /// Wall time of the whole calibration, s.
+    pub took_s: f64,
+}
+
+/// Why no calibration could be made.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrationError {
+    /// No candidate renderer was given.
+    #[error("no renderer to calibrate")]
+    NoCandidate,
+    /// No station with fluoroscopy has its region loaded.
+    #[error("no loaded fluoroscopy station to calibrate on")]
+    NoStation,
+    /// Every candidate failed.
+    #[error("every renderer failed: {0}")]
+    AllFailed(String),
+}
+
+/// Process CPU time (user + system of every thread), s, from `/proc/self/stat` (clock ticks of
+/// 1/100 s, the Linux USER_HZ); 0 where that file is missing.
+fn process_cpu_s() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the command name, which is in parentheses and may hold spaces.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    // utime and stime are fields 14 and 15 of the line, 12 and 13 after the name.
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+fn median(mut v: Vec<f64>) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    Some(v[v.len() / 2])
+}
+
+/// Where a needle enters for the calibration: from behind (-y), towards the station's first
+/// target, where that line meets the skin; `None` when the station has no needle or target or
+/// the line misses the skin.
+fn needle_place(station: &Station, region: &Region) -> Option<Command> {
+    let instrument = station
+        .instruments
+        .iter()
+        .find(|i| i.kind.contains("needle"))?;
+    let target = glam::DVec3::from(station.targets.first()?.position_mm);
+    let dir = glam::DVec3::new(0.1, 1.0, 0.0).normalize();
+    let entry = region.skin_entry(target - 150.0 * dir, dir, 200.0)?;
+    Some(Command::NeedlePlace {
+        instrument: instrument.id.clone(),
+        entry_mm: entry.to_array(),
+        direction: dir.to_array(),
+        bevel_reference: [1.0, 0.0, 0.0],
+    })
+}
+
+struct Driver {
+    rt: tokio::runtime::Runtime,
+    session: SessionHandle,
+    seq: u64,
+}
+
+impl Driver {
+    /// Applies `commands` and waits for the fluoroscopy frame that reflects the last one; wall
+    /// time in ms.
+    fn frame_after(&mut self, commands: &[Command]) -> Result<f64, String> {
+        let t = Instant::now();
+        let session = self.session.clone();
+        let mut seq = self.seq;
+        let out = self.rt.block_on(async {
+            for c in commands {
+                seq += 1;
+                session
+                    .command(Envelope {
+                        seq,
+                        command: c.clone(),
+                    })
+                    .await
+                    .map_err(|e| format!("{}: {}", e.field, e.message))?;
+            }
+            let mut rx = session.frames();
+            while rx
+                .borrow_and_update()
+                .get(&ViewId::FLUOROSCOPY)
+                .is_none_or(|f| f.input_seq < seq)
+            {
+                rx.changed()
+                    .await
+                    .map_err(|_| "the session ended".to_string())?;
+            }
+            Ok::<_, String>(())
+        });
+        self.seq = seq;
+        out.map(|()| t.elapsed().as_secs_f64() * 1e3)
+    }
+
+    /// `FRAMES_PER_KIND` frames after `make(k)`'s commands: (median wall ms, CPU ms per frame).
+    fn timed(
+        &mut self,
+        make: impl Fn(usize) -> Vec<Command>,
+    ) -> Result<(Option<f64>, Option<f64>), String> {
+        let cpu = process_cpu_s();
+        let mut walls = Vec::new();
+        for k in 0..FRAMES_PER_KIND {
+            walls.push(self.frame_after(&make(k))?);
+        }
+        let cpu_ms = (process_cpu_s() - cpu) * 1e3 / FRAMES_PER_KIND as f64;
+        Ok((median(walls), Some(cpu_ms)))
+    }
+}
+
+/// Drives one session of `station` on `region` with `fluoro`; `best_carm_ms` is the best
+/// C-arm-moved frame so far (for the early stop).
+fn measure(
+    station: &(Station, String),
+    region: &Arc<Region>,
+    config: &SessionConfig,
+    fluoro: Arc<dyn FluoroBackend>,
+    best_carm_ms: Option<f64>,
+    learner: &LearnerModel,
+    cores: usize,
+) -> RendererTiming {
+    let mut timing = RendererTiming {
+        renderer: fluoro.profile(),
+        first_frame_ms: f64::NAN,
+        carm_moved_ms: None,
+        needle_moved_ms: None,
+        new_shot_ms: None,
+        carm_moved_cpu_ms: None,
+        needle_moved_cpu_ms: None,
+        learner_load: None,
+        capacity: None,
+        stopped: None,
+    };
+    let host = SessionHost::with_regions(
+        vec![station.clone()],
+        vec![Arc::clone(region)],
+        Backends::new(fluoro, Arc::new(CpuUltrasoundBackend)),
+        1,
+        *config,
+    );
+    let outcome = (|| -> Result<(), String> {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .map_err(|e| e.to_string())?;
+        let session = host
+            .create_blocking(&station.0.id)
+            .map_err(|e| e.to_string())?;
+        session.set_visible(BTreeSet::from([ViewId::FLUOROSCOPY]));
+        let mut d = Driver {
+            rt,
+            session,
+            seq: 0,
+        };
+        timing.first_frame_ms = d.frame_after(&[Command::Shot])?;
+        if let Some(best) = best_carm_ms
+            && timing.first_frame_ms > GIVE_UP_FACTOR * best
+        {
+            timing.stopped = Some(format!(
+                "first frame {:.0} ms, over {GIVE_UP_FACTOR} times the best C-arm-moved frame ({best:.0} ms)",
+                timing.first_frame_ms
+            ));
+            return Ok(());
+        }
+        let carm = |k: usize| {
+            vec![
+                Command::CarmPose {
+                    orbital_deg: 4.0 * (k as f64 + 1.0),
+                    angular_deg: 2.0 * k as f64,
+                    table_mm: [0.0; 3],
+                },
+                Command::Shot,
+            ]
+        };
+        (timing.carm_moved_ms, timing.carm_moved_cpu_ms) = d.timed(carm)?;
+        match needle_place(&station.0, region) {
+            Some(place) => {
+                d.frame_after(&[place, Command::Shot])?;
+                (timing.needle_moved_ms, timing.needle_moved_cpu_ms) =
+                    d.timed(|_| vec![Command::NeedleFeed { mm: 1.0 }, Command::Shot])?;
+            }
+            // No needle at this station: a needle step costs at most a C-arm move.
+            None => {
+                (timing.needle_moved_ms, timing.needle_moved_cpu_ms) =
+                    (timing.carm_moved_ms, timing.carm_moved_cpu_ms);
+            }
+        }
+        (timing.new_shot_ms, _) = d.timed(|_| vec![Command::Shot])?;
+        Ok(())
+    })();
+    host.shutdown();
+    if let Err(e) = outcome {
+        timing.stopped = Some(format!("failed: {e}"));
+    }
+    if let (Some(c), Some(n)) = (timing.carm_moved_cpu_ms, timing.needle_moved_cpu_ms) {
+        let (fc, fn_) = learner.frames();
+        // CPU seconds a learner asks for per second of its actions, over the cores (the time it
+        // waits for its frames is left out: a slower renderer is not credited with it).
+        let cpu_per_action_s = (c * fc + n * fn_) / 1e3;
+        let load = cpu_per_action_s / learner.action_s / cores.max(1) as f64;
+        timing.learner_load = Some(load);
+        timing.capacity = Some(capacity_for(load));
+    }
+    timing
+}
+
+/// Sessions held at `load` per learner: [`TARGET_UTILISATION`] over it, 1 to
+/// [`MAX_CALIBRATED_CAPACITY`].
+pub fn capacity_for(load: f64) -> usize {
+    if !(load.is_finite() && load > 0.0) {
+        return MAX_CALIBRATED_CAPACITY;
+    }
+    ((TARGET_UTILISATION / load).floor() as usize).clamp(1, MAX_CALIBRATED_CAPACITY)
+}
+
+/// Calibrates `candidates` (tried in this order; put the likely fastest first) on a session of
+/// `station` on `region` configured by `config` (the detector size and supersampling that
+/// sessions use).
+pub fn calibrate(
+    station: &(Station, String),
+    region: &Arc<Region>,
+    config: &SessionConfig,
+    candidates: &[Arc<dyn FluoroBackend>],
+) -> Result<Calibration, CalibrationError> {
+    if candidates.is_empty() {
+        return Err(CalibrationError::NoCandidate);
+    }
+    let began = Instant::now();
+    let learner = LearnerModel::SCRIPTED;
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut timings: Vec<RendererTiming> = Vec::new();
+    for c in candidates {
+        let best = timings
+            .iter()
+            .filter_map(|t| t.carm_moved_ms)
+            .min_by(f64::total_cmp);
+        let t = measure(
+            station,
+            region,
+            config,
+            Arc::clone(c),
+            best,
+            &learner,
+            cores,
+        );
+        tracing::info!(renderer = %t.renderer.kind, device = %t.renderer.device,
+            first_ms = t.first_frame_ms, carm_ms = ?t.carm_moved_ms, capacity = ?t.capacity,
+            stopped = ?t.stopped, "calibrated a fluoroscopy renderer");
+        timings.push(t);
+    }
+    let measured = || {
+        timings
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| t.stopped.is_none())
+            .filter_map(|(k, t)| Some((k, t.learner_load?, t.carm_moved_ms?)))
+    };
+    let cheapest = measured().map(|(_, load, _)| load).min_by(f64::total_cmp);
+    let chosen = measured()
+        .filter(|(_, load, _)| cheapest.is_some_and(|c| *load <= SAME_COST * c))
+        .min_by(|a, b| a.2.total_cmp(&b.2))
+        .map(|(k, _, _)| k)
+        .ok_or_else(|| {
+            CalibrationError::AllFailed(
+                timings
+                    .iter()
+                    .map(|t| {
+                        format!(
+                            "{}: {}",
+                            t.renderer.kind,
+                            t.stopped.as_deref().unwrap_or("no figure")
+                        )
+                    })
+                    .collect::<Vec<_>>()
+                    .join("; "),
+            )
+        })?;
+    Ok(Calibration {
+        station: station.0.id.clone(),
+        region: region.name.clone(),
+        cores,
+        renderer: timings[chosen].renderer.clone(),
+        capacity: timings[chosen].capacity.unwrap_or(1),
+        chosen,
+        timings,
+        learner,
+        took_s: began.elapsed().as_secs_f64(),
+    })
+}
+
+/// Calibrates `candidates` on `host`'s heaviest loaded fluoroscopy station (the region with the
+/// most triangles: the capacity holds for the costliest scene it serves), records the outcome in
+/// the host's health and sets the host's capacity to it, unless `fixed_capacity` (an operator's
+/// setting) is given.
+pub fn calibrate_host(
+    host: &SessionHost,
+    candidates: &[Arc<dyn FluoroBackend>],
+    fixed_capacity: Option<usize>,
+) -> Result<Calibration, CalibrationError> {
+    let (station, region) = host
+        .fluoroscopy_stations()
+        .into_iter()
+        .max_by_key(|(_, r)| r.scene.triangle_count())
+        .ok_or(CalibrationError::NoStation)?;
+    let c = calibrate(&station, &region, &host.session_config(), candidates)?;
+    host.set_calibration(&c);
+    host.set_capacity(fixed_capacity.unwrap_or(c.capacity));
+    Ok(c)
+}
