@@ -382,6 +382,55 @@ fn syringe_contents_never_go_negative_and_absurd_presses_are_refused() {
     }
 }
 
+/// The felt resistance is the opening pressure over the hand's pressure, capped at 1 (module
+/// docs of `syringe`), and the plunger gives way only strictly below the hand's pressure.
+#[test]
+fn resistance_is_the_pressure_ratio_and_equal_pressures_hold() {
+    // Opening pressures cited in `opening_pressure_kpa`, over the 30 kPa hand: exact ratios.
+    for (t, ratio) in [
+        (Tissue::Air, 0.0),
+        (Tissue::SubcutaneousFat, 10.0 / 30.0),
+        (Tissue::Muscle, 15.0 / 30.0),
+        (Tissue::SoftTissue, 20.0 / 30.0),
+        (Tissue::EpiduralFat, 5.0 / 30.0),
+        (Tissue::Intrathecal, 1.5 / 30.0),
+        (Tissue::Vessel, 2.0 / 30.0),
+        (Tissue::InterspinousLigament, 1.0),
+        (Tissue::Bone, 1.0),
+    ] {
+        let feel = LorSyringe::new(LorMedium::Saline).hold(t);
+        assert!((feel.resistance - ratio).abs() < 1e-12, "{t:?}: {feel:?}");
+        assert_eq!(feel.gave_way, ratio < 1.0, "{t:?}");
+    }
+    // A hand pressing exactly at the ligament's 45 kPa opening pressure: not below it, so
+    // the plunger holds (resistance 1); a hair above it, it gives way.
+    let mut s = LorSyringe::new(LorMedium::Saline);
+    s.hand_kpa = 45.0;
+    let f = s.press(Tissue::InterspinousLigament, 1.0);
+    assert_eq!((f.gave_way, f.resistance, f.text), (false, 1.0, TEXT_FIRM));
+    s.hand_kpa = 45.0 + 1e-9;
+    let f = s.press(Tissue::InterspinousLigament, 1.0);
+    assert!(f.gave_way && f.resistance < 1.0, "{f:?}");
+    // A hand that does not press feels the plunger as immovable and moves nothing.
+    let mut s = LorSyringe::new(LorMedium::Saline);
+    s.hand_kpa = 0.0;
+    for outlet in [Tissue::EpiduralFat, Tissue::Air] {
+        let f = s.press(outlet, 1.0);
+        assert_eq!(
+            (f.gave_way, f.resistance, f.injected_ml),
+            (false, 1.0, 0.0),
+            "{outlet:?}"
+        );
+    }
+}
+
+#[test]
+fn aspiration_is_told_in_words_that_never_name_the_tissue() {
+    assert_eq!(Aspirate::Blood.text(), "blood in the hub");
+    assert_eq!(Aspirate::Csf.text(), "clear fluid drips back");
+    assert_eq!(Aspirate::Nothing.text(), "nothing comes back");
+}
+
 #[test]
 fn aspiration_reproduces_the_published_false_negative_rates() {
     let n = 100_000;
