@@ -14,8 +14,9 @@ use render_worker::session::region::Region;
 use render_worker::session::*;
 use sim_core::fluoro::{Image, IodineField, Projection, RenderSettings};
 
-/// The CPU reference, but every frame first waits `delay`, asleep or (`spin`) busy: slower to
-/// see, and with `spin` also costlier.
+/// The CPU reference, but every frame first waits `delay` (per 128 x 128 pixels of the frame, as
+/// a renderer's work grows), asleep or (`spin`) busy: slower to see, and with `spin` also
+/// costlier.
 struct Sluggish {
     inner: CpuFluoroBackend,
     delay: Duration,
@@ -53,14 +54,18 @@ impl FluoroRenderer for SluggishRenderer {
         settings: &RenderSettings,
         iodine: Option<&IodineField>,
     ) -> Result<Image, FluoroRenderError> {
+        let [w, h] = projection.detector_pixels;
+        let delay = self
+            .delay
+            .mul_f64(f64::from(w) * f64::from(h) / (128.0 * 128.0));
         if self.spin {
             let t = std::time::Instant::now();
             let mut x = 0u64;
-            while t.elapsed() < self.delay {
+            while t.elapsed() < delay {
                 x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
             }
         } else {
-            std::thread::sleep(self.delay);
+            std::thread::sleep(delay);
         }
         self.inner.render(needle, projection, settings, iodine)
     }
@@ -156,7 +161,13 @@ fn a_renderer_far_slower_than_the_best_is_stopped_after_one_frame() {
         "{stopped:#?}"
     );
     assert!(stopped.carm_moved_ms.is_none() && stopped.capacity.is_none());
-    assert!(stopped.first_frame_ms > GIVE_UP_FACTOR * c.timings[0].carm_moved_ms.unwrap());
+    // Stopped by its quarter-side probe frame, scaled to the full frame by pixel count.
+    let [side, ms, full_ms] = stopped.probe.expect("probe");
+    assert_eq!(side, 32.0);
+    assert!((full_ms - 16.0 * ms).abs() < 1e-9 * full_ms);
+    assert!(full_ms > GIVE_UP_FACTOR * c.timings[0].carm_moved_ms.unwrap());
+    // The renderer measured first has no probe.
+    assert!(c.timings[0].probe.is_none());
 }
 
 /// On a host: the capacity follows the calibration unless fixed, and health reports both.

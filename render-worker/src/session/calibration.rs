@@ -102,8 +102,12 @@ impl LearnerModel {
 pub struct RendererTiming {
     /// The renderer.
     pub renderer: BackendProfile,
-    /// The session's first shot, renderer set-up included, ms.
+    /// The session's first shot, renderer set-up included, ms (`null` when the probe stopped
+    /// the candidate first).
     pub first_frame_ms: f64,
+    /// When another candidate was measured before: the first shot of a session with a detector
+    /// of a quarter the side, `[pixels, ms, ms scaled to the full detector by pixel count]`.
+    pub probe: Option<[f64; 3]>,
     /// Median C-arm move and shot, command to frame, ms.
     pub carm_moved_ms: Option<f64>,
     /// Median 1 mm needle step and shot, ms.
@@ -206,6 +210,23 @@ struct Driver {
 }
 
 impl Driver {
+    /// A new session of `station_id` on `host`, fluoroscopy visible.
+    fn open(host: &SessionHost, station_id: &str) -> Result<Driver, String> {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .map_err(|e| e.to_string())?;
+        let session = host
+            .create_blocking(station_id)
+            .map_err(|e| e.to_string())?;
+        session.set_visible(BTreeSet::from([ViewId::FLUOROSCOPY]));
+        Ok(Driver {
+            rt,
+            session,
+            seq: 0,
+        })
+    }
+
     /// Applies `commands` and waits for the fluoroscopy frame that reflects the last one; wall
     /// time in ms.
     fn frame_after(&mut self, commands: &[Command]) -> Result<f64, String> {
@@ -254,6 +275,35 @@ impl Driver {
     }
 }
 
+/// A one-session host of `station` on `region` rendering fluoroscopy with `fluoro`.
+fn calibration_host(
+    station: &(Station, String),
+    region: &Arc<Region>,
+    config: &SessionConfig,
+    fluoro: Arc<dyn FluoroBackend>,
+) -> SessionHost {
+    SessionHost::with_regions(
+        vec![station.clone()],
+        vec![Arc::clone(region)],
+        Backends::new(fluoro, Arc::new(CpuUltrasoundBackend)),
+        1,
+        *config,
+    )
+}
+
+/// The first shot of a new session, ms.
+fn first_shot(
+    station: &(Station, String),
+    region: &Arc<Region>,
+    config: &SessionConfig,
+    fluoro: Arc<dyn FluoroBackend>,
+) -> Result<f64, String> {
+    let host = calibration_host(station, region, config, fluoro);
+    let ms = Driver::open(&host, &station.0.id).and_then(|mut d| d.frame_after(&[Command::Shot]));
+    host.shutdown();
+    ms
+}
+
 /// Drives one session of `station` on `region` with `fluoro`; `best_carm_ms` is the best
 /// C-arm-moved frame so far (for the early stop).
 fn measure(
@@ -268,6 +318,7 @@ fn measure(
     let mut timing = RendererTiming {
         renderer: fluoro.profile(),
         first_frame_ms: f64::NAN,
+        probe: None,
         carm_moved_ms: None,
         needle_moved_ms: None,
         new_shot_ms: None,
@@ -277,27 +328,34 @@ fn measure(
         capacity: None,
         stopped: None,
     };
-    let host = SessionHost::with_regions(
-        vec![station.clone()],
-        vec![Arc::clone(region)],
-        Backends::new(fluoro, Arc::new(CpuUltrasoundBackend)),
-        1,
-        *config,
-    );
+    // A cheap look first when there is a best to beat: a far slower renderer (the CPU
+    // reference beside a GPU) is stopped after a sixteenth of a frame's work.
+    if let Some(best) = best_carm_ms {
+        let side = (config.fluoro.detector_pixels / 4).max(32);
+        let mut small = *config;
+        small.fluoro.detector_pixels = side;
+        let scale = (f64::from(config.fluoro.detector_pixels) / f64::from(side)).powi(2);
+        match first_shot(station, region, &small, Arc::clone(&fluoro)) {
+            Ok(ms) => {
+                timing.probe = Some([f64::from(side), ms, ms * scale]);
+                if ms * scale > GIVE_UP_FACTOR * best {
+                    timing.stopped = Some(format!(
+                        "a {side}^2 first frame took {ms:.0} ms, about {:.0} ms at full size: over \
+                         {GIVE_UP_FACTOR} times the best C-arm-moved frame ({best:.0} ms)",
+                        ms * scale
+                    ));
+                    return timing;
+                }
+            }
+            Err(e) => {
+                timing.stopped = Some(format!("failed: {e}"));
+                return timing;
+            }
+        }
+    }
+    let host = calibration_host(station, region, config, fluoro);
     let outcome = (|| -> Result<(), String> {
-        let rt = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
-            .map_err(|e| e.to_string())?;
-        let session = host
-            .create_blocking(&station.0.id)
-            .map_err(|e| e.to_string())?;
-        session.set_visible(BTreeSet::from([ViewId::FLUOROSCOPY]));
-        let mut d = Driver {
-            rt,
-            session,
-            seq: 0,
-        };
+        let mut d = Driver::open(&host, &station.0.id)?;
         timing.first_frame_ms = d.frame_after(&[Command::Shot])?;
         if let Some(best) = best_carm_ms
             && timing.first_frame_ms > GIVE_UP_FACTOR * best
