@@ -13,6 +13,7 @@ use sim_core::rubric::{
 const CREDIT_EPS: f64 = 1e-12;
 
 mod ranges;
+mod station_rules;
 
 fn stations_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets/stations")
