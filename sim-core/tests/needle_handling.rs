@@ -11,8 +11,8 @@ use sim_core::needle::syringe::{
     VASCULAR_ASPIRATION_FALSE_NEGATIVE,
 };
 use sim_core::needle::{
-    Aspirate, ForceModel, ForcePhase, ForceSample, ForceState, LayerStack, LorMedium, LorSyringe,
-    Tissue, aspirate, is_false_loss,
+    Aspirate, ForceModel, ForceParams, ForcePhase, ForceSample, ForceState, LayerStack, LorMedium,
+    LorSyringe, Tissue, aspirate, is_false_loss,
 };
 use sim_core::rng::SplitMix64;
 
@@ -193,6 +193,22 @@ fn check_layered(stack: &LayerStack, h: f64) {
             assert!(prev.total_n - s.total_n > POP_DROP_N, "{prev:?} -> {s:?}");
         }
     }
+}
+
+/// The capsule punctures where its stiffness reaches the puncture force: the positive root of
+/// `a1 z + a2 z^2 = P`, and `P / a1` for a linear capsule (a2 = 0), hand-computed.
+#[test]
+fn a_capsule_punctures_where_its_stiffness_reaches_the_puncture_force() {
+    // 0.5 z + 0.25 z^2 = 2 -> z = (-0.5 + sqrt(0.25 + 2)) / 0.5 = 2.0
+    let quadratic = ForceParams::capsule(0.5, 0.25, 2.0, 1.0, 0.1);
+    assert!((quadratic.puncture_depth_mm().unwrap() - 2.0).abs() < 1e-12);
+    let linear = ForceParams::capsule(0.5, 0.0, 2.0, 1.0, 0.1);
+    assert_eq!(linear.puncture_depth_mm(), Some(4.0));
+    for p in [quadratic, linear] {
+        let z = p.puncture_depth_mm().unwrap();
+        assert!((p.stiffness_n(z) - 2.0).abs() < 1e-12, "{p:?}");
+    }
+    assert_eq!(ForceParams::cut(1.0, 0.1).puncture_depth_mm(), None);
 }
 
 #[test]
