@@ -211,6 +211,86 @@ fn a_capsule_punctures_where_its_stiffness_reaches_the_puncture_force() {
     assert_eq!(ForceParams::cut(1.0, 0.1).puncture_depth_mm(), None);
 }
 
+/// A model whose muscle and fat are plain cutting layers of `muscle_n` and `fat_n`, and whose
+/// interspinous ligament is a capsule (puncture 1 N at 1 N/mm, cutting 3 N); no friction.
+fn layers(muscle_n: f64, fat_n: f64) -> ForceModel {
+    ForceModel::literature()
+        .with_params(Tissue::Muscle, ForceParams::cut(muscle_n, 0.0))
+        .with_params(Tissue::SubcutaneousFat, ForceParams::cut(fat_n, 0.0))
+        .with_params(
+            Tissue::InterspinousLigament,
+            ForceParams::capsule(1.0, 0.0, 1.0, 3.0, 0.0),
+        )
+}
+
+/// A change of layer pops only when the force drops by more than [`POP_DROP_N`] (strictly), or
+/// when the tip leaves a capsule it never punctured; a punctured capsule left without a drop
+/// does not pop again.
+#[test]
+fn a_layer_change_pops_only_past_the_drop_threshold() {
+    for (fat_n, pops) in [(2.0, false), (1.999, true), (2.5, false)] {
+        let m = layers(3.0, fat_n);
+        let mut st = ForceState::new();
+        st.cut(&m, Tissue::Muscle, 1.0, &[]);
+        let s = st.cut(&m, Tissue::SubcutaneousFat, 1.0, &[]);
+        assert_eq!(s.pop, pops, "3 N -> {fat_n} N: {s:?}");
+    }
+    // Punctured early (0.5 mm of a 1 N/mm capsule reaches 1 N at 1 mm), cut on, then left for a
+    // layer of the same cutting force: one pop, at the puncture.
+    let m = layers(3.0, 3.0);
+    let mut st = ForceState::new();
+    let pops: Vec<bool> = [
+        (Tissue::InterspinousLigament, 0.5),
+        (Tissue::InterspinousLigament, 0.5),
+        (Tissue::InterspinousLigament, 0.5),
+        (Tissue::Muscle, 0.5),
+    ]
+    .iter()
+    .map(|&(t, mm)| st.cut(&m, t, mm, &[]).pop)
+    .collect();
+    assert_eq!(pops, [false, true, false, false]);
+}
+
+/// Advances that are NaN, infinite or negative indent nothing.
+#[test]
+fn absurd_advances_indent_nothing() {
+    let m = layers(3.0, 3.0);
+    for bad in [f64::NAN, f64::INFINITY, -0.5, f64::NEG_INFINITY] {
+        let mut st = ForceState::new();
+        let s = st.cut(&m, Tissue::InterspinousLigament, bad, &[]);
+        assert_eq!((st.indent_mm, s.pop), (0.0, false), "{bad}");
+        st.cut(&m, Tissue::InterspinousLigament, 0.5, &[]);
+        assert_eq!(st.indent_mm, 0.5, "{bad}");
+    }
+}
+
+/// Retracing: the carried cutting force is forgotten when the tip changes layer and kept when
+/// it does not; retracing into air leaves the needle out of the body.
+#[test]
+fn retrace_forgets_the_carried_force_only_on_a_change_of_layer() {
+    let m = layers(3.0, 2.0);
+    let mut st = ForceState::new();
+    st.cut(&m, Tissue::Muscle, 1.0, &[]);
+    st.cut(&m, Tissue::SubcutaneousFat, 1.0, &[]);
+    assert_eq!(st.carry_n, 3.0);
+    st.retrace(&m, Tissue::SubcutaneousFat, &[]);
+    assert_eq!((st.carry_n, st.tip), (3.0, Some(Tissue::SubcutaneousFat)));
+    st.retrace(&m, Tissue::Muscle, &[]);
+    assert_eq!((st.carry_n, st.tip), (0.0, Some(Tissue::Muscle)));
+    st.retrace(&m, Tissue::Air, &[]);
+    assert_eq!(st.tip, None);
+}
+
+/// At a bone stop the hand feels the stop force plus the shaft's friction.
+#[test]
+fn a_bone_stop_adds_the_shaft_friction() {
+    let m = ForceModel::literature().with_params(Tissue::Muscle, ForceParams::cut(3.0, 0.2));
+    let s = ForceState::new().bone_stop(&m, &[(Tissue::Muscle, 20.0)]);
+    assert!((s.friction_n - 4.0).abs() < 1e-12, "{s:?}");
+    assert!((s.total_n - (BONE_STOP_N + 4.0)).abs() < 1e-12, "{s:?}");
+    assert_eq!((s.tip_n, s.peak_n), (BONE_STOP_N, s.total_n));
+}
+
 #[test]
 fn the_pop_through_the_ligamentum_flavum_appears_as_a_force_drop() {
     let stack = interlaminar(2.0, 15.0, 30.0, 3.5, 4.0);
