@@ -507,7 +507,7 @@ pub fn calibrate_host(
         .max_by_key(|(_, r)| r.scene.triangle_count())
         .ok_or(CalibrationError::NoStation)?;
     let c = calibrate(&station, &region, &host.session_config(), candidates)?;
-    host.set_calibration(&c);
+    host.set_calibration(serde_json::to_value(&c).unwrap_or_default());
     host.set_capacity(fixed_capacity.unwrap_or(c.capacity));
     Ok(c)
 }

@@ -225,8 +225,8 @@ pub struct Health {
     /// Readiness of each region the stations use.
     #[serde(default)]
     pub regions: BTreeMap<String, RegionReadiness>,
-    /// The start-up calibration that chose the renderer and the capacity, once made (a
-    /// [`super::calibration::Calibration`]).
+    /// The start-up calibration that chose the renderer and the capacity, once made (the
+    /// `Calibration` of `session::calibration`, which records it here).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration: Option<serde_json::Value>,
 }
@@ -501,10 +501,10 @@ impl SessionHost {
         self.inner.session_config
     }
 
-    /// Records the calibration that health reports.
-    pub fn set_calibration(&self, calibration: &super::calibration::Calibration) {
+    /// Records the calibration that health reports (serialised by its maker).
+    pub fn set_calibration(&self, calibration: serde_json::Value) {
         if let Ok(mut c) = self.inner.calibration.lock() {
-            *c = serde_json::to_value(calibration).ok();
+            *c = Some(calibration);
         }
     }
 
