@@ -74,3 +74,59 @@ impl Ledger {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::Ledger;
+
+    /// The mass-balance figure every transport test bounds is itself right: hand-computed
+    /// imbalances, never negative, and 0 only for a balanced or empty ledger.
+    #[test]
+    fn the_balance_error_is_the_relative_imbalance() {
+        let l = Ledger {
+            injected: 10.0,
+            escaped: 2.0,
+            cleared: 1.0,
+            ..Ledger::default()
+        };
+        assert_eq!(l.expected_retained(), 7.0);
+        assert_eq!(l.balance_error(7.0), 0.0);
+        // |7 - 6.5| / max(10, 6.5) and |7 - 12| / max(10, 12).
+        assert!((l.balance_error(6.5) - 0.05).abs() < 1e-15);
+        assert!((l.balance_error(12.0) - 5.0 / 12.0).abs() < 1e-15);
+        // Nothing injected but iodine found: all of it is error.
+        assert_eq!(Ledger::default().balance_error(5.0), 1.0);
+        assert_eq!(Ledger::default().balance_error(-5.0), 1.0);
+        // Empty and balanced.
+        assert_eq!(Ledger::default().balance_error(0.0), 0.0);
+    }
+
+    /// Adding a step's ledger to the totals adds every field, the per-domain ones included.
+    #[test]
+    fn adding_ledgers_adds_every_total() {
+        let n = super::Domain::COUNT;
+        let step = |k: f64| {
+            let mut l = Ledger {
+                injected: 1.0 * k,
+                escaped: 2.0 * k,
+                cleared: 3.0 * k,
+                fluid_injected_mm3: 4.0 * k,
+                fluid_escaped_mm3: 5.0 * k,
+                ..Ledger::default()
+            };
+            for a in 0..n {
+                let a_k = k * (a as f64 + 1.0);
+                l.injected_by_domain[a] = 6.0 * a_k;
+                l.escaped_by_domain[a] = 7.0 * a_k;
+                l.cleared_by_domain[a] = 8.0 * a_k;
+                for b in 0..n {
+                    l.exchanged[a][b] = a_k * (b as f64 - a as f64);
+                }
+            }
+            l
+        };
+        let mut total = step(2.0);
+        total.add(&step(3.0));
+        assert_eq!(total, step(5.0));
+    }
+}
