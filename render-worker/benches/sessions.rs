@@ -20,17 +20,6 @@ use render_worker::session::frame::EncodedFrame;
 use render_worker::session::*;
 use tokio_tungstenite::tungstenite::Message;
 
-/// Process CPU time (user + system) in seconds, from /proc/self/stat (clock ticks of
-/// 1/100 s: Linux's USER_HZ).
-fn cpu_s() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
-    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    (ticks(11) + ticks(12)) / 100.0
-}
-
 fn rss_mb() -> f64 {
     let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
     status
@@ -112,9 +101,9 @@ fn main() {
             }
         });
         std::thread::sleep(Duration::from_millis(200));
-        let c0 = cpu_s();
+        let c0 = render_worker::session::calibration::process_cpu_s();
         std::thread::sleep(Duration::from_secs_f64(idle_s));
-        let used_ms = (cpu_s() - c0) * 1000.0;
+        let used_ms = (render_worker::session::calibration::process_cpu_s() - c0) * 1000.0;
         println!(
             "| {n} | {idle_s} | {used_ms:.0} | {:.2} |",
             used_ms / (n as f64 * idle_s)

@@ -166,7 +166,7 @@ pub enum CalibrationError {
 
 /// Process CPU time (user + system of every thread), s, from `/proc/self/stat` (clock ticks of
 /// 1/100 s, the Linux USER_HZ); 0 where that file is missing.
-fn process_cpu_s() -> f64 {
+pub fn process_cpu_s() -> f64 {
     let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
     // Fields after the command name, which is in parentheses and may hold spaces.
     let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
