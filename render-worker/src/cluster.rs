@@ -309,18 +309,24 @@ fn dechunk(mut b: &[u8]) -> Result<Vec<u8>, ResponseError> {
     }
 }
 
-/// Announces the worker to the server now and every [`HEARTBEAT`] (forever; run it as a task).
-/// Failures are logged and retried: the server may start after the worker.
-pub async fn register_forever(register_url: String, token: String, me: Registration) {
-    let body = match serde_json::to_value(&me) {
-        Ok(b) => b,
-        Err(e) => {
-            tracing::error!("cannot encode the registration: {e}");
-            return;
-        }
-    };
+/// Announces the worker to the server now and every [`HEARTBEAT`] (forever; run it as a task),
+/// with what `me` says at each announcement (a capacity that a calibration changed reaches the
+/// server at the next one). Failures are logged and retried: the server may start after the
+/// worker.
+pub async fn register_forever(
+    register_url: String,
+    token: String,
+    me: impl Fn() -> Registration + Send + 'static,
+) {
     let mut announced = false;
     loop {
+        let body = match serde_json::to_value(me()) {
+            Ok(b) => b,
+            Err(e) => {
+                tracing::error!("cannot encode the registration: {e}");
+                return;
+            }
+        };
         match request("POST", &register_url, Some(&body), Some(&token)).await {
             Ok(r) if (200..300).contains(&r.status) => {
                 if !announced {

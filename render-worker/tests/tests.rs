@@ -14,3 +14,4 @@ mod session_host;
 mod sessions;
 mod ultrasound;
 mod ultrasound_gpu;
+mod worker_process;

@@ -42,7 +42,7 @@ fn worker_process_entry() {
             renderer: serde_json::to_value(host.health().renderer).unwrap(),
             adapter: None,
         };
-        tokio::spawn(register_forever(register, token, me));
+        tokio::spawn(register_forever(register, token, move || me.clone()));
         println!("worker {addr} ready");
         axum::serve(listener, render_worker::session::http::router(host))
             .await

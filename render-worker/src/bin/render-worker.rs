@@ -11,6 +11,7 @@
 
 use std::process::ExitCode;
 
+use render_worker::session::calibration::calibrate_when_ready;
 use render_worker::session::config::{self, WorkerConfig, WorkerRegistration};
 use render_worker::session::{Backends, HostConfig, SessionConfig, SessionHost, http};
 
@@ -39,7 +40,7 @@ fn main() -> ExitCode {
     let config = HostConfig {
         stations_dir: assets.join("stations"),
         assets_root: assets,
-        capacity,
+        capacity: capacity.unwrap_or(config::DEFAULT_WORKER_CAPACITY),
         session: SessionConfig::default(),
     };
     let host = match SessionHost::new(config, backends, adapter) {
@@ -52,6 +53,22 @@ fn main() -> ExitCode {
     // Load (or build) the stations' anatomy now, in the background: session requests that come
     // first get 503 with Retry-After and the progress, never a request held for the build.
     host.prepare_in_background();
+    // Then time this machine's renderers on the heaviest station: the faster one renders new
+    // sessions and, unless RENDER_WORKER_CAPACITY fixes it, its figure becomes the capacity
+    // (reported in /healthz and announced to the server at the next heartbeat).
+    let calibrated = host.clone();
+    let spawned = std::thread::Builder::new()
+        .name("render-calibration".into())
+        .spawn(move || match calibrate_when_ready(&calibrated, capacity) {
+            Ok(c) => tracing::info!(renderer = %c.renderer.kind, device = %c.renderer.device,
+                calibrated = c.capacity, capacity = calibrated.capacity(), took_s = c.took_s,
+                "render calibration done"),
+            Err(e) => tracing::error!(error = %e,
+                "render calibration failed; keeping the renderer and capacity it started with"),
+        });
+    if let Err(e) = spawned {
+        tracing::error!(error = %e, "could not start the render calibration");
+    }
     let runtime = match tokio::runtime::Runtime::new() {
         Ok(r) => r,
         Err(e) => {
@@ -70,12 +87,16 @@ fn main() -> ExitCode {
         let addr = listener.local_addr().map(|a| a.to_string()).unwrap_or(bind);
         // Cluster mode: announce this worker to the server (see render_worker::cluster).
         if let Some(WorkerRegistration { url, token }) = registration {
-            let health = host.health();
-            let me = render_worker::cluster::Registration {
-                url: public_url.unwrap_or_else(|| format!("http://{addr}")),
-                capacity: health.capacity,
-                renderer: serde_json::to_value(&health.renderer).unwrap_or_default(),
-                adapter: health.adapter,
+            let announced = host.clone();
+            let me_url = public_url.unwrap_or_else(|| format!("http://{addr}"));
+            let me = move || {
+                let health = announced.health();
+                render_worker::cluster::Registration {
+                    url: me_url.clone(),
+                    capacity: health.capacity,
+                    renderer: serde_json::to_value(&health.renderer).unwrap_or_default(),
+                    adapter: health.adapter,
+                }
             };
             tokio::spawn(render_worker::cluster::register_forever(url, token, me));
         }

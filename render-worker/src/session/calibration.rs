@@ -24,7 +24,7 @@
 
 use std::collections::BTreeSet;
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use serde::Serialize;
 use sim_core::rubric::Station;
@@ -36,6 +36,7 @@ use super::host::{SessionHandle, SessionHost};
 use super::image::ViewId;
 use super::modalities::fluoro::{BackendProfile, FluoroBackend};
 use super::modalities::ultrasound::backend::CpuUltrasoundBackend;
+use super::preparation::RegionReadiness;
 use super::region::Region;
 
 /// Share of the machine's CPU the learners of a full worker keep busy. Our choice: at half load a
@@ -494,8 +495,8 @@ pub fn calibrate(
 
 /// Calibrates `candidates` on `host`'s heaviest loaded fluoroscopy station (the region with the
 /// most triangles: the capacity holds for the costliest scene it serves), records the outcome in
-/// the host's health and sets the host's capacity to it, unless `fixed_capacity` (an operator's
-/// setting) is given.
+/// the host's health, renders new sessions with the chosen candidate and sets the host's
+/// capacity to the calibrated one, unless `fixed_capacity` (an operator's setting) is given.
 pub fn calibrate_host(
     host: &SessionHost,
     candidates: &[Arc<dyn FluoroBackend>],
@@ -508,6 +509,41 @@ pub fn calibrate_host(
         .ok_or(CalibrationError::NoStation)?;
     let c = calibrate(&station, &region, &host.session_config(), candidates)?;
     host.set_calibration(serde_json::to_value(&c).unwrap_or_default());
+    host.set_fluoro_backend(Arc::clone(&candidates[c.chosen]));
     host.set_capacity(fixed_capacity.unwrap_or(c.capacity));
     Ok(c)
+}
+
+/// How often [`calibrate_when_ready`] looks at the host's regions. Simulator choice: a cold
+/// phantom takes tens of seconds, so a quarter second costs nothing and starts at once after.
+const READY_POLL: Duration = Duration::from_millis(250);
+
+/// [`calibrate_host`] on `host`'s own renderers (its fluoroscopy renderer, then the CPU
+/// reference unless that is the one it has) once no region is being prepared any more (call it
+/// after [`SessionHost::prepare_in_background`]: a region not started counts as pending) and one
+/// of its fluoroscopy stations has its region loaded (blocking: call it on its own thread).
+/// [`CalibrationError::NoStation`] when every preparation ended without such a region.
+pub fn calibrate_when_ready(
+    host: &SessionHost,
+    fixed_capacity: Option<usize>,
+) -> Result<Calibration, CalibrationError> {
+    loop {
+        let building = host.regions_readiness().values().any(|r| {
+            !matches!(
+                r,
+                RegionReadiness::Ready { .. } | RegionReadiness::Failed { .. }
+            )
+        });
+        if !building {
+            break;
+        }
+        std::thread::sleep(READY_POLL);
+    }
+    let own = host.backends().fluoro;
+    let cpu = Backends::cpu(0).fluoro;
+    let mut candidates = vec![Arc::clone(&own)];
+    if own.profile().kind != cpu.profile().kind {
+        candidates.push(cpu);
+    }
+    calibrate_host(host, &candidates, fixed_capacity)
 }

@@ -259,9 +259,10 @@ impl<'a> Settings<'a> {
     }
 }
 
-/// Default sessions one `render-worker` hosts at once. Simulator choice: a small lab group on
-/// one machine, as the server's in-process worker; a machine with more cores or a GPU raises
-/// it.
+/// Sessions one `render-worker` takes until its start-up calibration
+/// ([`super::calibration::calibrate_when_ready`]) has measured its own, when
+/// `RENDER_WORKER_CAPACITY` does not fix it. Simulator choice: a small lab group on one
+/// machine, as the server's in-process worker before its calibration.
 pub const DEFAULT_WORKER_CAPACITY: usize = 8;
 
 /// The settings of this crate: the `render-worker` binary's, and the ultrasound renderer that
@@ -279,8 +280,14 @@ pub const WORKER_SETTINGS: &[Setting] = &[
     },
     Setting {
         name: "RENDER_WORKER_CAPACITY",
-        default: SettingDefault::Number(DEFAULT_WORKER_CAPACITY as u64),
-        meaning: "most sessions the worker hosts at once (at least 1)",
+        default: SettingDefault::Derived(
+            "calibrated at start-up: the sessions of a scripted learner that this machine's \
+             faster fluoroscopy renderer (GPU or CPU reference, both timed on the heaviest \
+             station) holds at half CPU load, shown in `/healthz` (`calibration`) and announced \
+             to the server; 8 until the calibration is made",
+        ),
+        meaning: "most sessions the worker hosts at once (at least 1); set, it fixes the \
+                  capacity and the calibration only chooses the renderer",
     },
     Setting {
         name: "RENDER_WORKER_REGISTER_URL",
@@ -319,8 +326,8 @@ pub struct WorkerConfig {
     pub bind: String,
     /// Region folders, with `stations/` inside.
     pub assets: PathBuf,
-    /// Most sessions at once.
-    pub capacity: usize,
+    /// Most sessions at once, when fixed by the operator; `None`: calibrated.
+    pub capacity: Option<usize>,
     /// Where and how to register with a server; `None` for a standalone worker.
     pub registration: Option<WorkerRegistration>,
     /// The URL announced to the server; `None` announces `http://` + the bound address.
@@ -388,7 +395,11 @@ impl WorkerConfig {
                 s.value_or_default("RENDER_WORKER_ASSETS")
                     .unwrap_or_default(),
             ),
-            capacity: s.count("RENDER_WORKER_CAPACITY", 1usize)?,
+            capacity: s.parse_set(
+                "RENDER_WORKER_CAPACITY",
+                "a whole number, at least 1",
+                |v: &usize| *v >= 1,
+            )?,
             registration,
             public_url: s
                 .value("RENDER_WORKER_PUBLIC_URL")
@@ -426,12 +437,16 @@ mod tests {
         let c = worker(&[]).unwrap();
         assert_eq!(c.bind, "127.0.0.1:8081");
         assert_eq!(c.assets, PathBuf::from("assets"));
-        assert_eq!(c.capacity, DEFAULT_WORKER_CAPACITY);
+        assert_eq!(c.capacity, None, "calibrated");
         assert!(c.registration.is_none() && c.public_url.is_none());
         // A blank value is the default, as a deployment file's `NAME=` means.
         assert_eq!(
             worker(&[("RENDER_WORKER_CAPACITY", " ")]).unwrap().capacity,
-            8
+            None
+        );
+        assert_eq!(
+            worker(&[("RENDER_WORKER_CAPACITY", "3")]).unwrap().capacity,
+            Some(3)
         );
     }
 

@@ -9,7 +9,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
@@ -24,7 +24,11 @@ use super::frame::EncodedFrame;
 use super::image::ViewId;
 use super::loader::RegionLoadError;
 use super::machine::{Ack, Session, SessionEnv, SessionSnapshot};
-use super::modalities::fluoro::BackendProfile;
+use super::modalities::fluoro::{BackendProfile, FluoroBackend};
+pub use super::preparation::{
+    EXPECTED_BUILD_S, MAX_RETRY_AFTER_S, RegionReadiness, build_fraction,
+};
+use super::preparation::{RegionLoader, Regions};
 use super::region::Region;
 use super::scoring::SubmitResult;
 use super::world::StationContext;
@@ -75,118 +79,6 @@ pub enum HostError {
         /// Seconds to wait before asking again.
         retry_after_s: u64,
     },
-}
-
-/// Where a region stands on a worker: reported in `/healthz`, and in the answer to a session
-/// request that arrives while it is being prepared.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "state", rename_all = "snake_case")]
-pub enum RegionReadiness {
-    /// Not requested yet (loaded on first use, or by [`SessionHost::prepare_in_background`]).
-    NotStarted,
-    /// Being loaded or built.
-    Building {
-        /// Stage of the build (`"start"`, or the phantom pipeline's `"voxelize"`, `"labels"`,
-        /// `"mesh"`).
-        stage: String,
-        /// Estimated fraction done, 0 to 1 (see [`build_fraction`]).
-        fraction: f64,
-        /// Seconds since it started.
-        elapsed_s: f64,
-        /// Estimated seconds left.
-        remaining_s: f64,
-    },
-    /// Loaded; sessions start at once.
-    Ready {
-        /// Seconds the preparation took (0 for regions given to the host ready-made).
-        prepare_s: f64,
-    },
-    /// Loading or building failed; sessions of its stations cannot start.
-    Failed {
-        /// Why, in words.
-        reason: String,
-    },
-}
-
-/// Expected duration of a phantom build when no progress has been reported yet, s. Measured:
-/// about 18 s for the default lumbar phantom on the 2-core development machine.
-pub const EXPECTED_BUILD_S: f64 = 20.0;
-
-/// Longest `Retry-After` handed out, s. Simulator choice: a client told to come back in at most
-/// a few seconds shows progress that moves, and starts within that much of the build's end.
-pub const MAX_RETRY_AFTER_S: f64 = 3.0;
-
-/// Fraction of a phantom build done at a progress report. The stage weights are a simulator
-/// choice from one timed build of the default phantom on 2 cores (voxelization about 40 % of
-/// the time, label volume 10 %, meshing the structures the rest); they only shape the progress
-/// shown and the `Retry-After` estimate.
-pub fn build_fraction(p: &Progress) -> f64 {
-    let part = if p.total == 0 {
-        0.0
-    } else {
-        (p.done as f64 / p.total as f64).clamp(0.0, 1.0)
-    };
-    match p.stage {
-        "voxelize" => 0.40 * part,
-        "labels" => 0.40 + 0.10 * part,
-        "mesh" => 0.50 + 0.45 * part,
-        _ => 0.0,
-    }
-}
-
-/// What the host remembers of a region's preparation.
-#[derive(Debug, Clone)]
-enum Prep {
-    Building {
-        started: Instant,
-        stage: String,
-        fraction: f64,
-    },
-    Ready {
-        prepare_s: f64,
-    },
-    Failed(String),
-}
-
-impl Prep {
-    fn building() -> Prep {
-        Prep::Building {
-            started: Instant::now(),
-            stage: "start".into(),
-            fraction: 0.0,
-        }
-    }
-
-    fn readiness(&self) -> RegionReadiness {
-        match self {
-            Prep::Building {
-                started,
-                stage,
-                fraction,
-            } => {
-                let elapsed_s = started.elapsed().as_secs_f64();
-                // Extrapolate from the progress so far once there is some; before that, the
-                // expected build time.
-                let remaining_s = if *fraction >= 0.05 {
-                    elapsed_s * (1.0 - fraction) / fraction
-                } else {
-                    (EXPECTED_BUILD_S - elapsed_s).max(1.0)
-                };
-                RegionReadiness::Building {
-                    stage: stage.clone(),
-                    fraction: *fraction,
-                    elapsed_s,
-                    remaining_s,
-                }
-            }
-            Prep::Ready { prepare_s } => RegionReadiness::Ready {
-                prepare_s: *prepare_s,
-            },
-            Prep::Failed(reason) => RegionReadiness::Failed {
-                reason: reason.clone(),
-            },
-        }
-    }
 }
 
 /// What a client needs to know about a session.
@@ -338,21 +230,16 @@ fn closed(seq: u64) -> CommandError {
     }
 }
 
-type RegionLoader =
-    dyn Fn(&str, &mut dyn FnMut(&Progress)) -> Result<Region, RegionLoadError> + Send + Sync;
-
 struct Inner {
     stations: BTreeMap<String, (Station, String)>,
-    regions: Mutex<BTreeMap<String, Arc<Region>>>,
-    /// Preparation state of regions not given ready-made; `prepared` wakes its waiters.
-    prep: Mutex<BTreeMap<String, Prep>>,
-    prepared: Condvar,
-    loader: Box<RegionLoader>,
+    /// Loaded regions and the preparation of the others.
+    regions: Arc<Regions>,
     sessions: Mutex<BTreeMap<String, SessionHandle>>,
     /// Threads of the session actors not yet known to have finished (see
     /// [`SessionHost::shutdown`]).
     actors: Mutex<Vec<std::thread::JoinHandle<()>>>,
-    backends: Backends,
+    /// The renderers of new sessions (the fluoroscopy one may be replaced by a calibration).
+    backends: std::sync::RwLock<Backends>,
     /// The modalities sessions are built with (the standard ones unless an embedder sets its
     /// own with [`SessionHost::set_modalities`]).
     modalities: std::sync::RwLock<super::modalities::ModalityFactory>,
@@ -427,10 +314,8 @@ impl SessionHost {
             session_config,
             None,
         );
-        if let Ok(mut m) = host.inner.regions.lock() {
-            for r in regions {
-                m.insert(r.name.clone(), r);
-            }
+        for r in regions {
+            host.inner.regions.insert(r);
         }
         host
     }
@@ -446,13 +331,10 @@ impl SessionHost {
         SessionHost {
             inner: Arc::new(Inner {
                 stations,
-                regions: Mutex::new(BTreeMap::new()),
-                prep: Mutex::new(BTreeMap::new()),
-                prepared: Condvar::new(),
-                loader,
+                regions: Arc::new(Regions::new(loader)),
                 sessions: Mutex::new(BTreeMap::new()),
                 actors: Mutex::new(Vec::new()),
-                backends,
+                backends: std::sync::RwLock::new(backends),
                 modalities: std::sync::RwLock::new(super::modalities::ModalityFactory::standard()),
                 capacity: capacity.into(),
                 calibration: Mutex::new(None),
@@ -472,7 +354,7 @@ impl SessionHost {
         let sessions = self.inner.sessions.lock().map_or(0, |s| s.len());
         Health {
             status: "ok".into(),
-            renderer: self.inner.backends.fluoro.profile(),
+            renderer: self.backends().fluoro.profile(),
             adapter: self.inner.adapter.clone(),
             capacity: self.capacity(),
             sessions,
@@ -501,6 +383,25 @@ impl SessionHost {
         self.inner.session_config
     }
 
+    /// The renderers new sessions get.
+    pub fn backends(&self) -> Backends {
+        self.inner
+            .backends
+            .read()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+
+    /// Renders the fluoroscopy of sessions started from now on with `fluoro` (a calibration's
+    /// choice); sessions already running keep their renderer.
+    pub fn set_fluoro_backend(&self, fluoro: Arc<dyn FluoroBackend>) {
+        self.inner
+            .backends
+            .write()
+            .unwrap_or_else(|p| p.into_inner())
+            .fluoro = fluoro;
+    }
+
     /// Records the calibration that health reports (serialised by its maker).
     pub fn set_calibration(&self, calibration: serde_json::Value) {
         if let Ok(mut c) = self.inner.calibration.lock() {
@@ -511,12 +412,6 @@ impl SessionHost {
     /// The loaded region of each station that shows fluoroscopy, with the station and its file
     /// hash (what a calibration drives).
     pub fn fluoroscopy_stations(&self) -> Vec<((Station, String), Arc<Region>)> {
-        let regions = self
-            .inner
-            .regions
-            .lock()
-            .map(|r| r.clone())
-            .unwrap_or_default();
         self.inner
             .stations
             .values()
@@ -525,7 +420,7 @@ impl SessionHost {
                     .iter()
                     .any(|m| m.as_str() == sim_core::rubric::Modality::FLUOROSCOPY)
             })
-            .filter_map(|st| Some((st.clone(), Arc::clone(regions.get(&st.0.region)?))))
+            .filter_map(|st| Some((st.clone(), self.loaded(&st.0.region)?)))
             .collect()
     }
 
@@ -565,34 +460,12 @@ impl SessionHost {
     }
 
     fn loaded(&self, region: &str) -> Option<Arc<Region>> {
-        self.inner.regions.lock().ok()?.get(region).cloned()
+        self.inner.regions.loaded(region)
     }
 
     /// Readiness of one region.
     pub fn region_readiness(&self, region: &str) -> RegionReadiness {
-        if self.loaded(region).is_some() {
-            let prepare_s = match self
-                .inner
-                .prep
-                .lock()
-                .ok()
-                .and_then(|p| p.get(region).cloned())
-            {
-                Some(Prep::Ready { prepare_s }) => prepare_s,
-                _ => 0.0,
-            };
-            return RegionReadiness::Ready { prepare_s };
-        }
-        match self
-            .inner
-            .prep
-            .lock()
-            .ok()
-            .and_then(|p| p.get(region).cloned())
-        {
-            Some(p) => p.readiness(),
-            None => RegionReadiness::NotStarted,
-        }
+        self.inner.regions.readiness(region)
     }
 
     /// Readiness of every region the stations use.
@@ -613,109 +486,9 @@ impl SessionHost {
         let todo: Vec<String> = self
             .station_regions()
             .into_iter()
-            .filter(|r| self.claim(r))
+            .filter(|r| self.inner.regions.claim(r))
             .collect();
-        self.spawn_preparation(todo);
-    }
-
-    /// Marks `region` as being prepared by the caller; false when it is loaded or already being
-    /// prepared.
-    fn claim(&self, region: &str) -> bool {
-        if self.loaded(region).is_some() {
-            return false;
-        }
-        let Ok(mut prep) = self.inner.prep.lock() else {
-            return false;
-        };
-        if matches!(prep.get(region), Some(Prep::Building { .. })) {
-            return false;
-        }
-        prep.insert(region.to_string(), Prep::building());
-        true
-    }
-
-    fn spawn_preparation(&self, regions: Vec<String>) {
-        if regions.is_empty() {
-            return;
-        }
-        let host = self.clone();
-        let spawned = std::thread::Builder::new()
-            .name("region-prepare".into())
-            .spawn(move || {
-                for r in regions {
-                    match host.load_claimed(&r) {
-                        Ok(_) => tracing::info!(region = %r, "region ready"),
-                        Err(e) => tracing::error!(region = %r, "region preparation failed: {e}"),
-                    }
-                }
-            });
-        if let Err(e) = spawned {
-            tracing::error!("cannot start the region preparation thread: {e}");
-        }
-    }
-
-    /// Loads a region the caller claimed, recording progress and the outcome, and wakes anyone
-    /// waiting for it.
-    fn load_claimed(&self, region: &str) -> Result<Arc<Region>, HostError> {
-        let started = Instant::now();
-        let mut progress = |p: &Progress| {
-            if let Ok(mut prep) = self.inner.prep.lock()
-                && let Some(Prep::Building {
-                    stage, fraction, ..
-                }) = prep.get_mut(region)
-            {
-                *stage = p.stage.to_string();
-                *fraction = fraction.max(build_fraction(p));
-            }
-        };
-        let loaded = (self.inner.loader)(region, &mut progress);
-        let prepare_s = started.elapsed().as_secs_f64();
-        let result = match loaded {
-            Ok(r) => {
-                let r = Arc::new(r);
-                if let Ok(mut m) = self.inner.regions.lock() {
-                    m.insert(region.to_string(), Arc::clone(&r));
-                }
-                Ok(r)
-            }
-            Err(e) => Err(e),
-        };
-        if let Ok(mut prep) = self.inner.prep.lock() {
-            let state = match &result {
-                Ok(_) => Prep::Ready { prepare_s },
-                Err(e) => Prep::Failed(e.to_string()),
-            };
-            prep.insert(region.to_string(), state);
-        }
-        self.inner.prepared.notify_all();
-        result.map_err(|e| HostError::Region(e.to_string()))
-    }
-
-    /// The region, loading it here if nobody is (blocking: possibly a whole phantom build), or
-    /// waiting for the preparation under way.
-    fn region_blocking(&self, region: &str) -> Result<Arc<Region>, HostError> {
-        loop {
-            if let Some(r) = self.loaded(region) {
-                return Ok(r);
-            }
-            if self.claim(region) {
-                return self.load_claimed(region);
-            }
-            let prep = self
-                .inner
-                .prep
-                .lock()
-                .map_err(|_| HostError::Region("lock poisoned".into()))?;
-            if matches!(prep.get(region), Some(Prep::Building { .. })) {
-                let _unused = self
-                    .inner
-                    .prepared
-                    .wait_while(prep, |p| {
-                        matches!(p.get(region), Some(Prep::Building { .. }))
-                    })
-                    .map_err(|_| HostError::Region("lock poisoned".into()))?;
-            }
-        }
+        self.inner.regions.spawn_preparation(todo);
     }
 
     /// Whether a session of `station_id` can start now: `Ok` when its region is loaded; a
@@ -734,9 +507,9 @@ impl SessionHost {
         if !matches!(
             self.region_readiness(&region),
             RegionReadiness::Failed { .. }
-        ) && self.claim(&region)
+        ) && self.inner.regions.claim(&region)
         {
-            self.spawn_preparation(vec![region.clone()]);
+            self.inner.regions.spawn_preparation(vec![region.clone()]);
         }
         match self.region_readiness(&region) {
             RegionReadiness::Ready { .. } => Ok(()),
@@ -763,11 +536,15 @@ impl SessionHost {
             .get(station_id)
             .cloned()
             .ok_or_else(|| HostError::UnknownStation(station_id.to_string()))?;
-        let region = self.region_blocking(&station.region)?;
+        let region = self
+            .inner
+            .regions
+            .blocking(&station.region)
+            .map_err(|e| HostError::Region(e.to_string()))?;
         let mut env = SessionEnv::new(
             Arc::new(StationContext::new(station, sha, &region)),
             region,
-            self.inner.backends.clone(),
+            self.backends(),
         );
         if let Ok(f) = self.inner.modalities.read() {
             env.modalities = f.clone();

@@ -58,6 +58,7 @@ pub mod loader;
 pub mod machine;
 pub mod modalities;
 pub mod offer;
+pub mod preparation;
 pub mod protocol;
 pub mod region;
 pub mod scoring;
