@@ -577,8 +577,10 @@ mod tests {
                     "case {case_no}: cell {k} concentration {c} outside [0, {top}]"
                 );
             }
+            // A cell emptied below zero by more than round-off would show as negative
+            // clearance (the clamp books it there); round-off is ulps of the iodine moved.
             assert!(
-                out.ledger.cleared >= 0.0,
+                out.ledger.cleared >= -1e-15 * total(&case.iodine).max(1.0),
                 "case {case_no}: a cell was emptied below zero ({} booked)",
                 out.ledger.cleared
             );
@@ -790,5 +792,62 @@ mod tests {
             }
         }
         panic!("only {found} triples found");
+    }
+
+    /// A donor that a substep empties exactly can keep a round-off negative of iodine: all its
+    /// fluid leaves through two faces at a bound of one, and `m - h q1 c - h q2 c` with
+    /// `h (q1 + q2) = v` and `c = m / v` lands an ulp either side of 0. The step clamps it to 0
+    /// and books it as a negative clearance, in all and in the donor's domain, so that the
+    /// balance stays exact; nothing negative is left. Such donors are found by search (about
+    /// one draw in three).
+    #[test]
+    fn round_off_below_zero_is_clamped_and_booked() {
+        let mut rng = Lcg(0xc1a3_0033);
+        let mut found = 0;
+        for _ in 0..10_000 {
+            let v0 = 0.1 + rng.next();
+            let m0 = v0 * rng.next();
+            let (q1, q2) = (0.05 + rng.next(), 0.05 + rng.next());
+            let case = Case {
+                n: 3,
+                faces: vec![(0, 1, q1, 0.0), (0, 2, q2, 0.0)],
+                sink: vec![0.0; 3],
+                clearance: vec![0.0; 3],
+                domain: vec![2, 0, 0],
+                contacts: None,
+                p: vec![1.0, 0.0, 0.0, 0.0],
+                fluid: vec![v0, 1.0, 1.0],
+                iodine: vec![m0, 0.0, 0.0],
+                cfl: 1.0,
+                // All of the donor's fluid leaves.
+                dt: v0 / (q1 + q2),
+            };
+            let (out, iodine, fluid) = case.run();
+            // Where the count's rounding asks for two pieces, the second finds the donor
+            // all but dry and the step is refused (the model halves it): not this case.
+            let Some(out) = out else { continue };
+            let led = out.ledger;
+            assert!(
+                iodine.iter().all(|m| *m >= 0.0),
+                "left below zero: {iodine:?}"
+            );
+            assert!(fluid[0].abs() < 1e-15, "the donor is emptied: {fluid:?}");
+            if led.cleared < 0.0 {
+                assert_eq!(iodine[0], 0.0);
+                assert!(led.cleared > -1e-15, "round-off only: {}", led.cleared);
+                assert_eq!(
+                    led.cleared_by_domain[2], led.cleared,
+                    "booked in the donor's domain"
+                );
+                assert_eq!(led.cleared_by_domain.iter().sum::<f64>(), led.cleared);
+                found += 1;
+            } else {
+                assert_eq!(led.cleared, 0.0, "no clearance in this scene");
+            }
+        }
+        assert!(
+            found >= 100,
+            "only {found} round-off negatives in 10,000 draws"
+        );
     }
 }
