@@ -27,6 +27,26 @@ enum Step {
     Nothing,
 }
 
+/// The analytic sphere phantom the cache tests render.
+fn sphere_scene() -> sim_core::fluoro::Scene {
+    SpherePhantom {
+        subdivisions: 3,
+        volume_matched: true,
+        needle_segments: 16,
+    }
+    .build()
+    .0
+}
+
+/// A small AP view of it (160 x 128 pixels of 1.2 mm).
+fn small_ap() -> Projection {
+    Projection {
+        detector_pixels: [160, 128],
+        pixel_pitch_mm: [1.2, 1.2],
+        ..Projection::default()
+    }
+}
+
 fn frame(
     r: &mut GpuFluoroRenderer,
     p: &Projection,
@@ -42,20 +62,11 @@ fn cached_and_incremental_frames_equal_frames_from_scratch() {
     let Some(ctx) = context_for_tests() else {
         return;
     };
-    let (scene, _) = SpherePhantom {
-        subdivisions: 3,
-        volume_matched: true,
-        needle_segments: 16,
-    }
-    .build();
+    let scene = sphere_scene();
     let mut cached = GpuFluoroRenderer::new(&ctx, &scene).expect("renderer");
     let mut scratch = GpuFluoroRenderer::new(&ctx, &scene).expect("renderer");
     scratch.caching = false;
-    let ap = Projection {
-        detector_pixels: [160, 128],
-        pixel_pitch_mm: [1.2, 1.2],
-        ..Projection::default()
-    };
+    let ap = small_ap();
     let oblique = Projection {
         orbital_deg: -25.0,
         angular_deg: 10.0,
@@ -190,12 +201,7 @@ fn culled_needle_passes_equal_full_draws() {
     let Some(ctx) = context_for_tests() else {
         return;
     };
-    let (scene, _) = SpherePhantom {
-        subdivisions: 3,
-        volume_matched: true,
-        needle_segments: 16,
-    }
-    .build();
+    let scene = sphere_scene();
     let mut culled = GpuFluoroRenderer::new(&ctx, &scene).expect("renderer");
     let mut full = GpuFluoroRenderer::new(&ctx, &scene).expect("renderer");
     full.culling = false;
@@ -231,6 +237,53 @@ fn culled_needle_passes_equal_full_draws() {
         assert!(
             ca.iter().zip(&cb).all(|(x, y)| x == y),
             "orbital {orbital_deg}"
+        );
+    }
+}
+
+/// A frame after [`GpuFluoroRenderer::prefetch`] of its view (what a session does before its
+/// first shot) reuses the prefetched transmission (no GPU work: `frame_reused`) and is, bit for
+/// bit, the frame of a renderer that never prefetched; with noise on, whatever its seed. A
+/// prefetch of another view changes nothing either (positive control: that frame is rendered).
+#[test]
+fn a_prefetched_frame_is_the_frame_from_scratch_without_gpu_work() {
+    let Some(ctx) = context_for_tests() else {
+        return;
+    };
+    let scene = sphere_scene();
+    let ap = small_ap();
+    let oblique = Projection {
+        orbital_deg: -25.0,
+        ..ap
+    };
+    let shot = |seed: u64| RenderSettings {
+        energy: EnergyModel::Spectral { kvp: 80 },
+        supersample: 2,
+        noise: Some(sim_core::fluoro::QuantumNoise {
+            photons_per_pixel: 2000.0,
+            seed,
+        }),
+        ..RenderSettings::default()
+    };
+    let shaft = needle([-30.0, -60.0, 5.0], [2.0, -4.0, 1.0]);
+    for (prefetched, shown, reused) in [(ap, ap, true), (oblique, ap, false)] {
+        let mut scratch = GpuFluoroRenderer::new(&ctx, &scene).expect("renderer");
+        scratch.caching = false;
+        scratch.update_needle(&shaft);
+        let expected = scratch.render_frame(&shown, &shot(7), None).expect("frame");
+        let mut r = GpuFluoroRenderer::new(&ctx, &scene).expect("renderer");
+        r.update_needle(&shaft);
+        // The prefetch knows no noise seed: it is not part of what is kept.
+        r.prefetch(&prefetched, &shot(0)).expect("prefetch");
+        let frame = r.render_frame(&shown, &shot(7), None).expect("frame");
+        assert_eq!(
+            r.last_timings().frame_reused,
+            reused,
+            "prefetched {prefetched:?}"
+        );
+        assert!(
+            frame == expected,
+            "prefetched {prefetched:?}: the frame differs"
         );
     }
 }

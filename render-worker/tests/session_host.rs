@@ -351,3 +351,112 @@ async fn a_burst_sent_without_reading_is_answered_in_order_on_the_worker_socket(
         started.elapsed().as_secs_f64()
     );
 }
+
+/// A CPU reference that says it prefetches, and counts the prefetches its renderers are asked
+/// for.
+struct CountingPrefetch {
+    prefetches: Arc<std::sync::atomic::AtomicUsize>,
+}
+
+struct CountingRenderer {
+    inner: Box<dyn FluoroRenderer>,
+    prefetches: Arc<std::sync::atomic::AtomicUsize>,
+}
+
+impl FluoroBackend for CountingPrefetch {
+    fn profile(&self) -> BackendProfile {
+        CpuFluoroBackend { threads: 1 }.profile()
+    }
+
+    fn renderer(
+        &self,
+        region: &Arc<render_worker::session::region::Region>,
+    ) -> Result<
+        Box<dyn FluoroRenderer>,
+        render_worker::session::modalities::fluoro::FluoroRenderError,
+    > {
+        Ok(Box::new(CountingRenderer {
+            inner: CpuFluoroBackend { threads: 1 }.renderer(region)?,
+            prefetches: Arc::clone(&self.prefetches),
+        }))
+    }
+
+    fn prefetches(&self) -> bool {
+        true
+    }
+}
+
+impl FluoroRenderer for CountingRenderer {
+    fn render(
+        &mut self,
+        needle: Option<&render_worker::session::modalities::fluoro::NeedleShaft>,
+        projection: &sim_core::fluoro::Projection,
+        settings: &sim_core::fluoro::RenderSettings,
+        iodine: Option<&sim_core::fluoro::IodineField>,
+    ) -> Result<
+        sim_core::fluoro::Image,
+        render_worker::session::modalities::fluoro::FluoroRenderError,
+    > {
+        self.inner.render(needle, projection, settings, iodine)
+    }
+
+    fn prefetch(
+        &mut self,
+        _needle: Option<&render_worker::session::modalities::fluoro::NeedleShaft>,
+        _projection: &sim_core::fluoro::Projection,
+        _settings: &sim_core::fluoro::RenderSettings,
+        _iodine: Option<&sim_core::fluoro::IodineField>,
+    ) -> Result<(), render_worker::session::modalities::fluoro::FluoroRenderError> {
+        self.prefetches
+            .fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        Ok(())
+    }
+}
+
+/// A new session's thread prefetches its first view before any input arrives, once; a
+/// restored session (its images already taken) does not.
+#[test]
+fn a_new_session_prefetches_its_first_view_before_any_input() {
+    let prefetches = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let backends = Backends::new(
+        Arc::new(CountingPrefetch {
+            prefetches: Arc::clone(&prefetches),
+        }),
+        Backends::cpu(1).ultrasound,
+    );
+    let h = SessionHost::with_regions(
+        vec![demo_station(&[])],
+        vec![Arc::new(demo_region())],
+        backends,
+        2,
+        config(),
+    );
+    let count = || prefetches.load(std::sync::atomic::Ordering::SeqCst);
+    let wait_for = |n: usize| {
+        let t0 = std::time::Instant::now();
+        while count() < n && t0.elapsed() < std::time::Duration::from_secs(30) {
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+    };
+    let s = h.create_blocking("demo-station").expect("session");
+    wait_for(1);
+    assert_eq!(count(), 1, "the new session prefetched");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(s.command(Envelope {
+        seq: 1,
+        command: Command::Shot,
+    }))
+    .expect("shot");
+    let (snapshot, log) = rt.block_on(s.snapshot()).expect("snapshot");
+    h.close(&s.info.id).unwrap();
+    let restored = h.restore_blocking(&snapshot, &log).expect("restored");
+    // Give the restored session's thread the time it would take to prefetch.
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert_eq!(
+        count(),
+        1,
+        "a restored session with an image prefetches nothing"
+    );
+    h.close(&restored.info.id).unwrap();
+    h.shutdown();
+}

@@ -6,8 +6,8 @@
 //! five C-arm pose commands 60 ms apart and one shot; needle steps of 1 mm, each followed by a
 //! shot; now and then a second of live fluoroscopy with the C-arm moving (7.5 pulses per
 //! second, the default, with the client's tick per pulse); a pause of one to two seconds between
-//! actions, and learners starting at random moments within the first two seconds, never in
-//! lockstep. Latency is from sending the command that must produce an image (a shot, or a pose
+//! actions (and before the first shot of a session, while the learner reads the station), and
+//! learners starting at random moments within the first two seconds, never in lockstep. Latency is from sending the command that must produce an image (a shot, or a pose
 //! while live) to receiving the first frame that reflects it (the frame header's input
 //! sequence); a frame that has not come 20 s after its command counts as never delivered.
 //!
@@ -224,6 +224,9 @@ async fn run_learner(row: Arc<Row>, seed: u64) -> Figures {
         seq: 0,
         figures: Figures::default(),
     };
+    // A learner looks at the station (goal, first view) for a second or two before the first
+    // shot, as after any other pause.
+    tokio::time::sleep(Duration::from_secs_f64(1.0 + rng.next_f64())).await;
     me.figures.first_image_ms = me.shot().await;
     me.send(
         json!({ "type": "needle_place", "instrument": needle.instrument,

@@ -361,6 +361,24 @@ impl GpuFluoroRenderer {
         Ok(out)
     }
 
+    /// Renders ahead, into the caches, what a frame of `projection` without iodine needs (the
+    /// supersampled transmission and the exposure mask), so that a later
+    /// [`GpuFluoroRenderer::render_frame`] with the same projection, energy, supersampling and
+    /// needle costs only the noise and the display; its frame is the same bit for bit (the
+    /// caches' invariant). Without [`GpuFluoroRenderer::caching`] it does nothing.
+    pub fn prefetch(
+        &mut self,
+        projection: &Projection,
+        settings: &RenderSettings,
+    ) -> Result<(), FluoroGpuError> {
+        if !self.caching {
+            return Ok(());
+        }
+        self.render_transmission_supersampled(projection, settings, None)?;
+        self.cache.exposure_mask(projection);
+        Ok(())
+    }
+
     /// The displayed 8-bit frame: [`GpuFluoroRenderer::render_transmission_supersampled`], then
     /// sim-core's noise, automatic brightness, log mapping and shutters on the CPU. Same output
     /// type as `sim_core::fluoro::render_frame`.

@@ -700,6 +700,10 @@ fn run_actor(
     frames: watch::Sender<FrameSet>,
     mut visible: BTreeSet<ViewId>,
 ) {
+    // Before the first input: a learner looks at the station before the first shot, and the
+    // renderer and the first view are ready by then (a command that comes sooner waits for
+    // this, no longer than its own frame would have taken).
+    session.prefetch();
     let started = Instant::now();
     let base_ms = session.world().clock_ms;
     let mut frame_seq = 0u64;

@@ -711,6 +711,17 @@ impl Session {
         Ok(out)
     }
 
+    /// Lets every modality prepare what its next frames will likely need
+    /// ([`Modality::prefetch`]); changes nothing a client or a replay sees, only how soon the
+    /// next frame comes. A failure is logged and left to the render that needs it.
+    pub fn prefetch(&mut self) {
+        for m in &mut self.modalities {
+            if let Err(e) = m.prefetch(&self.world) {
+                tracing::warn!(modality = m.name(), "prefetch failed: {e}");
+            }
+        }
+    }
+
     /// Whether any visible view needs rendering.
     pub fn has_dirty(&self, visible: &BTreeSet<ViewId>) -> bool {
         self.modalities

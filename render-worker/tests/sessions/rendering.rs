@@ -147,3 +147,49 @@ fn gpu_session_oblique_view_with_needle_matches_the_cpu() {
     };
     assert!(within_one >= 0.97, "{within_one}");
 }
+
+/// What a session thread does before its first input (`Session::prefetch`) changes nothing a
+/// client or a replay sees: on the GPU backend (which keeps the prefetched view), the first
+/// shot's frame, the snapshot and the measurements equal those of a session that never
+/// prefetched, and so does a second frame after a C-arm move (the prefetched view is not
+/// shown again); a session with an image already prefetches nothing new.
+#[test]
+fn prefetch_before_the_first_shot_changes_no_frame_and_no_state() {
+    let Some(ctx) = render_worker::gpu::context_for_tests() else {
+        return;
+    };
+    let gpu = || {
+        let mut e = env();
+        e.backends = Backends::gpu(ctx.clone());
+        Session::new(e, config())
+    };
+    let (mut plain, mut early) = (gpu(), gpu());
+    early.prefetch();
+    let steps = [
+        (100, Command::Shot),
+        (200, pose(20.0, 5.0)),
+        (300, Command::Shot),
+    ];
+    for (k, (t, command)) in steps.into_iter().enumerate() {
+        let mut frames = Vec::new();
+        for s in [&mut plain, &mut early] {
+            let env = Envelope {
+                seq: k as u64 + 1,
+                command: command.clone(),
+            };
+            s.apply(env, t).unwrap();
+            frames.push(s.render_dirty(&fluoro_only()).unwrap());
+            // After the first image a prefetch has nothing to prepare.
+            s.prefetch();
+        }
+        let [a, b] = [&frames[0], &frames[1]];
+        assert_eq!(a.len(), b.len(), "step {k}");
+        for (x, y) in a.iter().zip(b) {
+            assert!(x.image == y.image, "step {k}: the frames differ");
+            assert_eq!(x.input_seq, y.input_seq);
+        }
+    }
+    assert_eq!(plain.snapshot().to_bytes(), early.snapshot().to_bytes());
+    assert_eq!(plain.measurements(), early.measurements());
+    assert_eq!(plain.log(), early.log());
+}

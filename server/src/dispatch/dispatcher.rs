@@ -278,9 +278,10 @@ impl std::fmt::Debug for DispatchConfig {
 /// its self-test (a real adapter or lavapipe), the CPU reference before that, without one, or
 /// when the start-up calibration ([`crate::workers::Workers::calibrate_in_background`]) measured
 /// the CPU reference faster.
-/// A session keeps the renderer it got at its first exposure; a session that began in the
-/// first seconds after start-up, before the GPU was ready, may therefore render on the CPU
-/// while its record (read at submit) names the GPU.
+/// A session keeps the renderer it got at its first exposure (or, on the GPU, when its thread
+/// prefetched its first view, before any input); a session that began in the first seconds
+/// after start-up, before the GPU was ready, may therefore render on the CPU while its record
+/// (read at submit) names the GPU.
 ///
 /// The GPU renderers are the worker's ([`crate::workers::Workers::gpu_renderers`]), made once
 /// and shared by every session.
@@ -339,6 +340,10 @@ impl FluoroBackend for InProcessBackend {
 
     fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, FluoroRenderError> {
         self.current().renderer(region)
+    }
+
+    fn prefetches(&self) -> bool {
+        self.current().prefetches()
     }
 }
 

@@ -157,6 +157,14 @@ pub trait Modality: Send {
     /// Renders `view` (called only for dirty, visible views); marks it clean.
     fn render(&mut self, view: ViewId, world: &World) -> Result<Option<ViewImage>, ModalityError>;
 
+    /// Prepares, while the session waits for input, what its next frames will likely need
+    /// (the fluoroscopy modality: the renderer and the transmission of the view a first shot
+    /// would show). It changes no state: what the session acknowledges, logs, snapshots and
+    /// renders is the same with or without it, bit for bit.
+    fn prefetch(&mut self, _world: &World) -> Result<(), ModalityError> {
+        Ok(())
+    }
+
     /// Adds this modality's measurements (rubric keys) computed from live state.
     fn measure(&self, world: &World, out: &mut Measurements);
 

@@ -28,12 +28,20 @@ pub enum FluoroRenderError {
 
 /// Makes fluoroscopy renderers: the CPU reference, or the GPU renderer (same output type).
 /// Shared by every session of a worker; each session gets its own [`FluoroRenderer`], created on
-/// its first exposure (a session that never takes an image allocates nothing).
+/// its first exposure, or before its first input where the renderer prefetches (see
+/// [`FluoroBackend::prefetches`]).
 pub trait FluoroBackend: Send + Sync {
     /// What renders (e.g. `cpu-reference`, or the GPU adapter's name), for records and health.
     fn profile(&self) -> BackendProfile;
     /// A renderer of `region` for one session.
     fn renderer(&self, region: &Arc<Region>) -> Result<Box<dyn FluoroRenderer>, FluoroRenderError>;
+    /// Whether its renderers keep work between frames, so that [`FluoroRenderer::prefetch`]
+    /// makes a later frame cheaper (the GPU renderer's caches). A session makes its renderer
+    /// ahead of its first exposure only then: a renderer that keeps nothing (the CPU reference)
+    /// is made at the first exposure, from whatever the backend offers by then.
+    fn prefetches(&self) -> bool {
+        false
+    }
 }
 
 /// One session's renderer (may hold per-session resources, such as uploaded meshes).
@@ -48,6 +56,19 @@ pub trait FluoroRenderer: Send {
         settings: &RenderSettings,
         iodine: Option<&IodineField>,
     ) -> Result<Image, FluoroRenderError>;
+
+    /// Prepares ahead what a later [`FluoroRenderer::render`] with the same arguments (noise
+    /// seed aside) needs, so that it answers sooner, with the same frame bit for bit. A
+    /// renderer that keeps nothing between frames (the CPU reference) does nothing.
+    fn prefetch(
+        &mut self,
+        _needle: Option<&NeedleShaft>,
+        _projection: &Projection,
+        _settings: &RenderSettings,
+        _iodine: Option<&IodineField>,
+    ) -> Result<(), FluoroRenderError> {
+        Ok(())
+    }
 }
 
 /// Which renderer made a frame.
@@ -211,6 +232,10 @@ impl FluoroBackend for GpuFluoroBackend {
             needle: None,
         }))
     }
+
+    fn prefetches(&self) -> bool {
+        true
+    }
 }
 
 struct GpuRenderer {
@@ -218,14 +243,9 @@ struct GpuRenderer {
     needle: Option<NeedleShaft>,
 }
 
-impl FluoroRenderer for GpuRenderer {
-    fn render(
-        &mut self,
-        needle: Option<&NeedleShaft>,
-        projection: &Projection,
-        settings: &RenderSettings,
-        iodine: Option<&IodineField>,
-    ) -> Result<Image, FluoroRenderError> {
+impl GpuRenderer {
+    /// Makes the renderer's needle mesh `needle`'s, if it changed.
+    fn set_needle(&mut self, needle: Option<&NeedleShaft>) {
         if self.needle.as_ref() != needle {
             match needle {
                 // One mesh of all segments: exact for a straight shaft (one convex prism); a bent
@@ -244,7 +264,34 @@ impl FluoroRenderer for GpuRenderer {
             }
             self.needle = needle.cloned();
         }
+    }
+}
+
+impl FluoroRenderer for GpuRenderer {
+    fn render(
+        &mut self,
+        needle: Option<&NeedleShaft>,
+        projection: &Projection,
+        settings: &RenderSettings,
+        iodine: Option<&IodineField>,
+    ) -> Result<Image, FluoroRenderError> {
+        self.set_needle(needle);
         Ok(self.renderer.render_frame(projection, settings, iodine)?)
+    }
+
+    fn prefetch(
+        &mut self,
+        needle: Option<&NeedleShaft>,
+        projection: &Projection,
+        settings: &RenderSettings,
+        iodine: Option<&IodineField>,
+    ) -> Result<(), FluoroRenderError> {
+        // The caches hold frames without iodine only.
+        if iodine.is_some() {
+            return Ok(());
+        }
+        self.set_needle(needle);
+        Ok(self.renderer.prefetch(projection, settings)?)
     }
 }
 

@@ -296,8 +296,34 @@ impl FluoroModality {
         })
     }
 
-    fn acquire(&mut self, world: &World, live: bool) {
-        let index = self.state.images.len() as u64;
+    /// How an image of technique `kvp`, `ma` is rendered, with noise seed `seed`.
+    fn render_settings(&self, kvp: u32, ma: f64, seed: u64) -> RenderSettings {
+        RenderSettings {
+            energy: EnergyModel::Spectral { kvp },
+            supersample: self.state.config.supersample,
+            adaptive: true,
+            noise: self.state.config.noise.then_some(QuantumNoise {
+                photons_per_pixel: PHOTONS_PER_PIXEL_PER_MA * ma,
+                seed,
+            }),
+            ..RenderSettings::default()
+        }
+    }
+
+    /// This session's renderer, made on first use.
+    fn renderer(&mut self, world: &World) -> Result<&mut Box<dyn FluoroRenderer>, ModalityError> {
+        if self.renderer.is_none() {
+            self.renderer = Some(
+                self.backend
+                    .renderer(&world.region)
+                    .map_err(render_failed)?,
+            );
+        }
+        Ok(self.renderer.as_mut().expect("made above"))
+    }
+
+    /// The steel an image taken now shows: the needle's shaft and the skin marker's rod.
+    fn instruments(&self, world: &World) -> Option<NeedleShaft> {
         let mut needle = world.needle.as_ref().map(|n| NeedleShaft {
             points_mm: simplify_polyline(
                 &n.state
@@ -328,6 +354,12 @@ impl FluoroModality {
                     MARKER_RADIUS_MM,
                 ));
         }
+        needle
+    }
+
+    fn acquire(&mut self, world: &World, live: bool) {
+        let index = self.state.images.len() as u64;
+        let needle = self.instruments(world);
         self.state.images.push(AcquiredImage {
             index,
             t_ms: world.clock_ms,
@@ -342,6 +374,14 @@ impl FluoroModality {
             iodine_version: world.iodine.as_ref().map(|_| world.iodine_version),
         });
         self.image_iodine = world.iodine.clone();
+    }
+}
+
+/// A renderer's failure as the modality's.
+fn render_failed(e: FluoroRenderError) -> ModalityError {
+    ModalityError::Render {
+        modality: "fluoroscopy",
+        message: e.to_string(),
     }
 }
 
@@ -600,36 +640,41 @@ impl Modality for FluoroModality {
         let Some(image) = self.state.images.last().cloned() else {
             return Ok(None);
         };
-        let settings = RenderSettings {
-            energy: EnergyModel::Spectral { kvp: image.kvp },
-            supersample: self.state.config.supersample,
-            adaptive: true,
-            noise: self.state.config.noise.then_some(QuantumNoise {
-                photons_per_pixel: PHOTONS_PER_PIXEL_PER_MA * image.ma,
-                seed: image.noise_seed,
-            }),
-            ..RenderSettings::default()
-        };
-        let failed = |e: FluoroRenderError| ModalityError::Render {
-            modality: "fluoroscopy",
-            message: e.to_string(),
-        };
-        if self.renderer.is_none() {
-            self.renderer = Some(self.backend.renderer(&world.region).map_err(failed)?);
-        }
-        let Some(renderer) = self.renderer.as_mut() else {
-            return Ok(None);
-        };
+        let settings = self.render_settings(image.kvp, image.ma, image.noise_seed);
         // The field the image was acquired with; after a restore (which drops it) the world's,
         // which is the same field unless contrast moved after the image without a new one.
         let iodine = image
             .iodine_version
-            .and(self.image_iodine.as_deref().or(world.iodine.as_deref()));
-        let frame = renderer
-            .render(image.needle.as_ref(), &image.projection, &settings, iodine)
-            .map_err(failed)?;
+            .and(self.image_iodine.clone().or_else(|| world.iodine.clone()));
+        let frame = self
+            .renderer(world)?
+            .render(
+                image.needle.as_ref(),
+                &image.projection,
+                &settings,
+                iodine.as_deref(),
+            )
+            .map_err(render_failed)?;
         self.rendered = Some(image.index);
         Ok(Some(frame.into()))
+    }
+
+    fn prefetch(&mut self, world: &World) -> Result<(), ModalityError> {
+        // Before the first image only: the first shot's view is known (the C-arm as it stands,
+        // the steel as it lies), and a learner looks before shooting.
+        if !self.state.images.is_empty() || !self.backend.prefetches() {
+            return Ok(());
+        }
+        let settings = self.render_settings(self.state.kvp, self.state.ma, 0);
+        let (needle, projection) = (self.instruments(world), self.projection());
+        self.renderer(world)?
+            .prefetch(
+                needle.as_ref(),
+                &projection,
+                &settings,
+                world.iodine.as_deref(),
+            )
+            .map_err(render_failed)
     }
 
     fn measure(&self, world: &World, out: &mut Measurements) {
