@@ -49,18 +49,19 @@ fn registration_sink() -> (String, Arc<Mutex<Vec<Value>>>) {
     (url, bodies)
 }
 
-/// `GET http://{addr}{path}` as JSON.
+/// `GET http://{addr}{path}` as JSON, with the cluster's own HTTP client.
 fn get_json(addr: &str, path: &str) -> Value {
-    let mut s = std::net::TcpStream::connect(addr).expect("connect to the worker");
-    write!(
-        s,
-        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
-    )
-    .unwrap();
-    let mut text = String::new();
-    s.read_to_string(&mut text).expect("read the answer");
-    let body = text.split_once("\r\n\r\n").expect("a header").1;
-    serde_json::from_str(body).unwrap_or_else(|e| panic!("{e}: {text}"))
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
+    let url = format!("http://{addr}{path}");
+    let r = rt
+        .block_on(render_worker::cluster::request("GET", &url, None, None))
+        .unwrap_or_else(|e| panic!("GET {url}: {e}"));
+    assert_eq!(r.status, 200, "GET {url}");
+    serde_json::from_slice(&r.body)
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&r.body)))
 }
 
 /// A running worker over a temporary assets folder holding the demo station (its region is
