@@ -49,20 +49,29 @@ pub(crate) async fn server_with(host: SessionHost, stations_dir: &Path) -> (Sock
 }
 
 /// A host over `stations` whose region, the lumbar phantom at 4 mm voxels, the real pipeline
-/// builds under `root` on first use (seconds; CPU reference renderer, 4 sessions).
+/// builds under `root` on first use (seconds; CPU reference renderer, 4 sessions). With a
+/// non-zero `pace` every progress report of the build waits that long first: the build then
+/// lasts about as long as the default phantom's on a busy machine (the 4 mm build alone can end
+/// within one of the page's one-second polls), and what a learner sees during a long
+/// preparation can be observed.
 pub(crate) fn phantom_building_host(
     stations: Vec<(sim_core::rubric::Station, String)>,
     root: &Path,
+    pace: Duration,
 ) -> SessionHost {
     let root = root.to_owned();
     SessionHost::with_loader(
         stations,
         move |name: &str, progress: &mut dyn FnMut(&Progress)| {
             assert_eq!(name, phantom::REGION_NAME);
+            let mut paced = |p: &Progress| {
+                std::thread::sleep(pace);
+                progress(p);
+            };
             let asset = phantom::ensure_built_with(
                 &root.join(name),
                 &PhantomParams::with_voxel_mm(4.0),
-                progress,
+                &mut paced,
             )
             .map_err(|source| RegionLoadError::Asset {
                 name: name.to_string(),
@@ -143,7 +152,7 @@ async fn first_session_request_answers_at_once_while_the_phantom_builds() {
         .filter(|f| f.station.region == phantom::REGION_NAME)
         .map(|f| (f.station, sha256_hex(f.text.as_bytes())))
         .collect();
-    let host = phantom_building_host(stations, assets.path());
+    let host = phantom_building_host(stations, assets.path(), Duration::ZERO);
     let (addr, _db) = server_with(host, &repo_stations()).await;
     let health = anatomy_health(addr).await;
     assert_eq!(health["ready"], false, "{health}");

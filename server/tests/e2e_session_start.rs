@@ -48,7 +48,11 @@ async fn the_page_shows_the_preparation_then_the_first_image() {
     let station = sim_core::rubric::Station::from_toml_str(&text).unwrap();
     assert_eq!(station.region, phantom::REGION_NAME);
     let assets = tempfile::tempdir().unwrap();
-    let host = phantom_building_host(vec![(station, sha256_hex(text.as_bytes()))], assets.path());
+    let host = phantom_building_host(
+        vec![(station, sha256_hex(text.as_bytes()))],
+        assets.path(),
+        Duration::from_millis(400),
+    );
     let (addr, _db) = server_with(host, stations.path()).await;
     let report = run_script("e2e_start.mjs", addr, "start-prepare", &[]).await;
     let seen = messages(&report);
