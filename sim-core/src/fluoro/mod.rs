@@ -45,6 +45,7 @@ pub mod analytic;
 pub mod attenuation;
 pub mod contrast;
 pub mod dose;
+pub mod draft;
 pub mod geometry;
 pub mod nesting;
 pub mod render;
