@@ -294,6 +294,8 @@ async function openSession(attemptId, stationId) {
         needle.fluoroFrame(frame);
         ctx.drawImage(bitmap, 0, 0, 512, 512);
         bitmap.close();
+        // A draft (a cheap preview while the C-arm moves) says so until the full frame comes.
+        $('fluoro-draft').hidden = !frame.draft;
       } else if (otherViews.has(frame.view)) {
         const canvas = otherViews.get(frame.view);
         canvas.width = frame.width;

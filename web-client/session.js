@@ -23,6 +23,8 @@ export function parseFrame(buffer, protocol) {
     tMs: Number(dv.getBigUint64(24, true)),
     width: dv.getUint16(32, true),
     height: dv.getUint16(34, true),
+    // A draft: a cheaper preview of this input; the full frame of the same input follows.
+    draft: (b[6] & (protocol.frame_draft_flag || 0)) !== 0,
     jpeg: b.subarray(headerBytes),
   };
 }
@@ -38,7 +40,7 @@ export class LiveSession extends EventTarget {
     this.lastFrameInput = 0;
     this.frameTimes = [];
     // `views`: per view, frames received and the header of the newest one.
-    this.stats = { frames: 0, acks: 0, errors: 0, latenciesMs: [], lastFrame: null, views: {} };
+    this.stats = { frames: 0, drafts: 0, acks: 0, errors: 0, latenciesMs: [], lastFrame: null, views: {} };
     /** Views on screen, sent after every hello (null: the session's default, all of them). */
     this.visible = null;
     this.closed = false;
@@ -134,9 +136,13 @@ export class LiveSession extends EventTarget {
     this.frameTimes.push(now);
     while (this.frameTimes.length && now - this.frameTimes[0] > 2000) this.frameTimes.shift();
     this.stats.frames += 1;
-    this.stats.lastFrame = { view: f.view, frameSeq: f.frameSeq, inputSeq: f.inputSeq, width: f.width, height: f.height };
-    const v = this.stats.views[f.view] || (this.stats.views[f.view] = { frames: 0 });
-    Object.assign(v, { frames: v.frames + 1, frameSeq: f.frameSeq, inputSeq: f.inputSeq, width: f.width, height: f.height });
+    if (f.draft) this.stats.drafts += 1;
+    this.stats.lastFrame = { view: f.view, frameSeq: f.frameSeq, inputSeq: f.inputSeq, width: f.width, height: f.height, draft: f.draft };
+    const v = this.stats.views[f.view] || (this.stats.views[f.view] = { frames: 0, drafts: 0 });
+    Object.assign(v, {
+      frames: v.frames + 1, drafts: (v.drafts || 0) + (f.draft ? 1 : 0),
+      frameSeq: f.frameSeq, inputSeq: f.inputSeq, width: f.width, height: f.height, draft: f.draft,
+    });
     const bitmap = await createImageBitmap(new Blob([f.jpeg], { type: 'image/jpeg' }));
     this.emit('frame', { frame: f, bitmap });
   }

@@ -298,15 +298,19 @@ impl Ws {
         self.ws.send(Message::Text(m.into())).await.expect("send");
     }
 
+    /// The next message (at most 60 s: a hang fails the test).
+    pub async fn next_message(&mut self) -> Message {
+        tokio::time::timeout(Duration::from_secs(60), self.ws.next())
+            .await
+            .expect("a message within 60 s")
+            .expect("open")
+            .expect("ok")
+    }
+
     /// Reads until `done` holds for what arrived (at most 60 s: a hang fails the test).
     pub async fn until(&mut self, got: &mut Received, done: impl Fn(&Received) -> bool) {
         while !done(got) {
-            let m = tokio::time::timeout(Duration::from_secs(60), self.ws.next())
-                .await
-                .expect("a message within 60 s")
-                .expect("open")
-                .expect("ok");
-            match m {
+            match self.next_message().await {
                 Message::Text(t) => got.texts.push(serde_json::from_str(&t).unwrap()),
                 Message::Binary(b) => {
                     let f =

@@ -16,6 +16,7 @@ mod lti_flow;
 mod modality_extension;
 mod openapi_fuzz;
 mod process;
+mod progressive_frames;
 mod records_accounts;
 mod records_approval;
 mod records_auth;

@@ -107,6 +107,11 @@ impl FrameCache {
         self.geometry = Some(key);
     }
 
+    /// Whether the geometric L-buffer holds `projection` (a frame of it skips pass 1).
+    pub(super) fn holds_geometry_of(&self, projection: &Projection) -> bool {
+        self.geometry == Some((*projection, Layout::Transmission))
+    }
+
     /// Plans the full image of a frame, taking what the caches hold for it (nothing without
     /// `caching`); [`FrameCache::end_full`] completes it after the read-back.
     pub(super) fn plan_full(

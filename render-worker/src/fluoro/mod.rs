@@ -35,6 +35,8 @@
 //!   are resolved again) and the last displayed frame are kept while what decides them stays.
 //! - Validation (`chords.rs`, [`GpuFluoroRenderer::render_chords`]): the same passes in a
 //!   per-material layout, resolved on the CPU.
+//! - Drafts (`draft.rs`): a frame rendered by a renderer of the region's draft scene at half
+//!   the resolution and doubled, the cheap preview of progressive frames.
 //! - Display ([`GpuFluoroRenderer::render_frame`]): supersampling near the needle's edges
 //!   (`render_transmission_supersampled`), then sim-core's noise, brightness, log mapping and
 //!   shutters on the CPU.
@@ -52,6 +54,7 @@
 mod anatomy;
 mod cache;
 mod chords;
+pub mod draft;
 mod lbuffer;
 mod pipelines;
 mod resolve;
@@ -359,6 +362,12 @@ impl GpuFluoroRenderer {
             self.cache.keep_frame(key, out.clone());
         }
         Ok(out)
+    }
+
+    /// Whether a frame of `projection` would find its geometric L-buffer kept (the C-arm has not
+    /// moved since the last frame: only the needle's pixels, or nothing, are drawn again).
+    pub fn geometry_cached(&self, projection: &Projection) -> bool {
+        self.caching && self.cache.holds_geometry_of(projection)
     }
 
     /// Renders ahead, into the caches, what a frame of `projection` without iodine needs (the

@@ -7,7 +7,9 @@
 //! | 0..4   | magic `SIMF`                                           |
 //! | 4      | header version (1)                                     |
 //! | 5      | view code (`ViewId::code`; the hello lists every view) |
-//! | 6..8   | reserved (0)                                           |
+//! | 6      | flags: bit 0 set for a draft (a cheaper preview of the |
+//! |        | same input; the full frame follows), other bits 0      |
+//! | 7      | reserved (0)                                           |
 //! | 8..16  | frame sequence (per session, increasing)               |
 //! | 16..24 | last accepted input sequence the frame reflects        |
 //! | 24..32 | simulation time of the image, ms                       |
@@ -23,6 +25,8 @@ use super::image::ViewId;
 pub const HEADER_BYTES: usize = 40;
 /// Magic bytes.
 pub const MAGIC: &[u8; 4] = b"SIMF";
+/// Flag bit (byte 6) of a draft frame.
+pub const FLAG_DRAFT: u8 = 1;
 /// Header version (byte 4).
 pub const HEADER_VERSION: u8 = 1;
 /// JPEG quality. Simulator choice: 85 keeps grey-level steps of 1 to 2 at 512 x 512 in about
@@ -66,6 +70,9 @@ pub struct EncodedFrame {
     pub width: u16,
     /// Height, pixels.
     pub height: u16,
+    /// A draft (header flag [`FLAG_DRAFT`]): a cheaper preview of this input; the full frame
+    /// of the same input follows unless newer input supersedes it.
+    pub draft: bool,
     /// JPEG bytes.
     pub jpeg: Vec<u8>,
 }
@@ -101,8 +108,14 @@ impl EncodedFrame {
             t_ms,
             width: image.width as u16,
             height: image.height as u16,
+            draft: false,
             jpeg: encode_jpeg(image)?,
         })
+    }
+
+    /// The same frame marked as a draft or not.
+    pub fn with_draft(self, draft: bool) -> EncodedFrame {
+        EncodedFrame { draft, ..self }
     }
 
     /// The binary message: header then JPEG.
@@ -111,7 +124,8 @@ impl EncodedFrame {
         b.extend_from_slice(MAGIC);
         b.push(HEADER_VERSION);
         b.push(self.view.code());
-        b.extend_from_slice(&[0, 0]);
+        b.push(if self.draft { FLAG_DRAFT } else { 0 });
+        b.push(0);
         b.extend_from_slice(&self.frame_seq.to_le_bytes());
         b.extend_from_slice(&self.input_seq.to_le_bytes());
         b.extend_from_slice(&self.t_ms.to_le_bytes());
@@ -136,6 +150,7 @@ impl EncodedFrame {
             t_ms: u64_at(24),
             width: u16_at(32),
             height: u16_at(34),
+            draft: b[6] & FLAG_DRAFT != 0,
             jpeg: b[HEADER_BYTES..].to_vec(),
         })
     }
@@ -161,6 +176,15 @@ mod tests {
         );
         let back = EncodedFrame::parse(&f.to_bytes()).unwrap();
         assert_eq!(back, f);
+        assert!(!back.draft);
+        assert_eq!(
+            f.to_bytes()[6],
+            0,
+            "a full frame's flags are 0, as before drafts"
+        );
+        let d = f.clone().with_draft(true);
+        assert_eq!(d.to_bytes()[6], FLAG_DRAFT);
+        assert_eq!(EncodedFrame::parse(&d.to_bytes()).unwrap(), d);
         assert!(EncodedFrame::parse(b"nope").is_err());
     }
 }

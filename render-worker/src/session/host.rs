@@ -739,21 +739,41 @@ fn run_actor(
         if !session.has_dirty(&visible) {
             continue;
         }
-        match session.render_dirty(&visible) {
-            Ok(views) => {
-                let mut set: BTreeMap<ViewId, Arc<EncodedFrame>> = (**frames.borrow()).clone();
-                for v in views {
-                    frame_seq += 1;
-                    match EncodedFrame::new(v.view, frame_seq, v.input_seq, v.t_ms, &v.image) {
-                        Ok(f) => {
-                            set.insert(v.view, Arc::new(f));
-                        }
-                        Err(e) => tracing::error!("frame encoding failed: {e}"),
-                    }
+        // Progressive frames: a draft at once where a view has one (the C-arm moved on a large
+        // region), and the full frame only once no newer input waits (a drag still in flight
+        // gets drafts only; the frame header marks them, see `frame`).
+        match session.render_drafts(&visible) {
+            Ok(drafts) if !drafts.is_empty() => {
+                publish(&frames, &mut frame_seq, drafts);
+                if !rx.is_empty() {
+                    continue;
                 }
-                frames.send_replace(Arc::new(set));
             }
+            Ok(_) => {}
+            Err(e) => tracing::error!("draft render failed: {e}"),
+        }
+        match session.render_dirty(&visible) {
+            Ok(views) => publish(&frames, &mut frame_seq, views),
             Err(e) => tracing::error!("render failed: {e}"),
         }
     }
+}
+
+/// Encodes `views` (numbered from `frame_seq` on) into the session's frame set.
+fn publish(
+    frames: &watch::Sender<FrameSet>,
+    frame_seq: &mut u64,
+    views: Vec<crate::session::machine::RenderedView>,
+) {
+    let mut set: BTreeMap<ViewId, Arc<EncodedFrame>> = (**frames.borrow()).clone();
+    for v in views {
+        *frame_seq += 1;
+        match EncodedFrame::new(v.view, *frame_seq, v.input_seq, v.t_ms, &v.image) {
+            Ok(f) => {
+                set.insert(v.view, Arc::new(f.with_draft(v.draft)));
+            }
+            Err(e) => tracing::error!("frame encoding failed: {e}"),
+        }
+    }
+    frames.send_replace(Arc::new(set));
 }

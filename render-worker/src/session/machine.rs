@@ -19,6 +19,7 @@ use super::error::SessionError;
 use super::frame::EncodedFrame;
 use super::hands;
 use super::image::{ViewId, ViewImage};
+use super::modalities::fluoro::DraftUse;
 use super::modalities::{Modality, ModalityContext, ModalityFactory};
 use super::region::Region;
 use super::scoring::{self, ReproducibilityRecord, SubmitResult};
@@ -171,6 +172,8 @@ pub struct RenderedView {
     pub t_ms: u64,
     /// The image.
     pub image: ViewImage,
+    /// A draft shown before the full render of the same input (see `Modality::render_draft`).
+    pub draft: bool,
 }
 
 /// One station attempt.
@@ -692,18 +695,51 @@ impl Session {
         &mut self,
         visible: &BTreeSet<ViewId>,
     ) -> Result<Vec<RenderedView>, SessionError> {
+        self.render_views(visible, None)
+    }
+
+    /// The drafts of the dirty visible views that have one now (`DraftUse::Live`: each image
+    /// is drafted once, only where its full render is expensive and the draft is ready); the
+    /// views stay dirty for [`Session::render_dirty`].
+    pub fn render_drafts(
+        &mut self,
+        visible: &BTreeSet<ViewId>,
+    ) -> Result<Vec<RenderedView>, SessionError> {
+        self.render_views(visible, Some(DraftUse::Live))
+    }
+
+    /// The draft of the image `view` shows now, as a replay of a draft frame renders it
+    /// (waiting for the region's draft scene if it is being built); `None` where the view has
+    /// no draft.
+    pub fn replay_draft(&mut self, view: ViewId) -> Result<Option<RenderedView>, SessionError> {
+        Ok(self
+            .render_views(&BTreeSet::from([view]), Some(DraftUse::Replay))?
+            .pop())
+    }
+
+    /// The full renders (`draft` `None`) or the drafts of the dirty views in `views`.
+    fn render_views(
+        &mut self,
+        views: &BTreeSet<ViewId>,
+        draft: Option<DraftUse>,
+    ) -> Result<Vec<RenderedView>, SessionError> {
         let mut out = Vec::new();
         for m in &mut self.modalities {
             for view in m.dirty_views() {
-                if !visible.contains(&view) {
+                if !views.contains(&view) {
                     continue;
                 }
-                if let Some(image) = m.render(view, &self.world)? {
+                let image = match draft {
+                    None => m.render(view, &self.world)?,
+                    Some(use_) => m.render_draft(view, &self.world, use_)?,
+                };
+                if let Some(image) = image {
                     out.push(RenderedView {
                         view,
                         input_seq: self.last_seq,
                         t_ms: self.world.clock_ms,
                         image,
+                        draft: draft.is_some(),
                     });
                 }
             }

@@ -7,7 +7,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::command::{CORE_COMMANDS, Engagement, MAX_TILT_DEG};
-use super::frame::{HEADER_BYTES, HEADER_VERSION, MAGIC};
+use super::frame::{FLAG_DRAFT, HEADER_BYTES, HEADER_VERSION, MAGIC};
 use super::machine::Session;
 
 /// The constants and catalogue of one session's protocol.
@@ -19,6 +19,10 @@ pub struct ProtocolInfo {
     pub frame_header_version: u8,
     /// Header length, bytes; the JPEG follows.
     pub frame_header_bytes: usize,
+    /// The bit of header byte 6 that marks a draft frame (a cheaper preview of the same input;
+    /// the full frame follows).
+    #[serde(default)]
+    pub frame_draft_flag: u8,
     /// Views the session renders, with the wire code of frame header byte 5.
     pub views: Vec<ViewInfo>,
     /// Every command kind the session accepts.
@@ -80,6 +84,7 @@ impl ProtocolInfo {
             frame_magic: String::from_utf8_lossy(MAGIC).into_owned(),
             frame_header_version: HEADER_VERSION,
             frame_header_bytes: HEADER_BYTES,
+            frame_draft_flag: FLAG_DRAFT,
             views: specs
                 .iter()
                 .flat_map(|s| {

@@ -357,13 +357,15 @@ impl Relay {
         self.pass_text(text).await
     }
 
-    /// A frame: the hash of a fluoroscopy frame is kept (for the records: the replay check
+    /// A frame: the hash of a full fluoroscopy frame is kept (for the records: the replay check
     /// re-renders the fluoroscopy view, see `verify`; ultrasound and placement frames of the
     /// same session would otherwise stand in for it), the frame goes to the browser (newest wins
     /// when the browser is slow).
     async fn on_frame(&mut self, b: Vec<u8>) -> Flow {
-        use render_worker::session::frame::HEADER_BYTES;
-        if b.get(5) == Some(&render_worker::session::ViewId::FLUOROSCOPY.code()) {
+        use render_worker::session::frame::{FLAG_DRAFT, HEADER_BYTES};
+        // A draft is never the image of record: the full frame of the same input follows it.
+        let draft = b.get(6).is_some_and(|f| f & FLAG_DRAFT != 0);
+        if !draft && b.get(5) == Some(&render_worker::session::ViewId::FLUOROSCOPY.code()) {
             let jpeg = b.get(HEADER_BYTES..).unwrap_or_default();
             self.session.state.lock().await.last_frame_sha256 = Some(sha256_hex(jpeg));
         }

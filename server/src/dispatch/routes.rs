@@ -141,6 +141,23 @@ struct StepQuery {
     /// shows the image after the whole log.
     #[param(minimum = 0, maximum = 4294967295_u64)]
     step: u32,
+    /// `full` (default): the image of record; `draft`: the draft preview a live session showed
+    /// of the same image before it (marked as a draft in its frame header), 204 where the
+    /// image has none.
+    #[serde(default)]
+    #[param(inline)]
+    quality: FrameQuality,
+}
+
+/// Which rendering of a replayed image.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, ToSchema)]
+#[serde(rename_all = "lowercase")]
+enum FrameQuality {
+    /// The full frame.
+    #[default]
+    Full,
+    /// The draft preview shown before it.
+    Draft,
 }
 
 /// The OpenAPI description of the dispatch routes (merged into `/api/openapi.json`).
@@ -636,12 +653,14 @@ async fn replay_to(
     station_id: String,
     initial: SessionSnapshot,
     log: Vec<LogEntry>,
+    draft: bool,
 ) -> Result<(Session, Option<Vec<u8>>), ApiError> {
     verify::replay_on(
         state.dispatcher.inner.replay.clone(),
         station_id,
         initial,
         log,
+        draft,
     )
     .await
 }
@@ -676,7 +695,7 @@ async fn replay(
     let (session_id, station_id, initial, result_id, final_state, final_frame, score, outcome) =
         recorded_session(&state, &user, attempt_id).await?;
     let (initial, log) = parse_recorded(&state, session_id, initial).await?;
-    let (s, jpeg) = replay_to(&state, station_id.clone(), initial, log.clone()).await?;
+    let (s, jpeg) = replay_to(&state, station_id.clone(), initial, log.clone(), false).await?;
     let measurements: Option<serde_json::Value> = match result_id {
         Some(id) => {
             sqlx::query_scalar("SELECT measurements FROM technical_results WHERE id = $1")
@@ -730,7 +749,8 @@ async fn replay(
 }
 
 /// `GET /api/attempts/{attempt_id}/replay/frame?step=k`: the JPEG on screen after the first `k`
-/// recorded commands (all of them when `k` is beyond the log; 204 before the first image).
+/// recorded commands (all of them when `k` is beyond the log; 204 before the first image);
+/// `&quality=draft`: the draft shown before it.
 #[utoipa::path(get, path = "/api/attempts/{attempt_id}/replay/frame", tag = "sessions",
     params(("attempt_id" = Uuid, Path, description = "Attempt id"), StepQuery),
     responses((status = 200, description = "The image on screen after `step` commands", content_type = "image/jpeg"),
@@ -748,7 +768,8 @@ async fn replay_frame(
     let (initial, mut log) = parse_recorded(&state, session_id, initial).await?;
     // A step beyond the log shows the last image: the log of a live session still grows.
     log.truncate(usize::try_from(q.step).unwrap_or(usize::MAX));
-    let (_, jpeg) = replay_to(&state, station_id, initial, log).await?;
+    let draft = q.quality == FrameQuality::Draft;
+    let (_, jpeg) = replay_to(&state, station_id, initial, log, draft).await?;
     Ok(match jpeg {
         Some(j) => ([(CONTENT_TYPE, "image/jpeg")], j).into_response(),
         None => StatusCode::NO_CONTENT.into_response(),

@@ -35,12 +35,14 @@ const PER_ROUND: i64 = 4;
 const UNLINKED_AFTER_S: i64 = 600;
 
 /// Restores `initial` on `host`, replays `log`, and renders what the learner saw last: the
-/// session and the JPEG of its fluoroscopy view (if it has one).
+/// session and the JPEG of its fluoroscopy view (if it has one), or with `draft` the draft of
+/// that view that a live session shows before it (none where the view has no draft).
 pub(super) async fn replay_on(
     host: SessionHost,
     station_id: String,
     initial: SessionSnapshot,
     log: Vec<LogEntry>,
+    draft: bool,
 ) -> Result<(Session, Option<Vec<u8>>), ApiError> {
     // Never hold a request for an anatomy build: say when to come back instead.
     if let Err(HostError::Preparing { .. }) = host.check_ready(&station_id) {
@@ -54,10 +56,14 @@ pub(super) async fn replay_on(
             .map_err(|e| ApiError::Internal(e.to_string()))?;
         let mut s = Session::restore(env, &initial, &log)
             .map_err(|e| ApiError::Internal(format!("replay: {e}")))?;
-        let visible: BTreeSet<ViewId> = s.views().into_iter().collect();
-        let views = s
-            .render_dirty(&visible)
-            .map_err(|e| ApiError::Internal(format!("replay render: {e}")))?;
+        let views = if draft {
+            s.replay_draft(ViewId::FLUOROSCOPY)
+                .map(|d| d.into_iter().collect())
+        } else {
+            let visible: BTreeSet<ViewId> = s.views().into_iter().collect();
+            s.render_dirty(&visible)
+        }
+        .map_err(|e| ApiError::Internal(format!("replay render: {e}")))?;
         let jpeg = match views.into_iter().find(|v| v.view == ViewId::FLUOROSCOPY) {
             Some(v) => Some(
                 render_worker::session::frame::encode_jpeg(&v.image)
@@ -177,7 +183,7 @@ async fn check_one(
             return None;
         }
     };
-    match replay_on(host.clone(), station_id, initial, log).await {
+    match replay_on(host.clone(), station_id, initial, log, false).await {
         Ok((s, jpeg)) => Some(compare(&recorded, &s, jpeg.as_deref())),
         Err(ApiError::Unavailable(_)) => None,
         Err(e) => Some((

@@ -157,6 +157,18 @@ pub trait Modality: Send {
     /// Renders `view` (called only for dirty, visible views); marks it clean.
     fn render(&mut self, view: ViewId, world: &World) -> Result<Option<ViewImage>, ModalityError>;
 
+    /// A draft of `view` (a cheaper, coarser image of the same content, shown before the full
+    /// one while input is still coming; see `fluoro::draft`). Leaves the view dirty: the full
+    /// render follows. `None` (the default) where the modality has none to give.
+    fn render_draft(
+        &mut self,
+        _view: ViewId,
+        _world: &World,
+        _use: DraftUse,
+    ) -> Result<Option<ViewImage>, ModalityError> {
+        Ok(None)
+    }
+
     /// Prepares, while the session waits for input, what its next frames will likely need
     /// (the fluoroscopy modality: the renderer and the transmission of the view a first shot
     /// would show). It changes no state: what the session acknowledges, logs, snapshots and
@@ -189,4 +201,14 @@ pub struct ModalityContext<'a> {
     pub region: &'a Arc<Region>,
     /// The renderers this device offers, by modality name.
     pub renderers: &'a super::renderers::Renderers,
+}
+
+/// Why a draft ([`Modality::render_draft`]) is asked for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DraftUse {
+    /// A live session: only where the full render is expensive (fluoroscopy: the C-arm moved)
+    /// and the draft can be made at once; never waits.
+    Live,
+    /// A replay of a draft that was shown: always, waiting for the draft scene if needed.
+    Replay,
 }

@@ -7,13 +7,11 @@ use serde::{Deserialize, Serialize};
 use sim_core::fluoro::{
     FluoroMaterial, Image, IodineField, Projection, RenderSettings, Scene, SceneRef,
 };
-use sim_core::geom::{capped_cylinder, equal_area_vertex_radius};
 
+use super::draft::{DraftAnatomies, DraftRenderer};
+use super::steel::{NeedleShaft, needle_meshes, set_needle};
+use crate::session::modalities::modality::DraftUse;
 use crate::session::region::Region;
-
-/// Facets of the needle prism. Simulator choice: with the equal-area radius, 8 facets keep the
-/// mean chord of the round shaft exactly and its silhouette within 4% of the radius.
-pub const NEEDLE_FACETS: u32 = 8;
 
 /// Why a fluoroscopy renderer could not be made or could not render.
 #[derive(Debug, thiserror::Error)]
@@ -42,6 +40,9 @@ pub trait FluoroBackend: Send + Sync {
     fn prefetches(&self) -> bool {
         false
     }
+    /// Waits for what its renderers started in the background (the GPU backend's draft
+    /// scenes), so that frames timed next are not slowed by it.
+    fn finish_background_work(&self) {}
 }
 
 /// One session's renderer (may hold per-session resources, such as uploaded meshes).
@@ -68,6 +69,21 @@ pub trait FluoroRenderer: Send {
         _iodine: Option<&IodineField>,
     ) -> Result<(), FluoroRenderError> {
         Ok(())
+    }
+
+    /// The draft of the frame [`FluoroRenderer::render`] would give with the same arguments
+    /// (see `draft`): cheaper, coarser, the same size. `None` where this renderer has none to
+    /// give: the CPU reference never drafts; the GPU renderer drafts for [`DraftUse::Live`]
+    /// only when the full frame must redraw the anatomy and the region's draft scene is ready.
+    fn render_draft(
+        &mut self,
+        _needle: Option<&NeedleShaft>,
+        _projection: &Projection,
+        _settings: &RenderSettings,
+        _iodine: Option<&IodineField>,
+        _use: DraftUse,
+    ) -> Result<Option<Image>, FluoroRenderError> {
+        Ok(None)
     }
 }
 
@@ -164,17 +180,40 @@ pub struct GpuFluoroBackend {
     /// `Some`: every anatomy this backend uploads is held here as long as the backend lives, so
     /// a region's next first session finds it uploaded (see [`GpuFluoroBackend::keeping_uploads`]).
     kept: Option<Arc<std::sync::Mutex<Vec<Arc<crate::fluoro::GpuAnatomy>>>>>,
+    /// The draft scenes of its regions (progressive frames, see `draft`); `None`: no drafts.
+    drafts: Option<Arc<DraftAnatomies>>,
 }
 
 impl GpuFluoroBackend {
     /// The GPU renderer on `ctx`, one anatomy upload per region shared by its sessions.
     pub fn new(ctx: crate::gpu::GpuContext) -> GpuFluoroBackend {
         GpuFluoroBackend {
-            ctx,
             share_anatomy: true,
             anatomies: Arc::default(),
             kept: None,
+            drafts: Some(DraftAnatomies::new(
+                ctx.clone(),
+                super::draft::DRAFT_MIN_TRIANGLES,
+            )),
+            ctx,
         }
+    }
+
+    /// The same renderer, drafting (see `draft`) for regions of at least `min_triangles`
+    /// triangles (default [`super::draft::DRAFT_MIN_TRIANGLES`]), or never with `None`.
+    pub fn drafting_from(self, min_triangles: Option<usize>) -> GpuFluoroBackend {
+        GpuFluoroBackend {
+            drafts: min_triangles.map(|n| DraftAnatomies::new(self.ctx.clone(), n)),
+            ..self
+        }
+    }
+
+    /// The draft scene of `region` once it is built (blocking until then), for tests and
+    /// benchmarks that need drafts at once; `None` where the region gets none.
+    pub fn wait_for_draft_scene(&self, region: &Arc<Region>) -> Option<()> {
+        let drafts = self.drafts.as_ref()?;
+        drafts.start(region).then_some(())?;
+        drafts.get(&region.name, true).map(|_| ())
     }
 
     /// The GPU renderer on `ctx` that keeps each region's anatomy uploaded once made, while this
@@ -227,43 +266,40 @@ impl FluoroBackend for GpuFluoroBackend {
                 kept.push(Arc::clone(&anatomy));
             }
         }
+        let draft = self
+            .drafts
+            .as_ref()
+            .filter(|d| d.start(region))
+            .map(|d| DraftRenderer::new(Arc::clone(d), &region.name));
         Ok(Box::new(GpuRenderer {
             renderer: crate::fluoro::GpuFluoroRenderer::with_anatomy(anatomy),
             needle: None,
+            draft,
         }))
     }
 
     fn prefetches(&self) -> bool {
         true
     }
+
+    fn finish_background_work(&self) {
+        if let Some(d) = &self.drafts {
+            d.wait_idle();
+        }
+    }
 }
 
 struct GpuRenderer {
     renderer: crate::fluoro::GpuFluoroRenderer,
     needle: Option<NeedleShaft>,
+    /// Its draft renderer, where the region gets drafts.
+    draft: Option<DraftRenderer>,
 }
 
 impl GpuRenderer {
     /// Makes the renderer's needle mesh `needle`'s, if it changed.
     fn set_needle(&mut self, needle: Option<&NeedleShaft>) {
-        if self.needle.as_ref() != needle {
-            match needle {
-                // One mesh of all segments: exact for a straight shaft (one convex prism); a bent
-                // shaft's segments overlap at the joints by a fraction of its radius.
-                Some(n) => {
-                    let mut mesh = sim_core::mesh::TriMesh {
-                        vertices_mm: Vec::new(),
-                        triangles: Vec::new(),
-                    };
-                    for m in needle_meshes(n) {
-                        mesh.append(&m);
-                    }
-                    self.renderer.update_needle(&mesh);
-                }
-                None => self.renderer.clear_needle(),
-            }
-            self.needle = needle.cloned();
-        }
+        set_needle(&mut self.renderer, &mut self.needle, needle);
     }
 }
 
@@ -293,37 +329,28 @@ impl FluoroRenderer for GpuRenderer {
         self.set_needle(needle);
         Ok(self.renderer.prefetch(projection, settings)?)
     }
-}
 
-/// The needle's closed prisms, one per polyline segment (equal-area radius, [`NEEDLE_FACETS`]).
-pub fn needle_meshes(needle: &NeedleShaft) -> Vec<sim_core::mesh::TriMesh> {
-    let r = equal_area_vertex_radius(needle.radius_mm, NEEDLE_FACETS);
-    let rods = needle.rods.iter().map(|([a, b], radius)| {
-        capped_cylinder(
-            *a,
-            *b,
-            equal_area_vertex_radius(*radius, NEEDLE_FACETS),
-            NEEDLE_FACETS,
-        )
-    });
-    needle
-        .points_mm
-        .windows(2)
-        .filter(|w| (0..3).map(|a| (w[1][a] - w[0][a]).powi(2)).sum::<f64>() > 1e-12)
-        .map(|w| capped_cylinder(w[0], w[1], r, NEEDLE_FACETS))
-        .chain(rods)
-        .collect()
-}
-
-/// The steel instruments as imaged: the needle shaft, a polyline (hub first; empty without a
-/// needle) with its radius, and straight rods lying on the skin (the skin marker).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct NeedleShaft {
-    /// Points, mm.
-    pub points_mm: Vec<[f64; 3]>,
-    /// Outer radius, mm.
-    pub radius_mm: f64,
-    /// Straight steel rods: ends (mm) and radius (mm).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub rods: Vec<([[f64; 3]; 2], f64)>,
+    fn render_draft(
+        &mut self,
+        needle: Option<&NeedleShaft>,
+        projection: &Projection,
+        settings: &RenderSettings,
+        iodine: Option<&IodineField>,
+        use_: DraftUse,
+    ) -> Result<Option<Image>, FluoroRenderError> {
+        let Some(draft) = self.draft.as_mut() else {
+            return Ok(None);
+        };
+        // A full frame on the kept geometry (needle moved, or nothing) is cheap already.
+        if use_ == DraftUse::Live && self.renderer.geometry_cached(projection) {
+            return Ok(None);
+        }
+        Ok(draft.render(
+            needle,
+            projection,
+            settings,
+            iodine,
+            use_ == DraftUse::Replay,
+        )?)
+    }
 }

@@ -11,7 +11,9 @@
 
 mod backend;
 pub mod dose;
+pub mod draft;
 pub mod pulse;
+mod steel;
 
 use std::sync::Arc;
 
@@ -23,11 +25,13 @@ use sim_core::fluoro::{
 use sim_core::rubric::Measurements;
 
 pub use crate::session::config::FluoroConfig;
+pub use super::modality::DraftUse;
 pub use backend::{
     BackendProfile, CpuFluoroBackend, FluoroBackend, FluoroRenderError, FluoroRenderer,
-    GpuFluoroBackend, NEEDLE_FACETS, NeedleShaft, needle_meshes,
+    GpuFluoroBackend,
 };
 use dose::DoseTally;
+pub use steel::{NEEDLE_FACETS, NeedleShaft, needle_meshes};
 
 use super::modality::{Modality, ModalityContext, ModalityError, ModalitySpec};
 use crate::session::anatomy::{
@@ -142,6 +146,8 @@ pub struct FluoroModality {
     backend: Arc<dyn FluoroBackend>,
     /// Index of the last image rendered (`None`: none yet), not part of the state.
     rendered: Option<u64>,
+    /// Index of the last image a live draft was rendered for, not part of the state.
+    drafted: Option<u64>,
     /// Created on the first render.
     renderer: Option<Box<dyn FluoroRenderer>>,
     /// The iodine field of the last image acquired in this process (not part of the state: it
@@ -189,6 +195,7 @@ impl FluoroModality {
             },
             backend,
             rendered: None,
+            drafted: None,
             renderer: None,
             image_iodine: None,
         }
@@ -294,6 +301,21 @@ impl FluoroModality {
             "kerma_area_product_gycm2": kap,
             "fluoro_time_s": self.exposure_ms_at(world.clock_ms) as f64 / 1000.0,
         })
+    }
+
+    /// The image on display with how it is rendered: its settings and the iodine field it
+    /// shows (the field it was acquired with; after a restore, which drops it, the world's,
+    /// which is the same field unless contrast moved after the image without a new one).
+    fn displayed(
+        &self,
+        world: &World,
+    ) -> Option<(AcquiredImage, RenderSettings, Option<Arc<IodineField>>)> {
+        let image = self.state.images.last()?.clone();
+        let settings = self.render_settings(image.kvp, image.ma, image.noise_seed);
+        let iodine = image
+            .iodine_version
+            .and(self.image_iodine.clone().or_else(|| world.iodine.clone()));
+        Some((image, settings, iodine))
     }
 
     /// How an image of technique `kvp`, `ma` is rendered, with noise seed `seed`.
@@ -637,15 +659,9 @@ impl Modality for FluoroModality {
     }
 
     fn render(&mut self, _view: ViewId, world: &World) -> Result<Option<ViewImage>, ModalityError> {
-        let Some(image) = self.state.images.last().cloned() else {
+        let Some((image, settings, iodine)) = self.displayed(world) else {
             return Ok(None);
         };
-        let settings = self.render_settings(image.kvp, image.ma, image.noise_seed);
-        // The field the image was acquired with; after a restore (which drops it) the world's,
-        // which is the same field unless contrast moved after the image without a new one.
-        let iodine = image
-            .iodine_version
-            .and(self.image_iodine.clone().or_else(|| world.iodine.clone()));
         let frame = self
             .renderer(world)?
             .render(
@@ -657,6 +673,35 @@ impl Modality for FluoroModality {
             .map_err(render_failed)?;
         self.rendered = Some(image.index);
         Ok(Some(frame.into()))
+    }
+
+    fn render_draft(
+        &mut self,
+        _view: ViewId,
+        world: &World,
+        use_: DraftUse,
+    ) -> Result<Option<ViewImage>, ModalityError> {
+        let Some((image, settings, iodine)) = self.displayed(world) else {
+            return Ok(None);
+        };
+        // One draft per image in a live session: the next frame of it is the full one.
+        if use_ == DraftUse::Live && self.drafted == Some(image.index) {
+            return Ok(None);
+        }
+        let draft = self
+            .renderer(world)?
+            .render_draft(
+                image.needle.as_ref(),
+                &image.projection,
+                &settings,
+                iodine.as_deref(),
+                use_,
+            )
+            .map_err(render_failed)?;
+        if use_ == DraftUse::Live {
+            self.drafted = Some(image.index);
+        }
+        Ok(draft.map(Into::into))
     }
 
     fn prefetch(&mut self, world: &World) -> Result<(), ModalityError> {
@@ -790,6 +835,7 @@ impl Modality for FluoroModality {
             message: e.to_string(),
         })?;
         self.rendered = None;
+        self.drafted = None;
         self.image_iodine = None;
         Ok(())
     }
