@@ -213,7 +213,7 @@ impl GpuFluoroBackend {
     pub fn wait_for_draft_scene(&self, region: &Arc<Region>) -> Option<()> {
         let drafts = self.drafts.as_ref()?;
         drafts.start(region).then_some(())?;
-        drafts.get(&region.name, true).map(|_| ())
+        drafts.ready(&region.name).then_some(())
     }
 
     /// The GPU renderer on `ctx` that keeps each region's anatomy uploaded once made, while this

@@ -9,7 +9,8 @@
 //!
 //! The draft scene of a region is built once per worker, on a background thread, when the
 //! region's first GPU renderer is made (about 6 s on 2 cores for the default phantom), and
-//! uploaded once for all its sessions; until it is ready a session simply sends no draft. Only
+//! uploaded once, with one draft renderer that all its sessions take turns at; until it is
+//! ready a session simply sends no draft. Only
 //! regions of at least [`DRAFT_MIN_TRIANGLES`] get one: below that the full frame is cheap.
 //!
 //! Replay: a draft is a pure function of the session's state (the draft scene is deterministic),
@@ -36,8 +37,23 @@ pub const DRAFT_MIN_TRIANGLES: usize = 1_000_000;
 /// One region's draft scene on the device.
 enum Slot {
     Building,
-    Ready(Arc<GpuAnatomy>),
+    Ready(Arc<SharedDraft>),
     Failed,
+}
+
+/// A region's one draft renderer, shared by its sessions (a draft is drawn in about 30 ms; a
+/// session that finds it busy waits that long rather than each session holding its own
+/// targets, about 4 MB at 256 x 256).
+pub(super) struct SharedDraft {
+    renderer: Mutex<(GpuFluoroRenderer, Option<NeedleShaft>)>,
+}
+
+impl SharedDraft {
+    fn new(anatomy: Arc<GpuAnatomy>) -> SharedDraft {
+        SharedDraft {
+            renderer: Mutex::new((GpuFluoroRenderer::with_anatomy(anatomy), None)),
+        }
+    }
 }
 
 /// The draft scenes of a worker's regions, uploaded once on its device (see the module doc).
@@ -95,7 +111,7 @@ impl DraftAnatomies {
                             seconds = started.elapsed().as_secs_f64(),
                             "draft scene ready"
                         );
-                        Slot::Ready(a)
+                        Slot::Ready(Arc::new(SharedDraft::new(a)))
                     }
                     Err(e) => {
                         tracing::warn!(region = %region.name, "draft scene failed: {e}");
@@ -128,9 +144,14 @@ impl DraftAnatomies {
         }
     }
 
-    /// The draft scene of `region`: `None` if it has none, failed, or (unless `wait`) is still
-    /// being built.
-    pub fn get(&self, region: &str, wait: bool) -> Option<Arc<GpuAnatomy>> {
+    /// Whether `region`'s draft renderer is ready, waiting while its draft scene is built.
+    pub fn ready(&self, region: &str) -> bool {
+        self.get(region, true).is_some()
+    }
+
+    /// The draft renderer of `region`: `None` if it has none, failed, or (unless `wait`) its
+    /// draft scene is still being built.
+    pub(super) fn get(&self, region: &str, wait: bool) -> Option<Arc<SharedDraft>> {
         let mut slots = self.slots.lock().unwrap_or_else(PoisonError::into_inner);
         loop {
             match slots.get(region) {
@@ -147,12 +168,11 @@ impl DraftAnatomies {
     }
 }
 
-/// A session's draft renderer: its own needle, targets and caches on the shared draft scene.
+/// A session's way to its region's draft renderer.
 pub(super) struct DraftRenderer {
     anatomies: Arc<DraftAnatomies>,
     region: String,
-    renderer: Option<GpuFluoroRenderer>,
-    needle: Option<NeedleShaft>,
+    shared: Option<Arc<SharedDraft>>,
 }
 
 impl DraftRenderer {
@@ -160,8 +180,7 @@ impl DraftRenderer {
         DraftRenderer {
             anatomies,
             region: region.to_string(),
-            renderer: None,
-            needle: None,
+            shared: None,
         }
     }
 
@@ -178,14 +197,20 @@ impl DraftRenderer {
         if !crate::fluoro::draft::draftable(projection) {
             return Ok(None);
         }
-        if self.renderer.is_none() {
-            let Some(anatomy) = self.anatomies.get(&self.region, wait) else {
-                return Ok(None);
-            };
-            self.renderer = Some(GpuFluoroRenderer::with_anatomy(anatomy));
+        if self.shared.is_none() {
+            self.shared = self.anatomies.get(&self.region, wait);
         }
-        let renderer = self.renderer.as_mut().expect("made above");
-        set_needle(renderer, &mut self.needle, needle);
+        let Some(shared) = &self.shared else {
+            return Ok(None);
+        };
+        // Whatever another session left in it (needle, caches), the frame is the same bit for
+        // bit: its caches are keyed on everything that decides a frame.
+        let mut guard = shared
+            .renderer
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let (renderer, current) = &mut *guard;
+        set_needle(renderer, current, needle);
         Ok(Some(crate::fluoro::draft::render_draft_frame(
             renderer, projection, settings, iodine,
         )?))
