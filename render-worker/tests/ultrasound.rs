@@ -609,3 +609,36 @@ fn the_b_mode_renderer_is_selectable() {
     assert_eq!(ultrasound_on_gpu(&ctx, Some("auto")), auto);
     assert_eq!(ultrasound_on_gpu(&ctx, Some("typo")), auto);
 }
+
+/// Before its first input a session paints the acoustic volume of its scan site
+/// (`Session::prefetch`), so the first B-mode frame costs only its scan; the frame is the one a
+/// session that never prefetched shows. (A region of its own name, so that no other test of
+/// this process has painted its volume first.)
+#[test]
+fn a_session_prefetch_paints_the_acoustic_volume_and_changes_no_frame() {
+    use render_worker::session::modalities::ultrasound::medium::is_painted;
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("phantom-lumbar-4mm");
+    let asset = sim_core::anatomy::phantom::ensure_built_with(
+        &dir,
+        &sim_core::anatomy::phantom::PhantomParams::with_voxel_mm(4.0),
+        &mut |_| {},
+    )
+    .unwrap();
+    let mut own = render_worker::session::region::Region::from_asset(&asset);
+    own.name = "lumbar-phantom-prefetch-probe".into();
+    let own = Arc::new(own);
+    let station = crate::contrast::station_on(IN_PLANE, &own);
+    let env = || SessionEnv::new(Arc::clone(&station), Arc::clone(&own), Backends::cpu(0));
+    // The scan site: the station's primary target (as the modality takes it).
+    let site = render_worker::session::anatomy::primary_target(&station).expect("a target");
+    let mut early = Session::new(env(), config());
+    assert!(!is_painted(&own, site), "painted before any session");
+    early.prefetch();
+    assert!(is_painted(&own, site), "the prefetch painted the volume");
+    let mut plain = Session::new(env(), config());
+    let views = BTreeSet::from([ViewId::ULTRASOUND]);
+    let a = early.render_dirty(&views).unwrap();
+    let b = plain.render_dirty(&views).unwrap();
+    assert_eq!(a.len(), 1);
+    assert!(a == b, "the prefetched session's first frame differs");
+}

@@ -110,15 +110,29 @@ pub fn crop_of(region: &Region, site_mm: [f64; 3]) -> ([f64; 3], [f64; 3]) {
 type Cache = Mutex<Vec<(String, Arc<AcousticVolume>)>>;
 static VOLUMES: Cache = Mutex::new(Vec::new());
 
+/// The cache key of the crop `lo..hi` of `region`.
+fn cache_key(region: &Region, lo: [f64; 3], hi: [f64; 3]) -> String {
+    format!(
+        "{}|{}|{lo:?}|{hi:?}",
+        region.name,
+        serde_json::to_string(&region.asset_sha256).unwrap_or_default()
+    )
+}
+
+/// Whether the acoustic volume of `region` around `site_mm` is painted (held by this process's
+/// cache), without painting it.
+pub fn is_painted(region: &Region, site_mm: [f64; 3]) -> bool {
+    let (lo, hi) = crop_of(region, site_mm);
+    let key = cache_key(region, lo, hi);
+    let cache = VOLUMES.lock().unwrap_or_else(|e| e.into_inner());
+    cache.iter().any(|(k, _)| *k == key)
+}
+
 /// The acoustic volume of `region` on the crop around `site_mm`, painted on first use and
 /// shared by every session of this process that scans the same region and site.
 pub fn acoustic_volume(region: &Region, site_mm: [f64; 3]) -> Arc<AcousticVolume> {
     let (lo, hi) = crop_of(region, site_mm);
-    let key = format!(
-        "{}|{}|{lo:?}|{hi:?}",
-        region.name,
-        serde_json::to_string(&region.asset_sha256).unwrap_or_default()
-    );
+    let key = cache_key(region, lo, hi);
     // Painting holds the lock: two sessions asking at once paint once.
     let mut cache = VOLUMES.lock().unwrap_or_else(|e| e.into_inner());
     if let Some((_, v)) = cache.iter().find(|(k, _)| *k == key) {

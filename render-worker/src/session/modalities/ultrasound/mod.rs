@@ -562,6 +562,15 @@ impl Modality for UltrasoundModality {
         }))
     }
 
+    /// Before the first input: the acoustic volume of the station's scan site is painted (about
+    /// half a second for the 4 mm phantom, once per process and site), so the first B-mode
+    /// frame costs only its scan. It is a pure function of the region and the site: nothing a
+    /// client or a replay sees changes.
+    fn prefetch(&mut self, _world: &World) -> Result<(), ModalityError> {
+        self.volume();
+        Ok(())
+    }
+
     fn dirty_views(&self) -> Vec<ViewId> {
         [ViewId::ULTRASOUND, ViewId::PLACEMENT]
             .into_iter()
