@@ -511,6 +511,8 @@ impl SessionHost {
         {
             self.inner.regions.spawn_preparation(vec![region.clone()]);
         }
+        // A region still waiting behind others is prepared next: a learner asked for it.
+        self.inner.regions.prefer(&region);
         match self.region_readiness(&region) {
             RegionReadiness::Ready { .. } => Ok(()),
             RegionReadiness::Failed { reason } => Err(HostError::Region(reason)),

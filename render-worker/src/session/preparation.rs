@@ -8,8 +8,8 @@
 //! session host ([`super::host`]) maps the outcomes to its errors; this module knows nothing of
 //! sessions.
 
-use std::collections::BTreeMap;
-use std::sync::{Arc, Condvar, Mutex};
+use std::collections::{BTreeMap, VecDeque};
+use std::sync::{Arc, Condvar, Mutex, PoisonError};
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
@@ -153,6 +153,9 @@ pub struct Regions {
     prep: Mutex<BTreeMap<String, Prep>>,
     prepared: Condvar,
     loader: Box<RegionLoader>,
+    /// Claimed regions waiting for the preparation thread, next first, and whether that thread
+    /// runs (one at a time: on 2 cores two builds at once would only finish both later).
+    queue: Mutex<(VecDeque<String>, bool)>,
 }
 
 impl Regions {
@@ -163,6 +166,7 @@ impl Regions {
             prep: Mutex::new(BTreeMap::new()),
             prepared: Condvar::new(),
             loader,
+            queue: Mutex::new((VecDeque::new(), false)),
         }
     }
 
@@ -211,17 +215,33 @@ impl Regions {
         true
     }
 
-    /// Prepares the claimed `regions` one after the other on a background thread; returns at
-    /// once.
+    /// Prepares the claimed `regions` one after the other on a background thread (after those
+    /// already waiting), returns at once. A region a learner asks for meanwhile goes first
+    /// ([`Regions::prefer`]).
     pub fn spawn_preparation(self: &Arc<Self>, regions: Vec<String>) {
-        if regions.is_empty() {
+        let mut queue = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
+        for r in regions {
+            if !queue.0.contains(&r) {
+                queue.0.push_back(r);
+            }
+        }
+        if queue.1 || queue.0.is_empty() {
             return;
         }
+        queue.1 = true;
+        drop(queue);
         let this = Arc::clone(self);
         let spawned = std::thread::Builder::new()
             .name("region-prepare".into())
             .spawn(move || {
-                for r in regions {
+                loop {
+                    let next = {
+                        let mut queue = this.queue.lock().unwrap_or_else(PoisonError::into_inner);
+                        let next = queue.0.pop_front();
+                        queue.1 = next.is_some();
+                        next
+                    };
+                    let Some(r) = next else { break };
                     match this.load_claimed(&r) {
                         Ok(_) => tracing::info!(region = %r, "region ready"),
                         Err(e) => tracing::error!(region = %r, "region preparation failed: {e}"),
@@ -230,13 +250,50 @@ impl Regions {
             });
         if let Err(e) = spawned {
             tracing::error!("cannot start the region preparation thread: {e}");
+            let mut queue = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
+            queue.1 = false;
+            for r in std::mem::take(&mut queue.0) {
+                self.fail(
+                    &r,
+                    format!("cannot start the region preparation thread: {e}"),
+                );
+            }
         }
+    }
+
+    /// Moves `region` to the front of the regions waiting for preparation, if it waits (a
+    /// learner asked for it: on a cold start the learner waits for that region's build only,
+    /// not for the ones queued before it). True when it was waiting.
+    pub fn prefer(&self, region: &str) -> bool {
+        let mut queue = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
+        match queue.0.iter().position(|r| r == region) {
+            Some(0) => true,
+            Some(k) => {
+                if let Some(r) = queue.0.remove(k) {
+                    queue.0.push_front(r);
+                }
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Marks a claimed region failed with `reason` and wakes its waiters.
+    fn fail(&self, region: &str, reason: String) {
+        if let Ok(mut prep) = self.prep.lock() {
+            prep.insert(region.to_string(), Prep::Failed(reason));
+        }
+        self.prepared.notify_all();
     }
 
     /// Loads a region the caller claimed, recording progress and the outcome, and wakes anyone
     /// waiting for it.
     pub fn load_claimed(&self, region: &str) -> Result<Arc<Region>, PrepareError> {
         let started = Instant::now();
+        // Its time and progress count from now, not from when it was queued.
+        if let Ok(mut prep) = self.prep.lock() {
+            prep.insert(region.to_string(), Prep::building());
+        }
         let mut progress = |p: &Progress| {
             if let Ok(mut prep) = self.prep.lock()
                 && let Some(Prep::Building {
@@ -274,6 +331,8 @@ impl Regions {
             if self.claim(region) {
                 return self.load_claimed(region);
             }
+            // Claimed and waiting for the preparation thread: next, then.
+            self.prefer(region);
             let prep = self.prep.lock().map_err(|_| PrepareError::Poisoned)?;
             if matches!(prep.get(region), Some(Prep::Building { .. })) {
                 let _unused = self
@@ -284,5 +343,69 @@ impl Regions {
                     .map_err(|_| PrepareError::Poisoned)?;
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::mpsc;
+
+    /// Regions queued behind a long build: the one a learner asks for (`prefer`) is prepared
+    /// next, the others keep their order, and a region already being built is not moved.
+    #[test]
+    fn the_region_a_learner_asks_for_is_prepared_next() {
+        let (started_tx, started_rx) = mpsc::channel::<String>();
+        let (go_tx, go_rx) = mpsc::channel::<()>();
+        let go_rx = Mutex::new(go_rx);
+        let loader = move |name: &str, _progress: &mut dyn FnMut(&Progress)| {
+            started_tx.send(name.to_string()).unwrap();
+            // Each build waits for the test's go.
+            go_rx.lock().unwrap().recv().unwrap();
+            let mut r = crate::session::demo::demo_region();
+            r.name = name.to_string();
+            Ok(r)
+        };
+        let regions = Arc::new(Regions::new(Box::new(loader)));
+        let names: Vec<String> = ["a", "b", "c", "d"].map(String::from).to_vec();
+        for n in &names {
+            assert!(regions.claim(n));
+        }
+        regions.spawn_preparation(names.clone());
+        let next = || {
+            started_rx
+                .recv_timeout(std::time::Duration::from_secs(30))
+                .unwrap()
+        };
+        assert_eq!(next(), "a");
+        // While "a" builds, a learner asks for "d"; "a" itself is not waiting any more.
+        assert!(regions.prefer("d"));
+        assert!(!regions.prefer("a"));
+        assert!(!regions.prefer("unknown"));
+        go_tx.send(()).unwrap();
+        assert_eq!(next(), "d");
+        // Queued regions report a fresh start once their build begins.
+        assert!(matches!(
+            regions.readiness("d"),
+            RegionReadiness::Building { fraction, .. } if fraction == 0.0
+        ));
+        go_tx.send(()).unwrap();
+        assert_eq!(next(), "b");
+        go_tx.send(()).unwrap();
+        assert_eq!(next(), "c");
+        go_tx.send(()).unwrap();
+        for n in &names {
+            assert!(regions.blocking(n).is_ok());
+            assert!(matches!(
+                regions.readiness(n),
+                RegionReadiness::Ready { .. }
+            ));
+        }
+        // A later preparation starts a new thread once the first has ended.
+        assert!(regions.claim("e"));
+        regions.spawn_preparation(vec!["e".into()]);
+        assert_eq!(next(), "e");
+        go_tx.send(()).unwrap();
+        assert!(regions.blocking("e").is_ok());
     }
 }
