@@ -3,7 +3,7 @@
 //! and then the full frame of the same input. The recorded session replays both bit for bit
 //! (`replay/frame?quality=draft` and the plain `replay/frame`), and the replay check of the
 //! submitted result finds the final image identical: the relay never takes a draft as the image
-//! of record.
+//! of record. In the browser, the page marks a draft as a preview until the full frame comes.
 
 use std::sync::Arc;
 
@@ -42,8 +42,14 @@ async fn frames_until_full(
     }
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_carm_move_shows_a_draft_then_the_full_frame_and_both_replay() {
+/// A server whose in-process worker renders on the GPU and drafts the demo region (forced: it
+/// is far below the triangle count that gets drafts by default), or `None` without a GPU
+/// (fails instead under `REQUIRE_GPU=1`).
+async fn drafting_server() -> Option<(
+    std::net::SocketAddr,
+    server::test_support::TestDb,
+    tempfile::TempDir,
+)> {
     let ctx = match render_worker::gpu::GpuContext::new_headless() {
         Ok(ctx) => ctx,
         Err(e) if std::env::var("REQUIRE_GPU").is_ok_and(|v| v == "1") => {
@@ -51,7 +57,7 @@ async fn a_carm_move_shows_a_draft_then_the_full_frame_and_both_replay() {
         }
         Err(e) => {
             eprintln!("progressive frames test skipped: no GPU context ({e})");
-            return;
+            return None;
         }
     };
     let region = Arc::new(demo_region());
@@ -70,7 +76,15 @@ async fn a_carm_move_shows_a_draft_then_the_full_frame_and_both_replay() {
         2,
         SessionConfig::default(),
     );
-    let (addr, _db) = server_with(host, stations.path()).await;
+    let (addr, db) = server_with(host, stations.path()).await;
+    Some((addr, db, stations))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_carm_move_shows_a_draft_then_the_full_frame_and_both_replay() {
+    let Some((addr, _db, _stations)) = drafting_server().await else {
+        return;
+    };
     let learner = Client::login(addr, "learner@demo.invalid").await;
     let (attempt, session) = learner.start_demo_attempt().await;
     let mut ws = learner
@@ -154,4 +168,46 @@ async fn a_carm_move_shows_a_draft_then_the_full_frame_and_both_replay() {
         .call("GET", &format!("/api/attempts/{attempt}/replay"), None)
         .await;
     assert_eq!(replay["identical"], true, "{replay:#}");
+}
+
+/// The browser (`web-client/tests/e2e_preview.mjs`): each C-arm turn and shot draws a draft with
+/// the "Preview" badge shown, then the full frame with it hidden again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_marks_the_draft_as_a_preview_until_the_full_frame() {
+    if !crate::e2e_browser::can_run("the_page_marks_the_draft_as_a_preview_until_the_full_frame") {
+        return;
+    }
+    let _turn = crate::e2e_browser::BROWSER_TURN.lock().await;
+    let Some((addr, _db, _stations)) = drafting_server().await else {
+        return;
+    };
+    let report = crate::e2e_browser::run_script("e2e_preview.mjs", addr, "preview", &[]).await;
+    eprintln!("preview in the browser: {report}");
+    assert_eq!(
+        report["steps"],
+        json!(["session open", "shots"]),
+        "{report:#}"
+    );
+    let drafts = report["drafts"].as_u64().unwrap();
+    assert!(drafts >= 1, "no draft reached the page: {report:#}");
+    // Three full frames at least (one per shot) besides the drafts.
+    assert!(
+        report["frames"].as_u64().unwrap() >= drafts + 3,
+        "{report:#}"
+    );
+    // The badge went up with a draft and down with the full frame that followed, and is down.
+    let badge: Vec<&str> = report["badge"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    assert!(
+        badge.windows(2).any(|w| w == ["shown", "hidden"]),
+        "{report:#}"
+    );
+    assert_eq!(
+        report["final"],
+        json!({ "draft": false, "badge_hidden": true })
+    );
 }
