@@ -3,6 +3,7 @@
 //! Every GPU result has a CPU reference in `sim-core` and is compared with it under a stated
 //! tolerance. On machines without a hardware GPU, Mesa's lavapipe (software Vulkan) is used.
 
+pub mod alloc;
 pub mod cluster;
 pub mod fluoro;
 pub mod gallery;

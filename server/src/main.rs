@@ -3,6 +3,7 @@
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
+    render_worker::alloc::limit_malloc_arenas();
     server::telemetry::init();
     let args: Vec<String> = std::env::args().skip(1).collect();
     match args.first().map(String::as_str) {
@@ -60,3 +61,4 @@ fn leave_now(code: u8) -> ! {
     // SAFETY: _exit takes no pointers and never returns; it skips only the atexit teardown.
     unsafe { libc::_exit(i32::from(code)) }
 }
+

@@ -59,6 +59,12 @@ const NOT_SETTINGS: &[(&str, &str, &str)] = &[
         "the operating system's executable search path, searched for initdb and postgres",
     ),
     (
+        "render-worker/src/alloc.rs",
+        "\"MALLOC_ARENA_MAX\"",
+        "glibc's own malloc tunable: read only so that a value the operator set is left in \
+         place instead of the binaries' cap of 2 arenas",
+    ),
+    (
         "render-worker/src/gpu.rs",
         "\"REQUIRE_GPU\"",
         "a test-support switch (compiled only with the test-support feature) that turns a \

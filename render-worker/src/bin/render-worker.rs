@@ -16,6 +16,7 @@ use render_worker::session::config::{self, WorkerConfig, WorkerRegistration};
 use render_worker::session::{Backends, HostConfig, SessionConfig, SessionHost, http};
 
 fn main() -> ExitCode {
+    render_worker::alloc::limit_malloc_arenas();
     tracing_subscriber::fmt()
         .with_env_filter(WorkerConfig::log_filter(config::env))
         .init();
