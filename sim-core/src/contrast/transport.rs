@@ -456,6 +456,15 @@ mod tests {
                 .wrapping_add(1_442_695_040_888_963_407);
             (self.0 >> 11) as f64 / (1u64 << 53) as f64
         }
+
+        /// With probability `p`, uniform in [0, `scale`); else 0 (one draw, two when drawn).
+        fn sometimes(&mut self, p: f64, scale: f64) -> f64 {
+            if self.next() < p {
+                scale * self.next()
+            } else {
+                0.0
+            }
+        }
     }
 
     fn total(x: &[f64]) -> f64 {
@@ -481,35 +490,11 @@ mod tests {
                 faces.push((0, n as u32 - 1, 0.0, 0.0));
             }
             for f in &mut faces {
-                f.2 = if rng.next() < 0.8 {
-                    0.03 * rng.next()
-                } else {
-                    0.0
-                };
-                f.3 = if rng.next() < 0.8 {
-                    2.0 * rng.next()
-                } else {
-                    0.0
-                };
+                f.2 = rng.sometimes(0.8, 0.03);
+                f.3 = rng.sometimes(0.8, 2.0);
             }
-            let sink: Vec<f64> = (0..n)
-                .map(|_| {
-                    if rng.next() < 0.3 {
-                        0.03 * rng.next()
-                    } else {
-                        0.0
-                    }
-                })
-                .collect();
-            let clearance: Vec<f64> = (0..n)
-                .map(|_| {
-                    if rng.next() < 0.3 {
-                        0.2 * rng.next()
-                    } else {
-                        0.0
-                    }
-                })
-                .collect();
+            let sink: Vec<f64> = (0..n).map(|_| rng.sometimes(0.3, 0.03)).collect();
+            let clearance: Vec<f64> = (0..n).map(|_| rng.sometimes(0.3, 0.2)).collect();
             let mut p: Vec<f64> = (0..n).map(|_| 2.0 * rng.next() - 0.5).collect();
             let contacts = (rng.next() < 0.6).then(|| {
                 let c = (rng.next() * n as f64) as usize;
