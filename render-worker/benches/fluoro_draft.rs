@@ -1,8 +1,8 @@
 //! Progressive fluoroscopy frames: what the draft shown at once after a C-arm move costs and how
 //! far it is from the full frame that follows.
 //!
-//! Per lumbar phantom (the procedural one at 3.5 mm voxels, built here, and the default 1.5 mm
-//! one that sessions use, from the assets folder) it prints the triangles of the scene and of its
+//! Per lumbar phantom (the procedural one at 3.5 mm voxels, from the tests' cache or built on
+//! first use, and the default 1.5 mm one that sessions use, from the assets folder) it prints the triangles of the scene and of its
 //! draft scene (`sim_core::fluoro::draft`) with the draft's build time, then per image size the
 //! C-arm-moved frame (a new orbital angle every frame, 80 kVp, quantum noise) rendered in full
 //! (2 x 2 supersampling at the needle's edges, as sessions render) and as a draft
@@ -15,18 +15,22 @@
 //! assets are already built (its first build takes over a minute). Without it: 8 frames, 512 and
 //! 1024, the default phantom built if needed.
 
+#[allow(dead_code)]
+mod common;
+
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 use render_worker::fluoro::GpuFluoroRenderer;
 use render_worker::fluoro::draft::render_draft_frame;
 use render_worker::gpu::GpuContext;
+use render_worker::session::Region;
 use render_worker::session::loader::load_region;
-use sim_core::anatomy::phantom::{self, PhantomParams};
+use sim_core::anatomy::phantom;
+use sim_core::compare::block_mean_diffs;
 use sim_core::fluoro::draft::{DraftParams, draft_scene};
-use sim_core::fluoro::{
-    EnergyModel, FluoroMaterial, Image, Projection, QuantumNoise, RenderSettings, Scene,
-};
+use sim_core::fluoro::{EnergyModel, Projection, QuantumNoise, RenderSettings};
 use sim_core::stats::percentile;
 
 fn view(n: u32, k: usize) -> Projection {
@@ -53,29 +57,6 @@ fn settings(noise: bool) -> RenderSettings {
     }
 }
 
-/// Mean and 99th percentile of |difference| of the `b` x `b` block means of two images.
-fn block_error(x: &Image, y: &Image, b: usize) -> (f64, f64) {
-    let w = x.width as usize;
-    let (nx, ny) = (w / b, x.height as usize / b);
-    let mean = |img: &Image, bx: usize, by: usize| {
-        let mut s = 0.0;
-        for r in by * b..(by + 1) * b {
-            for c in bx * b..(bx + 1) * b {
-                s += f64::from(img.pixels[r * w + c]);
-            }
-        }
-        s / (b * b) as f64
-    };
-    let diffs: Vec<f64> = (0..ny)
-        .flat_map(|by| (0..nx).map(move |bx| (bx, by)))
-        .map(|(bx, by)| (mean(x, bx, by) - mean(y, bx, by)).abs())
-        .collect();
-    (
-        diffs.iter().sum::<f64>() / diffs.len() as f64,
-        percentile(&diffs, 99.0),
-    )
-}
-
 fn main() {
     let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
     let ctx = match GpuContext::new_headless() {
@@ -91,14 +72,9 @@ fn main() {
         "Progressive fluoroscopy frames (C-arm moved), adapter: {} ({})",
         ctx.summary.name, ctx.summary.backend
     );
-    let mut scenes: Vec<(String, Scene)> = Vec::new();
-    let params = PhantomParams::with_voxel_mm(3.5);
-    let coarse = phantom::build(&params, &mut |_| {}).expect("phantom builds");
-    let mut scene = Scene::new();
-    for s in &coarse.structures {
-        scene.add(s.name.clone(), FluoroMaterial::Tissue(s.material), &s.mesh);
-    }
-    scenes.push(("3.5 mm phantom".into(), scene));
+    // The 3.5 mm phantom from the tests' cache (built on first use), then the default one.
+    let mut regions: Vec<(String, Arc<Region>)> =
+        vec![("3.5 mm phantom".into(), common::phantom_region(3.5))];
     let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets");
     if !quick
         || assets
@@ -107,7 +83,7 @@ fn main() {
             .exists()
     {
         match load_region(&assets, phantom::REGION_NAME, &mut |_| {}) {
-            Ok(r) => scenes.push(("default 1.5 mm phantom".into(), r.scene)),
+            Ok(r) => regions.push(("default 1.5 mm phantom".into(), Arc::new(r))),
             Err(e) => println!("default phantom not loaded: {e}"),
         }
     } else {
@@ -118,7 +94,8 @@ fn main() {
         "| scene | triangles | draft triangles | draft build (s) | image | full frame (ms) | draft (ms) | draft err, mean / p99 of 8x8 block means (grey levels) |"
     );
     println!("|---|---:|---:|---:|---:|---:|---:|---:|");
-    for (name, scene) in &scenes {
+    for (name, region) in &regions {
+        let scene = &region.scene;
         let t = Instant::now();
         let draft = draft_scene(scene, &DraftParams::default());
         let build_s = t.elapsed().as_secs_f64();
@@ -146,7 +123,9 @@ fn main() {
                 .render_frame(&p, &settings(false), None)
                 .expect("frame");
             let d = render_draft_frame(&mut draft_r, &p, &settings(false), None).expect("draft");
-            let (mean, p99) = block_error(&d, &full, 8);
+            let diffs = block_mean_diffs(&d.pixels, &full.pixels, d.width as usize, 8);
+            let mean = diffs.iter().sum::<f64>() / diffs.len() as f64;
+            let p99 = percentile(&diffs, 99.0);
             println!(
                 "| {name} | {} | {} | {build_s:.1} | {n} | {:.1} | {:.1} | {mean:.2} / {p99:.2} |",
                 scene.triangle_count(),

@@ -5,7 +5,7 @@ use std::collections::BTreeSet;
 use std::sync::Arc;
 
 use render_worker::session::*;
-use sim_core::compare::{Compare, Tolerance};
+use sim_core::compare::{Compare, Tolerance, block_mean_diffs};
 
 use super::support::{Driver, config, env, fluoro_only, place, pose, script};
 
@@ -259,7 +259,13 @@ fn drafts_come_before_full_frames_after_a_carm_move_and_replay_exactly() {
                 // Close to the full frame: the same anatomy at half the resolution. Compared
                 // without noise on 8 x 8 block means: bound 2 grey levels (0.32 and 0.66 measured
                 // here on lavapipe), with room for other drivers.
-                let mean_diff = block_mean_diff(&d.image, &full[0].image, 8);
+                let diffs = block_mean_diffs(
+                    &d.image.pixels,
+                    &full[0].image.pixels,
+                    d.image.width as usize,
+                    8,
+                );
+                let mean_diff = diffs.iter().sum::<f64>() / diffs.len() as f64;
                 println!(
                     "noise {noise}, step {k}: draft against full frame, 8 x 8 block means \
                      differ by {mean_diff:.2} grey levels"
@@ -294,26 +300,4 @@ fn drafts_come_before_full_frames_after_a_carm_move_and_replay_exactly() {
     .unwrap();
     assert!(cpu.render_drafts(&fluoro_only()).unwrap().is_empty());
     assert!(cpu.replay_draft(ViewId::FLUOROSCOPY).unwrap().is_none());
-}
-
-/// Mean absolute difference of the `b` x `b` block means of two images of one size.
-fn block_mean_diff(x: &ViewImage, y: &ViewImage, b: usize) -> f64 {
-    let (w, h) = (x.width as usize, x.height as usize);
-    let block = |img: &ViewImage, bx: usize, by: usize| -> f64 {
-        let mut sum = 0.0;
-        for r in by * b..(by + 1) * b {
-            for c in bx * b..(bx + 1) * b {
-                sum += f64::from(img.pixels[r * w + c]);
-            }
-        }
-        sum / (b * b) as f64
-    };
-    let (nx, ny) = (w / b, h / b);
-    let mut total = 0.0;
-    for by in 0..ny {
-        for bx in 0..nx {
-            total += (block(x, bx, by) - block(y, bx, by)).abs();
-        }
-    }
-    total / (nx * ny) as f64
 }

@@ -461,6 +461,32 @@ impl fmt::Display for Diff {
     }
 }
 
+/// How far two 8-bit images of one size (`width` pixels a row) differ at the scale of
+/// `block` x `block` pixel blocks: the absolute difference of each whole block's mean grey
+/// level, blocks in row-major order (a partial block at the right or bottom edge is left out).
+/// Detail finer than a block, such as quantum noise, mostly averages out.
+///
+/// # Panics
+/// If the images differ in length, or `block` is 0.
+pub fn block_mean_diffs(a: &[u8], b: &[u8], width: usize, block: usize) -> Vec<f64> {
+    assert_eq!(a.len(), b.len(), "block means of images of one size");
+    assert!(block > 0, "blocks of at least one pixel");
+    let height = a.len().checked_div(width).unwrap_or(0);
+    let mean = |img: &[u8], bx: usize, by: usize| {
+        let mut sum = 0.0;
+        for r in by * block..(by + 1) * block {
+            for c in bx * block..(bx + 1) * block {
+                sum += f64::from(img[r * width + c]);
+            }
+        }
+        sum / (block * block) as f64
+    };
+    (0..height / block)
+        .flat_map(|by| (0..width / block).map(move |bx| (bx, by)))
+        .map(|(bx, by)| (mean(a, bx, by) - mean(b, bx, by)).abs())
+        .collect()
+}
+
 /// Normalised cross-correlation (Pearson's r) of `a` with `b`, paired by index: the covariance
 /// over the product of the standard deviations, computed about the means (two passes, so that
 /// values far from zero lose no digits). NaN if either is constant or the slices are empty.

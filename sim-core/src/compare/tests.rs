@@ -246,3 +246,15 @@ fn a_diff_prints_on_one_line_with_where_it_is_largest() {
         "max(0.1, 0.5 % of the expected value)"
     );
 }
+
+#[test]
+fn block_mean_diffs_average_within_whole_blocks() {
+    // 5 x 2 pixels, blocks of 2: two whole blocks, the last column left out.
+    let a = [0u8, 4, 10, 10, 99, 0, 4, 10, 10, 0];
+    let b = [2u8, 2, 10, 14, 0, 2, 2, 10, 14, 0];
+    assert_eq!(block_mean_diffs(&a, &b, 5, 2), vec![0.0, 2.0]);
+    assert!(
+        block_mean_diffs(&a, &b, 5, 3).is_empty(),
+        "no whole 3 x 3 block"
+    );
+}
