@@ -18,9 +18,16 @@
 //! chosen; renderers within [`SAME_COST`] of that cost count as equal, and of those the one
 //! with the faster C-arm-moved frame (what a learner waits for) is chosen.
 //!
-//! A candidate whose first frame already takes [`GIVE_UP_FACTOR`] times the best candidate's
-//! C-arm-moved frame cannot win and is stopped there (the CPU reference on a GPU machine), so
-//! calibration costs a few seconds of start-up.
+//! Every candidate after the first takes a probe first: sessions with a detector of an eighth
+//! and of a quarter the side, each a first shot and then C-arm-moved frames. A frame's cost is
+//! a part per frame and a part per pixel; the two sizes give both, and so an estimate of the
+//! full C-arm-moved frame (a probe's frame scaled up by pixel count alone would count the part
+//! per frame, which dominates small frames, up to sixteen times over). A candidate whose
+//! quarter-side frame already takes longer than the best candidate's full C-arm-moved frame
+//! and whose estimate is [`GIVE_UP_FACTOR`] times that frame, or whose first
+//! full frame takes that many times the best one's first frame (and either more than
+//! [`EARLY_STOP_NOISE_MS`] longer), cannot win and is stopped there (the CPU reference on a GPU
+//! machine), so calibration costs a few seconds of start-up.
 
 use std::collections::BTreeSet;
 use std::sync::Arc;
@@ -49,14 +56,22 @@ pub const TARGET_UTILISATION: f64 = 0.5;
 /// process's relay, memory (about 20 MB per session) and database pool are the limits.
 pub const MAX_CALIBRATED_CAPACITY: usize = 64;
 
-/// A candidate stops after its first frame when that frame took this many times the best
-/// candidate's C-arm-moved frame. Our choice: a first frame includes the renderer's set-up
-/// (about twice a later frame on lavapipe), so a factor 8 only stops renderers that are
-/// several times slower.
+/// A candidate stops after its probe when that estimates a C-arm-moved frame of this many times
+/// the best candidate's, or after its first frame when that took this many times the best
+/// candidate's first frame.
+/// Our choice: a factor 8 only stops renderers that are several times slower, whatever the
+/// noise of a shared CPU.
 pub const GIVE_UP_FACTOR: f64 = 8.0;
 
-/// Learner costs within this factor of the cheapest count as equal. Our choice: process CPU time
-/// is read in 10 ms ticks over a few frames, so costs closer than this are not told apart.
+/// An estimate or a first frame at most this much longer than the best candidate's does not stop
+/// a candidate, whatever the ratio, ms. Our choice: the wall time of a frame of a few milliseconds
+/// moves by some scheduler periods when the CPU is shared (Linux CFS: 6 ms x (1 + log2 cores),
+/// 18 ms on 4 cores), so a smaller difference says nothing of the renderer.
+pub const EARLY_STOP_NOISE_MS: f64 = 50.0;
+
+/// Learner costs within this factor of the cheapest count as equal. Our choice: the process's
+/// other work (relays, the web server, a cache warming) falls into the few frames timed, so
+/// costs closer than this are not told apart.
 pub const SAME_COST: f64 = 1.15;
 
 /// Timed frames of each kind per candidate.
@@ -106,9 +121,8 @@ pub struct RendererTiming {
     /// The session's first shot, renderer set-up included, ms (`null` when the probe stopped
     /// the candidate first).
     pub first_frame_ms: f64,
-    /// When another candidate was measured before: the first shot of a session with a detector
-    /// of a quarter the side, `[pixels, ms, ms scaled to the full detector by pixel count]`.
-    pub probe: Option<[f64; 3]>,
+    /// When another candidate was measured before: its probe.
+    pub probe: Option<Probe>,
     /// Median C-arm move and shot, command to frame, ms.
     pub carm_moved_ms: Option<f64>,
     /// Median 1 mm needle step and shot, ms.
@@ -126,6 +140,32 @@ pub struct RendererTiming {
     pub capacity: Option<usize>,
     /// Why it was not measured to the end (stopped as too slow, or failed).
     pub stopped: Option<String>,
+}
+
+/// A candidate's cheap look: C-arm-moved frames at two small detector sizes, and the full
+/// frame they give.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Probe {
+    /// Detector sides, pixels: an eighth and a quarter of the full side (at least 16 and 32).
+    pub sides: [u32; 2],
+    /// Fastest C-arm-moved frame at each side, ms.
+    pub frame_ms: [f64; 2],
+    /// The full frame they give, ms: the larger probe plus the cost per pixel between the two
+    /// (none when the larger was no slower) for the pixels it lacks.
+    pub full_ms: f64,
+}
+
+impl Probe {
+    /// The estimate of a `full_side`^2 frame from frames at `sides`.
+    pub fn new(sides: [u32; 2], frame_ms: [f64; 2], full_side: u32) -> Probe {
+        let n = |side: u32| f64::from(side) * f64::from(side);
+        let per_pixel_ms = ((frame_ms[1] - frame_ms[0]) / (n(sides[1]) - n(sides[0]))).max(0.0);
+        Probe {
+            sides,
+            frame_ms,
+            full_ms: frame_ms[1] + per_pixel_ms * (n(full_side) - n(sides[1])).max(0.0),
+        }
+    }
 }
 
 /// The outcome of a calibration.
@@ -165,16 +205,24 @@ pub enum CalibrationError {
     AllFailed(String),
 }
 
-/// Process CPU time (user + system of every thread), s, from `/proc/self/stat` (clock ticks of
-/// 1/100 s, the Linux USER_HZ); 0 where that file is missing.
+/// Process CPU time (user + system of every thread), s, from the kernel's run-time accounting
+/// (`clock_gettime(CLOCK_PROCESS_CPUTIME_ID)`, nanoseconds: `/proc/self/stat`'s 10 ms ticks are
+/// coarser than the few frames a calibration times); 0 where that clock is missing.
+#[expect(
+    unsafe_code,
+    reason = "clock_gettime(2) has no safe wrapper in std; it only writes `t`"
+)]
 pub fn process_cpu_s() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    // Fields after the command name, which is in parentheses and may hold spaces.
-    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    // utime and stime are fields 14 and 15 of the line, 12 and 13 after the name.
-    (ticks(11) + ticks(12)) / 100.0
+    let mut t = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `t` is a valid, writable timespec for the call's duration.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut t) };
+    if rc != 0 {
+        return 0.0;
+    }
+    t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
 }
 
 fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -293,27 +341,55 @@ fn calibration_host(
     )
 }
 
-/// The first shot of a new session, ms.
-fn first_shot(
+/// The best candidate measured so far, for the early stop.
+#[derive(Debug, Clone, Copy)]
+struct Best {
+    /// Its C-arm-moved frame, ms.
+    carm_ms: f64,
+    /// Its first frame, ms.
+    first_ms: f64,
+}
+
+/// The `k`-th C-arm move of a calibration, and a shot.
+fn carm_move(k: usize) -> Vec<Command> {
+    vec![
+        Command::CarmPose {
+            orbital_deg: 4.0 * (k as f64 + 1.0),
+            angular_deg: 2.0 * k as f64,
+            table_mm: [0.0; 3],
+        },
+        Command::Shot,
+    ]
+}
+
+/// The fastest of a new session's C-arm-moved frames (after its first shot), ms: the least
+/// disturbed by other work on the machine, which only ever adds time.
+fn carm_frames(
     station: &(Station, String),
     region: &Arc<Region>,
     config: &SessionConfig,
     fluoro: Arc<dyn FluoroBackend>,
 ) -> Result<f64, String> {
     let host = calibration_host(station, region, config, fluoro);
-    let ms = Driver::open(&host, &station.0.id).and_then(|mut d| d.frame_after(&[Command::Shot]));
+    let ms = Driver::open(&host, &station.0.id).and_then(|mut d| {
+        d.frame_after(&[Command::Shot])?;
+        host.backends().fluoro.finish_background_work();
+        (0..FRAMES_PER_KIND)
+            .map(|k| d.frame_after(&carm_move(k)))
+            .try_fold(f64::INFINITY, |min, ms| Ok(min.min(ms?)))
+    });
     host.shutdown();
     ms
 }
 
-/// Drives one session of `station` on `region` with `fluoro`; `best_carm_ms` is the best
-/// C-arm-moved frame so far (for the early stop).
+/// Drives one session of `station` on `region` with `fluoro`, after a probe when there is a
+/// `best` candidate so far (for the early stop).
 fn measure(
     station: &(Station, String),
     region: &Arc<Region>,
     config: &SessionConfig,
     fluoro: Arc<dyn FluoroBackend>,
-    best_carm_ms: Option<f64>,
+    best: Option<Best>,
     learner: &LearnerModel,
     cores: usize,
 ) -> RendererTiming {
@@ -331,28 +407,36 @@ fn measure(
         stopped: None,
     };
     // A cheap look first when there is a best to beat: a far slower renderer (the CPU
-    // reference beside a GPU) is stopped after a sixteenth of a frame's work.
-    if let Some(best) = best_carm_ms {
-        let side = (config.fluoro.detector_pixels / 4).max(32);
-        let mut small = *config;
-        small.fluoro.detector_pixels = side;
-        let scale = (f64::from(config.fluoro.detector_pixels) / f64::from(side)).powi(2);
-        match first_shot(station, region, &small, Arc::clone(&fluoro)) {
-            Ok(ms) => {
-                timing.probe = Some([f64::from(side), ms, ms * scale]);
-                if ms * scale > GIVE_UP_FACTOR * best {
-                    timing.stopped = Some(format!(
-                        "a {side}^2 first frame took {ms:.0} ms, about {:.0} ms at full size: over \
-                         {GIVE_UP_FACTOR} times the best C-arm-moved frame ({best:.0} ms)",
-                        ms * scale
-                    ));
+    // reference beside a GPU) is stopped after a few frames of at most a sixteenth of the work.
+    if let Some(best) = best {
+        let full = config.fluoro.detector_pixels;
+        let sides = [(full / 8).max(16), (full / 4).max(32)];
+        let mut frame_ms = [0.0; 2];
+        for (ms, side) in frame_ms.iter_mut().zip(sides) {
+            let mut small = *config;
+            small.fluoro.detector_pixels = side;
+            match carm_frames(station, region, &small, Arc::clone(&fluoro)) {
+                Ok(t) => *ms = t,
+                Err(e) => {
+                    timing.stopped = Some(format!("failed: {e}"));
                     return timing;
                 }
             }
-            Err(e) => {
-                timing.stopped = Some(format!("failed: {e}"));
-                return timing;
-            }
+        }
+        let probe = Probe::new(sides, frame_ms, full);
+        timing.probe = Some(probe);
+        // The larger probe's frame is a certain floor of the full frame's, the estimate its
+        // size; the floor guards against an estimate that the noise of a shared CPU inflated.
+        if frame_ms[1] > best.carm_ms
+            && probe.full_ms > GIVE_UP_FACTOR * best.carm_ms
+            && probe.full_ms - best.carm_ms > EARLY_STOP_NOISE_MS
+        {
+            timing.stopped = Some(format!(
+                "C-arm-moved frames of {:.0} and {:.0} ms at {}^2 and {}^2 give about {:.0} ms at \
+                 full size: over {GIVE_UP_FACTOR} times the best candidate's ({:.0} ms)",
+                frame_ms[0], frame_ms[1], sides[0], sides[1], probe.full_ms, best.carm_ms
+            ));
+            return timing;
         }
     }
     let host = calibration_host(station, region, config, fluoro);
@@ -362,26 +446,17 @@ fn measure(
         // Work the first renderer started in the background (the GPU renderer's draft scene)
         // would slow the frames timed next: done first, as it is on a server after start-up.
         host.backends().fluoro.finish_background_work();
-        if let Some(best) = best_carm_ms
+        if let Some(best) = best.map(|b| b.first_ms)
             && timing.first_frame_ms > GIVE_UP_FACTOR * best
+            && timing.first_frame_ms - best > EARLY_STOP_NOISE_MS
         {
             timing.stopped = Some(format!(
-                "first frame {:.0} ms, over {GIVE_UP_FACTOR} times the best C-arm-moved frame ({best:.0} ms)",
+                "first frame {:.0} ms, over {GIVE_UP_FACTOR} times the best candidate's ({best:.0} ms)",
                 timing.first_frame_ms
             ));
             return Ok(());
         }
-        let carm = |k: usize| {
-            vec![
-                Command::CarmPose {
-                    orbital_deg: 4.0 * (k as f64 + 1.0),
-                    angular_deg: 2.0 * k as f64,
-                    table_mm: [0.0; 3],
-                },
-                Command::Shot,
-            ]
-        };
-        (timing.carm_moved_ms, timing.carm_moved_cpu_ms) = d.timed(carm)?;
+        (timing.carm_moved_ms, timing.carm_moved_cpu_ms) = d.timed(carm_move)?;
         match needle_place(&station.0, region) {
             Some(place) => {
                 d.frame_after(&[place, Command::Shot])?;
@@ -441,8 +516,14 @@ pub fn calibrate(
     for c in candidates {
         let best = timings
             .iter()
-            .filter_map(|t| t.carm_moved_ms)
-            .min_by(f64::total_cmp);
+            .filter(|t| t.stopped.is_none())
+            .filter_map(|t| {
+                Some(Best {
+                    carm_ms: t.carm_moved_ms?,
+                    first_ms: t.first_frame_ms,
+                })
+            })
+            .min_by(|a, b| a.carm_ms.total_cmp(&b.carm_ms));
         let t = measure(
             station,
             region,
