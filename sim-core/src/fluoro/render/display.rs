@@ -126,7 +126,17 @@ pub fn to_display_centred(
 pub(super) fn grey(exposure: &Exposure, invert: bool, centre: f64, ln_t: f64) -> u8 {
     let g = (exposure.target_grey + (ln_t - centre) / exposure.log_range).clamp(0.0, 1.0);
     let g = if invert { 1.0 - g } else { g };
-    (g * 255.0).round() as u8
+    round_grey(g * 255.0)
+}
+
+/// `x.round() as u8` for `x` in `[0, 255]` (halves away from zero), without the `round` call
+/// that the baseline x86-64 target makes of `f64::round`: the truncation is exact there and so
+/// is `x - whole` (both below 2^52), so the result is the same bit for bit.
+#[inline]
+pub(super) fn round_grey(x: f64) -> u8 {
+    let whole = x as u8;
+    // Without a branch: the fraction is random across a frame's pixels.
+    whole + u8::from(x - f64::from(whole) >= 0.5)
 }
 
 fn roi(n: usize, fraction: f64) -> (usize, usize) {

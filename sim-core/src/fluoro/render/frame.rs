@@ -38,7 +38,9 @@ pub fn render_frame<'a>(
 /// image, and the GPU frame (same transmission within 0.005 in the median) differed from the
 /// CPU's everywhere (render-worker's `gpu_session_oblique_view_with_needle_matches_the_cpu`).
 ///
-/// With noise the result equals [`apply_noise`](super::noise::apply_noise) then
+/// Without noise the result equals [`to_display`](super::display::to_display) bit for bit, its
+/// rows split over `settings.threads` workers. With noise it equals
+/// [`apply_noise`](super::noise::apply_noise) then
 /// [`to_display_centred`](super::display::to_display_centred) bit for bit, but faster: the grey of a count `k` is taken from a table
 /// over `k` built per frame (the same arithmetic on the same `k / photons`), and the rows are
 /// split over `settings.threads` workers (each pixel's noise has its own seed, so the split does
@@ -80,10 +82,26 @@ pub fn finish_frame_f32(
 fn finish<T: Copy + Into<f64> + Sync>(t: Samples<'_, T>, settings: &RenderSettings) -> Image {
     let noise = settings.noise.as_ref();
     let centre = t.exposure_centre(&settings.exposure, noise);
-    let Some(noise) = noise else {
-        return t.display_centred(&settings.exposure, settings.invert, None, centre);
-    };
     let (e, invert) = (&settings.exposure, settings.invert);
+    let w = t.width;
+    let mut pixels = vec![SHUTTER_GREY; t.transmission.len()];
+    let Some(noise) = noise else {
+        // `display_centred`'s arithmetic, its rows split over the workers.
+        let floor = ln_t_floor(None);
+        par_rows(&mut pixels, w, thread_count(settings.threads), |j, row| {
+            for (i, out) in row.iter_mut().enumerate() {
+                let p = j * w + i;
+                if t.exposed[p] {
+                    *out = grey(e, invert, centre, t.at(p).max(floor).ln());
+                }
+            }
+        });
+        return Image {
+            width: t.width as u32,
+            height: t.height as u32,
+            pixels,
+        };
+    };
     let floor = ln_t_floor(Some(noise));
     let n = noise.photons_per_pixel;
     let grey_of_count = |k: f64| grey(e, invert, centre, (k / n).max(floor).ln());
@@ -91,8 +109,6 @@ fn finish<T: Copy + Into<f64> + Sync>(t: Samples<'_, T>, settings: &RenderSettin
     // entries; rarer or larger counts are mapped directly.
     let table_len = (n + 8.0 * n.sqrt() + 16.0).clamp(16.0, 65_536.0) as usize;
     let table: Vec<u8> = (0..table_len).map(|k| grey_of_count(k as f64)).collect();
-    let w = t.width;
-    let mut pixels = vec![SHUTTER_GREY; t.transmission.len()];
     par_rows(&mut pixels, w, thread_count(settings.threads), |j, row| {
         for (i, out) in row.iter_mut().enumerate() {
             let p = j * w + i;

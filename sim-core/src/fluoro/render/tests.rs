@@ -1,7 +1,8 @@
 //! Tests of the CPU reference frame: determinism, metering, noise statistics, supersampling,
 //! shutters and contrast.
 
-use super::noise::{ln_factorial, noisy_count};
+use super::display::round_grey;
+use super::noise::{ln_factorial, ln_factorial_series, noisy_count};
 use super::*;
 use crate::fluoro::{EnergyModel, FluoroMaterial, IodineField, Projection, Scene};
 use crate::geom::{capped_cylinder, equal_area_vertex_radius};
@@ -215,6 +216,11 @@ fn ln_factorial_matches_the_exact_sum() {
             "{k}: {got} vs {exact}"
         );
     }
+    // The table holds the series bit for bit, and beyond it the series answers.
+    for k in (0..20_000u32).step_by(7).chain([8191, 8192, 8193]) {
+        let k = f64::from(k);
+        assert_eq!(ln_factorial(k).to_bits(), ln_factorial_series(k).to_bits(), "{k}");
+    }
 }
 
 #[test]
@@ -257,6 +263,16 @@ fn the_fast_finish_equals_noise_then_tone_mapping() {
             finish_frame(&t, &settings),
             want,
             "{photons} {invert} {threads}"
+        );
+        // Without noise: the whole `to_display`, whatever the split.
+        let clean = RenderSettings {
+            noise: None,
+            ..settings
+        };
+        assert_eq!(
+            finish_frame(&t, &clean),
+            to_display(&t, &clean.exposure, invert, None),
+            "{invert} {threads}"
         );
     }
 }
@@ -496,5 +512,29 @@ fn the_f32_finish_equals_the_finish_of_the_widened_copy() {
             finish_frame_f32(t.width, t.height, &narrow, &t.exposed, &settings),
             finish_frame(&widened, &settings)
         );
+    }
+}
+
+/// Every grey a frame can meet, and the values next to each half, round as `f64::round`.
+#[test]
+fn round_grey_is_round_bit_for_bit() {
+    let mut xs = vec![
+        0.0,
+        255.0,
+        f64::NAN,
+        0.49999999999999994,
+        254.49999999999997,
+    ];
+    for k in 0..255 {
+        let half = f64::from(k) + 0.5;
+        xs.extend([half, half.next_down(), half.next_up(), f64::from(k)]);
+    }
+    let mut u = 0x1234_5678_9abc_def0_u64;
+    for _ in 0..1_000_000 {
+        u = crate::rng::splitmix64(u);
+        xs.push(crate::rng::unit_f64(u) * 255.0);
+    }
+    for x in xs {
+        assert_eq!(round_grey(x), x.round() as u8, "{x:?}");
     }
 }
