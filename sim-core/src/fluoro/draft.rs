@@ -16,8 +16,10 @@
 
 use std::collections::HashMap;
 
-use super::scene::Scene;
+use super::scene::{Scene, SceneEntry};
 use crate::anatomy::decimate::{DecimationParams, decimate};
+use crate::anatomy::interfaces::par_map_heaviest_first;
+use crate::geom::Bvh;
 use crate::mesh::TriMesh;
 
 /// How far a draft scene is reduced.
@@ -70,16 +72,30 @@ pub fn weld(triangles_mm: &[[[f64; 3]; 3]]) -> TriMesh {
 
 /// The draft of `scene` (see the module doc): same entries, names, materials and priorities,
 /// each mesh reduced.
+///
+/// Entries are reduced on every core, largest first; each alone, so the draft does not depend
+/// on the number of cores.
 pub fn draft_scene(scene: &Scene, params: &DraftParams) -> Scene {
-    let mut draft = Scene::new();
-    for e in scene.entries() {
+    let entries = scene.entries();
+    let weights: Vec<usize> = entries.iter().map(|e| e.bvh.triangle_count()).collect();
+    let reduced = par_map_heaviest_first(&weights, &|i| {
+        let e = &entries[i];
         let mesh = weld(e.bvh.triangles_mm());
-        let reduced = if mesh.triangles.len() < params.min_triangles {
+        let mesh = if mesh.triangles.len() < params.min_triangles {
             mesh
         } else {
             decimate(&mesh, &params.decimation).0
         };
-        draft.add_with_priority(e.name.clone(), e.material, e.priority, &reduced);
+        SceneEntry {
+            name: e.name.clone(),
+            material: e.material,
+            priority: e.priority,
+            bvh: Bvh::new(&mesh),
+        }
+    });
+    let mut draft = Scene::new();
+    for entry in reduced {
+        draft.push_entry(entry);
     }
     draft
 }

@@ -20,6 +20,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::attenuation::{FluoroMaterial, MaterialChords};
+use crate::anatomy::interfaces::par_map_heaviest_first;
 use crate::geom::{Bvh, Hit};
 use crate::material::MaterialClass;
 use crate::mesh::TriMesh;
@@ -144,6 +145,30 @@ impl Scene {
             bvh: Bvh::new(mesh),
         });
         self.entries.len() - 1
+    }
+
+    /// Adds closed, outward-wound meshes in order, each with its material's default priority,
+    /// their BVHs built on every core, largest mesh first; the scene is the one `add` would
+    /// make of them one by one (each BVH is built alone). Returns the index of the first. (The
+    /// default lumbar phantom's 49 structures: 1.7 s on one core, 0.9 s on two.)
+    pub fn add_all(&mut self, meshes: &[(String, FluoroMaterial, &TriMesh)]) -> usize {
+        let first = self.entries.len();
+        let weights: Vec<usize> = meshes.iter().map(|m| m.2.triangles.len()).collect();
+        let bvhs = par_map_heaviest_first(&weights, &|i| Bvh::new(meshes[i].2));
+        for ((name, material, _), bvh) in meshes.iter().zip(bvhs) {
+            self.entries.push(SceneEntry {
+                name: name.clone(),
+                material: *material,
+                priority: material.default_priority(),
+                bvh,
+            });
+        }
+        first
+    }
+
+    /// Appends a ready-made entry (a draft's reduced mesh with its BVH).
+    pub(crate) fn push_entry(&mut self, entry: SceneEntry) {
+        self.entries.push(entry);
     }
 
     /// The entries, in insertion order.
@@ -407,6 +432,43 @@ mod tests {
 
     fn cube(c: [f64; 3], half: f64) -> TriMesh {
         TriMesh::axis_aligned_box(c.map(|x| x - half), c.map(|x| x + half))
+    }
+
+    #[test]
+    fn add_all_makes_the_scene_of_add_one_by_one() {
+        let meshes = [
+            ("body".to_string(), SOFT, cube([0.0; 3], 100.0)),
+            ("bone".to_string(), BONE, cube([1.0, 2.0, 3.0], 10.0)),
+            ("marrow".to_string(), MARROW, cube([1.0, 2.0, 3.0], 8.0)),
+            (
+                "rod".to_string(),
+                BONE,
+                capped_cylinder([-30.0, -40.0, 0.0], [30.0, 40.0, 5.0], 4.0, 24),
+            ),
+        ];
+        let mut one_by_one = Scene::new();
+        for (name, material, mesh) in &meshes {
+            one_by_one.add(name.clone(), *material, mesh);
+        }
+        let refs: Vec<(String, FluoroMaterial, &TriMesh)> =
+            meshes.iter().map(|(n, m, t)| (n.clone(), *m, t)).collect();
+        {
+            let mut all = Scene::new();
+            assert_eq!(all.add_all(&refs), 0);
+            assert_eq!(all.describe(), one_by_one.describe());
+            let mut scratch = ChordScratch::default();
+            for k in 0..400 {
+                let (x, z) = (
+                    f64::from(k % 20) * 6.0 - 57.0,
+                    f64::from(k / 20) * 6.0 - 57.0,
+                );
+                let origin = [x, -500.0, z];
+                let dir = [0.01 * f64::from(k % 7), 1.0, -0.02 * f64::from(k % 5)];
+                let a = all.ray_chords(origin, dir, 1000.0, &mut scratch);
+                let b = one_by_one.ray_chords(origin, dir, 1000.0, &mut scratch);
+                assert_eq!(a, b, "ray {k}");
+            }
+        }
     }
 
     #[test]

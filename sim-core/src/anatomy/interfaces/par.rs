@@ -35,3 +35,21 @@ pub(crate) fn par_map<T: Send>(
         .map(|r| r.expect("every index is taken by exactly one worker"))
         .collect()
 }
+
+/// [`par_map`] of `f` over `0..weights.len()`, the indices taken heaviest first (so the last
+/// job to start is a light one and the workers finish together), results in index order.
+pub(crate) fn par_map_heaviest_first<T: Send>(
+    weights: &[usize],
+    f: &(dyn Fn(usize) -> T + Sync),
+) -> Vec<T> {
+    let mut order: Vec<usize> = (0..weights.len()).collect();
+    order.sort_by_key(|&i| std::cmp::Reverse(weights[i]));
+    let done = par_map(order.len(), &|k| (order[k], f(order[k])), &mut |_| {});
+    let mut out: Vec<Option<T>> = (0..weights.len()).map(|_| None).collect();
+    for (i, r) in done {
+        out[i] = Some(r);
+    }
+    out.into_iter()
+        .map(|r| r.expect("every index is taken once"))
+        .collect()
+}
