@@ -4,7 +4,7 @@
 //! Convention: triangles are wound counter-clockwise seen from outside, so the right-hand normal
 //! `(b - a) x (c - a)` points out of the solid and a closed mesh has positive signed volume.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -47,7 +47,11 @@ impl TriMesh {
     /// The three corner positions of triangle `i`.
     pub fn triangle(&self, i: usize) -> [[f64; 3]; 3] {
         let [a, b, c] = self.triangles[i];
-        [self.vertices_mm[a as usize], self.vertices_mm[b as usize], self.vertices_mm[c as usize]]
+        [
+            self.vertices_mm[a as usize],
+            self.vertices_mm[b as usize],
+            self.vertices_mm[c as usize],
+        ]
     }
 
     /// Signed enclosed volume in mm^3 (divergence theorem); positive for outward winding.
@@ -86,7 +90,10 @@ impl TriMesh {
 
     fn centroid_of_vertices(&self) -> [f64; 3] {
         let n = self.vertices_mm.len().max(1) as f64;
-        let s = self.vertices_mm.iter().fold([0.0; 3], |s, v| [s[0] + v[0], s[1] + v[1], s[2] + v[2]]);
+        let s = self
+            .vertices_mm
+            .iter()
+            .fold([0.0; 3], |s, v| [s[0] + v[0], s[1] + v[1], s[2] + v[2]]);
         [s[0] / n, s[1] / n, s[2] / n]
     }
 
@@ -118,7 +125,12 @@ impl TriMesh {
     pub fn append(&mut self, other: &TriMesh) {
         let offset = self.vertices_mm.len() as u32;
         self.vertices_mm.extend_from_slice(&other.vertices_mm);
-        self.triangles.extend(other.triangles.iter().map(|t| [t[0] + offset, t[1] + offset, t[2] + offset]));
+        self.triangles.extend(
+            other
+                .triangles
+                .iter()
+                .map(|t| [t[0] + offset, t[1] + offset, t[2] + offset]),
+        );
     }
 
     /// Reverses the winding of every triangle (turns the mesh inside out).
@@ -155,7 +167,10 @@ impl TriMesh {
             [1, 2, 6],
             [1, 6, 5], // x = max, normal +x
         ];
-        TriMesh { vertices_mm, triangles }
+        TriMesh {
+            vertices_mm,
+            triangles,
+        }
     }
 
     /// A geodesic sphere: an icosahedron subdivided `subdivisions` times, vertices on the sphere.
@@ -204,7 +219,8 @@ impl TriMesh {
             [9, 8, 1],
         ];
         for _ in 0..subdivisions {
-            let mut midpoint: HashMap<(u32, u32), u32> = HashMap::with_capacity(tris.len() * 3 / 2);
+            let mut midpoint: FxHashMap<(u32, u32), u32> =
+                FxHashMap::with_capacity_and_hasher(tris.len() * 3 / 2, Default::default());
             let mut next = Vec::with_capacity(tris.len() * 4);
             let mut mid = |a: u32, b: u32, verts: &mut Vec<[f64; 3]>| -> u32 {
                 *midpoint.entry((a.min(b), a.max(b))).or_insert_with(|| {
@@ -223,9 +239,18 @@ impl TriMesh {
         }
         let vertices_mm = verts
             .into_iter()
-            .map(|v| [center_mm[0] + radius_mm * v[0], center_mm[1] + radius_mm * v[1], center_mm[2] + radius_mm * v[2]])
+            .map(|v| {
+                [
+                    center_mm[0] + radius_mm * v[0],
+                    center_mm[1] + radius_mm * v[1],
+                    center_mm[2] + radius_mm * v[2],
+                ]
+            })
             .collect();
-        TriMesh { vertices_mm, triangles: tris }
+        TriMesh {
+            vertices_mm,
+            triangles: tris,
+        }
     }
 }
 
@@ -237,8 +262,9 @@ pub fn is_degenerate(t: &[u32; 3]) -> bool {
 /// For each undirected edge `(lo, hi)` of the non-degenerate triangles: how many triangles
 /// traverse it `lo -> hi` and how many `hi -> lo`. A closed, consistently wound mesh has `(1, 1)`
 /// on every edge.
-pub fn directed_edge_uses(triangles: &[[u32; 3]]) -> HashMap<(u32, u32), (u32, u32)> {
-    let mut edges: HashMap<(u32, u32), (u32, u32)> = HashMap::with_capacity(triangles.len() * 3 / 2);
+pub fn directed_edge_uses(triangles: &[[u32; 3]]) -> FxHashMap<(u32, u32), (u32, u32)> {
+    let mut edges: FxHashMap<(u32, u32), (u32, u32)> =
+        FxHashMap::with_capacity_and_hasher(triangles.len() * 3 / 2, Default::default());
     for t in triangles.iter().filter(|t| !is_degenerate(t)) {
         for k in 0..3 {
             let (a, b) = (t[k], t[(k + 1) % 3]);
@@ -270,7 +296,10 @@ mod tests {
         assert!((b.signed_volume_mm3() - 24.0).abs() < 1e-12);
         assert!((b.area_mm2() - 2.0 * (6.0 + 8.0 + 12.0)).abs() < 1e-12);
         assert!(b.topology_report().is_closed_and_consistent());
-        assert_eq!(b.bounding_box_mm(), Some(([-1.0, 2.0, 3.0], [1.0, 5.0, 7.0])));
+        assert_eq!(
+            b.bounding_box_mm(),
+            Some(([-1.0, 2.0, 3.0], [1.0, 5.0, 7.0]))
+        );
     }
 
     #[test]
@@ -281,9 +310,15 @@ mod tests {
         for n in 0..6 {
             let s = TriMesh::icosphere([100.0, -50.0, 7.0], r, n);
             assert_eq!(s.triangle_count(), 20 * 4usize.pow(n));
-            assert!(s.topology_report().is_closed_and_consistent(), "subdivision {n}");
+            assert!(
+                s.topology_report().is_closed_and_consistent(),
+                "subdivision {n}"
+            );
             let v = s.signed_volume_mm3();
-            assert!(v > 0.0 && v < exact, "inscribed polyhedron is smaller than the sphere");
+            assert!(
+                v > 0.0 && v < exact,
+                "inscribed polyhedron is smaller than the sphere"
+            );
             let err = (exact - v) / exact;
             assert!(err < last_err);
             last_err = err;

@@ -19,7 +19,7 @@
 //! on the surface. Vertex positions on an edge are kept at least 0.1 % of the edge from both ends
 //! so that distinct vertices never coincide.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 use crate::mesh::TriMesh;
 use crate::volume::VolumeGrid;
@@ -231,7 +231,7 @@ pub fn extract_isosurface_keyed(
     fill_layer(0, &mut lower);
     let mut mesh = TriMesh::default();
     let mut crossings = Vec::new();
-    let mut vertex_of_edge: HashMap<u64, u32> = HashMap::new();
+    let mut vertex_of_edge: FxHashMap<u64, u32> = FxHashMap::default();
     for k in 0..fine[2] - 1 {
         fill_layer(k + 1, &mut upper);
         for j in 0..fy - 1 {

@@ -14,7 +14,7 @@
 //! The `fluoro_gpu` benchmark reports the draft frame's time and its `ln T` difference from the
 //! full frame on the same pose.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 use super::scene::{Scene, SceneEntry};
 use crate::anatomy::decimate::{DecimationParams, decimate};
@@ -52,7 +52,8 @@ impl Default for DraftParams {
 
 /// The indexed mesh of a triangle soup whose shared corners are bit-identical.
 pub fn weld(triangles_mm: &[[[f64; 3]; 3]]) -> TriMesh {
-    let mut index: HashMap<[u64; 3], u32> = HashMap::with_capacity(triangles_mm.len() / 2 + 3);
+    let mut index: FxHashMap<[u64; 3], u32> =
+        FxHashMap::with_capacity_and_hasher(triangles_mm.len() / 2 + 3, Default::default());
     let mut mesh = TriMesh {
         vertices_mm: Vec::with_capacity(triangles_mm.len() / 2 + 3),
         triangles: Vec::with_capacity(triangles_mm.len()),

@@ -1,7 +1,7 @@
 //! Finding surfaces that cross each other after smoothing or decimation, and the locks that back
 //! off around a crossing.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 use glam::DVec3;
 
@@ -68,7 +68,7 @@ pub(super) fn crossing_pairs(
 ) -> Vec<((u32, u32), (u32, u32))> {
     let mut tris: Vec<(u32, u32)> = Vec::new();
     let mut boxes: Vec<([f64; 3], [f64; 3])> = Vec::new();
-    let mut cells: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
+    let mut cells: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
     for (p, ts) in source.iter().enumerate() {
         for (i, t) in ts.iter().enumerate() {
             let v = t.map(|g| positions[g as usize]);

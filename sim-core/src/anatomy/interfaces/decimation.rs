@@ -1,7 +1,9 @@
 //! Step 4 of the family meshing (see [`super`]): decimating each patch once, chunk by chunk, with
 //! junction and chunk-border vertices locked, and backing off where a mesh fails its checks.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
+
+use rustc_hash::FxHashMap;
 
 use super::crossing::{crossing_pairs, lock_around_crossing, mean_edge_mm};
 use super::par::par_map;
@@ -26,7 +28,7 @@ fn decimate_patch(
     if target >= tris.len() * 3 {
         return (tris.to_vec(), 0.0);
     }
-    let mut local_of: HashMap<u32, u32> = HashMap::new();
+    let mut local_of: FxHashMap<u32, u32> = FxHashMap::default();
     let mut global = Vec::new();
     let indices: Vec<u32> = tris
         .iter()

@@ -1,7 +1,9 @@
 //! Steps 1 and 2 of the family meshing (see [`super`]): welding the vertices that touching
 //! structures share and partitioning the triangles into patches by their owners.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
+
+use rustc_hash::FxHashMap;
 
 use super::surface::{ExtractedSurface, WELD_EDGE_FRACTION};
 use crate::mesh::TriMesh;
@@ -107,7 +109,7 @@ pub(super) fn weld_and_partition(items: &[ExtractedSurface]) -> Family {
             }
         }
     }
-    let mut owners_of: HashMap<[u32; 3], Vec<(u32, bool)>> = HashMap::new();
+    let mut owners_of: FxHashMap<[u32; 3], Vec<(u32, bool)>> = FxHashMap::default();
     for (m, ts) in tris.iter().enumerate() {
         for &t in ts {
             if t.iter().all(|&g| multi[g as usize]) {
@@ -188,7 +190,7 @@ impl Family {
         source: &[Vec<[u32; 3]>],
         positions: &[[f64; 3]],
     ) -> TriMesh {
-        let mut map: HashMap<u32, u32> = HashMap::new();
+        let mut map: FxHashMap<u32, u32> = FxHashMap::default();
         let mut out = TriMesh::default();
         for t in self.mesh_triangles(m, source) {
             out.triangles.push(t.map(|g| {
