@@ -103,7 +103,7 @@ impl TriMesh {
             degenerate_triangles: self.triangles.iter().filter(|t| is_degenerate(t)).count(),
             ..TopologyReport::default()
         };
-        for &(fwd, back) in directed_edge_uses(&self.triangles).values() {
+        for &(_, (fwd, back)) in &directed_edge_uses(&self.triangles) {
             match fwd + back {
                 1 => report.boundary_edges += 1,
                 2 if fwd != 1 => report.inconsistent_edges += 1,
@@ -260,21 +260,43 @@ pub fn is_degenerate(t: &[u32; 3]) -> bool {
 }
 
 /// For each undirected edge `(lo, hi)` of the non-degenerate triangles: how many triangles
-/// traverse it `lo -> hi` and how many `hi -> lo`. A closed, consistently wound mesh has `(1, 1)`
-/// on every edge.
-pub fn directed_edge_uses(triangles: &[[u32; 3]]) -> FxHashMap<(u32, u32), (u32, u32)> {
-    let mut edges: FxHashMap<(u32, u32), (u32, u32)> =
-        FxHashMap::with_capacity_and_hasher(triangles.len() * 3 / 2, Default::default());
+/// traverse it `lo -> hi` and how many `hi -> lo`, sorted by edge. A closed, consistently wound
+/// mesh has `(1, 1)` on every edge. (Sorted keys rather than a hash map: a phantom's closedness
+/// checks count millions of edges, and sorting two arrays of `u64` is the cheaper way.)
+pub fn directed_edge_uses(triangles: &[[u32; 3]]) -> Vec<((u32, u32), (u32, u32))> {
+    let mut forward: Vec<u64> = Vec::with_capacity(triangles.len() * 3 / 2);
+    let mut backward: Vec<u64> = Vec::with_capacity(triangles.len() * 3 / 2);
     for t in triangles.iter().filter(|t| !is_degenerate(t)) {
         for k in 0..3 {
             let (a, b) = (t[k], t[(k + 1) % 3]);
-            let e = edges.entry((a.min(b), a.max(b))).or_default();
+            let key = (u64::from(a.min(b)) << 32) | u64::from(a.max(b));
             if a < b {
-                e.0 += 1;
+                forward.push(key);
             } else {
-                e.1 += 1;
+                backward.push(key);
             }
         }
+    }
+    forward.sort_unstable();
+    backward.sort_unstable();
+    let mut edges = Vec::with_capacity(forward.len().max(backward.len()));
+    let (mut i, mut j) = (0, 0);
+    while let Some(key) = match (forward.get(i), backward.get(j)) {
+        (Some(&f), Some(&b)) => Some(f.min(b)),
+        (Some(&f), None) => Some(f),
+        (None, Some(&b)) => Some(b),
+        (None, None) => None,
+    } {
+        let (mut fwd, mut back) = (0, 0);
+        while forward.get(i) == Some(&key) {
+            fwd += 1;
+            i += 1;
+        }
+        while backward.get(j) == Some(&key) {
+            back += 1;
+            j += 1;
+        }
+        edges.push((((key >> 32) as u32, key as u32), (fwd, back)));
     }
     edges
 }
@@ -289,6 +311,42 @@ fn unit_by_division(v: DVec3) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn directed_edge_uses_counts_each_direction_sorted_by_edge() {
+        // Random soups over 12 vertices (repeated edges, both windings, degenerate triangles)
+        // against a plain map count.
+        let mut u = 7_u64;
+        for _ in 0..200 {
+            let tris: Vec<[u32; 3]> = (0..30)
+                .map(|_| {
+                    std::array::from_fn(|_| {
+                        u = crate::rng::splitmix64(u);
+                        (u % 12) as u32
+                    })
+                })
+                .collect();
+            let mut want: std::collections::BTreeMap<(u32, u32), (u32, u32)> = Default::default();
+            for t in tris.iter().filter(|t| !is_degenerate(t)) {
+                for k in 0..3 {
+                    let (a, b) = (t[k], t[(k + 1) % 3]);
+                    let e = want.entry((a.min(b), a.max(b))).or_default();
+                    if a < b {
+                        e.0 += 1;
+                    } else {
+                        e.1 += 1;
+                    }
+                }
+            }
+            let got = directed_edge_uses(&tris);
+            assert_eq!(got, want.into_iter().collect::<Vec<_>>());
+        }
+        // A closed box: every edge once each way.
+        let b = TriMesh::axis_aligned_box([0.0; 3], [1.0; 3]);
+        let uses = directed_edge_uses(&b.triangles);
+        assert_eq!(uses.len(), 18);
+        assert!(uses.iter().all(|&(_, n)| n == (1, 1)));
+    }
 
     #[test]
     fn box_volume_area_and_topology() {

@@ -82,7 +82,7 @@ pub(crate) fn defective_vertices(tris: &[[u32; 3]]) -> Vec<u32> {
         .flatten()
         .copied()
         .collect();
-    for (&(a, b), &(f, r)) in &directed_edge_uses(tris) {
+    for &((a, b), (f, r)) in &directed_edge_uses(tris) {
         if f != 1 || r != 1 {
             bad.push(a);
             bad.push(b);
