@@ -1,6 +1,7 @@
 //! Automatic brightness and the logarithmic tone curve: transmission to 8-bit grey, with the
 //! collimator shutters.
 
+use super::rows::{par_rows, thread_count};
 use super::settings::{Exposure, Image, QuantumNoise, SHUTTER_GREY, TransmissionImage};
 
 /// Automatic brightness, log tone mapping and shutters: transmission to 8-bit grey, metered on
@@ -85,23 +86,30 @@ impl<T: Copy + Into<f64>> Samples<'_, T> {
         }
     }
 
-    /// See [`to_display_centred`].
+    /// See [`to_display_centred`]; the rows are split over `threads` workers (0: every core),
+    /// which does not change the image.
     pub(super) fn display_centred(
         self,
         exposure: &Exposure,
         invert: bool,
         noise: Option<&QuantumNoise>,
         centre: f64,
-    ) -> Image {
+        threads: usize,
+    ) -> Image
+    where
+        T: Sync,
+    {
         let floor = ln_t_floor(noise);
-        let pixels = (0..self.width * self.height)
-            .map(|p| {
-                if !self.exposed[p] {
-                    return SHUTTER_GREY;
+        let w = self.width;
+        let mut pixels = vec![SHUTTER_GREY; w * self.height];
+        par_rows(&mut pixels, w, thread_count(threads), |j, row| {
+            for (i, out) in row.iter_mut().enumerate() {
+                let p = j * w + i;
+                if self.exposed[p] {
+                    *out = grey(exposure, invert, centre, self.at(p).max(floor).ln());
                 }
-                grey(exposure, invert, centre, self.at(p).max(floor).ln())
-            })
-            .collect();
+            }
+        });
         Image {
             width: self.width as u32,
             height: self.height as u32,
@@ -119,7 +127,7 @@ pub fn to_display_centred(
     noise: Option<&QuantumNoise>,
     centre: f64,
 ) -> Image {
-    Samples::of(t).display_centred(exposure, invert, noise, centre)
+    Samples::of(t).display_centred(exposure, invert, noise, centre, 1)
 }
 
 /// The grey level of `ln T` around the set point `centre`.

@@ -82,26 +82,16 @@ pub fn finish_frame_f32(
 fn finish<T: Copy + Into<f64> + Sync>(t: Samples<'_, T>, settings: &RenderSettings) -> Image {
     let noise = settings.noise.as_ref();
     let centre = t.exposure_centre(&settings.exposure, noise);
-    let (e, invert) = (&settings.exposure, settings.invert);
-    let w = t.width;
-    let mut pixels = vec![SHUTTER_GREY; t.transmission.len()];
     let Some(noise) = noise else {
-        // `display_centred`'s arithmetic, its rows split over the workers.
-        let floor = ln_t_floor(None);
-        par_rows(&mut pixels, w, thread_count(settings.threads), |j, row| {
-            for (i, out) in row.iter_mut().enumerate() {
-                let p = j * w + i;
-                if t.exposed[p] {
-                    *out = grey(e, invert, centre, t.at(p).max(floor).ln());
-                }
-            }
-        });
-        return Image {
-            width: t.width as u32,
-            height: t.height as u32,
-            pixels,
-        };
+        return t.display_centred(
+            &settings.exposure,
+            settings.invert,
+            None,
+            centre,
+            settings.threads,
+        );
     };
+    let (e, invert) = (&settings.exposure, settings.invert);
     let floor = ln_t_floor(Some(noise));
     let n = noise.photons_per_pixel;
     let grey_of_count = |k: f64| grey(e, invert, centre, (k / n).max(floor).ln());
@@ -109,6 +99,8 @@ fn finish<T: Copy + Into<f64> + Sync>(t: Samples<'_, T>, settings: &RenderSettin
     // entries; rarer or larger counts are mapped directly.
     let table_len = (n + 8.0 * n.sqrt() + 16.0).clamp(16.0, 65_536.0) as usize;
     let table: Vec<u8> = (0..table_len).map(|k| grey_of_count(k as f64)).collect();
+    let w = t.width;
+    let mut pixels = vec![SHUTTER_GREY; t.transmission.len()];
     par_rows(&mut pixels, w, thread_count(settings.threads), |j, row| {
         for (i, out) in row.iter_mut().enumerate() {
             let p = j * w + i;
