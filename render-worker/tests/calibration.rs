@@ -69,9 +69,10 @@ impl FluoroRenderer for SluggishRenderer {
         if self.spin {
             // Busy for `delay` of this thread's own CPU time: the cost is the same however
             // many other threads share the cores (the wall time is at least as long).
-            let start = thread_cpu_ns();
+            let start = calibration::thread_cpu_s();
+            assert!(start > 0.0, "the thread's CPU clock");
             let mut x = 0u64;
-            while thread_cpu_ns() - start < delay.as_nanos() {
+            while calibration::thread_cpu_s() - start < delay.as_secs_f64() {
                 for _ in 0..1000 {
                     x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
                 }
@@ -81,23 +82,6 @@ impl FluoroRenderer for SluggishRenderer {
         }
         self.inner.render(needle, projection, settings, iodine)
     }
-}
-
-/// CPU time this thread has run, ns (`CLOCK_THREAD_CPUTIME_ID`, which brings the running
-/// thread's account up to date: `/proc/thread-self/schedstat` lags by up to a scheduler tick).
-#[expect(
-    unsafe_code,
-    reason = "clock_gettime(2) has no safe wrapper in std; it only writes `t`"
-)]
-fn thread_cpu_ns() -> u128 {
-    let mut t = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `t` is a valid, writable timespec for the call's duration.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) };
-    assert_eq!(rc, 0, "the thread's CPU clock");
-    t.tv_sec as u128 * 1_000_000_000 + t.tv_nsec as u128
 }
 
 /// Sessions of 128 x 128 pixels: a sixteenth of the shipped frame's work, the same code.

@@ -206,19 +206,31 @@ pub enum CalibrationError {
 }
 
 /// Process CPU time (user + system of every thread), s, from the kernel's run-time accounting
-/// (`clock_gettime(CLOCK_PROCESS_CPUTIME_ID)`, nanoseconds: `/proc/self/stat`'s 10 ms ticks are
-/// coarser than the few frames a calibration times); 0 where that clock is missing.
+/// (`CLOCK_PROCESS_CPUTIME_ID`, nanoseconds: `/proc/self/stat`'s 10 ms ticks are coarser than
+/// the few frames a calibration times); 0 where that clock is missing.
+pub fn process_cpu_s() -> f64 {
+    cpu_clock_s(libc::CLOCK_PROCESS_CPUTIME_ID)
+}
+
+/// The calling thread's CPU time, s (`CLOCK_THREAD_CPUTIME_ID`, which brings the running
+/// thread's account up to date: `/proc/thread-self/schedstat` lags by up to a scheduler tick);
+/// 0 where that clock is missing.
+pub fn thread_cpu_s() -> f64 {
+    cpu_clock_s(libc::CLOCK_THREAD_CPUTIME_ID)
+}
+
+/// `clock_gettime(clock)`, s; 0 where the call fails.
 #[expect(
     unsafe_code,
     reason = "clock_gettime(2) has no safe wrapper in std; it only writes `t`"
 )]
-pub fn process_cpu_s() -> f64 {
+fn cpu_clock_s(clock: libc::clockid_t) -> f64 {
     let mut t = libc::timespec {
         tv_sec: 0,
         tv_nsec: 0,
     };
     // SAFETY: `t` is a valid, writable timespec for the call's duration.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut t) };
+    let rc = unsafe { libc::clock_gettime(clock, &mut t) };
     if rc != 0 {
         return 0.0;
     }
@@ -274,6 +286,17 @@ impl Driver {
             session,
             seq: 0,
         })
+    }
+
+    /// A new session of `station_id` on `host` after its first shot (the time of that shot, ms),
+    /// with the work its renderer started in the background done: that work (the GPU
+    /// renderer's draft scene) would slow the frames timed next, and on a server it is done
+    /// after start-up.
+    fn first_shot(host: &SessionHost, station_id: &str) -> Result<(Driver, f64), String> {
+        let mut d = Driver::open(host, station_id)?;
+        let ms = d.frame_after(&[Command::Shot])?;
+        host.backends().fluoro.finish_background_work();
+        Ok((d, ms))
     }
 
     /// Applies `commands` and waits for the full fluoroscopy frame that reflects the last one
@@ -371,9 +394,7 @@ fn carm_frames(
     fluoro: Arc<dyn FluoroBackend>,
 ) -> Result<f64, String> {
     let host = calibration_host(station, region, config, fluoro);
-    let ms = Driver::open(&host, &station.0.id).and_then(|mut d| {
-        d.frame_after(&[Command::Shot])?;
-        host.backends().fluoro.finish_background_work();
+    let ms = Driver::first_shot(&host, &station.0.id).and_then(|(mut d, _)| {
         (0..FRAMES_PER_KIND)
             .map(|k| d.frame_after(&carm_move(k)))
             .try_fold(f64::INFINITY, |min, ms| Ok(min.min(ms?)))
@@ -441,11 +462,8 @@ fn measure(
     }
     let host = calibration_host(station, region, config, fluoro);
     let outcome = (|| -> Result<(), String> {
-        let mut d = Driver::open(&host, &station.0.id)?;
-        timing.first_frame_ms = d.frame_after(&[Command::Shot])?;
-        // Work the first renderer started in the background (the GPU renderer's draft scene)
-        // would slow the frames timed next: done first, as it is on a server after start-up.
-        host.backends().fluoro.finish_background_work();
+        let (mut d, first_ms) = Driver::first_shot(&host, &station.0.id)?;
+        timing.first_frame_ms = first_ms;
         if let Some(best) = best.map(|b| b.first_ms)
             && timing.first_frame_ms > GIVE_UP_FACTOR * best
             && timing.first_frame_ms - best > EARLY_STOP_NOISE_MS
