@@ -24,7 +24,6 @@ use std::time::Instant;
 
 use render_worker::fluoro::GpuFluoroRenderer;
 use render_worker::fluoro::draft::render_draft_frame;
-use render_worker::gpu::GpuContext;
 use render_worker::session::Region;
 use render_worker::session::loader::load_region;
 use sim_core::anatomy::phantom;
@@ -59,12 +58,8 @@ fn settings(noise: bool) -> RenderSettings {
 
 fn main() {
     let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
-    let ctx = match GpuContext::new_headless() {
-        Ok(c) => c,
-        Err(e) => {
-            println!("no GPU adapter, benchmark skipped: {e}");
-            return;
-        }
+    let Some(ctx) = common::gpu_or_skip() else {
+        return;
     };
     let frames = if quick { 3 } else { 8 };
     let sizes: &[u32] = if quick { &[512] } else { &[512, 1024] };

@@ -25,6 +25,9 @@
 //! `BENCH_QUICK=1`: two coarse meshes, GPU at both sizes, CPU reference at 512 x 512 only (under a
 //! minute on 2 cores in the dev profile). Without it: three meshes, CPU reference at both sizes.
 
+#[allow(dead_code)]
+mod common;
+
 use std::time::Instant;
 
 use render_worker::fluoro::{FrameTimings, GpuFluoroRenderer};
@@ -166,12 +169,8 @@ fn linear_rule_ln_t(
 
 fn main() {
     let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
-    let ctx = match GpuContext::new_headless() {
-        Ok(c) => c,
-        Err(e) => {
-            println!("no GPU adapter, benchmark skipped: {e}");
-            return;
-        }
+    let Some(ctx) = common::gpu_or_skip() else {
+        return;
     };
     let voxels: &[f64] = if quick { &[5.0, 3.5] } else { &[5.0, 3.0, 2.0] };
     let cpu_sizes: &[u32] = if quick { &[512] } else { &[512, 1024] };

@@ -9,6 +9,7 @@
 //!
 //! `BENCH_QUICK=1` repeats the epidural 2 times instead of 8 (CI).
 
+#[allow(dead_code)]
 mod common;
 
 use std::sync::Arc;

@@ -16,10 +16,12 @@
 //! `BENCH_QUICK=1`: the default and the 256-line variants of each probe, one repetition, no
 //! fine reference.
 
+#[allow(dead_code)]
+mod common;
+
 use std::time::Instant;
 
 use glam::DVec3;
-use render_worker::gpu::GpuContext;
 use render_worker::ultrasound::{GpuUltrasound, layered_test_volume};
 use sim_core::compare::Compare;
 use sim_core::stats::Timing;
@@ -51,12 +53,8 @@ fn errors(a: &BModeFrame, reference: &BModeFrame) -> (f64, f64) {
 
 fn main() {
     let quick = std::env::var_os("BENCH_QUICK").is_some();
-    let ctx = match GpuContext::new_headless() {
-        Ok(c) => c,
-        Err(e) => {
-            println!("no GPU adapter, nothing to measure: {e}");
-            return;
-        }
+    let Some(ctx) = common::gpu_or_skip() else {
+        return;
     };
     println!(
         "adapter: {} ({}, {})",

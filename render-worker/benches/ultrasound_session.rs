@@ -7,6 +7,7 @@
 //!
 //! `BENCH_QUICK=1` runs 3 moves instead of 15 (CI).
 
+#[allow(dead_code)]
 mod common;
 
 use std::collections::BTreeSet;

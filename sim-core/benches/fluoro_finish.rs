@@ -7,7 +7,7 @@
 //! and two pedicle ovals, with collimator shutters on the outer 4 % of each side; 3,750 quanta
 //! per open pixel (the session default at 2.5 mA). Rows: each phase alone (the metering median,
 //! the noisy counts, the whole finish) at 512^2 and 1024^2 on every core, median of the runs,
-//! and the FNV-1a hash of the frame, which the noise makes depend on every count (the hash is
+//! and the frame's SHA-256 (its first 16 hex digits), which the noise makes depend on every count (the hash is
 //! the same for any thread count: each pixel has its own seed).
 //!
 //! Then the weighing of a branch-free generator against the exact one (#28 asks to weigh a
@@ -25,7 +25,9 @@ use std::time::Instant;
 use sim_core::fluoro::TransmissionImage;
 use sim_core::fluoro::render::{apply_noise, exposure_centre, finish_frame_f32};
 use sim_core::fluoro::{Exposure, QuantumNoise, RenderSettings};
+use sim_core::hash::sha256_hex;
 use sim_core::rng::{splitmix64, unit_f64};
+use sim_core::stats::Timing;
 
 /// A `side`^2 transmission and its exposure mask.
 fn field(side: u32) -> (Vec<f32>, Vec<bool>) {
@@ -45,24 +47,6 @@ fn field(side: u32) -> (Vec<f32>, Vec<bool>) {
         }
     }
     (t, exposed)
-}
-
-fn median_ms(runs: usize, mut f: impl FnMut()) -> f64 {
-    let mut v: Vec<f64> = (0..runs)
-        .map(|_| {
-            let t = Instant::now();
-            f();
-            t.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
-fn fnv1a(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, &b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
-    })
 }
 
 fn main() {
@@ -97,22 +81,25 @@ fn main() {
             exposed: exposed.clone(),
             supersampled_pixels: 0,
         };
-        let metering = median_ms(runs, || {
+        let metering = Timing::run(runs, || {
             std::hint::black_box(exposure_centre(
                 &t64,
                 &Exposure::default(),
                 noisy.noise.as_ref(),
             ));
-        });
-        let mut hash = 0;
-        let whole = median_ms(runs, || {
-            let img = finish_frame_f32(side, side, &t, &exposed, &noisy);
-            hash = fnv1a(&img.pixels);
-        });
-        let plain = median_ms(runs, || {
+        })
+        .median_ms();
+        let whole = Timing::run(runs, || {
+            std::hint::black_box(finish_frame_f32(side, side, &t, &exposed, &noisy));
+        })
+        .median_ms();
+        let plain = Timing::run(runs, || {
             std::hint::black_box(finish_frame_f32(side, side, &t, &exposed, &clean));
-        });
-        println!("| {side} | {metering:.2} | {whole:.2} | {plain:.2} | {hash:016x} |");
+        })
+        .median_ms();
+        let frame = finish_frame_f32(side, side, &t, &exposed, &noisy);
+        let hash = &sha256_hex(&frame.pixels)[..16];
+        println!("| {side} | {metering:.2} | {whole:.2} | {plain:.2} | {hash} |");
     }
     weigh_generators(quick);
 }

@@ -1,9 +1,18 @@
-//! What the session benches share: the procedural phantom as a region and a station resolved on
-//! it.
+//! What the benches share: the GPU context (or a skipped run without one), the procedural
+//! phantom as a region and a station resolved on it.
 
 use std::sync::Arc;
 
+use render_worker::gpu::GpuContext;
 use render_worker::session::{Region, StationContext, sha256_hex};
+
+/// The headless GPU context (a real GPU or lavapipe), or `None` after saying that the bench is
+/// skipped because no adapter opened.
+pub fn gpu_or_skip() -> Option<GpuContext> {
+    GpuContext::new_headless()
+        .inspect_err(|e| println!("no GPU adapter, benchmark skipped: {e}"))
+        .ok()
+}
 
 /// The phantom meshed at `voxel_mm`, cached by parameter hash in the workspace's test scratch
 /// folder under the name the tests use (`phantom-lumbar-<voxel>mm`), so a bench run after the
