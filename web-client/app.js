@@ -317,6 +317,7 @@ async function openSession(attemptId, stationId) {
       if (o.dose) $('dose').textContent = doseWords(o.dose);
       // The rate the session runs at, as the fluoroscopy modality acknowledged it.
       if (o.pulse_rate_pps != null) { $('pps').value = String(o.pulse_rate_pps); window.__sim.pulseRate = o.pulse_rate_pps; }
+      if (o.technique) showTechnique(o.technique);
     });
     live.addEventListener('commanderror', (e) => {
       needle.error(e.detail);
@@ -369,10 +370,33 @@ $('angular').addEventListener('input', (e) => { pose.angular = Number(e.target.v
 $('kvp').replaceChildren(...Array.from({ length: 17 }, (_, i) => 40 + 5 * i).map((v) => el('option', { value: String(v), textContent: String(v), selected: v === 80 })));
 function sendTechnique() {
   const ma = Number($('ma').value);
-  if (live && ma >= 0.1 && ma <= 20) live.send({ type: 'technique', kvp: Number($('kvp').value), ma });
+  if (live && ma >= 0.1 && ma <= 20) {
+    // A technique set by hand turns the automatic brightness control off (as on a C-arm).
+    $('abc').value = 'manual';
+    live.send({ type: 'technique', kvp: Number($('kvp').value), ma });
+  }
 }
 $('kvp').addEventListener('change', sendTechnique);
 $('ma').addEventListener('change', sendTechnique);
+$('abc').addEventListener('change', (e) => {
+  if (!live) return;
+  if (e.target.value === 'manual') sendTechnique();
+  else live.send({ type: 'brightness', curve: e.target.value });
+});
+/** The technique of the image on display (fluoroscopy acks) and what the next exposure uses:
+ * the brightness control steps it after every frame. */
+function showTechnique(t) {
+  if (window.__sim) window.__sim.technique = t;
+  $('abc').value = t.brightness;
+  $('kvp').value = String(t.next_kvp);
+  $('ma').value = String(t.next_ma);
+  const limited = { curve: 'top of the curve', current: 'tube current', power: 'tube power', skin_rate: '88 mGy/min skin limit' };
+  const parts = [`${t.kvp} kVp`, `${fmt(t.ma, 2)} mA`];
+  if (t.pulse_rate_pps != null) parts.push(`${t.pulse_rate_pps} pulses/s`);
+  if (t.detector_kerma_ngy != null) parts.push(`detector ${fmt(t.detector_kerma_ngy, 1)} nGy`);
+  if (t.limited_by) parts.push(`held by the ${limited[t.limited_by] || t.limited_by}`);
+  $('technique').textContent = parts.join(' · ');
+}
 $('shot').addEventListener('click', () => live && live.send({ type: 'shot' }));
 // Pulsed fluoroscopy: the learner's pulse rate (the session starts at the hello's
 // `default_pulse_rate_pps`). While live runs the client ticks the session clock once per pulse,

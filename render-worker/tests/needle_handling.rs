@@ -643,6 +643,8 @@ fn skin_distance_by_every_triangle_mm(origin: DVec3, dir: DVec3) -> f64 {
 #[test]
 fn the_dose_estimate_follows_the_inverse_square_and_the_live_time() {
     let mut r = Run::new(env(EPIDURAL), quiet());
+    // A technique set by hand (the brightness control would step it after each frame).
+    r.ok(400, Command::Technique { kvp: 80, ma: 2.0 });
     r.ok(500, Command::Shot);
     let m1 = r.s.measurements();
     // Independent: the source from the pose, the skin by testing every triangle of its mesh.

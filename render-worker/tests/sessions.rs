@@ -5,6 +5,7 @@
 //! frame renders in milliseconds. The fixtures live in `sessions/support.rs` (other test modules
 //! use them through this module); the tests are grouped by concern in `sessions/`.
 
+mod brightness;
 mod pulsed;
 mod rendering;
 mod replay;
@@ -19,7 +20,7 @@ use support::{env, fluoro_only, place};
 
 /// The scripted session of `frames_of_a_scripted_session_are_pinned`: shots, C-arm moves, a
 /// live run with needle motion, an annotation and a submit, rendering after every step.
-fn scripted_frames_sha256(env: SessionEnv) -> (String, usize) {
+fn scripted_frames_sha256(env: SessionEnv, recorded_before: bool) -> (String, usize) {
     use sha2::{Digest, Sha256};
     let steps: Vec<(u64, Command)> = vec![
         (0, Command::Shot),
@@ -42,11 +43,18 @@ fn scripted_frames_sha256(env: SessionEnv) -> (String, usize) {
         ),
         (1200, Command::Submit),
     ];
-    // The script predates pulsed fluoroscopy: it runs on a session without a pulse rate (one
-    // recorded before pulsing), which keeps the continuous beam the hashes were recorded with.
+    // The script predates pulsed fluoroscopy, the brightness control and the detector's
+    // noise model: `recorded_before` runs it on a session without them (one recorded before),
+    // which keeps the continuous beam, the manual technique and the noise the first hashes
+    // were recorded with; otherwise on a session of today.
     let mut initial = Session::new(env.clone(), config()).snapshot();
     if let Some(f) = initial.modalities.get_mut("fluoroscopy") {
-        f.as_object_mut().unwrap().remove("pulse_rate_pps");
+        let f = f.as_object_mut().unwrap();
+        if recorded_before {
+            for field in ["pulse_rate_pps", "brightness", "detector_noise"] {
+                assert!(f.remove(field).is_some(), "a new session has {field}");
+            }
+        }
     }
     let mut s = Session::restore(env, &initial, &[]).unwrap();
     let mut h = Sha256::new();
@@ -73,18 +81,27 @@ fn scripted_frames_sha256(env: SessionEnv) -> (String, usize) {
 /// recorded on (another driver or vector width rounds differently).
 #[test]
 fn frames_of_a_scripted_session_are_pinned() {
-    let (cpu, n) = scripted_frames_sha256(env());
+    let (cpu, n) = scripted_frames_sha256(env(), true);
     eprintln!("scripted session, CPU reference: {n} frames, sha256 {cpu}");
     assert_eq!(n, 8);
     assert_eq!(
         cpu,
         "46845c29b961755f6987ea9a78e173e848112eabb0386a518704740a34839355"
     );
+    // Today's session: pulsed, under the brightness control, detector noise (pinned when the
+    // control came).
+    let (today, n) = scripted_frames_sha256(env(), false);
+    eprintln!("scripted session of today, CPU reference: {n} frames, sha256 {today}");
+    assert_eq!(n, 7, "a change waits for its pulse");
+    assert_eq!(
+        today,
+        "535b25b81c8d69f01a3cf8209500964edc4115bb84a6587ff7efad0ca444b68c"
+    );
     if let Some(ctx) = render_worker::gpu::context_for_tests() {
         let adapter = ctx.summary.name.clone();
         let mut gpu_env = env();
         gpu_env.backends = Backends::gpu(ctx);
-        let (gpu, n) = scripted_frames_sha256(gpu_env);
+        let (gpu, n) = scripted_frames_sha256(gpu_env, true);
         eprintln!("scripted session, GPU ({adapter}): {n} frames, sha256 {gpu}");
         assert_eq!(n, 8);
         if adapter == "llvmpipe (LLVM 15.0.6, 256 bits)" {

@@ -142,9 +142,12 @@ await runReport(async (page, report) => {
     for (const t of await readouts(page)) if (TELLTALE.test(t)) telltales.push(`${step}: ${t}`);
   };
 
-  // AP view (tilted cranio-caudally when the trajectory squares an endplate that way), one shot
-  // (quantum noise is off on this server: a second shot of the same view is the same image).
+  // AP view (tilted cranio-caudally when the trajectory squares an endplate that way), two
+  // shots: the brightness control steps the technique after a view's first frame (the session
+  // starts at 80 kVp, 2 mA), so the second is exposed at the settled technique, and a third
+  // shot of the same view is the same image (quantum noise is off on this server).
   if (AP_ANGULAR_DEG !== 0) await carmTo(page, 0, AP_ANGULAR_DEG);
+  await shot(page, '1-ap-first');
   const ap1 = await shot(page, '1-ap');
   report.dose_after_ap = await page.textContent('#dose');
   report.steps.push('ap');

@@ -30,6 +30,8 @@ fn live_images(s: &Session) -> Vec<u64> {
 fn live_dose_follows_the_pulse_rate() {
     for pps in [4.0, 7.5, 15.0, 30.0] {
         let mut d = Driver::new();
+        // A technique set by hand (the brightness control would step it after each frame).
+        d.ok(400, Command::Technique { kvp: 80, ma: 2.0 });
         d.ok(500, Command::Shot);
         let shot = d.s.measurements()["air_kerma_mgy"];
         d.ok(600, pulse_rate(pps));
@@ -47,6 +49,7 @@ fn live_dose_follows_the_pulse_rate() {
     // A new session runs at 7.5 pulses per second until the learner picks another rate, and a
     // change of rate mid-run books the seconds before it at the old rate.
     let mut d = Driver::new();
+    d.ok(400, Command::Technique { kvp: 80, ma: 2.0 });
     d.ok(500, Command::Shot);
     let shot = d.s.measurements()["air_kerma_mgy"];
     d.ok(1000, Command::Live { on: true });
@@ -168,7 +171,10 @@ fn recorded_before_pulsing() -> Session {
         fluoro["pulse_rate_pps"], 7.5,
         "a new session starts at 7.5 pps"
     );
-    fluoro.as_object_mut().unwrap().remove("pulse_rate_pps");
+    // Recorded before pulsing, so also before the brightness control and the detector's noise.
+    for field in ["pulse_rate_pps", "brightness", "detector_noise"] {
+        fluoro.as_object_mut().unwrap().remove(field);
+    }
     Session::restore(env(), &snapshot, &[]).unwrap()
 }
 

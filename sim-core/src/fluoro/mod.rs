@@ -12,7 +12,9 @@
 //!    collimator shutters.
 //!
 //! [`dose`] estimates the incident air kerma and kerma-area product of an exposure from the same
-//! spectra (an estimate, not a dose record).
+//! spectra (an estimate, not a dose record); [`detector`] turns an exposure into the detector's
+//! air kerma and detected quanta (the noise of a frame), and [`brightness`] is the automatic
+//! brightness control that steps the technique to hold the detector kerma at a target.
 //!
 //! The GPU renderer in `render-worker` reproduces steps 1 to 4 and is tested against this module.
 //! Units: millimetres for geometry, per-centimetre attenuation coefficients (as tabulated), and
@@ -43,7 +45,9 @@
 
 pub mod analytic;
 pub mod attenuation;
+pub mod brightness;
 pub mod contrast;
+pub mod detector;
 pub mod dose;
 pub mod draft;
 pub mod geometry;

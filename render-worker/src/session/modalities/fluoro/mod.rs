@@ -10,6 +10,7 @@
 //! caught up, or after a restore) is exactly the image of that moment.
 
 mod backend;
+pub mod brightness;
 pub mod dose;
 pub mod draft;
 pub mod pulse;
@@ -19,6 +20,8 @@ use std::sync::Arc;
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
+use sim_core::fluoro::brightness::{FrameExposure, Technique};
+use sim_core::fluoro::detector::{FLAT_PANEL_DQE, detected_quanta_per_pixel};
 use sim_core::fluoro::{
     Collimation, EnergyModel, IodineField, Projection, QuantumNoise, RenderSettings,
 };
@@ -46,8 +49,9 @@ use crate::session::world::{World, WorldChange};
 /// Fluoroscopy time booked for one single-shot acquisition, ms. Simulator choice: C-arms display
 /// fluoroscopy time in 0.1 s steps, and a single pulse-and-hold shot books one step.
 pub const SHOT_EXPOSURE_MS: u64 = 100;
-/// Mean detected quanta per pixel at 1 mA. Simulator choice: a few thousand quanta per pixel at
-/// typical fluoroscopy currents (2 to 3 mA) gives visible but not dominant grain.
+/// Mean detected quanta per pixel at 1 mA of an image recorded before the detector model
+/// (without [`AcquiredImage::mas`]). Simulator choice of that time: a few thousand quanta per
+/// pixel at typical fluoroscopy currents (2 to 3 mA) gives visible but not dominant grain.
 pub const PHOTONS_PER_PIXEL_PER_MA: f64 = 1500.0;
 /// An acquisition counts as an AP view when its orbital rotation is within this many degrees of
 /// zero. Simulator choice: beyond 10 degrees a view is read as oblique.
@@ -81,6 +85,15 @@ pub struct AcquiredImage {
     /// Version of the world's iodine field imaged (absent when there was none).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub iodine_version: Option<u64>,
+    /// Tube charge of the frame, mAs: its quantum noise follows the detector kerma it gives
+    /// (`sim_core::fluoro::detector`). Absent in images recorded before the detector model,
+    /// which keep [`PHOTONS_PER_PIXEL_PER_MA`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mas: Option<f64>,
+    /// Primary detector air kerma per pulse over the metering disc at this frame's technique,
+    /// nGy (what the automatic brightness control measured; see [`brightness`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detector_kerma_ngy: Option<f64>,
 }
 
 /// A mark on an image.
@@ -138,6 +151,15 @@ pub struct FluoroState {
     /// The radiation estimate booked so far.
     #[serde(default, skip_serializing_if = "DoseTally::is_empty")]
     pub dose: DoseTally,
+    /// Automatic brightness control, or `None` for a technique set by hand (and in sessions
+    /// recorded before the control existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub brightness: Option<brightness::BrightnessState>,
+    /// Frames record their charge ([`AcquiredImage::mas`]) and their noise follows the
+    /// detector kerma; `false` in sessions recorded before the detector model, whose frames keep
+    /// [`PHOTONS_PER_PIXEL_PER_MA`] so that their replay gives what was recorded.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub detector_noise: bool,
 }
 
 /// The fluoroscopy modality.
@@ -153,6 +175,8 @@ pub struct FluoroModality {
     /// The iodine field of the last image acquired in this process (not part of the state: it
     /// is the world's field of that moment, see [`AcquiredImage::iodine_version`]).
     image_iodine: Option<Arc<IodineField>>,
+    /// The automatic brightness control's metering of the current view.
+    metering: brightness::MeteringCache,
 }
 
 impl std::fmt::Debug for FluoroModality {
@@ -165,7 +189,8 @@ impl std::fmt::Debug for FluoroModality {
 }
 
 impl FluoroModality {
-    /// A C-arm in the AP position at 80 kVp / 2 mA, centred on `isocentre_mm`.
+    /// A C-arm in the AP position at 80 kVp / 2 mA under automatic brightness control on the
+    /// standard curve, centred on `isocentre_mm`.
     pub fn new(
         config: FluoroConfig,
         isocentre_mm: [f64; 3],
@@ -192,12 +217,15 @@ impl FluoroModality {
                 annotations: Vec::new(),
                 seed,
                 dose: DoseTally::default(),
+                brightness: Some(brightness::BrightnessState::on(brightness::DEFAULT_CURVE)),
+                detector_noise: true,
             },
             backend,
             rendered: None,
             drafted: None,
             renderer: None,
             image_iodine: None,
+            metering: brightness::MeteringCache::default(),
         }
     }
 
@@ -311,21 +339,37 @@ impl FluoroModality {
         world: &World,
     ) -> Option<(AcquiredImage, RenderSettings, Option<Arc<IodineField>>)> {
         let image = self.state.images.last()?.clone();
-        let settings = self.render_settings(image.kvp, image.ma, image.noise_seed);
+        let settings = self.render_settings(image.kvp, image.ma, image.mas, image.noise_seed);
         let iodine = image
             .iodine_version
             .and(self.image_iodine.clone().or_else(|| world.iodine.clone()));
         Some((image, settings, iodine))
     }
 
-    /// How an image of technique `kvp`, `ma` is rendered, with noise seed `seed`.
-    fn render_settings(&self, kvp: u32, ma: f64, seed: u64) -> RenderSettings {
+    /// How an image of technique `kvp`, `ma` and charge `mas` (see [`AcquiredImage::mas`]) is
+    /// rendered, with noise seed `seed`.
+    fn render_settings(&self, kvp: u32, ma: f64, mas: Option<f64>, seed: u64) -> RenderSettings {
+        let c = &self.state.config;
+        let photons_per_pixel = match mas {
+            Some(mas) => {
+                let pitch_mm = c.detector_mm / f64::from(c.detector_pixels);
+                detected_quanta_per_pixel(
+                    kvp,
+                    mas,
+                    self.projection().source_to_detector_mm(),
+                    pitch_mm * pitch_mm,
+                    FLAT_PANEL_DQE,
+                )
+                .unwrap_or(PHOTONS_PER_PIXEL_PER_MA * ma)
+            }
+            None => PHOTONS_PER_PIXEL_PER_MA * ma,
+        };
         RenderSettings {
             energy: EnergyModel::Spectral { kvp },
             supersample: self.state.config.supersample,
             adaptive: true,
             noise: self.state.config.noise.then_some(QuantumNoise {
-                photons_per_pixel: PHOTONS_PER_PIXEL_PER_MA * ma,
+                photons_per_pixel,
                 seed,
             }),
             ..RenderSettings::default()
@@ -382,20 +426,63 @@ impl FluoroModality {
     fn acquire(&mut self, world: &World, live: bool) {
         let index = self.state.images.len() as u64;
         let needle = self.instruments(world);
+        let projection = self.projection();
+        let technique = Technique {
+            kvp: self.state.kvp,
+            ma: self.state.ma,
+        };
+        // A live pulse carries a video frame's charge, a shot the current for its exposure.
+        let seconds = if live {
+            brightness::PULSE_S
+        } else {
+            SHOT_EXPOSURE_MS as f64 / 1000.0
+        };
+        let exposure = FrameExposure {
+            frame_s: brightness::PULSE_S,
+            duty: self.live_duty(),
+            source_to_detector_mm: projection.source_to_detector_mm(),
+            source_to_skin_mm: dose::source_to_skin_mm(&world.region, &projection),
+        };
+        let metering = self.metering.get(&world.region, &projection);
+        let (measured, next) =
+            brightness::step(&mut self.state.brightness, metering, technique, &exposure);
         self.state.images.push(AcquiredImage {
             index,
             t_ms: world.clock_ms,
-            projection: self.projection(),
-            kvp: self.state.kvp,
-            ma: self.state.ma,
+            projection,
+            kvp: technique.kvp,
+            ma: technique.ma,
             live,
             needle,
             noise_seed: sim_core::rng::splitmix64(
                 self.state.seed ^ index.wrapping_mul(sim_core::rng::GOLDEN_GAMMA),
             ),
             iodine_version: world.iodine.as_ref().map(|_| world.iodine_version),
+            mas: self.state.detector_noise.then_some(technique.ma * seconds),
+            detector_kerma_ngy: measured.is_finite().then_some(measured),
         });
         self.image_iodine = world.iodine.clone();
+        if let Some(next) = next {
+            // A live run so far is booked at the technique it ran with.
+            self.book_live(world);
+            self.state.kvp = next.kvp;
+            self.state.ma = next.ma;
+        }
+    }
+
+    /// The technique of the image on display and the control's state, for acks.
+    fn technique_json(&self) -> serde_json::Value {
+        let shown = self.state.images.last();
+        serde_json::json!({
+            "kvp": shown.map_or(self.state.kvp, |i| i.kvp),
+            "ma": shown.map_or(self.state.ma, |i| i.ma),
+            "pulse_rate_pps": self.state.pulse_rate_pps,
+            "brightness": self.state.brightness.map_or("manual", |b| b.curve.name()),
+            "limited_by": self.state.brightness.and_then(|b| b.limited_by),
+            "detector_kerma_ngy": shown.and_then(|i| i.detector_kerma_ngy),
+            "next_kvp": self.state.kvp,
+            "next_ma": self.state.ma,
+        })
     }
 }
 
@@ -461,6 +548,7 @@ pub static SPEC: ModalitySpec = ModalitySpec {
         CommandSpec::new("live", Some(Engagement::ImageAcquired)),
         CommandSpec::new("annotate", None),
         CommandSpec::new(pulse::PULSE_RATE_KIND, None),
+        CommandSpec::new(brightness::BRIGHTNESS_KIND, None),
     ],
     constants: &[("default_pulse_rate_pps", pulse::DEFAULT_PULSE_RATE_PPS)],
 };
@@ -508,6 +596,8 @@ impl Modality for FluoroModality {
             }
             Command::Technique { kvp, ma } => {
                 self.book_live(world);
+                // A technique set by hand turns the automatic control off.
+                self.state.brightness = None;
                 self.state.kvp = *kvp;
                 self.state.ma = *ma;
                 self.live_change(world);
@@ -576,6 +666,11 @@ impl Modality for FluoroModality {
                 self.book_live(world);
                 self.state.pulse_rate_pps = Some(pps);
             }
+            Command::Modality(c) if c.kind() == brightness::BRIGHTNESS_KIND => {
+                let curve = brightness::parse(c)?;
+                // The next frame follows the new curve from the current technique.
+                self.state.brightness = Some(brightness::BrightnessState::on(curve));
+            }
             other => {
                 return Err(CommandError::field(
                     "command.type",
@@ -585,6 +680,7 @@ impl Modality for FluoroModality {
             }
         }
         Ok(serde_json::json!({
+            "technique": self.technique_json(),
             "pulse_rate_pps": self.state.pulse_rate_pps,
             "acquisitions": self.state.shots + self.state.live_runs,
             "exposure_s": self.exposure_ms_at(now) as f64 / 1000.0,
@@ -710,7 +806,7 @@ impl Modality for FluoroModality {
         if !self.state.images.is_empty() || !self.backend.prefetches() {
             return Ok(());
         }
-        let settings = self.render_settings(self.state.kvp, self.state.ma, 0);
+        let settings = self.render_settings(self.state.kvp, self.state.ma, None, 0);
         let (needle, projection) = (self.instruments(world), self.projection());
         self.renderer(world)?
             .prefetch(

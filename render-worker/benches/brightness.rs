@@ -1,0 +1,111 @@
+//! Automatic brightness control on the lumbar phantom: what it costs a frame and where it
+//! drives the technique.
+//!
+//! Per view (AP, 25 degree oblique, lateral) of the phantom at the L4 body centre:
+//! - the metering of a new view (the central disc's rays through the scene, what a C-arm move
+//!   adds to the next frame) and one controller step (what every frame adds; a needle step or a
+//!   new shot at the same pose reuses the metering), median of the runs;
+//! - per curve, the technique the loop settles on from 80 kVp / 2 mA, the frames it takes to
+//!   come within 5 % of the target, the skin entrance rate at 7.5 pulses per second, and the
+//!   detected quanta of an unattenuated 512^2 and 1024^2 pixel per pulse at that technique (the
+//!   noise the frame gets).
+//!
+//! `BENCH_QUICK=1`: the 3.5 mm phantom (cached where the other benches cache it) and 5 runs;
+//! otherwise the 1.5 mm phantom that sessions use and 21 runs.
+
+#[allow(dead_code)]
+mod common;
+
+use std::time::Instant;
+
+use render_worker::session::modalities::fluoro::dose::source_to_skin_mm;
+use sim_core::fluoro::Projection;
+use sim_core::fluoro::brightness::{
+    BrightnessCurve, FrameExposure, METERING_RAYS_ACROSS, Technique, TubeLimits, meter,
+    next_technique, skin_kerma_rate_mgy_per_min,
+};
+use sim_core::fluoro::detector::{FLAT_PANEL_DQE, detected_quanta_per_pixel};
+use sim_core::stats::Timing;
+
+fn main() {
+    let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
+    let (voxel_mm, runs) = if quick { (3.5, 5) } else { (1.5, 21) };
+    let t0 = Instant::now();
+    let region = common::phantom_region(voxel_mm);
+    println!(
+        "Automatic brightness control, lumbar phantom at {voxel_mm} mm ({} triangles, ready in \
+         {:.1} s), {} rays across the metering disc, 7.5 pulses per second",
+        region.scene.triangle_count(),
+        t0.elapsed().as_secs_f64(),
+        METERING_RAYS_ACROSS
+    );
+    let iso = region.landmarks["L4_body_centre"];
+    let limits = TubeLimits::default();
+    println!();
+    println!(
+        "| view | rays | metering a new view, ms | one step, us | curve | settles on | frames to 5 % | skin mGy/min | quanta per 512^2 px | per 1024^2 px |"
+    );
+    println!("|---|---:|---:|---:|---|---|---:|---:|---:|---:|");
+    for (name, orbital) in [("AP", 0.0), ("oblique 25", 25.0), ("lateral", 90.0)] {
+        let p = Projection {
+            orbital_deg: orbital,
+            isocentre_mm: iso,
+            detector_pixels: [512, 512],
+            pixel_pitch_mm: [300.0 / 512.0; 2],
+            ..Projection::default()
+        };
+        let mut meter_s = Vec::new();
+        let mut m = meter(&region.scene, &p, METERING_RAYS_ACROSS);
+        for _ in 0..runs {
+            let t = Instant::now();
+            m = meter(&region.scene, &p, METERING_RAYS_ACROSS);
+            meter_s.push(t.elapsed().as_secs_f64());
+        }
+        let e = FrameExposure {
+            frame_s: 1.0 / 30.0,
+            duty: 0.25,
+            source_to_detector_mm: p.source_to_detector_mm(),
+            source_to_skin_mm: source_to_skin_mm(&region, &p),
+        };
+        for curve in BrightnessCurve::ALL {
+            let target = curve.target_ngy_per_frame();
+            let mut t = Technique { kvp: 80, ma: 2.0 };
+            let mut first_within = None;
+            let mut step_s = Vec::new();
+            for frame in 0..8 {
+                let s0 = Instant::now();
+                let k = m.detector_kerma_ngy(t, &e);
+                let step = next_technique(curve, &limits, &e, t, k);
+                step_s.push(s0.elapsed().as_secs_f64());
+                if first_within.is_none() && (k / target - 1.0).abs() <= 0.05 {
+                    first_within = Some(frame);
+                }
+                t = step.technique;
+            }
+            let quanta = |side: f64| {
+                let pitch = 300.0 / side;
+                detected_quanta_per_pixel(
+                    t.kvp,
+                    t.ma / 30.0,
+                    p.source_to_detector_mm(),
+                    pitch * pitch,
+                    FLAT_PANEL_DQE,
+                )
+                .unwrap_or(f64::NAN)
+            };
+            println!(
+                "| {name} | {} | {:.2} | {:.1} | {} | {} kVp {:.2} mA | {} | {:.1} | {:.0} | {:.0} |",
+                m.depths.len(),
+                Timing::from_seconds(meter_s.iter().copied()).median_ms(),
+                Timing::from_seconds(step_s.iter().copied()).median_s() * 1e6,
+                curve.name(),
+                t.kvp,
+                t.ma,
+                first_within.map_or("never".into(), |f| f.to_string()),
+                skin_kerma_rate_mgy_per_min(t, &e),
+                quanta(512.0),
+                quanta(1024.0),
+            );
+        }
+    }
+}
