@@ -318,6 +318,7 @@ async function openSession(attemptId, stationId) {
       // The rate the session runs at, as the fluoroscopy modality acknowledged it.
       if (o.pulse_rate_pps != null) { $('pps').value = String(o.pulse_rate_pps); window.__sim.pulseRate = o.pulse_rate_pps; }
       if (o.technique) showTechnique(o.technique);
+      if (o.collimation !== undefined && window.__sim) window.__sim.collimation = o.collimation;
     });
     live.addEventListener('commanderror', (e) => {
       needle.error(e.detail);
@@ -378,6 +379,20 @@ function sendTechnique() {
 }
 $('kvp').addEventListener('change', sendTechnique);
 $('ma').addEventListener('change', sendTechnique);
+// Collimator: blades closing symmetrically and an iris, in the detector plane (the session's
+// `collimation` command); the image shows the shutters, the dose readout the smaller KAP.
+function sendCollimation() {
+  $('coll-width-out').textContent = $('coll-width').value;
+  $('coll-height-out').textContent = $('coll-height').value;
+  if (!live) return;
+  const iris = $('coll-iris').value;
+  live.send({ type: 'collimation', width_mm: Number($('coll-width').value), height_mm: Number($('coll-height').value), iris_diameter_mm: iris === '' ? null : Number(iris) });
+}
+$('coll-width').addEventListener('change', sendCollimation);
+$('coll-height').addEventListener('change', sendCollimation);
+$('coll-iris').addEventListener('change', sendCollimation);
+$('coll-width').addEventListener('input', () => { $('coll-width-out').textContent = $('coll-width').value; });
+$('coll-height').addEventListener('input', () => { $('coll-height-out').textContent = $('coll-height').value; });
 $('abc').addEventListener('change', (e) => {
   if (!live) return;
   if (e.target.value === 'manual') sendTechnique();

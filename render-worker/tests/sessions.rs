@@ -6,6 +6,7 @@
 //! use them through this module); the tests are grouped by concern in `sessions/`.
 
 mod brightness;
+mod collimation;
 mod pulsed;
 mod rendering;
 mod replay;

@@ -161,11 +161,23 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
             "rotated",
             "needle",
             "injected",
+            "collimated",
             "submitted",
             "totp",
             "approved"
         ]
     );
+    // The collimator: shutters at half the width (150 mm of 300) and a 230 mm iris. Behind the
+    // shutters (5 % in from each side) and outside the iris (a top corner of the blades'
+    // field) the shutter black; the middle shows the patient.
+    let c = &report["collimated"];
+    assert_eq!(c["field"]["width_mm"], 150.0, "{c:#}");
+    assert_eq!(c["field"]["iris_diameter_mm"], 230.0, "{c:#}");
+    assert_eq!(c["width_readout"], "150", "{c:#}");
+    for k in ["left_edge", "right_edge", "corner"] {
+        assert!(c[k].as_u64().unwrap() <= 8, "{k}: {c:#}");
+    }
+    assert!(c["centre"].as_u64().unwrap() > 8, "{c:#}");
 
     // Frames are not blank: a fluoroscopy image of the demo boxes has bone and soft tissue, so
     // its grey levels spread (a blank or single-grey canvas has a standard deviation near 0;

@@ -241,6 +241,28 @@ await runReport(async (page, report) => {
     // alone (the chance that one of two equal-size noise samples holds the joint maximum).
     needle_blocks_above_noise_max: countAbove(rotated, needle, maxAbsDiff(first, repeat)),
   };
+  // Collimator: the shutters closed to half the width and the iris in; the next shot shows the
+  // shutters (black at the edges, the image in the middle) and the acknowledgement the field.
+  const acksBeforeCollimation = await acksSoFar(page);
+  await page.fill('#coll-width', '150');
+  await page.dispatchEvent('#coll-width', 'change');
+  await page.selectOption('#coll-iris', '230');
+  await waitUntil(page, (n) => window.__sim.stats.acks >= n + 2, acksBeforeCollimation);
+  await act(page, () => page.click('#shot'));
+  await capture(page, '9-collimated');
+  report.collimated = await page.evaluate(() => {
+    const c = document.getElementById('fluoro');
+    const px = (x, y) => c.getContext('2d').getImageData(x, y, 1, 1).data[0];
+    return {
+      field: window.__sim.collimation,
+      left_edge: px(Math.round(c.width * 0.05), Math.round(c.height / 2)),
+      right_edge: px(Math.round(c.width * 0.95), Math.round(c.height / 2)),
+      centre: px(Math.round(c.width / 2), Math.round(c.height / 2)),
+      corner: px(Math.round(c.width * 0.3), Math.round(c.height * 0.05)),
+      width_readout: document.getElementById('coll-width-out').textContent,
+    };
+  });
+  report.steps.push('collimated');
   report.readout = { latency: await page.textContent('#latency'), fps: await page.textContent('#fps') };
   report.command_errors = await page.evaluate(() => window.__sim.stats.errors);
   report.session_log = await page.textContent('#session-log');

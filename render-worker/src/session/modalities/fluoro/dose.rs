@@ -64,16 +64,23 @@ pub fn source_to_skin_mm(region: &Region, projection: &Projection) -> f64 {
     )
 }
 
-/// Collimated field area in the detector plane, mm^2 (the blades clipped to the detector).
+/// Collimated field area in the detector plane, mm^2 (the blades clipped to the detector, and
+/// inside the iris when there is one).
 pub fn field_area_at_detector_mm2(projection: &Projection) -> f64 {
     let [w, h] = projection.detector_size_mm();
     let c = &projection.collimation;
     let x = (c.x_max_mm.min(0.5 * w) - c.x_min_mm.max(-0.5 * w)).max(0.0);
     let y = (c.y_max_mm.min(0.5 * h) - c.y_min_mm.max(-0.5 * h)).max(0.0);
-    let rect = x * y;
     match c.iris_radius_mm {
-        Some(r) => rect.min(std::f64::consts::PI * r * r),
-        None => rect,
+        // The blades' rectangle inside the iris's disc, exactly.
+        Some(r) => super::collimator::rectangle_in_disc_mm2(
+            c.x_min_mm.max(-0.5 * w),
+            c.x_max_mm.min(0.5 * w),
+            c.y_min_mm.max(-0.5 * h),
+            c.y_max_mm.min(0.5 * h),
+            r,
+        ),
+        None => x * y,
     }
 }
 

@@ -11,6 +11,7 @@
 
 mod backend;
 pub mod brightness;
+pub mod collimator;
 pub mod dose;
 pub mod draft;
 pub mod pulse;
@@ -160,6 +161,10 @@ pub struct FluoroState {
     /// [`PHOTONS_PER_PIXEL_PER_MA`] so that their replay gives what was recorded.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub detector_noise: bool,
+    /// The learner's collimator, or `None` for the fully open field (and in sessions recorded
+    /// before the collimator).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub collimator: Option<collimator::CollimatorSetting>,
 }
 
 /// The fluoroscopy modality.
@@ -219,6 +224,7 @@ impl FluoroModality {
                 dose: DoseTally::default(),
                 brightness: Some(brightness::BrightnessState::on(brightness::DEFAULT_CURVE)),
                 detector_noise: true,
+                collimator: None,
             },
             backend,
             rendered: None,
@@ -240,6 +246,13 @@ impl FluoroModality {
         // The blades at the detector's edges: the same as `Collimation::OPEN` for every pixel,
         // but finite, so the state survives JSON (which has no infinity).
         let half_mm = 0.5 * c.detector_mm;
+        let open = Collimation {
+            x_min_mm: -half_mm,
+            x_max_mm: half_mm,
+            y_min_mm: -half_mm,
+            y_max_mm: half_mm,
+            iris_radius_mm: None,
+        };
         Projection {
             orbital_deg: self.state.orbital_deg,
             angular_deg: self.state.angular_deg,
@@ -247,13 +260,7 @@ impl FluoroModality {
             table_translation_mm: self.state.table_mm,
             detector_pixels: [c.detector_pixels; 2],
             pixel_pitch_mm: [c.detector_mm / f64::from(c.detector_pixels); 2],
-            collimation: Collimation {
-                x_min_mm: -half_mm,
-                x_max_mm: half_mm,
-                y_min_mm: -half_mm,
-                y_max_mm: half_mm,
-                iris_radius_mm: None,
-            },
+            collimation: self.state.collimator.map_or(open, |s| s.collimation()),
             ..Projection::default()
         }
     }
@@ -549,6 +556,7 @@ pub static SPEC: ModalitySpec = ModalitySpec {
         CommandSpec::new("annotate", None),
         CommandSpec::new(pulse::PULSE_RATE_KIND, None),
         CommandSpec::new(brightness::BRIGHTNESS_KIND, None),
+        CommandSpec::new(collimator::COLLIMATION_KIND, Some(Engagement::ViewChanged)),
     ],
     constants: &[("default_pulse_rate_pps", pulse::DEFAULT_PULSE_RATE_PPS)],
 };
@@ -666,6 +674,13 @@ impl Modality for FluoroModality {
                 self.book_live(world);
                 self.state.pulse_rate_pps = Some(pps);
             }
+            Command::Modality(c) if c.kind() == collimator::COLLIMATION_KIND => {
+                let setting = collimator::parse(c, self.state.config.detector_mm)?;
+                // A live run so far is booked with the field it had.
+                self.book_live(world);
+                self.state.collimator = Some(setting);
+                self.live_change(world);
+            }
             Command::Modality(c) if c.kind() == brightness::BRIGHTNESS_KIND => {
                 let curve = brightness::parse(c)?;
                 // The next frame follows the new curve from the current technique.
@@ -681,6 +696,7 @@ impl Modality for FluoroModality {
         }
         Ok(serde_json::json!({
             "technique": self.technique_json(),
+            "collimation": self.state.collimator,
             "pulse_rate_pps": self.state.pulse_rate_pps,
             "acquisitions": self.state.shots + self.state.live_runs,
             "exposure_s": self.exposure_ms_at(now) as f64 / 1000.0,
