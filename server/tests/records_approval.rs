@@ -74,7 +74,7 @@ async fn attempt_result_return_resubmit_approve_with_audit_trail() {
         r.json["detail"]["incomplete_criteria"],
         json!(["intra_articular_contrast"])
     );
-    assert_eq!(r.json["station_revision"], 1);
+    assert_eq!(r.json["station_revision"], 2);
     assert_eq!(
         r.json["reproducibility"]["activity_event_count"], 7,
         "station_opened + 6 reported events"

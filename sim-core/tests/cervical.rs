@@ -7,16 +7,7 @@ use sim_core::anatomy::phantom::cervical::{self, dims::PUBLISHED};
 use sim_core::anatomy::phantom::model::Anatomy;
 use sim_core::anatomy::pipeline::check_solid;
 
-fn bone_of(name: &str) -> Option<&str> {
-    name.strip_suffix("_cortical")
-        .or_else(|| name.strip_suffix("_cancellous"))
-}
-
-fn name_at(a: &Anatomy, p: DVec3) -> String {
-    a.structure_at(p.to_array())
-        .map(|i| a.parts[i].name.clone())
-        .unwrap_or_default()
-}
+use crate::stations::{bone_of, name_at};
 
 /// Distance from `p` along `dir` to the first point whose structure fails `keep`, in steps of
 /// 0.05 mm (the solids are exact to well below that), up to `max_mm`.

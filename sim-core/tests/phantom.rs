@@ -208,12 +208,18 @@ fn landmarks_lie_in_the_structures_they_name() {
     };
     // Facet joint centres are in the joint space (not bone), with both articulating bones within
     // 4 mm: the 2 mm joint space plus a 2 mm step into each process.
-    for (joint, upper, lower) in [
-        ("L4_L5_facet_joint_left", "L4", "L5"),
-        ("L4_L5_facet_joint_right", "L4", "L5"),
-        ("L5_S1_facet_joint_left", "L5", "sacrum"),
-        ("L5_S1_facet_joint_right", "L5", "sacrum"),
-    ] {
+    // So are the joints' posterior openings and inferior recesses (the facet injection
+    // targets), at the margins of the articular faces.
+    let mut joints = Vec::new();
+    for (level, upper, lower) in [("L4_L5", "L4", "L5"), ("L5_S1", "L5", "sacrum")] {
+        for side in ["left", "right"] {
+            for point in ["joint", "posterior_joint_line", "inferior_recess"] {
+                joints.push((format!("{level}_facet_{point}_{side}"), upper, lower));
+            }
+        }
+    }
+    for (joint, upper, lower) in &joints {
+        let (joint, upper, lower) = (joint.as_str(), *upper, *lower);
         let p = get(joint);
         assert!(
             bone_of(&name_at(p)).is_none(),

@@ -12,4 +12,5 @@ mod needle_hub;
 mod nesting;
 mod phantom;
 mod rubric;
+mod stations;
 mod ultrasound;

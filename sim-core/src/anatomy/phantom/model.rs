@@ -128,7 +128,51 @@ impl Anatomy {
             landmarks: landmarks::landmarks(&spine),
         };
         anatomy.fit_flavum_landmarks(&spine);
+        anatomy.add_pedicle_floor_landmarks(&spine);
         anatomy
+    }
+
+    /// Adds `{L}_pedicle_6_oclock_{side}` for every lumbar pedicle: 1 mm below the pedicle's
+    /// inferior cortex, found by a march down the vertebra's axis from the isthmus centre as the
+    /// painted solids have it (0.05 mm steps). In the AP view it is the pedicle's 6 o'clock, the
+    /// reference of a subpedicular (transforaminal) approach. A march that never leaves the
+    /// vertebra's bone within 20 mm adds nothing.
+    fn add_pedicle_floor_landmarks(&mut self, spine: &Spine) {
+        let mut found = Vec::new();
+        for v in &spine.lumbar {
+            let name = &v.dims.name;
+            for side in ["left", "right"] {
+                let Some(centre) = self
+                    .landmarks
+                    .iter()
+                    .find(|l| l.name == format!("{name}_pedicle_{side}"))
+                    .map(|l| DVec3::from(l.position_mm))
+                else {
+                    continue;
+                };
+                let down = -v.up();
+                let bone = |p: DVec3| {
+                    self.structure_at(p.to_array()).is_some_and(|i| {
+                        let n = self.parts[i].name.as_str();
+                        n == format!("{name}_cortical") || n == format!("{name}_cancellous")
+                    })
+                };
+                if let Some(t) = (0..=400)
+                    .map(|k| f64::from(k) * 0.05)
+                    .find(|t| !bone(centre + down * *t))
+                {
+                    found.push(Landmark {
+                        name: format!("{name}_pedicle_6_oclock_{side}"),
+                        position_mm: (centre + down * (t + 1.0)).to_array(),
+                        description: "1 mm below the inferior cortex of the pedicle (its 6 \
+                                      o'clock in the AP view)"
+                            .to_string(),
+                        inside_structure: None,
+                    });
+                }
+            }
+        }
+        self.landmarks.extend(found);
     }
 
     /// Puts each lumbar interspace's interlaminar window centre in the middle of the ligamentum

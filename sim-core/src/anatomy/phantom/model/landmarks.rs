@@ -22,6 +22,13 @@ use super::dims::{LEFT, RIGHT};
 use super::sacrum::{sacral_canal_point, sacral_foramina};
 use super::spine::Spine;
 
+/// How far along the joint line from a facet joint's centre its posterior opening lies, mm: the
+/// articular face's 7 mm half-length less 1.5 mm (inside the face's end, within the space).
+const JOINT_HALF_LENGTH_IN_MM: f64 = 5.5;
+/// How far below a facet joint's centre its inferior recess lies, mm: the face's 8 mm half-height
+/// less 1.5 mm.
+const JOINT_HALF_HEIGHT_IN_MM: f64 = 6.5;
+
 /// Collects landmarks in order.
 #[derive(Default)]
 struct Landmarks(Vec<Landmark>);
@@ -131,6 +138,30 @@ fn joint_and_target_landmarks(out: &mut Landmarks, spine: &Spine) {
         "centre of the right L4-L5 facet joint space",
         None,
     );
+    // The joint's margins in its plane, where facet injections aim: the posterior opening (the
+    // joint line an ultrasound transverse view shows) and the inferior recess (the capsule's
+    // lower pouch, the usual fluoroscopic entry into the joint). The articular faces are 14 mm
+    // along the joint line and 16 mm tall with 2.5 mm rounded edges (`vertebra::articular_block`);
+    // the points lie in the joint space 1.5 mm inside the faces' ends.
+    for (segment, level) in [(3, "L4_L5"), (4, "L5_S1")] {
+        for (k, side) in [(0, "left"), (1, "right")] {
+            let j = &joints[segment][k];
+            let along = j.up.cross(j.normal).normalize();
+            let posterior = if along.y < 0.0 { along } else { -along };
+            out.add(
+                &format!("{level}_facet_posterior_joint_line_{side}"),
+                j.centre + posterior * JOINT_HALF_LENGTH_IN_MM,
+                "posterior opening of the facet joint space (the joint line of a transverse view)",
+                None,
+            );
+            out.add(
+                &format!("{level}_facet_inferior_recess_{side}"),
+                j.centre - j.up * JOINT_HALF_HEIGHT_IN_MM,
+                "inferior recess of the facet joint space (the entry of an intra-articular needle)",
+                None,
+            );
+        }
+    }
     let foramina = sacral_foramina();
     for (k, side) in [(0, "left"), (1, "right")] {
         let (a, b, _) = foramina[k];
