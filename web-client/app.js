@@ -319,6 +319,8 @@ async function openSession(attemptId, stationId) {
       if (o.pulse_rate_pps != null) { $('pps').value = String(o.pulse_rate_pps); window.__sim.pulseRate = o.pulse_rate_pps; }
       if (o.technique) showTechnique(o.technique);
       if (o.collimation !== undefined && window.__sim) window.__sim.collimation = o.collimation;
+      if (o.detector_mm != null) fullFieldMm = o.detector_mm;
+      if (o.field_mm != null && window.__sim) window.__sim.fieldMm = o.field_mm;
     });
     live.addEventListener('commanderror', (e) => {
       needle.error(e.detail);
@@ -393,6 +395,13 @@ $('coll-height').addEventListener('change', sendCollimation);
 $('coll-iris').addEventListener('change', sendCollimation);
 $('coll-width').addEventListener('input', () => { $('coll-width-out').textContent = $('coll-width').value; });
 $('coll-height').addEventListener('input', () => { $('coll-height-out').textContent = $('coll-height').value; });
+// Magnification modes: fractions of the full detector field (the session's `magnification`
+// command takes the field in mm; fluoroscopy acks name the detector's side).
+let fullFieldMm = null;
+$('field').addEventListener('change', (e) => {
+  if (!live) return;
+  live.send({ type: 'magnification', field_mm: Number(e.target.value) * (fullFieldMm || 300) });
+});
 $('abc').addEventListener('change', (e) => {
   if (!live) return;
   if (e.target.value === 'manual') sendTechnique();

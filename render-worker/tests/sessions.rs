@@ -7,6 +7,7 @@
 
 mod brightness;
 mod collimation;
+mod magnification;
 mod pulsed;
 mod rendering;
 mod replay;

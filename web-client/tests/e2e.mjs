@@ -263,6 +263,11 @@ await runReport(async (page, report) => {
     };
   });
   report.steps.push('collimated');
+  // Magnification: mag 2 halves the field; the acknowledgement names it.
+  const acksBeforeMag = await acksSoFar(page);
+  await page.selectOption('#field', '0.5');
+  await waitUntil(page, (n) => window.__sim.stats.acks > n, acksBeforeMag);
+  report.magnified_field_mm = await page.evaluate(() => window.__sim.fieldMm);
   report.readout = { latency: await page.textContent('#latency'), fps: await page.textContent('#fps') };
   report.command_errors = await page.evaluate(() => window.__sim.stats.errors);
   report.session_log = await page.textContent('#session-log');

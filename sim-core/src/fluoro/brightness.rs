@@ -176,6 +176,17 @@ impl Default for TubeLimits {
     }
 }
 
+/// How much a magnification mode raises the target detector kerma: `full / field` (a field of
+/// half the side gets twice the kerma per frame). Simulator choice: the quanta per pixel then
+/// fall as `field / full` instead of as the area ratio `(field / full)^2` a constant target would
+/// give, so a magnified image is somewhat noisier but not four times (NCRP Report 168, 2010,
+/// describes the dose increase of magnification modes, by about the area ratio for image
+/// intensifiers and by less for flat panels). 1 for a non-positive or non-finite field.
+pub fn magnification_target_factor(full_field_mm: f64, field_mm: f64) -> f64 {
+    let f = full_field_mm / field_mm;
+    if f.is_finite() && f > 0.0 { f } else { 1.0 }
+}
+
 /// How a frame is exposed, besides its technique.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct FrameExposure {
@@ -380,12 +391,37 @@ pub fn next_technique(
     current: Technique,
     measured_ngy: f64,
 ) -> Step {
-    let target = curve.target_ngy_per_frame();
+    next_technique_to(
+        curve,
+        curve.target_ngy_per_frame(),
+        limits,
+        exposure,
+        current,
+        measured_ngy,
+    )
+}
+
+/// [`next_technique`] towards `target_ngy` per frame instead of the curve's own target (a
+/// magnification mode raises it; see [`magnification_target_factor`]). A target that is not a
+/// positive finite number keeps the technique.
+pub fn next_technique_to(
+    curve: BrightnessCurve,
+    target_ngy: f64,
+    limits: &TubeLimits,
+    exposure: &FrameExposure,
+    current: Technique,
+    measured_ngy: f64,
+) -> Step {
+    let target = target_ngy;
     let sid = exposure.source_to_detector_mm;
     let open = |kvp: f64, ma: f64| open_field_kerma_ngy(kvp, ma * exposure.frame_s, sid);
     let open_now = open(f64::from(current.kvp), current.ma);
-    if !(measured_ngy.is_finite() && measured_ngy > 0.0 && open_now > 0.0)
-        || Spectrum::tungsten(current.kvp).is_err()
+    let usable = measured_ngy.is_finite()
+        && measured_ngy > 0.0
+        && open_now > 0.0
+        && target.is_finite()
+        && target > 0.0;
+    if !usable || Spectrum::tungsten(current.kvp).is_err()
     {
         return Step {
             technique: current,

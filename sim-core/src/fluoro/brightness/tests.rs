@@ -247,3 +247,26 @@ fn brightness_curves_parse_and_are_monotone() {
     }
     assert_eq!(BrightnessCurve::parse("auto"), None);
 }
+
+#[test]
+fn brightness_follows_a_raised_target_in_magnification() {
+    let scene = trunk(340.0, 220.0);
+    let p = view(0.0);
+    let e = exposure(&p, 110.0);
+    let m = meter(&scene, &p, 12);
+    let curve = BrightnessCurve::Standard;
+    let target = curve.target_ngy_per_frame() * magnification_target_factor(300.0, 150.0);
+    assert_eq!(magnification_target_factor(300.0, 150.0), 2.0);
+    assert_eq!(magnification_target_factor(300.0, 0.0), 1.0);
+    assert_eq!(magnification_target_factor(300.0, f64::NAN), 1.0);
+    let mut t = Technique { kvp: 80, ma: 2.0 };
+    let mut k = 0.0;
+    for _ in 0..6 {
+        k = m.detector_kerma_ngy(t, &e);
+        t = next_technique_to(curve, target, &TubeLimits::default(), &e, t, k).technique;
+    }
+    assert!((k / target - 1.0).abs() <= 0.05, "{k} vs {target}");
+    // A target that is no number keeps the technique.
+    let held = next_technique_to(curve, f64::NAN, &TubeLimits::default(), &e, t, k);
+    assert_eq!(held.technique, t);
+}

@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 use sim_core::fluoro::Projection;
 use sim_core::fluoro::brightness::{
     BrightnessCurve, FrameExposure, Limit, METERING_RAYS_ACROSS, Metering, Technique, TubeLimits,
-    meter, next_technique,
+    meter, next_technique_to,
 };
 
 use super::pulse::CONTINUOUS_FRAMES_PER_S;
@@ -100,19 +100,22 @@ impl MeteringCache {
 }
 
 /// The measured primary detector air kerma per pulse of a frame at `technique` (nGy), and the
-/// control's next technique (`None`: the control is off, or the step keeps the technique).
+/// control's next technique (`None`: the control is off, or the step keeps the technique),
+/// towards the curve's target times `target_factor` (a magnification mode's).
 pub fn step(
     state: &mut Option<BrightnessState>,
     metering: &Metering,
     technique: Technique,
     exposure: &FrameExposure,
+    target_factor: f64,
 ) -> (f64, Option<Technique>) {
     let measured = metering.detector_kerma_ngy(technique, exposure);
     let Some(s) = state.as_mut() else {
         return (measured, None);
     };
-    let next = next_technique(
+    let next = next_technique_to(
         s.curve,
+        s.curve.target_ngy_per_frame() * target_factor,
         &TubeLimits::default(),
         exposure,
         technique,
@@ -123,4 +126,19 @@ pub fn step(
         measured,
         (next.technique != technique).then_some(next.technique),
     )
+}
+
+/// The technique of the image on display and the control's state, for acks.
+pub fn technique_json(state: &super::FluoroState) -> serde_json::Value {
+    let shown = state.images.last();
+    serde_json::json!({
+        "kvp": shown.map_or(state.kvp, |i| i.kvp),
+        "ma": shown.map_or(state.ma, |i| i.ma),
+        "pulse_rate_pps": state.pulse_rate_pps,
+        "brightness": state.brightness.map_or("manual", |b| b.curve.name()),
+        "limited_by": state.brightness.and_then(|b| b.limited_by),
+        "detector_kerma_ngy": shown.and_then(|i| i.detector_kerma_ngy),
+        "next_kvp": state.kvp,
+        "next_ma": state.ma,
+    })
 }

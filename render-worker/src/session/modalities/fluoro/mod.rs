@@ -14,6 +14,7 @@ pub mod brightness;
 pub mod collimator;
 pub mod dose;
 pub mod draft;
+pub mod magnification;
 pub mod pulse;
 mod steel;
 
@@ -21,7 +22,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
-use sim_core::fluoro::brightness::{FrameExposure, Technique};
+use sim_core::fluoro::brightness::{FrameExposure, Technique, magnification_target_factor};
 use sim_core::fluoro::detector::{FLAT_PANEL_DQE, detected_quanta_per_pixel};
 use sim_core::fluoro::{
     Collimation, EnergyModel, IodineField, Projection, QuantumNoise, RenderSettings,
@@ -36,6 +37,7 @@ pub use backend::{
 };
 use dose::DoseTally;
 pub use steel::{NEEDLE_FACETS, NeedleShaft, needle_meshes};
+use steel::simplify_polyline;
 
 use super::modality::{Modality, ModalityContext, ModalityError, ModalitySpec};
 use crate::session::anatomy::{
@@ -165,6 +167,10 @@ pub struct FluoroState {
     /// before the collimator).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub collimator: Option<collimator::CollimatorSetting>,
+    /// Side of the active detector field, mm ([`magnification`]), or `None` for the full
+    /// detector (and in sessions recorded before the modes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub field_mm: Option<f64>,
 }
 
 /// The fluoroscopy modality.
@@ -225,6 +231,7 @@ impl FluoroModality {
                 brightness: Some(brightness::BrightnessState::on(brightness::DEFAULT_CURVE)),
                 detector_noise: true,
                 collimator: None,
+                field_mm: None,
             },
             backend,
             rendered: None,
@@ -245,7 +252,8 @@ impl FluoroModality {
         let c = &self.state.config;
         // The blades at the detector's edges: the same as `Collimation::OPEN` for every pixel,
         // but finite, so the state survives JSON (which has no infinity).
-        let half_mm = 0.5 * c.detector_mm;
+        let field_mm = self.field_mm();
+        let half_mm = 0.5 * field_mm;
         let open = Collimation {
             x_min_mm: -half_mm,
             x_max_mm: half_mm,
@@ -259,10 +267,17 @@ impl FluoroModality {
             isocentre_mm: self.state.isocentre_mm,
             table_translation_mm: self.state.table_mm,
             detector_pixels: [c.detector_pixels; 2],
-            pixel_pitch_mm: [c.detector_mm / f64::from(c.detector_pixels); 2],
-            collimation: self.state.collimator.map_or(open, |s| s.collimation()),
+            pixel_pitch_mm: [field_mm / f64::from(c.detector_pixels); 2],
+            collimation: self.state.collimator.map_or(open, |s| {
+                magnification::clip_to_field(s.collimation(), field_mm)
+            }),
             ..Projection::default()
         }
+    }
+
+    /// Side of the active detector field, mm (the full detector unless a magnification mode is on).
+    pub fn field_mm(&self) -> f64 {
+        self.state.field_mm.unwrap_or(self.state.config.detector_mm)
     }
 
     /// Fluoroscopy time including a live run still going at `now_ms`, ms.
@@ -346,20 +361,26 @@ impl FluoroModality {
         world: &World,
     ) -> Option<(AcquiredImage, RenderSettings, Option<Arc<IodineField>>)> {
         let image = self.state.images.last()?.clone();
-        let settings = self.render_settings(image.kvp, image.ma, image.mas, image.noise_seed);
+        let pitch_mm = image.projection.pixel_pitch_mm[0];
+        let settings = self.render_settings(image.kvp, image.ma, image.mas, pitch_mm, image.noise_seed);
         let iodine = image
             .iodine_version
             .and(self.image_iodine.clone().or_else(|| world.iodine.clone()));
         Some((image, settings, iodine))
     }
 
-    /// How an image of technique `kvp`, `ma` and charge `mas` (see [`AcquiredImage::mas`]) is
-    /// rendered, with noise seed `seed`.
-    fn render_settings(&self, kvp: u32, ma: f64, mas: Option<f64>, seed: u64) -> RenderSettings {
-        let c = &self.state.config;
+    /// How an image of technique `kvp`, `ma` and charge `mas` (see [`AcquiredImage::mas`]) on
+    /// pixels of `pitch_mm` at the detector is rendered, with noise seed `seed`.
+    fn render_settings(
+        &self,
+        kvp: u32,
+        ma: f64,
+        mas: Option<f64>,
+        pitch_mm: f64,
+        seed: u64,
+    ) -> RenderSettings {
         let photons_per_pixel = match mas {
             Some(mas) => {
-                let pitch_mm = c.detector_mm / f64::from(c.detector_pixels);
                 detected_quanta_per_pixel(
                     kvp,
                     mas,
@@ -450,9 +471,15 @@ impl FluoroModality {
             source_to_detector_mm: projection.source_to_detector_mm(),
             source_to_skin_mm: dose::source_to_skin_mm(&world.region, &projection),
         };
+        let factor = magnification_target_factor(self.state.config.detector_mm, self.field_mm());
         let metering = self.metering.get(&world.region, &projection);
-        let (measured, next) =
-            brightness::step(&mut self.state.brightness, metering, technique, &exposure);
+        let (measured, next) = brightness::step(
+            &mut self.state.brightness,
+            metering,
+            technique,
+            &exposure,
+            factor,
+        );
         self.state.images.push(AcquiredImage {
             index,
             t_ms: world.clock_ms,
@@ -476,21 +503,6 @@ impl FluoroModality {
             self.state.ma = next.ma;
         }
     }
-
-    /// The technique of the image on display and the control's state, for acks.
-    fn technique_json(&self) -> serde_json::Value {
-        let shown = self.state.images.last();
-        serde_json::json!({
-            "kvp": shown.map_or(self.state.kvp, |i| i.kvp),
-            "ma": shown.map_or(self.state.ma, |i| i.ma),
-            "pulse_rate_pps": self.state.pulse_rate_pps,
-            "brightness": self.state.brightness.map_or("manual", |b| b.curve.name()),
-            "limited_by": self.state.brightness.and_then(|b| b.limited_by),
-            "detector_kerma_ngy": shown.and_then(|i| i.detector_kerma_ngy),
-            "next_kvp": self.state.kvp,
-            "next_ma": self.state.ma,
-        })
-    }
 }
 
 /// A renderer's failure as the modality's.
@@ -499,30 +511,6 @@ fn render_failed(e: FluoroRenderError) -> ModalityError {
         modality: "fluoroscopy",
         message: e.to_string(),
     }
-}
-
-/// Drops polyline points that lie on the line of their neighbours (within 1e-6 rad), so a
-/// straight needle is one prism instead of dozens.
-fn simplify_polyline(points: &[[f64; 3]]) -> Vec<[f64; 3]> {
-    let mut out: Vec<[f64; 3]> = Vec::new();
-    for &p in points {
-        if let Some(&last) = out.last() {
-            if (0..3).all(|a| (p[a] - last[a]).abs() < 1e-9) {
-                continue;
-            }
-        }
-        if out.len() >= 2 {
-            let a = DVec3::from_array(out[out.len() - 2]);
-            let b = DVec3::from_array(out[out.len() - 1]);
-            let c = DVec3::from_array(p);
-            let (u, v) = ((b - a).normalize_or_zero(), (c - b).normalize_or_zero());
-            if u.cross(v).length() < 1e-6 && u.dot(v) > 0.0 {
-                out.pop();
-            }
-        }
-        out.push(p);
-    }
-    out
 }
 
 /// The factory's builder: a C-arm in AP centred on the L4 body centre (else the station's
@@ -557,6 +545,7 @@ pub static SPEC: ModalitySpec = ModalitySpec {
         CommandSpec::new(pulse::PULSE_RATE_KIND, None),
         CommandSpec::new(brightness::BRIGHTNESS_KIND, None),
         CommandSpec::new(collimator::COLLIMATION_KIND, Some(Engagement::ViewChanged)),
+        CommandSpec::new(magnification::MAGNIFICATION_KIND, Some(Engagement::ViewChanged)),
     ],
     constants: &[("default_pulse_rate_pps", pulse::DEFAULT_PULSE_RATE_PPS)],
 };
@@ -681,6 +670,12 @@ impl Modality for FluoroModality {
                 self.state.collimator = Some(setting);
                 self.live_change(world);
             }
+            Command::Modality(c) if c.kind() == magnification::MAGNIFICATION_KIND => {
+                let field = magnification::parse(c, self.state.config.detector_mm)?;
+                self.book_live(world);
+                self.state.field_mm = (field != self.state.config.detector_mm).then_some(field);
+                self.live_change(world);
+            }
             Command::Modality(c) if c.kind() == brightness::BRIGHTNESS_KIND => {
                 let curve = brightness::parse(c)?;
                 // The next frame follows the new curve from the current technique.
@@ -695,7 +690,9 @@ impl Modality for FluoroModality {
             }
         }
         Ok(serde_json::json!({
-            "technique": self.technique_json(),
+            "technique": brightness::technique_json(&self.state),
+            "field_mm": self.field_mm(),
+            "detector_mm": self.state.config.detector_mm,
             "collimation": self.state.collimator,
             "pulse_rate_pps": self.state.pulse_rate_pps,
             "acquisitions": self.state.shots + self.state.live_runs,
@@ -822,7 +819,8 @@ impl Modality for FluoroModality {
         if !self.state.images.is_empty() || !self.backend.prefetches() {
             return Ok(());
         }
-        let settings = self.render_settings(self.state.kvp, self.state.ma, None, 0);
+        let pitch_mm = self.projection().pixel_pitch_mm[0];
+        let settings = self.render_settings(self.state.kvp, self.state.ma, None, pitch_mm, 0);
         let (needle, projection) = (self.instruments(world), self.projection());
         self.renderer(world)?
             .prefetch(

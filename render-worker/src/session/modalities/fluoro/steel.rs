@@ -1,6 +1,7 @@
 //! The steel a fluoroscopy image shows (the needle's shaft and the skin marker's rods) as
 //! closed meshes, for the CPU reference's overlay scene and the GPU renderers' needle pass.
 
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use sim_core::geom::{capped_cylinder, equal_area_vertex_radius};
 
@@ -65,4 +66,28 @@ pub struct NeedleShaft {
     /// Straight steel rods: ends (mm) and radius (mm).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub rods: Vec<([[f64; 3]; 2], f64)>,
+}
+
+/// Drops polyline points that lie on the line of their neighbours (within 1e-6 rad), so a
+/// straight needle is one prism instead of dozens.
+pub(super) fn simplify_polyline(points: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    let mut out: Vec<[f64; 3]> = Vec::new();
+    for &p in points {
+        if let Some(&last) = out.last() {
+            if (0..3).all(|a| (p[a] - last[a]).abs() < 1e-9) {
+                continue;
+            }
+        }
+        if out.len() >= 2 {
+            let a = DVec3::from_array(out[out.len() - 2]);
+            let b = DVec3::from_array(out[out.len() - 1]);
+            let c = DVec3::from_array(p);
+            let (u, v) = ((b - a).normalize_or_zero(), (c - b).normalize_or_zero());
+            if u.cross(v).length() < 1e-6 && u.dot(v) > 0.0 {
+                out.pop();
+            }
+        }
+        out.push(p);
+    }
+    out
 }
