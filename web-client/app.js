@@ -318,9 +318,9 @@ async function openSession(attemptId, stationId) {
       // The rate the session runs at, as the fluoroscopy modality acknowledged it.
       if (o.pulse_rate_pps != null) { $('pps').value = String(o.pulse_rate_pps); window.__sim.pulseRate = o.pulse_rate_pps; }
       if (o.technique) showTechnique(o.technique);
-      if (o.collimation !== undefined && window.__sim) window.__sim.collimation = o.collimation;
       if (o.detector_mm != null) fullFieldMm = o.detector_mm;
-      if (o.field_mm != null && window.__sim) window.__sim.fieldMm = o.field_mm;
+      if (o.collimation !== undefined) showCollimation(o.collimation);
+      if (o.field_mm != null) showField(o.field_mm);
     });
     live.addEventListener('commanderror', (e) => {
       needle.error(e.detail);
@@ -389,6 +389,25 @@ function sendCollimation() {
   if (!live) return;
   const iris = $('coll-iris').value;
   live.send({ type: 'collimation', width_mm: Number($('coll-width').value), height_mm: Number($('coll-height').value), iris_diameter_mm: iris === '' ? null : Number(iris) });
+}
+/** The collimator as the session holds it (fluoroscopy acks; `null` for the open field), so a
+ * resumed session's controls start where it is. */
+function showCollimation(c) {
+  if (window.__sim) window.__sim.collimation = c;
+  const full = fullFieldMm || 300;
+  for (const id of ['coll-width', 'coll-height']) $(id).max = String(full);
+  $('coll-width').value = String(c ? c.width_mm : full);
+  $('coll-height').value = String(c ? c.height_mm : full);
+  $('coll-width-out').textContent = $('coll-width').value;
+  $('coll-height-out').textContent = $('coll-height').value;
+  const iris = c && c.iris_diameter_mm != null ? String(c.iris_diameter_mm) : '';
+  if ([...$('coll-iris').options].some((o) => o.value === iris)) $('coll-iris').value = iris;
+}
+/** The magnification mode as the session holds it (fluoroscopy acks). */
+function showField(fieldMm) {
+  if (window.__sim) window.__sim.fieldMm = fieldMm;
+  const fraction = String(fieldMm / (fullFieldMm || fieldMm));
+  if ([...$('field').options].some((o) => o.value === fraction)) $('field').value = fraction;
 }
 $('coll-width').addEventListener('change', sendCollimation);
 $('coll-height').addEventListener('change', sendCollimation);

@@ -9,6 +9,7 @@ mod brightness;
 mod collimation;
 mod magnification;
 mod pulsed;
+mod temporal;
 mod rendering;
 mod replay;
 mod scoring;
@@ -45,15 +46,16 @@ fn scripted_frames_sha256(env: SessionEnv, recorded_before: bool) -> (String, us
         ),
         (1200, Command::Submit),
     ];
-    // The script predates pulsed fluoroscopy, the brightness control and the detector's
-    // noise model: `recorded_before` runs it on a session without them (one recorded before),
+    // The script predates pulsed fluoroscopy, the brightness control, the detector's noise
+    // model and the temporal chain: `recorded_before` runs it on a session without them (one
+    // recorded before),
     // which keeps the continuous beam, the manual technique and the noise the first hashes
     // were recorded with; otherwise on a session of today.
     let mut initial = Session::new(env.clone(), config()).snapshot();
     if let Some(f) = initial.modalities.get_mut("fluoroscopy") {
         let f = f.as_object_mut().unwrap();
         if recorded_before {
-            for field in ["pulse_rate_pps", "brightness", "detector_noise"] {
+            for field in ["pulse_rate_pps", "brightness", "detector_noise", "temporal"] {
                 assert!(f.remove(field).is_some(), "a new session has {field}");
             }
         }
@@ -90,14 +92,14 @@ fn frames_of_a_scripted_session_are_pinned() {
         cpu,
         "46845c29b961755f6987ea9a78e173e848112eabb0386a518704740a34839355"
     );
-    // Today's session: pulsed, under the brightness control, detector noise (pinned when the
-    // control came).
+    // Today's session: pulsed, under the brightness control, detector noise, the temporal
+    // chain (pinned when the chain came).
     let (today, n) = scripted_frames_sha256(env(), false);
     eprintln!("scripted session of today, CPU reference: {n} frames, sha256 {today}");
     assert_eq!(n, 7, "a change waits for its pulse");
     assert_eq!(
         today,
-        "535b25b81c8d69f01a3cf8209500964edc4115bb84a6587ff7efad0ca444b68c"
+        "37eacaab94d0a57a130143ef47b2cebd8a245217c8a89bd79c98e1463beb742f"
     );
     if let Some(ctx) = render_worker::gpu::context_for_tests() {
         let adapter = ctx.summary.name.clone();

@@ -92,7 +92,11 @@ fn levels_of(target: &str) -> Vec<String> {
                 && w.starts_with(['l', 'c', 't', 's'])
                 && w[1..].chars().all(|c| c.is_ascii_digit())
         })
-        .map(str::to_uppercase)
+        .map(|w| match w {
+            // The phantoms name the first sacral vertebra's bone `sacrum`.
+            "s1" => "sacrum".to_string(),
+            other => other.to_uppercase(),
+        })
         .collect()
 }
 

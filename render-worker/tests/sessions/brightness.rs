@@ -10,6 +10,7 @@ use sim_core::fluoro::brightness::{
 
 use super::support::{Driver, config, env, pose};
 
+
 fn brightness(curve: &str) -> Command {
     serde_json::from_value(json!({ "type": "brightness", "curve": curve })).unwrap()
 }
@@ -40,14 +41,13 @@ fn shots(d: &mut Driver, t0: u64, n: u64) -> Vec<Value> {
 fn brightness_holds_the_detector_kerma_through_view_changes() {
     let target = BrightnessCurve::Standard.target_ngy_per_frame();
     let mut d = Driver::new();
-    let ap = shots(&mut d, 100, 6);
+    let ap = shots(&mut d, 100, 8);
     d.ok(1000, pose(90.0, 0.0));
-    let lateral = shots(&mut d, 1100, 6);
+    let lateral = shots(&mut d, 1100, 8);
     let k = kerma(&d.s);
     eprintln!("metered kerma per frame, nGy (AP, then lateral): {k:?}");
-    eprintln!("techniques: {:?}", ap.iter().chain(&lateral).map(|t| (t["kvp"].clone(), t["ma"].clone())).collect::<Vec<_>>());
-    assert_eq!(k.len(), 12);
-    for (name, run) in [("AP", &k[..6]), ("lateral", &k[6..])] {
+    assert_eq!(k.len(), 16);
+    for (name, run) in [("AP", &k[..8]), ("lateral", &k[8..])] {
         // The first frame of a view is exposed with the previous view's technique; within 5
         // frames of it the metered kerma is within 5 % of the target, and stays there.
         for (i, x) in run.iter().enumerate().skip(5) {
@@ -157,4 +157,56 @@ fn brightness_steps_and_live_pulses_replay_bit_identically() {
     let b = replayed.render_dirty(&fluoro).unwrap();
     assert_eq!(a.len(), 1);
     assert_eq!(a[0].image.pixels, b[0].image.pixels);
+}
+
+/// A session recorded before the control, the detector model and the temporal chain: its images
+/// gain none of their fields (a stored result's replay compares the whole state), and its
+/// technique stays where it was set.
+#[test]
+fn brightness_leaves_sessions_recorded_before_it_as_they_were() {
+    let mut initial = Session::new(env(), config()).snapshot();
+    let f = initial.modalities.get_mut("fluoroscopy").unwrap();
+    for field in ["brightness", "detector_noise", "temporal"] {
+        assert!(f.as_object_mut().unwrap().remove(field).is_some(), "{field}");
+    }
+    let mut d = Driver {
+        s: Session::restore(env(), &initial, &[]).unwrap(),
+        seq: 0,
+    };
+    d.ok(100, Command::Shot);
+    d.ok(200, pose(90.0, 0.0));
+    d.ok(300, Command::Shot);
+    d.ok(400, Command::Live { on: true });
+    d.ok(700, pose(80.0, 0.0));
+    d.ok(900, Command::Live { on: false });
+    for i in images(&d.s) {
+        for field in ["mas", "detector_kerma_ngy", "run", "filter"] {
+            assert!(i.get(field).is_none(), "{field} in {i}");
+        }
+        assert_eq!((i["kvp"].as_u64(), i["ma"].as_f64()), (Some(80), Some(2.0)), "{i}");
+    }
+    let f = &d.s.snapshot().modalities["fluoroscopy"];
+    for field in ["brightness", "detector_noise", "temporal", "collimator", "field_mm"] {
+        assert!(f.get(field).is_none(), "{field} in {f}");
+    }
+}
+
+/// In a still live run the control's step is itself imaged by the next pulse (at the client's
+/// logged tick), so live fluoroscopy settles without the learner moving anything.
+#[test]
+fn brightness_settles_during_a_still_live_run() {
+    let target = BrightnessCurve::Standard.target_ngy_per_frame();
+    let mut d = Driver::new();
+    d.ok(100, pose(90.0, 0.0));
+    d.ok(200, Command::Live { on: true });
+    // Ticks at 7.5 pulses per second.
+    for k in 1..=8u64 {
+        d.ok(200 + 134 * k, Command::Tick);
+    }
+    d.ok(1500, Command::Live { on: false });
+    let k = kerma(&d.s);
+    assert!(k.len() >= 2, "the step was imaged: {k:?}");
+    assert!(k.len() <= 6, "a settled still run stops imaging: {k:?}");
+    let last = *k.last().unwrap();
+    assert!((last / target - 1.0).abs() <= 0.05, "{k:?}");
 }

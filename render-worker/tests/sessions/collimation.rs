@@ -61,7 +61,7 @@ fn collimation_narrows_the_field_the_image_and_the_kerma_area_product() {
         .count();
     assert!(inside > (n / 4) * (n / 4) * 9 / 10, "{inside}");
     // An iris of the blades' width: the corners of the square go dark too, and the field is
-    // the square inside the disc (pi / 4 of the square).
+    // the disc inscribed in the square (pi / 4 of the square).
     d.ok(
         400,
         collimation(json!({ "width_mm": 150.0, "height_mm": 150.0, "iris_diameter_mm": 150.0 })),

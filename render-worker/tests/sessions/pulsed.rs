@@ -172,7 +172,7 @@ fn recorded_before_pulsing() -> Session {
         "a new session starts at 7.5 pps"
     );
     // Recorded before pulsing, so also before the brightness control and the detector's noise.
-    for field in ["pulse_rate_pps", "brightness", "detector_noise"] {
+    for field in ["pulse_rate_pps", "brightness", "detector_noise", "temporal"] {
         fluoro.as_object_mut().unwrap().remove(field);
     }
     Session::restore(env(), &snapshot, &[]).unwrap()

@@ -45,6 +45,9 @@ fn frames_are_rendered_only_on_exposure_and_only_for_visible_views() {
 #[test]
 fn live_fluoroscopy_renders_on_every_change_and_books_its_time() {
     let mut d = Driver::new();
+    // A technique set by hand: under the brightness control a step after a frame is itself a
+    // change the next pulse images (`sessions::brightness`).
+    d.ok(900, Command::Technique { kvp: 80, ma: 2.0 });
     d.ok(1000, Command::Live { on: true });
     assert_eq!(d.s.render_dirty(&fluoro_only()).unwrap().len(), 1);
     d.ok(1500, pose(-15.0, 0.0));

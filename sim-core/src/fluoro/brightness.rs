@@ -29,9 +29,11 @@
 //!
 //! # Limits
 //! [`TubeLimits`]: the fluoroscopy current and the tube power (simulator choices for a mobile
-//! C-arm), and 88 mGy/min of air kerma at the skin entrance (US 21 CFR 1020.32(d)(1), normal
-//! mode; taken at the skin along the central ray, which is stricter than the regulation's
-//! reference point for a C-arm, 30 cm from the detector). When a limit holds the output below
+//! C-arm), and 88 mGy/min of air kerma at the skin entrance (US 21 CFR 1020.32(d)(2), equipment
+//! made on or after 19 May 1995, normal mode; taken at the skin along the central ray, which is
+//! stricter than the regulation's measurement point for a C-arm, 30 cm from the image
+//! receptor, whenever the skin lies farther than that from the detector, as in the spine views
+//! here). A kept technique is checked against the limits too. When a limit holds the output below
 //! the target the frame is darker at the detector and noisier, and the step says which limit.
 
 use serde::{Deserialize, Serialize};
@@ -125,12 +127,12 @@ impl BrightnessCurve {
 
     /// Target primary detector air kerma per frame, nGy (the part of the detector signal this
     /// model has: scatter is not modelled yet). Standard: 3 nGy, simulator choice that drives an
-    /// adult AP lumbar view to about 85 kVp and 3 mA at 7.5 pulses per second; with the 1 to 5
+    /// adult AP lumbar view to about 80 kVp and 2-3 mA at 7.5 pulses per second; with the 1 to 5
     /// scatter-to-primary ratio of a lumbar field at the detector the total is 6 to 18 nGy,
-    /// within the 10-40 nGy per frame of flat-panel fluoroscopy (A. R. Cowen, A. G. Davies and
+    /// around the low end of the 10-40 nGy per frame of flat-panel fluoroscopy (A. R. Cowen, A. G. Davies and
     /// M. U. Sivananthan, "The design and imaging characteristics of dynamic, solid-state,
     /// flat-panel x-ray image detectors for digital fluoroscopy and fluorography", Clin. Radiol.
-    /// 63 (2008) 1073-1085) at its low end. Low dose: 60 % of it; high contrast: the standard
+    /// 63 (2008) 1073-1085). Low dose: 60 % of it; high contrast: the standard
     /// target.
     pub fn target_ngy_per_frame(self) -> f64 {
         match self {
@@ -161,7 +163,7 @@ pub struct TubeLimits {
     /// 600 W (120 kVp at 5 mA), a mobile C-arm's fluoroscopy rating; pulsed beams may draw
     /// more current in proportion to their lower duty.
     pub max_power_w: f64,
-    /// Highest air kerma rate at the skin entrance, mGy/min (21 CFR 1020.32(d)(1): 88 mGy/min
+    /// Highest air kerma rate at the skin entrance, mGy/min (21 CFR 1020.32(d)(2): 88 mGy/min
     /// in normal mode).
     pub max_skin_kerma_rate_mgy_per_min: f64,
 }
@@ -421,8 +423,7 @@ pub fn next_technique_to(
         && open_now > 0.0
         && target.is_finite()
         && target > 0.0;
-    if !usable || Spectrum::tungsten(current.kvp).is_err()
-    {
+    if !usable || Spectrum::tungsten(current.kvp).is_err() {
         return Step {
             technique: current,
             predicted_ngy: measured_ngy,
@@ -431,7 +432,10 @@ pub fn next_technique_to(
         };
     }
     let t_w = water_equivalent_mm(current.kvp, measured_ngy / open_now);
-    if (measured_ngy / target - 1.0).abs() <= DEADBAND {
+    // Within the deadband the technique is kept, as long as it is still within the limits (a
+    // faster pulse rate or a nearer skin can put a kept technique over them).
+    let within_limits = current.ma <= max_current(current.kvp, limits, exposure).0 + 1e-9;
+    if (measured_ngy / target - 1.0).abs() <= DEADBAND && within_limits {
         return Step {
             technique: current,
             predicted_ngy: measured_ngy,
@@ -466,7 +470,8 @@ pub fn next_technique_to(
     // Hysteresis: a curve point within half a step of the current voltage's span keeps the
     // voltage (the water reading differs by a few kVp between neighbouring voltages when
     // bone is in the disc; without it the loop could swing between them for ever).
-    let kvp = if (kv_c - (f64::from(current.kvp) + 2.5)).abs() <= 5.0 {
+    // Not at the end of the curve, whose top voltage must be reachable.
+    let kvp = if limited_by.is_none() && (kv_c - (f64::from(current.kvp) + 2.5)).abs() <= 5.0 {
         current.kvp
     } else {
         floor5(kv_c)
@@ -485,12 +490,13 @@ pub fn next_technique_to(
         if best.is_none_or(|(_, o, _)| out > o) {
             best = Some((Technique { kvp: kv, ma }, out, held));
         }
-        if held.is_none() || limited_by == Some(Limit::Curve) && kv >= kvp {
+        if held.is_none() {
             break;
         }
         kv += 5;
     }
     let (technique, predicted_ngy, held) = best.expect("at least the rounded voltage");
+    let cap = max_current(technique.kvp, limits, exposure).0;
     // The limit that holds the current below what the curve asks is the one that binds.
     if held.is_some() {
         limited_by = held;
@@ -500,11 +506,15 @@ pub fn next_technique_to(
             kvp: technique.kvp,
             // Centi-mA steps: what a console shows, and exact in the log; down when a limit
             // set the current, so that the step stays within it.
+            // Never below 0.01 mA (a current of zero would leave nothing to meter) nor, by the
+            // rounding, above the cap.
             ma: if held.is_some() {
                 (technique.ma * 100.0).floor() / 100.0
             } else {
                 (technique.ma * 100.0).round() / 100.0
-            },
+            }
+            .min((cap * 100.0).floor() / 100.0)
+            .max(0.01),
         },
         predicted_ngy,
         water_equivalent_mm: t_w,

@@ -14,7 +14,8 @@
 //! [`dose`] estimates the incident air kerma and kerma-area product of an exposure from the same
 //! spectra (an estimate, not a dose record); [`detector`] turns an exposure into the detector's
 //! air kerma and detected quanta (the noise of a frame), and [`brightness`] is the automatic
-//! brightness control that steps the technique to hold the detector kerma at a target.
+//! brightness control that steps the technique to hold the detector kerma at a target;
+//! [`temporal`] is live fluoroscopy's detector lag and recursive filter.
 //!
 //! The GPU renderer in `render-worker` reproduces steps 1 to 4 and is tested against this module.
 //! Units: millimetres for geometry, per-centimetre attenuation coefficients (as tabulated), and
@@ -55,6 +56,7 @@ pub mod nesting;
 pub mod render;
 pub mod scene;
 pub mod spectrum;
+pub mod temporal;
 
 pub use attenuation::{BasisDepths, EnergyModel, FluoroMaterial, MaterialChords, SpectralModel};
 pub use contrast::IodineField;

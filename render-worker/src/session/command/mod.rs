@@ -698,6 +698,26 @@ pub struct LogEntry {
     pub command: Command,
 }
 
+/// The named option `value` of a command's field `field` (`parse` knows the names), or a
+/// field-named error listing `choices`.
+pub fn named_choice<T>(
+    field: &str,
+    value: &str,
+    parse: impl Fn(&str) -> Option<T>,
+    choices: &str,
+) -> Result<T, CommandError> {
+    parse(value).ok_or_else(|| {
+        CommandError::field(
+            &format!("command.{field}"),
+            ErrorCode::Invalid,
+            format!(
+                "unknown {field} {:?}: choose {choices}",
+                value.chars().take(40).collect::<String>()
+            ),
+        )
+    })
+}
+
 /// Refuses text holding a NUL: the server's copy of the log (PostgreSQL text and jsonb) cannot
 /// store one, so such a command must never be acknowledged.
 /// A tray instrument id: no NUL, 1 to [`MAX_INSTRUMENT_CHARS`] characters.

@@ -270,3 +270,54 @@ fn brightness_follows_a_raised_target_in_magnification() {
     let held = next_technique_to(curve, f64::NAN, &TubeLimits::default(), &e, t, k);
     assert_eq!(held.technique, t);
 }
+
+#[test]
+fn brightness_reaches_the_top_voltage_at_the_end_of_the_curve() {
+    // A patient the curve cannot light: from 115 kVp the loop must still go to 120 kVp (no
+    // hysteresis at the end of the curve) and report the binding limit.
+    let scene = trunk(560.0, 360.0);
+    let lat = view(90.0);
+    let e = exposure(&lat, 280.0);
+    let m = meter(&scene, &lat, 12);
+    let limits = TubeLimits::default();
+    let start = Technique { kvp: 115, ma: 6.0 };
+    let k = m.detector_kerma_ngy(start, &e);
+    let s = next_technique(BrightnessCurve::Standard, &limits, &e, start, k);
+    assert_eq!(s.technique.kvp, 120, "{s:?}");
+    assert!(s.limited_by.is_some(), "{s:?}");
+    within_limits(s.technique, &e);
+}
+
+#[test]
+fn brightness_leaves_a_kept_technique_that_the_limits_no_longer_allow() {
+    // Settled at 7.5 pulses per second, then the learner picks 30: the detector kerma per pulse
+    // is unchanged (inside the deadband), but the duty quadruples; a technique over the tube's
+    // power must be left.
+    let scene = trunk(340.0, 220.0);
+    let lat = view(90.0);
+    let e = exposure(&lat, 170.0);
+    let m = meter(&scene, &lat, 12);
+    let limits = TubeLimits::default();
+    let over = Technique { kvp: 120, ma: 6.0 };
+    let continuous = FrameExposure { duty: 1.0, ..e };
+    assert!(120.0 * 6.0 > limits.max_power_w);
+    // A measurement exactly on target: the deadband alone would keep it.
+    let target = BrightnessCurve::Standard.target_ngy_per_frame();
+    let s = next_technique(
+        BrightnessCurve::Standard,
+        &limits,
+        &continuous,
+        over,
+        target,
+    );
+    assert_ne!(s.technique, over, "{s:?}");
+    within_limits(s.technique, &continuous);
+    // Rounding never lifts a capped current over its cap, nor drops it to zero.
+    for ma in [0.004, 0.5, 3.333, 5.999] {
+        let t = Technique { kvp: 90, ma };
+        let k = m.detector_kerma_ngy(t, &e);
+        let s = next_technique(BrightnessCurve::HighContrast, &limits, &continuous, t, k);
+        assert!(s.technique.ma >= 0.01, "{s:?}");
+        within_limits(s.technique, &continuous);
+    }
+}

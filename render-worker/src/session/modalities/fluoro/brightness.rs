@@ -24,7 +24,7 @@ use sim_core::fluoro::brightness::{
 };
 
 use super::pulse::CONTINUOUS_FRAMES_PER_S;
-use crate::session::command::{CommandError, ErrorCode, ModalityCommand};
+use crate::session::command::{CommandError, ModalityCommand};
 use crate::session::region::Region;
 
 /// The command kind that chooses the curve.
@@ -64,17 +64,12 @@ struct BrightnessCommand {
 /// The curve a `brightness` command asks for, or its field-named error.
 pub fn parse(command: &ModalityCommand) -> Result<BrightnessCurve, CommandError> {
     let BrightnessCommand { curve } = command.parse()?;
-    BrightnessCurve::parse(&curve).ok_or_else(|| {
-        CommandError::field(
-            "command.curve",
-            ErrorCode::Invalid,
-            format!(
-                "unknown curve {:?}: choose standard, low_dose or high_contrast (a technique \
-                 command sets kVp and mA by hand)",
-                curve.chars().take(40).collect::<String>()
-            ),
-        )
-    })
+    crate::session::command::named_choice(
+        "curve",
+        &curve,
+        BrightnessCurve::parse,
+        "standard, low_dose or high_contrast (a technique command sets kVp and mA by hand)",
+    )
 }
 
 /// Seconds of tube current per live pulse (a video frame's charge).
@@ -128,17 +123,22 @@ pub fn step(
     )
 }
 
-/// The technique of the image on display and the control's state, for acks.
-pub fn technique_json(state: &super::FluoroState) -> serde_json::Value {
-    let shown = state.images.last();
+/// The technique of the image on display (`shown`: its kVp, mA and metered kerma), the
+/// technique of the next frame and the control's state, for acks.
+pub fn technique_json(
+    shown: Option<(u32, f64, Option<f64>)>,
+    next: Technique,
+    pulse_rate_pps: Option<f64>,
+    state: Option<BrightnessState>,
+) -> serde_json::Value {
     serde_json::json!({
-        "kvp": shown.map_or(state.kvp, |i| i.kvp),
-        "ma": shown.map_or(state.ma, |i| i.ma),
-        "pulse_rate_pps": state.pulse_rate_pps,
-        "brightness": state.brightness.map_or("manual", |b| b.curve.name()),
-        "limited_by": state.brightness.and_then(|b| b.limited_by),
-        "detector_kerma_ngy": shown.and_then(|i| i.detector_kerma_ngy),
-        "next_kvp": state.kvp,
-        "next_ma": state.ma,
+        "kvp": shown.map_or(next.kvp, |s| s.0),
+        "ma": shown.map_or(next.ma, |s| s.1),
+        "pulse_rate_pps": pulse_rate_pps,
+        "brightness": state.map_or("manual", |b| b.curve.name()),
+        "limited_by": state.and_then(|b| b.limited_by),
+        "detector_kerma_ngy": shown.and_then(|s| s.2),
+        "next_kvp": next.kvp,
+        "next_ma": next.ma,
     })
 }

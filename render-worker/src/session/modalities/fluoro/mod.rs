@@ -10,6 +10,7 @@
 //! caught up, or after a restore) is exactly the image of that moment.
 
 mod backend;
+mod render;
 pub mod brightness;
 pub mod collimator;
 pub mod dose;
@@ -17,15 +18,15 @@ pub mod draft;
 pub mod magnification;
 pub mod pulse;
 mod steel;
+pub mod temporal;
 
 use std::sync::Arc;
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use sim_core::fluoro::brightness::{FrameExposure, Technique, magnification_target_factor};
-use sim_core::fluoro::detector::{FLAT_PANEL_DQE, detected_quanta_per_pixel};
 use sim_core::fluoro::{
-    Collimation, EnergyModel, IodineField, Projection, QuantumNoise, RenderSettings,
+    Collimation, IodineField, Projection,
 };
 use sim_core::rubric::Measurements;
 
@@ -97,6 +98,13 @@ pub struct AcquiredImage {
     /// nGy (what the automatic brightness control measured; see [`brightness`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub detector_kerma_ngy: Option<f64>,
+    /// The live run this frame belongs to (1-based, as `live_runs` counts them), for the
+    /// temporal chain ([`temporal`]); absent for shots and in sessions without the chain.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub run: Option<u32>,
+    /// The recursive filter's level this live frame is displayed with (absent: no chain).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub filter: Option<sim_core::fluoro::temporal::FilterLevel>,
 }
 
 /// A mark on an image.
@@ -171,6 +179,10 @@ pub struct FluoroState {
     /// detector (and in sessions recorded before the modes).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub field_mm: Option<f64>,
+    /// Detector lag and the recursive filter of live frames ([`temporal`]), or `None` in
+    /// sessions recorded before the chain.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub temporal: Option<temporal::TemporalState>,
 }
 
 /// The fluoroscopy modality.
@@ -188,6 +200,8 @@ pub struct FluoroModality {
     image_iodine: Option<Arc<IodineField>>,
     /// The automatic brightness control's metering of the current view.
     metering: brightness::MeteringCache,
+    /// Raw frames of the latest live images, for the temporal chain.
+    raw_frames: temporal::RawFrames,
 }
 
 impl std::fmt::Debug for FluoroModality {
@@ -232,6 +246,9 @@ impl FluoroModality {
                 detector_noise: true,
                 collimator: None,
                 field_mm: None,
+                temporal: Some(temporal::TemporalState {
+                    level: temporal::DEFAULT_LEVEL,
+                }),
             },
             backend,
             rendered: None,
@@ -239,6 +256,7 @@ impl FluoroModality {
             renderer: None,
             image_iodine: None,
             metering: brightness::MeteringCache::default(),
+            raw_frames: temporal::RawFrames::default(),
         }
     }
 
@@ -353,69 +371,6 @@ impl FluoroModality {
         })
     }
 
-    /// The image on display with how it is rendered: its settings and the iodine field it
-    /// shows (the field it was acquired with; after a restore, which drops it, the world's,
-    /// which is the same field unless contrast moved after the image without a new one).
-    fn displayed(
-        &self,
-        world: &World,
-    ) -> Option<(AcquiredImage, RenderSettings, Option<Arc<IodineField>>)> {
-        let image = self.state.images.last()?.clone();
-        let pitch_mm = image.projection.pixel_pitch_mm[0];
-        let settings = self.render_settings(image.kvp, image.ma, image.mas, pitch_mm, image.noise_seed);
-        let iodine = image
-            .iodine_version
-            .and(self.image_iodine.clone().or_else(|| world.iodine.clone()));
-        Some((image, settings, iodine))
-    }
-
-    /// How an image of technique `kvp`, `ma` and charge `mas` (see [`AcquiredImage::mas`]) on
-    /// pixels of `pitch_mm` at the detector is rendered, with noise seed `seed`.
-    fn render_settings(
-        &self,
-        kvp: u32,
-        ma: f64,
-        mas: Option<f64>,
-        pitch_mm: f64,
-        seed: u64,
-    ) -> RenderSettings {
-        let photons_per_pixel = match mas {
-            Some(mas) => {
-                detected_quanta_per_pixel(
-                    kvp,
-                    mas,
-                    self.projection().source_to_detector_mm(),
-                    pitch_mm * pitch_mm,
-                    FLAT_PANEL_DQE,
-                )
-                .unwrap_or(PHOTONS_PER_PIXEL_PER_MA * ma)
-            }
-            None => PHOTONS_PER_PIXEL_PER_MA * ma,
-        };
-        RenderSettings {
-            energy: EnergyModel::Spectral { kvp },
-            supersample: self.state.config.supersample,
-            adaptive: true,
-            noise: self.state.config.noise.then_some(QuantumNoise {
-                photons_per_pixel,
-                seed,
-            }),
-            ..RenderSettings::default()
-        }
-    }
-
-    /// This session's renderer, made on first use.
-    fn renderer(&mut self, world: &World) -> Result<&mut Box<dyn FluoroRenderer>, ModalityError> {
-        if self.renderer.is_none() {
-            self.renderer = Some(
-                self.backend
-                    .renderer(&world.region)
-                    .map_err(render_failed)?,
-            );
-        }
-        Ok(self.renderer.as_mut().expect("made above"))
-    }
-
     /// The steel an image taken now shows: the needle's shaft and the skin marker's rod.
     fn instruments(&self, world: &World) -> Option<NeedleShaft> {
         let mut needle = world.needle.as_ref().map(|n| NeedleShaft {
@@ -472,14 +427,20 @@ impl FluoroModality {
             source_to_skin_mm: dose::source_to_skin_mm(&world.region, &projection),
         };
         let factor = magnification_target_factor(self.state.config.detector_mm, self.field_mm());
-        let metering = self.metering.get(&world.region, &projection);
-        let (measured, next) = brightness::step(
-            &mut self.state.brightness,
-            metering,
-            technique,
-            &exposure,
-            factor,
-        );
+        // Sessions recorded before the detector model and the control meter nothing: their
+        // images stay as they were recorded (a result's replay compares the whole state).
+        let (measured, next) = if self.state.detector_noise || self.state.brightness.is_some() {
+            let metering = self.metering.get(&world.region, &projection);
+            brightness::step(
+                &mut self.state.brightness,
+                metering,
+                technique,
+                &exposure,
+                factor,
+            )
+        } else {
+            (f64::NAN, None)
+        };
         self.state.images.push(AcquiredImage {
             index,
             t_ms: world.clock_ms,
@@ -494,6 +455,8 @@ impl FluoroModality {
             iodine_version: world.iodine.as_ref().map(|_| world.iodine_version),
             mas: self.state.detector_noise.then_some(technique.ma * seconds),
             detector_kerma_ngy: measured.is_finite().then_some(measured),
+            run: live.then_some(self.state.live_runs).filter(|_| self.state.temporal.is_some()),
+            filter: self.state.temporal.filter(|_| live).map(|t| t.level),
         });
         self.image_iodine = world.iodine.clone();
         if let Some(next) = next {
@@ -501,6 +464,11 @@ impl FluoroModality {
             self.book_live(world);
             self.state.kvp = next.kvp;
             self.state.ma = next.ma;
+            // While live runs, the next pulse images the new technique (the control converges
+            // in a still scene too), at a logged moment like every pulse.
+            if live {
+                self.state.pulse_pending = true;
+            }
         }
     }
 }
@@ -546,6 +514,7 @@ pub static SPEC: ModalitySpec = ModalitySpec {
         CommandSpec::new(brightness::BRIGHTNESS_KIND, None),
         CommandSpec::new(collimator::COLLIMATION_KIND, Some(Engagement::ViewChanged)),
         CommandSpec::new(magnification::MAGNIFICATION_KIND, Some(Engagement::ViewChanged)),
+        CommandSpec::new(temporal::FILTER_KIND, None),
     ],
     constants: &[("default_pulse_rate_pps", pulse::DEFAULT_PULSE_RATE_PPS)],
 };
@@ -670,6 +639,10 @@ impl Modality for FluoroModality {
                 self.state.collimator = Some(setting);
                 self.live_change(world);
             }
+            Command::Modality(c) if c.kind() == temporal::FILTER_KIND => {
+                let level = temporal::parse(c)?;
+                self.state.temporal = Some(temporal::TemporalState { level });
+            }
             Command::Modality(c) if c.kind() == magnification::MAGNIFICATION_KIND => {
                 let field = magnification::parse(c, self.state.config.detector_mm)?;
                 self.book_live(world);
@@ -690,7 +663,15 @@ impl Modality for FluoroModality {
             }
         }
         Ok(serde_json::json!({
-            "technique": brightness::technique_json(&self.state),
+            "technique": brightness::technique_json(
+                self.state.images.last().map(|i| (i.kvp, i.ma, i.detector_kerma_ngy)),
+                Technique {
+                    kvp: self.state.kvp,
+                    ma: self.state.ma,
+                },
+                self.state.pulse_rate_pps,
+                self.state.brightness,
+            ),
             "field_mm": self.field_mm(),
             "detector_mm": self.state.config.detector_mm,
             "collimation": self.state.collimator,
@@ -771,7 +752,7 @@ impl Modality for FluoroModality {
         let Some((image, settings, iodine)) = self.displayed(world) else {
             return Ok(None);
         };
-        let frame = self
+        let frame: ViewImage = self
             .renderer(world)?
             .render(
                 image.needle.as_ref(),
@@ -779,9 +760,11 @@ impl Modality for FluoroModality {
                 &settings,
                 iodine.as_deref(),
             )
-            .map_err(render_failed)?;
+            .map_err(render_failed)?
+            .into();
         self.rendered = Some(image.index);
-        Ok(Some(frame.into()))
+        let frame = self.temporal_chain(&image, frame, iodine, world)?;
+        Ok(Some(frame))
     }
 
     fn render_draft(
