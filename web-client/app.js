@@ -321,6 +321,10 @@ async function openSession(attemptId, stationId) {
       if (o.detector_mm != null) fullFieldMm = o.detector_mm;
       if (o.collimation !== undefined) showCollimation(o.collimation);
       if (o.field_mm != null) showField(o.field_mm);
+      if (o.recursive_filter != null) {
+        $('recursive-filter').value = o.recursive_filter;
+        if (window.__sim) window.__sim.recursiveFilter = o.recursive_filter;
+      }
     });
     live.addEventListener('commanderror', (e) => {
       needle.error(e.detail);
@@ -420,6 +424,10 @@ let fullFieldMm = null;
 $('field').addEventListener('change', (e) => {
   if (!live) return;
   live.send({ type: 'magnification', field_mm: Number(e.target.value) * (fullFieldMm || 300) });
+});
+// Live fluoroscopy's recursive filter (the session's `recursive_filter` command).
+$('recursive-filter').addEventListener('change', (e) => {
+  if (live) live.send({ type: 'recursive_filter', level: e.target.value });
 });
 $('abc').addEventListener('change', (e) => {
   if (!live) return;

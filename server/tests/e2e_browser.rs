@@ -180,6 +180,9 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
     assert!(c["centre"].as_u64().unwrap() > 8, "{c:#}");
     // Mag 2 from the page: half the 300 mm field.
     assert_eq!(report["magnified_field_mm"], 150.0, "{report:#}");
+    // The curve (the acknowledged technique names it) and the filter, chosen on the page.
+    assert_eq!(report["curve_and_filter"]["brightness"], "low_dose", "{report:#}");
+    assert_eq!(report["curve_and_filter"]["filter"], "high", "{report:#}");
 
     // Frames are not blank: a fluoroscopy image of the demo boxes has bone and soft tissue, so
     // its grey levels spread (a blank or single-grey canvas has a standard deviation near 0;

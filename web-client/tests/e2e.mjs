@@ -268,6 +268,15 @@ await runReport(async (page, report) => {
   await page.selectOption('#field', '0.5');
   await waitUntil(page, (n) => window.__sim.stats.acks > n, acksBeforeMag);
   report.magnified_field_mm = await page.evaluate(() => window.__sim.fieldMm);
+  // The brightness curve and the recursive filter from the page: the acknowledgements say so.
+  const acksBeforeCurve = await acksSoFar(page);
+  await page.selectOption('#abc', 'low_dose');
+  await page.selectOption('#recursive-filter', 'high');
+  await waitUntil(page, (n) => window.__sim.stats.acks >= n + 2, acksBeforeCurve);
+  report.curve_and_filter = await page.evaluate(() => ({
+    brightness: window.__sim.technique && window.__sim.technique.brightness,
+    filter: window.__sim.recursiveFilter,
+  }));
   report.readout = { latency: await page.textContent('#latency'), fps: await page.textContent('#fps') };
   report.command_errors = await page.evaluate(() => window.__sim.stats.errors);
   report.session_log = await page.textContent('#session-log');

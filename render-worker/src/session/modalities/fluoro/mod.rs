@@ -675,6 +675,7 @@ impl Modality for FluoroModality {
             "field_mm": self.field_mm(),
             "detector_mm": self.state.config.detector_mm,
             "collimation": self.state.collimator,
+            "recursive_filter": self.state.temporal.map(|t| t.level),
             "pulse_rate_pps": self.state.pulse_rate_pps,
             "acquisitions": self.state.shots + self.state.live_runs,
             "exposure_s": self.exposure_ms_at(now) as f64 / 1000.0,
