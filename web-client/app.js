@@ -321,8 +321,10 @@ async function openSession(attemptId, stationId) {
       if (o.detector_mm != null) fullFieldMm = o.detector_mm;
       if (o.collimation !== undefined) showCollimation(o.collimation);
       if (o.field_mm != null) showField(o.field_mm);
-      if (o.recursive_filter != null) {
-        $('recursive-filter').value = o.recursive_filter;
+      if ('recursive_filter' in o) {
+        // A session recorded before the temporal chain has none: the control is off there.
+        $('recursive-filter').disabled = o.recursive_filter == null;
+        if (o.recursive_filter != null) $('recursive-filter').value = o.recursive_filter;
         if (window.__sim) window.__sim.recursiveFilter = o.recursive_filter;
       }
     });

@@ -99,7 +99,7 @@ fn frames_of_a_scripted_session_are_pinned() {
     assert_eq!(n, 7, "a change waits for its pulse");
     assert_eq!(
         today,
-        "1775c2a86d53b5703a7d3a191793d523b17e318aaf916e36388360cfc6ff2c11"
+        "5835be215c10d5793f196785c8639137960ca958efd0c826a8d5f3ea808a2565"
     );
     if let Some(ctx) = render_worker::gpu::context_for_tests() {
         let adapter = ctx.summary.name.clone();

@@ -139,3 +139,27 @@ fn lag_and_filter_replay_and_restore_mid_run_bit_identically() {
     let f = restored.render_dirty(&fluoro_only()).unwrap();
     assert_eq!(&f.last().unwrap().image.pixels, shown.last().unwrap());
 }
+
+/// A C-arm move restarts the filter (motion-detecting): the first frame at the new pose is the
+/// raw frame, the same as a session without the chain shows.
+#[test]
+fn lag_and_filter_restart_when_the_carm_moves() {
+    let frames = |chain: bool| {
+        let mut d = session(chain);
+        // A technique set by hand, so that no brightness step adds a frame at the new pose.
+        d.ok(60, Command::Technique { kvp: 80, ma: 2.0 });
+        needle_run(&mut d);
+        d.ok(1200, super::support::pose(12.0, 0.0));
+        // The next pulse images the new pose (if the move came within a pulse already imaged).
+        d.ok(1400, Command::Tick);
+        let p = d.s.snapshot().modalities["fluoroscopy"]["images"]
+            .as_array()
+            .unwrap()
+            .last()
+            .unwrap()["projection"]["orbital_deg"]
+            .clone();
+        assert_eq!(p, 12.0, "the last image is at the new pose");
+        d.s.render_dirty(&fluoro_only()).unwrap().pop().unwrap().image.pixels
+    };
+    assert_eq!(frames(true), frames(false));
+}

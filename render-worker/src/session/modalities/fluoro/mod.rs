@@ -763,8 +763,9 @@ impl Modality for FluoroModality {
             )
             .map_err(render_failed)?
             .into();
-        self.rendered = Some(image.index);
         let frame = self.temporal_chain(&image, frame, iodine, world)?;
+        // Only now: a failed history render leaves the view dirty.
+        self.rendered = Some(image.index);
         Ok(Some(frame))
     }
 
@@ -931,6 +932,8 @@ impl Modality for FluoroModality {
         self.rendered = None;
         self.drafted = None;
         self.image_iodine = None;
+        // Raw frames of another timeline would be served under the same image indices.
+        self.raw_frames = temporal::RawFrames::default();
         Ok(())
     }
 }

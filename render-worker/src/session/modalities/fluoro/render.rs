@@ -132,8 +132,11 @@ impl FluoroModality {
 }
 
 /// The images whose raw frames image `k` is displayed from, newest first (`k` itself first):
-/// the live images of its run with its iodine field, at most `HISTORY_FRAMES`; just `k` for a
-/// shot, an image without a run, or one recorded before the chain.
+/// the live images of its run with its iodine field and its projection, at most
+/// `HISTORY_FRAMES`; just `k` for a shot, an image without a run, or one recorded before the
+/// chain. A C-arm move (or a change of field or collimation) restarts the filter, as
+/// motion-detecting recursive filters do: it keeps the anatomy sharp while the C-arm turns, and
+/// a drag's frames (often only drafted) are never rendered again for the history.
 pub fn history(images: &[AcquiredImage], k: usize) -> Vec<usize> {
     let Some(img) = images.get(k) else {
         return Vec::new();
@@ -148,6 +151,7 @@ pub fn history(images: &[AcquiredImage], k: usize) -> Vec<usize> {
             || !o.live
             || o.run != img.run
             || o.iodine_version != img.iodine_version
+            || o.projection != img.projection
         {
             break;
         }

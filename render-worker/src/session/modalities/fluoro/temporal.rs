@@ -7,7 +7,9 @@
 //!   its run and its filter level, so the displayed frame is a function of the images alone:
 //!   replay, and a restore in the middle of a run (whose missing raw frames are rendered again),
 //!   give it bit for bit.
-//! - A frame combines the raw frames of the same live run that image the same iodine field
+//! - A frame combines the raw frames of the same live run at the same C-arm pose, field and
+//!   collimation (a move restarts the filter, as motion-detecting filters do) that image the
+//!   same iodine field
 //!   (while contrast spreads, each pulse images a new field: those frames are shown
 //!   unfiltered, since an older field is not kept), at most
 //!   [`sim_core::fluoro::temporal::HISTORY_FRAMES`].
