@@ -17,13 +17,13 @@ pub mod dose;
 pub mod draft;
 pub mod magnification;
 pub mod pulse;
+mod state;
 mod steel;
 pub mod temporal;
 
 use std::sync::Arc;
 
 use glam::DVec3;
-use serde::{Deserialize, Serialize};
 use sim_core::fluoro::brightness::{FrameExposure, Technique, magnification_target_factor};
 use sim_core::fluoro::{
     Collimation, IodineField, Projection,
@@ -39,6 +39,7 @@ pub use backend::{
 use dose::DoseTally;
 pub use steel::{NEEDLE_FACETS, NeedleShaft, needle_meshes};
 use steel::simplify_polyline;
+pub use state::{AcquiredImage, Annotation, FluoroState};
 
 use super::modality::{Modality, ModalityContext, ModalityError, ModalitySpec};
 use crate::session::anatomy::{
@@ -67,124 +68,6 @@ pub const AP_MAX_OBLIQUITY_DEG: f64 = 10.0;
 pub const AP_ENDPLATES: [(&str, &str); 2] = [("L4", "L5"), ("C7", "T1")];
 /// An acquisition counts as an oblique view from this orbital rotation on (same choice).
 pub const OBLIQUE_MIN_DEG: f64 = 10.0;
-/// Everything that decides one image's pixels.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct AcquiredImage {
-    /// Acquisition number in this session (0-based): shots and live frames together.
-    pub index: u64,
-    /// Simulation time, ms.
-    pub t_ms: u64,
-    /// C-arm projection.
-    pub projection: Projection,
-    /// Tube voltage.
-    pub kvp: u32,
-    /// Tube current.
-    pub ma: f64,
-    /// Live frame (true) or single shot.
-    pub live: bool,
-    /// The needle at that moment.
-    pub needle: Option<NeedleShaft>,
-    /// Quantum noise seed.
-    pub noise_seed: u64,
-    /// Version of the world's iodine field imaged (absent when there was none).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub iodine_version: Option<u64>,
-    /// Tube charge of the frame, mAs: its quantum noise follows the detector kerma it gives
-    /// (`sim_core::fluoro::detector`). Absent in images recorded before the detector model,
-    /// which keep [`PHOTONS_PER_PIXEL_PER_MA`].
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub mas: Option<f64>,
-    /// Primary detector air kerma per pulse over the metering disc at this frame's technique,
-    /// nGy (what the automatic brightness control measured; see [`brightness`]).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub detector_kerma_ngy: Option<f64>,
-    /// The live run this frame belongs to (1-based, as `live_runs` counts them), for the
-    /// temporal chain ([`temporal`]); absent for shots and in sessions without the chain.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub run: Option<u32>,
-    /// The recursive filter's level this live frame is displayed with (absent: no chain).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub filter: Option<sim_core::fluoro::temporal::FilterLevel>,
-}
-
-/// A mark on an image.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Annotation {
-    /// Continuous pixel coordinates.
-    pub pixel: [f64; 2],
-    /// What it names.
-    pub label: String,
-    /// The projection of the image it was placed on.
-    pub projection: Projection,
-    /// Simulation time, ms.
-    pub t_ms: u64,
-}
-
-/// Serializable fluoroscopy state.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct FluoroState {
-    /// Fixed configuration.
-    pub config: FluoroConfig,
-    /// Model point at the isocentre with the table at zero, mm.
-    pub isocentre_mm: [f64; 3],
-    /// Orbital rotation, degrees.
-    pub orbital_deg: f64,
-    /// Angular rotation, degrees.
-    pub angular_deg: f64,
-    /// Table translation, mm.
-    pub table_mm: [f64; 3],
-    /// Tube voltage.
-    pub kvp: u32,
-    /// Tube current.
-    pub ma: f64,
-    /// Live fluoroscopy running since this time (ms), or `None`.
-    pub live_since_ms: Option<u64>,
-    /// Fluoroscopy time booked so far (completed live runs and shots), ms.
-    pub exposure_ms: u64,
-    /// Single shots taken.
-    pub shots: u32,
-    /// Live runs started.
-    pub live_runs: u32,
-    /// Pulses per second of live fluoroscopy (see [`pulse`]); absent in sessions recorded before
-    /// pulsing, which keep the continuous beam.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub pulse_rate_pps: Option<f64>,
-    /// A change waits for the next pulse to be imaged (live runs, and the pulse it came in had
-    /// already made an image; see [`pulse::pulse_due`]).
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub pulse_pending: bool,
-    /// Every image acquired (shots and live frames), oldest first; the last one is displayed.
-    pub images: Vec<AcquiredImage>,
-    /// Marks placed on images.
-    pub annotations: Vec<Annotation>,
-    /// Session seed for quantum noise.
-    pub seed: u64,
-    /// The radiation estimate booked so far.
-    #[serde(default, skip_serializing_if = "DoseTally::is_empty")]
-    pub dose: DoseTally,
-    /// Automatic brightness control, or `None` for a technique set by hand (and in sessions
-    /// recorded before the control existed).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub brightness: Option<brightness::BrightnessState>,
-    /// Frames record their charge ([`AcquiredImage::mas`]) and their noise follows the
-    /// detector kerma; `false` in sessions recorded before the detector model, whose frames keep
-    /// [`PHOTONS_PER_PIXEL_PER_MA`] so that their replay gives what was recorded.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub detector_noise: bool,
-    /// The learner's collimator, or `None` for the fully open field (and in sessions recorded
-    /// before the collimator).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub collimator: Option<collimator::CollimatorSetting>,
-    /// Side of the active detector field, mm ([`magnification`]), or `None` for the full
-    /// detector (and in sessions recorded before the modes).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub field_mm: Option<f64>,
-    /// Detector lag and the recursive filter of live frames ([`temporal`]), or `None` in
-    /// sessions recorded before the chain.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub temporal: Option<temporal::TemporalState>,
-}
-
 /// The fluoroscopy modality.
 pub struct FluoroModality {
     state: FluoroState,
@@ -750,19 +633,10 @@ impl Modality for FluoroModality {
     }
 
     fn render(&mut self, _view: ViewId, world: &World) -> Result<Option<ViewImage>, ModalityError> {
-        let Some((image, settings, iodine)) = self.displayed(world) else {
+        let Some((image, _, iodine)) = self.displayed(world) else {
             return Ok(None);
         };
-        let frame: ViewImage = self
-            .renderer(world)?
-            .render(
-                image.needle.as_ref(),
-                &image.projection,
-                &settings,
-                iodine.as_deref(),
-            )
-            .map_err(render_failed)?
-            .into();
+        let frame = self.render_raw(&image, iodine.as_deref(), world)?;
         let frame = self.temporal_chain(&image, frame, iodine, world)?;
         // Only now: a failed history render leaves the view dirty.
         self.rendered = Some(image.index);
@@ -804,9 +678,8 @@ impl Modality for FluoroModality {
         if !self.state.images.is_empty() || !self.backend.prefetches() {
             return Ok(());
         }
-        let pitch_mm = self.projection().pixel_pitch_mm[0];
-        let settings = self.render_settings(self.state.kvp, self.state.ma, None, pitch_mm, 0);
         let (needle, projection) = (self.instruments(world), self.projection());
+        let settings = self.render_settings(self.state.kvp, self.state.ma, None, &projection, 0);
         self.renderer(world)?
             .prefetch(
                 needle.as_ref(),

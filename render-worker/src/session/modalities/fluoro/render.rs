@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use sim_core::fluoro::detector::{FLAT_PANEL_DQE, detected_quanta_per_pixel};
 use sim_core::fluoro::temporal::{FIRST_FRAME_LAG, HISTORY_FRAMES, combine, weights_q16};
-use sim_core::fluoro::{EnergyModel, IodineField, QuantumNoise, RenderSettings};
+use sim_core::fluoro::{EnergyModel, IodineField, Projection, QuantumNoise, RenderSettings};
 
 use super::{
     AcquiredImage, FluoroModality, FluoroRenderer, PHOTONS_PER_PIXEL_PER_MA, render_failed,
@@ -24,30 +24,36 @@ impl FluoroModality {
         world: &World,
     ) -> Option<(AcquiredImage, RenderSettings, Option<Arc<IodineField>>)> {
         let image = self.state.images.last()?.clone();
-        let pitch_mm = image.projection.pixel_pitch_mm[0];
-        let settings =
-            self.render_settings(image.kvp, image.ma, image.mas, pitch_mm, image.noise_seed);
+        let settings = self.image_settings(&image);
         let iodine = image
             .iodine_version
             .and(self.image_iodine.clone().or_else(|| world.iodine.clone()));
         Some((image, settings, iodine))
     }
 
-    /// How an image of technique `kvp`, `ma` and charge `mas` (see [`AcquiredImage::mas`]) on
-    /// pixels of `pitch_mm` at the detector is rendered, with noise seed `seed`.
+    /// How acquired image `image` is rendered.
+    fn image_settings(&self, image: &AcquiredImage) -> RenderSettings {
+        let (kvp, ma, mas) = (image.kvp, image.ma, image.mas);
+        self.render_settings(kvp, ma, mas, &image.projection, image.noise_seed)
+    }
+
+    /// How an image of technique `kvp`, `ma` and charge `mas` (see [`AcquiredImage::mas`]) taken
+    /// with `projection` (its pixel pitch and focal distance set the detected quanta) is
+    /// rendered, with noise seed `seed`.
     pub(super) fn render_settings(
         &self,
         kvp: u32,
         ma: f64,
         mas: Option<f64>,
-        pitch_mm: f64,
+        projection: &Projection,
         seed: u64,
     ) -> RenderSettings {
+        let pitch_mm = projection.pixel_pitch_mm[0];
         let photons_per_pixel = match mas {
             Some(mas) => detected_quanta_per_pixel(
                 kvp,
                 mas,
-                self.projection().source_to_detector_mm(),
+                projection.source_to_detector_mm(),
                 pitch_mm * pitch_mm,
                 FLAT_PANEL_DQE,
             )
@@ -81,8 +87,23 @@ impl FluoroModality {
         Ok(self.renderer.as_mut().expect("made above"))
     }
 
+    /// The raw (unfiltered) frame of acquired image `image`, showing `iodine`.
+    pub(super) fn render_raw(
+        &mut self,
+        image: &AcquiredImage,
+        iodine: Option<&IodineField>,
+        world: &World,
+    ) -> Result<ViewImage, ModalityError> {
+        let settings = self.image_settings(image);
+        Ok(self
+            .renderer(world)?
+            .render(image.needle.as_ref(), &image.projection, &settings, iodine)
+            .map_err(render_failed)?
+            .into())
+    }
+
     /// Image `image`'s raw `frame` as displayed: the temporal chain's mix of its run's raw
-    /// frames ([`temporal::history`]), those not kept in this process rendered again.
+    /// frames ([`history`]), those not kept in this process rendered again.
     pub(super) fn temporal_chain(
         &mut self,
         image: &AcquiredImage,
@@ -91,43 +112,42 @@ impl FluoroModality {
         world: &World,
     ) -> Result<ViewImage, ModalityError> {
         let history = history(&self.state.images, image.index as usize);
-        let (Some(level), true) = (image.filter, history.len() > 1) else {
-            self.raw_frames.put(image.index, frame.clone());
+        let Some(level) = image.filter.filter(|_| history.len() > 1) else {
+            // A live frame may be the history of the next one; a shot never is.
+            if image.filter.is_some() {
+                self.raw_frames.put(image.index, frame.clone());
+            }
             return Ok(frame);
         };
-        let mut raws = vec![frame.clone()];
+        // The cache keeps exactly this history (at most `HISTORY_FRAMES`, its capacity): the
+        // missing raw frames are rendered into it, then combined from it without copies.
+        let indices: Vec<u64> = history.iter().map(|&j| j as u64).collect();
+        self.raw_frames.keep_only(&indices);
         for &j in &history[1..] {
-            let index = j as u64;
-            if let Some(f) = self.raw_frames.get(index) {
-                raws.push(f.clone());
-                continue;
+            if self.raw_frames.get(j as u64).is_none() {
+                let old = self.state.images[j].clone();
+                let raw = self.render_raw(&old, iodine.as_deref(), world)?;
+                self.raw_frames.put(j as u64, raw);
             }
-            let im = self.state.images[j].clone();
-            let pitch_mm = im.projection.pixel_pitch_mm[0];
-            let settings = self.render_settings(im.kvp, im.ma, im.mas, pitch_mm, im.noise_seed);
-            let f: ViewImage = self
-                .renderer(world)?
-                .render(
-                    im.needle.as_ref(),
-                    &im.projection,
-                    &settings,
-                    iodine.as_deref(),
-                )
-                .map_err(render_failed)?
-                .into();
-            raws.push(f);
         }
-        // Oldest first, so that the newest stay kept.
-        for (k, &j) in history.iter().enumerate().rev() {
-            self.raw_frames.put(j as u64, raws[k].clone());
-        }
-        let weights = weights_q16(level, FIRST_FRAME_LAG, raws.len());
-        let refs: Vec<&[u8]> = raws.iter().map(|f| f.pixels.as_slice()).collect();
-        let pixels = combine(&refs, &weights).ok_or_else(|| ModalityError::Render {
-            modality: "fluoroscopy",
-            message: "raw frames of a live run differ in size".into(),
-        })?;
-        Ok(ViewImage { pixels, ..frame })
+        let (width, height) = (frame.width, frame.height);
+        self.raw_frames.put(image.index, frame);
+        let refs: Vec<&[u8]> = indices
+            .iter()
+            .filter_map(|&j| self.raw_frames.get(j).map(|f| f.pixels.as_slice()))
+            .collect();
+        let weights = weights_q16(level, FIRST_FRAME_LAG, refs.len());
+        let pixels = combine(&refs, &weights)
+            .filter(|_| refs.len() == indices.len())
+            .ok_or_else(|| ModalityError::Render {
+                modality: "fluoroscopy",
+                message: "raw frames of a live run differ in size".into(),
+            })?;
+        Ok(ViewImage {
+            width,
+            height,
+            pixels,
+        })
     }
 }
 

@@ -67,6 +67,11 @@ impl RawFrames {
             .map(|(_, f)| f)
     }
 
+    /// Drops every kept frame but those of `indices`.
+    pub fn keep_only(&mut self, indices: &[u64]) {
+        self.frames.retain(|(i, _)| indices.contains(i));
+    }
+
     /// Keeps the raw frame of image `index` (the latest `HISTORY_FRAMES` are kept).
     pub fn put(&mut self, index: u64, frame: ViewImage) {
         self.frames.retain(|(i, _)| *i != index);
