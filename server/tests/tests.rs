@@ -9,6 +9,7 @@ mod dispatch_hardening;
 mod dispatch_support;
 mod dispatch_ws_fuzz;
 mod e2e_browser;
+mod e2e_epidural;
 mod e2e_session_start;
 mod embedded;
 mod health;
