@@ -29,25 +29,9 @@ use sim_core::hash::sha256_hex;
 use sim_core::rng::{splitmix64, unit_f64};
 use sim_core::stats::Timing;
 
-/// A `side`^2 transmission and its exposure mask.
-fn field(side: u32) -> (Vec<f32>, Vec<bool>) {
-    let n = side as usize;
-    let mut t = Vec::with_capacity(n * n);
-    let mut exposed = Vec::with_capacity(n * n);
-    for j in 0..n {
-        for i in 0..n {
-            let (x, y) = (i as f64 / n as f64 - 0.5, j as f64 / n as f64 - 0.5);
-            let column = (-(x / 0.08).powi(2)).exp() * (1.0 + 0.3 * (y * 40.0).sin());
-            let pedicle =
-                |cx: f64| (-((x - cx) / 0.03).powi(2) - ((y * 10.0).sin() / 0.4).powi(2)).exp();
-            let ln_t = -3.5 - 2.5 * column - 1.0 * (pedicle(-0.1) + pedicle(0.1));
-            t.push(ln_t.exp() as f32);
-            let edge = 0.46;
-            exposed.push(x.abs() < edge && y.abs() < edge);
-        }
-    }
-    (t, exposed)
-}
+#[path = "common/lumbar_field.rs"]
+mod lumbar_field;
+use lumbar_field::field;
 
 fn main() {
     let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");

@@ -246,6 +246,10 @@ pub struct Step {
 pub struct Metering {
     /// 60 keV basis depths per ray inside the disc and the collimation.
     pub depths: Vec<BasisDepths>,
+    /// Distance from the last surface the central ray leaves (the patient's exit skin) to the
+    /// detector, mm: the air gap of the scatter model; the whole source-to-detector distance
+    /// when the ray meets nothing.
+    pub air_gap_mm: f64,
 }
 
 /// Meters the view `projection` of `scene`: `rays_across^2` rays on a square grid over the
@@ -284,10 +288,55 @@ pub fn meter<'a>(
             depths.push(basis_depths(&chords, 0.0));
         }
     }
-    Metering { depths }
+    let centre = projection.pixel_ray([cx, cy]);
+    let mut hits = Vec::new();
+    let mut last_exit: Option<f64> = None;
+    for entry in scene.entries() {
+        entry.bvh.all_hits(
+            centre.origin_mm,
+            centre.dir,
+            0.0,
+            centre.detector_t_mm,
+            &mut hits,
+        );
+        if let Some(h) = hits.iter().rev().find(|h| !h.entering) {
+            last_exit = Some(last_exit.map_or(h.t_mm, |t: f64| t.max(h.t_mm)));
+        }
+    }
+    let air_gap_mm = centre.detector_t_mm - last_exit.unwrap_or(0.0);
+    Metering { depths, air_gap_mm }
 }
 
 impl Metering {
+    /// The detector's total signal over its primary at the disc's centre, by the scatter model:
+    /// `T_p (1 + SPR)` with the grid (`T_p` its primary transmission), `1 + SPR` without, for
+    /// the disc's water-equivalent thickness at `kvp`, a field of half-sides `half_x_mm` and
+    /// `half_y_mm` at the detector and this view's air gap
+    /// ([`crate::fluoro::scatter::superposition::centre_spr`]); NaN where the disc's
+    /// transmission is.
+    pub fn scatter_factor(&self, kvp: u32, half_x_mm: f64, half_y_mm: f64, grid: bool) -> f64 {
+        let t = self.kerma_transmission(kvp);
+        if !t.is_finite() {
+            return f64::NAN;
+        }
+        let water_mm = water_equivalent_mm(kvp, t);
+        let spr = crate::fluoro::scatter::superposition::centre_spr(
+            kvp,
+            water_mm,
+            half_x_mm,
+            half_y_mm,
+            self.air_gap_mm,
+            grid,
+        )
+        .unwrap_or(f64::NAN);
+        let primary = if grid {
+            crate::fluoro::scatter::AntiScatterGrid::FLUOROSCOPY.primary_transmission()
+        } else {
+            1.0
+        };
+        primary * (1.0 + spr)
+    }
+
     /// The disc's mean kerma transmission at `kvp`; NaN with no ray (shutters closed over
     /// the disc: nothing to meter, and the loop holds its technique) or a voltage without a
     /// spectrum.

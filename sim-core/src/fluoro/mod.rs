@@ -15,7 +15,9 @@
 //! spectra (an estimate, not a dose record); [`detector`] turns an exposure into the detector's
 //! air kerma and detected quanta (the noise of a frame), and [`brightness`] is the automatic
 //! brightness control that steps the technique to hold the detector kerma at a target;
-//! [`temporal`] is live fluoroscopy's detector lag and recursive filter.
+//! [`temporal`] is live fluoroscopy's detector lag and recursive filter; [`scatter`] adds the
+//! scattered radiation (kernel superposition on a coarse grid, an anti-scatter grid, the air
+//! gap) and holds the photon Monte Carlo it is checked against.
 //!
 //! The GPU renderer in `render-worker` reproduces steps 1 to 4 and is tested against this module.
 //! Units: millimetres for geometry, per-centimetre attenuation coefficients (as tabulated), and
@@ -54,6 +56,7 @@ pub mod draft;
 pub mod geometry;
 pub mod nesting;
 pub mod render;
+pub mod scatter;
 pub mod scene;
 pub mod spectrum;
 pub mod temporal;

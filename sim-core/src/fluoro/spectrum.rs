@@ -199,7 +199,7 @@ fn spectra() -> &'static (Vec<String>, Vec<Vec<f64>>) {
     SPECTRA.get_or_init(|| parse_csv(SPECTRA_CSV))
 }
 
-fn parse_csv(text: &str) -> (Vec<String>, Vec<Vec<f64>>) {
+pub(crate) fn parse_csv(text: &str) -> (Vec<String>, Vec<Vec<f64>>) {
     let mut lines = text.lines().filter(|l| !l.trim().is_empty());
     let header = lines
         .next()

@@ -8,6 +8,7 @@ use super::settings::{Image, RenderSettings, SHUTTER_GREY, TransmissionImage};
 use super::transmission::render_transmission;
 use crate::fluoro::contrast::IodineField;
 use crate::fluoro::geometry::Projection;
+use crate::fluoro::scatter::superposition::{ScatterSettings, scatter_field};
 use crate::fluoro::scene::SceneRef;
 use crate::fluoro::spectrum::UnknownKvp;
 
@@ -25,8 +26,8 @@ pub fn render_frame<'a>(
     Ok(finish_frame(&t, settings))
 }
 
-/// Turns a transmission image into the displayed frame: automatic brightness metered on the
-/// noise-free image, then seeded quantum noise (when enabled), tone mapping and shutters. The
+/// Turns a transmission image into the displayed frame: scatter (when set) added to the
+/// primary, automatic brightness metered on the noise-free image, then seeded quantum noise (when enabled), tone mapping and shutters. The
 /// CPU reference and the GPU renderer both end with this, so their frames differ only where
 /// their transmissions do.
 ///
@@ -80,6 +81,51 @@ pub fn finish_frame_f32(
 }
 
 fn finish<T: Copy + Into<f64> + Sync>(t: Samples<'_, T>, settings: &RenderSettings) -> Image {
+    if let Some(s) = settings.scatter.as_ref() {
+        if let Some(total) = with_scatter(t, s, settings.threads) {
+            return finish_total(
+                Samples {
+                    width: t.width,
+                    height: t.height,
+                    transmission: &total,
+                    exposed: t.exposed,
+                },
+                settings,
+            );
+        }
+    }
+    finish_total(t, settings)
+}
+
+/// The detector's signal with scatter: the primary times the grid's primary transmission plus
+/// the superposed scatter, on exposed pixels (0 behind the shutters, as the primary). `None`
+/// when the scatter cannot be computed (a voltage without a spectrum): the primary alone.
+fn with_scatter<T: Copy + Into<f64> + Sync>(
+    t: Samples<'_, T>,
+    s: &ScatterSettings,
+    threads: usize,
+) -> Option<Vec<f32>> {
+    let field = scatter_field(t.transmission, t.exposed, t.width, t.height, s)?;
+    let factor = s.primary_factor();
+    let columns = field.columns();
+    let w = t.width;
+    let mut total = vec![0.0f32; t.transmission.len()];
+    par_rows(&mut total, w, thread_count(threads), |j, row| {
+        let mut cells = Vec::with_capacity(field.cells[0] + 1);
+        field.row_cells(j, &mut cells);
+        for (i, out) in row.iter_mut().enumerate() {
+            let p = j * w + i;
+            if t.exposed[p] {
+                let (x0, ax) = columns[i];
+                let scatter = cells[x0] + ax * (cells[x0 + 1] - cells[x0]);
+                *out = (factor * t.at(p) + scatter) as f32;
+            }
+        }
+    });
+    Some(total)
+}
+
+fn finish_total<T: Copy + Into<f64> + Sync>(t: Samples<'_, T>, settings: &RenderSettings) -> Image {
     let noise = settings.noise.as_ref();
     let centre = t.exposure_centre(&settings.exposure, noise);
     let Some(noise) = noise else {

@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::fluoro::attenuation::EnergyModel;
+use crate::fluoro::scatter::superposition::ScatterSettings;
 
 /// Automatic brightness: how transmission becomes grey.
 ///
@@ -61,6 +62,10 @@ pub struct RenderSettings {
     pub invert: bool,
     /// Worker threads (0: all available cores).
     pub threads: usize,
+    /// Scattered radiation added to the primary before noise and display
+    /// ([`crate::fluoro::scatter`]), or `None` for the primary image alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scatter: Option<ScatterSettings>,
 }
 
 impl Default for RenderSettings {
@@ -76,6 +81,7 @@ impl Default for RenderSettings {
             noise: None,
             invert: false,
             threads: 0,
+            scatter: None,
         }
     }
 }
