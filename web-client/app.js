@@ -327,6 +327,12 @@ async function openSession(attemptId, stationId) {
         if (o.recursive_filter != null) $('recursive-filter').value = o.recursive_filter;
         if (window.__sim) window.__sim.recursiveFilter = o.recursive_filter;
       }
+      if ('grid' in o) {
+        // A session recorded before scatter has no grid: the control is off there.
+        $('grid').disabled = o.grid == null;
+        if (o.grid != null) $('grid').value = o.grid;
+        if (window.__sim) window.__sim.grid = o.grid;
+      }
     });
     live.addEventListener('commanderror', (e) => {
       needle.error(e.detail);
@@ -430,6 +436,10 @@ $('field').addEventListener('change', (e) => {
 // Live fluoroscopy's recursive filter (the session's `recursive_filter` command).
 $('recursive-filter').addEventListener('change', (e) => {
   if (live) live.send({ type: 'recursive_filter', level: e.target.value });
+});
+// The anti-scatter grid (the session's `grid` command).
+$('grid').addEventListener('change', (e) => {
+  if (live) live.send({ type: 'grid', grid: e.target.value });
 });
 $('abc').addEventListener('change', (e) => {
   if (!live) return;

@@ -5,7 +5,11 @@
 //! - the metering of a new view (the central disc's rays through the scene, what a C-arm move
 //!   adds to the next frame) and one controller step (what every frame adds; a needle step or a
 //!   new shot at the same pose reuses the metering), median of the runs;
-//! - per curve, the technique the loop settles on from 80 kVp / 2 mA, the frames it takes to
+//! - per curve, with the anti-scatter grid in (a new session's default; the standard curve
+//!   also with it out), the technique the loop settles on from 80 kVp / 2 mA metering the
+//!   total signal behind the grid as sessions do (the primary times
+//!   `Metering::scatter_factor`: the view's air gap and the scatter-to-primary ratio of its
+//!   water-equivalent thickness over the open field are columns), the frames it takes to
 //!   come within 5 % of the target, the skin entrance rate at 7.5 pulses per second, and the
 //!   detected quanta of an unattenuated 512^2 and 1024^2 pixel per pulse at that technique (the
 //!   noise the frame gets).
@@ -29,12 +33,14 @@ mod common;
 use std::time::Instant;
 
 use render_worker::session::modalities::fluoro::dose::source_to_skin_mm;
+use render_worker::session::modalities::fluoro::scatter::{ScatterState, metering_factor};
 use sim_core::fluoro::Projection;
 use sim_core::fluoro::brightness::{
     BrightnessCurve, FrameExposure, METERING_RAYS_ACROSS, Technique, TubeLimits, meter,
     next_technique, skin_kerma_rate_mgy_per_min,
 };
 use sim_core::fluoro::detector::{FLAT_PANEL_DQE, detected_quanta_per_pixel};
+use sim_core::fluoro::scatter::AntiScatterGrid;
 use sim_core::fluoro::temporal::{
     FIRST_FRAME_LAG, FilterLevel, HISTORY_FRAMES, combine, weights_q16,
 };
@@ -58,9 +64,9 @@ fn main() {
     let mut tfesi: Vec<(&str, Technique, Projection)> = Vec::new();
     println!();
     println!(
-        "| view | rays | metering a new view, ms | one step, us | curve | settles on | frames to 5 % | skin mGy/min | quanta per 512^2 px | per 1024^2 px |"
+        "| view | rays | metering a new view, ms | one step, us | curve | grid | air gap, mm | SPR | settles on | frames to 5 % | skin mGy/min | quanta per 512^2 px | per 1024^2 px |"
     );
-    println!("|---|---:|---:|---:|---|---|---:|---:|---:|---:|");
+    println!("|---|---:|---:|---:|---|---|---:|---:|---|---:|---:|---:|---:|");
     for (name, orbital) in [("AP", 0.0), ("oblique 25", 25.0), ("lateral", 90.0)] {
         let p = Projection {
             orbital_deg: orbital,
@@ -82,22 +88,35 @@ fn main() {
             source_to_detector_mm: p.source_to_detector_mm(),
             source_to_skin_mm: source_to_skin_mm(&region, &p),
         };
-        for curve in BrightnessCurve::ALL {
+        let runs_of_view = BrightnessCurve::ALL
+            .into_iter()
+            .map(|c| (c, true))
+            .chain([(BrightnessCurve::Standard, false)]);
+        for (curve, grid) in runs_of_view {
             let target = curve.target_ngy_per_frame();
             let mut t = Technique { kvp: 80, ma: 2.0 };
             let mut first_within = None;
             let mut step_s = Vec::new();
+            let scatter = Some(ScatterState { grid });
+            let mut spr = f64::NAN;
             for frame in 0..8 {
                 let s0 = Instant::now();
-                let k = m.detector_kerma_ngy(t, &e);
+                let factor = metering_factor(scatter, &m, t.kvp, &p);
+                let k = m.detector_kerma_ngy(t, &e) * factor;
                 let step = next_technique(curve, &limits, &e, t, k);
                 step_s.push(s0.elapsed().as_secs_f64());
                 if first_within.is_none() && (k / target - 1.0).abs() <= 0.05 {
                     first_within = Some(frame);
                 }
+                let primary = if grid {
+                    AntiScatterGrid::FLUOROSCOPY.primary_transmission()
+                } else {
+                    1.0
+                };
+                spr = factor / primary - 1.0;
                 t = step.technique;
             }
-            if curve == BrightnessCurve::Standard {
+            if curve == BrightnessCurve::Standard && grid {
                 tfesi.push((name, t, p));
             }
             let quanta = |side: f64| {
@@ -112,11 +131,13 @@ fn main() {
                 .unwrap_or(f64::NAN)
             };
             println!(
-                "| {name} | {} | {:.2} | {:.1} | {} | {} kVp {:.2} mA | {} | {:.1} | {:.0} | {:.0} |",
+                "| {name} | {} | {:.2} | {:.1} | {} | {} | {:.0} | {spr:.2} | {} kVp {:.2} mA | {} | {:.1} | {:.0} | {:.0} |",
                 m.depths.len(),
                 Timing::from_seconds(meter_s.iter().copied()).median_ms(),
                 Timing::from_seconds(step_s.iter().copied()).median_s() * 1e6,
                 curve.name(),
+                if grid { "in" } else { "out" },
+                m.air_gap_mm,
                 t.kvp,
                 t.ma,
                 first_within.map_or("never".into(), |f| f.to_string()),
@@ -131,7 +152,11 @@ fn main() {
     println!("|---|---:|");
     for side in [512usize, 1024] {
         let frames: Vec<Vec<u8>> = (0..HISTORY_FRAMES)
-            .map(|k| (0..side * side).map(|p| ((p * 7 + k * 13) % 251) as u8).collect())
+            .map(|k| {
+                (0..side * side)
+                    .map(|p| ((p * 7 + k * 13) % 251) as u8)
+                    .collect()
+            })
             .collect();
         let refs: Vec<&[u8]> = frames.iter().map(|f| f.as_slice()).collect();
         let q = weights_q16(FilterLevel::High, FIRST_FRAME_LAG, HISTORY_FRAMES);

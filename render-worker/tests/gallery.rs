@@ -167,3 +167,37 @@ fn endplates_square_at_the_tilt_the_meshes_give() {
     // The 2 degree sampling step of the scan.
     assert!((best - expected).abs() <= 2.0, "image squares at {best} deg, meshes at {expected:.1} deg");
 }
+
+/// The scatter gallery: AP and lateral with the grid in and out, written beside the plain
+/// views; without the grid the fog narrows the grey range of the spine's middle.
+#[test]
+fn scatter_gallery_shows_ap_and_lateral_with_and_without_the_grid() {
+    let region = region();
+    let shots = gallery::scatter_shots(&region, &gallery::settings(0)).expect("renders");
+    let dir = tempfile::tempdir().unwrap();
+    let paths = gallery::write(&region, &shots, dir.path()).unwrap();
+    let names: Vec<String> = paths.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
+    assert_eq!(
+        names,
+        [
+            "lumbar-phantom_ap_grid.png",
+            "lumbar-phantom_ap_nogrid.png",
+            "lumbar-phantom_lateral_grid.png",
+            "lumbar-phantom_lateral_nogrid.png"
+        ]
+    );
+    // The 10th to 90th percentile of the middle quarter of the image.
+    let spread = |s: &Shot| {
+        let n = s.image.width as usize;
+        let mut v: Vec<u8> = (n * 3 / 8..n * 5 / 8)
+            .flat_map(|j| (n * 3 / 8..n * 5 / 8).map(move |i| (i, j)))
+            .map(|(i, j)| s.image.pixels[j * n + i])
+            .collect();
+        v.sort_unstable();
+        i32::from(v[v.len() * 9 / 10]) - i32::from(v[v.len() / 10])
+    };
+    for pair in shots.chunks(2) {
+        let (grid, nogrid) = (spread(&pair[0]), spread(&pair[1]));
+        assert!(nogrid < grid, "{}: spread {grid} with the grid, {nogrid} without", pair[0].view.name);
+    }
+}

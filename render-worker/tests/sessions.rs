@@ -11,6 +11,7 @@ mod magnification;
 mod pulsed;
 mod temporal;
 mod rendering;
+mod scatter;
 mod replay;
 mod scoring;
 mod support;
@@ -23,7 +24,7 @@ use support::{env, fluoro_only, place};
 
 /// The scripted session of `frames_of_a_scripted_session_are_pinned`: shots, C-arm moves, a
 /// live run with needle motion, an annotation and a submit, rendering after every step.
-fn scripted_frames_sha256(env: SessionEnv, recorded_before: bool) -> (String, usize) {
+fn scripted_frames_sha256(env: SessionEnv, removed: &[&str]) -> (String, usize) {
     use sha2::{Digest, Sha256};
     let steps: Vec<(u64, Command)> = vec![
         (0, Command::Shot),
@@ -47,17 +48,15 @@ fn scripted_frames_sha256(env: SessionEnv, recorded_before: bool) -> (String, us
         (1200, Command::Submit),
     ];
     // The script predates pulsed fluoroscopy, the brightness control, the detector's noise
-    // model and the temporal chain: `recorded_before` runs it on a session without them (one
-    // recorded before),
-    // which keeps the continuous beam, the manual technique and the noise the first hashes
-    // were recorded with; otherwise on a session of today.
+    // model, the temporal chain and scatter: removing their fields from a new session's state
+    // gives a session recorded before them (`RECORDED_BEFORE`: the continuous beam, the manual
+    // technique and the noise the first hashes were recorded with); removing none, a session
+    // of today.
     let mut initial = Session::new(env.clone(), config()).snapshot();
     if let Some(f) = initial.modalities.get_mut("fluoroscopy") {
         let f = f.as_object_mut().unwrap();
-        if recorded_before {
-            for field in ["pulse_rate_pps", "brightness", "detector_noise", "temporal"] {
-                assert!(f.remove(field).is_some(), "a new session has {field}");
-            }
+        for field in removed {
+            assert!(f.remove(*field).is_some(), "a new session has {field}");
         }
     }
     let mut s = Session::restore(env, &initial, &[]).unwrap();
@@ -79,33 +78,51 @@ fn scripted_frames_sha256(env: SessionEnv, recorded_before: bool) -> (String, us
     (hex::encode(h.finalize()), frames)
 }
 
+/// The fields of a session recorded before pulsing, the brightness control, the detector
+/// model, the temporal chain and scatter.
+const RECORDED_BEFORE: [&str; 5] = [
+    "pulse_rate_pps",
+    "brightness",
+    "detector_noise",
+    "temporal",
+    "scatter",
+];
+
 /// Pins the frames of a scripted session: a restructuring of the session code must leave every
 /// pixel as it was. Hashes recorded before the modality seam moved the fluoroscopy modality into
 /// its own folder (commit 3baf252). The GPU hash is pinned only on the software adapter it was
 /// recorded on (another driver or vector width rounds differently).
 #[test]
 fn frames_of_a_scripted_session_are_pinned() {
-    let (cpu, n) = scripted_frames_sha256(env(), true);
+    let (cpu, n) = scripted_frames_sha256(env(), &RECORDED_BEFORE);
     eprintln!("scripted session, CPU reference: {n} frames, sha256 {cpu}");
     assert_eq!(n, 8);
     assert_eq!(
         cpu,
         "46845c29b961755f6987ea9a78e173e848112eabb0386a518704740a34839355"
     );
-    // Today's session: pulsed, under the brightness control, detector noise, the temporal
-    // chain (pinned when the chain came).
-    let (today, n) = scripted_frames_sha256(env(), false);
+    // A session recorded before scatter: pulsed, under the brightness control, detector noise,
+    // the temporal chain (pinned when the chain came).
+    let (chain, n) = scripted_frames_sha256(env(), &["scatter"]);
+    eprintln!("scripted session before scatter, CPU reference: {n} frames, sha256 {chain}");
+    assert_eq!(n, 7, "a change waits for its pulse");
+    assert_eq!(
+        chain,
+        "5835be215c10d5793f196785c8639137960ca958efd0c826a8d5f3ea808a2565"
+    );
+    // Today's session: the same with scatter and the grid in (pinned when scatter came).
+    let (today, n) = scripted_frames_sha256(env(), &[]);
     eprintln!("scripted session of today, CPU reference: {n} frames, sha256 {today}");
     assert_eq!(n, 7, "a change waits for its pulse");
     assert_eq!(
         today,
-        "5835be215c10d5793f196785c8639137960ca958efd0c826a8d5f3ea808a2565"
+        "6b12b71be7117ef5ac03b25e5d67b52dc19b8f699811b706a5eabe80dc654674"
     );
     if let Some(ctx) = render_worker::gpu::context_for_tests() {
         let adapter = ctx.summary.name.clone();
         let mut gpu_env = env();
         gpu_env.backends = Backends::gpu(ctx);
-        let (gpu, n) = scripted_frames_sha256(gpu_env, true);
+        let (gpu, n) = scripted_frames_sha256(gpu_env, &RECORDED_BEFORE);
         eprintln!("scripted session, GPU ({adapter}): {n} frames, sha256 {gpu}");
         assert_eq!(n, 8);
         if adapter == "llvmpipe (LLVM 15.0.6, 256 bits)" {

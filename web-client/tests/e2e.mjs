@@ -272,10 +272,12 @@ await runReport(async (page, report) => {
   const acksBeforeCurve = await acksSoFar(page);
   await page.selectOption('#abc', 'low_dose');
   await page.selectOption('#recursive-filter', 'high');
-  await waitUntil(page, (n) => window.__sim.stats.acks >= n + 2, acksBeforeCurve);
+  await page.selectOption('#grid', 'out');
+  await waitUntil(page, (n) => window.__sim.stats.acks >= n + 3, acksBeforeCurve);
   report.curve_and_filter = await page.evaluate(() => ({
     brightness: window.__sim.technique && window.__sim.technique.brightness,
     filter: window.__sim.recursiveFilter,
+    grid: window.__sim.grid,
   }));
   report.readout = { latency: await page.textContent('#latency'), fps: await page.textContent('#fps') };
   report.command_errors = await page.evaluate(() => window.__sim.stats.errors);

@@ -1,5 +1,7 @@
 //! `gallery`: renders AP, 30 degree oblique and lateral fluoroscopy shots of every region a
-//! station uses (or of the regions named) to PNG files, for review of the anatomy.
+//! station uses (or of the regions named) to PNG files, for review of the anatomy; and the AP
+//! and lateral with scatter, the anti-scatter grid in and out (`<region>_ap_grid.png`,
+//! `<region>_ap_nogrid.png`, ...).
 //!
 //! ```text
 //! gallery [--assets DIR] [--out DIR] [--regions a,b,c]
@@ -60,7 +62,8 @@ fn run(args: &[String]) -> Result<(), String> {
         let t = Instant::now();
         let region = load_region(&assets, name, &mut |p| eprintln!("{name}: {p:?}")).map_err(|e| e.to_string())?;
         let loaded = t.elapsed();
-        let shots = gallery::shots(&region, &settings).map_err(|e| e.to_string())?;
+        let mut shots = gallery::shots(&region, &settings).map_err(|e| e.to_string())?;
+        shots.extend(gallery::scatter_shots(&region, &settings).map_err(|e| e.to_string())?);
         for path in gallery::write(&region, &shots, &out).map_err(|e| e.to_string())? {
             println!("{}", path.display());
         }

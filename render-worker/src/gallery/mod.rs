@@ -13,8 +13,11 @@ pub mod png;
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
+use sim_core::fluoro::brightness::{METERING_RAYS_ACROSS, meter};
+use sim_core::fluoro::render::finish_frame;
+use sim_core::fluoro::scatter::superposition::ScatterSettings;
 use sim_core::fluoro::spectrum::UnknownKvp;
-use sim_core::fluoro::{Image, Projection, RenderSettings, render_frame};
+use sim_core::fluoro::{Image, Projection, RenderSettings, render_frame, render_transmission};
 
 use crate::session::region::Region;
 
@@ -188,6 +191,75 @@ pub fn shots(region: &Region, settings: &RenderSettings) -> Result<Vec<Shot>, Ga
         .iter()
         .map(|v| shot(region, *v, centre, settings))
         .collect()
+}
+
+/// AP with the anti-scatter grid in, and out; the same for the lateral.
+pub const SCATTER_VIEWS: [(View, bool); 4] = [
+    (
+        View {
+            name: "ap_grid",
+            ..AP
+        },
+        true,
+    ),
+    (
+        View {
+            name: "ap_nogrid",
+            ..AP
+        },
+        false,
+    ),
+    (
+        View {
+            name: "lateral_grid",
+            ..LATERAL
+        },
+        true,
+    ),
+    (
+        View {
+            name: "lateral_nogrid",
+            ..LATERAL
+        },
+        false,
+    ),
+];
+
+/// The views of [`SCATTER_VIEWS`] with scatter added (`sim_core::fluoro::scatter`): each view's
+/// air gap from the scene (the metering's central ray), the grid in or out, one transmission
+/// per view finished twice.
+pub fn scatter_shots(
+    region: &Region,
+    settings: &RenderSettings,
+) -> Result<Vec<Shot>, GalleryError> {
+    let centre = centre_of(region);
+    let kvp = match settings.energy {
+        sim_core::fluoro::EnergyModel::Spectral { kvp } => kvp,
+        _ => 80,
+    };
+    let mut out = Vec::with_capacity(SCATTER_VIEWS.len());
+    for pair in SCATTER_VIEWS.chunks(2) {
+        let projection = projection(pair[0].0, centre);
+        let t = render_transmission(&region.scene, None, &projection, settings)?;
+        let gap = meter(&region.scene, &projection, METERING_RAYS_ACROSS).air_gap_mm;
+        for &(view, grid) in pair {
+            let with = RenderSettings {
+                scatter: Some(ScatterSettings {
+                    kvp,
+                    grid,
+                    air_gap_mm: gap,
+                    pixel_pitch_mm: projection.pixel_pitch_mm[0],
+                }),
+                ..*settings
+            };
+            out.push(Shot {
+                view,
+                projection,
+                image: finish_frame(&t, &with),
+            });
+        }
+    }
+    Ok(out)
 }
 
 /// Writes `shots` of `region` into `dir` as `<region>_<view>.png`; returns the paths.

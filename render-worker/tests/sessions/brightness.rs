@@ -166,7 +166,7 @@ fn brightness_steps_and_live_pulses_replay_bit_identically() {
 fn brightness_leaves_sessions_recorded_before_it_as_they_were() {
     let mut initial = Session::new(env(), config()).snapshot();
     let f = initial.modalities.get_mut("fluoroscopy").unwrap();
-    for field in ["brightness", "detector_noise", "temporal"] {
+    for field in ["brightness", "detector_noise", "temporal", "scatter"] {
         assert!(f.as_object_mut().unwrap().remove(field).is_some(), "{field}");
     }
     let mut d = Driver {
@@ -180,13 +180,20 @@ fn brightness_leaves_sessions_recorded_before_it_as_they_were() {
     d.ok(700, pose(80.0, 0.0));
     d.ok(900, Command::Live { on: false });
     for i in images(&d.s) {
-        for field in ["mas", "detector_kerma_ngy", "run", "filter"] {
+        for field in ["mas", "detector_kerma_ngy", "run", "filter", "scatter"] {
             assert!(i.get(field).is_none(), "{field} in {i}");
         }
         assert_eq!((i["kvp"].as_u64(), i["ma"].as_f64()), (Some(80), Some(2.0)), "{i}");
     }
     let f = &d.s.snapshot().modalities["fluoroscopy"];
-    for field in ["brightness", "detector_noise", "temporal", "collimator", "field_mm"] {
+    for field in [
+        "brightness",
+        "detector_noise",
+        "temporal",
+        "collimator",
+        "field_mm",
+        "scatter",
+    ] {
         assert!(f.get(field).is_none(), "{field} in {f}");
     }
 }

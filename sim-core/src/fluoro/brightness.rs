@@ -127,15 +127,16 @@ impl BrightnessCurve {
         }
     }
 
-    /// Target primary detector air kerma per frame, nGy (the part of the detector signal this
-    /// model has: scatter is not modelled yet). Standard: 3 nGy, simulator choice that drives an
-    /// adult AP lumbar view to about 80 kVp and 2-3 mA at 7.5 pulses per second; with the 1 to 5
-    /// scatter-to-primary ratio of a lumbar field at the detector the total is 6 to 18 nGy,
-    /// around the low end of the 10-40 nGy per frame of flat-panel fluoroscopy (A. R. Cowen, A. G. Davies and
-    /// M. U. Sivananthan, "The design and imaging characteristics of dynamic, solid-state,
-    /// flat-panel x-ray image detectors for digital fluoroscopy and fluorography", Clin. Radiol.
-    /// 63 (2008) 1073-1085). Low dose: 60 % of it; high contrast: the standard
-    /// target.
+    /// Target detector air kerma per frame, nGy: of the metered signal, which is the primary
+    /// alone in sessions recorded before the scatter model and otherwise the total behind the
+    /// anti-scatter grid (primary through the grid plus scatter, see
+    /// [`Metering::scatter_factor`]). Standard: 3 nGy, simulator choice that drives an adult AP
+    /// lumbar view to about 80 kVp and 3-4 mA at 7.5 pulses per second with the grid in (bench
+    /// `brightness`), at the low end of the 10-40 nGy per frame of flat-panel fluoroscopy (A. R.
+    /// Cowen, A. G. Davies and M. U. Sivananthan, "The design and imaging characteristics of
+    /// dynamic, solid-state, flat-panel x-ray image detectors for digital fluoroscopy and
+    /// fluorography", Clin. Radiol. 63 (2008) 1073-1085). Low dose: 60 % of it; high contrast:
+    /// the standard target.
     pub fn target_ngy_per_frame(self) -> f64 {
         match self {
             BrightnessCurve::Standard | BrightnessCurve::HighContrast => 3.0,

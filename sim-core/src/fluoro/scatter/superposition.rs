@@ -405,8 +405,9 @@ pub fn centre_spr(
     };
     let rho = |w: usize| ring_densities(&cumulative_at(kvp as f64, air_gap_mm, w, grid));
     let (r0, r1) = (rho(w), rho((w + 1).min(WATER_MM.len() - 1)));
-    // Integrate over the rectangle on a 2 mm grid (quarter, by symmetry).
-    let step = 2.0;
+    // Integrate over the rectangle on a 5 mm grid (a quarter, by symmetry; the kernels are
+    // tabulated on 10 mm rings).
+    let step = 5.0;
     let (mx, my) = (
         (half_x_mm / step).ceil().max(1.0) as usize,
         (half_y_mm / step).ceil().max(1.0) as usize,

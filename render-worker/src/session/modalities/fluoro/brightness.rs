@@ -94,17 +94,19 @@ impl MeteringCache {
     }
 }
 
-/// The measured primary detector air kerma per pulse of a frame at `technique` (nGy), and the
-/// control's next technique (`None`: the control is off, or the step keeps the technique),
-/// towards the curve's target times `target_factor` (a magnification mode's).
+/// The measured detector air kerma per pulse of a frame at `technique` (nGy: the metered
+/// primary times `signal_factor`, 1 for the primary alone or the scatter model's total behind
+/// the grid), and the control's next technique (`None`: the control is off, or the step keeps
+/// the technique), towards the curve's target times `target_factor` (a magnification mode's).
 pub fn step(
     state: &mut Option<BrightnessState>,
     metering: &Metering,
     technique: Technique,
     exposure: &FrameExposure,
     target_factor: f64,
+    signal_factor: f64,
 ) -> (f64, Option<Technique>) {
-    let measured = metering.detector_kerma_ngy(technique, exposure);
+    let measured = metering.detector_kerma_ngy(technique, exposure) * signal_factor;
     let Some(s) = state.as_mut() else {
         return (measured, None);
     };

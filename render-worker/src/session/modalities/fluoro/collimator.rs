@@ -7,8 +7,9 @@
 //!   centre is as intense as before);
 //! - the brightness control: only the metering rays inside the opening count.
 //!
-//! Scatter is not modelled yet, so a tighter field does not yet lower the scatter fog or the
-//! noise it brings.
+//! - scatter ([`super::scatter`]): fewer irradiated cells scatter, so a tighter field shows
+//!   less fog, and the brightness control's estimate of the scatter it meters falls with the
+//!   field's area.
 //!
 //! Command: `{"type": "collimation", "width_mm": 200, "height_mm": 150, "iris_diameter_mm":
 //! 250}` (the iris may be omitted or `null` for none). Sessions recorded before the collimator

@@ -17,6 +17,7 @@ pub mod dose;
 pub mod draft;
 pub mod magnification;
 pub mod pulse;
+pub mod scatter;
 mod state;
 mod steel;
 pub mod temporal;
@@ -132,6 +133,7 @@ impl FluoroModality {
                 temporal: Some(temporal::TemporalState {
                     level: temporal::DEFAULT_LEVEL,
                 }),
+                scatter: Some(scatter::ScatterState { grid: true }),
             },
             backend,
             rendered: None,
@@ -312,17 +314,29 @@ impl FluoroModality {
         let factor = magnification_target_factor(self.state.config.detector_mm, self.field_mm());
         // Sessions recorded before the detector model and the control meter nothing: their
         // images stay as they were recorded (a result's replay compares the whole state).
-        let (measured, next) = if self.state.detector_noise || self.state.brightness.is_some() {
+        let meters = self.state.detector_noise
+            || self.state.brightness.is_some()
+            || self.state.scatter.is_some();
+        let (measured, next, image_scatter) = if meters {
             let metering = self.metering.get(&world.region, &projection);
-            brightness::step(
+            let signal = scatter::metering_factor(
+                self.state.scatter,
+                metering,
+                technique.kvp,
+                &projection,
+            );
+            let (measured, next) = brightness::step(
                 &mut self.state.brightness,
                 metering,
                 technique,
                 &exposure,
                 factor,
-            )
+                signal,
+            );
+            let image_scatter = scatter::image_scatter(self.state.scatter, metering);
+            (measured, next, image_scatter)
         } else {
-            (f64::NAN, None)
+            (f64::NAN, None, None)
         };
         self.state.images.push(AcquiredImage {
             index,
@@ -340,6 +354,7 @@ impl FluoroModality {
             detector_kerma_ngy: measured.is_finite().then_some(measured),
             run: live.then_some(self.state.live_runs).filter(|_| self.state.temporal.is_some()),
             filter: self.state.temporal.filter(|_| live).map(|t| t.level),
+            scatter: image_scatter,
         });
         self.image_iodine = world.iodine.clone();
         if let Some(next) = next {
@@ -398,6 +413,7 @@ pub static SPEC: ModalitySpec = ModalitySpec {
         CommandSpec::new(collimator::COLLIMATION_KIND, Some(Engagement::ViewChanged)),
         CommandSpec::new(magnification::MAGNIFICATION_KIND, Some(Engagement::ViewChanged)),
         CommandSpec::new(temporal::FILTER_KIND, None),
+        CommandSpec::new(scatter::GRID_KIND, Some(Engagement::ViewChanged)),
     ],
     constants: &[("default_pulse_rate_pps", pulse::DEFAULT_PULSE_RATE_PPS)],
 };
@@ -522,6 +538,11 @@ impl Modality for FluoroModality {
                 self.state.collimator = Some(setting);
                 self.live_change(world);
             }
+            Command::Modality(c) if c.kind() == scatter::GRID_KIND => {
+                let grid = scatter::parse(c)?;
+                self.state.scatter = Some(scatter::ScatterState { grid });
+                self.live_change(world);
+            }
             Command::Modality(c) if c.kind() == temporal::FILTER_KIND => {
                 let level = temporal::parse(c)?;
                 self.state.temporal = Some(temporal::TemporalState { level });
@@ -557,6 +578,8 @@ impl Modality for FluoroModality {
             ),
             "field_mm": self.field_mm(),
             "detector_mm": self.state.config.detector_mm,
+            "grid": self.state.scatter.map(|s| if s.grid { "in" } else { "out" }),
+            "air_gap_mm": self.state.images.last().and_then(|i| i.scatter).map(|s| s.air_gap_mm),
             "collimation": self.state.collimator,
             "recursive_filter": self.state.temporal.map(|t| t.level),
             "pulse_rate_pps": self.state.pulse_rate_pps,

@@ -5,6 +5,7 @@
 use std::sync::Arc;
 
 use sim_core::fluoro::detector::{FLAT_PANEL_DQE, detected_quanta_per_pixel};
+use sim_core::fluoro::scatter::superposition::ScatterSettings;
 use sim_core::fluoro::temporal::{FIRST_FRAME_LAG, HISTORY_FRAMES, combine, weights_q16};
 use sim_core::fluoro::{EnergyModel, IodineField, Projection, QuantumNoise, RenderSettings};
 
@@ -34,7 +35,15 @@ impl FluoroModality {
     /// How acquired image `image` is rendered.
     fn image_settings(&self, image: &AcquiredImage) -> RenderSettings {
         let (kvp, ma, mas) = (image.kvp, image.ma, image.mas);
-        self.render_settings(kvp, ma, mas, &image.projection, image.noise_seed)
+        RenderSettings {
+            scatter: image.scatter.map(|s| ScatterSettings {
+                kvp,
+                grid: s.grid,
+                air_gap_mm: s.air_gap_mm,
+                pixel_pitch_mm: image.projection.pixel_pitch_mm[0],
+            }),
+            ..self.render_settings(kvp, ma, mas, &image.projection, image.noise_seed)
+        }
     }
 
     /// How an image of technique `kvp`, `ma` and charge `mas` (see [`AcquiredImage::mas`]) taken
@@ -154,7 +163,7 @@ impl FluoroModality {
 /// The images whose raw frames image `k` is displayed from, newest first (`k` itself first):
 /// the live images of its run with its iodine field and its projection, at most
 /// `HISTORY_FRAMES`; just `k` for a shot, an image without a run, or one recorded before the
-/// chain. A C-arm move (or a change of field or collimation) restarts the filter, as
+/// chain. A C-arm move (or a change of field, collimation or grid) restarts the filter, as
 /// motion-detecting recursive filters do: it keeps the anatomy sharp while the C-arm turns, and
 /// a drag's frames (often only drafted) are never rendered again for the history.
 pub fn history(images: &[AcquiredImage], k: usize) -> Vec<usize> {
@@ -172,6 +181,7 @@ pub fn history(images: &[AcquiredImage], k: usize) -> Vec<usize> {
             || o.run != img.run
             || o.iodine_version != img.iodine_version
             || o.projection != img.projection
+            || o.scatter.map(|s| s.grid) != img.scatter.map(|s| s.grid)
         {
             break;
         }

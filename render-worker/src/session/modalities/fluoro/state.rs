@@ -36,8 +36,9 @@ pub struct AcquiredImage {
     /// which keep [`super::PHOTONS_PER_PIXEL_PER_MA`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mas: Option<f64>,
-    /// Primary detector air kerma per pulse over the metering disc at this frame's technique,
-    /// nGy (what the automatic brightness control measured; see [`brightness`]).
+    /// Detector air kerma per pulse over the metering disc at this frame's technique, nGy (what
+    /// the automatic brightness control measured; see [`brightness`]): the primary, and in
+    /// sessions with scatter the total behind the grid (see [`super::scatter`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub detector_kerma_ngy: Option<f64>,
     /// The live run this frame belongs to (1-based, as `live_runs` counts them), for the
@@ -47,6 +48,10 @@ pub struct AcquiredImage {
     /// The recursive filter's level this live frame is displayed with (absent: no chain).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub filter: Option<sim_core::fluoro::temporal::FilterLevel>,
+    /// The grid and air gap this frame was taken with ([`super::scatter`]); absent in
+    /// sessions recorded before scatter, whose frames show the primary alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scatter: Option<super::scatter::ImageScatter>,
 }
 
 /// A mark on an image.
@@ -125,4 +130,8 @@ pub struct FluoroState {
     /// sessions recorded before the chain.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub temporal: Option<temporal::TemporalState>,
+    /// The anti-scatter grid ([`super::scatter`]), or `None` in sessions recorded before
+    /// scatter (no scatter is added to their images).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scatter: Option<super::scatter::ScatterState>,
 }
