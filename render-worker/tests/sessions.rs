@@ -7,6 +7,7 @@
 
 mod brightness;
 mod collimation;
+mod dose;
 mod magnification;
 mod pulsed;
 mod temporal;
