@@ -327,6 +327,11 @@ async function openSession(attemptId, stationId) {
         if (o.recursive_filter != null) $('recursive-filter').value = o.recursive_filter;
         if (window.__sim) window.__sim.recursiveFilter = o.recursive_filter;
       }
+      if (o.detector != null) {
+        // The station's image receptor: an image intensifier distorts and vignettes.
+        $('detector').textContent = o.detector === 'image_intensifier' ? 'image intensifier' : 'flat panel';
+        if (window.__sim) window.__sim.detector = o.detector;
+      }
       if ('grid' in o) {
         // A session recorded before scatter has no grid: the control is off there.
         $('grid').disabled = o.grid == null;

@@ -10,6 +10,7 @@ mod collimation;
 mod dose;
 mod magnification;
 mod pulsed;
+mod receptor;
 mod temporal;
 mod rendering;
 mod scatter;
@@ -80,13 +81,14 @@ fn scripted_frames_sha256(env: SessionEnv, removed: &[&str]) -> (String, usize) 
 }
 
 /// The fields of a session recorded before pulsing, the brightness control, the detector
-/// model, the temporal chain and scatter.
-const RECORDED_BEFORE: [&str; 5] = [
+/// model, the temporal chain, scatter and receptor profiles.
+const RECORDED_BEFORE: [&str; 6] = [
     "pulse_rate_pps",
     "brightness",
     "detector_noise",
     "temporal",
     "scatter",
+    "receptor",
 ];
 
 /// Pins the frames of a scripted session: a restructuring of the session code must leave every
@@ -104,20 +106,30 @@ fn frames_of_a_scripted_session_are_pinned() {
     );
     // A session recorded before scatter: pulsed, under the brightness control, detector noise,
     // the temporal chain (pinned when the chain came).
-    let (chain, n) = scripted_frames_sha256(env(), &["scatter"]);
+    let (chain, n) = scripted_frames_sha256(env(), &["scatter", "receptor"]);
     eprintln!("scripted session before scatter, CPU reference: {n} frames, sha256 {chain}");
     assert_eq!(n, 7, "a change waits for its pulse");
     assert_eq!(
         chain,
         "5835be215c10d5793f196785c8639137960ca958efd0c826a8d5f3ea808a2565"
     );
-    // Today's session: the same with scatter and the grid in (pinned when scatter came).
+    // A session recorded before receptor profiles: the same with scatter and the grid in
+    // (pinned when scatter came).
+    let (scatter, n) = scripted_frames_sha256(env(), &["receptor"]);
+    eprintln!("scripted session before receptors, CPU reference: {n} frames, sha256 {scatter}");
+    assert_eq!(n, 7, "a change waits for its pulse");
+    assert_eq!(
+        scatter,
+        "6b12b71be7117ef5ac03b25e5d67b52dc19b8f699811b706a5eabe80dc654674"
+    );
+    // Today's session: the same on the demo station's flat panel (pinned when receptor
+    // profiles came).
     let (today, n) = scripted_frames_sha256(env(), &[]);
     eprintln!("scripted session of today, CPU reference: {n} frames, sha256 {today}");
     assert_eq!(n, 7, "a change waits for its pulse");
     assert_eq!(
         today,
-        "6b12b71be7117ef5ac03b25e5d67b52dc19b8f699811b706a5eabe80dc654674"
+        "3ee6bbee6f110661e5b05d3d73e858736532d4ee615177520a1f89ea70322c77"
     );
     if let Some(ctx) = render_worker::gpu::context_for_tests() {
         let adapter = ctx.summary.name.clone();

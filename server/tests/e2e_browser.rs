@@ -174,6 +174,7 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
     assert_eq!(report["curve_and_filter"]["brightness"], "low_dose", "{report:#}");
     assert_eq!(report["curve_and_filter"]["filter"], "high", "{report:#}");
     assert_eq!(report["curve_and_filter"]["grid"], "out", "{report:#}");
+    assert_eq!(report["curve_and_filter"]["detector"], "flat_panel", "{report:#}");
 
     // Frames are not blank: a fluoroscopy image of the demo boxes has bone and soft tissue, so
     // its grey levels spread (a blank or single-grey canvas has a standard deviation near 0;

@@ -7,7 +7,11 @@
 //! `fluoro_finish` bench (0.59 mm pixels at 512^2 over a 300 mm detector, 80 kVp, grid in, a
 //! 350 mm air gap), median of the runs.
 //!
-//! Rows 2: the scatter-to-primary ratio at the centre of an AP lumbar-like field (200 mm water,
+//! Rows 2: the image receptor's profile on top (`sim_core::fluoro::receptor`: glare, the PSF
+//! core and, for the image intensifier, distortion and vignetting): the finish with scatter and
+//! each receptor, and what the receptor adds to the finish with scatter.
+//!
+//! Rows 3: the scatter-to-primary ratio at the centre of an AP lumbar-like field (200 mm water,
 //! 200 mm field, 80 kVp, 20 mm air gap), without and with the grid: the superposition's
 //! `centre_spr` and the Monte Carlo at rising photon counts, each with its run time; the error
 //! column is against the largest Monte Carlo run.
@@ -18,6 +22,7 @@
 use std::time::Instant;
 
 use sim_core::fluoro::geometry::{ISOCENTRE_TO_DETECTOR_MM, SOURCE_TO_ISOCENTRE_MM};
+use sim_core::fluoro::receptor::{ReceptorKind, ReceptorSettings};
 use sim_core::fluoro::render::finish_frame_f32;
 use sim_core::fluoro::scatter::AntiScatterGrid;
 use sim_core::fluoro::scatter::monte_carlo::{Beam, SlabSetup, field_centre};
@@ -80,6 +85,47 @@ fn main() {
             "| {side} | {superposition:.2} | {a:.2} | {b:.2} | {:.2} | {spr:.3} |",
             a - b
         );
+    }
+    println!();
+    println!(
+        "| image | receptor | finish with scatter and receptor (ms) | added by the receptor (ms) |"
+    );
+    println!("|---:|---|---:|---:|");
+    for side in [512u32, 1024] {
+        let (t, exposed) = field(side);
+        let pitch = 300.0 / f64::from(side);
+        let scatter = ScatterSettings {
+            kvp: 80,
+            grid: true,
+            air_gap_mm: 350.0,
+            pixel_pitch_mm: pitch,
+        };
+        let base = RenderSettings {
+            noise: Some(QuantumNoise {
+                photons_per_pixel: 3750.0,
+                seed: 0x5eed,
+            }),
+            scatter: Some(scatter),
+            ..RenderSettings::default()
+        };
+        let plain = Timing::run(runs, || {
+            std::hint::black_box(finish_frame_f32(side, side, &t, &exposed, &base));
+        })
+        .median_ms();
+        for kind in ReceptorKind::ALL {
+            let with = RenderSettings {
+                receptor: Some(ReceptorSettings {
+                    kind,
+                    pixel_pitch_mm: pitch,
+                }),
+                ..base
+            };
+            let ms = Timing::run(runs, || {
+                std::hint::black_box(finish_frame_f32(side, side, &t, &exposed, &with));
+            })
+            .median_ms();
+            println!("| {side} | {} | {ms:.2} | {:.2} |", kind.name(), ms - plain);
+        }
     }
     println!();
     println!("SPR at the centre, 200 mm water, 200 mm field, 80 kVp, 20 mm air gap");

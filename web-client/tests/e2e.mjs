@@ -278,6 +278,7 @@ await runReport(async (page, report) => {
     brightness: window.__sim.technique && window.__sim.technique.brightness,
     filter: window.__sim.recursiveFilter,
     grid: window.__sim.grid,
+    detector: window.__sim.detector,
   }));
   report.readout = { latency: await page.textContent('#latency'), fps: await page.textContent('#fps') };
   report.command_errors = await page.evaluate(() => window.__sim.stats.errors);

@@ -166,7 +166,7 @@ fn brightness_steps_and_live_pulses_replay_bit_identically() {
 fn brightness_leaves_sessions_recorded_before_it_as_they_were() {
     let mut initial = Session::new(env(), config()).snapshot();
     let f = initial.modalities.get_mut("fluoroscopy").unwrap();
-    for field in ["brightness", "detector_noise", "temporal", "scatter"] {
+    for field in ["brightness", "detector_noise", "temporal", "scatter", "receptor"] {
         assert!(f.as_object_mut().unwrap().remove(field).is_some(), "{field}");
     }
     let mut d = Driver {
@@ -193,6 +193,7 @@ fn brightness_leaves_sessions_recorded_before_it_as_they_were() {
         "collimator",
         "field_mm",
         "scatter",
+        "receptor",
     ] {
         assert!(f.get(field).is_none(), "{field} in {f}");
     }

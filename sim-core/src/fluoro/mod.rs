@@ -17,7 +17,8 @@
 //! brightness control that steps the technique to hold the detector kerma at a target;
 //! [`temporal`] is live fluoroscopy's detector lag and recursive filter; [`scatter`] adds the
 //! scattered radiation (kernel superposition on a coarse grid, an anti-scatter grid, the air
-//! gap) and holds the photon Monte Carlo it is checked against.
+//! gap) and holds the photon Monte Carlo it is checked against; [`receptor`] is the detector's
+//! profile (flat panel or image intensifier: glare, blur, distortion, vignetting).
 //!
 //! The GPU renderer in `render-worker` reproduces steps 1 to 4 and is tested against this module.
 //! Units: millimetres for geometry, per-centimetre attenuation coefficients (as tabulated), and
@@ -55,7 +56,9 @@ pub mod dose;
 pub mod draft;
 pub mod geometry;
 pub mod nesting;
+pub mod receptor;
 pub mod render;
+mod rows;
 pub mod scatter;
 pub mod scene;
 pub mod spectrum;

@@ -384,6 +384,10 @@ pub struct Station {
     pub frame_note: String,
     /// Imaging modalities, at least one.
     pub modalities: Vec<Modality>,
+    /// The C-arm's image receptor (`"flat_panel"` or `"image_intensifier"`, see
+    /// [`crate::fluoro::receptor`]); a flat panel when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detector: Option<crate::fluoro::receptor::ReceptorKind>,
     /// Instruments on the tray.
     #[serde(default)]
     pub instruments: Vec<Instrument>,

@@ -1,7 +1,7 @@
 //! Automatic brightness and the logarithmic tone curve: transmission to 8-bit grey, with the
 //! collimator shutters.
 
-use super::rows::{par_rows, thread_count};
+use crate::fluoro::rows::{par_rows, thread_count};
 use super::settings::{Exposure, Image, QuantumNoise, SHUTTER_GREY, TransmissionImage};
 
 /// Automatic brightness, log tone mapping and shutters: transmission to 8-bit grey, metered on

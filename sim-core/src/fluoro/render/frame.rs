@@ -3,11 +3,12 @@
 
 use super::display::{Samples, grey, ln_t_floor};
 use super::noise::noisy_count;
-use super::rows::{par_rows, thread_count};
 use super::settings::{Image, RenderSettings, SHUTTER_GREY, TransmissionImage};
 use super::transmission::render_transmission;
 use crate::fluoro::contrast::IodineField;
 use crate::fluoro::geometry::Projection;
+use crate::fluoro::receptor;
+use crate::fluoro::rows::{par_rows, thread_count};
 use crate::fluoro::scatter::superposition::{ScatterSettings, scatter_field};
 use crate::fluoro::scene::SceneRef;
 use crate::fluoro::spectrum::UnknownKvp;
@@ -81,20 +82,71 @@ pub fn finish_frame_f32(
 }
 
 fn finish<T: Copy + Into<f64> + Sync>(t: Samples<'_, T>, settings: &RenderSettings) -> Image {
-    if let Some(s) = settings.scatter.as_ref() {
-        if let Some(total) = with_scatter(t, s, settings.threads) {
-            return finish_total(
-                Samples {
-                    width: t.width,
-                    height: t.height,
-                    transmission: &total,
-                    exposed: t.exposed,
-                },
-                settings,
-            );
-        }
+    if settings.scatter.is_none() && settings.receptor.is_none() {
+        return finish_total(t, settings);
     }
-    finish_total(t, settings)
+    let threads = settings.threads;
+    let mut signal = match settings
+        .scatter
+        .as_ref()
+        .and_then(|s| with_scatter(t, s, threads))
+    {
+        Some(total) => total,
+        None => t.transmission.iter().map(|&v| v.into() as f32).collect(),
+    };
+    let Some(r) = settings.receptor.as_ref() else {
+        return finish_total(
+            Samples {
+                width: t.width,
+                height: t.height,
+                transmission: &signal,
+                exposed: t.exposed,
+            },
+            settings,
+        );
+    };
+    let mask = receptor::apply(&mut signal, t.exposed, t.width, t.height, r, threads);
+    let mut image = finish_total(
+        Samples {
+            width: t.width,
+            height: t.height,
+            transmission: &signal,
+            exposed: &mask,
+        },
+        settings,
+    );
+    vignette(&mut image, &mask, r.kind, settings);
+    image
+}
+
+/// The receptor's vignetting on a finished frame: each exposed pixel's grey moves by what the
+/// factor `v` is on the log tone curve (`255 ln v / log_range`, the other way in radiograph
+/// polarity); the shutters stay.
+pub(super) fn vignette(
+    image: &mut Image,
+    exposed: &[bool],
+    kind: receptor::ReceptorKind,
+    settings: &RenderSettings,
+) {
+    if kind.params().vignetting == 0.0 {
+        return;
+    }
+    let (w, h) = (image.width as usize, image.height as usize);
+    let slope = 255.0 / settings.exposure.log_range * if settings.invert { -1.0 } else { 1.0 };
+    let offsets = receptor::vignetting_offsets(kind, w, h, slope);
+    par_rows(
+        &mut image.pixels,
+        w,
+        thread_count(settings.threads),
+        |j, row| {
+            let (offs, mask) = (&offsets[j * w..(j + 1) * w], &exposed[j * w..(j + 1) * w]);
+            for ((g, &o), &e) in row.iter_mut().zip(offs).zip(mask) {
+                if e {
+                    *g = (i16::from(*g) + o).clamp(0, 255) as u8;
+                }
+            }
+        },
+    );
 }
 
 /// The detector's signal with scatter: the primary times the grid's primary transmission plus

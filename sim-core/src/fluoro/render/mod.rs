@@ -11,7 +11,6 @@
 mod display;
 mod frame;
 mod noise;
-mod rows;
 mod settings;
 mod transmission;
 

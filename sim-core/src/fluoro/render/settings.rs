@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::fluoro::attenuation::EnergyModel;
+use crate::fluoro::receptor::ReceptorSettings;
 use crate::fluoro::scatter::superposition::ScatterSettings;
 
 /// Automatic brightness: how transmission becomes grey.
@@ -66,6 +67,10 @@ pub struct RenderSettings {
     /// ([`crate::fluoro::scatter`]), or `None` for the primary image alone.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scatter: Option<ScatterSettings>,
+    /// The image receptor's profile ([`crate::fluoro::receptor`]) applied to the signal, or
+    /// `None` for an ideal detector.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub receptor: Option<ReceptorSettings>,
 }
 
 impl Default for RenderSettings {
@@ -82,6 +87,7 @@ impl Default for RenderSettings {
             invert: false,
             threads: 0,
             scatter: None,
+            receptor: None,
         }
     }
 }

@@ -538,3 +538,99 @@ fn round_grey_is_round_bit_for_bit() {
         assert_eq!(round_grey(x), x.round() as u8, "{x:?}");
     }
 }
+
+/// Receptor profiles through the finish (`crate::fluoro::receptor`): the distortion moves a
+/// mark where `distort_px` says, the vignetting darkens only the intensifier's periphery.
+mod receptor_profiles {
+    use super::*;
+    use crate::fluoro::receptor::{Distortion, ReceptorKind, ReceptorSettings, vignetting};
+
+    /// A uniform field with a small dark square (a needle tip's silhouette) at `centre_px`.
+    fn field_with_mark(n: usize, centre_px: [f64; 2]) -> Vec<f32> {
+        (0..n * n)
+            .map(|p| {
+                let (x, y) = ((p % n) as f64 + 0.5, (p / n) as f64 + 0.5);
+                let inside = (x - centre_px[0]).abs() < 3.0 && (y - centre_px[1]).abs() < 3.0;
+                if inside { 0.01 } else { 0.1 }
+            })
+            .collect()
+    }
+
+    /// Centroid of the pixels darker than the midpoint of the image's grey range.
+    fn dark_centroid(pixels: &[u8], n: usize) -> [f64; 2] {
+        let (lo, hi) = (*pixels.iter().min().unwrap(), *pixels.iter().max().unwrap());
+        let mid = (u16::from(lo) + u16::from(hi)) / 2;
+        let (mut sx, mut sy, mut c) = (0.0, 0.0, 0.0);
+        for (p, &g) in pixels.iter().enumerate() {
+            if u16::from(g) < mid {
+                let w = f64::from(mid as u8 - g);
+                sx += w * ((p % n) as f64 + 0.5);
+                sy += w * ((p / n) as f64 + 0.5);
+                c += w;
+            }
+        }
+        [sx / c, sy / c]
+    }
+
+    #[test]
+    fn distortion_moves_a_mark_where_distort_px_says_and_the_flat_panel_leaves_it() {
+        let n = 256;
+        let mark = [200.0, 60.0];
+        let t = field_with_mark(n, mark);
+        let exposed = vec![true; n * n];
+        for kind in ReceptorKind::ALL {
+            let settings = RenderSettings {
+                receptor: Some(ReceptorSettings {
+                    kind,
+                    pixel_pitch_mm: 300.0 / n as f64,
+                }),
+                ..RenderSettings::default()
+            };
+            let img = finish_frame_f32(n as u32, n as u32, &t, &exposed, &settings);
+            let seen = dark_centroid(&img.pixels, n);
+            let want = match Distortion::of(kind, n as u32, n as u32) {
+                Some(d) => d.distort_px(mark),
+                None => mark,
+            };
+            // Half a pixel: the centroid of a 6-pixel mark resampled bilinearly and blurred.
+            assert!(
+                (seen[0] - want[0]).hypot(seen[1] - want[1]) < 0.5,
+                "{}: mark at {seen:?}, expected {want:?}",
+                kind.name()
+            );
+        }
+    }
+
+    #[test]
+    fn receptor_vignetting_darkens_the_intensifier_periphery_only() {
+        let n = 128;
+        let settings = RenderSettings::default();
+        let exposed = vec![true; n * n];
+        let frame = |kind| {
+            let mut img = crate::fluoro::Image {
+                width: n as u32,
+                height: n as u32,
+                pixels: vec![128; n * n],
+            };
+            super::frame::vignette(&mut img, &exposed, kind, &settings);
+            img.pixels
+        };
+        let (fp, ii) = (
+            frame(ReceptorKind::FlatPanel),
+            frame(ReceptorKind::ImageIntensifier),
+        );
+        assert!(
+            fp.iter().all(|&g| g == 128),
+            "a flat panel has no vignetting"
+        );
+        let at = |img: &[u8], i: usize, j: usize| i32::from(img[j * n + i]);
+        assert_eq!(at(&ii, n / 2, n / 2), 128, "the centre keeps its grey");
+        // The middle of the left edge: 1 - 0.2 rho^2 at rho about 0.97, 255 ln(v) / 3.5 grey
+        // darker (the default log range).
+        let v = vignetting(ReceptorKind::ImageIntensifier, n, n, 2, n / 2);
+        let want = 128.0 + 255.0 / 3.5 * v.ln();
+        assert_eq!(f64::from(at(&ii, 2, n / 2)), want.round(), "v {v}");
+        // Darker towards every corner.
+        assert!(at(&ii, 0, 0) < at(&ii, 2, n / 2));
+    }
+}

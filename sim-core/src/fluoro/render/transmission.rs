@@ -1,7 +1,7 @@
 //! Transmission per pixel: exact chords along each ray through the scene, the spectral model,
 //! and supersampling where a pixel straddles an edge or a thin steel instrument.
 
-use super::rows::{par_rows, thread_count};
+use crate::fluoro::rows::{par_rows, thread_count};
 use super::settings::{RenderSettings, TransmissionImage};
 use crate::fluoro::attenuation::{FluoroMaterial, MaterialChords, SpectralModel, basis_depths};
 use crate::fluoro::contrast::IodineField;

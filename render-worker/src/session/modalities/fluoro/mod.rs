@@ -25,6 +25,7 @@ pub mod temporal;
 use std::sync::Arc;
 
 use glam::DVec3;
+use sim_core::fluoro::receptor::{Distortion, ReceptorKind};
 use sim_core::fluoro::brightness::{FrameExposure, Technique, magnification_target_factor};
 use sim_core::fluoro::{
     Collimation, IodineField, Projection,
@@ -105,6 +106,7 @@ impl FluoroModality {
         isocentre_mm: [f64; 3],
         seed: u64,
         backend: Arc<dyn FluoroBackend>,
+        receptor: ReceptorKind,
     ) -> FluoroModality {
         FluoroModality {
             state: FluoroState {
@@ -134,6 +136,7 @@ impl FluoroModality {
                     level: temporal::DEFAULT_LEVEL,
                 }),
                 scatter: Some(scatter::ScatterState { grid: true }),
+                receptor: Some(receptor),
             },
             backend,
             rendered: None,
@@ -394,6 +397,10 @@ pub fn build(ctx: &ModalityContext<'_>) -> Box<dyn Modality> {
         isocentre,
         ctx.config.seed,
         renderer(ctx),
+        ctx.station
+            .station
+            .detector
+            .unwrap_or(ReceptorKind::FlatPanel),
     ))
 }
 
@@ -522,7 +529,8 @@ impl Modality for FluoroModality {
                     projection: image.projection,
                     t_ms: now,
                 });
-                let error = annotation_error_mm(self.state.annotations.last(), world);
+                let error =
+                    annotation_error_mm(self.state.annotations.last(), self.state.receptor, world);
                 return Ok(serde_json::json!({ "annotation_error_mm": error }));
             }
             Command::Modality(c) if c.kind() == pulse::PULSE_RATE_KIND => {
@@ -579,6 +587,7 @@ impl Modality for FluoroModality {
             "field_mm": self.field_mm(),
             "detector_mm": self.state.config.detector_mm,
             "grid": self.state.scatter.map(|s| if s.grid { "in" } else { "out" }),
+            "detector": self.state.receptor.map(ReceptorKind::name),
             "air_gap_mm": self.state.images.last().and_then(|i| i.scatter).map(|s| s.air_gap_mm),
             "collimation": self.state.collimator,
             "recursive_filter": self.state.temporal.map(|t| t.level),
@@ -631,7 +640,9 @@ impl Modality for FluoroModality {
                 height: h,
             }));
         }
-        let r = image.projection.pixel_ray(pixel);
+        let r = image
+            .projection
+            .pixel_ray(undistorted(self.state.receptor, &image.projection, pixel));
         Some(Ok((
             DVec3::from_array(r.origin_mm),
             DVec3::from_array(r.dir),
@@ -793,7 +804,7 @@ impl Modality for FluoroModality {
             .annotations
             .iter()
             .rev()
-            .find_map(|a| annotation_error_mm(Some(a), world))
+            .find_map(|a| annotation_error_mm(Some(a), self.state.receptor, world))
         {
             out.insert("annotation_error_mm".into(), e);
         }
@@ -841,12 +852,32 @@ pub fn beam_direction(p: &Projection) -> DVec3 {
 
 /// Error of an annotation whose label names a target or landmark: the distance from that point
 /// to the ray through the marked pixel, mm (the miss measured at the point's own depth).
-pub fn annotation_error_mm(a: Option<&Annotation>, world: &World) -> Option<f64> {
+pub fn annotation_error_mm(
+    a: Option<&Annotation>,
+    receptor: Option<ReceptorKind>,
+    world: &World,
+) -> Option<f64> {
     let a = a?;
     let p = DVec3::from_array(world.station.point(&world.region, &a.label)?);
-    let ray = a.projection.pixel_ray(a.pixel);
+    let ray = a
+        .projection
+        .pixel_ray(undistorted(receptor, &a.projection, a.pixel));
     let o = DVec3::from_array(ray.origin_mm);
     let d = DVec3::from_array(ray.dir);
     let v = p - o;
     Some((v - d * v.dot(d)).length())
+}
+
+/// The ideal projection's pixel shown at `pixel` of an image taken with `projection` on
+/// `receptor` (an image intensifier's pincushion undone), so that what a learner points at is
+/// measured in patient space.
+pub fn undistorted(
+    receptor: Option<ReceptorKind>,
+    projection: &Projection,
+    pixel: [f64; 2],
+) -> [f64; 2] {
+    let [w, h] = projection.detector_pixels;
+    receptor
+        .and_then(|k| Distortion::of(k, w, h))
+        .map_or(pixel, |d| d.undistort_px(pixel))
 }

@@ -5,6 +5,7 @@
 use std::sync::Arc;
 
 use sim_core::fluoro::detector::{FLAT_PANEL_DQE, detected_quanta_per_pixel};
+use sim_core::fluoro::receptor::ReceptorSettings;
 use sim_core::fluoro::scatter::superposition::ScatterSettings;
 use sim_core::fluoro::temporal::{FIRST_FRAME_LAG, HISTORY_FRAMES, combine, weights_q16};
 use sim_core::fluoro::{EnergyModel, IodineField, Projection, QuantumNoise, RenderSettings};
@@ -40,6 +41,10 @@ impl FluoroModality {
                 kvp,
                 grid: s.grid,
                 air_gap_mm: s.air_gap_mm,
+                pixel_pitch_mm: image.projection.pixel_pitch_mm[0],
+            }),
+            receptor: self.state.receptor.map(|kind| ReceptorSettings {
+                kind,
                 pixel_pitch_mm: image.projection.pixel_pitch_mm[0],
             }),
             ..self.render_settings(kvp, ma, mas, &image.projection, image.noise_seed)

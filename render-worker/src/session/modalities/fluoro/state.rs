@@ -134,4 +134,8 @@ pub struct FluoroState {
     /// scatter (no scatter is added to their images).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scatter: Option<super::scatter::ScatterState>,
+    /// The image receptor (the station's, `sim_core::fluoro::receptor`), or `None` in sessions
+    /// recorded before receptor profiles (an ideal detector).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub receptor: Option<sim_core::fluoro::receptor::ReceptorKind>,
 }
