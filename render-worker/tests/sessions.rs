@@ -129,7 +129,7 @@ fn frames_of_a_scripted_session_are_pinned() {
     assert_eq!(n, 7, "a change waits for its pulse");
     assert_eq!(
         today,
-        "3ee6bbee6f110661e5b05d3d73e858736532d4ee615177520a1f89ea70322c77"
+        "597c9e82fb247f598be2426d845640eb92a754103c7e5e35c0edcd03ccaa02fd"
     );
     if let Some(ctx) = render_worker::gpu::context_for_tests() {
         let adapter = ctx.summary.name.clone();

@@ -1,7 +1,7 @@
 //! Scatter: what the superposition adds to a frame, and its accuracy against the Monte Carlo
 //! for the cost of each.
 //!
-//! Rows 1: the superposition alone (`scatter_field`, coarse grid of at most 32 cells across)
+//! Rows 1: the superposition alone (`scatter_field`, coarse grid of at most 16 cells across)
 //! and the whole CPU finish of a frame with and without scatter (noise on, 3,750 quanta), at
 //! 512^2 and 1024^2 on every core, on the synthetic lumbar-like transmission of the
 //! `fluoro_finish` bench (0.59 mm pixels at 512^2 over a 300 mm detector, 80 kVp, grid in, a

@@ -226,14 +226,98 @@ pub fn apply(
         s.pixel_pitch_mm,
         threads,
     );
+    apply_after_glare(signal, exposed, width, height, s, threads)
+}
+
+/// Below this core width, pixels (the side taps would carry under 0.4 % of the weight), the
+/// blur is skipped: a flat panel's 0.15 mm core on the 0.59 mm pixels of a 512^2 frame.
+pub const MIN_BLUR_SIGMA_PX: f64 = 0.3;
+
+/// [`apply`] without the glare (for a caller that folded the glare into its own pass, as the
+/// frame's finish does with the scatter): the point-spread core and the distortion.
+pub fn apply_after_glare(
+    signal: &mut [f32],
+    exposed: &[bool],
+    width: usize,
+    height: usize,
+    s: &ReceptorSettings,
+    threads: usize,
+) -> Vec<bool> {
+    let p = s.kind.params();
+    if width == 0 || height == 0 || signal.len() != width * height || exposed.len() != signal.len()
+    {
+        return exposed.to_vec();
+    }
     let sigma_px = p.psf_sigma_mm / s.pixel_pitch_mm;
-    if sigma_px.is_finite() && sigma_px > 0.0 {
+    if sigma_px.is_finite() && sigma_px >= MIN_BLUR_SIGMA_PX {
         blur(signal, width, height, sigma_px, threads);
     }
     match Distortion::of(s.kind, width as u32, height as u32) {
         Some(d) => distort(signal, exposed, width, height, &d, threads),
         None => exposed.to_vec(),
     }
+}
+
+/// Cell means of an image on a coarse grid of `cell_px` pixels and `cells` cells, from a
+/// regular subsample (at most 16 x 16 per cell): the mean over the whole cell (unexposed pixels
+/// counting 0) and the exposed share of the cell.
+pub fn cell_means<T: Copy + Into<f64>>(
+    t: &[T],
+    exposed: &[bool],
+    width: usize,
+    height: usize,
+    cell_px: usize,
+    cells: [usize; 2],
+) -> (Vec<f64>, Vec<f64>) {
+    let nx = cells[0];
+    let n = cells[0] * cells[1];
+    let stride = cell_px.div_ceil(16).max(1);
+    let (mut sum, mut hits, mut samples) = (vec![0.0f64; n], vec![0usize; n], vec![0usize; n]);
+    for j in (stride / 2..height).step_by(stride) {
+        for i in (stride / 2..width).step_by(stride) {
+            let c = (j / cell_px) * nx + i / cell_px;
+            samples[c] += 1;
+            if exposed[j * width + i] {
+                let v: f64 = t[j * width + i].into();
+                sum[c] += if v.is_finite() { v } else { 0.0 };
+                hits[c] += 1;
+            }
+        }
+    }
+    let means = (0..n).map(|c| sum[c] / samples[c].max(1) as f64).collect();
+    let share = (0..n)
+        .map(|c| hits[c] as f64 / samples[c].max(1) as f64)
+        .collect();
+    (means, share)
+}
+
+/// The glare of cell means `means` (`cells` across and down, `cell_mm` wide): each cell's mean
+/// spread by the receptor's glare Gaussian, sampled at the cells' centres and normalised over
+/// the whole (infinite) lattice so that a uniform field keeps its value whatever the cell size.
+pub fn glare_cells(means: &[f64], cells: [usize; 2], cell_mm: f64, p: &ReceptorParams) -> Vec<f64> {
+    let (nx, ny) = (cells[0], cells[1]);
+    let sigma = (p.glare_sigma_mm / cell_mm).max(1e-3);
+    let reach = (6.0 * sigma).ceil() as i64 + 1;
+    let lattice: f64 = (-reach..=reach)
+        .map(|k| (-((k * k) as f64) / (2.0 * sigma * sigma)).exp())
+        .sum();
+    let norm = 1.0 / (lattice * lattice);
+    let weights: Vec<f64> = (0..nx * ny)
+        .map(|o| {
+            let (dx, dy) = ((o % nx) as f64, (o / nx) as f64);
+            (-(dx * dx + dy * dy) / (2.0 * sigma * sigma)).exp() * norm
+        })
+        .collect();
+    (0..nx * ny)
+        .map(|c| {
+            let (x, y) = (c % nx, c / nx);
+            means
+                .iter()
+                .enumerate()
+                .map(|(s, m)| m * weights[y.abs_diff(s / nx) * nx + x.abs_diff(s % nx)])
+                .sum()
+        })
+        .collect()
 }
 
 /// Veiling glare: `(1 - g) s + g (G * s)`, the convolution on the coarse grid (cell means of
@@ -256,47 +340,9 @@ fn glare(
         .div_ceil(super::scatter::superposition::MAX_CELLS)
         .max(1);
     let (nx, ny) = (width.div_ceil(cell_px), height.div_ceil(cell_px));
-    // Cell means from a regular subsample (at most 16 x 16 per cell), as the scatter model's.
-    let stride = cell_px.div_ceil(16).max(1);
-    let mut mean = vec![0.0f64; nx * ny];
-    let mut count = vec![0usize; nx * ny];
-    for j in (stride / 2..height).step_by(stride) {
-        for i in (stride / 2..width).step_by(stride) {
-            let c = (j / cell_px) * nx + i / cell_px;
-            let v = f64::from(signal[j * width + i]);
-            mean[c] += if v.is_finite() { v } else { 0.0 };
-            count[c] += 1;
-        }
-    }
-    for (m, n) in mean.iter_mut().zip(&count) {
-        *m /= (*n).max(1) as f64;
-    }
-    // A 2-D Gaussian sampled at the cells' centres, normalised over the whole (infinite)
-    // lattice so that a uniform field keeps its value whatever the cell size; one weight per
-    // cell offset.
-    let cell_mm = cell_px as f64 * pitch_mm;
-    let sigma = (p.glare_sigma_mm / cell_mm).max(1e-3);
-    let reach = (6.0 * sigma).ceil() as i64 + 1;
-    let lattice: f64 = (-reach..=reach)
-        .map(|k| (-((k * k) as f64) / (2.0 * sigma * sigma)).exp())
-        .sum();
-    let norm = 1.0 / (lattice * lattice);
-    let weights: Vec<f64> = (0..nx * ny)
-        .map(|o| {
-            let (dx, dy) = ((o % nx) as f64, (o / nx) as f64);
-            (-(dx * dx + dy * dy) / (2.0 * sigma * sigma)).exp() * norm
-        })
-        .collect();
-    let mut values = vec![0.0; nx * ny];
-    for (c, v) in values.iter_mut().enumerate() {
-        let (x, y) = (c % nx, c / nx);
-        let mut acc = 0.0;
-        for (s, m) in mean.iter().enumerate() {
-            let (sx, sy) = (s % nx, s / nx);
-            acc += m * weights[y.abs_diff(sy) * nx + x.abs_diff(sx)];
-        }
-        *v = acc;
-    }
+    let all = vec![true; exposed.len()];
+    let (means, _) = cell_means(signal, &all, width, height, cell_px, [nx, ny]);
+    let values = glare_cells(&means, [nx, ny], cell_px as f64 * pitch_mm, p);
     let field = ScatterField {
         cell_px,
         cells: [nx, ny],
@@ -337,22 +383,20 @@ fn blur(signal: &mut [f32], width: usize, height: usize, sigma_px: f64, threads:
         *t /= sum;
     }
     let threads = super::rows::thread_count(threads);
-    // Rows, in place, each from a copy of itself.
-    super::rows::par_rows(signal, width, threads, |_, row| {
-        let line = row.to_vec();
-        convolve_line(&line, row, &taps, radius);
-    });
-    // Columns: each output row from the `2 radius + 1` source rows around it.
+    // One pass: each output row is the column sum of the `2 radius + 1` source rows around it,
+    // then convolved along the row (separable, so the order is free), from one copy of the
+    // image.
     let src = signal.to_vec();
     super::rows::par_rows(signal, width, threads, |j, row| {
-        row.fill(0.0);
+        let mut column = vec![0.0f32; width];
         for (k, t) in taps.iter().enumerate() {
             let y = (j as isize + k as isize - radius as isize).clamp(0, height as isize - 1);
             let line = &src[y as usize * width..(y as usize + 1) * width];
-            for (o, v) in row.iter_mut().zip(line) {
+            for (o, v) in column.iter_mut().zip(line) {
                 *o += t * v;
             }
         }
+        convolve_line(&column, row, &taps, radius);
     });
 }
 

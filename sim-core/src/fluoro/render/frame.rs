@@ -9,7 +9,7 @@ use crate::fluoro::contrast::IodineField;
 use crate::fluoro::geometry::Projection;
 use crate::fluoro::receptor;
 use crate::fluoro::rows::{par_rows, thread_count};
-use crate::fluoro::scatter::superposition::{ScatterSettings, scatter_field};
+use crate::fluoro::scatter::superposition::{ScatterField, ScatterSettings, scatter_field};
 use crate::fluoro::scene::SceneRef;
 use crate::fluoro::spectrum::UnknownKvp;
 
@@ -86,15 +86,15 @@ fn finish<T: Copy + Into<f64> + Sync>(t: Samples<'_, T>, settings: &RenderSettin
         return finish_total(t, settings);
     }
     let threads = settings.threads;
-    let mut signal = match settings
-        .scatter
-        .as_ref()
-        .and_then(|s| with_scatter(t, s, threads))
-    {
-        Some(total) => total,
-        None => t.transmission.iter().map(|&v| v.into() as f32).collect(),
-    };
     let Some(r) = settings.receptor.as_ref() else {
+        let signal = match settings
+            .scatter
+            .as_ref()
+            .and_then(|s| with_scatter(t, s, threads))
+        {
+            Some(total) => total,
+            None => t.transmission.iter().map(|&v| v.into() as f32).collect(),
+        };
         return finish_total(
             Samples {
                 width: t.width,
@@ -105,7 +105,23 @@ fn finish<T: Copy + Into<f64> + Sync>(t: Samples<'_, T>, settings: &RenderSettin
             settings,
         );
     };
-    let mask = receptor::apply(&mut signal, t.exposed, t.width, t.height, r, threads);
+    let mut signal = settings
+        .scatter
+        .as_ref()
+        .and_then(|s| scatter_and_glare(t, s, r, threads));
+    let mask = match signal.as_mut() {
+        // Scatter and glare in one pass: the point-spread core and distortion remain.
+        Some(signal) => {
+            receptor::apply_after_glare(signal, t.exposed, t.width, t.height, r, threads)
+        }
+        None => {
+            let mut s: Vec<f32> = t.transmission.iter().map(|&v| v.into() as f32).collect();
+            let mask = receptor::apply(&mut s, t.exposed, t.width, t.height, r, threads);
+            signal = Some(s);
+            mask
+        }
+    };
+    let signal = signal.expect("set on both paths");
     let mut image = finish_total(
         Samples {
             width: t.width,
@@ -117,6 +133,44 @@ fn finish<T: Copy + Into<f64> + Sync>(t: Samples<'_, T>, settings: &RenderSettin
     );
     vignette(&mut image, &mask, r.kind, settings);
     image
+}
+
+/// Scatter and the receptor's veiling glare folded into one pass over the pixels: with the
+/// primary `T`, the grid's primary factor `f`, the scatter field `S` and the glare fraction `g`,
+/// the signal `(1 - g)(f T + S) + g G` where `G` is the glare of `f T + S`, computed on the
+/// scatter's coarse grid from the cell means (`f` times the primary's cell mean plus the
+/// cell's scatter times its exposed share). `None` when the scatter cannot be computed.
+fn scatter_and_glare<T: Copy + Into<f64> + Sync>(
+    t: Samples<'_, T>,
+    s: &ScatterSettings,
+    r: &receptor::ReceptorSettings,
+    threads: usize,
+) -> Option<Vec<f32>> {
+    let mut field = scatter_field(t.transmission, t.exposed, t.width, t.height, s)?;
+    let p = r.kind.params();
+    let g = p.glare_fraction;
+    let f = s.primary_factor();
+    let (means, share) = receptor::cell_means(
+        t.transmission,
+        t.exposed,
+        t.width,
+        t.height,
+        field.cell_px,
+        field.cells,
+    );
+    let total: Vec<f64> = (0..means.len())
+        .map(|c| f * means[c] + field.values[c] * share[c])
+        .collect();
+    let glare = receptor::glare_cells(
+        &total,
+        field.cells,
+        field.cell_px as f64 * r.pixel_pitch_mm,
+        &p,
+    );
+    for (v, gl) in field.values.iter_mut().zip(&glare) {
+        *v = (1.0 - g) * *v + g * gl;
+    }
+    Some(add_field(t, &field, (1.0 - g) * f, threads))
 }
 
 /// The receptor's vignetting on a finished frame: each exposed pixel's grey moves by what the
@@ -158,7 +212,17 @@ fn with_scatter<T: Copy + Into<f64> + Sync>(
     threads: usize,
 ) -> Option<Vec<f32>> {
     let field = scatter_field(t.transmission, t.exposed, t.width, t.height, s)?;
-    let factor = s.primary_factor();
+    Some(add_field(t, &field, s.primary_factor(), threads))
+}
+
+/// `factor` times the primary plus the coarse `field` interpolated, on exposed pixels (0
+/// behind the shutters).
+fn add_field<T: Copy + Into<f64> + Sync>(
+    t: Samples<'_, T>,
+    field: &ScatterField,
+    factor: f64,
+    threads: usize,
+) -> Vec<f32> {
     let columns = field.columns();
     let w = t.width;
     let mut total = vec![0.0f32; t.transmission.len()];
@@ -174,7 +238,7 @@ fn with_scatter<T: Copy + Into<f64> + Sync>(
             }
         }
     });
-    Some(total)
+    total
 }
 
 fn finish_total<T: Copy + Into<f64> + Sync>(t: Samples<'_, T>, settings: &RenderSettings) -> Image {
