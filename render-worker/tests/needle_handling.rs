@@ -57,10 +57,15 @@ pub(crate) fn epidural_target() -> DVec3 {
 
 /// Where the planned line (30 mm lateral at 120 mm behind the target) meets the skin.
 pub(crate) fn planned_entry() -> DVec3 {
+    planned_entry_on(&region())
+}
+
+/// [`planned_entry`] on `reg` (a habitus variant: the target is the same, the skin is not; the
+/// planned line starts 170 mm behind it, beyond the obese body's skin).
+pub(crate) fn planned_entry_on(reg: &Region) -> DVec3 {
     let t = epidural_target();
-    let far = t + DVec3::new(-30.0, -120.0, 0.0);
-    region()
-        .skin_entry(far, t - far, 200.0)
+    let far = t + DVec3::new(-30.0, -120.0, 0.0) * (170.0 / 120.0);
+    reg.skin_entry(far, t - far, 300.0)
         .expect("the planned line meets the skin")
 }
 
@@ -90,14 +95,27 @@ pub(crate) struct Epidural {
 /// The whole epidural by commands: AP shot, marker, shot, puncture down the beam, hub tilt onto
 /// the planned line, contralateral oblique, advance, loss of resistance, aspiration.
 pub(crate) fn scripted_epidural() -> Epidural {
-    let mut r = Run::new(env(EPIDURAL), quiet());
+    scripted_epidural_on(&region())
+}
+
+/// [`scripted_epidural`] on region `reg` (the same station and script; the entry is where the
+/// planned line meets this region's skin).
+pub(crate) fn scripted_epidural_on(reg: &Arc<Region>) -> Epidural {
+    scripted_epidural_at(EPIDURAL, reg)
+}
+
+/// [`scripted_epidural_on`] with station `station` (one of the epidural station's habitus
+/// variants).
+pub(crate) fn scripted_epidural_at(station: &str, reg: &Arc<Region>) -> Epidural {
+    let env = SessionEnv::new(station_on(station, reg), Arc::clone(reg), Backends::cpu(1));
+    let mut r = Run::new(env, quiet());
     let mut t = 0;
     let mut next = || {
         t += 500;
         t
     };
     r.ok(next(), Command::Shot);
-    let entry = planned_entry();
+    let entry = planned_entry_on(reg);
     // A point 3 mm off the skin along the beam: the marker snaps onto the skin.
     let m = DVec3::from_array(r.skin_marker(next(), (entry - DVec3::Y * 3.0).to_array()));
     assert!(m.distance(entry) < 1.0, "{m} vs {entry}");
@@ -150,11 +168,11 @@ pub(crate) fn scripted_epidural() -> Epidural {
     // by itself there): the plunger must not give way in the muscle on the way.
     let outlet_tissue = |r: &Run| {
         let n = r.s.world().needle.as_ref().unwrap();
-        region().tissue_at(n.state.outlet().centre_mm.to_array())
+        reg.tissue_at(n.state.outlet().centre_mm.to_array())
     };
     let tip_tissue = |r: &Run| {
         let n = r.s.world().needle.as_ref().unwrap();
-        region().tissue_at(n.state.tip_mm().to_array())
+        reg.tissue_at(n.state.tip_mm().to_array())
     };
     // A feed with a pop whose tip starts or ends in the flavum is the flavum's pop.
     let feed = |r: &mut Run, t: u64, mm: f64, flavum_pop: &mut bool| {
@@ -192,7 +210,7 @@ pub(crate) fn scripted_epidural() -> Epidural {
     let loss_depth_mm = loss.expect("the plunger gave way");
     let snap = r.s.snapshot();
     let n = snap.needle.as_ref().unwrap();
-    let outlet_at_loss = region().tissue_at(n.state.outlet().centre_mm.to_array());
+    let outlet_at_loss = reg.tissue_at(n.state.outlet().centre_mm.to_array());
     r.ok(next(), Command::PlungerHold { on: false });
     let asp = r.ok(next(), Command::Aspirate);
     assert_eq!(asp.outcome["aspirate"], "nothing", "{}", asp.outcome);

@@ -7,6 +7,7 @@ mod fluoro;
 mod fluoro_cache;
 mod gallery;
 mod gpu;
+mod habitus;
 mod lumbar_ct;
 mod modality_seam;
 mod needle_handling;

@@ -149,7 +149,7 @@ async fn first_session_request_answers_at_once_while_the_phantom_builds() {
     let stations = sim_core::rubric::load_station_dir(&repo_stations())
         .unwrap()
         .into_iter()
-        .filter(|f| f.station.region == phantom::REGION_NAME)
+        .filter(|f| f.station.region_asset() == phantom::REGION_NAME)
         .map(|f| (f.station, sha256_hex(f.text.as_bytes())))
         .collect();
     let host = phantom_building_host(stations, assets.path(), Duration::ZERO);

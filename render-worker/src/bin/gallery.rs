@@ -54,7 +54,7 @@ fn run(args: &[String]) -> Result<(), String> {
         None => load_station_dir(&assets.join("stations"))
             .map_err(|e| e.to_string())?
             .into_iter()
-            .map(|f| f.station.region)
+            .map(|f| f.station.region_asset())
             .collect(),
     };
     let settings = gallery::settings(0);

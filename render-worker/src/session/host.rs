@@ -420,7 +420,7 @@ impl SessionHost {
                     .iter()
                     .any(|m| m.as_str() == sim_core::rubric::Modality::FLUOROSCOPY)
             })
-            .filter_map(|st| Some((st.clone(), self.loaded(&st.0.region)?)))
+            .filter_map(|st| Some((st.clone(), self.loaded(&st.0.region_asset())?)))
             .collect()
     }
 
@@ -455,7 +455,7 @@ impl SessionHost {
         self.inner
             .stations
             .values()
-            .map(|(s, _)| s.region.clone())
+            .map(|(s, _)| s.region_asset())
             .collect()
     }
 
@@ -500,7 +500,7 @@ impl SessionHost {
             .stations
             .get(station_id)
             .ok_or_else(|| HostError::UnknownStation(station_id.to_string()))?;
-        let region = station.region.clone();
+        let region = station.region_asset();
         if self.loaded(&region).is_some() {
             return Ok(());
         }
@@ -541,7 +541,7 @@ impl SessionHost {
         let region = self
             .inner
             .regions
-            .blocking(&station.region)
+            .blocking(&station.region_asset())
             .map_err(|e| HostError::Region(e.to_string()))?;
         let mut env = SessionEnv::new(
             Arc::new(StationContext::new(station, sha, &region)),

@@ -41,8 +41,9 @@ pub fn load_region(
     if name == DEMO_REGION_NAME && !dir.exists() {
         return Ok(demo_region());
     }
-    let asset = if name == phantom::REGION_NAME {
-        phantom::ensure_built_with(&dir, &phantom::PhantomParams::default(), progress)
+    let asset = if let Some(habitus) = phantom::habitus::Habitus::of_region(name) {
+        let params = habitus.apply(&phantom::PhantomParams::default());
+        phantom::ensure_built_with(&dir, &params, progress)
     } else if name == phantom::cervical::REGION_NAME {
         let params = phantom::cervical::default_params();
         phantom::cervical::ensure_built_with(&dir, &params, progress)
@@ -53,5 +54,9 @@ pub fn load_region(
         name: name.to_string(),
         source,
     })?;
+    // A habitus variant of the phantom is built by the phantom's generator, which names every
+    // build after the phantom: the region goes by the name it was asked for.
+    let mut asset = asset;
+    asset.name = name.to_string();
     Ok(Region::from_asset(&asset))
 }

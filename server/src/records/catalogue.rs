@@ -329,7 +329,7 @@ pub async fn list_stations(
                     revision: s.revision,
                     rubric_revision: s.rubric.revision,
                     title: s.title.clone(),
-                    region: s.region.clone(),
+                    region: s.region_asset(),
                     modalities: s
                         .modalities
                         .iter()

@@ -388,6 +388,11 @@ pub struct Station {
     /// [`crate::fluoro::receptor`]); a flat panel when absent.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub detector: Option<crate::fluoro::receptor::ReceptorKind>,
+    /// The patient's body habitus (`"slim"`, `"average"` or `"obese"`, see
+    /// [`crate::anatomy::phantom::habitus`]); only for the procedural lumbar phantom, whose
+    /// variant it selects. Average when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub habitus: Option<crate::anatomy::phantom::habitus::Habitus>,
     /// Instruments on the tray.
     #[serde(default)]
     pub instruments: Vec<Instrument>,
@@ -451,6 +456,15 @@ fn is_slug(s: &str, sep: char) -> bool {
 }
 
 impl Station {
+    /// The region asset this station runs in: `region`, or the lumbar phantom's variant for the
+    /// station's habitus.
+    pub fn region_asset(&self) -> String {
+        match self.habitus {
+            Some(h) if self.region == crate::anatomy::phantom::REGION_NAME => h.region_name(),
+            _ => self.region.clone(),
+        }
+    }
+
     /// Parse a station from TOML and validate it.
     pub fn from_toml_str(text: &str) -> Result<Station, StationError> {
         let station: Station = toml::from_str(text).map_err(|e| StationError::Parse {
@@ -479,6 +493,13 @@ impl Station {
         if !is_slug(&self.region, '-') {
             p.push(format!(
                 "region {:?} must be lowercase letters, digits and '-'",
+                self.region
+            ));
+        }
+        if self.habitus.is_some() && self.region != crate::anatomy::phantom::REGION_NAME {
+            p.push(format!(
+                "habitus is for the procedural lumbar phantom ({:?}), not region {:?}",
+                crate::anatomy::phantom::REGION_NAME,
                 self.region
             ));
         }

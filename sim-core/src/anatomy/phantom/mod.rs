@@ -50,6 +50,7 @@
 //! ```
 
 pub mod cervical;
+pub mod habitus;
 pub mod model;
 pub mod morphometry;
 pub mod sdf;

@@ -46,7 +46,7 @@ mod soft_tissue;
 mod spine;
 mod vertebra;
 
-pub use dims::{AnatomyParams, LEFT, RIGHT};
+pub use dims::{AnatomyParams, BODY_CENTRE_Y_MM, LEFT, RIGHT};
 pub use frames::LevelFrame;
 pub use landmarks::Landmark;
 pub(crate) use parts::Parts;

@@ -75,6 +75,7 @@ pub fn params_with_voxel_mm(voxel_mm: f64) -> PhantomParams {
         // A 120 x 116 mm neck (our choice).
         body_half_width_mm: 60.0,
         body_half_depth_mm: 58.0,
+        ..AnatomyParams::default()
     };
     // The neck outline plus 6 mm; from 25 mm below T1's body to 15 mm above the atlas.
     p.extent_min_mm = [-66.0, -74.0, -85.0];

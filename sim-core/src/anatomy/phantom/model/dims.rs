@@ -172,6 +172,22 @@ pub struct AnatomyParams {
     pub body_half_width_mm: f64,
     /// Half-depth of the body envelope, mm.
     pub body_half_depth_mm: f64,
+    /// Centre of the body envelope in y, mm ([`BODY_CENTRE_Y_MM`] unless a habitus moves the
+    /// anterior wall more than the posterior one). Left out of the serialized parameters at its
+    /// default, so the average body's cache key is what it was before habitus existed.
+    #[serde(
+        default = "default_body_centre_y_mm",
+        skip_serializing_if = "is_default_body_centre_y_mm"
+    )]
+    pub body_centre_y_mm: f64,
+}
+
+fn default_body_centre_y_mm() -> f64 {
+    BODY_CENTRE_Y_MM
+}
+
+fn is_default_body_centre_y_mm(y: &f64) -> bool {
+    *y == BODY_CENTRE_Y_MM
 }
 
 impl Default for AnatomyParams {
@@ -184,6 +200,7 @@ impl Default for AnatomyParams {
             skin_mm: 2.0,
             body_half_width_mm: 165.0,
             body_half_depth_mm: 117.0,
+            body_centre_y_mm: BODY_CENTRE_Y_MM,
         }
     }
 }
@@ -191,4 +208,4 @@ impl Default for AnatomyParams {
 /// Centre of the body envelope in y, mm: puts the posterior skin about 28 mm behind the L3
 /// spinous tip and the anterior abdominal wall 142 mm in front of the L3 body centre (our
 /// assumption).
-pub(super) const BODY_CENTRE_Y_MM: f64 = 25.0;
+pub const BODY_CENTRE_Y_MM: f64 = 25.0;

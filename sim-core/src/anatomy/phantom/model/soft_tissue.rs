@@ -3,7 +3,7 @@
 
 use glam::DVec3;
 
-use super::dims::{AnatomyParams, BODY_CENTRE_Y_MM, LEFT, RIGHT};
+use super::dims::{AnatomyParams, LEFT, RIGHT};
 use super::parts::Parts;
 use super::spine::{Placed, Spine};
 use crate::anatomy::phantom::sdf::Sdf;
@@ -21,7 +21,7 @@ pub(super) fn push_envelope(parts: &mut Parts, p: &AnatomyParams) -> Sdf {
         half_h: 600.0,
         round: 0.0,
     }
-    .at(DVec3::new(0.0, BODY_CENTRE_Y_MM, 0.0));
+    .at(DVec3::new(0.0, p.body_centre_y_mm, 0.0));
     let hips = Sdf::Ellipsoid {
         radii: DVec3::new(
             p.body_half_width_mm + 12.0,
@@ -29,7 +29,7 @@ pub(super) fn push_envelope(parts: &mut Parts, p: &AnatomyParams) -> Sdf {
             140.0,
         ),
     }
-    .at(DVec3::new(0.0, BODY_CENTRE_Y_MM, -200.0));
+    .at(DVec3::new(0.0, p.body_centre_y_mm, -200.0));
     let envelope = Sdf::SmoothUnion(vec![waist, hips], 30.0);
     // Everything inside the body lies under the skin: the erector spinae column and the
     // iliac wings reach beyond the envelope otherwise (a few cm^3 each), which no anatomy
