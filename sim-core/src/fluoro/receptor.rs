@@ -253,8 +253,10 @@ pub fn apply_after_glare(
         blur(signal, width, height, sigma_px, threads);
     }
     match Distortion::of(s.kind, width as u32, height as u32) {
-        Some(d) => distort(signal, exposed, width, height, &d, threads),
-        None => exposed.to_vec(),
+        // The resampling map packs two flags above the pixel index: images of 2^30 pixels and
+        // more (32768^2, no detector's) are not distorted.
+        Some(d) if width * height < 1 << 30 => distort(signal, exposed, width, height, &d, threads),
+        _ => exposed.to_vec(),
     }
 }
 
@@ -431,13 +433,19 @@ fn convolve_line(line: &[f32], out: &mut [f32], taps: &[f32], radius: usize) {
 }
 
 /// The resampling of a distortion over a whole image: per output pixel, the top-left source
-/// pixel of its bilinear sample (`u32::MAX`: outside the ideal image) and the sample's weights.
+/// pixel of its bilinear sample with [`RIGHT_BIT`] and [`DOWN_BIT`] (`u32::MAX`: outside the
+/// ideal image) and the sample's weights.
 /// Depends only on the image's size and the coefficient, so it is made once per process for
 /// each (the last few kept) and shared by every frame and session.
 struct ResampleMap {
     top_left: Vec<u32>,
     weights: Vec<[f32; 2]>,
 }
+
+/// Flags of a [`ResampleMap`] entry: the pixel right of the top-left one exists.
+const RIGHT_BIT: u32 = 1 << 31;
+/// The pixel below the top-left one exists.
+const DOWN_BIT: u32 = 1 << 30;
 
 fn resample_map(d: &Distortion, width: usize, height: usize) -> std::sync::Arc<ResampleMap> {
     type Key = (usize, usize, u64);
@@ -465,7 +473,11 @@ fn resample_map(d: &Distortion, width: usize, height: usize) -> std::sync::Arc<R
             // Pixel centres at half-integers; the last row and column repeat themselves.
             let (fx, fy) = ((x - 0.5).clamp(0.0, w - 1.0), (y - 0.5).clamp(0.0, h - 1.0));
             let (x0, y0) = (fx as usize, fy as usize);
-            top_left.push((y0 * width + x0) as u32);
+            // The neighbours' existence in the top two bits (an image is far below 2^30
+            // pixels), so the pass needs no division to find them.
+            let right = if x0 + 1 < width { RIGHT_BIT } else { 0 };
+            let down = if y0 + 1 < height { DOWN_BIT } else { 0 };
+            top_left.push((y0 * width + x0) as u32 | right | down);
             weights.push([(fx - x0 as f64) as f32, (fy - y0 as f64) as f32]);
         }
     }
@@ -501,11 +513,10 @@ fn distort(
                 *m = false;
                 continue;
             }
-            let p = p as usize;
+            let right = usize::from(p & RIGHT_BIT != 0);
+            let down = if p & DOWN_BIT != 0 { width } else { 0 };
+            let p = (p & !(RIGHT_BIT | DOWN_BIT)) as usize;
             let [ax, ay] = map.weights[base + i];
-            let (x0, y0) = (p % width, p / width);
-            let right = usize::from(x0 + 1 < width);
-            let down = if y0 + 1 < height { width } else { 0 };
             let (a, b) = (src[p], src[p + right]);
             let (c, e) = (src[p + down], src[p + down + right]);
             let top = a + ax * (b - a);
