@@ -497,10 +497,17 @@ impl Session {
         let core_engagement = || super::command::engagement_of(CORE_COMMANDS, command.name());
         match command.class() {
             CommandClass::Needle => Ok((self.apply_needle(command)?, core_engagement())),
-            CommandClass::Session if *command == Command::Tick => Ok((
-                serde_json::json!({ "t_ms": self.world.clock_ms }),
-                core_engagement(),
-            )),
+            CommandClass::Session if *command == Command::Tick => {
+                let mut outcome = serde_json::json!({ "t_ms": self.world.clock_ms });
+                for status in self.modalities.iter().filter_map(|m| m.tick_status()) {
+                    if let (Some(out), serde_json::Value::Object(fields)) =
+                        (outcome.as_object_mut(), status)
+                    {
+                        out.extend(fields);
+                    }
+                }
+                Ok((outcome, core_engagement()))
+            }
             CommandClass::Session => {
                 // The submit itself is logged by the caller; the record's log hash covers the
                 // commands before it. The result travels typed in the acknowledgement.

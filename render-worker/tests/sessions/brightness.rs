@@ -218,3 +218,25 @@ fn brightness_settles_during_a_still_live_run() {
     let last = *k.last().unwrap();
     assert!((last / target - 1.0).abs() <= 0.05, "{k:?}");
 }
+
+/// Ticks image live pulses, each stepping the control: their acknowledgements carry the
+/// technique as a command's do, so a client's exposure readout follows live fluoroscopy.
+#[test]
+fn brightness_technique_rides_on_every_tick_of_a_live_run() {
+    let mut d = Driver::new();
+    d.ok(100, Command::Live { on: true });
+    d.ok(200, pose(90.0, 0.0));
+    let mut seen = Vec::new();
+    for k in 0..8u64 {
+        let ack = d.ok(333 + 133 * k, Command::Tick);
+        let t = &ack.outcome["technique"];
+        let last = images(&d.s).pop().unwrap();
+        assert_eq!(t["kvp"], last["kvp"], "tick {k}: {t} vs {last}");
+        assert_eq!(t["ma"], last["ma"], "tick {k}");
+        assert_eq!(t["detector_kerma_ngy"], last["detector_kerma_ngy"], "tick {k}");
+        assert!(t["next_kvp"].is_u64() && t["next_ma"].is_f64(), "{t}");
+        seen.push((t["kvp"].as_u64().unwrap(), t["ma"].as_f64().unwrap()));
+    }
+    // The lateral view's technique differs from the AP one the run started with.
+    assert!(seen.windows(2).any(|w| w[0] != w[1]), "{seen:?}");
+}

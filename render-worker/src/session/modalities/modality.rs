@@ -151,6 +151,13 @@ pub trait Modality: Send {
         None
     }
 
+    /// What this modality reports in the acknowledgement of every tick (fields merged into
+    /// it): fluoroscopy's technique, which the brightness control steps on the pulses that
+    /// ticks image, so a client's exposure readout follows live fluoroscopy.
+    fn tick_status(&self) -> Option<serde_json::Value> {
+        None
+    }
+
     /// Views whose content is newer than their last render.
     fn dirty_views(&self) -> Vec<ViewId>;
 

@@ -148,6 +148,19 @@ impl FluoroModality {
         }
     }
 
+    /// The technique of the image on display and of the next exposure, for acknowledgements.
+    fn technique_json(&self) -> serde_json::Value {
+        brightness::technique_json(
+            self.state.images.last().map(|i| (i.kvp, i.ma, i.detector_kerma_ngy)),
+            Technique {
+                kvp: self.state.kvp,
+                ma: self.state.ma,
+            },
+            self.state.pulse_rate_pps,
+            self.state.brightness,
+        )
+    }
+
     /// The current state.
     pub fn fluoro_state(&self) -> &FluoroState {
         &self.state
@@ -575,15 +588,7 @@ impl Modality for FluoroModality {
             }
         }
         Ok(serde_json::json!({
-            "technique": brightness::technique_json(
-                self.state.images.last().map(|i| (i.kvp, i.ma, i.detector_kerma_ngy)),
-                Technique {
-                    kvp: self.state.kvp,
-                    ma: self.state.ma,
-                },
-                self.state.pulse_rate_pps,
-                self.state.brightness,
-            ),
+            "technique": self.technique_json(),
             "field_mm": self.field_mm(),
             "detector_mm": self.state.config.detector_mm,
             "grid": self.state.scatter.map(|s| if s.grid { "in" } else { "out" }),
@@ -722,6 +727,12 @@ impl Modality for FluoroModality {
                 world.iodine.as_deref(),
             )
             .map_err(render_failed)
+    }
+
+    /// The technique of the image on display and of the next pulse, as every fluoroscopy
+    /// acknowledgement carries it.
+    fn tick_status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({ "technique": self.technique_json() }))
     }
 
     fn measure(&self, world: &World, out: &mut Measurements) {
