@@ -35,7 +35,10 @@ fn gallery_writes_three_views_per_region_as_png_that_read_back() {
     let region = region();
     let paths = gallery::write(&region, shots(), dir.path()).unwrap();
     let names: Vec<String> = paths.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
-    assert_eq!(names, ["lumbar-phantom_ap.png", "lumbar-phantom_lao30.png", "lumbar-phantom_lateral.png"]);
+    assert_eq!(
+        names,
+        ["lumbar-phantom-average_ap.png", "lumbar-phantom-average_lao30.png", "lumbar-phantom-average_lateral.png"]
+    );
     for (path, shot) in paths.iter().zip(shots()) {
         let (w, h, pixels) = gallery::png::decode_grey(&std::fs::read(path).unwrap()).expect("a valid PNG");
         assert_eq!((w, h), (shot.image.width, shot.image.height));
@@ -180,10 +183,10 @@ fn scatter_gallery_shows_ap_and_lateral_with_and_without_the_grid() {
     assert_eq!(
         names,
         [
-            "lumbar-phantom_ap_grid.png",
-            "lumbar-phantom_ap_nogrid.png",
-            "lumbar-phantom_lateral_grid.png",
-            "lumbar-phantom_lateral_nogrid.png"
+            "lumbar-phantom-average_ap_grid.png",
+            "lumbar-phantom-average_ap_nogrid.png",
+            "lumbar-phantom-average_lateral_grid.png",
+            "lumbar-phantom-average_lateral_nogrid.png"
         ]
     );
     // The 10th to 90th percentile of the middle quarter of the image.

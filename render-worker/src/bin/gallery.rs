@@ -1,7 +1,9 @@
 //! `gallery`: renders AP, 30 degree oblique and lateral fluoroscopy shots of every region a
 //! station uses (or of the regions named) to PNG files, for review of the anatomy; and the AP
-//! and lateral with scatter, the anti-scatter grid in and out (`<region>_ap_grid.png`,
-//! `<region>_ap_nogrid.png`, ...).
+//! and lateral with scatter, the anti-scatter grid in and out (`<stem>_ap_grid.png`,
+//! `<stem>_ap_nogrid.png`, ...). The stem is the region's name, with the habitus for the
+//! lumbar phantom's variants (`lumbar-phantom-average`, `lumbar-phantom-slim`,
+//! `lumbar-phantom-obese`).
 //!
 //! ```text
 //! gallery [--assets DIR] [--out DIR] [--regions a,b,c]

@@ -262,7 +262,18 @@ pub fn scatter_shots(
     Ok(out)
 }
 
-/// Writes `shots` of `region` into `dir` as `<region>_<view>.png`; returns the paths.
+/// The file name stem of `region`'s shots: its name, with the habitus named for every variant
+/// of the lumbar phantom (`lumbar-phantom-average`, `lumbar-phantom-slim`, ...), so a reader
+/// comparing bodies sees which is which.
+pub fn file_stem(region: &Region) -> String {
+    match sim_core::anatomy::phantom::habitus::Habitus::of_region(&region.name) {
+        Some(h) => format!("{}-{}", sim_core::anatomy::phantom::REGION_NAME, h.name()),
+        None => region.name.clone(),
+    }
+}
+
+/// Writes `shots` of `region` into `dir` as `<stem>_<view>.png` ([`file_stem`]); returns the
+/// paths.
 pub fn write(region: &Region, shots: &[Shot], dir: &Path) -> Result<Vec<PathBuf>, GalleryError> {
     std::fs::create_dir_all(dir).map_err(|source| GalleryError::CreateDir {
         dir: dir.to_path_buf(),
@@ -271,7 +282,7 @@ pub fn write(region: &Region, shots: &[Shot], dir: &Path) -> Result<Vec<PathBuf>
     shots
         .iter()
         .map(|s| {
-            let path = dir.join(format!("{}_{}.png", region.name, s.view.name));
+            let path = dir.join(format!("{}_{}.png", file_stem(region), s.view.name));
             let bytes = match png::encode_grey(s.image.width, s.image.height, &s.image.pixels) {
                 Ok(b) => b,
                 Err(source) => return Err(GalleryError::Encode { path, source }),
