@@ -11,7 +11,12 @@
 //! core and, for the image intensifier, distortion and vignetting): the finish with scatter and
 //! each receptor, and what the receptor adds to the finish with scatter.
 //!
-//! Rows 3: the scatter-to-primary ratio at the centre of an AP lumbar-like field (200 mm water,
+//! Rows 3: the whole chain a live frame of a new session adds to the finish it had before
+//! (noise and display of the primary): one brightness-control step (the metering's scatter
+//! factor and the controller, on a metering of 80 rays through 200 mm of soft tissue and 15 mm of
+//! bone), scatter, the receptor, and the temporal chain's strongest filter over 6 raw frames.
+//!
+//! Rows 4: the scatter-to-primary ratio at the centre of an AP lumbar-like field (200 mm water,
 //! 200 mm field, 80 kVp, 20 mm air gap), without and with the grid: the superposition's
 //! `centre_spr` and the Monte Carlo at rising photon counts, each with its run time; the error
 //! column is against the largest Monte Carlo run.
@@ -21,12 +26,20 @@
 
 use std::time::Instant;
 
+use sim_core::fluoro::attenuation::{CORTICAL_BONE_MU_60KEV_PER_CM, SOFT_TISSUE_MU_60KEV_PER_CM};
+use sim_core::fluoro::brightness::{
+    BrightnessCurve, FrameExposure, Metering, Technique, TubeLimits, next_technique,
+};
 use sim_core::fluoro::geometry::{ISOCENTRE_TO_DETECTOR_MM, SOURCE_TO_ISOCENTRE_MM};
 use sim_core::fluoro::receptor::{ReceptorKind, ReceptorSettings};
 use sim_core::fluoro::render::finish_frame_f32;
 use sim_core::fluoro::scatter::AntiScatterGrid;
 use sim_core::fluoro::scatter::monte_carlo::{Beam, SlabSetup, field_centre};
 use sim_core::fluoro::scatter::superposition::{ScatterSettings, centre_spr, scatter_field};
+use sim_core::fluoro::spectrum::Basis;
+use sim_core::fluoro::temporal::{
+    FIRST_FRAME_LAG, FilterLevel, HISTORY_FRAMES, combine, weights_q16,
+};
 use sim_core::fluoro::{QuantumNoise, RenderSettings};
 use sim_core::stats::Timing;
 
@@ -125,6 +138,85 @@ fn main() {
             })
             .median_ms();
             println!("| {side} | {} | {ms:.2} | {:.2} |", kind.name(), ms - plain);
+        }
+    }
+    println!();
+    println!("| image | receptor | whole chain added to a live frame (ms) | goal (ms) |");
+    println!("|---:|---|---:|---:|");
+    let metering = Metering {
+        depths: (0..80)
+            .map(|_| {
+                let mut a = [0.0; Basis::COUNT];
+                a[Basis::Water.index()] = SOFT_TISSUE_MU_60KEV_PER_CM * 20.0;
+                a[Basis::Bone.index()] = CORTICAL_BONE_MU_60KEV_PER_CM * 1.5;
+                a
+            })
+            .collect(),
+        air_gap_mm: 600.0,
+    };
+    let exposure = FrameExposure {
+        frame_s: 1.0 / 30.0,
+        duty: 0.25,
+        source_to_detector_mm: SOURCE_TO_ISOCENTRE_MM + ISOCENTRE_TO_DETECTOR_MM,
+        source_to_skin_mm: 600.0,
+    };
+    for side in [512u32, 1024] {
+        let (t, exposed) = field(side);
+        let pitch = 300.0 / f64::from(side);
+        let noise = Some(QuantumNoise {
+            photons_per_pixel: 3750.0,
+            seed: 0x5eed,
+        });
+        let before = RenderSettings {
+            noise,
+            ..RenderSettings::default()
+        };
+        let plain = Timing::run(runs, || {
+            std::hint::black_box(finish_frame_f32(side, side, &t, &exposed, &before));
+        })
+        .median_ms();
+        let n = (side * side) as usize;
+        let history: Vec<Vec<u8>> = (0..HISTORY_FRAMES)
+            .map(|k| (0..n).map(|p| ((p * 7 + k * 13) % 251) as u8).collect())
+            .collect();
+        let weights = weights_q16(FilterLevel::High, FIRST_FRAME_LAG, HISTORY_FRAMES);
+        for kind in ReceptorKind::ALL {
+            let with = RenderSettings {
+                scatter: Some(ScatterSettings {
+                    kvp: 80,
+                    grid: true,
+                    air_gap_mm: 600.0,
+                    pixel_pitch_mm: pitch,
+                }),
+                receptor: Some(ReceptorSettings {
+                    kind,
+                    pixel_pitch_mm: pitch,
+                }),
+                ..before
+            };
+            let ms = Timing::run(runs, || {
+                let technique = Technique { kvp: 80, ma: 2.5 };
+                let factor = metering.scatter_factor(80, 150.0, 150.0, true);
+                let k = metering.detector_kerma_ngy(technique, &exposure) * factor;
+                std::hint::black_box(next_technique(
+                    BrightnessCurve::Standard,
+                    &TubeLimits::default(),
+                    &exposure,
+                    technique,
+                    k,
+                ));
+                let frame = finish_frame_f32(side, side, &t, &exposed, &with);
+                let mut refs: Vec<&[u8]> = vec![frame.pixels.as_slice()];
+                refs.extend(history[1..].iter().map(|h| h.as_slice()));
+                std::hint::black_box(combine(&refs, &weights));
+            })
+            .median_ms();
+            let goal = if side == 512 { 3.0 } else { 10.0 };
+            println!(
+                "| {side} | {} | {:.2} | {goal:.0} |",
+                kind.name(),
+                ms - plain
+            );
         }
     }
     println!();

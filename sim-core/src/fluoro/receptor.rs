@@ -370,10 +370,12 @@ fn glare(
     );
 }
 
-/// Separable Gaussian blur of standard deviation `sigma_px` (taps to 3 sigma, normalised; the
-/// image's edge repeated).
+/// Separable Gaussian blur of standard deviation `sigma_px`, normalised, the image's edge
+/// repeated; taps to 3 sigma, less those under 0.1 % of the centre tap (a core of 0.51 px, a
+/// flat panel at 1024^2, keeps 3 taps instead of 5: the MTF moves by under 0.1 %).
 fn blur(signal: &mut [f32], width: usize, height: usize, sigma_px: f64, threads: usize) {
-    let radius = (3.0 * sigma_px).ceil().max(1.0) as usize;
+    let by_weight = (sigma_px * (2.0 * 1000f64.ln()).sqrt()).floor();
+    let radius = (3.0 * sigma_px).ceil().min(by_weight).max(1.0) as usize;
     let mut taps: Vec<f32> = (0..=2 * radius)
         .map(|k| {
             let d = k as f64 - radius as f64;

@@ -118,21 +118,79 @@ pub fn combine(frames: &[&[u8]], weights_q16: &[u32]) -> Option<Vec<u8>> {
     {
         return None;
     }
-    let mut acc = vec![32768u32; n];
-    for (f, &w) in frames.iter().zip(weights_q16) {
-        if w == 0 {
-            continue;
-        }
-        for (a, &p) in acc.iter_mut().zip(f.iter()) {
-            *a += w * u32::from(p);
-        }
+    // Blocks of pixels on all cores, each summed over the frames in a small accumulator that
+    // stays in registers and cache (the same integer sums in the same order as one pass per
+    // frame over the whole image, so the same bytes; about a quarter of that pass's time).
+    const BLOCK: usize = 64;
+    let mut out = vec![0u8; n];
+    if n == 0 {
+        return Some(out);
     }
-    Some(acc.into_iter().map(|a| (a >> 16) as u8).collect())
+    let chunk = CHUNK_PX.min(n);
+    let threads = super::rows::thread_count(0);
+    super::rows::par_rows(&mut out, chunk, threads, |j, row| {
+        let start = j * chunk;
+        for (b, out_block) in row.chunks_mut(BLOCK).enumerate() {
+            let from = start + b * BLOCK;
+            let mut acc = [32768u32; BLOCK];
+            for (f, &w) in frames.iter().zip(weights_q16) {
+                if w == 0 {
+                    continue;
+                }
+                let pixels = &f[from..from + out_block.len()];
+                for (a, &p) in acc.iter_mut().zip(pixels) {
+                    *a += w * u32::from(p);
+                }
+            }
+            for (o, a) in out_block.iter_mut().zip(acc) {
+                *o = (a >> 16) as u8;
+            }
+        }
+    });
+    Some(out)
 }
+
+/// Pixels per work item of [`combine`] (a row of the work split, not of the image).
+const CHUNK_PX: usize = 16_384;
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn lag_combine_equals_the_per_frame_sums_at_any_size() {
+        for n in [
+            0usize,
+            1,
+            63,
+            64,
+            65,
+            4097,
+            CHUNK_PX - 1,
+            CHUNK_PX,
+            CHUNK_PX + 1,
+            70_001,
+        ] {
+            let frames: Vec<Vec<u8>> = (0..3)
+                .map(|k| (0..n).map(|p| ((p * 31 + k * 97) % 256) as u8).collect())
+                .collect();
+            let refs: Vec<&[u8]> = frames.iter().map(|f| f.as_slice()).collect();
+            let w = weights_q16(FilterLevel::High, FIRST_FRAME_LAG, 3);
+            let got = combine(&refs, &w).expect("same sizes");
+            let want: Vec<u8> = (0..n)
+                .map(|p| {
+                    let s: u32 = 32768
+                        + frames
+                            .iter()
+                            .zip(&w)
+                            .map(|(f, w)| w * u32::from(f[p]))
+                            .sum::<u32>();
+                    (s >> 16) as u8
+                })
+                .collect();
+            assert_eq!(got, want, "{n} pixels");
+        }
+    }
 
     #[test]
     fn lag_weights_sum_to_one_and_follow_the_recursion() {
