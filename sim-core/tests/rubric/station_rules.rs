@@ -104,3 +104,58 @@ fn a_parse_error_names_its_file_and_a_string_error_does_not() {
     let e = Station::from_toml_str("id = ").unwrap_err().to_string();
     assert!(e.starts_with("cannot parse station: "), "{e}");
 }
+
+/// A station names the habitus of the lumbar phantom (its region asset becomes the variant's)
+/// and the C-arm's receptor; a habitus on another region, or an unknown habitus or receptor,
+/// is refused naming the field.
+#[test]
+fn habitus_and_detector_select_the_body_and_the_receptor() {
+    use sim_core::anatomy::phantom::habitus::Habitus;
+    use sim_core::fluoro::receptor::ReceptorKind;
+    let base = station_toml(
+        0.5,
+        &crit(
+            "a",
+            1.0,
+            false,
+            "a_mm",
+            "mm",
+            r#"{ law = "lower_is_better", pass_within = 1.0, fail_beyond = 2.0 }"#,
+        ),
+    );
+    let with = |line: &str| base.replacen("modalities = [", &format!("{line}\nmodalities = ["), 1);
+    let plain = Station::from_toml_str(&base).expect("valid");
+    assert_eq!((plain.habitus, plain.detector), (None, None));
+    assert_eq!(plain.region_asset(), "lumbar-phantom");
+    let obese = Station::from_toml_str(&with(
+        "habitus = \"obese\"\ndetector = \"image_intensifier\"",
+    ))
+    .expect("valid");
+    assert_eq!(obese.habitus, Some(Habitus::Obese));
+    assert_eq!(obese.detector, Some(ReceptorKind::ImageIntensifier));
+    assert_eq!(obese.region_asset(), "lumbar-phantom-obese");
+    let average = Station::from_toml_str(&with("habitus = \"average\"")).expect("valid");
+    assert_eq!(average.region_asset(), "lumbar-phantom");
+    // Another region: refused.
+    let cervical = with("habitus = \"slim\"").replace(
+        "region = \"lumbar-phantom\"",
+        "region = \"cervical-phantom\"",
+    );
+    match Station::from_toml_str(&cervical) {
+        Err(StationError::Invalid { problems, .. }) => {
+            assert!(
+                problems.iter().any(|p| p.contains("habitus")),
+                "{problems:?}"
+            );
+        }
+        other => panic!("{other:?}"),
+    }
+    // Unknown names: parse errors naming the field.
+    for (line, field) in [
+        ("habitus = \"huge\"", "habitus"),
+        ("detector = \"ccd\"", "detector"),
+    ] {
+        let e = Station::from_toml_str(&with(line)).expect_err(line);
+        assert!(e.to_string().contains(field), "{line}: {e}");
+    }
+}
