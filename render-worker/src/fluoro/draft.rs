@@ -6,6 +6,8 @@
 //! quanta. Deterministic like every frame of the renderer, so a replay reproduces a draft bit
 //! for bit.
 
+use sim_core::fluoro::receptor::ReceptorSettings;
+use sim_core::fluoro::scatter::superposition::ScatterSettings;
 use sim_core::fluoro::{Image, IodineField, Projection, QuantumNoise, RenderSettings};
 
 use super::{FluoroGpuError, GpuFluoroRenderer};
@@ -35,11 +37,20 @@ pub fn render_draft_frame(
         pixel_pitch_mm: projection.pixel_pitch_mm.map(|p| 2.0 * p),
         ..*projection
     };
+    // Scatter and the receptor work in millimetres: the draft's pixels are twice as wide.
     let settings = RenderSettings {
         supersample: 1,
         noise: settings.noise.map(|n| QuantumNoise {
             photons_per_pixel: 4.0 * n.photons_per_pixel,
             ..n
+        }),
+        scatter: settings.scatter.map(|s| ScatterSettings {
+            pixel_pitch_mm: 2.0 * s.pixel_pitch_mm,
+            ..s
+        }),
+        receptor: settings.receptor.map(|r| ReceptorSettings {
+            pixel_pitch_mm: 2.0 * r.pixel_pitch_mm,
+            ..r
         }),
         ..*settings
     };
