@@ -57,6 +57,8 @@ pub fn load_region(
     // A habitus variant of the phantom is built by the phantom's generator, which names every
     // build after the phantom: the region goes by the name it was asked for.
     let mut asset = asset;
-    asset.name = name.to_string();
+    if phantom::habitus::Habitus::of_region(name).is_some() {
+        asset.name = name.to_string();
+    }
     Ok(Region::from_asset(&asset))
 }

@@ -26,7 +26,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::scatter::superposition::ScatterField;
+use super::scatter::superposition::{MIN_PITCH_MM, ScatterField};
 
 /// The kind of image receptor a station's C-arm has.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -213,8 +213,7 @@ pub fn apply(
     threads: usize,
 ) -> Vec<bool> {
     let p = s.kind.params();
-    if width == 0 || height == 0 || signal.len() != width * height || exposed.len() != signal.len()
-    {
+    if !valid(signal, exposed, width, height, s) {
         return exposed.to_vec();
     }
     glare(
@@ -244,8 +243,7 @@ pub fn apply_after_glare(
     threads: usize,
 ) -> Vec<bool> {
     let p = s.kind.params();
-    if width == 0 || height == 0 || signal.len() != width * height || exposed.len() != signal.len()
-    {
+    if !valid(signal, exposed, width, height, s) {
         return exposed.to_vec();
     }
     let sigma_px = p.psf_sigma_mm / s.pixel_pitch_mm;
@@ -260,9 +258,27 @@ pub fn apply_after_glare(
     }
 }
 
+/// Whether an image and its settings can be processed: sizes that agree, and a pitch of at
+/// least [`MIN_PITCH_MM`] (anything else is left as it is).
+fn valid(
+    signal: &[f32],
+    exposed: &[bool],
+    width: usize,
+    height: usize,
+    s: &ReceptorSettings,
+) -> bool {
+    width > 0
+        && height > 0
+        && signal.len() == width * height
+        && exposed.len() == signal.len()
+        && s.pixel_pitch_mm.is_finite()
+        && s.pixel_pitch_mm >= MIN_PITCH_MM
+}
+
 /// Cell means of an image on a coarse grid of `cell_px` pixels and `cells` cells, from a
-/// regular subsample (at most 16 x 16 per cell): the mean over the whole cell (unexposed pixels
-/// counting 0) and the exposed share of the cell.
+/// regular subsample (at most 16 x 16 per cell): the mean over the whole cell (unexposed pixels,
+/// and the part of an edge cell outside the image, counting 0) and the exposed share of the
+/// whole cell.
 pub fn cell_means<T: Copy + Into<f64>>(
     t: &[T],
     exposed: &[bool],
@@ -274,11 +290,10 @@ pub fn cell_means<T: Copy + Into<f64>>(
     let nx = cells[0];
     let n = cells[0] * cells[1];
     let stride = cell_px.div_ceil(16).max(1);
-    let (mut sum, mut hits, mut samples) = (vec![0.0f64; n], vec![0usize; n], vec![0usize; n]);
+    let (mut sum, mut hits) = (vec![0.0f64; n], vec![0usize; n]);
     for j in (stride / 2..height).step_by(stride) {
         for i in (stride / 2..width).step_by(stride) {
             let c = (j / cell_px) * nx + i / cell_px;
-            samples[c] += 1;
             if exposed[j * width + i] {
                 let v: f64 = t[j * width + i].into();
                 sum[c] += if v.is_finite() { v } else { 0.0 };
@@ -286,10 +301,31 @@ pub fn cell_means<T: Copy + Into<f64>>(
             }
         }
     }
-    let means = (0..n).map(|c| sum[c] / samples[c].max(1) as f64).collect();
-    let share = (0..n)
-        .map(|c| hits[c] as f64 / samples[c].max(1) as f64)
-        .collect();
+    // Per whole cell: a cell cut by the image's edge counts its missing part as empty, so it
+    // weighs as much as the part of it that is in the image.
+    // Sample positions `stride / 2 + k stride` in `[lo, hi)` (cells need not hold a whole
+    // number of strides).
+    let positions = |lo: usize, hi: usize| -> usize {
+        let off = stride / 2;
+        let first = if lo <= off {
+            off
+        } else {
+            off + (lo - off).div_ceil(stride) * stride
+        };
+        if first >= hi {
+            0
+        } else {
+            (hi - 1 - first) / stride + 1
+        }
+    };
+    let whole = |c: usize| {
+        let (x, y) = (c % nx, c / nx);
+        let count =
+            positions(x * cell_px, (x + 1) * cell_px) * positions(y * cell_px, (y + 1) * cell_px);
+        count.max(1) as f64
+    };
+    let means = (0..n).map(|c| sum[c] / whole(c)).collect();
+    let share = (0..n).map(|c| hits[c] as f64 / whole(c)).collect();
     (means, share)
 }
 
@@ -299,7 +335,7 @@ pub fn cell_means<T: Copy + Into<f64>>(
 pub fn glare_cells(means: &[f64], cells: [usize; 2], cell_mm: f64, p: &ReceptorParams) -> Vec<f64> {
     let (nx, ny) = (cells[0], cells[1]);
     let sigma = (p.glare_sigma_mm / cell_mm).max(1e-3);
-    let reach = (6.0 * sigma).ceil() as i64 + 1;
+    let reach = ((6.0 * sigma).ceil() as i64 + 1).min(nx.max(ny) as i64 + 1);
     let lattice: f64 = (-reach..=reach)
         .map(|k| (-((k * k) as f64) / (2.0 * sigma * sigma)).exp())
         .sum();
@@ -375,7 +411,7 @@ fn glare(
 /// flat panel at 1024^2, keeps 3 taps instead of 5: the MTF moves by under 0.1 %).
 fn blur(signal: &mut [f32], width: usize, height: usize, sigma_px: f64, threads: usize) {
     let by_weight = (sigma_px * (2.0 * 1000f64.ln()).sqrt()).floor();
-    let radius = (3.0 * sigma_px).ceil().min(by_weight).max(1.0) as usize;
+    let radius = ((3.0 * sigma_px).ceil().min(by_weight).max(1.0) as usize).min(width.max(height));
     let mut taps: Vec<f32> = (0..=2 * radius)
         .map(|k| {
             let d = k as f64 - radius as f64;
@@ -599,6 +635,33 @@ mod tests {
         let edge = d.distort_px([512.0, 256.0]);
         assert!((edge[0] - (256.0 + 256.0 * 1.05)).abs() < 1e-9, "{edge:?}");
         assert_eq!(d.distort_px([256.0, 256.0]), [256.0, 256.0]);
+    }
+
+    #[test]
+    fn receptor_leaves_images_it_cannot_process_as_they_are() {
+        for (w, h) in [(0usize, 0usize), (0, 5), (5, 0)] {
+            let mut s: Vec<f32> = vec![0.5; w * h];
+            let mask = apply(&mut s, &vec![true; w * h], w, h, &settings(1.0), 2);
+            assert_eq!(mask.len(), w * h);
+        }
+        for pitch in [0.0, -1.0, 1e-9, f64::NAN] {
+            let mut s = vec![0.5f32; 64];
+            let mask = apply(&mut s, &[true; 64], 8, 8, &settings(pitch), 2);
+            assert_eq!((s, mask), (vec![0.5f32; 64], vec![true; 64]), "pitch {pitch}");
+        }
+        // A 1 x 1 image and one far wider than tall go through.
+        for (w, h) in [(1usize, 1usize), (300, 2)] {
+            let mut s = vec![0.5f32; w * h];
+            apply(&mut s, &vec![true; w * h], w, h, &settings(0.5), 2);
+            assert!(s.iter().all(|v| v.is_finite() && *v >= 0.0));
+        }
+    }
+
+    fn settings(pitch_mm: f64) -> ReceptorSettings {
+        ReceptorSettings {
+            kind: ReceptorKind::ImageIntensifier,
+            pixel_pitch_mm: pitch_mm,
+        }
     }
 
     #[test]

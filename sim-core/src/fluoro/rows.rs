@@ -7,6 +7,9 @@ pub(crate) fn par_rows<T: Send>(
     threads: usize,
     f: impl Fn(usize, &mut [T]) + Sync,
 ) {
+    if out.is_empty() || width == 0 {
+        return;
+    }
     let height = out.len() / width.max(1);
     let threads = threads.clamp(1, height.max(1));
     let rows_per = height.div_ceil(threads);
@@ -40,6 +43,9 @@ pub(crate) fn par_rows_pair<A: Send, B: Send>(
     f: impl Fn(usize, &mut [A], &mut [B]) + Sync,
 ) {
     assert_eq!(a.len(), b.len(), "images of one shape");
+    if a.is_empty() || width == 0 {
+        return;
+    }
     let height = a.len() / width.max(1);
     let threads = threads.clamp(1, height.max(1));
     let rows_per = height.div_ceil(threads);

@@ -30,6 +30,9 @@ use crate::fluoro::spectrum::Spectrum;
 /// under 1 % in the broad-field test.
 pub const MAX_CELLS: usize = 16;
 
+/// Smallest pixel pitch the scatter and receptor models accept, mm.
+pub const MIN_PITCH_MM: f64 = 1e-3;
+
 /// Most primary samples per cell side when averaging a cell (every pixel up to this, a regular
 /// subsample beyond: the mean of a 64 x 64 pixel cell from 16 x 16 of them).
 const SAMPLES_PER_CELL_SIDE: usize = 16;
@@ -132,7 +135,8 @@ struct FrameKernels {
 
 /// Interpolation weights of `x` in the sorted `knots`: `(lower index, fraction)`, clamped.
 fn bracket(knots: &[f64], x: f64) -> (usize, f64) {
-    if x <= knots[0] {
+    // NaN falls to the first knot.
+    if x.is_nan() || x <= knots[0] {
         return (0, 0.0);
     }
     let last = knots.len() - 1;
@@ -304,6 +308,13 @@ pub fn scatter_field<T: Copy + Into<f64>>(
     if width == 0 || height == 0 || t.len() != width * height || exposed.len() != t.len() {
         return None;
     }
+    // A pitch under a micrometre (or not a number) is no detector's.
+    if s.pixel_pitch_mm.is_nan()
+        || s.pixel_pitch_mm < MIN_PITCH_MM
+        || s.pixel_pitch_mm.is_infinite()
+    {
+        return None;
+    }
     water_curve(s.kvp)?;
     let cell_px = width.max(height).div_ceil(MAX_CELLS).max(1);
     let cells = [width.div_ceil(cell_px), height.div_ceil(cell_px)];
@@ -403,6 +414,12 @@ pub fn centre_spr(
         let (w, f) = bracket(&WATER_MM, tau);
         (w, f, 1.0)
     };
+    // Beyond the table's 500 mm reach the kernels are zero: a larger field adds nothing.
+    let reach = RADII as f64 * STEP_MM;
+    let (half_x_mm, half_y_mm) = (
+        half_x_mm.clamp(0.0, reach).max(0.0),
+        half_y_mm.clamp(0.0, reach).max(0.0),
+    );
     let rho = |w: usize| ring_densities(&cumulative_at(kvp as f64, air_gap_mm, w, grid));
     let (r0, r1) = (rho(w), rho((w + 1).min(WATER_MM.len() - 1)));
     // Integrate over the rectangle on a 5 mm grid (a quarter, by symmetry; the kernels are

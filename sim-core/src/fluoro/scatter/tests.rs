@@ -262,6 +262,24 @@ fn scatter_field_is_finite_and_non_negative_on_hostile_images() {
     assert!(scatter_field(&[0.5], &[true], 1, 1, &s).is_some());
     assert!(scatter_field(&[0.5, 0.5], &[true], 2, 1, &s).is_none());
     assert!(scatter_field(&[0.5], &[true], 1, 1, &ScatterSettings { kvp: 81, ..s }).is_none());
+    // A pitch that is no detector's, a NaN air gap, a field far beyond the kernels' reach.
+    for pitch in [0.0, -1.0, 1e-9, f64::NAN, f64::INFINITY] {
+        let bad = ScatterSettings {
+            pixel_pitch_mm: pitch,
+            ..s
+        };
+        assert!(scatter_field(&vec![0.5; n * n], &vec![true; n * n], n, n, &bad).is_none());
+    }
+    let nan_gap = ScatterSettings {
+        air_gap_mm: f64::NAN,
+        ..s
+    };
+    let f = scatter_field(&vec![0.1; n * n], &vec![true; n * n], n, n, &nan_gap).expect("field");
+    assert!(f.values.iter().all(|v| v.is_finite() && *v >= 0.0));
+    assert!(centre_spr(80, 200.0, 100.0, 100.0, f64::NAN, true).is_some_and(f64::is_finite));
+    let huge = centre_spr(80, 200.0, 1e9, 1e9, 100.0, false).expect("spr");
+    let reach = centre_spr(80, 200.0, 500.0, 500.0, 100.0, false).expect("spr");
+    assert_eq!(huge, reach, "nothing scatters in from beyond the kernels' 500 mm");
     // The water curve inverts itself.
     for mm in [0.0, 10.0, 123.4, 400.0] {
         let t = super::superposition::water_transmission(80, mm).expect("spectrum");
