@@ -343,21 +343,27 @@ async fn a_connected_session_without_commands_is_closed_as_idle_and_resumes() {
     let (learner, attempt, session, mut ws) = open_session(&srv, "learner@demo.invalid").await;
     let id: uuid::Uuid = session["session_id"].as_str().unwrap().parse().unwrap();
     let mut got = Received::default();
-    // Driven: a command every 300 ms for three idle limits keeps it open.
+    // Driven: a command every 300 ms for three idle limits keeps it open. The idle limit
+    // counts from the server's receipt of the last command, which comes after `last_sent`
+    // however slow the machine is, so the close can never come sooner than the limit after it.
+    let mut last_sent = Instant::now();
     for seq in 1..=12 {
+        if seq > 1 {
+            tokio::time::sleep(Duration::from_millis(300)).await;
+        }
+        last_sent = Instant::now();
         ws.send(seq, json!({ "type": "tick" })).await;
         ws.until(&mut got, |r| acked(r).last() == Some(&seq)).await;
-        tokio::time::sleep(Duration::from_millis(300)).await;
     }
     assert!(
         srv.dispatcher.session(id).is_some(),
         "a driven session stays"
     );
-    let idle_from = Instant::now();
     let (code, reason) = close_frame(&mut ws, Duration::from_secs(30)).await;
     assert_eq!(code, server::dispatch::CLOSE_IDLE, "{reason}");
     assert!(reason.contains("no command"), "{reason}");
-    assert!(idle_from.elapsed() >= Duration::from_millis(800));
+    let quiet = last_sent.elapsed();
+    assert!(quiet >= Duration::from_millis(1200), "closed after {quiet:?}");
     wait_freed(&srv, id, Duration::from_secs(10)).await;
     let audit = audit_actions(&srv, &id.to_string()).await;
     assert_eq!(audit.len(), 1, "{audit:?}");
