@@ -1,13 +1,15 @@
 //! Build time of the procedural lumbosacral phantom against grid spacing.
 //!
 //! For each voxel size: time to voxelize (paint labels, blur, noise), time of the whole build
-//! (voxelize + mesh every structure through the shared pipeline), triangle count, and the worst
-//! relative difference between a structure's mesh volume and its mask volume (structures of at
-//! least 5 ml). `BENCH_QUICK=1` runs only the coarse grids (CI runs it in the dev profile).
+//! (voxelize + mesh every structure from its level set through the shared pipeline), triangle
+//! count, and the worst relative difference between a structure's mesh volume and its analytic
+//! volume (the octree integral of its solids, `phantom::level_set`), over every structure; then
+//! that difference per structure. The goals: within 5 % on the default 1.5 mm grid and 10 % at
+//! 3 mm. `BENCH_QUICK=1` runs only the coarse grids (CI runs it in the dev profile).
 
 use std::time::Instant;
 
-use sim_core::anatomy::phantom::{self, PhantomParams};
+use sim_core::anatomy::phantom::{self, PhantomParams, level_set};
 
 /// CPU seconds used by this process so far (all threads), from `/proc/self/stat` (Linux; utime +
 /// stime in clock ticks of 1/100 s, the Linux USER_HZ). `None` elsewhere.
@@ -20,9 +22,23 @@ fn cpu_seconds() -> Option<f64> {
     Some(ticks / 100.0)
 }
 
+/// Per structure: name, analytic volume and mesh volume, mm^3.
+type Rows = Vec<(String, f64, f64)>;
+
 fn main() {
     let quick = std::env::var("BENCH_QUICK").is_ok_and(|v| v == "1");
-    let sizes: &[f64] = if quick { &[4.0, 3.0] } else { &[3.0, 2.0, 1.5] };
+    // (voxel mm, meshed from level sets): the shipped mask meshes and the level-set meshes.
+    let sizes: &[(f64, bool)] = if quick {
+        &[(4.0, false), (3.0, false), (3.0, true)]
+    } else {
+        &[
+            (3.0, false),
+            (2.0, false),
+            (1.5, false),
+            (3.0, true),
+            (1.5, true),
+        ]
+    };
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     println!(
         "Phantom build, {threads} hardware threads, profile {}",
@@ -38,11 +54,16 @@ fn main() {
     );
     println!();
     println!(
-        "| voxel mm | grid | voxelize s | build s (wall) | build CPU s | write s | cache-hit load s | structures | triangles | worst mesh/mask volume error (>= 5 ml) |"
+        "| voxel mm | meshing | grid | mesh lattice mm | voxelize s | build s (wall) | build CPU s | write s | cache-hit load s | structures | triangles | analytic volumes s | worst mesh/analytic volume error |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|");
-    for &voxel in sizes {
-        let params = PhantomParams::with_voxel_mm(voxel);
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let mut per_structure: Vec<(f64, &str, Rows)> = Vec::new();
+    for &(voxel, level_sets) in sizes {
+        let (params, meshing) = if level_sets {
+            (PhantomParams::level_set_meshed(voxel), "level sets")
+        } else {
+            (PhantomParams::with_voxel_mm(voxel), "masks")
+        };
         let t0 = Instant::now();
         let vols = phantom::voxelize(&params);
         let t_vox = t0.elapsed().as_secs_f64();
@@ -53,7 +74,7 @@ fn main() {
             Ok(r) => r,
             Err(e) => {
                 println!(
-                    "| {voxel} | {:?} | {t_vox:.2} | failed: {e} | | | | | | |",
+                    "| {voxel} | {meshing} | {:?} | | {t_vox:.2} | failed: {e} | | | | | | | |",
                     params.grid().dims
                 );
                 continue;
@@ -86,26 +107,44 @@ fn main() {
             .iter()
             .map(|s| s.mesh.triangle_count())
             .sum();
-        let worst = region
-            .structures
-            .iter()
-            .filter(|s| s.mask_volume_mm3 >= 5000.0)
-            .map(|s| {
-                (
-                    (s.mesh.signed_volume_mm3() - s.mask_volume_mm3).abs() / s.mask_volume_mm3,
-                    s.name.clone(),
-                )
-            })
-            .fold(
-                (0.0f64, String::new()),
-                |a, b| if b.0 > a.0 { b } else { a },
-            );
+        // Analytic volumes on the octree (see `level_set::reference_leaf_mm`).
+        let t4 = Instant::now();
+        let exact = level_set::structure_volumes_mm3(&phantom::anatomy(&params), &params.grid());
+        let t_exact = t4.elapsed().as_secs_f64();
+        let rows: Rows = exact
+            .into_iter()
+            .zip(&region.structures)
+            .map(|((name, v), s)| (name, v, s.mesh.signed_volume_mm3()))
+            .collect();
+        let worst = rows.iter().map(|(n, v, m)| ((m - v) / v, n.clone())).fold(
+            (0.0f64, String::new()),
+            |a, b| {
+                if b.0.abs() > a.0.abs() { b } else { a }
+            },
+        );
         println!(
-            "| {voxel} | {:?} | {t_vox:.2} | {t_build:.2} | {cpu} | {t_write:.2} | {t_load} | {} | {tris} | {:.2} % ({}) |",
+            "| {voxel} | {meshing} | {:?} | {:.2} | {t_vox:.2} | {t_build:.2} | {cpu} | {t_write:.2} | {t_load} | {} | {tris} | {t_exact:.1} | {:+.2} % ({}) |",
             params.grid().dims,
+            voxel / f64::from(params.pipeline.upsample.max(1)),
             region.structures.len(),
             100.0 * worst.0,
             worst.1
         );
+        per_structure.push((voxel, meshing, rows));
+    }
+    for (voxel, meshing, rows) in per_structure {
+        println!();
+        println!("Mesh volume against analytic volume, {voxel} mm grid, meshed from {meshing}:");
+        println!();
+        println!("| structure | analytic ml | mesh ml | error |");
+        println!("|---|---:|---:|---:|");
+        for (name, v, m) in rows {
+            println!(
+                "| {name} | {:.2} | {:.2} | {:+.2} % |",
+                v / 1000.0,
+                m / 1000.0,
+                100.0 * (m - v) / v
+            );
+        }
     }
 }

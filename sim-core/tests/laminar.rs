@@ -359,12 +359,9 @@ fn touching_structures_share_their_interfaces_after_smoothing_and_decimation() {
     }
 }
 
-/// The phantom on a 5 mm grid: the priority rule equals the linear sum (everything disjoint
-/// except the nesting in the skin envelope) on 3000 random rays through the body.
-#[test]
-fn phantom_meshes_form_a_laminar_family() {
-    let params = PhantomParams::with_voxel_mm(5.0);
-    let region = phantom::build(&params, &mut |_| {}).unwrap();
+/// [`worst_ray_difference`] over 3000 random rays through a phantom region's body, its skin the
+/// envelope.
+fn phantom_ray_differences(region: &sim_core::anatomy::asset::RegionAsset) -> (f64, usize) {
     let mut scene = Scene::new();
     let mut envelope = None;
     for s in &region.structures {
@@ -381,11 +378,45 @@ fn phantom_meshes_form_a_laminar_family() {
         rays: 3000,
         seed: 11,
     };
-    let (worst, bad) = worst_ray_difference(&mut scene, envelope, &fan);
+    worst_ray_difference(&mut scene, envelope, &fan)
+}
+
+/// The phantom on a 5 mm grid: the priority rule equals the linear sum (everything disjoint
+/// except the nesting in the skin envelope) on 3000 random rays through the body.
+#[test]
+fn phantom_meshes_form_a_laminar_family() {
+    let params = PhantomParams::with_voxel_mm(5.0);
+    let region = phantom::build(&params, &mut |_| {}).unwrap();
+    let (worst, bad) = phantom_ray_differences(&region);
     eprintln!(
         "5 mm phantom: worst priority-vs-linear difference {worst:.2e} mm, {bad} of 3000 rays over tolerance"
     );
     assert_eq!(bad, 0, "worst {worst} mm");
+}
+
+/// Largest difference between the priority rule and the linear sum on a ray through the phantom
+/// meshed from its level sets, mm. Vertices lie on the solids' surfaces, and where that makes
+/// surfaces cross they fall back to the masks' positions (see `interfaces`); where a surface on
+/// its level set meets an interpolated one a sliver remains (measured: 0.023 mm on 2 of 3000
+/// rays on the 5 mm grid, 0.083 mm on 3 with another L5 height; 0.42 mm on 73 rays before
+/// crossing surfaces fell back). A tenth of a millimetre of tissue changes a ray's transmission
+/// by under 0.3 % at 80 kVp. This is why the shipped phantom still meshes its masks.
+const LEVEL_SET_SLIVER_MM: f64 = 0.1;
+
+/// The phantom meshed from its level sets on a 5 mm grid: the priority rule equals the linear
+/// sum up to [`LEVEL_SET_SLIVER_MM`] on at most one ray in 500.
+#[test]
+fn level_set_phantom_meshes_are_laminar_to_slivers() {
+    let params = PhantomParams::level_set_meshed(5.0);
+    let region = phantom::build(&params, &mut |_| {}).unwrap();
+    let (worst, bad) = phantom_ray_differences(&region);
+    eprintln!(
+        "5 mm level-set phantom: worst priority-vs-linear difference {worst:.2e} mm, {bad} of 3000 rays over {LAMINAR_TOLERANCE_MM} mm"
+    );
+    assert!(
+        worst < LEVEL_SET_SLIVER_MM && bad <= 6,
+        "worst {worst} mm, {bad} rays"
+    );
 }
 
 /// Build time and triangle count of the phantom on the default 1.5 mm grid (figures for the

@@ -4,6 +4,7 @@ mod cervical;
 mod contrast;
 mod fluoro;
 mod laminar;
+mod mesh_volume;
 mod lumbar_ct;
 mod morphometry;
 mod needle;

@@ -23,6 +23,7 @@ pub mod error;
 mod glb;
 pub mod interfaces;
 pub mod labels;
+pub mod level_set_mesh;
 pub mod lumbar_ct;
 pub mod mask;
 pub mod mesher;

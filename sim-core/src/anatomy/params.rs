@@ -22,6 +22,12 @@ pub struct PipelineParams {
     /// real vertebral cortex is thinner (0.2-0.5 mm, Silva et al. 1994, Spine 19:1445), but a
     /// shell thinner than a voxel cannot be represented in the label volume.
     pub cortical_shell_mm: f64,
+    /// For structures meshed from level sets (the procedural phantoms): after decimation, edges
+    /// whose midpoint lies farther than this from the surface are split there (up to three
+    /// rounds), mm; `None` leaves the meshes as decimated. Absent in regions built before it
+    /// existed.
+    #[serde(default)]
+    pub surface_tolerance_mm: Option<f64>,
 }
 
 impl Default for PipelineParams {
@@ -32,6 +38,7 @@ impl Default for PipelineParams {
             smoothing: None,
             decimation: None,
             cortical_shell_mm: 1.8,
+            surface_tolerance_mm: None,
         }
     }
 }

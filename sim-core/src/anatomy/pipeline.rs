@@ -11,7 +11,11 @@
 //! into patches (shared with another structure, or free), optionally Taubin-smooth them with a
 //! displacement cap and a volume guard, optionally decimate each patch once with its borders
 //! locked, reassemble every structure and check the result is closed, consistently wound and of
-//! positive volume. Touching structures thus share their interface exactly (the same vertices and
+//! positive volume. A structure that also comes as a signed distance bound (the procedural
+//! phantoms, [`build_region_on_level_sets`]) is sampled and extracted from the bound instead of
+//! its mask, every vertex root-found onto its zero set ([`super::level_set_mesh`]), and after
+//! decimation its edges are split onto the surface where their midpoints stray from it.
+//! Touching structures thus share their interface exactly (the same vertices and
 //! triangles, opposite winding): the meshes form a laminar family (any two disjoint or nested),
 //! which is what a renderer summing per-mesh chords needs. A structure that fails is an error,
 //! never a silently broken mesh.
@@ -45,8 +49,9 @@ use super::asset::{Provenance, RegionAsset, Source, StructureAsset, encode_hu};
 use super::error::AnatomyError;
 use super::interfaces::{ExtractedSurface, lattice_edge_key, mesh_family, par_map};
 use super::labels::label_volume;
+use super::level_set_mesh::{LevelSetFn, LevelSetSurface, extract_level_set};
 use super::mask::{mask_offset, nonzero_box};
-use super::mesher::{ScalarField, extract_isosurface_keyed};
+use super::mesher::{EdgeCrossing, ScalarField, extract_isosurface_keyed};
 use crate::mesh::TriMesh;
 use crate::volume::{Volume, VolumeGrid};
 
@@ -69,9 +74,10 @@ pub struct SourceInfo {
     pub notes: Vec<String>,
 }
 
-/// Version of the meshing steps, part of [`pipeline_version`]: 2 shares the interfaces of
-/// touching structures (`interfaces`); 1 meshed every structure on its own.
-pub const MESHING_VERSION: u32 = 2;
+/// Version of the meshing steps, part of [`pipeline_version`]: 3 meshes structures given as
+/// level sets from them (vertices on the zero set, edges refined onto it); 2 shares the
+/// interfaces of touching structures (`interfaces`); 1 meshed every structure on its own.
+pub const MESHING_VERSION: u32 = 3;
 
 /// Pipeline version recorded in provenance (and in the phantom's cache key): crate version, asset
 /// format version and meshing version.
@@ -105,6 +111,7 @@ const PAD: usize = 2;
 /// origin in the region's grid, whose dimensions are `region_dims`.
 fn extract_structure(
     mask: &StructureMask,
+    level_set: Option<LevelSetFn<'_>>,
     params: &PipelineParams,
     offset: [usize; 3],
     region_dims: [usize; 3],
@@ -124,32 +131,20 @@ fn extract_structure(
         spacing_mm: g.spacing_mm,
         origin_mm: origin,
     };
-    let mut values = vec![0.0f32; fgrid.len()];
-    for k in lo[2]..=hi[2] {
-        for j in lo[1]..=hi[1] {
-            for i in lo[0]..=hi[0] {
-                let v = mask.mask.get(i, j, k);
-                values[fgrid.index(i - lo[0] + PAD, j - lo[1] + PAD, k - lo[2] + PAD)] =
-                    if v.is_finite() {
-                        v.clamp(0.0, 1.0)
-                    } else {
-                        0.0
-                    };
-            }
-        }
-    }
-    let field = ScalarField {
-        grid: fgrid,
-        values: &values,
-    };
     let u = params.upsample.max(1);
-    let (mesh, crossings) =
-        extract_isosurface_keyed(&field, params.iso_level, u).ok_or_else(|| {
-            AnatomyError::Mesh {
-                structure: mask.name.clone(),
-                message: "padding failed to enclose the mask".into(),
+    let (mesh, crossings, interpolated) = match level_set {
+        Some(f) => {
+            let mut s = extract_from_level_set(&mask.name, f, &fgrid, u)?;
+            if u == 1 {
+                mask_fallbacks(&mut s, mask, &fgrid, lo, hi);
             }
-        })?;
+            (s.mesh, s.crossings, s.interpolated_mm)
+        }
+        None => {
+            let (mesh, crossings) = extract_from_mask(mask, params, &fgrid, lo, hi)?;
+            (mesh, crossings, Vec::new())
+        }
+    };
     check_solid(&mask.name, &mesh, "extraction")?;
     // Fine lattice index in the region: the padded box starts PAD voxels below `offset + lo`,
     // and keys are shifted by PAD voxels so that they are never negative.
@@ -168,6 +163,116 @@ fn extract_structure(
         mesh,
         edges,
         mask_volume_mm3: mask.volume_mm3(),
+        interpolated_mm: interpolated,
+    })
+}
+
+/// On the voxel lattice itself (no up-sampling), the fallback of every vertex whose lattice edge
+/// the mask crosses too is where the mask path puts it (the 0.5 crossing of the mask's values):
+/// those positions are what the masks' meshes always had, and touching structures' masks sum
+/// to one, so their surfaces meet without crossing. Elsewhere (a lattice point whose mask value
+/// disagrees with the level set's sign by rounding) the interpolated bound stays.
+fn mask_fallbacks(
+    s: &mut LevelSetSurface,
+    mask: &StructureMask,
+    fgrid: &VolumeGrid,
+    lo: [usize; 3],
+    hi: [usize; 3],
+) {
+    let value = |p: [usize; 3]| -> f32 {
+        let inside = (0..3).all(|a| p[a] >= PAD && p[a] - PAD + lo[a] <= hi[a]);
+        if !inside {
+            return 0.0;
+        }
+        let v = mask
+            .mask
+            .get(p[0] - PAD + lo[0], p[1] - PAD + lo[1], p[2] - PAD + lo[2]);
+        if v.is_finite() {
+            v.clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    };
+    for (pos, c) in s.interpolated_mm.iter_mut().zip(&s.crossings) {
+        let q: [usize; 3] = std::array::from_fn(|a| c.lower[a] + usize::from((c.axes >> a) & 1));
+        let (fp, fq) = (value(c.lower), value(q));
+        if (fp > 0.5) == (fq > 0.5) {
+            continue;
+        }
+        let t = (f64::from(0.5 - fp) / f64::from(fq - fp)).clamp(1e-3, 1.0 - 1e-3);
+        let a = fgrid.voxel_center_mm(c.lower[0], c.lower[1], c.lower[2]);
+        let b = fgrid.voxel_center_mm(q[0], q[1], q[2]);
+        *pos = std::array::from_fn(|k| a[k] + t * (b[k] - a[k]));
+    }
+}
+
+/// The 0.5 iso-surface of the mask's values in the padded box `fgrid` (mask voxels `lo..=hi`
+/// at `PAD`), trilinearly up-sampled by the pipeline's factor.
+fn extract_from_mask(
+    mask: &StructureMask,
+    params: &PipelineParams,
+    fgrid: &VolumeGrid,
+    lo: [usize; 3],
+    hi: [usize; 3],
+) -> Result<(TriMesh, Vec<EdgeCrossing>), AnatomyError> {
+    let fgrid = *fgrid;
+    let mut values = vec![0.0f32; fgrid.len()];
+    for k in lo[2]..=hi[2] {
+        for j in lo[1]..=hi[1] {
+            for i in lo[0]..=hi[0] {
+                let v = mask.mask.get(i, j, k);
+                values[fgrid.index(i - lo[0] + PAD, j - lo[1] + PAD, k - lo[2] + PAD)] =
+                    if v.is_finite() {
+                        v.clamp(0.0, 1.0)
+                    } else {
+                        0.0
+                    };
+            }
+        }
+    }
+    let field = ScalarField {
+        grid: fgrid,
+        values: &values,
+    };
+    extract_isosurface_keyed(&field, params.iso_level, params.upsample.max(1)).ok_or_else(|| {
+        AnatomyError::Mesh {
+            structure: mask.name.clone(),
+            message: "padding failed to enclose the mask".into(),
+        }
+    })
+}
+
+/// The zero set of `f` on the padded box `fgrid` up-sampled by `u` (the lattice the mask path
+/// interpolates to), with every vertex on the zero set (see [`super::level_set_mesh`]). The
+/// bound is clipped to the box's outermost lattice points, so a sliver of the solid beyond the
+/// padding is cut off rather than left open.
+fn extract_from_level_set(
+    name: &str,
+    f: LevelSetFn<'_>,
+    fgrid: &VolumeGrid,
+    u: u32,
+) -> Result<LevelSetSurface, AnatomyError> {
+    let u = u as usize;
+    let spacing: [f64; 3] = std::array::from_fn(|a| fgrid.spacing_mm[a] / u as f64);
+    let fine = VolumeGrid {
+        dims: std::array::from_fn(|a| fgrid.dims[a] * u),
+        spacing_mm: spacing,
+        origin_mm: std::array::from_fn(|a| {
+            fgrid.origin_mm[a] - 0.5 * fgrid.spacing_mm[a] + 0.5 * spacing[a]
+        }),
+    };
+    let first = fine.voxel_center_mm(0, 0, 0);
+    let last = fine.voxel_center_mm(fine.dims[0] - 1, fine.dims[1] - 1, fine.dims[2] - 1);
+    let clipped = |p: [f64; 3]| {
+        let mut g = f(p);
+        for a in 0..3 {
+            g = g.max(first[a] - p[a]).max(p[a] - last[a]);
+        }
+        g
+    };
+    extract_level_set(&clipped, &fine).ok_or_else(|| AnatomyError::Mesh {
+        structure: name.to_string(),
+        message: "the level set reaches the faces of its clipped box".into(),
     })
 }
 
@@ -178,11 +283,13 @@ pub fn mesh_structure(
     mask: &StructureMask,
     params: &PipelineParams,
 ) -> Result<(TriMesh, Vec<String>), AnatomyError> {
-    let item = extract_structure(mask, params, [0; 3], mask.mask.grid.dims)?;
+    let item = extract_structure(mask, None, params, [0; 3], mask.mask.grid.dims)?;
     let mut out = mesh_family(
         std::slice::from_ref(&item),
         params.smoothing.as_ref(),
         params.decimation.as_ref(),
+        &[],
+        None,
     )?;
     Ok(out.meshes.remove(0))
 }
@@ -201,6 +308,35 @@ pub fn build_region(
     source: SourceInfo,
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<RegionAsset, AnatomyError> {
+    let none = vec![None; structures.len()];
+    build_region_on_level_sets(name, ct_hu, structures, &none, params, source, progress)
+}
+
+/// [`build_region`] for structures that also come as signed distance bounds (`level_sets`, one
+/// per structure, in the same order; `None` meshes that structure from its mask): a structure
+/// with a bound is meshed from it, every vertex on its zero set (see [`super::level_set_mesh`]),
+/// on the lattice the masks would be up-sampled to, so the shared interfaces of touching
+/// structures are welded as before. Its mask still gives the labels, the CT underlay's extent and
+/// the box it is meshed in (padded by two voxels). The procedural phantoms mesh this way.
+pub fn build_region_on_level_sets(
+    name: &str,
+    ct_hu: &Volume<f32>,
+    structures: Vec<StructureMask>,
+    level_sets: &[Option<LevelSetFn<'_>>],
+    params: &PipelineParams,
+    source: SourceInfo,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<RegionAsset, AnatomyError> {
+    if level_sets.len() != structures.len() {
+        return Err(AnatomyError::invalid(
+            name,
+            format!(
+                "{} level sets for {} structures",
+                level_sets.len(),
+                structures.len()
+            ),
+        ));
+    }
     let grid = ct_hu.grid;
     if grid.is_empty() || ct_hu.data.len() != grid.len() {
         return Err(AnatomyError::invalid(
@@ -228,8 +364,9 @@ pub fn build_region(
     }
     let mut notes = source.notes.clone();
     let mut kept = Vec::with_capacity(structures.len());
+    let mut kept_sets = Vec::with_capacity(structures.len());
     let mut seen = std::collections::BTreeSet::new();
-    for s in structures {
+    for (s, set) in structures.into_iter().zip(level_sets) {
         mask_offset(&grid, &s)?;
         if !seen.insert(s.name.clone()) {
             return Err(AnatomyError::invalid(
@@ -240,7 +377,10 @@ pub fn build_region(
         // Cropping to the non-zero box first keeps the labelling and meshing memory proportional
         // to the structure, not to the region.
         match s.cropped() {
-            Some(c) => kept.push(c),
+            Some(c) => {
+                kept.push(c);
+                kept_sets.push(*set);
+            }
             None => notes.push(format!("{}: empty mask skipped", s.name)),
         }
     }
@@ -278,7 +418,7 @@ pub fn build_region(
     let mut finished = 0;
     let extracted = par_map(
         total,
-        &|i| extract_structure(&kept[i], params, offsets[i], grid.dims),
+        &|i| extract_structure(&kept[i], kept_sets[i], params, offsets[i], grid.dims),
         &mut |i| {
             progress(&Progress {
                 stage: "mesh",
@@ -294,6 +434,8 @@ pub fn build_region(
         &extracted,
         params.smoothing.as_ref(),
         params.decimation.as_ref(),
+        &kept_sets,
+        params.surface_tolerance_mm,
     )?;
     drop(extracted);
     let mut out = Vec::with_capacity(total);

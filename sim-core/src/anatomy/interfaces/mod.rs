@@ -32,12 +32,17 @@
 //!    around its defects, or half the error where it has none, and its patches are redone (up to
 //!    eight rounds); after that, its patches are left undecimated.
 //!
+//! 5. *Refinement* (for structures given as level sets, with a surface tolerance): edges whose
+//!    midpoints lie off the surface are split onto it, once for every triangle using them, so
+//!    shared patches stay shared ([`refine`]).
+//!
 //! The result is deterministic (every step is ordered by structure, vertex or patch index; the
 //! parallel parts write by index) and independent of the thread count.
 
 mod crossing;
 mod decimation;
 mod par;
+mod refine;
 mod smoothing;
 mod surface;
 mod weld;
@@ -49,6 +54,7 @@ pub use surface::{ExtractedSurface, WELD_EDGE_FRACTION, lattice_edge_key};
 
 use super::decimate::DecimationParams;
 use super::error::AnatomyError;
+use super::level_set_mesh::LevelSetFn;
 use super::smooth::TaubinParams;
 use crate::mesh::TriMesh;
 use crossing::{crossing_pairs, mean_edge_mm};
@@ -56,13 +62,21 @@ use decimation::decimate_family;
 use smoothing::smooth_family;
 use weld::{Family, weld_and_partition};
 
+/// Rounds of level-set refinement (step 5): each halves the chords it splits, so three take a
+/// sagitta down 64-fold where needed.
+const REFINE_ROUNDS: usize = 3;
+
 /// Smooths and decimates a family of extracted surfaces so that touching structures share their
-/// interfaces exactly (see the module doc). Returns each mesh with its notes, in input order;
-/// every mesh is checked (closed, consistently wound, positive volume) after each stage.
+/// interfaces exactly (see the module doc), then refines the patches of structures that come
+/// with a level set (`level_sets`, one per item or empty) until their edges' midpoints are within
+/// `surface_tolerance_mm` of the surface. Returns each mesh with its notes, in input order; every
+/// mesh is checked (closed, consistently wound, positive volume) after each stage.
 pub fn mesh_family(
     items: &[ExtractedSurface],
     smoothing: Option<&TaubinParams>,
     decimation: Option<&DecimationParams>,
+    level_sets: &[Option<LevelSetFn<'_>>],
+    surface_tolerance_mm: Option<f64>,
 ) -> Result<FamilyMeshes, AnatomyError> {
     let mut fam = weld_and_partition(items);
     let names: Vec<String> = items.iter().map(|it| it.name.clone()).collect();
@@ -107,6 +121,22 @@ pub fn mesh_family(
         Ok(meshes)
     }
     let mut meshes = check_all(&fam, &names, &input, "welding shared interfaces")?;
+    let level_set_family = level_sets.iter().any(Option::is_some);
+    if level_set_family {
+        // Every vertex starts on its level set. Where exact positions make two surfaces cross
+        // (two structures passing within a lattice cell of each other), the vertices of the
+        // crossing triangles and a ring around them take their interpolated positions,
+        // whose surfaces meet as the masks' do. All before decimation, whose own crossing
+        // checks then see the final positions.
+        let fallback = fam.fallback.clone();
+        let (restored, passes) =
+            fall_back_where_crossing(&mut fam.positions, &input, &fallback, &[]);
+        region_notes.push(format!(
+            "level sets: {restored} of {} vertices interpolated where exact positions made surfaces cross ({passes} passes)",
+            fam.positions.len()
+        ));
+        meshes = check_all(&fam, &names, &input, "placing vertices on the level sets")?;
+    }
     if let Some(sp) = smoothing {
         let extracted_positions = fam.positions.clone();
         for (m, n) in smooth_family(&mut fam, items, sp).into_iter().enumerate() {
@@ -128,14 +158,7 @@ pub fn mesh_family(
                 break;
             }
             passes += 1;
-            let crossing: Vec<u32> = cross
-                .iter()
-                .flat_map(|&((pa, ta), (pb, tb))| {
-                    input[pa as usize][ta as usize]
-                        .into_iter()
-                        .chain(input[pb as usize][tb as usize])
-                })
-                .collect();
+            let crossing = crossing_corners(&cross, &input);
             for v in crate::anatomy::smooth::grow_rings(crossing, &neighbours, 2) {
                 let v = v as usize;
                 if fam.positions[v] != extracted_positions[v] {
@@ -149,6 +172,7 @@ pub fn mesh_family(
         ));
         meshes = check_all(&fam, &names, &input, "smoothing")?;
     }
+    let mut current = input;
     if let Some(dp) = decimation {
         let (result, dnotes, summary) = decimate_family(&fam, &names, dp);
         for (m, n) in dnotes.into_iter().enumerate() {
@@ -158,11 +182,170 @@ pub fn mesh_family(
             region_notes.push(summary);
         }
         meshes = check_all(&fam, &names, &result, "decimation")?;
+        current = result;
+    }
+    let mut parents = Vec::new();
+    if let Some(tol) = surface_tolerance_mm
+        && level_sets.iter().any(Option::is_some)
+    {
+        let before: Vec<usize> = meshes.iter().map(TriMesh::triangle_count).collect();
+        let movable = off_junction(fam.positions.len(), &current);
+        let refined =
+            refine::refine_family(&fam, &current, level_sets, &movable, tol, REFINE_ROUNDS);
+        fam.positions = refined.positions;
+        parents = refined.parents;
+        current = refined.triangles;
+        meshes = check_all(&fam, &names, &current, "refinement on the level set")?;
+        for (m, n) in notes.iter_mut().enumerate() {
+            if meshes[m].triangle_count() != before[m] {
+                n.push(format!(
+                    "{}: refined on its level set to {tol} mm, {} -> {} triangles",
+                    names[m],
+                    before[m],
+                    meshes[m].triangle_count()
+                ));
+            }
+        }
+        region_notes.push(format!(
+            "level-set refinement: {} edges split (tolerance {tol} mm)",
+            refined.splits
+        ));
+    }
+    if !parents.is_empty() {
+        // A split that bulges a surface into another is undone (its vertex back to the middle
+        // of the edge it split), with a ring around it.
+        let base = fam.positions.len() - parents.len();
+        let fallback: Vec<[f64; 3]> = fam.positions[..base].to_vec();
+        let (restored, passes) =
+            fall_back_where_crossing(&mut fam.positions, &current, &fallback, &parents);
+        region_notes.push(format!(
+            "level-set refinement: {restored} splits undone where surfaces crossed ({passes} passes)"
+        ));
+        meshes = check_all(
+            &fam,
+            &names,
+            &current,
+            "undoing splits where surfaces crossed",
+        )?;
     }
     Ok(FamilyMeshes {
         meshes: meshes.into_iter().zip(notes).collect(),
         notes: region_notes,
     })
+}
+
+/// Per vertex of the patches `source`: whether it lies on triangles of one patch only (not on a
+/// junction).
+fn off_junction(n: usize, source: &[Vec<[u32; 3]>]) -> Vec<bool> {
+    let mut patch_of = vec![u32::MAX; n];
+    let mut free = vec![true; n];
+    for (p, tris) in source.iter().enumerate() {
+        for &v in tris.iter().flatten() {
+            let slot = &mut patch_of[v as usize];
+            if *slot == u32::MAX {
+                *slot = p as u32;
+            } else if *slot != p as u32 {
+                free[v as usize] = false;
+            }
+        }
+    }
+    free
+}
+
+/// A triangle of a family: (patch, index in the patch).
+type TriangleRef = (u32, u32);
+
+/// The corners of the crossing triangle pairs `cross` (as [`crossing_pairs`] gives them) of
+/// the patches `source`.
+fn crossing_corners(cross: &[(TriangleRef, TriangleRef)], source: &[Vec<[u32; 3]>]) -> Vec<u32> {
+    cross
+        .iter()
+        .flat_map(|&((pa, ta), (pb, tb))| {
+            source[pa as usize][ta as usize]
+                .into_iter()
+                .chain(source[pb as usize][tb as usize])
+        })
+        .collect()
+}
+
+/// Rings of neighbours around crossing triangles that fall back with them (one: the fewest
+/// vertices off the surface; the loop repeats where that is not enough).
+const FALLBACK_RINGS: usize = 1;
+
+/// The fall-back loop of [`mesh_family`] for level-set families: where triangles of two patches
+/// cross (and did not where every vertex is at its fallback), the vertices of both and
+/// [`FALLBACK_RINGS`] rings around them move to their fallbacks, repeated until nothing new crosses. Vertices below
+/// `fallback.len()` fall back to `fallback`; those after are split vertices, one per `parents`
+/// entry in order, and fall back to the middle of the edge they split. Returns the vertices moved
+/// and the passes made.
+fn fall_back_where_crossing(
+    positions: &mut [[f64; 3]],
+    source: &[Vec<[u32; 3]>],
+    fallback: &[[f64; 3]],
+    parents: &[(u32, u32)],
+) -> (usize, usize) {
+    let all = vec![true; source.len()];
+    let base = fallback.len();
+    let back_of = |v: usize, pos: &[[f64; 3]]| -> [f64; 3] {
+        if v < base {
+            fallback[v]
+        } else {
+            let (a, b) = parents[v - base];
+            let (pa, pb) = (pos[a as usize], pos[b as usize]);
+            std::array::from_fn(|k| 0.5 * (pa[k] + pb[k]))
+        }
+    };
+    let cell_mm = 4.0 * mean_edge_mm(source, positions);
+    let neighbours =
+        crate::anatomy::smooth::neighbours_of(positions.len(), source.iter().flatten());
+    // Where every vertex is at its fallback.
+    let mut all_back = positions.to_vec();
+    for v in 0..all_back.len() {
+        all_back[v] = back_of(v, &all_back);
+    }
+    let before: rustc_hash::FxHashSet<_> = crossing_pairs(source, &all_back, &all, cell_mm)
+        .into_iter()
+        .collect();
+    let mut moved = vec![false; positions.len()];
+    let (mut restored, mut passes) = (0usize, 0usize);
+    loop {
+        // A pair that crosses where all is back counts only if one of its corners is elsewhere.
+        let at_back = |(p, t): (u32, u32), pos: &[[f64; 3]]| {
+            source[p as usize][t as usize]
+                .iter()
+                .all(|&v| pos[v as usize] == all_back[v as usize])
+        };
+        let cross: Vec<_> = crossing_pairs(source, positions, &all, cell_mm)
+            .into_iter()
+            .filter(|&(a, b)| {
+                !(before.contains(&(a, b)) && at_back(a, positions) && at_back(b, positions))
+            })
+            .collect();
+        if cross.is_empty() {
+            break;
+        }
+        passes += 1;
+        let crossing = crossing_corners(&cross, source);
+        let mut fresh = 0;
+        for v in crate::anatomy::smooth::grow_rings(crossing, &neighbours, FALLBACK_RINGS) {
+            let v = v as usize;
+            if !moved[v] {
+                moved[v] = true;
+                fresh += 1;
+            }
+        }
+        // Split vertices follow their parents (they come after them).
+        for v in 0..positions.len() {
+            if moved[v] {
+                positions[v] = back_of(v, positions);
+            }
+        }
+        restored += fresh;
+        if fresh == 0 {
+            break;
+        }
+    }
+    (restored, passes)
 }
 
 /// What [`mesh_family`] gives: every mesh with its notes (input order), and notes on the family.

@@ -23,6 +23,10 @@ pub struct ExtractedSurface {
     pub edges: Vec<(u64, f64)>,
     /// Mask volume, mm^3 (the smoothing guard's reference).
     pub mask_volume_mm3: f64,
+    /// For a surface extracted from a level set: per vertex, its position by linear
+    /// interpolation of the sampled values, where the family falls back to if the exact
+    /// positions make surfaces cross; empty otherwise (the vertices are already there).
+    pub interpolated_mm: Vec<[f64; 3]>,
 }
 
 /// A region-wide key for a lattice edge: `lower` in the region's fine lattice (non-negative),

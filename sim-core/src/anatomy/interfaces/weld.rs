@@ -35,6 +35,8 @@ fn canonical(t: [u32; 3]) -> ([u32; 3], bool) {
 /// Welded, patch-partitioned family of meshes.
 pub(super) struct Family {
     pub(super) positions: Vec<[f64; 3]>,
+    /// Per welded vertex, its fallback position (see [`ExtractedSurface::interpolated_mm`]).
+    pub(super) fallback: Vec<[f64; 3]>,
     pub(super) patches: Vec<Patch>,
     /// Per mesh: its patches and whether it holds each reversed.
     pub(super) mesh_patches: Vec<Vec<(usize, bool)>>,
@@ -59,6 +61,7 @@ pub(super) fn weld_and_partition(items: &[ExtractedSurface]) -> Family {
         .map(|it| vec![u32::MAX; it.mesh.vertices_mm.len()])
         .collect();
     let mut positions = Vec::with_capacity(recs.len());
+    let mut fallback = Vec::with_capacity(recs.len());
     let mut start = 0;
     let mut clusters: Vec<(f64, u32)> = Vec::new();
     while start < recs.len() {
@@ -75,7 +78,14 @@ pub(super) fn weld_and_partition(items: &[ExtractedSurface]) -> Family {
                 Some(&(_, g)) => g,
                 None => {
                     let g = positions.len() as u32;
-                    positions.push(items[m as usize].mesh.vertices_mm[v as usize]);
+                    let it = &items[m as usize];
+                    positions.push(it.mesh.vertices_mm[v as usize]);
+                    fallback.push(
+                        it.interpolated_mm
+                            .get(v as usize)
+                            .copied()
+                            .unwrap_or(it.mesh.vertices_mm[v as usize]),
+                    );
                     clusters.push((s, g));
                     g
                 }
@@ -163,6 +173,7 @@ pub(super) fn weld_and_partition(items: &[ExtractedSurface]) -> Family {
     }
     Family {
         positions,
+        fallback,
         patches,
         mesh_patches,
         junction,
