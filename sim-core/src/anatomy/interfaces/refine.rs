@@ -20,6 +20,7 @@
 
 use rustc_hash::FxHashMap;
 
+use super::par::par_map;
 use super::weld::Family;
 use crate::anatomy::level_set_mesh::LevelSetFn;
 
@@ -167,7 +168,7 @@ pub(super) fn refine_family(
         edges.sort_unstable();
         let pos = &positions;
         let chunks = edges.len().div_ceil(CHUNK).max(1);
-        let found: Vec<Vec<Option<[f64; 3]>>> = super::par_map(
+        let found: Vec<Vec<Option<[f64; 3]>>> = par_map(
             chunks,
             &|c| {
                 edges[(c * CHUNK).min(edges.len())..((c + 1) * CHUNK).min(edges.len())]
