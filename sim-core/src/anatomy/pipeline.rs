@@ -12,7 +12,7 @@
 //! displacement cap and a volume guard, optionally decimate each patch once with its borders
 //! locked, reassemble every structure and check the result is closed, consistently wound and of
 //! positive volume. A structure that also comes as a signed distance bound (the procedural
-//! phantoms, [`build_region_on_level_sets`]) is sampled and extracted from the bound instead of
+//! phantoms when built with `PhantomParams::level_set_meshed`, [`build_region_on_level_sets`]) is sampled and extracted from the bound instead of
 //! its mask, every vertex root-found onto its zero set ([`super::level_set_mesh`]), and after
 //! decimation its edges are split onto the surface where their midpoints stray from it.
 //! Touching structures thus share their interface exactly (the same vertices and
@@ -317,7 +317,8 @@ pub fn build_region(
 /// with a bound is meshed from it, every vertex on its zero set (see [`super::level_set_mesh`]),
 /// on the lattice the masks would be up-sampled to, so the shared interfaces of touching
 /// structures are welded as before. Its mask still gives the labels, the CT underlay's extent and
-/// the box it is meshed in (padded by two voxels). The procedural phantoms mesh this way.
+/// the box it is meshed in (padded by two voxels). The procedural phantoms mesh this way
+/// when built with `PhantomParams::level_set_meshed`; the shipped ones still mesh their masks.
 pub fn build_region_on_level_sets(
     name: &str,
     ct_hu: &Volume<f32>,

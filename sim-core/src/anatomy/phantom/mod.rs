@@ -66,7 +66,7 @@ use super::decimate::DecimationParams;
 use super::error::AnatomyError;
 use super::level_set_mesh::LevelSetFn;
 use super::pipeline::{
-    PipelineParams, Progress, SourceInfo, StructureMask, build_region_on_level_sets,
+    PipelineParams, Progress, SourceInfo, StructureMask, build_region, build_region_on_level_sets,
     pipeline_version,
 };
 use crate::material::MaterialClass;
@@ -625,16 +625,7 @@ pub fn build_anatomy(
     let masks = vols.masks();
     let PhantomVolumes { ct_hu, anatomy, .. } = vols;
     if !params.mesh_from_level_sets {
-        let none = vec![None; masks.len()];
-        return build_region_on_level_sets(
-            name,
-            &ct_hu,
-            masks,
-            &none,
-            &params.pipeline,
-            source,
-            progress,
-        );
+        return build_region(name, &ct_hu, masks, &params.pipeline, source, progress);
     }
     // Every structure is meshed from its level set: vertices on the solids' surfaces, not on
     // the masks' interpolated 0.5 levels (which lose a third of a 3.5 mm ligament at 3 mm).
