@@ -3,22 +3,27 @@
 //!
 //! A `render-worker` process started with `RENDER_WORKER_REGISTER_URL` (the server's
 //! `/api/workers` endpoint) and `RENDER_WORKER_TOKEN` announces itself there: its URL, capacity,
-//! renderer and adapter. It repeats the announcement every [`HEARTBEAT`], so a server that
-//! restarted learns about it again, and the server polls its `/healthz` for load.
+//! renderer and adapter. It repeats the announcement every [`HEARTBEAT`] with its load and
+//! whether it drains: that heartbeat is what the servers' shared state (PostgreSQL) knows of
+//! it, and a worker whose heartbeats stop is marked dead by whichever server replica notices
+//! first.
 //!
 //! The client speaks plain HTTP/1.1 with `Connection: close` over TCP, which is all that the
 //! cluster-internal calls need (loopback or a private network; TLS is the job of the network
 //! in front). It avoids pulling a full HTTP client stack into both binaries.
 
+use std::sync::Arc;
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
+use tokio::sync::Notify;
 
-/// How often a worker re-announces itself. Simulator choice: short enough that a restarted
-/// server knows its workers again within seconds, long enough to cost nothing.
-pub const HEARTBEAT: Duration = Duration::from_secs(5);
+/// How often a worker re-announces itself (its heartbeat). Simulator choice: a server marks a
+/// worker dead after three missed heartbeats (6 s), and a draining worker's state reaches
+/// every replica within 2 s; one small request every 2 s costs nothing.
+pub const HEARTBEAT: Duration = Duration::from_secs(2);
 
 /// Time limit of one cluster-internal request. Simulator choice: these are loopback or LAN calls
 /// that answer in milliseconds; restoring a session (which may load a region) is the slow one.
@@ -38,6 +43,12 @@ pub struct Registration {
     pub renderer: serde_json::Value,
     /// GPU adapter, when one was opened (`null` for software-only workers).
     pub adapter: Option<serde_json::Value>,
+    /// Sessions it holds now (heartbeats carry it; absent counts as 0).
+    #[serde(default)]
+    pub sessions: Option<usize>,
+    /// True while it drains before exiting: it takes no new sessions.
+    #[serde(default)]
+    pub draining: bool,
 }
 
 /// Why a URL cannot be requested by this client.
@@ -318,6 +329,17 @@ pub async fn register_forever(
     token: String,
     me: impl Fn() -> Registration + Send + 'static,
 ) {
+    heartbeat_forever(register_url, token, me, Arc::new(Notify::new())).await;
+}
+
+/// [`register_forever`], and a heartbeat at once whenever `now` is notified (a worker that
+/// starts draining tells the servers without waiting for the next beat).
+pub async fn heartbeat_forever(
+    register_url: String,
+    token: String,
+    me: impl Fn() -> Registration + Send + 'static,
+    now: Arc<Notify>,
+) {
     let mut announced = false;
     loop {
         let body = match serde_json::to_value(me()) {
@@ -343,7 +365,112 @@ pub async fn register_forever(
                 announced = false;
             }
         }
-        tokio::time::sleep(HEARTBEAT).await;
+        tokio::select! {
+            () = tokio::time::sleep(HEARTBEAT) => {}
+            () = now.notified() => {}
+        }
+    }
+}
+
+/// How a worker process serves: where it registers, the address it announces, and how long it
+/// drains when asked to stop.
+#[derive(Debug, Clone)]
+pub struct Serving {
+    /// The server's `/api/workers` and the cluster token; `None` for a standalone worker.
+    pub register: Option<(String, String)>,
+    /// The URL announced; `None`: `http://` and the listener's address.
+    pub public_url: Option<String>,
+    /// Longest wait for live sessions to end after the stop signal, before the rest are handed
+    /// back to the servers (which restore them elsewhere from snapshot and log).
+    pub drain: Duration,
+}
+
+/// Serves `host` on `listener` (heartbeats to the server when registered) until `stop`
+/// resolves, then drains: no new sessions (503 `draining`, `/readyz` 503, the next heartbeat
+/// says so at once), live sessions go on until they end or `serving.drain` passes, then the
+/// rest are ended, which the servers' relays see as a lost worker: they restore each session
+/// on another worker from its initial snapshot and log, and send again what was not
+/// acknowledged (nothing is applied twice). Returns once the sessions' threads have finished.
+pub async fn serve_until_drained(
+    listener: tokio::net::TcpListener,
+    host: crate::session::SessionHost,
+    serving: Serving,
+    stop: impl std::future::Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    let addr = listener.local_addr()?;
+    let beat_now = Arc::new(Notify::new());
+    if let Some((url, token)) = serving.register.clone() {
+        let announced = host.clone();
+        let me_url = serving
+            .public_url
+            .clone()
+            .unwrap_or_else(|| format!("http://{addr}"));
+        let me = move || {
+            let health = announced.health();
+            Registration {
+                url: me_url.clone(),
+                capacity: health.capacity,
+                renderer: serde_json::to_value(&health.renderer).unwrap_or_default(),
+                adapter: health.adapter,
+                sessions: Some(health.sessions),
+                draining: health.draining,
+            }
+        };
+        tokio::spawn(heartbeat_forever(url, token, me, beat_now.clone()));
+    }
+    let (quit_tx, quit_rx) = tokio::sync::oneshot::channel::<()>();
+    let router = crate::session::http::router(host.clone());
+    let served = tokio::spawn(async move {
+        axum::serve(listener, router)
+            .with_graceful_shutdown(async move {
+                let _ = quit_rx.await;
+            })
+            .await
+    });
+    stop.await;
+    host.start_draining();
+    beat_now.notify_one();
+    let live = host.health().sessions;
+    tracing::info!(
+        sessions = live,
+        drain_s = serving.drain.as_secs_f64(),
+        "draining: no new sessions; waiting for the live ones"
+    );
+    let deadline = tokio::time::Instant::now() + serving.drain;
+    while host.health().sessions > 0 && tokio::time::Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let left = host.health().sessions;
+    if left > 0 {
+        tracing::info!(
+            sessions = left,
+            "drain time is up: handing the live sessions back to the servers"
+        );
+    }
+    // Ending the sessions closes their sockets: each relay restores its session elsewhere.
+    let ended = host.clone();
+    let _ = tokio::task::spawn_blocking(move || ended.shutdown()).await;
+    let _ = quit_tx.send(());
+    match tokio::time::timeout(Duration::from_secs(5), served).await {
+        Ok(Ok(r)) => r,
+        Ok(Err(e)) => Err(std::io::Error::other(e)),
+        Err(_) => Ok(()),
+    }
+}
+
+/// The stop signal of a worker process: SIGTERM (an orchestrator's) or SIGINT.
+pub async fn stop_signal() {
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    tokio::select! {
+        () = term => {}
+        _ = tokio::signal::ctrl_c() => {}
     }
 }
 

@@ -206,6 +206,12 @@ pub const SETTINGS: &[Setting] = &[
                   unset = registrations are refused",
     },
     Setting {
+        name: "PAINSIM_REPLICA_ID",
+        default: Derived("the host name and the process id"),
+        meaning: "this server replica's name in the shared state (which replica relays a \
+                  session, which one marked a worker dead); a pod name in Kubernetes",
+    },
+    Setting {
         name: "PAINSIM_ADMIN_PASSWORD",
         default: Derived("read from standard input"),
         meaning: "password for `server create-admin --email ...`",
@@ -392,6 +398,10 @@ fn dispatch(s: &Settings<'_>) -> Result<DispatchConfig, ConfigError> {
         sessions_per_user: s.count("PAINSIM_SESSIONS_PER_USER", 1usize)?,
         sessions_per_course: s.count("PAINSIM_SESSIONS_PER_COURSE", 1usize)?,
         live_session_idle: s.seconds("PAINSIM_LIVE_SESSION_IDLE_SECS")?,
+        replica_id: s
+            .value("PAINSIM_REPLICA_ID")
+            .map(|r| r.trim().chars().take(128).collect::<String>())
+            .filter(|r| !r.is_empty()),
     })
 }
 

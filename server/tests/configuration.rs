@@ -38,6 +38,7 @@ fn table_names(table: &[Setting]) -> BTreeSet<String> {
 const TEST_HARNESS_NAMES: &[&str] = &[
     "PAINSIM_TEST_WORKER_REGISTER",
     "PAINSIM_TEST_WORKER_TOKEN",
+    "PAINSIM_TEST_WORKER_DRAIN_MS",
     "PAINSIM_E2E_SCREENSHOTS",
 ];
 

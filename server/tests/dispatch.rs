@@ -7,7 +7,7 @@ use std::net::SocketAddr;
 use std::time::Duration;
 
 use futures::{SinkExt, StreamExt};
-use render_worker::cluster::{Registration, register_forever, request_with_headers};
+use render_worker::cluster::request_with_headers;
 use serde_json::json;
 use server::dispatch::Dispatcher;
 use tokio_tungstenite::tungstenite::Message;
@@ -29,28 +29,44 @@ fn worker_process_entry() {
         return;
     };
     let token = std::env::var("PAINSIM_TEST_WORKER_TOKEN").expect("token");
+    let drain_ms: u64 = std::env::var("PAINSIM_TEST_WORKER_DRAIN_MS")
+        .ok()
+        .and_then(|d| d.parse().ok())
+        .unwrap_or(25_000);
     let rt = tokio::runtime::Runtime::new().expect("runtime");
     rt.block_on(async move {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
             .await
             .expect("bind");
         let addr = listener.local_addr().unwrap();
-        let host = demo_host(8);
-        let me = Registration {
-            url: format!("http://{addr}"),
-            capacity: 8,
-            renderer: serde_json::to_value(host.health().renderer).unwrap(),
-            adapter: None,
-        };
-        tokio::spawn(register_forever(register, token, move || me.clone()));
         println!("worker {addr} ready");
-        axum::serve(listener, render_worker::session::http::router(host))
-            .await
-            .expect("serve");
+        // The binary's own serving loop: heartbeats, and the drain on SIGTERM.
+        let serving = render_worker::cluster::Serving {
+            register: Some((register, token)),
+            public_url: None,
+            drain: Duration::from_millis(drain_ms),
+        };
+        render_worker::cluster::serve_until_drained(
+            listener,
+            demo_host(8),
+            serving,
+            render_worker::cluster::stop_signal(),
+        )
+        .await
+        .expect("serve");
     });
 }
 
-fn spawn_worker(register: &str, token: &str) -> std::process::Child {
+pub(crate) fn spawn_worker(register: &str, token: &str) -> std::process::Child {
+    spawn_worker_draining(register, token, Duration::from_secs(25))
+}
+
+/// A worker process that drains for `drain` after SIGTERM.
+pub(crate) fn spawn_worker_draining(
+    register: &str,
+    token: &str,
+    drain: Duration,
+) -> std::process::Child {
     std::process::Command::new(std::env::current_exe().expect("test binary"))
         .args([
             "--exact",
@@ -61,21 +77,26 @@ fn spawn_worker(register: &str, token: &str) -> std::process::Child {
         ])
         .env("PAINSIM_TEST_WORKER_REGISTER", register)
         .env("PAINSIM_TEST_WORKER_TOKEN", token)
+        .env(
+            "PAINSIM_TEST_WORKER_DRAIN_MS",
+            drain.as_millis().to_string(),
+        )
         .stdout(std::process::Stdio::null())
         .spawn()
         .expect("spawn a worker process")
 }
 
-async fn wait_for_workers(d: &Dispatcher, n: usize) {
+pub(crate) async fn wait_for_workers(d: &Dispatcher, n: usize) {
     for _ in 0..600 {
-        if d.workers().iter().filter(|w| w.state == "alive").count() >= n {
+        let alive = d.workers().await.expect("workers from the shared state");
+        if alive.iter().filter(|w| w.state == "alive").count() >= n {
             return;
         }
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     panic!(
         "{n} workers did not register within 60 s: {:?}",
-        d.workers()
+        d.workers().await
     );
 }
 
@@ -347,7 +368,7 @@ async fn only_the_learner_drives_and_workers_need_the_token() {
     .await
     .unwrap();
     assert_eq!(r.status, 401);
-    assert!(srv.dispatcher.workers().is_empty());
+    assert!(srv.dispatcher.workers().await.unwrap().is_empty());
     let r = request_with_headers(
         "POST",
         &format!("http://{}/api/workers", srv.addr),
@@ -357,7 +378,7 @@ async fn only_the_learner_drives_and_workers_need_the_token() {
     .await
     .unwrap();
     assert_eq!(r.status, 204);
-    assert_eq!(srv.dispatcher.workers().len(), 1);
+    assert_eq!(srv.dispatcher.workers().await.unwrap().len(), 1);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -479,7 +500,7 @@ async fn handshake_status(addr: SocketAddr, sid: &str, cookie: &str, origin: Opt
 }
 
 /// Whether process `pid` has a listening TCP socket on `port` (reads /proc).
-fn process_listens_on(pid: u32, port: u16) -> bool {
+pub(crate) fn process_listens_on(pid: u32, port: u16) -> bool {
     let Ok(tcp) = std::fs::read_to_string("/proc/net/tcp") else {
         return false;
     };

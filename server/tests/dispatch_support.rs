@@ -69,7 +69,11 @@ pub struct DemoServer {
     pub db: TestDb,
     /// The dispatcher it uses.
     pub dispatcher: Dispatcher,
-    _stations: tempfile::TempDir,
+    /// The demo station and the SHA-256 of its text.
+    pub station: (Station, String),
+    /// The cluster token, if workers are accepted.
+    pub token: Option<String>,
+    stations: tempfile::TempDir,
 }
 
 /// Starts a [`DemoServer`]: sessions in-process when `in_process`, and remote workers accepted
@@ -115,11 +119,36 @@ pub async fn demo_server_sized(
     let stations = tempfile::tempdir().expect("temporary stations folder");
     std::fs::write(stations.path().join("demo-station.toml"), station_toml)
         .expect("write the demo station");
+    let config = test_config(stations.path());
+    let db = test_db().await;
+    server::records::prepare(&db.pool, &config.records, true)
+        .await
+        .expect("stations and demo accounts");
+    let host = demo_host_for(capacity, (station.clone(), hash.clone()));
+    let (addr, dispatcher) = serve_replica(
+        db.pool.clone(),
+        config,
+        host,
+        in_process,
+        worker_token,
+        "replica-a",
+    )
+    .await;
+    DemoServer {
+        addr,
+        db,
+        dispatcher,
+        station: (station, hash),
+        token: worker_token.map(str::to_owned),
+        stations,
+    }
+}
+
+/// The configuration of a test server over the stations of `stations` (fast password hashing,
+/// no login rate limits).
+fn test_config(stations: &std::path::Path) -> Config {
     let map: HashMap<&str, String> = [
-        (
-            "PAINSIM_STATIONS_DIR",
-            stations.path().display().to_string(),
-        ),
+        ("PAINSIM_STATIONS_DIR", stations.display().to_string()),
         ("PAINSIM_AUTH_RATE_PER_MINUTE", "100000".into()),
         ("PAINSIM_AUTH_BURST", "100000".into()),
     ]
@@ -127,18 +156,28 @@ pub async fn demo_server_sized(
     .collect();
     let mut config = Config::from_lookup(|k| map.get(k).cloned()).expect("test configuration");
     config.records.argon2 = Argon2Cost::TEST_ONLY;
-    let db = test_db().await;
-    server::records::prepare(&db.pool, &config.records, true)
-        .await
-        .expect("stations and demo accounts");
-    let host = demo_host_for(capacity, (station, hash));
+    config
+}
+
+/// One server replica over `pool`: its own in-process demo host (when `in_process`) and
+/// dispatcher named `replica`, served on a loopback port with the peers' addresses (as the
+/// server binary does).
+async fn serve_replica(
+    pool: sqlx::PgPool,
+    config: Config,
+    host: SessionHost,
+    in_process: bool,
+    worker_token: Option<&str>,
+    replica: &str,
+) -> (SocketAddr, Dispatcher) {
     let dispatcher = Dispatcher::new(
         in_process.then(|| host.clone()),
         host,
         worker_token.map(str::to_owned),
     );
+    dispatcher.set_replica(replica);
     let state = AppState {
-        pool: db.pool.clone(),
+        pool,
         embedded_db: true,
         workers: base_workers(),
         dispatcher: Some(dispatcher.clone()),
@@ -148,14 +187,20 @@ pub async fn demo_server_sized(
         .await
         .expect("bind a loopback port");
     let addr = listener.local_addr().expect("local address");
-    let router = app(state);
+    let router = app(state).into_make_service_with_connect_info::<SocketAddr>();
     tokio::spawn(async move { axum::serve(listener, router).await });
-    DemoServer {
-        addr,
-        db,
-        dispatcher,
-        _stations: stations,
-    }
+    (addr, dispatcher)
+}
+
+/// A second server replica beside `srv`: the same database (through a pool of its own), its own
+/// in-process demo host and dispatcher, named `replica`. PostgreSQL is all they share.
+pub async fn second_replica(srv: &DemoServer, replica: &str) -> (SocketAddr, Dispatcher) {
+    let config = test_config(srv.stations.path());
+    let pool = sqlx::PgPool::connect(&srv.db.url)
+        .await
+        .expect("a second pool to the test database");
+    let host = demo_host_for(8, srv.station.clone());
+    serve_replica(pool, config, host, true, srv.token.as_deref(), replica).await
 }
 
 /// A logged-in HTTP client (cookie and CSRF token).

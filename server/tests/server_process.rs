@@ -1,5 +1,5 @@
 //! The real `server` binary as a child process, shared by the whole-process tests
-//! (`process`, `records_sigkill`, `session_sigkill`): spawn it on a data folder (embedded
+//! (`process`, `records_sigkill`, `session_sigkill`, `cluster_failover`): spawn it on a data folder (embedded
 //! database) or a test database, read its address, wait for health, SIGTERM or SIGKILL it.
 
 use std::io::{BufRead, BufReader, Read, Write};
@@ -8,6 +8,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use server::records::config::Argon2Cost;
+use server::test_support::{TestDb, test_db};
 
 /// One HTTP/1.1 request over a fresh connection; returns (status, head, body). Small enough for
 /// health checks and JSON calls without a client crate; status 0 never comes back (an error does).
@@ -44,6 +45,61 @@ pub fn http(
 /// `GET path`: (status, body).
 pub fn http_get(addr: &str, path: &str) -> std::io::Result<(u16, String)> {
     http(addr, "GET", path, &[], "").map(|(s, _, b)| (s, b))
+}
+
+/// A fresh database with the demo accounts and the demo station, and what a spawned `server`
+/// needs to serve them: the station folder, an empty assets folder (the demo region is built in
+/// memory, `render_worker::session::loader::load_region`) and the environment naming both, with
+/// [`fast_auth_env`].
+pub struct DemoDeployment {
+    /// The database.
+    pub db: TestDb,
+    /// The environment of a `server` process over it.
+    pub env: Vec<(&'static str, String)>,
+    _stations: tempfile::TempDir,
+    _assets: tempfile::TempDir,
+}
+
+/// Prepares a [`DemoDeployment`].
+pub async fn demo_deployment() -> DemoDeployment {
+    let db = test_db().await;
+    let stations = tempfile::tempdir().unwrap();
+    std::fs::write(
+        stations.path().join("demo-station.toml"),
+        render_worker::session::demo::demo_station_toml(&[]),
+    )
+    .unwrap();
+    let assets = tempfile::tempdir().unwrap();
+    let stations_dir = stations.path().display().to_string();
+    let mut config = server::Config::from_lookup(|k| {
+        (k == "PAINSIM_STATIONS_DIR").then(|| stations_dir.clone())
+    })
+    .expect("test configuration");
+    config.records.argon2 = Argon2Cost::TEST_ONLY;
+    server::records::prepare(&db.pool, &config.records, true)
+        .await
+        .expect("stations and demo accounts");
+    let mut env = fast_auth_env();
+    env.push(("PAINSIM_STATIONS_DIR", stations_dir));
+    env.push(("PAINSIM_ASSETS_DIR", assets.path().display().to_string()));
+    DemoDeployment {
+        db,
+        env,
+        _stations: stations,
+        _assets: assets,
+    }
+}
+
+/// [`spawn_server`] against the database at `url`, from async code.
+pub async fn spawn_on(
+    data: &std::path::Path,
+    url: &str,
+    env: &[(&'static str, String)],
+) -> ServerProcess {
+    let (data, url, env) = (data.to_owned(), url.to_owned(), env.to_vec());
+    tokio::task::spawn_blocking(move || spawn_server(&data, Some(&url), &env))
+        .await
+        .expect("spawn task")
 }
 
 /// The settings that make logins cheap and unthrottled in tests (argon2 at its test cost, rate
@@ -174,10 +230,26 @@ pub fn thread_report(pid: u32) -> String {
         .flatten()
         .map(|t| {
             let dir = t.path();
-            let read = |f: &str| std::fs::read_to_string(dir.join(f)).unwrap_or_default().trim().to_owned();
+            let read = |f: &str| {
+                std::fs::read_to_string(dir.join(f))
+                    .unwrap_or_default()
+                    .trim()
+                    .to_owned()
+            };
             let stat = read("stat");
-            let state = stat.rsplit(") ").next().and_then(|r| r.split(' ').next()).unwrap_or("?").to_owned();
-            format!("{:>8} {:<20} {} {}", t.file_name().to_string_lossy(), read("comm"), state, read("wchan"))
+            let state = stat
+                .rsplit(") ")
+                .next()
+                .and_then(|r| r.split(' ').next())
+                .unwrap_or("?")
+                .to_owned();
+            format!(
+                "{:>8} {:<20} {} {}",
+                t.file_name().to_string_lossy(),
+                read("comm"),
+                state,
+                read("wchan")
+            )
         })
         .collect();
     lines.sort();

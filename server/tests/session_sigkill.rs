@@ -14,17 +14,13 @@ use std::time::{Duration, Instant};
 
 use futures::{SinkExt, StreamExt};
 use render_worker::cluster::request_with_headers;
-use render_worker::session::demo::demo_station_toml;
 use render_worker::session::{Command, LogEntry, Session, SessionSnapshot};
 use serde_json::{Value, json};
-use server::Config;
-use server::records::config::Argon2Cost;
-use server::test_support::test_db;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 
 use crate::dispatch::{Client, demo_host};
-use crate::server_process::{ServerProcess, fast_auth_env, spawn_server};
+use crate::server_process::{demo_deployment, spawn_on};
 
 /// Commands of the scripted stream (sequence numbers 1..=N); the submit comes after them.
 const SCRIPT_LEN: u64 = 400;
@@ -93,38 +89,13 @@ async fn websocket(c: &Client, path: &str) -> Socket {
         .0
 }
 
-async fn spawn(data: &std::path::Path, url: &str, env: &[(&'static str, String)]) -> ServerProcess {
-    let (data, url, env) = (data.to_owned(), url.to_owned(), env.to_vec());
-    tokio::task::spawn_blocking(move || spawn_server(&data, Some(&url), &env))
-        .await
-        .expect("spawn task")
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sigkill_mid_session_loses_no_acknowledged_command() {
-    let db = test_db().await;
-    let stations = tempfile::tempdir().unwrap();
-    std::fs::write(
-        stations.path().join("demo-station.toml"),
-        demo_station_toml(&[]),
-    )
-    .unwrap();
-    // No region folders: the demo region is built in memory (render_worker::session::loader::load_region).
-    let assets = tempfile::tempdir().unwrap();
+    let deployment = demo_deployment().await;
+    let (db, env) = (&deployment.db, deployment.env.clone());
     let data = tempfile::tempdir().unwrap();
-    let stations_dir = stations.path().display().to_string();
-    let mut config =
-        Config::from_lookup(|k| (k == "PAINSIM_STATIONS_DIR").then(|| stations_dir.clone()))
-            .expect("test configuration");
-    config.records.argon2 = Argon2Cost::TEST_ONLY;
-    server::records::prepare(&db.pool, &config.records, true)
-        .await
-        .expect("stations and demo accounts");
-    let mut env = fast_auth_env();
-    env.push(("PAINSIM_STATIONS_DIR", stations_dir.clone()));
-    env.push(("PAINSIM_ASSETS_DIR", assets.path().display().to_string()));
 
-    let server = spawn(data.path(), &db.url, &env).await;
+    let server = spawn_on(data.path(), &db.url, &env).await;
     let addr: SocketAddr = server.addr.parse().unwrap();
     let learner = Client::login(addr, "learner@demo.invalid").await;
     let (s, courses) = learner.call("GET", "/api/courses", None).await;
@@ -254,7 +225,7 @@ async fn sigkill_mid_session_loses_no_acknowledged_command() {
     );
 
     // Restart on the same database; the login session survives in PostgreSQL.
-    let server = spawn(data.path(), &db.url, &env).await;
+    let server = spawn_on(data.path(), &db.url, &env).await;
     let learner = Client {
         addr: server.addr.parse().unwrap(),
         ..learner

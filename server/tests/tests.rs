@@ -2,6 +2,9 @@
 
 mod anatomy_readiness;
 mod calibration;
+mod cluster_drain;
+mod cluster_failover;
+mod cluster_state;
 mod configuration;
 mod dispatch;
 mod dispatch_capacity;

@@ -13,7 +13,7 @@ use std::process::ExitCode;
 
 use render_worker::session::calibration::calibrate_when_ready;
 use render_worker::session::config::{self, WorkerConfig, WorkerRegistration};
-use render_worker::session::{Backends, HostConfig, SessionConfig, SessionHost, http};
+use render_worker::session::{Backends, HostConfig, SessionConfig, SessionHost};
 
 fn main() -> ExitCode {
     render_worker::alloc::limit_malloc_arenas();
@@ -26,6 +26,7 @@ fn main() -> ExitCode {
         capacity,
         registration,
         public_url,
+        drain,
     } = match WorkerConfig::from_lookup(config::env) {
         Ok(c) => c,
         Err(e) => {
@@ -86,34 +87,24 @@ fn main() -> ExitCode {
             }
         };
         let addr = listener.local_addr().map(|a| a.to_string()).unwrap_or(bind);
-        // Cluster mode: announce this worker to the server (see render_worker::cluster).
-        if let Some(WorkerRegistration { url, token }) = registration {
-            let announced = host.clone();
-            let me_url = public_url.unwrap_or_else(|| format!("http://{addr}"));
-            let me = move || {
-                let health = announced.health();
-                render_worker::cluster::Registration {
-                    url: me_url.clone(),
-                    capacity: health.capacity,
-                    renderer: serde_json::to_value(&health.renderer).unwrap_or_default(),
-                    adapter: health.adapter,
-                }
-            };
-            tokio::spawn(render_worker::cluster::register_forever(url, token, me));
-        }
         println!(
             "render-worker ready at http://{addr}/healthz (stations: {})",
             host.station_ids().join(", ")
         );
-        let shutdown = async {
-            let _ = tokio::signal::ctrl_c().await;
+        // Cluster mode: heartbeats to the server (see render_worker::cluster); on SIGTERM it
+        // drains, then the session threads release their GPU resources before the process exits.
+        let serving = render_worker::cluster::Serving {
+            register: registration.map(|WorkerRegistration { url, token }| (url, token)),
+            public_url,
+            drain,
         };
-        let sessions = host.clone();
-        let served = axum::serve(listener, http::router(host))
-            .with_graceful_shutdown(shutdown)
-            .await;
-        // Session threads release their GPU resources before the process exits.
-        let _ = tokio::task::spawn_blocking(move || sessions.shutdown()).await;
+        let served = render_worker::cluster::serve_until_drained(
+            listener,
+            host,
+            serving,
+            render_worker::cluster::stop_signal(),
+        )
+        .await;
         match served {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {

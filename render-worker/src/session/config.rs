@@ -265,6 +265,11 @@ impl<'a> Settings<'a> {
 /// machine, as the server's in-process worker before its calibration.
 pub const DEFAULT_WORKER_CAPACITY: usize = 8;
 
+/// Default drain after SIGTERM, seconds. Simulator choice: a learner mid-action finishes a
+/// step within seconds, a whole session never does; 25 s leaves the servers time to move the
+/// rest within Kubernetes' default 30 s grace period.
+pub const DEFAULT_DRAIN_SECS: u64 = 25;
+
 /// The settings of this crate: the `render-worker` binary's, and the ultrasound renderer that
 /// the server's in-process worker reads too. The README's render-worker table is these rows.
 pub const WORKER_SETTINGS: &[Setting] = &[
@@ -306,6 +311,14 @@ pub const WORKER_SETTINGS: &[Setting] = &[
         meaning: "the URL the server reaches this worker at, announced when registering",
     },
     Setting {
+        name: "RENDER_WORKER_DRAIN_SECS",
+        default: SettingDefault::Number(DEFAULT_DRAIN_SECS),
+        meaning: "on SIGTERM the worker takes no new sessions and waits this many seconds for \
+                  its live ones to end, then hands the rest back to the servers, which restore \
+                  them on other workers from snapshot and log; keep it below the orchestrator's \
+                  grace period (Kubernetes: `terminationGracePeriodSeconds`)",
+    },
+    Setting {
         name: "PAINSIM_ULTRASOUND_RENDERER",
         default: SettingDefault::Value("auto"),
         meaning: "B-mode frames on the GPU compute path (`gpu`), the sim-core CPU reference \
@@ -332,6 +345,8 @@ pub struct WorkerConfig {
     pub registration: Option<WorkerRegistration>,
     /// The URL announced to the server; `None` announces `http://` + the bound address.
     pub public_url: Option<String>,
+    /// How long it drains after SIGTERM (`RENDER_WORKER_DRAIN_SECS`).
+    pub drain: std::time::Duration,
 }
 
 /// How a worker joins a server.
@@ -404,6 +419,7 @@ impl WorkerConfig {
             public_url: s
                 .value("RENDER_WORKER_PUBLIC_URL")
                 .map(|u| u.trim().to_owned()),
+            drain: s.seconds("RENDER_WORKER_DRAIN_SECS")?,
         })
     }
 

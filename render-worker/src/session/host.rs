@@ -59,6 +59,9 @@ pub enum HostError {
     /// At capacity.
     #[error("worker is at capacity ({0} sessions)")]
     Full(usize),
+    /// The worker drains before it exits: it takes no new sessions.
+    #[error("the worker is draining before it exits; it takes no new sessions")]
+    Draining,
     /// No such session.
     #[error("no session {0}")]
     NoSession(String),
@@ -114,6 +117,9 @@ pub struct Health {
     pub sessions: usize,
     /// sessions / capacity.
     pub load: f64,
+    /// True while the worker drains before exiting (it takes no new sessions).
+    #[serde(default)]
+    pub draining: bool,
     /// Readiness of each region the stations use.
     #[serde(default)]
     pub regions: BTreeMap<String, RegionReadiness>,
@@ -245,6 +251,8 @@ struct Inner {
     modalities: std::sync::RwLock<super::modalities::ModalityFactory>,
     /// Most sessions (set at start, or by a calibration).
     capacity: std::sync::atomic::AtomicUsize,
+    /// Set when the worker drains before exiting ([`SessionHost::start_draining`]).
+    draining: std::sync::atomic::AtomicBool,
     calibration: Mutex<Option<serde_json::Value>>,
     session_config: SessionConfig,
     adapter: Option<serde_json::Value>,
@@ -337,6 +345,7 @@ impl SessionHost {
                 backends: std::sync::RwLock::new(backends),
                 modalities: std::sync::RwLock::new(super::modalities::ModalityFactory::standard()),
                 capacity: capacity.into(),
+                draining: false.into(),
                 calibration: Mutex::new(None),
                 session_config,
                 adapter,
@@ -359,9 +368,25 @@ impl SessionHost {
             capacity: self.capacity(),
             sessions,
             load: sessions as f64 / self.capacity().max(1) as f64,
+            draining: self.is_draining(),
             regions: self.regions_readiness(),
             calibration: self.inner.calibration.lock().ok().and_then(|c| c.clone()),
         }
+    }
+
+    /// Stops taking new sessions (created or restored: [`HostError::Draining`]); running ones go
+    /// on. For a worker that was asked to exit.
+    pub fn start_draining(&self) {
+        self.inner
+            .draining
+            .store(true, std::sync::atomic::Ordering::SeqCst);
+    }
+
+    /// Whether the host drains ([`SessionHost::start_draining`]).
+    pub fn is_draining(&self) -> bool {
+        self.inner
+            .draining
+            .load(std::sync::atomic::Ordering::SeqCst)
     }
 
     /// Most sessions this host takes now.
@@ -595,6 +620,9 @@ impl SessionHost {
     }
 
     fn check_capacity(&self) -> Result<(), HostError> {
+        if self.is_draining() {
+            return Err(HostError::Draining);
+        }
         let n = self.inner.sessions.lock().map_or(0, |s| s.len());
         let capacity = self.capacity();
         if n >= capacity {

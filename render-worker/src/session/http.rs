@@ -1,7 +1,11 @@
 //! The worker's HTTP and websocket surface (used by the `render-worker` binary, tests and
 //! benches; the server can mount the same router or call [`SessionHost`] directly).
 //!
-//! - `GET /healthz`: [`super::host::Health`] (renderer, adapter, capacity, sessions, load).
+//! - `GET /healthz`: [`super::host::Health`] (renderer, adapter, capacity, sessions, load):
+//!   the process answers (liveness).
+//! - `GET /readyz`: 200 when the worker can take sessions at all, 503 while it drains before
+//!   exiting (readiness: never "has free capacity", so an orchestrator removes a draining or
+//!   broken worker first, never a merely busy one).
 //! - `POST /sessions` with `{"station_id": "..."}`: 201 and `{"session": SessionInfo, "ws":
 //!   "/sessions/{id}/ws"}`; 404 unknown station, 503 at capacity, 503 with `Retry-After` while
 //!   the station's anatomy is being prepared (code `anatomy_preparing`).
@@ -29,6 +33,7 @@ use super::protocol::{WsMessage, serve_connection};
 pub fn router(host: SessionHost) -> Router {
     Router::new()
         .route("/healthz", get(healthz))
+        .route("/readyz", get(readyz))
         .route("/sessions", post(create))
         .route("/sessions/restore", post(restore))
         .route("/sessions/{id}/snapshot", get(snapshot))
@@ -68,6 +73,7 @@ fn error(e: &HostError) -> Response {
             (StatusCode::NOT_FOUND, "not_found")
         }
         HostError::Full(_) => (StatusCode::SERVICE_UNAVAILABLE, "at_capacity"),
+        HostError::Draining => (StatusCode::SERVICE_UNAVAILABLE, "draining"),
         HostError::Restore(_) => (StatusCode::UNPROCESSABLE_ENTITY, "restore_failed"),
         HostError::Region(_) | HostError::Stations(_) => {
             (StatusCode::INTERNAL_SERVER_ERROR, "internal")
@@ -92,6 +98,25 @@ fn created(h: &SessionHandle) -> Response {
 
 async fn healthz(State(host): State<SessionHost>) -> Response {
     Json(host.health()).into_response()
+}
+
+/// 200 when the worker can take sessions at all (its stations' anatomy is loaded and it is not
+/// draining), 503 otherwise; the body says which.
+async fn readyz(State(host): State<SessionHost>) -> Response {
+    let regions = host.regions_readiness();
+    let anatomy_ready = regions
+        .values()
+        .all(|r| matches!(r, super::host::RegionReadiness::Ready { .. }));
+    let draining = host.is_draining();
+    let ready = anatomy_ready && !draining && !host.station_ids().is_empty();
+    let status = if ready {
+        StatusCode::OK
+    } else {
+        StatusCode::SERVICE_UNAVAILABLE
+    };
+    let body =
+        serde_json::json!({ "ready": ready, "draining": draining, "anatomy_ready": anatomy_ready });
+    (status, Json(body)).into_response()
 }
 
 async fn create(State(host): State<SessionHost>, Json(body): Json<CreateBody>) -> Response {

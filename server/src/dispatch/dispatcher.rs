@@ -135,6 +135,9 @@ pub const CLOSE_LOG_REFUSED: u16 = 1011;
 pub const CLOSE_IDLE: u16 = 4001;
 /// Close code when the learner's account was revoked (disabled, or its password reset).
 pub const CLOSE_REVOKED: u16 = 4003;
+/// Close code when another connection (perhaps through another server replica) took the
+/// session over and this one's log appends were refused (fenced).
+pub const CLOSE_TAKEN_OVER: u16 = 4009;
 
 /// How long a session with no browser connected stays on its worker. Simulator choice: a
 /// learner who steps away for a few minutes comes back to a running session; after that the
@@ -177,6 +180,10 @@ pub struct SessionRecord {
     pub result_id: Option<Uuid>,
     /// How many times it was restored on another worker.
     pub failovers: u32,
+    /// The epoch this replica holds the session at (`live_sessions.epoch` after its takeover):
+    /// the log is appended under it, and refused once another connection took the session
+    /// over.
+    pub epoch: i64,
 }
 
 /// Why a session could not be placed.
@@ -258,6 +265,8 @@ pub struct DispatchConfig {
     /// Longest time a live session stays open without a command
     /// (`PAINSIM_LIVE_SESSION_IDLE_SECS`).
     pub live_session_idle: std::time::Duration,
+    /// This replica's name in the shared state (`PAINSIM_REPLICA_ID`); `None`: host and pid.
+    pub replica_id: Option<String>,
 }
 
 impl std::fmt::Debug for DispatchConfig {
@@ -270,6 +279,7 @@ impl std::fmt::Debug for DispatchConfig {
             .field("sessions_per_user", &self.sessions_per_user)
             .field("sessions_per_course", &self.sessions_per_course)
             .field("live_session_idle", &self.live_session_idle)
+            .field("replica_id", &self.replica_id)
             .finish()
     }
 }
@@ -361,6 +371,12 @@ pub(super) struct Inner {
     pub(super) reaper_wake: Arc<tokio::sync::Notify>,
     /// The learning records, for audit entries of sessions the server ends.
     pub(super) records: Mutex<Option<crate::records::RecordsState>>,
+    /// This replica's name in the shared state.
+    pub(super) replica: Mutex<String>,
+    /// One lock per session that this replica is loading and restoring from the database, so
+    /// that two connections to the same stored session restore it once (different sessions
+    /// restore at the same time).
+    pub(super) adopting: Mutex<HashMap<Uuid, Arc<tokio::sync::Mutex<()>>>>,
 }
 
 /// Default most live (unsubmitted) sessions one user holds at once. Simulator choice: a learner
@@ -407,9 +423,10 @@ impl Dispatcher {
                 ),
                 reaper_wake: Arc::new(tokio::sync::Notify::new()),
                 records: Mutex::new(None),
+                replica: Mutex::new(super::cluster::default_replica_id()),
+                adopting: Mutex::new(HashMap::new()),
             }),
         };
-        d.inner.remote.start_polling();
         d.start_reaper(IDLE_CLOSE);
         d
     }
@@ -496,9 +513,72 @@ impl Dispatcher {
         self.inner.records.lock().ok().and_then(|r| r.clone())
     }
 
+    /// Attaches the learning records: their database is the shared state (registered workers,
+    /// placements), swept by this replica from now on.
     pub(super) fn attach_records(&self, records: &crate::records::RecordsState) {
-        if let Ok(mut r) = self.inner.records.lock() {
-            *r = Some(records.clone());
+        let first = match self.inner.records.lock() {
+            Ok(mut r) => {
+                let first = r.is_none();
+                *r = Some(records.clone());
+                first
+            }
+            Err(_) => false,
+        };
+        if first {
+            self.inner.remote.attach(&records.pool);
+            let weak = Arc::downgrade(&self.inner);
+            super::cluster::start_sweeper(
+                records.pool.clone(),
+                self.inner.remote.clone(),
+                self.replica(),
+                move || weak.strong_count() > 0,
+            );
+        }
+    }
+
+    /// The database of the shared state, once attached.
+    pub(super) fn pool(&self) -> Option<sqlx::PgPool> {
+        self.records().map(|r| r.pool)
+    }
+
+    /// This replica's name in the shared state.
+    pub fn replica(&self) -> String {
+        self.inner
+            .replica
+            .lock()
+            .map(|r| r.clone())
+            .unwrap_or_default()
+    }
+
+    /// Names this replica (`PAINSIM_REPLICA_ID`); call before the routes are built.
+    pub fn set_replica(&self, id: &str) {
+        if let Ok(mut r) = self.inner.replica.lock() {
+            *r = id.to_string();
+        }
+    }
+
+    /// Records where `session` runs now (at `record`'s epoch), for every replica to see.
+    pub(super) async fn record_placement(&self, session: Uuid, record: &SessionRecord) {
+        let Some(pool) = self.pool() else {
+            return;
+        };
+        let replica = self.replica();
+        let (worker_url, worker_session) = match &record.placement {
+            Placement::Local { worker_session } => (None, worker_session.as_str()),
+            Placement::Remote {
+                worker_url,
+                worker_session,
+            } => (Some(worker_url.as_str()), worker_session.as_str()),
+        };
+        let row = super::cluster::PlacementRow {
+            session,
+            epoch: record.epoch,
+            replica: &replica,
+            worker_url,
+            worker_session,
+        };
+        if let Err(e) = super::cluster::place(&pool, &row).await {
+            tracing::error!(session = %session, "recording the session's placement failed: {e}");
         }
     }
 
@@ -554,8 +634,11 @@ impl Dispatcher {
         Ok(d)
     }
 
-    /// Sets the per-user, per-course and idle limits of `config`.
+    /// Sets the per-user, per-course and idle limits of `config`, and the replica's name.
     fn apply_limits(&self, config: &DispatchConfig) {
+        if let Some(id) = &config.replica_id {
+            self.set_replica(id);
+        }
         self.set_sessions_per_user(config.sessions_per_user);
         self.set_sessions_per_course(config.sessions_per_course);
         self.set_session_idle(config.live_session_idle);
@@ -595,25 +678,14 @@ impl Dispatcher {
         self.inner.local.as_ref()
     }
 
-    /// Registered workers as reported by `GET /api/workers`.
-    pub fn workers(&self) -> Vec<WorkerView> {
-        self.inner.remote.views(&self.sessions_by_worker())
+    /// Registered workers as reported by `GET /api/workers`, from the shared state.
+    pub async fn workers(&self) -> Result<Vec<WorkerView>, sqlx::Error> {
+        self.inner.remote.views().await
     }
 
-    pub(super) fn sessions_by_worker(&self) -> HashMap<String, usize> {
-        let mut by = HashMap::new();
-        let list: Vec<Arc<LiveSession>> = self
-            .inner
-            .sessions
-            .lock()
-            .map(|m| m.values().cloned().collect())
-            .unwrap_or_default();
-        for s in list {
-            if let Ok(st) = s.state.try_lock() {
-                *by.entry(st.placement.worker_label()).or_insert(0) += 1;
-            }
-        }
-        by
+    /// The registered workers in the shared state.
+    pub fn registry(&self) -> &registry::Registry {
+        &self.inner.remote
     }
 
     /// A live session by id.
@@ -643,16 +715,11 @@ impl Dispatcher {
     /// Whether a session of `station_id` can start (or resume) on the in-process worker now.
     /// Only asked when that is where it would go: with a live registered worker it is placed
     /// there. Starts preparing the station's region in the background if nobody has.
-    pub(super) fn check_local_ready(&self, station_id: &str) -> Result<(), PlaceError> {
+    pub(super) async fn check_local_ready(&self, station_id: &str) -> Result<(), PlaceError> {
         let Some(host) = &self.inner.local else {
             return Ok(());
         };
-        if !self
-            .inner
-            .remote
-            .by_load(&self.sessions_by_worker(), None)
-            .is_empty()
-        {
+        if !self.inner.remote.by_load(None).await.is_empty() {
             return Ok(());
         }
         host.check_ready(station_id).map_err(PlaceError::from)
@@ -745,7 +812,7 @@ impl Dispatcher {
         station_id: &str,
     ) -> Result<(Placement, SessionSnapshot), PlaceError> {
         let mut errors = Vec::new();
-        for url in self.inner.remote.by_load(&self.sessions_by_worker(), None) {
+        for url in self.inner.remote.by_load(None).await {
             match registry::create_remote(&url, station_id).await {
                 Ok((worker_session, snapshot)) => {
                     return Ok((
@@ -801,14 +868,17 @@ impl Dispatcher {
         record: &SessionRecord,
     ) -> Result<Placement, RestoreError> {
         if let Placement::Remote { worker_url, .. } = failed {
-            self.inner.remote.mark_dead(worker_url);
+            self.inner
+                .remote
+                .mark_dead(worker_url, &self.replica())
+                .await;
         }
         let avoid = match failed {
             Placement::Remote { worker_url, .. } => Some(worker_url.as_str()),
             Placement::Local { .. } => None,
         };
         let mut errors = Vec::new();
-        for url in self.inner.remote.by_load(&self.sessions_by_worker(), avoid) {
+        for url in self.inner.remote.by_load(avoid).await {
             match registry::restore_remote(&url, &record.initial, &record.log).await {
                 Ok(worker_session) => {
                     return Ok(Placement::Remote {
@@ -846,13 +916,26 @@ impl Dispatcher {
     }
 
     /// Forgets a session (whoever takes it ends it).
-    fn take(&self, id: Uuid) -> Option<Arc<LiveSession>> {
+    pub(super) fn take(&self, id: Uuid) -> Option<Arc<LiveSession>> {
         self.inner.sessions.lock().ok()?.remove(&id)
     }
 
-    /// Ends a session taken from the map on its worker.
+    /// Ends a session taken from the map on its worker, and removes its placement.
     async fn close_taken(&self, s: &LiveSession) {
-        let placement = s.state.lock().await.placement.clone();
+        let (placement, epoch) = {
+            let st = s.state.lock().await;
+            (st.placement.clone(), st.epoch)
+        };
+        if let Some(pool) = self.pool()
+            && let Err(e) = super::cluster::release(&pool, s.id, epoch).await
+        {
+            tracing::error!(session = %s.id, "removing the session's placement failed: {e}");
+        }
+        self.end_on_worker(placement).await;
+    }
+
+    /// Ends a session on the worker it was placed on.
+    pub(super) async fn end_on_worker(&self, placement: Placement) {
         match placement {
             Placement::Local { worker_session } => {
                 if let Some(h) = &self.inner.local {

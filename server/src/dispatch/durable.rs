@@ -47,13 +47,23 @@ const RETRY_MAX: Duration = Duration::from_secs(2);
 /// but none of it was acknowledged to the browser).
 const FINAL_ATTEMPTS: u32 = 5;
 
+/// Why a writer stopped for good.
+#[derive(Debug, Clone)]
+pub struct Failure {
+    /// In words.
+    pub message: String,
+    /// Set when the database refused the epoch the writer held (another connection, perhaps on
+    /// another replica, took the session over): that epoch.
+    pub fenced_at: Option<i64>,
+}
+
 /// The writer task of one browser connection.
 pub struct LogWriter {
     kick: mpsc::Sender<()>,
     /// How many log entries of the session are known to be in the database.
     pub durable: watch::Receiver<usize>,
     /// Why the writer stopped for good (a permanent write error), once it did.
-    failure: Arc<Mutex<Option<String>>>,
+    failure: Arc<Mutex<Option<Failure>>>,
     task: tokio::task::JoinHandle<()>,
 }
 
@@ -65,7 +75,7 @@ impl LogWriter {
         let failure = Arc::new(Mutex::new(None));
         let failed = failure.clone();
         let task = tokio::spawn(async move {
-            let stop = |reason: String| {
+            let stop = |reason: Failure| {
                 if let Ok(mut f) = failed.lock() {
                     *f = Some(reason);
                 }
@@ -110,7 +120,7 @@ impl LogWriter {
     }
 
     /// Why the writer stopped for good: a write the database can never accept.
-    pub fn failure(&self) -> Option<String> {
+    pub fn failure(&self) -> Option<Failure> {
         self.failure.lock().ok().and_then(|f| f.clone())
     }
 
@@ -128,25 +138,25 @@ impl LogWriter {
 }
 
 /// Writes the log beyond the session's durable length until nothing is left (retrying with
-/// back-off while the connection is open, at most [`FINAL_ATTEMPTS`] times once it ended).
-/// Err with the reason when a write can never succeed.
+/// back-off while the connection is open, at most [`FINAL_ATTEMPTS`] times once it ended), under
+/// the epoch the session is held at. Err with the reason when a write can never succeed.
 async fn flush(
     pool: &PgPool,
     session: &LiveSession,
     durable_tx: &watch::Sender<usize>,
-) -> Result<(), String> {
+) -> Result<(), Failure> {
     let mut wait = RETRY_FIRST;
     let mut failures = 0u32;
     loop {
-        let (from, batch) = {
+        let (from, batch, epoch) = {
             let st = session.state.lock().await;
             let from = st.durable_len.min(st.log.len());
-            (from, st.log[from..].to_vec())
+            (from, st.log[from..].to_vec(), st.epoch)
         };
         if batch.is_empty() {
             return Ok(());
         }
-        match store::append_commands(pool, session.id, &batch).await {
+        match store::append_commands(pool, session.id, epoch, &batch).await {
             Ok(()) => {
                 let mut st = session.state.lock().await;
                 st.durable_len = st.durable_len.max(from + batch.len());
@@ -156,9 +166,24 @@ async fn flush(
                 wait = RETRY_FIRST;
                 failures = 0;
             }
+            Err(e) if e.fenced => {
+                // A connection of this replica that took the session over since holds a newer
+                // epoch: write under it. Otherwise another replica holds the session now.
+                if session.state.lock().await.epoch != epoch {
+                    continue;
+                }
+                tracing::warn!(session = %session.id, epoch, "another connection took the session over; this copy stops writing");
+                return Err(Failure {
+                    message: e.message,
+                    fenced_at: Some(epoch),
+                });
+            }
             Err(e) if e.permanent => {
                 tracing::error!(session = %session.id, entries = batch.len(), "the database refuses the session's commands; the session ends: {e}");
-                return Err(e.message);
+                return Err(Failure {
+                    message: e.message,
+                    fenced_at: None,
+                });
             }
             Err(e) => {
                 failures += 1;

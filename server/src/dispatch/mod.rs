@@ -44,6 +44,7 @@
 //! review screen and the CSV export.
 
 mod browser;
+mod cluster;
 mod dispatcher;
 mod durable;
 mod registry;
@@ -52,10 +53,15 @@ mod results;
 mod revoke;
 mod routes;
 mod store;
+mod takeover;
 mod upstream;
 mod verify;
 
+pub use cluster::{ClusterStatus, WorkerCounts};
 pub use dispatcher::*;
-pub use registry::{RemoteWorker, WorkerCallError, WorkerView};
+pub use registry::{
+    DEAD_AFTER, Heartbeat, PLACEMENT_STALE_AFTER, Registry, WorkerCallError, WorkerView,
+};
 pub use relay::{MAX_CLIENT_MESSAGE_BYTES, MAX_IN_FLIGHT, MAX_UNREAD_ANSWERS};
 pub use routes::{DispatchApi, openapi, router};
+pub use takeover::TakeoverError;

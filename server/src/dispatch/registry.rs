@@ -1,43 +1,43 @@
-//! Registered render workers: registration, health polling, least-load choice, and the calls
-//! that create and restore sessions on them.
+//! Registered render workers in the shared state (PostgreSQL): registration and heartbeats,
+//! dead-marking, least-load choice, and the calls that create and restore sessions on them.
 
-use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::sync::Arc;
+use std::time::Duration;
 
 use render_worker::cluster::{HttpError, HttpResponse, Registration, request};
 use render_worker::session::{LogEntry, SessionSnapshot};
 use serde::Serialize;
+use sqlx::PgPool;
 
-/// How often the server polls each worker's health. Simulator choice: a dead worker is noticed
-/// within a second even when none of its sessions is sending (a session that is sending notices
-/// at once, through its socket).
-pub const POLL_INTERVAL: Duration = Duration::from_secs(1);
+/// How often each replica sweeps the shared state: marks workers whose heartbeats stopped dead,
+/// refreshes its own placement rows and removes those of replicas that stopped. Simulator
+/// choice: a dead worker is noticed within [`DEAD_AFTER`] plus a second even when none of its
+/// sessions is sending (a session that is sending notices at once, through its socket).
+pub const SWEEP_INTERVAL: Duration = Duration::from_secs(1);
 
-/// A worker that registered.
-#[derive(Debug, Clone)]
-pub struct RemoteWorker {
-    /// What it announced.
-    pub registration: Registration,
-    /// Whether its last health check (or socket) succeeded.
-    pub alive: bool,
-    /// Last successful health check or registration.
-    pub last_seen: Instant,
-    /// Sessions it reported in its last health check.
-    pub reported_sessions: Option<usize>,
-}
+/// A worker whose last heartbeat is older than this is dead. Three heartbeats
+/// ([`render_worker::cluster::HEARTBEAT`], 2 s): one lost packet or a slow answer is not a death.
+pub const DEAD_AFTER: Duration = Duration::from_secs(6);
 
-/// A worker as listed by `GET /api/workers`.
+/// A placement row that its replica did not refresh for this long belongs to a replica that
+/// stopped (it refreshes every [`SWEEP_INTERVAL`]); any replica removes it, so the live-session
+/// count an autoscaler reads does not keep dead replicas' sessions. Simulator choice: 30 sweeps.
+pub const PLACEMENT_STALE_AFTER: Duration = Duration::from_secs(30);
+
+/// A worker as listed by `GET /api/workers` (from the shared state: every replica lists the
+/// same).
 #[derive(Debug, Clone, Serialize)]
 pub struct WorkerView {
     /// Base URL.
     pub url: String,
-    /// `alive` or `dead`.
-    pub state: &'static str,
+    /// `alive`, `draining` (takes no new sessions) or `dead`.
+    pub state: String,
     /// Capacity.
     pub capacity: usize,
-    /// Sessions the server placed there.
+    /// Sessions placed there (by any replica).
     pub sessions: usize,
+    /// Sessions the worker reported in its last heartbeat.
+    pub reported_sessions: usize,
     /// sessions / capacity.
     pub load: f64,
     /// `gpu` when an adapter is reported, else `software`.
@@ -46,146 +46,205 @@ pub struct WorkerView {
     pub adapter: Option<serde_json::Value>,
     /// The renderer as reported.
     pub renderer: serde_json::Value,
-    /// Seconds since it was last seen.
+    /// Seconds since its last heartbeat.
     pub last_seen_s: f64,
+    /// The replica that marked it dead (the one that noticed first), when dead.
+    pub marked_dead_by: Option<String>,
 }
 
-/// The registered workers.
+/// What a worker's heartbeat says beyond its registration.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Heartbeat {
+    /// Sessions it holds.
+    pub sessions: usize,
+    /// True while it drains (it takes no new sessions).
+    pub draining: bool,
+}
+
+/// The registered workers, in PostgreSQL (`render_workers`; `session_placements` for their
+/// load): the same for every replica. Without a database attached (a dispatcher outside the
+/// app) there are none.
 #[derive(Debug, Clone, Default)]
 pub struct Registry {
-    workers: Arc<Mutex<Vec<RemoteWorker>>>,
+    pool: Arc<std::sync::OnceLock<PgPool>>,
 }
 
+type WorkerRow = (
+    String,
+    i32,
+    i32,
+    serde_json::Value,
+    Option<serde_json::Value>,
+    String,
+    f64,
+    Option<String>,
+    i64,
+);
+
 impl Registry {
-    /// Adds or refreshes a worker (by URL).
-    pub fn register(&self, registration: Registration) {
-        let Ok(mut w) = self.workers.lock() else {
-            return;
+    /// Uses `pool` for the shared state (the first pool attached stays).
+    pub fn attach(&self, pool: &PgPool) {
+        let _ = self.pool.set(pool.clone());
+    }
+
+    fn pool(&self) -> Option<&PgPool> {
+        self.pool.get()
+    }
+
+    /// Adds or refreshes a worker (by URL) from its registration or heartbeat.
+    pub async fn register(&self, r: &Registration, beat: Heartbeat) -> Result<(), sqlx::Error> {
+        let Some(pool) = self.pool() else {
+            return Ok(());
         };
-        match w
-            .iter_mut()
-            .find(|x| x.registration.url == registration.url)
-        {
-            Some(x) => {
-                x.registration = registration;
-                x.alive = true;
-                x.last_seen = Instant::now();
-            }
+        let state = if beat.draining { "draining" } else { "alive" };
+        let (previous,): (Option<String>,) = sqlx::query_as(
+            "WITH old AS (SELECT state FROM render_workers WHERE url = $1)
+             INSERT INTO render_workers (url, capacity, sessions, renderer, adapter, state)
+             VALUES ($1, $2, $3, $4, $5, $6)
+             ON CONFLICT (url) DO UPDATE SET capacity = EXCLUDED.capacity,
+                 sessions = EXCLUDED.sessions, renderer = EXCLUDED.renderer,
+                 adapter = EXCLUDED.adapter, state = EXCLUDED.state, last_seen = now(),
+                 dead_since = NULL, marked_dead_by = NULL
+             RETURNING (SELECT state FROM old)",
+        )
+        .bind(&r.url)
+        .bind(i32::try_from(r.capacity).unwrap_or(i32::MAX))
+        .bind(i32::try_from(beat.sessions).unwrap_or(i32::MAX))
+        .bind(&r.renderer)
+        .bind(&r.adapter)
+        .bind(state)
+        .fetch_one(pool)
+        .await?;
+        match previous.as_deref() {
             None => {
-                tracing::info!(worker = %registration.url, capacity = registration.capacity, "render worker registered");
-                w.push(RemoteWorker {
-                    registration,
-                    alive: true,
-                    last_seen: Instant::now(),
-                    reported_sessions: None,
-                });
+                tracing::info!(worker = %r.url, capacity = r.capacity, "render worker registered");
+            }
+            Some(p) if p != state => {
+                tracing::info!(worker = %r.url, from = p, to = state, "render worker state changed");
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// Marks a worker dead (its socket failed) unless it is already; true for the replica whose
+    /// update did it. Its next heartbeat revives it.
+    pub async fn mark_dead(&self, url: &str, by: &str) -> bool {
+        let Some(pool) = self.pool() else {
+            return false;
+        };
+        let r = sqlx::query(
+            "UPDATE render_workers SET state = 'dead', dead_since = now(), marked_dead_by = $2
+             WHERE url = $1 AND state <> 'dead'",
+        )
+        .bind(url)
+        .bind(by)
+        .execute(pool)
+        .await;
+        match r {
+            Ok(r) if r.rows_affected() == 1 => {
+                tracing::warn!(worker = %url, "render worker marked dead (its socket failed)");
+                true
+            }
+            Ok(_) => false,
+            Err(e) => {
+                tracing::error!(worker = %url, "marking a render worker dead failed: {e}");
+                false
             }
         }
     }
 
-    /// Marks a worker dead (its socket failed); the poller revives it when it answers again.
-    pub fn mark_dead(&self, url: &str) {
-        if let Ok(mut w) = self.workers.lock()
-            && let Some(x) = w.iter_mut().find(|x| x.registration.url == url)
-            && x.alive
-        {
-            tracing::warn!(worker = %url, "render worker marked dead");
-            x.alive = false;
+    /// Marks dead every worker whose last heartbeat is older than [`DEAD_AFTER`]; returns the
+    /// ones this replica (`by`) marked (another replica's sweep may win some).
+    pub async fn sweep_dead(&self, by: &str) -> Result<Vec<String>, sqlx::Error> {
+        let Some(pool) = self.pool() else {
+            return Ok(Vec::new());
+        };
+        let rows: Vec<(String,)> = sqlx::query_as(
+            "UPDATE render_workers SET state = 'dead', dead_since = now(), marked_dead_by = $1
+             WHERE state <> 'dead' AND last_seen < now() - make_interval(secs => $2)
+             RETURNING url",
+        )
+        .bind(by)
+        .bind(DEAD_AFTER.as_secs_f64())
+        .fetch_all(pool)
+        .await?;
+        for (url,) in &rows {
+            tracing::warn!(worker = %url, replica = by, "render worker marked dead (no heartbeat)");
+        }
+        Ok(rows.into_iter().map(|(u,)| u).collect())
+    }
+
+    /// URLs of live workers with room, least loaded first (the sessions placed there by every
+    /// replica, or the worker's own report when higher), leaving out `avoid`.
+    pub async fn by_load(&self, avoid: Option<&str>) -> Vec<String> {
+        let Some(pool) = self.pool() else {
+            return Vec::new();
+        };
+        let rows: Result<Vec<(String,)>, _> = sqlx::query_as(
+            "SELECT w.url FROM render_workers w
+             LEFT JOIN (SELECT worker_url, count(*)::int AS n FROM session_placements
+                        WHERE worker_url IS NOT NULL GROUP BY worker_url) p ON p.worker_url = w.url
+             WHERE w.state = 'alive' AND w.last_seen >= now() - make_interval(secs => $2)
+               AND w.url IS DISTINCT FROM $1
+               AND GREATEST(COALESCE(p.n, 0), w.sessions) < w.capacity
+             ORDER BY GREATEST(COALESCE(p.n, 0), w.sessions)::float8 / w.capacity, w.url",
+        )
+        .bind(avoid)
+        .bind(DEAD_AFTER.as_secs_f64())
+        .fetch_all(pool)
+        .await;
+        match rows {
+            Ok(rows) => rows.into_iter().map(|(u,)| u).collect(),
+            Err(e) => {
+                tracing::error!("listing render workers failed: {e}");
+                Vec::new()
+            }
         }
     }
 
-    /// URLs of live workers with room, least loaded first (`placed` counts the sessions the
-    /// server placed on each; the worker's own report is used when it is higher).
-    pub fn by_load(&self, placed: &HashMap<String, usize>, avoid: Option<&str>) -> Vec<String> {
-        let Ok(w) = self.workers.lock() else {
-            return Vec::new();
+    /// The listing (every worker ever registered and not removed), by URL.
+    pub async fn views(&self) -> Result<Vec<WorkerView>, sqlx::Error> {
+        let Some(pool) = self.pool() else {
+            return Ok(Vec::new());
         };
-        let mut list: Vec<(f64, String)> = w
-            .iter()
-            .filter(|x| x.alive && Some(x.registration.url.as_str()) != avoid)
-            .filter_map(|x| {
-                let n = placed
-                    .get(&x.registration.url)
-                    .copied()
-                    .unwrap_or(0)
-                    .max(x.reported_sessions.unwrap_or(0));
-                let cap = x.registration.capacity.max(1);
-                (n < cap).then(|| (n as f64 / cap as f64, x.registration.url.clone()))
-            })
-            .collect();
-        list.sort_by(|a, b| a.0.total_cmp(&b.0).then_with(|| a.1.cmp(&b.1)));
-        list.into_iter().map(|(_, u)| u).collect()
-    }
-
-    /// The listing.
-    pub fn views(&self, placed: &HashMap<String, usize>) -> Vec<WorkerView> {
-        let Ok(w) = self.workers.lock() else {
-            return Vec::new();
-        };
-        w.iter()
-            .map(|x| {
-                let n = placed.get(&x.registration.url).copied().unwrap_or(0);
-                WorkerView {
-                    url: x.registration.url.clone(),
-                    state: if x.alive { "alive" } else { "dead" },
-                    capacity: x.registration.capacity,
-                    sessions: n,
-                    load: n as f64 / x.registration.capacity.max(1) as f64,
-                    adapter_kind: if x.registration.adapter.is_some() {
-                        "gpu"
-                    } else {
-                        "software"
-                    },
-                    adapter: x.registration.adapter.clone(),
-                    renderer: x.registration.renderer.clone(),
-                    last_seen_s: x.last_seen.elapsed().as_secs_f64(),
-                }
-            })
-            .collect()
-    }
-
-    /// Polls every worker's `/healthz` every [`POLL_INTERVAL`] (needs a tokio runtime; without
-    /// one, as in plain unit tests, workers are only marked by their sockets).
-    pub fn start_polling(&self) {
-        let Ok(rt) = tokio::runtime::Handle::try_current() else {
-            return;
-        };
-        let weak = Arc::downgrade(&self.workers);
-        rt.spawn(async move {
-            loop {
-                tokio::time::sleep(POLL_INTERVAL).await;
-                let Some(workers) = weak.upgrade() else { return };
-                let urls: Vec<String> = workers.lock().map(|w| w.iter().map(|x| x.registration.url.clone()).collect()).unwrap_or_default();
-                drop(workers);
-                for url in urls {
-                    let r = tokio::time::timeout(POLL_INTERVAL, request("GET", &format!("{url}/healthz"), None, None)).await;
-                    let health = match r {
-                        Ok(Ok(r)) if r.status == 200 => r.json().ok(),
-                        _ => None,
-                    };
-                    let Some(workers) = weak.upgrade() else { return };
-                    let Ok(mut w) = workers.lock() else { return };
-                    if let Some(x) = w.iter_mut().find(|x| x.registration.url == url) {
-                        match health {
-                            Some(h) => {
-                                if !x.alive {
-                                    tracing::info!(worker = %url, "render worker answers again");
-                                }
-                                x.alive = true;
-                                x.last_seen = Instant::now();
-                                x.reported_sessions = h.get("sessions").and_then(|s| s.as_u64()).map(|s| s as usize);
-                            }
-                            None => {
-                                if x.alive {
-                                    tracing::warn!(worker = %url, "render worker health check failed");
-                                }
-                                x.alive = false;
-                            }
-                        }
+        let rows: Vec<WorkerRow> = sqlx::query_as(
+            "SELECT w.url, w.capacity, w.sessions, w.renderer, w.adapter, w.state,
+                    EXTRACT(EPOCH FROM (now() - w.last_seen))::float8, w.marked_dead_by,
+                    COALESCE(p.n, 0)
+             FROM render_workers w
+             LEFT JOIN (SELECT worker_url, count(*) AS n FROM session_placements
+                        WHERE worker_url IS NOT NULL GROUP BY worker_url) p ON p.worker_url = w.url
+             ORDER BY w.url",
+        )
+        .fetch_all(pool)
+        .await?;
+        Ok(rows
+            .into_iter()
+            .map(
+                |(url, capacity, reported, renderer, adapter, state, last_seen_s, by, placed)| {
+                    let capacity = capacity.max(0) as usize;
+                    let sessions = placed.max(0) as usize;
+                    WorkerView {
+                        url,
+                        state,
+                        capacity,
+                        sessions,
+                        reported_sessions: reported.max(0) as usize,
+                        load: sessions as f64 / capacity.max(1) as f64,
+                        adapter_kind: if adapter.as_ref().is_some_and(|a| !a.is_null()) {
+                            "gpu"
+                        } else {
+                            "software"
+                        },
+                        adapter,
+                        renderer,
+                        last_seen_s,
+                        marked_dead_by: by,
                     }
-                }
-            }
-        });
+                },
+            )
+            .collect())
     }
 }
 

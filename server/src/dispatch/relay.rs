@@ -28,7 +28,9 @@ use tokio::sync::mpsc;
 use super::browser::BrowserWriter;
 use super::durable::LogWriter;
 use super::upstream::{UpSink, connect};
-use super::{CLOSE_LOG_REFUSED, Dispatcher, LiveSession, Placement, results, store};
+use super::{
+    CLOSE_LOG_REFUSED, CLOSE_TAKEN_OVER, Dispatcher, LiveSession, Placement, results, store,
+};
 use crate::records::RecordsState;
 use crate::records::activity::{ActivityKind, record_activity};
 
@@ -474,9 +476,12 @@ impl Relay {
     /// refused commands were never acknowledged to the browser; opening the attempt again
     /// resumes from the stored log.
     async fn on_log_refused(&mut self) -> Flow {
-        let reason = self
-            .writer
-            .failure()
+        let failure = self.writer.failure();
+        if let Some(epoch) = failure.as_ref().and_then(|f| f.fenced_at) {
+            return self.on_taken_over(epoch).await;
+        }
+        let reason = failure
+            .map(|f| f.message)
             .unwrap_or_else(|| "the session's log writer stopped".into());
         tracing::error!(session = %self.session.id, "ending the session: its log cannot be stored: {reason}");
         let message = "the session's log cannot be stored; the session is closed (open the attempt again to resume from its last stored command)";
@@ -494,6 +499,20 @@ impl Relay {
                 "session_ended_log_refused",
                 detail,
             )
+            .await;
+        Flow::End
+    }
+
+    /// The database refused this copy's epoch: another connection (on another replica, or a
+    /// newer one here) took the session over. Nothing refused was acknowledged; this connection
+    /// ends, and this replica forgets the session unless a newer connection of its own holds it.
+    async fn on_taken_over(&mut self, epoch: i64) -> Flow {
+        let short = "the session was opened in another connection";
+        let note = json!({ "type": "notice", "code": "taken_over", "message": short });
+        let _ = self.browser.text(note.to_string());
+        self.close_with = Some((CLOSE_TAKEN_OVER, short.to_string()));
+        self.dispatcher
+            .forget_taken_over(self.session.id, epoch)
             .await;
         Flow::End
     }
@@ -625,13 +644,16 @@ async fn failover(
         // Another connection already moved it.
         return true;
     }
+    let started = std::time::Instant::now();
     match dispatcher.restore_elsewhere(failed, &record).await {
         Ok(placement) => {
-            tracing::warn!(session = %session.id, from = %failed.worker_label(), to = %placement.worker_label(), log = record.log.len(), "session restored on another worker");
+            tracing::warn!(session = %session.id, from = %failed.worker_label(), to = %placement.worker_label(), log = record.log.len(), took_ms = started.elapsed().as_millis() as u64, "session restored on another worker");
             let mut st = session.state.lock().await;
             st.placement = placement.clone();
             st.failovers += 1;
+            let record = st.clone();
             drop(st);
+            dispatcher.record_placement(session.id, &record).await;
             let note = json!({ "type": "notice", "message": "render worker lost; the session continues on another worker", "worker": placement.worker_label() });
             let _ = browser.text(note.to_string());
             true

@@ -21,7 +21,7 @@ use utoipa::{IntoParams, OpenApi, ToSchema};
 use uuid::Uuid;
 
 use super::{
-    Dispatcher, LiveSession, PlaceError, Placement, SessionRecord, relay, revoke, store, verify,
+    Dispatcher, LiveSession, PlaceError, SessionRecord, TakeoverError, relay, revoke, store, verify,
 };
 use crate::error::ApiError;
 use crate::records::RecordsState;
@@ -131,6 +131,11 @@ pub struct WorkerRegistration {
     /// GPU adapter, when one was opened.
     #[schema(value_type = Option<Object>)]
     pub adapter: Option<serde_json::Value>,
+    /// Sessions it holds now (its heartbeat's load).
+    #[schema(minimum = 0)]
+    pub sessions: Option<u32>,
+    /// True while it drains before exiting (it takes no new sessions).
+    pub draining: Option<bool>,
 }
 
 /// The `step` of a replayed frame.
@@ -299,34 +304,38 @@ async fn start_session(
     let stored = store::resumable_session(&state.records.pool, attempt_id).await?;
     // One user, or one course, cannot take the render workers from everyone: a new or resumed
     // session needs both under their limits (the running one above is always returned).
-    if let Some(refused) = over_session_limit(&state.dispatcher, user.id, course_id).await {
+    if let Some(refused) =
+        over_session_limit(&state.dispatcher, user.id, course_id, attempt_id).await
+    {
         return Ok(refused);
     }
-    if let Err(e) = state.dispatcher.check_local_ready(&station_id) {
+    if let Err(e) = state.dispatcher.check_local_ready(&station_id).await {
         return Ok(not_placed(attempt_id, e));
     }
     if let Some((id, initial)) = stored {
-        let (initial, log) = parse_recorded(&state, id, initial).await?;
-        let mut record = SessionRecord {
-            placement: Placement::Local {
-                worker_session: String::new(),
-            },
+        // Taken over (another replica may hold it), then restored from its durable log.
+        let stored = super::takeover::Stored {
+            id,
+            attempt_id,
+            course_id,
+            learner_id: user.id,
+            station_id,
             initial,
-            durable_len: log.len(),
-            log,
-            last_frame_sha256: None,
-            result_id: None,
-            failovers: 0,
         };
-        record.placement = state.dispatcher.restore_anywhere(&record).await.map_err(|e| {
-            tracing::error!(attempt = %attempt_id, "the recorded session could not be resumed: {e}");
-            ApiError::Unavailable("render worker")
-        })?;
-        let worker = record.placement.worker_label();
-        let session = Arc::new(LiveSession::new(
-            id, attempt_id, course_id, user.id, station_id, record,
-        ));
-        state.dispatcher.insert(session.clone());
+        let session = match state
+            .dispatcher
+            .restore_stored(&state.records.pool, stored)
+            .await
+        {
+            Ok(s) => s,
+            Err(TakeoverError::Database(e)) => return Err(ApiError::Database(e)),
+            Err(TakeoverError::Restore(e)) => {
+                tracing::error!(attempt = %attempt_id, "the recorded session could not be resumed: {e}");
+                return Err(ApiError::Unavailable("render worker"));
+            }
+            Err(e) => return Err(ApiError::Internal(format!("resuming the session: {e}"))),
+        };
+        let worker = session.state.lock().await.placement.worker_label();
         record_activity(
             &state.records.pool,
             attempt_id,
@@ -361,7 +370,9 @@ async fn start_session(
         last_frame_sha256: None,
         result_id: None,
         failovers: 0,
+        epoch: 0,
     };
+    state.dispatcher.record_placement(id, &record).await;
     let session = Arc::new(LiveSession::new(
         id, attempt_id, course_id, user.id, station_id, record,
     ));
@@ -380,10 +391,22 @@ async fn start_session(
 
 /// 429 when `user` holds the per-user limit of live sessions, or `course` the per-course one;
 /// the body names which (`scope`: `user` or `course`), its setting and its value.
-async fn over_session_limit(d: &Dispatcher, user: Uuid, course: Uuid) -> Option<Response> {
+async fn over_session_limit(
+    d: &Dispatcher,
+    user: Uuid,
+    course: Uuid,
+    attempt: Uuid,
+) -> Option<Response> {
     let idle_s = d.session_idle().as_secs();
-    let (scope, limit, setting, whose) = if d.live_sessions_of(user).await >= d.sessions_per_user()
-    {
+    // Every replica's sessions count (the shared state), this replica's alone without it.
+    let (of_user, of_course) = match d.live_sessions_elsewhere(user, course, attempt).await {
+        Some(counts) => counts,
+        None => (
+            d.live_sessions_of(user).await,
+            d.live_sessions_of_course(course).await,
+        ),
+    };
+    let (scope, limit, setting, whose) = if of_user >= d.sessions_per_user() {
         let limit = d.sessions_per_user();
         (
             "user",
@@ -391,7 +414,7 @@ async fn over_session_limit(d: &Dispatcher, user: Uuid, course: Uuid) -> Option<
             "PAINSIM_SESSIONS_PER_USER",
             format!("at most {limit} live sessions per user"),
         )
-    } else if d.live_sessions_of_course(course).await >= d.sessions_per_course() {
+    } else if of_course >= d.sessions_per_course() {
         let limit = d.sessions_per_course();
         (
             "course",
@@ -540,7 +563,9 @@ async fn session_ws(
     if !same_origin(&headers) {
         return Err(ApiError::Forbidden("websocket from another origin".into()));
     }
-    let s = owned_session(&state, &user, session_id).await?;
+    if !state.dispatcher.may_connect(session_id, user.id).await? {
+        return Err(ApiError::NotFound("session".into()));
+    }
     let upgrade = upgrade.map_err(|r| {
         ApiError::BadRequest(format!("not a websocket handshake: {}", r.body_text()))
     })?;
@@ -560,6 +585,21 @@ async fn session_ws(
             "not a websocket handshake: Sec-WebSocket-Key must be 16 bytes in base64".into(),
         ));
     }
+    // Any replica relays any session: this connection takes it over (see `takeover`).
+    let s = match state
+        .dispatcher
+        .session_for_connection(session_id, user.id)
+        .await
+    {
+        Ok(s) => s,
+        Err(TakeoverError::NotFound) => return Err(ApiError::NotFound("session".into())),
+        Err(TakeoverError::Database(e)) => return Err(ApiError::Database(e)),
+        Err(TakeoverError::Restore(e)) => {
+            tracing::error!(session = %session_id, "the session could not be taken over: {e}");
+            return Err(ApiError::Unavailable("render worker"));
+        }
+        Err(e) => return Err(ApiError::Internal(format!("taking the session over: {e}"))),
+    };
     let generation = s.generation.fetch_add(1, Ordering::SeqCst) + 1;
     let (dispatcher, records) = (state.dispatcher.clone(), state.records.clone());
     Ok(upgrade
@@ -598,27 +638,77 @@ impl FromRequestParts<DispatchState> for ClusterToken {
     }
 }
 
-/// `POST /api/workers`: a render worker announces itself (bearer: the cluster token).
+/// `POST /api/workers`: a render worker announces itself, and repeats it as its heartbeat
+/// (bearer: the cluster token). Any replica takes it: it is written to the shared state.
 #[utoipa::path(post, path = "/api/workers", tag = "sessions", request_body = WorkerRegistration,
     security(("bearer" = [])),
-    responses((status = 204, description = "Registered"), (status = 400, description = "Malformed registration"),
+    responses((status = 204, description = "Registered (or heartbeat taken)"), (status = 400, description = "Malformed registration"),
         (status = 401, description = "Missing or wrong cluster token"),
-        (status = 403, description = "This server takes no remote render workers")))]
+        (status = 403, description = "This server takes no remote render workers, or the announced address is not the caller's")))]
 async fn register_worker(
     State(state): State<DispatchState>,
     _token: ClusterToken,
+    peer: Option<axum::Extension<axum::extract::ConnectInfo<std::net::SocketAddr>>>,
     ApiJson(reg): ApiJson<Registration>,
 ) -> Result<StatusCode, ApiError> {
-    if render_worker::cluster::split_url(&reg.url).is_err()
+    let Ok((authority, path)) = render_worker::cluster::split_url(&reg.url) else {
+        return Err(ApiError::BadRequest(
+            "url must be http://host:port and capacity 1 to 10000".into(),
+        ));
+    };
+    let port_ok = authority
+        .rsplit_once(':')
+        .is_some_and(|(h, p)| !h.is_empty() && p.parse::<u16>().is_ok_and(|p| p > 0));
+    if !port_ok
+        || !(path.is_empty() || path == "/")
         || reg.capacity == 0
         || reg.capacity > 10_000
+        || reg.sessions.is_some_and(|n| n > 1_000_000)
     {
         return Err(ApiError::BadRequest(
             "url must be http://host:port and capacity 1 to 10000".into(),
         ));
     }
-    state.dispatcher.inner.remote.register(reg);
+    // A worker announces only an address it owns: the host must be (or resolve to) the address
+    // the announcement comes from. Otherwise one token holder could point sessions anywhere.
+    let Some(axum::Extension(axum::extract::ConnectInfo(peer))) = peer else {
+        return Err(ApiError::Forbidden(
+            "the caller's address is unknown, so the announced address cannot be checked".into(),
+        ));
+    };
+    if !owns_address(peer.ip(), &authority).await {
+        return Err(ApiError::Forbidden(format!(
+            "the announced address {} is not the caller's ({})",
+            reg.url,
+            peer.ip()
+        )));
+    }
+    let beat = super::Heartbeat {
+        sessions: reg.sessions.unwrap_or(0),
+        draining: reg.draining,
+    };
+    state.dispatcher.registry().register(&reg, beat).await?;
     Ok(StatusCode::NO_CONTENT)
+}
+
+/// Whether `authority` (`host:port`) names `peer`: an IP literal equal to it, or a host name
+/// that resolves to it (IPv4-mapped IPv6 addresses compare as IPv4).
+async fn owns_address(peer: std::net::IpAddr, authority: &str) -> bool {
+    let canonical = |ip: std::net::IpAddr| match ip {
+        std::net::IpAddr::V6(v6) => v6
+            .to_ipv4_mapped()
+            .map_or(std::net::IpAddr::V6(v6), std::net::IpAddr::V4),
+        v4 => v4,
+    };
+    let peer = canonical(peer);
+    let lookup = tokio::time::timeout(
+        std::time::Duration::from_secs(2),
+        tokio::net::lookup_host(authority.to_string()),
+    );
+    match lookup.await {
+        Ok(Ok(addrs)) => addrs.into_iter().any(|a| canonical(a.ip()) == peer),
+        _ => false,
+    }
 }
 
 /// `GET /api/workers`: registered workers (admins).
@@ -630,9 +720,8 @@ async fn list_workers(
 ) -> Result<axum::Json<serde_json::Value>, ApiError> {
     user.require(&[Role::Admin])?;
     let local = state.dispatcher.local_host().map(|h| h.health());
-    Ok(axum::Json(
-        json!({ "in_process": local, "remote": state.dispatcher.workers() }),
-    ))
+    let remote = state.dispatcher.workers().await?;
+    Ok(axum::Json(json!({ "in_process": local, "remote": remote })))
 }
 
 /// The newest recorded session of a visible attempt (submitted ones first).

@@ -111,12 +111,49 @@ pub async fn save_submitted(
     Ok(())
 }
 
+/// Takes session `id` over for a new connection: bumps its epoch and returns the epoch it had
+/// and the new one (`None`: no such session). Appends under the old epoch are refused from now
+/// on (see [`append_commands`]); appends already in flight commit first (the bump waits for
+/// their row lock), so the log read after this call holds all of them.
+pub async fn take_over(pool: &PgPool, id: Uuid) -> Result<Option<(i64, i64)>, sqlx::Error> {
+    let row: Option<(i64,)> = sqlx::query_as(
+        "UPDATE live_sessions SET epoch = epoch + 1, updated_at = now() WHERE id = $1
+         RETURNING epoch",
+    )
+    .bind(id)
+    .fetch_optional(pool)
+    .await?;
+    Ok(row.map(|(e,)| (e - 1, e)))
+}
+
+/// A stored session as a replica that does not hold it loads it: attempt, learner, course,
+/// station, initial snapshot, and whether it was submitted.
+pub type StoredSession = (Uuid, Uuid, Uuid, String, serde_json::Value, Option<Uuid>);
+
+/// Session `id` with its attempt's course.
+pub async fn stored_session(pool: &PgPool, id: Uuid) -> Result<Option<StoredSession>, sqlx::Error> {
+    sqlx::query_as(
+        "SELECT s.attempt_id, s.learner_id, a.course_id, s.station_id, s.initial_snapshot, s.result_id
+         FROM live_sessions s JOIN attempts a ON a.id = s.attempt_id WHERE s.id = $1",
+    )
+    .bind(id)
+    .fetch_optional(pool)
+    .await
+}
+
+/// SQLSTATE of an append refused because another connection took the session over
+/// (`migrations/0901_cluster_state.sql`).
+pub const FENCED_SQLSTATE: &str = "PF409";
+
 /// Why a write of logged commands failed, and whether trying again can help.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct WriteError {
     /// True when the same write can never succeed (the data is refused, not the connection):
     /// retrying would wedge the session, so it ends instead (see [`super::durable`]).
     pub permanent: bool,
+    /// True when the write was refused because another connection (perhaps on another
+    /// replica) took the session over: this copy of the session is stale.
+    pub fenced: bool,
     /// What went wrong, in words.
     pub message: String,
 }
@@ -131,6 +168,7 @@ impl WriteError {
     fn permanent(message: impl Into<String>) -> WriteError {
         WriteError {
             permanent: true,
+            fenced: false,
             message: message.into(),
         }
     }
@@ -191,12 +229,15 @@ pub fn jsonb_storable(v: &serde_json::Value) -> Result<(), JsonbError> {
     }
 }
 
-/// Writes `entries` (consecutive, in order) of session `id`. Idempotent: a row that is already
-/// there (written by another connection's writer) is kept as it is. Values the table cannot
-/// hold are refused here, before the database, as permanent errors.
+/// Writes `entries` (consecutive, in order) of session `id` under `epoch`, the epoch the
+/// writer's connection took the session at. Idempotent: a row that is already there (written
+/// by another connection's writer) is kept as it is. Values the table cannot hold are refused
+/// here, before the database, as permanent errors; an epoch that is no longer the session's is
+/// refused by the database (`fenced`).
 pub async fn append_commands(
     pool: &PgPool,
     id: Uuid,
+    epoch: i64,
     entries: &[LogEntry],
 ) -> Result<(), WriteError> {
     if entries.is_empty() {
@@ -221,19 +262,24 @@ pub async fn append_commands(
         commands.push(command);
     }
     sqlx::query(
-        "INSERT INTO live_session_commands (session_id, seq, t_ms, command)
-         SELECT $1, s, t, c FROM UNNEST($2::bigint[], $3::bigint[], $4::jsonb[]) AS u(s, t, c)
+        "INSERT INTO live_session_commands (session_id, seq, t_ms, command, epoch)
+         SELECT $1, s, t, c, $5 FROM UNNEST($2::bigint[], $3::bigint[], $4::jsonb[]) AS u(s, t, c)
          ON CONFLICT (session_id, seq) DO NOTHING",
     )
     .bind(id)
     .bind(seqs)
     .bind(times)
     .bind(commands)
+    .bind(epoch)
     .execute(pool)
     .await
-    .map_err(|e| WriteError {
-        permanent: !is_transient(&e),
-        message: e.to_string(),
+    .map_err(|e| {
+        let fenced = matches!(&e, sqlx::Error::Database(db) if db.code().as_deref() == Some(FENCED_SQLSTATE));
+        WriteError {
+            permanent: fenced || !is_transient(&e),
+            fenced,
+            message: e.to_string(),
+        }
     })?;
     Ok(())
 }
@@ -308,7 +354,9 @@ mod tests {
     #[test]
     fn connection_trouble_is_transient_and_refused_data_is_not() {
         assert!(is_transient(&sqlx::Error::PoolTimedOut));
-        assert!(is_transient(&sqlx::Error::Io(std::io::Error::other("reset"))));
+        assert!(is_transient(&sqlx::Error::Io(std::io::Error::other(
+            "reset"
+        ))));
         assert!(!is_transient(&sqlx::Error::RowNotFound));
         assert!(!is_transient(&sqlx::Error::Encode("bad".into())));
     }

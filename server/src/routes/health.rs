@@ -37,6 +37,10 @@ pub struct Health {
     pub anatomy: Option<AnatomyStatus>,
     /// The in-process worker's session slots (absent without one).
     pub sessions: Option<SessionCapacity>,
+    /// What every server replica shares (PostgreSQL): the registered workers and the live
+    /// sessions of the whole deployment, the same from every replica. Absent when the shared
+    /// state could not be read.
+    pub cluster: Option<crate::dispatch::ClusterStatus>,
 }
 
 /// Session slots of the in-process worker.
@@ -69,7 +73,8 @@ pub struct AnatomyStatus {
 
 /// 200 with the report when database and render worker are ready, 503 with it otherwise.
 pub async fn healthz(State(state): State<AppState>) -> (StatusCode, Json<Health>) {
-    let query = sqlx::query_scalar::<_, uuid::Uuid>("SELECT id FROM installation").fetch_optional(&state.pool);
+    let query = sqlx::query_scalar::<_, uuid::Uuid>("SELECT id FROM installation")
+        .fetch_optional(&state.pool);
     let installation_id = match tokio::time::timeout(Duration::from_secs(2), query).await {
         Ok(Ok(id)) => id,
         Ok(Err(e)) => {
@@ -81,12 +86,25 @@ pub async fn healthz(State(state): State<AppState>) -> (StatusCode, Json<Health>
             None
         }
     };
-    let database = DatabaseStatus { ready: installation_id.is_some(), embedded: state.embedded_db, installation_id };
+    let database = DatabaseStatus {
+        ready: installation_id.is_some(),
+        embedded: state.embedded_db,
+        installation_id,
+    };
     let render_worker = state.workers.status();
-    let anatomy = state.dispatcher.clone().filter(|d| d.local_host().is_some()).map(|d| {
-        let regions = d.anatomy();
-        AnatomyStatus { ready: regions.values().all(|r| matches!(r, RegionReadiness::Ready { .. })), regions }
-    });
+    let anatomy = state
+        .dispatcher
+        .clone()
+        .filter(|d| d.local_host().is_some())
+        .map(|d| {
+            let regions = d.anatomy();
+            AnatomyStatus {
+                ready: regions
+                    .values()
+                    .all(|r| matches!(r, RegionReadiness::Ready { .. })),
+                regions,
+            }
+        });
     let sessions = state.dispatcher.as_ref().and_then(|d| {
         d.local_capacity().map(|(live, capacity)| SessionCapacity {
             live,
@@ -97,7 +115,35 @@ pub async fn healthz(State(state): State<AppState>) -> (StatusCode, Json<Health>
             idle_close_s: d.session_idle().as_secs(),
         })
     });
-    let ok = database.ready && render_worker.ready;
-    let status = if ok { StatusCode::OK } else { StatusCode::SERVICE_UNAVAILABLE };
-    (status, Json(Health { status: if ok { "ok" } else { "unavailable" }, version: env!("CARGO_PKG_VERSION"), database, render_worker, anatomy, sessions }))
+    let cluster = match &state.dispatcher {
+        Some(d) => match tokio::time::timeout(Duration::from_secs(2), d.cluster_status()).await {
+            Ok(Ok(c)) => Some(c),
+            Ok(Err(e)) => {
+                tracing::warn!(error = %e, "health check: reading the shared state failed");
+                None
+            }
+            Err(_) => None,
+        },
+        None => None,
+    };
+    // Sessions can run when the in-process worker is ready or a registered worker is alive.
+    let remote_ready = cluster.as_ref().is_some_and(|c| c.workers.alive > 0);
+    let ok = database.ready && (render_worker.ready || remote_ready);
+    let status = if ok {
+        StatusCode::OK
+    } else {
+        StatusCode::SERVICE_UNAVAILABLE
+    };
+    (
+        status,
+        Json(Health {
+            status: if ok { "ok" } else { "unavailable" },
+            version: env!("CARGO_PKG_VERSION"),
+            database,
+            render_worker,
+            anatomy,
+            sessions,
+            cluster,
+        }),
+    )
 }

@@ -1,0 +1,191 @@
+//! What server replicas share about live sessions, in PostgreSQL (`session_placements`): where
+//! each live session runs and which replica relays it at which epoch, and the sweep each
+//! replica runs over the shared state. Nothing else in the server names that table.
+//!
+//! Architecture invariant: PostgreSQL is the only state replicas share. A replica's memory
+//! holds the sessions it relays (and their logs beyond what is durable, which no browser saw
+//! acknowledged); anything another replica needs to take a session over is in the database.
+
+use std::time::Duration;
+
+use sqlx::PgPool;
+use uuid::Uuid;
+
+use super::registry::{PLACEMENT_STALE_AFTER, Registry, SWEEP_INTERVAL};
+
+/// A replica name when `PAINSIM_REPLICA_ID` is unset: the host name and the process id.
+pub fn default_replica_id() -> String {
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|h| h.trim().to_string())
+        .unwrap_or_else(|_| "server".into());
+    format!("{host}-{}", std::process::id())
+}
+
+/// Where a session is placed, as stored.
+pub struct PlacementRow<'a> {
+    /// The session.
+    pub session: Uuid,
+    /// The epoch the relaying replica holds it at.
+    pub epoch: i64,
+    /// That replica.
+    pub replica: &'a str,
+    /// The worker's URL; `None` for the replica's in-process worker.
+    pub worker_url: Option<&'a str>,
+    /// The session's id on the worker.
+    pub worker_session: &'a str,
+}
+
+/// Records (or moves) a session's placement. A row held at a newer epoch (another replica
+/// took the session over since) is left as it is.
+pub async fn place(pool: &PgPool, p: &PlacementRow<'_>) -> Result<(), sqlx::Error> {
+    sqlx::query(
+        "INSERT INTO session_placements (session_id, epoch, replica, worker_url, worker_session)
+         VALUES ($1, $2, $3, $4, $5)
+         ON CONFLICT (session_id) DO UPDATE SET epoch = EXCLUDED.epoch,
+             replica = EXCLUDED.replica, worker_url = EXCLUDED.worker_url,
+             worker_session = EXCLUDED.worker_session, placed_at = now(), seen_at = now()
+         WHERE session_placements.epoch <= EXCLUDED.epoch",
+    )
+    .bind(p.session)
+    .bind(p.epoch)
+    .bind(p.replica)
+    .bind(p.worker_url)
+    .bind(p.worker_session)
+    .execute(pool)
+    .await?;
+    Ok(())
+}
+
+/// Removes a session's placement when it ends on the replica that holds it at `epoch` (a row of
+/// a newer epoch belongs to the replica that took the session over, and stays).
+pub async fn release(pool: &PgPool, session: Uuid, epoch: i64) -> Result<(), sqlx::Error> {
+    sqlx::query("DELETE FROM session_placements WHERE session_id = $1 AND epoch <= $2")
+        .bind(session)
+        .bind(epoch)
+        .execute(pool)
+        .await?;
+    Ok(())
+}
+
+/// Live, unsubmitted sessions of `user`, and of attempts in `course`, in the whole deployment
+/// (every replica's placements), leaving out the attempt `except` (whose own session is being
+/// resumed, which adds none).
+pub async fn live_sessions_of(
+    pool: &PgPool,
+    user: Uuid,
+    course: Uuid,
+    except: Uuid,
+) -> Result<(i64, i64), sqlx::Error> {
+    sqlx::query_as(
+        "SELECT count(*) FILTER (WHERE s.learner_id = $1), count(*) FILTER (WHERE a.course_id = $2)
+         FROM session_placements p
+         JOIN live_sessions s ON s.id = p.session_id
+         JOIN attempts a ON a.id = s.attempt_id
+         WHERE s.result_id IS NULL AND s.attempt_id <> $3",
+    )
+    .bind(user)
+    .bind(course)
+    .bind(except)
+    .fetch_one(pool)
+    .await
+}
+
+/// The shared state in numbers, as `/healthz` reports it.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ClusterStatus {
+    /// The replica that answered.
+    pub replica: String,
+    /// Live sessions of the whole deployment (placement rows: what an autoscaler counts).
+    pub live_sessions: i64,
+    /// Registered workers by state.
+    pub workers: WorkerCounts,
+}
+
+/// Registered workers by state.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct WorkerCounts {
+    /// Alive (taking sessions).
+    pub alive: i64,
+    /// Draining before they exit.
+    pub draining: i64,
+    /// Marked dead.
+    pub dead: i64,
+    /// Sum of the alive workers' capacities.
+    pub alive_capacity: i64,
+}
+
+/// Reads [`ClusterStatus`] (one query).
+pub async fn status(pool: &PgPool, replica: &str) -> Result<ClusterStatus, sqlx::Error> {
+    let (live_sessions, alive, draining, dead, alive_capacity): (i64, i64, i64, i64, i64) =
+        sqlx::query_as(
+            "SELECT (SELECT count(*) FROM session_placements),
+                    count(*) FILTER (WHERE state = 'alive'),
+                    count(*) FILTER (WHERE state = 'draining'),
+                    count(*) FILTER (WHERE state = 'dead'),
+                    COALESCE(sum(capacity) FILTER (WHERE state = 'alive'), 0)::bigint
+             FROM render_workers",
+        )
+        .fetch_one(pool)
+        .await?;
+    Ok(ClusterStatus {
+        replica: replica.to_string(),
+        live_sessions,
+        workers: WorkerCounts {
+            alive,
+            draining,
+            dead,
+            alive_capacity,
+        },
+    })
+}
+
+/// One sweep of a replica: the workers whose heartbeats stopped marked dead (one winner per
+/// worker, by the database), this replica's placements refreshed, and the placements of
+/// replicas that stopped refreshing theirs removed.
+pub async fn sweep(pool: &PgPool, registry: &Registry, replica: &str) -> Result<(), sqlx::Error> {
+    registry.sweep_dead(replica).await?;
+    sqlx::query("UPDATE session_placements SET seen_at = now() WHERE replica = $1")
+        .bind(replica)
+        .execute(pool)
+        .await?;
+    let gone = sqlx::query(
+        "DELETE FROM session_placements WHERE seen_at < now() - make_interval(secs => $1)",
+    )
+    .bind(PLACEMENT_STALE_AFTER.as_secs_f64())
+    .execute(pool)
+    .await?;
+    if gone.rows_affected() > 0 {
+        tracing::warn!(
+            removed = gone.rows_affected(),
+            "removed the placements of a replica that stopped"
+        );
+    }
+    Ok(())
+}
+
+/// Runs [`sweep`] every [`SWEEP_INTERVAL`] while `alive` says the dispatcher exists.
+pub fn start_sweeper(
+    pool: PgPool,
+    registry: Registry,
+    replica: String,
+    alive: impl Fn() -> bool + Send + 'static,
+) {
+    let Ok(rt) = tokio::runtime::Handle::try_current() else {
+        return;
+    };
+    rt.spawn(async move {
+        loop {
+            tokio::time::sleep(SWEEP_INTERVAL).await;
+            if !alive() {
+                return;
+            }
+            let round =
+                tokio::time::timeout(Duration::from_secs(5), sweep(&pool, &registry, &replica));
+            match round.await {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => tracing::warn!("sweeping the shared state failed: {e}"),
+                Err(_) => tracing::warn!("sweeping the shared state timed out"),
+            }
+        }
+    });
+}
