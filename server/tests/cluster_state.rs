@@ -135,6 +135,27 @@ async fn failover_to_a_second_replica_takes_the_session_and_fences_off_the_first
         .map(|c| c.into_owned());
     assert_eq!(code.as_deref(), Some("PF409"), "{refused}");
 
+    // Through replica A the session is B's: its view comes from the shared state, and asking
+    // for the attempt's session there does not take it back.
+    let (s, info) = learner_a
+        .call("GET", &format!("/api/sessions/{sid}"), None)
+        .await;
+    assert_eq!(s, 200, "{info}");
+    assert_eq!(info["worker"], "in-process (replica-b)", "{info}");
+    assert_eq!(
+        (info["log_len"].as_u64(), info["last_seq"].as_u64()),
+        (Some(5), Some(5))
+    );
+    let (s, again) = learner_a.session_of(&attempt).await;
+    assert_eq!(s, 200, "{again}");
+    assert_eq!(again["session_id"], sid.as_str());
+    let epoch: i64 = sqlx::query_scalar("SELECT epoch FROM live_sessions WHERE id = $1::uuid")
+        .bind(&sid)
+        .fetch_one(&srv.db.pool)
+        .await
+        .unwrap();
+    assert_eq!(epoch, 2, "asking through A took nothing over");
+
     // The session goes on through B to a result, and the replay equals the live state.
     ws_b.send(6, json!({ "type": "submit" })).await;
     ws_b.until(&mut got_b, |r| {
@@ -390,5 +411,52 @@ async fn a_silent_worker_is_marked_dead_by_exactly_one_replica() {
     assert_eq!(
         srv.dispatcher.registry().by_load(None).await,
         vec!["http://127.0.0.1:9".to_string()]
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_account_revoked_on_one_replica_loses_its_session_on_another() {
+    let srv = demo_server(true, None).await;
+    let (addr_b, replica_b) = second_replica(&srv, "replica-b").await;
+    let learner_a = Client::login(srv.addr, "learner@demo.invalid").await;
+    let learner_b = Client {
+        addr: addr_b,
+        ..learner_a.clone()
+    };
+    let (_, session) = learner_a.start_demo_attempt().await;
+    let sid: uuid::Uuid = session["session_id"].as_str().unwrap().parse().unwrap();
+    // The session is relayed by replica B.
+    let mut ws = learner_b.websocket(session["ws"].as_str().unwrap()).await;
+    let mut got = Received::default();
+    ws.send(1, json!({ "type": "shot" })).await;
+    ws.until(&mut got, |r| acked(r).len() == 1).await;
+    assert!(replica_b.session(sid).is_some());
+    // An admin disables the learner through replica A: B closes the session with 4003.
+    let learner_id: uuid::Uuid =
+        sqlx::query_scalar("SELECT id FROM users WHERE email = 'learner@demo.invalid'")
+            .fetch_one(&srv.db.pool)
+            .await
+            .unwrap();
+    let admin = Client::login(srv.addr, "admin@demo.invalid").await;
+    let (s, body) = admin
+        .call("POST", &format!("/api/users/{learner_id}/disable"), None)
+        .await;
+    assert_eq!(s, 200, "{body}");
+    let code = until_closed(&mut ws, &mut got).await;
+    assert_eq!(
+        code,
+        Some(server::dispatch::CLOSE_REVOKED),
+        "{:?}",
+        got.texts
+    );
+    for _ in 0..100 {
+        if replica_b.session(sid).is_none() {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert!(
+        replica_b.session(sid).is_none(),
+        "replica B freed the session"
     );
 }

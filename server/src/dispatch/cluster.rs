@@ -67,6 +67,18 @@ pub async fn release(pool: &PgPool, session: Uuid, epoch: i64) -> Result<(), sql
     Ok(())
 }
 
+/// Where session `id` runs, if a replica holds it live: (replica, worker URL or `None` for that
+/// replica's in-process worker).
+pub async fn placement_of(
+    pool: &PgPool,
+    id: Uuid,
+) -> Result<Option<(String, Option<String>)>, sqlx::Error> {
+    sqlx::query_as("SELECT replica, worker_url FROM session_placements WHERE session_id = $1")
+        .bind(id)
+        .fetch_optional(pool)
+        .await
+}
+
 /// Live, unsubmitted sessions of `user`, and of attempts in `course`, in the whole deployment
 /// (every replica's placements), leaving out the attempt `except` (whose own session is being
 /// resumed, which adds none).

@@ -295,7 +295,11 @@ async fn start_session(
             "the attempt is {attempt_state}; a session can be opened while it is in progress or returned"
         )));
     }
-    if let Some(s) = state.dispatcher.session_of_attempt(attempt_id).await {
+    if let Some(s) = state
+        .dispatcher
+        .current_session_of_attempt(attempt_id)
+        .await?
+    {
         let st = s.state.lock().await;
         return Ok((StatusCode::OK, axum::Json(session_json(&s, &st))).into_response());
     }
@@ -313,7 +317,12 @@ async fn start_session(
         return Ok(not_placed(attempt_id, e));
     }
     if let Some((id, initial)) = stored {
-        // Taken over (another replica may hold it), then restored from its durable log.
+        // Another replica relays it now: its websocket, through any replica, takes it over
+        // (restoring it here now would only be undone).
+        if let Some(view) = held_elsewhere(&state, id, attempt_id, &station_id).await? {
+            return Ok((StatusCode::OK, axum::Json(view)).into_response());
+        }
+        // Taken over (another replica may have held it), then restored from its durable log.
         let stored = super::takeover::Stored {
             id,
             attempt_id,
@@ -493,6 +502,35 @@ fn not_placed(attempt_id: Uuid, e: PlaceError) -> Response {
     }
 }
 
+/// The view of stored session `id` when another replica holds it live (its placement row names
+/// another replica), from the shared state.
+async fn held_elsewhere(
+    state: &DispatchState,
+    id: Uuid,
+    attempt_id: Uuid,
+    station_id: &str,
+) -> Result<Option<SessionView>, ApiError> {
+    let pool = &state.records.pool;
+    let Some((replica, worker)) = super::cluster::placement_of(pool, id).await? else {
+        return Ok(None);
+    };
+    if replica == state.dispatcher.replica() {
+        return Ok(None);
+    }
+    let (log_len, last_seq) = store::log_extent(pool, id).await?;
+    Ok(Some(SessionView {
+        session_id: id,
+        attempt_id,
+        station_id: station_id.to_string(),
+        ws: format!("/api/sessions/{id}/ws"),
+        worker: worker.unwrap_or_else(|| format!("in-process ({replica})")),
+        failovers: 0,
+        log_len: log_len.max(0) as u64,
+        last_seq: last_seq.max(0) as u64,
+        submitted: false,
+    }))
+}
+
 /// The session, for its learner.
 async fn owned_session(
     state: &DispatchState,
@@ -520,9 +558,27 @@ async fn session_info(
     Caller(user): Caller,
     ApiPath(session_id): ApiPath<Uuid>,
 ) -> Result<axum::Json<SessionView>, ApiError> {
-    let s = owned_session(&state, &user, session_id).await?;
-    let st = s.state.lock().await;
-    Ok(axum::Json(session_json(&s, &st)))
+    let held = match state.dispatcher.session(session_id) {
+        Some(s) => state.dispatcher.unless_stale(s).await?,
+        None => None,
+    };
+    if let Some(s) = held {
+        let s = owned_session(&state, &user, s.id).await?;
+        let st = s.state.lock().await;
+        return Ok(axum::Json(session_json(&s, &st)));
+    }
+    // Held by another replica: what the shared state says of it.
+    let stored = store::stored_session(&state.records.pool, session_id).await?;
+    let Some((attempt_id, learner, _, station_id, _, None)) = stored else {
+        return Err(ApiError::NotFound("session".into()));
+    };
+    if learner != user.id {
+        return Err(ApiError::NotFound("session".into()));
+    }
+    held_elsewhere(&state, session_id, attempt_id, &station_id)
+        .await?
+        .map(axum::Json)
+        .ok_or_else(|| ApiError::NotFound("session".into()))
 }
 
 /// Browsers send cookies with cross-site websocket handshakes; a handshake whose `Origin` is

@@ -141,6 +141,25 @@ pub async fn stored_session(pool: &PgPool, id: Uuid) -> Result<Option<StoredSess
     .await
 }
 
+/// The epoch session `id` is held at now.
+pub async fn epoch_of(pool: &PgPool, id: Uuid) -> Result<Option<i64>, sqlx::Error> {
+    sqlx::query_scalar("SELECT epoch FROM live_sessions WHERE id = $1")
+        .bind(id)
+        .fetch_optional(pool)
+        .await
+}
+
+/// How many commands session `id` has logged, and the last one's sequence number (0 before the
+/// first).
+pub async fn log_extent(pool: &PgPool, id: Uuid) -> Result<(i64, i64), sqlx::Error> {
+    sqlx::query_as(
+        "SELECT count(*), COALESCE(max(seq), 0) FROM live_session_commands WHERE session_id = $1",
+    )
+    .bind(id)
+    .fetch_one(pool)
+    .await
+}
+
 /// SQLSTATE of an append refused because another connection took the session over
 /// (`migrations/0901_cluster_state.sql`).
 pub const FENCED_SQLSTATE: &str = "PF409";

@@ -216,6 +216,35 @@ impl Dispatcher {
         Ok(session)
     }
 
+    /// The live session of `attempt` that this replica holds, unless another connection took it
+    /// over since (then this replica's stale copy is forgotten and ended on its worker).
+    pub(super) async fn current_session_of_attempt(
+        &self,
+        attempt: Uuid,
+    ) -> Result<Option<Arc<LiveSession>>, sqlx::Error> {
+        let Some(s) = self.session_of_attempt(attempt).await else {
+            return Ok(None);
+        };
+        self.unless_stale(s).await
+    }
+
+    /// `s`, unless the shared state holds it at a newer epoch than this replica (then the stale
+    /// copy is forgotten and ended on its worker).
+    pub(super) async fn unless_stale(
+        &self,
+        s: Arc<LiveSession>,
+    ) -> Result<Option<Arc<LiveSession>>, sqlx::Error> {
+        let Some(pool) = self.pool() else {
+            return Ok(Some(s));
+        };
+        let held = s.state.lock().await.epoch;
+        if store::epoch_of(&pool, s.id).await? == Some(held) {
+            return Ok(Some(s));
+        }
+        self.forget_taken_over(s.id, held).await;
+        Ok(None)
+    }
+
     /// Forgets a session that another replica took over (its log writer was fenced off at the
     /// epoch this replica still holds): ends it on its worker; the placement row is the new
     /// holder's.
@@ -227,6 +256,11 @@ impl Dispatcher {
             return; // Claimed again since: the fenced writer was an older connection's.
         }
         if let Some(s) = self.take(id) {
+            // Its connections here close with the reason instead of restoring it elsewhere.
+            s.end(
+                super::CLOSE_TAKEN_OVER,
+                "the session was opened in another connection",
+            );
             let placement = s.state.lock().await.placement.clone();
             self.end_on_worker(placement).await;
         }
