@@ -70,9 +70,10 @@ export class LiveSession extends EventTarget {
       this.emit('connection', { state: 'closed' });
       if (this.closed) return;
       // The server ended the session (4001: no command for its idle limit; 4003: the account
-      // was revoked; 1011: its log cannot be stored): reconnecting cannot help; opening the
-      // attempt again (after logging in) resumes it.
-      if (ev.code === 4001 || ev.code === 4003 || ev.code === 1011) {
+      // was revoked; 1011: its log cannot be stored; 4009: another window or tab opened it, and
+      // this one reconnecting would only take it back from there): reconnecting cannot help;
+      // opening the attempt again (after logging in) resumes it.
+      if (ev.code === 4001 || ev.code === 4003 || ev.code === 1011 || ev.code === 4009) {
         this.closed = true;
         this.emit('ended', { code: ev.code, reason: ev.reason });
         return;
