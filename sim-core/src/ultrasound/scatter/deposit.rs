@@ -2,6 +2,8 @@
 //! profile at its distance from the slice, turned by its carrier phase and deposited bilinearly
 //! on the (line, sample) grid, before any convolution.
 
+use std::f64::consts::PI;
+
 use glam::DVec3;
 
 use super::super::beam::{Beam, FWHM_PER_SIGMA};
@@ -149,6 +151,10 @@ pub(crate) fn deposit_scatterers(
     };
     // Square to the lattice, a column keeps its in-plane point exactly (steps of zero).
     let square = step_m.x == 0.0 && step_m.y == 0.0;
+    // Rows of columns cross the frame's bounding box in region axes; a tilted or rotated frame
+    // fills little of it. Each row visits only the columns whose in-plane trace can meet the
+    // reach (every other column's scatterers are all out of reach, so the sum is unchanged).
+    let columns = ColumnSpan::new(geo, &cx.reach, &unit, (am, ab), h, t_e * drift);
     for ia in idx_lo(aa)..=idx_hi(aa) {
         // Two interleaved halves of the lattice (a fixed split, so the sum is deterministic).
         if ia.rem_euclid(2) as u64 != part {
@@ -163,7 +169,10 @@ pub(crate) fn deposit_scatterers(
                 splitmix64(splitmix64(seed ^ first as u64) ^ second as u64)
             }));
         }
-        for ib in idx_lo(ab)..=idx_hi(ab) {
+        let mut row = DVec3::ZERO;
+        row[aa] = ia as f64 * h;
+        let (ib_lo, ib_hi) = columns.of_row(f.to_probe(row), (idx_lo(ab), idx_hi(ab)));
+        for ib in ib_lo..=ib_hi {
             let mut base = DVec3::ZERO;
             base[aa] = ia as f64 * h;
             base[ab] = ib as f64 * h;
@@ -229,6 +238,115 @@ pub(crate) fn deposit_scatterers(
     }
     at.deposit(grid, &mut cells, sum_i, sum_q);
     cells.flush(grid);
+}
+
+/// The in-plane box that holds every point within the deposit's reach, and how a row's columns
+/// cross the plane: the column `ib` of a row whose region origin maps to `q_row` (probe frame)
+/// meets the slice at `q_row + ib (h unit_ab - h unit_am unit_ab.z / em) - unit_am q_row.z / em`,
+/// and its scatterers stray at most `wander` mm in plane from there.
+struct ColumnSpan {
+    /// `(x_min, x_max, y_min, y_max)`, mm, widened by the wander and a cell.
+    area: (f64, f64, f64, f64),
+    /// In-plane step per column, mm.
+    per_column: (f64, f64),
+    unit_am: DVec3,
+}
+
+impl ColumnSpan {
+    fn new(
+        geo: &ScanGeometry,
+        reach: &Reach,
+        unit: &[DVec3; 3],
+        (am, ab): (usize, usize),
+        h: f64,
+        wander: f64,
+    ) -> ColumnSpan {
+        let (x0, x1, y0, y1) = reach_area(geo, reach);
+        let pad = wander + h;
+        let em = unit[am].z;
+        let step = unit[ab] * h - unit[am] * (unit[ab].z * h / em);
+        ColumnSpan {
+            area: (x0 - pad, x1 + pad, y0 - pad, y1 + pad),
+            per_column: (step.x, step.y),
+            unit_am: unit[am],
+        }
+    }
+
+    /// The columns `lo..=hi` (within `bounds`) of the row whose region origin maps to `q_row`.
+    fn of_row(&self, q_row: DVec3, (lo, hi): (i64, i64)) -> (i64, i64) {
+        let c = q_row - self.unit_am * (q_row.z / self.unit_am.z);
+        let (x0, x1, y0, y1) = self.area;
+        let (mut a, mut b) = (lo as f64, hi as f64);
+        for (start, d, min, max) in [
+            (c.x, self.per_column.0, x0, x1),
+            (c.y, self.per_column.1, y0, y1),
+        ] {
+            if d.abs() < 1e-12 {
+                if start < min || start > max {
+                    return (1, 0);
+                }
+                continue;
+            }
+            let (mut t0, mut t1) = ((min - start) / d, (max - start) / d);
+            if t0 > t1 {
+                std::mem::swap(&mut t0, &mut t1);
+            }
+            a = a.max(t0);
+            b = b.min(t1);
+        }
+        // Empty, or NaN from a degenerate frame (then nothing of the row is in reach either).
+        if a.partial_cmp(&b).is_none_or(|o| o == std::cmp::Ordering::Greater) {
+            return (1, 0);
+        }
+        // A cell of slack on each side against rounding.
+        (
+            (a.floor() as i64 - 1).max(lo),
+            (b.ceil() as i64 + 1).min(hi),
+        )
+    }
+}
+
+/// The in-plane box (image coordinates, mm) of every point whose line index and depth are
+/// within `reach`: the padded lines' footprint (linear) or annular sector (curvilinear).
+fn reach_area(geo: &ScanGeometry, reach: &Reach) -> (f64, f64, f64, f64) {
+    use super::super::probe::ProbeKind;
+    let n = (geo.lines.max(2) - 1) as f64;
+    match geo.spec.kind {
+        ProbeKind::Linear => {
+            let x = |u: f64| (u / n - 0.5) * geo.spec.footprint_mm;
+            (x(reach.u.0), x(reach.u.1), reach.z.0, reach.z.1)
+        }
+        ProbeKind::Curvilinear => {
+            let r0 = geo.spec.radius_mm;
+            let half = geo.half_sector_rad();
+            let theta = |u: f64| ((2.0 * u / n - 1.0) * half).clamp(-PI, PI);
+            let (t0, t1) = (theta(reach.u.0), theta(reach.u.1));
+            let (r_lo, r_hi) = ((r0 + reach.z.0).max(0.0), (r0 + reach.z.1).max(0.0));
+            // The box of an annular sector: its corners, and where it crosses an axis.
+            let mut angles = vec![t0, t1];
+            angles.extend(
+                [-PI / 2.0, 0.0, PI / 2.0]
+                    .into_iter()
+                    .filter(|a| (t0..=t1).contains(a)),
+            );
+            let (mut x_lo, mut x_hi, mut y_lo, mut y_hi) = (
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+            );
+            for r in [r_lo, r_hi] {
+                for &t in &angles {
+                    let (sn, cs) = t.sin_cos();
+                    x_lo = x_lo.min(r * sn);
+                    x_hi = x_hi.max(r * sn);
+                    y_lo = y_lo.min(r * cs - r0);
+                    y_hi = y_hi.max(r * cs - r0);
+                }
+            }
+            (x_lo, x_hi, y_lo, y_hi)
+        }
+    }
 }
 
 /// What every column of one deposit shares.
@@ -438,4 +556,92 @@ fn amplitude_norm(beam: &Beam, tables: &BeamTables, h: f64) -> f64 {
     let se = beam.elevation_fwhm_mm(beam.elevation_focus_mm) / FWHM_PER_SIGMA;
     let integral = std::f64::consts::PI.powf(1.5) * tables.axial_sigma_mm * sl * se;
     (3.0 * h * h * h / integral).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ultrasound::probe::{ProbeKind, ProbePose};
+
+    /// Every column that a row leaves out has its whole in-plane trace (the slab's elevations)
+    /// out of reach, for both probes and poses square, tilted and rotated: skipping it cannot
+    /// change the deposit.
+    #[test]
+    fn the_columns_a_row_skips_are_all_out_of_reach() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut rand = move || {
+            state = splitmix64(state);
+            crate::rng::unit_f64(state)
+        };
+        let h = 0.2;
+        let t_e = 3.0;
+        for kind in [ProbeKind::Linear, ProbeKind::Curvilinear] {
+            for trial in 0..12 {
+                let beam = if trial == 0 {
+                    DVec3::Z
+                } else {
+                    DVec3::new(rand() - 0.5, rand() - 0.5, 1.0)
+                };
+                let pose = ProbePose::from_rotation(
+                    DVec3::new(10.0 * rand(), -5.0 * rand(), 2.0),
+                    beam,
+                    if trial == 0 {
+                        0.0
+                    } else {
+                        180.0 * rand() - 90.0
+                    },
+                );
+                let geo = ScanGeometry {
+                    spec: kind.spec(),
+                    frame: pose.frame().unwrap(),
+                    lines: 128,
+                    depth_mm: 60.0,
+                };
+                let reach = Reach {
+                    u: (-4.0, 127.0 + 4.0),
+                    z: (-1.5, 60.0 + 1.5),
+                };
+                let f = &geo.frame;
+                let unit: [DVec3; 3] =
+                    std::array::from_fn(|a| f.to_probe(f.origin + DVec3::AXES[a]));
+                let bounds = lattice_bounds(f, (-60.0, 60.0, -20.0, 80.0), t_e, h);
+                let (am, (aa, ab)) = (bounds.column_axis, bounds.across);
+                let em = unit[am].z;
+                let drift = unit[am].x.hypot(unit[am].y) / em.abs();
+                let span = ColumnSpan::new(&geo, &reach, &unit, (am, ab), h, t_e * drift);
+                let (lo, hi) = (bounds.lo_cell[ab], bounds.hi_cell[ab]);
+                let mut skipped = 0;
+                for ia in (bounds.lo_cell[aa]..=bounds.hi_cell[aa]).step_by(7) {
+                    let mut row = DVec3::ZERO;
+                    row[aa] = ia as f64 * h;
+                    let q_row = f.to_probe(row);
+                    let (a, b) = span.of_row(q_row, (lo, hi));
+                    for ib in (lo..=hi).filter(|ib| *ib < a || *ib > b) {
+                        skipped += 1;
+                        let q0 = q_row + unit[ab] * (ib as f64 * h);
+                        let qc = q0 - unit[am] * (q0.z / em);
+                        for i in 0..=8 {
+                            let e = t_e * (i as f64 / 4.0 - 1.0);
+                            let q = qc + unit[am] * (e / em);
+                            let (u, z) = geo.plane_to_line(q.x, q.y);
+                            let inside = u >= reach.u.0
+                                && u <= reach.u.1
+                                && z >= reach.z.0
+                                && z <= reach.z.1;
+                            assert!(
+                                !inside,
+                                "{kind:?} trial {trial}: row {ia} column {ib} skipped but in reach at e {e}"
+                            );
+                        }
+                    }
+                }
+                if trial > 0 {
+                    assert!(
+                        skipped > 0,
+                        "{kind:?} trial {trial}: a rotated frame skips columns"
+                    );
+                }
+            }
+        }
+    }
 }
