@@ -460,3 +460,42 @@ async fn an_account_revoked_on_one_replica_loses_its_session_on_another() {
         "replica B freed the session"
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_replica_forgets_a_copy_that_another_replica_took_over() {
+    let srv = demo_server(true, None).await;
+    let (addr_b, _replica_b) = second_replica(&srv, "replica-b").await;
+    // Replica A reaps every 2 s (a quarter of its 8 s idle limit).
+    srv.dispatcher.set_session_idle(Duration::from_secs(8));
+    let learner_a = Client::login(srv.addr, "learner@demo.invalid").await;
+    let learner_b = Client {
+        addr: addr_b,
+        ..learner_a.clone()
+    };
+    let (_, session) = learner_a.start_demo_attempt().await;
+    let sid: uuid::Uuid = session["session_id"].as_str().unwrap().parse().unwrap();
+    let mut ws_a = learner_a.websocket(session["ws"].as_str().unwrap()).await;
+    let mut got = Received::default();
+    ws_a.send(1, json!({ "type": "shot" })).await;
+    ws_a.until(&mut got, |r| acked(r).len() == 1).await;
+    drop(ws_a);
+    // The learner comes back through replica B, which takes the session over.
+    let mut ws_b = learner_b.websocket(session["ws"].as_str().unwrap()).await;
+    let mut got_b = Received::default();
+    ws_b.send(2, json!({ "type": "shot" })).await;
+    ws_b.until(&mut got_b, |r| acked(r).len() == 1).await;
+    // A holds a stale copy with nobody connected: its reaper forgets it (and frees its worker
+    // slot) well before the idle limit.
+    let start = std::time::Instant::now();
+    while srv.dispatcher.session(sid).is_some() {
+        assert!(
+            start.elapsed() < Duration::from_secs(5),
+            "replica A still holds the session it lost"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert_eq!(
+        srv.dispatcher.local_capacity().map(|(live, _)| live),
+        Some(0)
+    );
+}

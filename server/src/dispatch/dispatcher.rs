@@ -469,6 +469,12 @@ impl Dispatcher {
             .unwrap_or_default();
         for s in list {
             let connected = s.connections.load(std::sync::atomic::Ordering::SeqCst);
+            // A copy that another replica took over (nobody connected here) frees its worker
+            // slot now rather than at its idle limit.
+            if connected == 0 && matches!(self.unless_stale(s.clone()).await, Ok(None)) {
+                tracing::info!(session = %s.id, "forgot a session that another replica holds now");
+                continue;
+            }
             if s.idle_for() >= command_idle {
                 let secs = command_idle.as_secs_f64();
                 tracing::info!(session = %s.id, connected, "closing a session that got no command for {secs} s (it resumes from its log)");
