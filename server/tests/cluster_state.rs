@@ -95,10 +95,16 @@ async fn failover_to_a_second_replica_takes_the_session_and_fences_off_the_first
     ws_b.send(5, json!({ "type": "shot" })).await;
     ws_b.until(&mut got_b, |r| acked(r).len() == 2).await;
 
-    // Replica A still relays its old connection. A command sent there reaches A's worker, but
-    // its log append is refused (fenced): it is never acknowledged, and A closes with 4009.
-    ws_a.send(6, json!({ "type": "needle_feed", "mm": 3 }))
-        .await;
+    // Replica A's old connection ends with 4009: B's takeover notice reached A (or, had it not,
+    // A's next log append is refused by the database, fenced). A command sent there now is
+    // never acknowledged.
+    let late =
+        json!({ "type": "command", "seq": 6, "command": { "type": "needle_feed", "mm": 3 } });
+    let _ = futures::SinkExt::send(
+        &mut ws_a.ws,
+        tokio_tungstenite::tungstenite::Message::Text(late.to_string().into()),
+    )
+    .await;
     let code = until_closed(&mut ws_a, &mut got_a).await;
     assert_eq!(code, Some(4009), "{:?}", got_a.texts);
     assert_eq!(

@@ -484,7 +484,12 @@ async fn failover_after_worker_process_is_killed() {
 }
 
 /// HTTP status of a websocket handshake to a session (101 when it upgrades).
-async fn handshake_status(addr: SocketAddr, sid: &str, cookie: &str, origin: Option<&str>) -> u16 {
+pub(crate) async fn handshake_status(
+    addr: SocketAddr,
+    sid: &str,
+    cookie: &str,
+    origin: Option<&str>,
+) -> u16 {
     let mut req = format!("ws://{addr}/api/sessions/{sid}/ws")
         .into_client_request()
         .unwrap();

@@ -5,6 +5,7 @@ mod calibration;
 mod cluster_drain;
 mod cluster_failover;
 mod cluster_state;
+mod cluster_takeover;
 mod configuration;
 mod dispatch;
 mod dispatch_capacity;

@@ -21,6 +21,21 @@ pub fn default_replica_id() -> String {
     format!("{host}-{}", std::process::id())
 }
 
+/// The PostgreSQL notification channel of sessions taken over (payload: the session id).
+pub const TAKEOVER_CHANNEL: &str = "painsim_session_taken_over";
+
+/// Tells every replica that session `id` was taken over (a copy held elsewhere is stale).
+pub async fn announce_takeover(pool: &PgPool, id: Uuid) {
+    let r = sqlx::query("SELECT pg_notify($1, $2)")
+        .bind(TAKEOVER_CHANNEL)
+        .bind(id.to_string())
+        .execute(pool)
+        .await;
+    if let Err(e) = r {
+        tracing::warn!(session = %id, "announcing a takeover to the other replicas failed: {e}");
+    }
+}
+
 /// Where a session is placed, as stored.
 pub struct PlacementRow<'a> {
     /// The session.
@@ -151,15 +166,82 @@ pub async fn status(pool: &PgPool, replica: &str) -> Result<ClusterStatus, sqlx:
     })
 }
 
+/// A live session this replica holds, as its sweep sees it: the id, and its placement row when
+/// the session's state could be read without waiting (`None` while a request holds it).
+pub type Held = (Uuid, Option<(i64, Option<String>, String)>);
+
+/// How old a placement row must be before a sweep removes it for not being held: a row written
+/// just before its session entered the replica's memory is not removed.
+const NOT_HELD_GRACE_S: f64 = 5.0;
+
+/// Dead workers are forgotten this long after they died (a pod's address changes with every
+/// scaling step, so their rows would pile up), once no placement names them.
+const DEAD_WORKER_KEPT_S: f64 = 3600.0;
+
 /// One sweep of a replica: the workers whose heartbeats stopped marked dead (one winner per
-/// worker, by the database), this replica's placements refreshed, and the placements of
-/// replicas that stopped refreshing theirs removed.
-pub async fn sweep(pool: &PgPool, registry: &Registry, replica: &str) -> Result<(), sqlx::Error> {
+/// worker, by the database) and long-dead ones forgotten; this replica's placements made
+/// exactly what it holds (refreshed, written again if a database outage let them lapse, and
+/// rows it no longer holds removed: a session forgotten, or a previous process under the same
+/// replica name); and the placements of replicas that stopped refreshing theirs removed.
+pub async fn sweep(
+    pool: &PgPool,
+    registry: &Registry,
+    replica: &str,
+    held: &[Held],
+) -> Result<(), sqlx::Error> {
     registry.sweep_dead(replica).await?;
-    sqlx::query("UPDATE session_placements SET seen_at = now() WHERE replica = $1")
-        .bind(replica)
-        .execute(pool)
-        .await?;
+    sqlx::query(
+        "DELETE FROM render_workers w WHERE state = 'dead'
+           AND dead_since < now() - make_interval(secs => $1)
+           AND NOT EXISTS (SELECT 1 FROM session_placements p WHERE p.worker_url = w.url)",
+    )
+    .bind(DEAD_WORKER_KEPT_S)
+    .execute(pool)
+    .await?;
+    let ids: Vec<Uuid> = held.iter().map(|(id, _)| *id).collect();
+    sqlx::query(
+        "UPDATE session_placements SET seen_at = now()
+         WHERE replica = $1 AND session_id = ANY($2)",
+    )
+    .bind(replica)
+    .bind(&ids)
+    .execute(pool)
+    .await?;
+    sqlx::query(
+        "DELETE FROM session_placements WHERE replica = $1 AND NOT (session_id = ANY($2))
+           AND placed_at < now() - make_interval(secs => $3)",
+    )
+    .bind(replica)
+    .bind(&ids)
+    .bind(NOT_HELD_GRACE_S)
+    .execute(pool)
+    .await?;
+    let (mut sessions, mut epochs, mut urls, mut worker_sessions) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for (id, row) in held {
+        if let Some((epoch, url, worker_session)) = row {
+            sessions.push(*id);
+            epochs.push(*epoch);
+            urls.push(url.clone());
+            worker_sessions.push(worker_session.clone());
+        }
+    }
+    // Rows that lapsed (an outage longer than the stale limit) come back; existing rows, this
+    // replica's or a newer holder's, are left as they are.
+    sqlx::query(
+        "INSERT INTO session_placements (session_id, epoch, replica, worker_url, worker_session)
+         SELECT s, e, $1, u, w FROM UNNEST($2::uuid[], $3::bigint[], $4::text[], $5::text[])
+             AS t(s, e, u, w)
+         WHERE EXISTS (SELECT 1 FROM live_sessions l WHERE l.id = s AND l.epoch = e)
+         ON CONFLICT (session_id) DO NOTHING",
+    )
+    .bind(replica)
+    .bind(&sessions)
+    .bind(&epochs)
+    .bind(&urls)
+    .bind(&worker_sessions)
+    .execute(pool)
+    .await?;
     let gone = sqlx::query(
         "DELETE FROM session_placements WHERE seen_at < now() - make_interval(secs => $1)",
     )
@@ -175,12 +257,13 @@ pub async fn sweep(pool: &PgPool, registry: &Registry, replica: &str) -> Result<
     Ok(())
 }
 
-/// Runs [`sweep`] every [`SWEEP_INTERVAL`] while `alive` says the dispatcher exists.
+/// Runs [`sweep`] every [`SWEEP_INTERVAL`] with what `held` says this replica holds, until
+/// `held` answers `None` (the dispatcher is gone).
 pub fn start_sweeper(
     pool: PgPool,
     registry: Registry,
     replica: String,
-    alive: impl Fn() -> bool + Send + 'static,
+    held: impl Fn() -> Option<Vec<Held>> + Send + 'static,
 ) {
     let Ok(rt) = tokio::runtime::Handle::try_current() else {
         return;
@@ -188,11 +271,13 @@ pub fn start_sweeper(
     rt.spawn(async move {
         loop {
             tokio::time::sleep(SWEEP_INTERVAL).await;
-            if !alive() {
+            let Some(held) = held() else {
                 return;
-            }
-            let round =
-                tokio::time::timeout(Duration::from_secs(5), sweep(&pool, &registry, &replica));
+            };
+            let round = tokio::time::timeout(
+                Duration::from_secs(5),
+                sweep(&pool, &registry, &replica, &held),
+            );
             match round.await {
                 Ok(Ok(())) => {}
                 Ok(Err(e)) => tracing::warn!("sweeping the shared state failed: {e}"),

@@ -461,13 +461,7 @@ impl Dispatcher {
     /// One round of [`Dispatcher::start_reaper`].
     async fn reap(&self, idle: std::time::Duration) {
         let command_idle = self.session_idle();
-        let list: Vec<Arc<LiveSession>> = self
-            .inner
-            .sessions
-            .lock()
-            .map(|m| m.values().cloned().collect())
-            .unwrap_or_default();
-        for s in list {
+        for s in self.all_sessions() {
             let connected = s.connections.load(std::sync::atomic::Ordering::SeqCst);
             // A copy that another replica took over (nobody connected here) frees its worker
             // slot now rather than at its idle limit.
@@ -515,7 +509,7 @@ impl Dispatcher {
     }
 
     /// The learning records the sessions' audit entries go to (set by the dispatch routes).
-    fn records(&self) -> Option<crate::records::RecordsState> {
+    pub(super) fn records(&self) -> Option<crate::records::RecordsState> {
         self.inner.records.lock().ok().and_then(|r| r.clone())
     }
 
@@ -537,54 +531,8 @@ impl Dispatcher {
                 records.pool.clone(),
                 self.inner.remote.clone(),
                 self.replica(),
-                move || weak.strong_count() > 0,
+                move || weak.upgrade().map(|inner| Dispatcher { inner }.held()),
             );
-        }
-    }
-
-    /// The database of the shared state, once attached.
-    pub(super) fn pool(&self) -> Option<sqlx::PgPool> {
-        self.records().map(|r| r.pool)
-    }
-
-    /// This replica's name in the shared state.
-    pub fn replica(&self) -> String {
-        self.inner
-            .replica
-            .lock()
-            .map(|r| r.clone())
-            .unwrap_or_default()
-    }
-
-    /// Names this replica (`PAINSIM_REPLICA_ID`); call before the routes are built.
-    pub fn set_replica(&self, id: &str) {
-        if let Ok(mut r) = self.inner.replica.lock() {
-            *r = id.to_string();
-        }
-    }
-
-    /// Records where `session` runs now (at `record`'s epoch), for every replica to see.
-    pub(super) async fn record_placement(&self, session: Uuid, record: &SessionRecord) {
-        let Some(pool) = self.pool() else {
-            return;
-        };
-        let replica = self.replica();
-        let (worker_url, worker_session) = match &record.placement {
-            Placement::Local { worker_session } => (None, worker_session.as_str()),
-            Placement::Remote {
-                worker_url,
-                worker_session,
-            } => (Some(worker_url.as_str()), worker_session.as_str()),
-        };
-        let row = super::cluster::PlacementRow {
-            session,
-            epoch: record.epoch,
-            replica: &replica,
-            worker_url,
-            worker_session,
-        };
-        if let Err(e) = super::cluster::place(&pool, &row).await {
-            tracing::error!(session = %session, "recording the session's placement failed: {e}");
         }
     }
 
@@ -692,6 +640,15 @@ impl Dispatcher {
     /// The registered workers in the shared state.
     pub fn registry(&self) -> &registry::Registry {
         &self.inner.remote
+    }
+
+    /// Every live session this replica holds.
+    pub(super) fn all_sessions(&self) -> Vec<Arc<LiveSession>> {
+        self.inner
+            .sessions
+            .lock()
+            .map(|m| m.values().cloned().collect())
+            .unwrap_or_default()
     }
 
     /// A live session by id.
@@ -919,6 +876,18 @@ impl Dispatcher {
         };
         self.close_taken(&s).await;
         true
+    }
+
+    /// Forgets `s` if it is the copy this replica holds under its id; false otherwise.
+    pub(super) fn take_exact(&self, s: &Arc<LiveSession>) -> bool {
+        let Ok(mut m) = self.inner.sessions.lock() else {
+            return false;
+        };
+        if m.get(&s.id).is_some_and(|held| Arc::ptr_eq(held, s)) {
+            m.remove(&s.id);
+            return true;
+        }
+        false
     }
 
     /// Forgets a session (whoever takes it ends it).

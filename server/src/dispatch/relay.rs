@@ -58,8 +58,12 @@ fn activity_of(engagement: Declared) -> ActivityKind {
 
 /// Saves the frame hash of a session (its commands are written as they are acknowledged).
 pub async fn persist(records: &RecordsState, session: &LiveSession) {
-    let frame = session.state.lock().await.last_frame_sha256.clone();
-    if let Err(e) = store::save_frame_hash(&records.pool, session.id, frame.as_deref()).await {
+    let (frame, epoch) = {
+        let st = session.state.lock().await;
+        (st.last_frame_sha256.clone(), st.epoch)
+    };
+    if let Err(e) = store::save_frame_hash(&records.pool, session.id, epoch, frame.as_deref()).await
+    {
         tracing::error!(session = %session.id, "saving the session's frame hash failed: {e}");
     }
 }
@@ -394,6 +398,10 @@ impl Relay {
     fn on_ended(&mut self) -> Flow {
         match self.session.end_reason() {
             Some(end) => {
+                if end.0 == CLOSE_TAKEN_OVER {
+                    let note = json!({ "type": "notice", "code": "taken_over", "message": end.1 });
+                    let _ = self.browser.text(note.to_string());
+                }
                 self.close_with = Some(end);
                 Flow::End
             }

@@ -14,23 +14,14 @@ use super::Dispatcher;
 /// The PostgreSQL notification channel of revoked accounts (payload: the user id).
 pub const CHANNEL: &str = "painsim_account_revoked";
 
-/// How long a replica waits before listening again after its listening connection failed.
-/// Simulator choice: a database restart takes seconds; login sessions are revoked in the
-/// database regardless, so a reconnect fails meanwhile.
-const RELISTEN_AFTER: std::time::Duration = std::time::Duration::from_secs(1);
-
-/// Closes the live sessions of every account announced on `revocations` (this replica's) and,
-/// with a database attached, of every account any replica announces through PostgreSQL, until
+/// Closes the live sessions of every account announced on `revocations` (this replica's), and
+/// announces each to the other replicas through PostgreSQL (`super::notices` listens), until
 /// the dispatcher is dropped or the records' sender is gone. Does nothing outside a tokio
 /// runtime.
 pub(super) fn start_listener(mut revocations: Receiver<Uuid>, dispatcher: &Dispatcher) {
     let Ok(rt) = tokio::runtime::Handle::try_current() else {
         return;
     };
-    if let Some(pool) = dispatcher.pool() {
-        let weak = std::sync::Arc::downgrade(&dispatcher.inner);
-        rt.spawn(listen_to_other_replicas(pool, weak));
-    }
     let weak = std::sync::Arc::downgrade(&dispatcher.inner);
     rt.spawn(async move {
         loop {
@@ -62,49 +53,8 @@ pub(super) fn start_listener(mut revocations: Receiver<Uuid>, dispatcher: &Dispa
     });
 }
 
-/// Listens on [`CHANNEL`] (reconnecting after failures) and closes the sessions of each
-/// announced account that this replica holds.
-async fn listen_to_other_replicas(
-    pool: sqlx::PgPool,
-    weak: std::sync::Weak<super::dispatcher::Inner>,
-) {
-    loop {
-        let listener = async {
-            let mut l = sqlx::postgres::PgListener::connect_with(&pool).await?;
-            l.listen(CHANNEL).await?;
-            Ok::<_, sqlx::Error>(l)
-        };
-        let mut listener = match listener.await {
-            Ok(l) => l,
-            Err(e) => {
-                tracing::warn!("cannot listen for revoked accounts: {e}");
-                tokio::time::sleep(RELISTEN_AFTER).await;
-                if weak.strong_count() == 0 {
-                    return;
-                }
-                continue;
-            }
-        };
-        loop {
-            let note = match listener.recv().await {
-                Ok(n) => n,
-                Err(e) => {
-                    tracing::warn!("listening for revoked accounts failed: {e}");
-                    break;
-                }
-            };
-            let Some(inner) = weak.upgrade() else { return };
-            let Ok(user) = note.payload().parse::<Uuid>() else {
-                continue;
-            };
-            close_sessions_of(&Dispatcher { inner }, user).await;
-        }
-        tokio::time::sleep(RELISTEN_AFTER).await;
-    }
-}
-
 /// Ends (with [`super::CLOSE_REVOKED`]) and closes every live session of `user` held here.
-async fn close_sessions_of(d: &Dispatcher, user: Uuid) {
+pub(super) async fn close_sessions_of(d: &Dispatcher, user: Uuid) {
     let sessions: Vec<std::sync::Arc<super::LiveSession>> = d
         .inner
         .sessions

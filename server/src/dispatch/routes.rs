@@ -224,6 +224,7 @@ pub fn router<S: Clone + Send + Sync + 'static>(
         .with_state({
             verify::start_verifier(records.clone(), &dispatcher, verify::VERIFY_EVERY);
             revoke::start_listener(records.revocations.subscribe(), &dispatcher);
+            super::notices::start(&dispatcher);
             DispatchState {
                 records,
                 dispatcher,
@@ -333,7 +334,7 @@ async fn start_session(
         };
         let session = match state
             .dispatcher
-            .restore_stored(&state.records.pool, stored)
+            .adopt(&state.records.pool, stored, false)
             .await
         {
             Ok(s) => s,
@@ -608,6 +609,8 @@ fn same_origin(headers: &HeaderMap) -> bool {
         (status = 400, description = "Malformed session id, or not a websocket handshake (or a connection that cannot be upgraded)"),
         (status = 401), (status = 403, description = "A handshake from another origin"),
         (status = 404, description = "No live session of the caller's with this id"),
+        (status = 429, description = "Resuming a session nobody holds would pass the per-user or per-course limit of live sessions"),
+        (status = 503, description = "No render worker could take the session over"),
     ))]
 async fn session_ws(
     State(state): State<DispatchState>,
@@ -640,6 +643,20 @@ async fn session_ws(
         return Err(ApiError::BadRequest(
             "not a websocket handshake: Sec-WebSocket-Key must be 16 bytes in base64".into(),
         ));
+    }
+    // A session nobody holds (closed, or its replica gone) resumes here: under the same limits
+    // as opening it again (`start_session`).
+    let pool = &state.records.pool;
+    if state.dispatcher.session(session_id).is_none()
+        && super::cluster::placement_of(pool, session_id)
+            .await?
+            .is_none()
+        && let Some((attempt_id, _, course_id, ..)) =
+            store::stored_session(pool, session_id).await?
+        && let Some(refused) =
+            over_session_limit(&state.dispatcher, user.id, course_id, attempt_id).await
+    {
+        return Ok(refused);
     }
     // Any replica relays any session: this connection takes it over (see `takeover`).
     let s = match state
@@ -732,6 +749,8 @@ async fn register_worker(
             "the caller's address is unknown, so the announced address cannot be checked".into(),
         ));
     };
+    let mut reg = reg;
+    reg.url = reg.url.trim_end_matches('/').to_string();
     if !owns_address(peer.ip(), &authority).await {
         return Err(ApiError::Forbidden(format!(
             "the announced address {} is not the caller's ({})",
@@ -748,9 +767,12 @@ async fn register_worker(
 }
 
 /// Whether `authority` (`host:port`) names `peer`: an IP literal equal to it, or a host name
-/// that resolves to it (IPv4-mapped IPv6 addresses compare as IPv4).
+/// whose every address is it (IPv4-mapped IPv6 addresses compare as IPv4): a name that also
+/// resolves elsewhere could send sessions there.
 async fn owns_address(peer: std::net::IpAddr, authority: &str) -> bool {
+    // Loopback is one host however it is spelled (127.0.0.1, ::1: `localhost` resolves to both).
     let canonical = |ip: std::net::IpAddr| match ip {
+        ip if ip.is_loopback() => std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST),
         std::net::IpAddr::V6(v6) => v6
             .to_ipv4_mapped()
             .map_or(std::net::IpAddr::V6(v6), std::net::IpAddr::V4),
@@ -762,7 +784,10 @@ async fn owns_address(peer: std::net::IpAddr, authority: &str) -> bool {
         tokio::net::lookup_host(authority.to_string()),
     );
     match lookup.await {
-        Ok(Ok(addrs)) => addrs.into_iter().any(|a| canonical(a.ip()) == peer),
+        Ok(Ok(addrs)) => {
+            let addrs: Vec<std::net::IpAddr> = addrs.map(|a| canonical(a.ip())).collect();
+            !addrs.is_empty() && addrs.iter().all(|a| *a == peer)
+        }
         _ => false,
     }
 }

@@ -73,18 +73,22 @@ pub async fn newest_recorded(
     .await
 }
 
-/// Saves the hash of the last frame the browser was sent (kept when `frame` is `None`).
+/// Saves the hash of the last frame the browser was sent (kept when `frame` is `None`), by the
+/// connection that holds the session at `epoch`, while it is not submitted (a replica that lost
+/// the session, or a late connection after the submit, changes nothing).
 pub async fn save_frame_hash(
     pool: &PgPool,
     id: Uuid,
+    epoch: i64,
     frame: Option<&str>,
 ) -> Result<(), sqlx::Error> {
     sqlx::query(
         "UPDATE live_sessions SET final_frame_sha256 = COALESCE($2, final_frame_sha256),
-         updated_at = now() WHERE id = $1",
+         updated_at = now() WHERE id = $1 AND epoch = $3 AND result_id IS NULL",
     )
     .bind(id)
     .bind(frame)
+    .bind(epoch)
     .execute(pool)
     .await?;
     Ok(())
@@ -124,6 +128,24 @@ pub async fn take_over(pool: &PgPool, id: Uuid) -> Result<Option<(i64, i64)>, sq
     .fetch_optional(pool)
     .await?;
     Ok(row.map(|(e,)| (e - 1, e)))
+}
+
+/// Takes session `id` over for a new connection of the replica that holds it at `held`: bumps
+/// the epoch only if it is still `held` (compare and swap); the new epoch, or `None` when
+/// another connection took the session over since (or there is no such session).
+pub async fn take_over_from(
+    pool: &PgPool,
+    id: Uuid,
+    held: i64,
+) -> Result<Option<i64>, sqlx::Error> {
+    sqlx::query_scalar(
+        "UPDATE live_sessions SET epoch = epoch + 1, updated_at = now()
+         WHERE id = $1 AND epoch = $2 RETURNING epoch",
+    )
+    .bind(id)
+    .bind(held)
+    .fetch_optional(pool)
+    .await
 }
 
 /// A stored session as a replica that does not hold it loads it: attempt, learner, course,

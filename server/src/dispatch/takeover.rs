@@ -61,34 +61,31 @@ impl Dispatcher {
         super::cluster::status(&pool, &self.replica()).await
     }
 
-    /// Takes `s`, held in this replica's memory, over for a new connection: the fast path when
-    /// the epoch is still this replica's, else the stale copy is reloaded from the database
-    /// and restored on a worker (its old worker session is ended in the background).
-    pub(super) async fn claim(&self, s: &LiveSession) -> Result<(), TakeoverError> {
+    /// Takes `s`, held in this replica's memory, over for a new connection when the session's
+    /// epoch is still this replica's (one compare-and-bump); otherwise the copy is stale: it is
+    /// forgotten (its connections close with 4009, its worker session ends) and `Stale` says
+    /// so, without fencing off whoever holds the session now.
+    pub(super) async fn claim(&self, s: &Arc<LiveSession>) -> Result<Claim, TakeoverError> {
         let Some(pool) = self.pool() else {
-            return Ok(());
+            return Ok(Claim::Held);
         };
         let mut st = s.state.lock().await;
-        let (previous, epoch) = store::take_over(&pool, s.id)
-            .await?
-            .ok_or(TakeoverError::NotFound)?;
-        if previous != st.epoch {
-            tracing::info!(session = %s.id, held = st.epoch, now = epoch,
-                "the session was taken over elsewhere since: restoring it from the stored log");
-            let stale = st.placement.clone();
-            st.log = store::load_commands(&pool, s.id).await?;
-            st.durable_len = st.log.len();
-            st.epoch = epoch;
-            st.placement = self.restore_anywhere(&st).await?;
-            let me = self.clone();
-            tokio::spawn(async move { me.end_on_worker(stale).await });
-        } else {
-            st.epoch = epoch;
+        match store::take_over_from(&pool, s.id, st.epoch).await? {
+            Some(epoch) => {
+                st.epoch = epoch;
+                let record = st.clone();
+                drop(st);
+                self.record_placement(s.id, &record).await;
+                Ok(Claim::Held)
+            }
+            None => {
+                let held = st.epoch;
+                drop(st);
+                tracing::info!(session = %s.id, held, "the session was taken over elsewhere since: restoring it from the stored log");
+                self.forget_taken_over(s.id, held).await;
+                Ok(Claim::Stale)
+            }
         }
-        let record = st.clone();
-        drop(st);
-        self.record_placement(s.id, &record).await;
-        Ok(())
     }
 
     /// Live, unsubmitted sessions of `user` and of `course` in the whole deployment, leaving out
@@ -124,8 +121,8 @@ impl Dispatcher {
     }
 
     /// Session `id` for a new connection of `learner`: the one this replica holds (claimed),
-    /// else the stored live session loaded from the database, taken over and restored on a
-    /// worker ([`Dispatcher::restore_stored`]).
+    /// else the stored live session loaded from the database, restored on a worker and taken
+    /// over ([`Dispatcher::adopt`]).
     pub(super) async fn session_for_connection(
         &self,
         id: Uuid,
@@ -135,28 +132,11 @@ impl Dispatcher {
             if s.learner_id != learner {
                 return Err(TakeoverError::NotFound);
             }
-            self.claim(&s).await?;
-            return Ok(s);
+            if let Claim::Held = self.claim(&s).await? {
+                return Ok(s);
+            }
         }
         let pool = self.pool().ok_or(TakeoverError::NotFound)?;
-        let lock = {
-            let mut locks = self
-                .inner
-                .adopting
-                .lock()
-                .map_err(|_| TakeoverError::NotFound)?;
-            locks.retain(|_, l| Arc::strong_count(l) > 1);
-            locks.entry(id).or_default().clone()
-        };
-        let one_at_a_time = lock.lock().await;
-        if let Some(s) = self.session(id) {
-            drop(one_at_a_time);
-            if s.learner_id != learner {
-                return Err(TakeoverError::NotFound);
-            }
-            self.claim(&s).await?;
-            return Ok(s);
-        }
         let (attempt_id, learner_id, course_id, station_id, initial, result) =
             store::stored_session(&pool, id)
                 .await?
@@ -172,20 +152,50 @@ impl Dispatcher {
             station_id,
             initial,
         };
-        self.restore_stored(&pool, stored).await
+        self.adopt(&pool, stored, true).await
     }
 
-    /// Takes a stored session over (its epoch bumped), loads its durable log and restores it on
-    /// a worker by least load; this replica then holds it.
-    pub(super) async fn restore_stored(
+    /// Restores stored session `s` here, one restore per session at a time: when another
+    /// request of this replica restored it meanwhile, that copy (claimed for a connection when
+    /// `connecting`).
+    pub(super) async fn adopt(
+        &self,
+        pool: &PgPool,
+        s: Stored,
+        connecting: bool,
+    ) -> Result<Arc<LiveSession>, TakeoverError> {
+        let lock = {
+            let mut locks = self
+                .inner
+                .adopting
+                .lock()
+                .map_err(|_| TakeoverError::NotFound)?;
+            locks.retain(|_, l| Arc::strong_count(l) > 1);
+            locks.entry(s.id).or_default().clone()
+        };
+        let _one_at_a_time = lock.lock().await;
+        if let Some(held) = self.session(s.id) {
+            if !connecting {
+                return Ok(held);
+            }
+            if let Claim::Held = self.claim(&held).await? {
+                return Ok(held);
+            }
+        }
+        self.restore_stored(pool, s).await
+    }
+
+    /// Restores a stored session on a worker by least load from its initial snapshot and
+    /// durable log, then takes it over (its epoch bumped): a restore that fails fences off
+    /// nobody. When the holder appended between the read and the bump (it cannot any more), the
+    /// session is restored again from the final log. This replica then holds it, and the other
+    /// replicas are told (a stale copy there is forgotten at once).
+    async fn restore_stored(
         &self,
         pool: &PgPool,
         s: Stored,
     ) -> Result<Arc<LiveSession>, TakeoverError> {
         let started = std::time::Instant::now();
-        let (_, epoch) = store::take_over(pool, s.id)
-            .await?
-            .ok_or(TakeoverError::NotFound)?;
         let initial = serde_json::from_value(s.initial)?;
         let log = store::load_commands(pool, s.id).await?;
         let mut record = SessionRecord {
@@ -198,22 +208,48 @@ impl Dispatcher {
             last_frame_sha256: None,
             result_id: None,
             failovers: 0,
-            epoch,
+            epoch: 0,
         };
         record.placement = self.restore_anywhere(&record).await?;
+        let taken = store::take_over(pool, s.id).await;
+        let epoch = match taken {
+            Ok(Some((_, epoch))) => epoch,
+            Ok(None) | Err(_) => {
+                self.end_in_background(record.placement.clone());
+                return Err(match taken {
+                    Err(e) => TakeoverError::Database(e),
+                    _ => TakeoverError::NotFound,
+                });
+            }
+        };
+        record.epoch = epoch;
+        let (logged, _) = store::log_extent(pool, s.id).await?;
+        if usize::try_from(logged).ok() != Some(record.log.len()) {
+            self.end_in_background(record.placement.clone());
+            record.log = store::load_commands(pool, s.id).await?;
+            record.durable_len = record.log.len();
+            record.placement = self.restore_anywhere(&record).await?;
+        }
         tracing::info!(session = %s.id, epoch, log = record.log.len(), worker = %record.placement.worker_label(),
             took_ms = started.elapsed().as_millis() as u64, "session taken over from the stored log");
-        self.record_placement(s.id, &record).await;
         let session = Arc::new(LiveSession::new(
             s.id,
             s.attempt_id,
             s.course_id,
             s.learner_id,
             s.station_id,
-            record,
+            record.clone(),
         ));
         self.insert(session.clone());
+        self.record_placement(s.id, &record).await;
+        super::cluster::announce_takeover(pool, s.id).await;
         Ok(session)
+    }
+
+    /// Ends a worker session without waiting (a dead worker's request can take its timeout).
+    fn end_in_background(&self, placement: Placement) {
+        let me = self.clone();
+        tokio::spawn(async move { me.end_on_worker(placement).await });
     }
 
     /// The live session of `attempt` that this replica holds, unless another connection took it
@@ -246,23 +282,35 @@ impl Dispatcher {
     }
 
     /// Forgets a session that another replica took over (its log writer was fenced off at the
-    /// epoch this replica still holds): ends it on its worker; the placement row is the new
-    /// holder's.
+    /// epoch this replica still holds, or a claim found it stale): its connections here close
+    /// with 4009, its worker session ends; the placement row is the new holder's. Nothing
+    /// happens when this replica claimed it again since (the fenced writer was an older
+    /// connection's).
     pub(super) async fn forget_taken_over(&self, id: Uuid, fenced_at: i64) {
         let Some(s) = self.session(id) else {
             return;
         };
-        if s.state.lock().await.epoch != fenced_at {
-            return; // Claimed again since: the fenced writer was an older connection's.
-        }
-        if let Some(s) = self.take(id) {
-            // Its connections here close with the reason instead of restoring it elsewhere.
-            s.end(
-                super::CLOSE_TAKEN_OVER,
-                "the session was opened in another connection",
-            );
-            let placement = s.state.lock().await.placement.clone();
-            self.end_on_worker(placement).await;
-        }
+        let placement = {
+            // Under the state lock, so that no claim runs between the check and the removal.
+            let st = s.state.lock().await;
+            if st.epoch != fenced_at || !self.take_exact(&s) {
+                return;
+            }
+            st.placement.clone()
+        };
+        // Its connections here close with the reason instead of restoring it elsewhere.
+        s.end(
+            super::CLOSE_TAKEN_OVER,
+            "the session was opened in another connection",
+        );
+        self.end_on_worker(placement).await;
     }
+}
+
+/// What a claim found.
+pub(super) enum Claim {
+    /// This replica holds the session at the new epoch.
+    Held,
+    /// Another replica took it over since; this replica's copy was forgotten.
+    Stale,
 }
