@@ -60,6 +60,21 @@ impl VolumeGrid {
         ]
     }
 
+    /// A cube of `n` voxels of side `h_mm` per axis, centred on the origin (for tests).
+    #[cfg(test)]
+    pub(crate) fn centred_cube(n: usize, h_mm: f64) -> VolumeGrid {
+        VolumeGrid {
+            dims: [n; 3],
+            spacing_mm: [h_mm; 3],
+            origin_mm: [-(n as f64 - 1.0) * 0.5 * h_mm; 3],
+        }
+    }
+
+    /// The smallest voxel side, mm.
+    pub fn min_spacing_mm(&self) -> f64 {
+        self.spacing_mm.iter().copied().fold(f64::INFINITY, f64::min)
+    }
+
     /// The outer faces of the grid's voxels `(min, max)` in millimetres.
     pub fn extent_mm(&self) -> ([f64; 3], [f64; 3]) {
         let lo = std::array::from_fn(|a| self.origin_mm[a] - 0.5 * self.spacing_mm[a]);

@@ -157,11 +157,7 @@ pub fn label_volume(
         };
     }
     // Rule 2.
-    let h_min = grid
-        .spacing_mm
-        .iter()
-        .cloned()
-        .fold(f64::INFINITY, f64::min);
+    let h_min = grid.min_spacing_mm();
     for s in structures {
         let off = mask_offset(&grid, s)?;
         let mg = s.mask.grid;

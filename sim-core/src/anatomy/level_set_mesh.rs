@@ -53,11 +53,7 @@ fn field_value(g: f64, h: f64) -> f32 {
 /// blocks by the Lipschitz bound. Returns the values and the number of evaluations.
 pub fn sample_level_set(f: LevelSetFn<'_>, grid: &VolumeGrid) -> (Vec<f32>, usize) {
     let [nx, ny, nz] = grid.dims;
-    let h = grid
-        .spacing_mm
-        .iter()
-        .copied()
-        .fold(f64::INFINITY, f64::min);
+    let h = grid.min_spacing_mm();
     let mut values = vec![0f32; grid.len()];
     let mut evals = 0;
     for bk in (0..nz).step_by(BLOCK) {
@@ -197,20 +193,12 @@ pub fn extract_level_set(f: LevelSetFn<'_>, grid: &VolumeGrid) -> Option<LevelSe
 mod tests {
     use super::*;
 
-    fn grid(n: usize, h: f64) -> VolumeGrid {
-        VolumeGrid {
-            dims: [n; 3],
-            spacing_mm: [h; 3],
-            origin_mm: [-(n as f64 - 1.0) * 0.5 * h; 3],
-        }
-    }
-
     #[test]
     fn every_vertex_lies_on_the_zero_set() {
         let sphere = |p: [f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - 7.3;
         let LevelSetSurface {
             mesh, crossings, ..
-        } = extract_level_set(&sphere, &grid(14, 1.5)).unwrap();
+        } = extract_level_set(&sphere, &VolumeGrid::centred_cube(14, 1.5)).unwrap();
         assert!(mesh.topology_report().is_closed_and_consistent());
         assert_eq!(mesh.vertices_mm.len(), crossings.len());
         for v in &mesh.vertices_mm {
@@ -227,7 +215,9 @@ mod tests {
             let out = q.iter().map(|x| x.max(0.0).powi(2)).sum::<f64>().sqrt();
             out + q[0].max(q[1]).max(q[2]).min(0.0)
         };
-        let mesh = extract_level_set(&slab, &grid(20, 1.5)).unwrap().mesh;
+        let mesh = extract_level_set(&slab, &VolumeGrid::centred_cube(20, 1.5))
+            .unwrap()
+            .mesh;
         let v = mesh.signed_volume_mm3();
         let exact = 2.2 * 16.0 * 16.0;
         // The box's edges and corners are chamfered by the lattice (16 mm edges, 1.5 mm
@@ -241,7 +231,7 @@ mod tests {
     #[test]
     fn the_sampling_settles_blocks_only_where_the_bound_allows() {
         let sphere = |p: [f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - 20.0;
-        let g = grid(40, 1.5);
+        let g = VolumeGrid::centred_cube(40, 1.5);
         let (values, evals) = sample_level_set(&sphere, &g);
         assert!(evals < g.len() / 2, "{evals} of {}", g.len());
         for (idx, &v) in values.iter().enumerate() {

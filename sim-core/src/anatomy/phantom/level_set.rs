@@ -90,11 +90,7 @@ pub fn reference_leaf_mm(voxel_mm: f64, quarter_voxel_volume_mm3: f64) -> f64 {
 /// Every structure's analytic volume on `grid` (name, mm^3), in painting order: the octree
 /// integral of [`StructureLevelSet::volume_mm3`] with the leaf of [`reference_leaf_mm`].
 pub fn structure_volumes_mm3(anatomy: &Anatomy, grid: &VolumeGrid) -> Vec<(String, f64)> {
-    let voxel = grid
-        .spacing_mm
-        .iter()
-        .copied()
-        .fold(f64::INFINITY, f64::min);
+    let voxel = grid.min_spacing_mm();
     level_sets(anatomy, grid)
         .iter()
         .zip(&anatomy.parts)
@@ -285,14 +281,6 @@ mod tests {
         }
     }
 
-    fn grid(n: usize, h: f64) -> VolumeGrid {
-        VolumeGrid {
-            dims: [n; 3],
-            spacing_mm: [h; 3],
-            origin_mm: [-(n as f64 - 1.0) * 0.5 * h; 3],
-        }
-    }
-
     #[test]
     fn a_sphere_minus_a_later_sphere_has_the_analytic_volume() {
         // A ball of radius 20 mm; a later ball of radius 8 mm centred 15 mm off takes a lens
@@ -309,7 +297,7 @@ mod tests {
             ],
             landmarks: vec![],
         };
-        let g = grid(40, 1.5);
+        let g = VolumeGrid::centred_cube(40, 1.5);
         let sets = level_sets(&anatomy, &g);
         // Lens of two spheres (radii R, r, centre distance d).
         let lens = std::f64::consts::PI
@@ -342,7 +330,7 @@ mod tests {
             )],
             landmarks: vec![],
         };
-        let g = grid(20, 1.5);
+        let g = VolumeGrid::centred_cube(20, 1.5);
         let sets = level_sets(&anatomy, &g);
         let v = sets[0].volume_mm3(0.375);
         assert!((v - 9000.0).abs() < 1e-6 * 9000.0, "{v}");

@@ -192,11 +192,7 @@ pub fn partial_volumes(
     workers: usize,
 ) -> Vec<Fraction> {
     let [nx, ny, nz] = grid.dims;
-    let h = grid
-        .spacing_mm
-        .iter()
-        .copied()
-        .fold(f64::INFINITY, f64::min);
+    let h = grid.min_spacing_mm();
     let bounds: Vec<_> = solids.iter().map(|s| s.bounds().expand(h)).collect();
     let lab = &labels.data;
     let differs = |i: usize, j: usize, k: usize| -> bool {
