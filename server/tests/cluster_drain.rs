@@ -7,7 +7,9 @@ use std::time::{Duration, Instant};
 
 use serde_json::json;
 
-use crate::dispatch::{process_listens_on, spawn_worker_draining, wait_for_workers};
+use crate::dispatch::{
+    WorkerProcesses, process_listens_on, spawn_worker_draining, wait_for_workers,
+};
 use crate::dispatch_support::{Client, Received, acked, demo_server};
 
 /// The state of worker `url` in the shared state.
@@ -25,11 +27,12 @@ async fn failover_by_drain_a_worker_sent_sigterm_moves_its_sessions_without_loss
     let srv = demo_server(false, Some(token)).await;
     let register = format!("http://{}/api/workers", srv.addr);
     let drain = Duration::from_secs(3);
-    let mut workers = [
+    // Killed when the test ends, passed or failed.
+    let mut workers = WorkerProcesses(vec![
         spawn_worker_draining(&register, token, drain),
         spawn_worker_draining(&register, token, drain),
-    ];
-    let result = async {
+    ]);
+    async {
         wait_for_workers(&srv.dispatcher, 2).await;
         let learner = Client::login(srv.addr, "learner@demo.invalid").await;
         let (attempt, session) = learner.start_demo_attempt().await;
@@ -150,13 +153,6 @@ async fn failover_by_drain_a_worker_sent_sigterm_moves_its_sessions_without_loss
             draining_after.as_secs_f64() * 1e3,
             exited_after.as_secs_f64()
         );
-    };
-    let outcome = futures::FutureExt::catch_unwind(std::panic::AssertUnwindSafe(result)).await;
-    for w in workers.iter_mut() {
-        let _ = w.kill();
-        let _ = w.wait();
     }
-    if let Err(p) = outcome {
-        std::panic::resume_unwind(p);
-    }
+    .await;
 }

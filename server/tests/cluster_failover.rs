@@ -19,7 +19,7 @@ use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 
-use crate::dispatch::{process_listens_on, spawn_worker};
+use crate::dispatch::{WorkerProcesses, process_listens_on, spawn_worker};
 use crate::dispatch_support::Client;
 use crate::server_process::{demo_deployment, spawn_on};
 
@@ -214,9 +214,9 @@ async fn failover_of_a_replica_and_workers_loses_no_session_and_no_command() {
     }
     let front = balancer(replicas.iter().map(|r| r.addr.clone()).collect()).await;
     let register = format!("http://{front}/api/workers");
-    let mut workers: Vec<std::process::Child> =
-        (0..3).map(|_| spawn_worker(&register, token)).collect();
-    let result = async {
+    // Killed when the test ends, passed or failed (the replicas are too: `ServerProcess`).
+    let mut workers = WorkerProcesses((0..3).map(|_| spawn_worker(&register, token)).collect());
+    async {
         let alive: i64 = loop {
             let n: i64 =
                 sqlx::query_scalar("SELECT count(*) FROM render_workers WHERE state = 'alive'")
@@ -352,14 +352,6 @@ async fn failover_of_a_replica_and_workers_loses_no_session_and_no_command() {
                 SCRIPT_LEN + 1
             );
         }
-    };
-    let outcome = futures::FutureExt::catch_unwind(std::panic::AssertUnwindSafe(result)).await;
-    for w in workers.iter_mut() {
-        let _ = w.kill();
-        let _ = w.wait();
     }
-    drop(replicas);
-    if let Err(p) = outcome {
-        std::panic::resume_unwind(p);
-    }
+    .await;
 }

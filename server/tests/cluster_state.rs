@@ -10,26 +10,9 @@ use render_worker::cluster::request_with_headers;
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
-use crate::dispatch_support::{Client, Received, Ws, acked, demo_server, second_replica};
-
-/// Reads until the server closes the socket; the close code (None when it just ended), and
-/// what arrived before.
-async fn until_closed(ws: &mut Ws, got: &mut Received) -> Option<u16> {
-    loop {
-        let m = tokio::time::timeout(
-            Duration::from_secs(30),
-            futures::StreamExt::next(&mut ws.ws),
-        )
-        .await
-        .expect("the socket closes within 30 s");
-        match m {
-            Some(Ok(Message::Text(t))) => got.texts.push(serde_json::from_str(&t).unwrap()),
-            Some(Ok(Message::Close(frame))) => return frame.map(|f| u16::from(f.code)),
-            Some(Ok(_)) => {}
-            Some(Err(_)) | None => return None,
-        }
-    }
-}
+use crate::dispatch_support::{
+    Client, Received, acked, demo_server, disable_account, second_replica,
+};
 
 /// The stored log of a session: (seq, epoch) in order.
 async fn stored_log(pool: &sqlx::PgPool, session: &str) -> Vec<(i64, i64)> {
@@ -100,12 +83,11 @@ async fn failover_to_a_second_replica_takes_the_session_and_fences_off_the_first
     // never acknowledged.
     let late =
         json!({ "type": "command", "seq": 6, "command": { "type": "needle_feed", "mm": 3 } });
-    let _ = futures::SinkExt::send(
-        &mut ws_a.ws,
-        tokio_tungstenite::tungstenite::Message::Text(late.to_string().into()),
-    )
-    .await;
-    let code = until_closed(&mut ws_a, &mut got_a).await;
+    let _ = futures::SinkExt::send(&mut ws_a.ws, Message::Text(late.to_string().into())).await;
+    let code = ws_a
+        .until_closed(&mut got_a, Duration::from_secs(30))
+        .await
+        .map(|(c, _)| c);
     assert_eq!(code, Some(4009), "{:?}", got_a.texts);
     assert_eq!(
         acked(&got_a),
@@ -438,17 +420,11 @@ async fn an_account_revoked_on_one_replica_loses_its_session_on_another() {
     ws.until(&mut got, |r| acked(r).len() == 1).await;
     assert!(replica_b.session(sid).is_some());
     // An admin disables the learner through replica A: B closes the session with 4003.
-    let learner_id: uuid::Uuid =
-        sqlx::query_scalar("SELECT id FROM users WHERE email = 'learner@demo.invalid'")
-            .fetch_one(&srv.db.pool)
-            .await
-            .unwrap();
-    let admin = Client::login(srv.addr, "admin@demo.invalid").await;
-    let (s, body) = admin
-        .call("POST", &format!("/api/users/{learner_id}/disable"), None)
-        .await;
-    assert_eq!(s, 200, "{body}");
-    let code = until_closed(&mut ws, &mut got).await;
+    disable_account(srv.addr, &srv.db.pool, "learner@demo.invalid").await;
+    let code = ws
+        .until_closed(&mut got, Duration::from_secs(30))
+        .await
+        .map(|(c, _)| c);
     assert_eq!(
         code,
         Some(server::dispatch::CLOSE_REVOKED),

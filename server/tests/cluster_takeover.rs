@@ -45,21 +45,10 @@ async fn a_stale_copy_that_gets_a_new_connection_is_replaced_not_reused() {
     tab3.until(&mut got3, |r| !r.texts.is_empty()).await;
     assert_eq!(got3.texts[0]["type"], "hello");
     assert_eq!(got3.texts[0]["last_seq"], 4, "{:?}", got3.texts[0]);
-    let code = loop {
-        match tokio::time::timeout(
-            Duration::from_secs(30),
-            futures::StreamExt::next(&mut tab1.ws),
-        )
+    let code = tab1
+        .until_closed(&mut got1, Duration::from_secs(30))
         .await
-        .expect("tab 1 closes")
-        {
-            Some(Ok(tokio_tungstenite::tungstenite::Message::Close(f))) => {
-                break f.map(|f| u16::from(f.code));
-            }
-            Some(Ok(_)) => {}
-            _ => break None,
-        }
-    };
+        .map(|(c, _)| c);
     assert_eq!(code, Some(4009));
     tab3.send(5, json!({ "type": "shot" })).await;
     tab3.until(&mut got3, |r| acked(r).len() == 1).await;
@@ -182,24 +171,10 @@ async fn a_takeover_whose_notice_is_lost_still_fences_the_old_writer() {
     // The next command reaches the worker, but its append is refused: never acknowledged,
     // never logged, and the connection closes with 4009 after a `taken_over` notice.
     ws.send(2, json!({ "type": "shot" })).await;
-    let code = loop {
-        match tokio::time::timeout(
-            Duration::from_secs(30),
-            futures::StreamExt::next(&mut ws.ws),
-        )
+    let code = ws
+        .until_closed(&mut got, Duration::from_secs(30))
         .await
-        .expect("the socket closes")
-        {
-            Some(Ok(tokio_tungstenite::tungstenite::Message::Text(t))) => {
-                got.texts.push(serde_json::from_str(&t).unwrap());
-            }
-            Some(Ok(tokio_tungstenite::tungstenite::Message::Close(f))) => {
-                break f.map(|f| u16::from(f.code));
-            }
-            Some(Ok(_)) => {}
-            _ => break None,
-        }
-    };
+        .map(|(c, _)| c);
     assert_eq!(code, Some(4009), "{:?}", got.texts);
     assert_eq!(acked(&got), vec![1]);
     assert!(

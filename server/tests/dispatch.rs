@@ -86,6 +86,31 @@ pub(crate) fn spawn_worker_draining(
         .expect("spawn a worker process")
 }
 
+/// Worker processes of a test, killed and reaped when it ends, whether it passed or panicked.
+pub(crate) struct WorkerProcesses(pub Vec<std::process::Child>);
+
+impl std::ops::Deref for WorkerProcesses {
+    type Target = Vec<std::process::Child>;
+    fn deref(&self) -> &Self::Target {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for WorkerProcesses {
+    fn deref_mut(&mut self) -> &mut Self::Target {
+        &mut self.0
+    }
+}
+
+impl Drop for WorkerProcesses {
+    fn drop(&mut self) {
+        for w in &mut self.0 {
+            let _ = w.kill();
+            let _ = w.wait();
+        }
+    }
+}
+
 pub(crate) async fn wait_for_workers(d: &Dispatcher, n: usize) {
     for _ in 0..600 {
         let alive = d.workers().await.expect("workers from the shared state");
@@ -386,11 +411,12 @@ async fn failover_after_worker_process_is_killed() {
     let token = "failover-test-cluster-token";
     let srv = demo_server(false, Some(token)).await;
     let register = format!("http://{}/api/workers", srv.addr);
-    let mut workers = [
+    // Killed when the test ends, passed or failed.
+    let mut workers = WorkerProcesses(vec![
         spawn_worker(&register, token),
         spawn_worker(&register, token),
-    ];
-    let result = async {
+    ]);
+    async {
         wait_for_workers(&srv.dispatcher, 2).await;
         let learner = Client::login(srv.addr, "learner@demo.invalid").await;
         let (attempt, session) = learner.start_demo_attempt().await;
@@ -472,15 +498,8 @@ async fn failover_after_worker_process_is_killed() {
             "{replay}"
         );
         assert_eq!(replay["recorded"]["score"], replay["replayed"]["score"]);
-    };
-    let outcome = futures::FutureExt::catch_unwind(std::panic::AssertUnwindSafe(result)).await;
-    for w in workers.iter_mut() {
-        let _ = w.kill();
-        let _ = w.wait();
     }
-    if let Err(p) = outcome {
-        std::panic::resume_unwind(p);
-    }
+    .await;
 }
 
 /// HTTP status of a websocket handshake to a session (101 when it upgrades).

@@ -10,6 +10,7 @@ use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
 use super::dispatch::{Client, DemoServer, Received, Ws, acked, demo_server};
+use super::dispatch_support::disable_account;
 
 /// Commands of a burst: a mix that changes the view, the technique and the clock, with every
 /// 1,000th one out of range (it must be refused, in its place, with the field named).
@@ -76,19 +77,9 @@ async fn open_session(srv: &DemoServer, email: &str) -> (Client, String, Value, 
 
 /// Reads until the socket closes; the close frame's code and reason.
 pub async fn close_frame(ws: &mut Ws, within: Duration) -> (u16, String) {
-    let deadline = Instant::now() + within;
-    loop {
-        let left = deadline.saturating_duration_since(Instant::now());
-        let m = tokio::time::timeout(left, ws.ws.next())
-            .await
-            .expect("the socket closes in time");
-        match m {
-            Some(Ok(Message::Close(Some(f)))) => return (u16::from(f.code), f.reason.to_string()),
-            Some(Ok(Message::Close(None))) | None => panic!("closed without a code"),
-            Some(Ok(_)) => continue,
-            Some(Err(e)) => panic!("socket error before the close frame: {e}"),
-        }
-    }
+    ws.until_closed(&mut Received::default(), within)
+        .await
+        .expect("closed with a code")
 }
 
 /// Polls until the dispatcher no longer holds `id` and the worker's slot is free again.
@@ -433,16 +424,7 @@ async fn a_revoked_accounts_open_session_closes_with_a_reason() {
     let srv = demo_server(true, None).await;
     let (_, _, session, mut ws) = open_session(&srv, "learner@demo.invalid").await;
     let id: uuid::Uuid = session["session_id"].as_str().unwrap().parse().unwrap();
-    let learner_id: uuid::Uuid =
-        sqlx::query_scalar("SELECT id FROM users WHERE email = 'learner@demo.invalid'")
-            .fetch_one(&srv.db.pool)
-            .await
-            .unwrap();
-    let admin = Client::login(srv.addr, "admin@demo.invalid").await;
-    let (s, body) = admin
-        .call("POST", &format!("/api/users/{learner_id}/disable"), None)
-        .await;
-    assert_eq!(s, 200, "{body}");
+    disable_account(srv.addr, &srv.db.pool, "learner@demo.invalid").await;
     let (code, reason) = close_frame(&mut ws, Duration::from_secs(30)).await;
     assert_eq!(code, server::dispatch::CLOSE_REVOKED, "{reason}");
     assert!(reason.contains("log in again"), "{reason}");

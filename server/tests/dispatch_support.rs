@@ -352,6 +352,30 @@ impl Ws {
             .expect("ok")
     }
 
+    /// Reads until the server closes the socket (within `within`: a hang fails the test),
+    /// keeping the text messages that arrive; the close code and reason, `None` when the socket
+    /// ended without a close frame.
+    pub async fn until_closed(
+        &mut self,
+        got: &mut Received,
+        within: Duration,
+    ) -> Option<(u16, String)> {
+        let deadline = tokio::time::Instant::now() + within;
+        loop {
+            let m = tokio::time::timeout_at(deadline, self.ws.next())
+                .await
+                .expect("the socket closes in time");
+            match m {
+                Some(Ok(Message::Text(t))) => got.texts.push(serde_json::from_str(&t).unwrap()),
+                Some(Ok(Message::Close(f))) => {
+                    return f.map(|f| (u16::from(f.code), f.reason.to_string()));
+                }
+                Some(Ok(_)) => {}
+                Some(Err(_)) | None => return None,
+            }
+        }
+    }
+
     /// Reads until `done` holds for what arrived (at most 60 s: a hang fails the test).
     pub async fn until(&mut self, got: &mut Received, done: impl Fn(&Received) -> bool) {
         while !done(got) {
@@ -366,6 +390,21 @@ impl Ws {
             }
         }
     }
+}
+
+/// Disables the account `email` as the demo admin (through the server at `addr`): its login
+/// sessions are revoked, and with them its live sessions.
+pub async fn disable_account(addr: SocketAddr, pool: &sqlx::PgPool, email: &str) {
+    let user: uuid::Uuid = sqlx::query_scalar("SELECT id FROM users WHERE email = $1")
+        .bind(email)
+        .fetch_one(pool)
+        .await
+        .unwrap();
+    let admin = Client::login(addr, "admin@demo.invalid").await;
+    let (s, body) = admin
+        .call("POST", &format!("/api/users/{user}/disable"), None)
+        .await;
+    assert_eq!(s, 200, "{body}");
 }
 
 /// Acknowledged sequence numbers (not duplicates).
