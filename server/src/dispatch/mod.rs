@@ -53,11 +53,13 @@ mod relay;
 mod replica;
 mod results;
 mod revoke;
+mod route_state;
 mod routes;
 mod store;
 mod takeover;
 mod upstream;
 mod verify;
+mod worker_routes;
 
 pub use cluster::{ClusterStatus, WorkerCounts};
 pub use dispatcher::*;
