@@ -45,6 +45,8 @@ function el(tag, props = {}) {
 /** Words for what the scan plane shows of the needle. */
 export function needleWords(o) {
   if (!o) return '–';
+  // Assessment mode: the session sends no hints; the image is all there is.
+  if (!('tip_in_slice' in o) && !('needle_in_slice' in o)) return 'no hints (assessment): judge the needle from the image';
   if (o.tip_in_slice) return 'needle in plane: tip in the slice';
   if (o.needle_in_slice) return 'shaft crosses the slice (the tip is not in it)';
   return 'needle not in the slice';
@@ -214,7 +216,7 @@ export class UltrasoundStation {
       this.showOutcome();
       return;
     }
-    if (!o || typeof o !== 'object' || !o.settings || !('tip_in_slice' in o)) return;
+    if (!o || typeof o !== 'object' || !o.settings || !o.probe) return;
     this.outcome = o;
     if (o.image) {
       this.geometry.push({ seq: a.seq, image: o.image });

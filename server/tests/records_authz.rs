@@ -8,9 +8,7 @@ use std::collections::BTreeSet;
 use axum::http::{Method, StatusCode};
 use serde_json::{Value, json};
 
-use crate::records_support::{
-    PASSWORD, ROLES, TestApp, World,
-};
+use crate::records_support::{PASSWORD, ROLES, TestApp, World};
 
 /// What a cell's request needs from the world.
 type Build = fn(&World) -> (String, Option<Value>);
@@ -80,7 +78,9 @@ fn rows() -> Vec<Row> {
             |_| {
                 (
                     "/api/auth/password".into(),
-                    Some(json!({ "current_password": PASSWORD, "new_password": "another-password-456" })),
+                    Some(
+                        json!({ "current_password": PASSWORD, "new_password": "another-password-456" }),
+                    ),
                 )
             },
             [401, 204, 204, 204, 204, 204],
@@ -92,7 +92,9 @@ fn rows() -> Vec<Row> {
             |_| {
                 (
                     "/api/auth/password-reset".into(),
-                    Some(json!({ "reset_token": "ab".repeat(32), "new_password": "another-password-456" })),
+                    Some(
+                        json!({ "reset_token": "ab".repeat(32), "new_password": "another-password-456" }),
+                    ),
                 )
             },
             [401, 401, 401, 401, 401, 401],
@@ -112,7 +114,12 @@ fn rows() -> Vec<Row> {
         r(
             M::POST,
             "/api/users/{user_id}/password-reset",
-            |w| (format!("/api/users/{}/password-reset", w.other_learner), None),
+            |w| {
+                (
+                    format!("/api/users/{}/password-reset", w.other_learner),
+                    None,
+                )
+            },
             [401, 403, 403, 403, 403, 201],
         ),
         // Faculty and admins of the fixture already have TOTP: 409 is "already enabled".
@@ -157,7 +164,12 @@ fn rows() -> Vec<Row> {
         r(
             M::POST,
             "/api/admin/lti/platforms",
-            |w| ("/api/admin/lti/platforms".into(), Some(lti_platform_settings(w, "new"))),
+            |w| {
+                (
+                    "/api/admin/lti/platforms".into(),
+                    Some(lti_platform_settings(w, "new")),
+                )
+            },
             [401, 403, 403, 403, 403, 201],
         ),
         r(
@@ -192,7 +204,12 @@ fn rows() -> Vec<Row> {
         r(
             M::POST,
             "/api/lti/courses/{id}/memberships/sync",
-            |w| (format!("/api/lti/courses/{}/memberships/sync", w.course_a), None),
+            |w| {
+                (
+                    format!("/api/lti/courses/{}/memberships/sync", w.course_a),
+                    None,
+                )
+            },
             [401, 403, 403, 404, 403, 404],
         ),
         // LMS integrations: LRS credentials are the admin's alone.
@@ -216,7 +233,12 @@ fn rows() -> Vec<Row> {
         r(
             M::POST,
             "/api/admin/lrs-credentials/{id}/revoke",
-            |w| (format!("/api/admin/lrs-credentials/{}/revoke", w.lrs_credential), None),
+            |w| {
+                (
+                    format!("/api/admin/lrs-credentials/{}/revoke", w.lrs_credential),
+                    None,
+                )
+            },
             [401, 403, 403, 403, 403, 200],
         ),
         // Forwarding to an external LRS: the admin's alone.
@@ -232,7 +254,9 @@ fn rows() -> Vec<Row> {
             |_| {
                 (
                     "/api/admin/lrs-forwarding".into(),
-                    Some(json!({ "endpoint": "https://lrs.example.org/xapi/", "key": "k", "secret": "s" })),
+                    Some(
+                        json!({ "endpoint": "https://lrs.example.org/xapi/", "key": "k", "secret": "s" }),
+                    ),
                 )
             },
             [401, 403, 403, 403, 403, 200],
@@ -278,6 +302,56 @@ fn rows() -> Vec<Row> {
                 )
             },
             [401, 403, 403, 403, 403, 200],
+        ),
+        // Members see how the course's stations run; its faculty (and admins) set it.
+        r(
+            M::GET,
+            "/api/courses/{course_id}/station-modes",
+            |w| (format!("/api/courses/{}/station-modes", w.course_a), None),
+            [401, 200, 200, 200, 404, 200],
+        ),
+        r(
+            M::PUT,
+            "/api/courses/{course_id}/station-modes/{station_id}",
+            |w| {
+                (
+                    format!(
+                        "/api/courses/{}/station-modes/l4-left-transforaminal",
+                        w.course_a
+                    ),
+                    Some(json!({ "mode": "assessment" })),
+                )
+            },
+            [401, 403, 403, 200, 404, 200],
+        ),
+        // The cohort dashboard is the course faculty's.
+        r(
+            M::GET,
+            "/api/courses/{course_id}/cohort",
+            |w| {
+                (
+                    format!(
+                        "/api/courses/{}/cohort?station_id=l4-left-transforaminal",
+                        w.course_a
+                    ),
+                    None,
+                )
+            },
+            [401, 403, 403, 200, 404, 200],
+        ),
+        r(
+            M::GET,
+            "/api/courses/{course_id}/cohort.csv",
+            |w| {
+                (
+                    format!(
+                        "/api/courses/{}/cohort.csv?station_id=l4-left-transforaminal",
+                        w.course_a
+                    ),
+                    None,
+                )
+            },
+            [401, 403, 403, 200, 404, 200],
         ),
         r(
             M::GET,
@@ -387,7 +461,12 @@ fn rows() -> Vec<Row> {
         r(
             M::POST,
             "/api/attempts/{attempt_id}/session",
-            |w| (format!("/api/attempts/{}/session", w.attempt_submitted), None),
+            |w| {
+                (
+                    format!("/api/attempts/{}/session", w.attempt_submitted),
+                    None,
+                )
+            },
             [401, 409, 404, 403, 404, 403],
         ),
         r(
@@ -405,13 +484,23 @@ fn rows() -> Vec<Row> {
         r(
             M::GET,
             "/api/attempts/{attempt_id}/replay",
-            |w| (format!("/api/attempts/{}/replay", w.attempt_submitted), None),
+            |w| {
+                (
+                    format!("/api/attempts/{}/replay", w.attempt_submitted),
+                    None,
+                )
+            },
             [401, 404, 404, 404, 404, 404],
         ),
         r(
             M::GET,
             "/api/attempts/{attempt_id}/replay/frame",
-            |w| (format!("/api/attempts/{}/replay/frame?step=0", w.attempt_submitted), None),
+            |w| {
+                (
+                    format!("/api/attempts/{}/replay/frame?step=0", w.attempt_submitted),
+                    None,
+                )
+            },
             [401, 404, 404, 404, 404, 404],
         ),
         // Workers register with the cluster token, which this server has none of.
@@ -421,7 +510,9 @@ fn rows() -> Vec<Row> {
             |_| {
                 (
                     "/api/workers".into(),
-                    Some(json!({ "url": "http://127.0.0.1:9", "capacity": 1, "renderer": {}, "adapter": null })),
+                    Some(
+                        json!({ "url": "http://127.0.0.1:9", "capacity": 1, "renderer": {}, "adapter": null }),
+                    ),
                 )
             },
             [403, 403, 403, 403, 403, 403],

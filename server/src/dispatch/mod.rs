@@ -45,6 +45,7 @@
 
 mod browser;
 mod cluster;
+mod disclosure;
 mod dispatcher;
 mod durable;
 mod notices;

@@ -26,6 +26,7 @@ use serde_json::json;
 use tokio::sync::mpsc;
 
 use super::browser::BrowserWriter;
+use super::disclosure;
 use super::durable::LogWriter;
 use super::upstream::{UpSink, connect};
 use super::{
@@ -33,6 +34,7 @@ use super::{
 };
 use crate::records::RecordsState;
 use crate::records::activity::{ActivityKind, record_activity};
+use crate::records::modes::{StationMode, mode_of_attempt};
 
 /// How many times in a row one connection tries to move its session before giving up.
 /// Simulator choice: two dead workers in a row is already exceptional.
@@ -175,6 +177,8 @@ struct Relay {
     /// Commands sent to the worker and not yet acknowledged or rejected: re-sent after failover.
     pending: BTreeMap<u64, (String, Command)>,
     first_hello: bool,
+    /// The attempt's mode: what the browser may be told ([`super::disclosure`]).
+    mode: StationMode,
     failovers_in_a_row: u32,
     writer: LogWriter,
     outbox: Outbox,
@@ -200,6 +204,7 @@ pub async fn relay(
     let browser = BrowserWriter::start(browser_tx);
     let mut browser_progress = browser.sent.clone();
     let mut ended = session.ended.subscribe();
+    let mode = mode_of_attempt(&records.pool, session.attempt_id).await;
     let mut r = Relay {
         engagement: Engagement::start(&records, &session),
         dispatcher,
@@ -209,6 +214,7 @@ pub async fn relay(
         browser,
         pending: BTreeMap::new(),
         first_hello: true,
+        mode,
         failovers_in_a_row: 0,
         writer,
         outbox: Outbox::default(),
@@ -278,14 +284,17 @@ impl Relay {
         match m {
             Some(Ok(WsMessage::Text(t))) => {
                 self.failovers_in_a_row = 0;
-                // Parsed once here; the text itself is what the browser gets.
+                // Parsed once here; acknowledgements and the hello reach the browser as
+                // `disclosure` rewrites them (errors too: see `error_for_browser`).
                 match serde_json::from_str::<ServerMessage>(&t) {
                     Ok(ServerMessage::Hello {
                         session: info,
                         last_seq,
                     }) => self.on_hello(info, last_seq).await,
-                    Ok(ServerMessage::Ack(ack)) => self.on_ack(ack, t, placement).await,
-                    Ok(ServerMessage::Error { seq, .. }) => self.on_error(seq, t).await,
+                    Ok(ServerMessage::Ack(ack)) => self.on_ack(ack, placement).await,
+                    Ok(ServerMessage::Error { seq, .. }) => {
+                        self.on_error(seq, disclosure::error_for_browser(t)).await
+                    }
                     Err(_) => self.pass_text(t).await,
                 }
             }
@@ -311,13 +320,14 @@ impl Relay {
             session: info,
             last_seq,
         };
-        let text = serde_json::to_string(&hello).unwrap_or_default();
+        let text = disclosure::hello_for_browser(&hello, self.mode);
         self.pass_text(text).await
     }
 
     /// An acknowledgement: log the command (durably before the browser sees the ack), record
     /// its engagement event, and on a submit store the result once its log is durable.
-    async fn on_ack(&mut self, ack: Ack, text: String, placement: &Placement) -> Flow {
+    async fn on_ack(&mut self, ack: Ack, placement: &Placement) -> Flow {
+        let text = disclosure::ack_for_browser(&ack, self.mode);
         let command = self.pending.remove(&ack.seq).map(|(_, c)| c);
         let Some(command) = command.filter(|_| !ack.duplicate) else {
             return self.pass_text(text).await;
@@ -346,7 +356,11 @@ impl Relay {
                 ack.result.as_deref(),
             )
             .await;
-            result_message = Some(m);
+            result_message = Some(disclosure::result_for_browser(
+                m,
+                self.mode,
+                self.session.attempt_id,
+            ));
         }
         self.outbox.push(needs, text);
         if let Some(m) = result_message {

@@ -49,8 +49,9 @@ pub async fn create_attempt(
     let id = Uuid::new_v4();
     let mut tx = state.pool.begin().await?;
     let inserted = sqlx::query(
-        "INSERT INTO attempts (id, learner_id, course_id, station_id, station_revision, rubric_revision)
-         SELECT $1, $2, $3, $4, $5, $6
+        "INSERT INTO attempts (id, learner_id, course_id, station_id, station_revision, rubric_revision, mode)
+         SELECT $1, $2, $3, $4, $5, $6,
+                COALESCE((SELECT mode FROM course_station_modes WHERE course_id = $3 AND station_id = $4), 'practice')
          WHERE EXISTS (SELECT 1 FROM course_members WHERE course_id = $3 AND user_id = $2 AND role = 'learner')",
     )
     .bind(id)

@@ -345,13 +345,19 @@ pub async fn list_stations(
     )
 }
 
-/// One station's full definition (targets, instruments, rubric).
+/// Keys of a station target that learner accounts do not get: where it is (its position and
+/// the landmark that places it). A learner gets each target's name and description, as a
+/// physician knows what to aim for but not its coordinates.
+const TARGET_KEYS_FOR_FACULTY: [&str; 2] = ["position_mm", "landmark"];
+
+/// One station's definition (targets, instruments, rubric). Learner accounts get the targets
+/// without their positions.
 #[utoipa::path(get, path = "/api/stations/{station_id}", tag = "stations",
     params(("station_id" = String, Path, description = "Station id")),
-    responses((status = 200, description = "The station definition (see assets/stations/README.md)", body = Object), (status = 401), (status = 404)))]
+    responses((status = 200, description = "The station definition (see assets/stations/README.md); for learner accounts its targets carry no position or landmark", body = Object), (status = 401), (status = 404)))]
 pub async fn get_station(
     State(state): State<RecordsState>,
-    _user: CurrentUser,
+    user: CurrentUser,
     ApiPath(station_id): ApiPath<String>,
 ) -> Result<axum::Json<serde_json::Value>, ApiError> {
     let c = state
@@ -360,5 +366,12 @@ pub async fn get_station(
         .ok_or_else(|| ApiError::NotFound(format!("station {station_id:?}")))?;
     let mut v = serde_json::to_value(&c.station).map_err(|e| ApiError::Internal(e.to_string()))?;
     v["file_sha256"] = c.sha256.clone().into();
+    if user.role == Role::Learner
+        && let Some(targets) = v.get_mut("targets").and_then(|t| t.as_array_mut())
+    {
+        for t in targets.iter_mut().filter_map(|t| t.as_object_mut()) {
+            t.retain(|k, _| !TARGET_KEYS_FOR_FACULTY.contains(&k.as_str()));
+        }
+    }
     Ok(axum::Json(v))
 }

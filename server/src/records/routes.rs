@@ -7,7 +7,9 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::state::RecordsState;
-use super::{accounts, activity, attempts, catalogue, detail, history, login, reviews, users};
+use super::{
+    accounts, activity, attempts, catalogue, cohort, detail, history, login, modes, reviews, users,
+};
 
 #[derive(OpenApi)]
 #[openapi(
@@ -48,6 +50,10 @@ pub fn router<S: Clone + Send + Sync + 'static>(
         .routes(routes!(catalogue::create_course, catalogue::list_courses))
         .routes(routes!(catalogue::get_course))
         .routes(routes!(catalogue::put_member))
+        .routes(routes!(modes::list_station_modes))
+        .routes(routes!(modes::put_station_mode))
+        .routes(routes!(cohort::get_cohort))
+        .routes(routes!(cohort::get_cohort_csv))
         .routes(routes!(catalogue::list_stations))
         .routes(routes!(catalogue::get_station))
         .routes(routes!(attempts::create_attempt, attempts::list_attempts))

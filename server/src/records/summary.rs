@@ -15,11 +15,18 @@ use crate::error::ApiError;
 /// States of an attempt (the `attempts.state` check of the schema migration).
 pub const ATTEMPT_STATES: [&str; 4] = ["in_progress", "submitted", "returned", "approved"];
 
+/// Modes an attempt runs in (the `attempts.mode` check of `1001_station_modes.sql`).
+pub const ATTEMPT_MODES: [&str; 2] = ["practice", "assessment"];
+
 /// Technical outcomes of a result (the `technical_results.outcome` check).
 pub const OUTCOMES: [&str; 3] = ["met", "not_met", "incomplete"];
 
 fn attempt_state() -> utoipa::openapi::schema::Schema {
     one_of_strings(ATTEMPT_STATES).build().into()
+}
+
+fn attempt_mode() -> utoipa::openapi::schema::Schema {
+    one_of_strings(ATTEMPT_MODES).build().into()
 }
 
 fn latest_outcome() -> utoipa::openapi::schema::Schema {
@@ -58,6 +65,9 @@ pub struct AttemptSummary {
     pub station_revision: i32,
     /// Rubric revision in force when the attempt was opened.
     pub rubric_revision: i32,
+    /// How the station ran (`practice` or `assessment`), fixed when the attempt was opened.
+    #[schema(schema_with = attempt_mode)]
+    pub mode: String,
     /// `in_progress`, `submitted` (awaiting review), `returned` (to the learner) or `approved`.
     #[schema(schema_with = attempt_state)]
     pub state: String,
@@ -82,56 +92,61 @@ pub struct AttemptSummary {
     pub updated_at: OffsetDateTime,
 }
 
-/// SELECT list producing an [`AttemptSummary`] from `attempts a`.
+/// SELECT list producing an [`AttemptSummary`] from `attempts a` (columns named as the fields of
+/// [`SummaryRow`]).
 pub(crate) const SUMMARY_COLUMNS: &str = "a.id, a.learner_id, u.email, u.display_name, a.course_id, c.code, a.station_id,
-    a.station_revision, a.rubric_revision, a.state,
-    (SELECT r.outcome FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1),
-    (SELECT r.score FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1),
-    (SELECT r.source FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1),
+    a.station_revision, a.rubric_revision, a.mode, a.state,
+    (SELECT r.outcome FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1) AS latest_outcome,
+    (SELECT r.score FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1) AS latest_score,
+    (SELECT r.source FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1) AS latest_source,
     (SELECT COALESCE((SELECT c.verdict FROM result_replay_checks c WHERE c.result_id = r.id ORDER BY c.id DESC LIMIT 1), 'pending')
-       FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1),
+       FROM technical_results r WHERE r.attempt_id = a.id ORDER BY r.seq DESC LIMIT 1) AS latest_replay_check,
     a.created_at, a.updated_at";
 /// FROM clause matching [`SUMMARY_COLUMNS`].
 pub(crate) const SUMMARY_FROM: &str =
     "attempts a JOIN users u ON u.id = a.learner_id JOIN courses c ON c.id = a.course_id";
 
-pub(crate) type SummaryRow = (
-    Uuid,
-    Uuid,
-    String,
-    String,
-    Uuid,
-    String,
-    String,
-    i32,
-    i32,
-    String,
-    Option<String>,
-    Option<f64>,
-    Option<String>,
-    Option<String>,
-    OffsetDateTime,
-    OffsetDateTime,
-);
+/// One row of [`SUMMARY_COLUMNS`].
+#[derive(sqlx::FromRow)]
+pub(crate) struct SummaryRow {
+    id: Uuid,
+    learner_id: Uuid,
+    email: String,
+    display_name: String,
+    course_id: Uuid,
+    code: String,
+    station_id: String,
+    station_revision: i32,
+    rubric_revision: i32,
+    mode: String,
+    state: String,
+    latest_outcome: Option<String>,
+    latest_score: Option<f64>,
+    latest_source: Option<String>,
+    latest_replay_check: Option<String>,
+    created_at: OffsetDateTime,
+    updated_at: OffsetDateTime,
+}
 
 pub(crate) fn summary(r: SummaryRow) -> AttemptSummary {
     AttemptSummary {
-        id: r.0,
-        learner_id: r.1,
-        learner_email: r.2,
-        learner_name: r.3,
-        course_id: r.4,
-        course_code: r.5,
-        station_id: r.6,
-        station_revision: r.7,
-        rubric_revision: r.8,
-        state: r.9,
-        latest_outcome: r.10,
-        latest_score: r.11,
-        latest_source: r.12,
-        latest_replay_check: r.13,
-        created_at: r.14,
-        updated_at: r.15,
+        id: r.id,
+        learner_id: r.learner_id,
+        learner_email: r.email,
+        learner_name: r.display_name,
+        course_id: r.course_id,
+        course_code: r.code,
+        station_id: r.station_id,
+        station_revision: r.station_revision,
+        rubric_revision: r.rubric_revision,
+        mode: r.mode,
+        state: r.state,
+        latest_outcome: r.latest_outcome,
+        latest_score: r.latest_score,
+        latest_source: r.latest_source,
+        latest_replay_check: r.latest_replay_check,
+        created_at: r.created_at,
+        updated_at: r.updated_at,
     }
 }
 

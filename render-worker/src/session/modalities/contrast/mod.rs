@@ -423,19 +423,29 @@ fn quantum_of(t_ms: u64) -> u64 {
     t_ms / QUANTUM_MS
 }
 
-/// A refusal of the transport model as a command error naming the field.
+/// A refusal of the transport model as a command error naming the field. A refusal of the
+/// needle's outlet names the needle and says why without the model's words, which give the
+/// tip's position: a learner's browser gets command errors as they are.
 fn refused(e: &ContrastError) -> CommandError {
     let field = match e {
         ContrastError::OutOfRange { field, .. } | ContrastError::NotFinite { field, .. } => {
             match *field {
                 "injection.volume_ml" => "command.volume_ml",
                 "injection.rate_ml_s" => "command.rate_ml_per_s",
-                f if f.starts_with("outlet.") => "needle.tip_mm",
+                f if f.starts_with("outlet.") => "needle",
                 f => f,
             }
         }
-        _ => "needle.tip_mm",
+        _ => "needle",
     };
+    if field == "needle" {
+        return CommandError::field(
+            field,
+            ErrorCode::Invalid,
+            "the needle's outlet is outside the part of the body the contrast model covers: \
+             nothing can be injected there",
+        );
+    }
     CommandError::field(field, ErrorCode::Invalid, e.to_string())
 }
 
