@@ -10,7 +10,7 @@ use crate::dispatch_support::{Client, Received, acked, demo_server_for};
 use crate::e2e_browser::ultrasound_demo_station_toml;
 
 /// The demo station with fluoroscopy, ultrasound and contrast and a loss-of-resistance syringe.
-fn station_toml() -> String {
+pub(crate) fn station_toml() -> String {
     ultrasound_demo_station_toml()
         .replace(
             "modalities = [\"fluoroscopy\", \"ultrasound\"]",
@@ -25,7 +25,7 @@ fn station_toml() -> String {
 
 /// Every command kind a learner's hands and eyes use (session core, fluoroscopy, ultrasound,
 /// contrast), including a loss of resistance and a bone contact.
-fn script() -> Vec<Value> {
+pub(crate) fn script() -> Vec<Value> {
     vec![
         json!({ "type": "technique", "kvp": 85, "ma": 2.5 }),
         json!({ "type": "brightness", "curve": "standard" }),
@@ -248,7 +248,7 @@ fn walk<'a>(v: &'a Value, keys: &mut BTreeSet<&'a str>, strings: &mut Vec<&'a st
 }
 
 /// Runs [`script`] and a submit as `learner` in a new demo attempt; every text message.
-async fn run_session(learner: &Client) -> (String, Vec<Value>) {
+pub(crate) async fn run_session(learner: &Client) -> (String, Vec<Value>) {
     let (attempt, session) = learner.start_demo_attempt().await;
     let mut ws = learner.websocket(session["ws"].as_str().unwrap()).await;
     let mut got = Received::default();
@@ -534,4 +534,31 @@ async fn learners_get_station_targets_without_their_positions() {
         as_faculty["targets"][0]["position_mm"].is_array(),
         "{as_faculty}"
     );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_learner_cannot_score_an_open_attempt_through_its_replay() {
+    let srv = demo_server_for(true, None, &station_toml()).await;
+    let learner = Client::login(srv.addr, "learner@demo.invalid").await;
+    let faculty = Client::login(srv.addr, "faculty@demo.invalid").await;
+    let (attempt, session) = learner.start_demo_attempt().await;
+    let mut ws = learner.websocket(session["ws"].as_str().unwrap()).await;
+    let mut got = Received::default();
+    ws.send(1, json!({ "type": "shot" })).await;
+    ws.until(&mut got, |r| acked(r) == vec![1]).await;
+    let replay = format!("/api/attempts/{attempt}/replay");
+    let frame = format!("/api/attempts/{attempt}/replay/frame?step=1");
+    let (s, body) = learner.call("GET", &replay, None).await;
+    assert_eq!(s, 409, "{body}");
+    assert!(!body.to_string().contains("tip_to_target"), "{body}");
+    assert_eq!(learner.call("GET", &frame, None).await.0, 409);
+    let (s, body) = faculty.call("GET", &replay, None).await;
+    assert_eq!(s, 200, "reviewers may look at any time: {body}");
+    ws.send(2, json!({ "type": "submit" })).await;
+    ws.until(&mut got, |r| {
+        r.texts.iter().any(|t| t["type"] == "technical_result")
+    })
+    .await;
+    let (s, body) = learner.call("GET", &replay, None).await;
+    assert_eq!(s, 200, "the learner's own replay once submitted: {body}");
 }

@@ -7,6 +7,7 @@ mod cluster_failover;
 mod cluster_state;
 mod cluster_takeover;
 mod configuration;
+mod debrief;
 mod disclosure;
 mod dispatch;
 mod dispatch_capacity;

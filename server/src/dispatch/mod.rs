@@ -45,6 +45,7 @@
 
 mod browser;
 mod cluster;
+mod debrief;
 mod disclosure;
 mod dispatcher;
 mod durable;

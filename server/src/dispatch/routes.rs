@@ -19,10 +19,10 @@ use utoipa::{IntoParams, OpenApi, ToSchema};
 use uuid::Uuid;
 
 use super::route_state::{Caller, DispatchState};
-use super::worker_routes;
 use super::{
     Dispatcher, LiveSession, PlaceError, SessionRecord, TakeoverError, relay, revoke, store, verify,
 };
+use super::{debrief, worker_routes};
 use crate::error::ApiError;
 use crate::records::RecordsState;
 use crate::records::activity::{ActivityKind, record_activity};
@@ -132,7 +132,7 @@ enum FrameQuality {
 /// The OpenAPI description of the dispatch routes (merged into `/api/openapi.json`).
 #[derive(OpenApi)]
 #[openapi(
-    paths(start_session, session_info, session_ws, replay, replay_frame, worker_routes::register_worker, worker_routes::list_workers),
+    paths(start_session, session_info, session_ws, replay, replay_frame, debrief::debrief, worker_routes::register_worker, worker_routes::list_workers),
     components(schemas(SessionView, ReplayView, ReplaySide, worker_routes::WorkerRegistration)),
     tags((name = "sessions", description = "Live simulation sessions, their websocket, replay and render workers"))
 )]
@@ -166,6 +166,7 @@ pub fn router<S: Clone + Send + Sync + 'static>(
         .route("/api/attempts/{attempt_id}/session", post(start_session))
         .route("/api/attempts/{attempt_id}/replay", get(replay))
         .route("/api/attempts/{attempt_id}/replay/frame", get(replay_frame))
+        .route("/api/attempts/{attempt_id}/debrief", get(debrief::debrief))
         .route("/api/sessions/{session_id}", get(session_info))
         .route("/api/sessions/{session_id}/ws", get(session_ws))
         .route(
@@ -633,12 +634,19 @@ async fn session_ws(
 }
 
 /// The newest recorded session of a visible attempt (submitted ones first).
-async fn recorded_session(
+pub(super) async fn recorded_session(
     state: &DispatchState,
     user: &CurrentUser,
     attempt_id: Uuid,
 ) -> Result<store::RecordedSession, ApiError> {
-    visible_attempt(state, user, attempt_id).await?;
+    let (learner, _, attempt_state, _) = visible_attempt(state, user, attempt_id).await?;
+    // A replay scores the log: opened to the learner mid-attempt, it would tell them the tip's
+    // distance from the target (see `disclosure`). Reviewers may look at any time.
+    if learner == user.id && attempt_state == "in_progress" {
+        return Err(ApiError::Conflict(
+            "the replay of an attempt opens to its learner once the attempt is submitted".into(),
+        ));
+    }
     store::newest_recorded(&state.records.pool, attempt_id)
         .await?
         .ok_or_else(|| ApiError::NotFound("recorded session".into()))
@@ -663,7 +671,7 @@ async fn replay_to(
 }
 
 /// A recorded session's initial snapshot (stored JSON) and its logged commands.
-async fn parse_recorded(
+pub(super) async fn parse_recorded(
     state: &DispatchState,
     session_id: Uuid,
     initial: serde_json::Value,
@@ -683,6 +691,7 @@ async fn parse_recorded(
     params(("attempt_id" = Uuid, Path, description = "Attempt id")),
     responses((status = 200, body = ReplayView), (status = 400, description = "Malformed attempt id"), (status = 401),
         (status = 404, description = "No such attempt visible to the caller, or no recorded session"),
+        (status = 409, description = "The caller is the learner and the attempt is not submitted yet"),
         (status = 503, description = "The anatomy is being prepared")))]
 async fn replay(
     State(state): State<DispatchState>,
@@ -754,6 +763,7 @@ async fn replay(
         (status = 204, description = "No image yet at that step"),
         (status = 400, description = "Malformed id or step"), (status = 401),
         (status = 404, description = "No such attempt visible to the caller, or no recorded session"),
+        (status = 409, description = "The caller is the learner and the attempt is not submitted yet"),
         (status = 503, description = "The anatomy is being prepared")))]
 async fn replay_frame(
     State(state): State<DispatchState>,

@@ -14,7 +14,9 @@
 use std::collections::BTreeSet;
 use std::time::Duration;
 
-use render_worker::session::{HostError, LogEntry, Session, SessionHost, SessionSnapshot, ViewId};
+use render_worker::session::{
+    HostError, LogEntry, Session, SessionEnv, SessionHost, SessionSnapshot, ViewId,
+};
 use serde_json::json;
 use uuid::Uuid;
 
@@ -34,6 +36,28 @@ const PER_ROUND: i64 = 4;
 /// and linking its session) has no log to replay; after this long it is marked `unavailable`.
 const UNLINKED_AFTER_S: i64 = 600;
 
+/// Runs `f` with the environment of `station_id`'s sessions on `host`, off the async runtime.
+/// Never holds a request for an anatomy build: answers 503 (come back later) instead.
+pub(super) async fn on_replay_host<T: Send + 'static>(
+    host: SessionHost,
+    station_id: String,
+    f: impl FnOnce(SessionEnv) -> Result<T, ApiError> + Send + 'static,
+) -> Result<T, ApiError> {
+    if let Err(HostError::Preparing { .. }) = host.check_ready(&station_id) {
+        return Err(ApiError::Unavailable(
+            "anatomy (being prepared; retry shortly)",
+        ));
+    }
+    tokio::task::spawn_blocking(move || {
+        let env = host
+            .env_for(&station_id)
+            .map_err(|e| ApiError::Internal(e.to_string()))?;
+        f(env)
+    })
+    .await
+    .map_err(|e| ApiError::Internal(e.to_string()))?
+}
+
 /// Restores `initial` on `host`, replays `log`, and renders what the learner saw last: the
 /// session and the JPEG of its fluoroscopy view (if it has one), or with `draft` the draft of
 /// that view that a live session shows before it (none where the view has no draft).
@@ -44,16 +68,7 @@ pub(super) async fn replay_on(
     log: Vec<LogEntry>,
     draft: bool,
 ) -> Result<(Session, Option<Vec<u8>>), ApiError> {
-    // Never hold a request for an anatomy build: say when to come back instead.
-    if let Err(HostError::Preparing { .. }) = host.check_ready(&station_id) {
-        return Err(ApiError::Unavailable(
-            "anatomy (being prepared; retry shortly)",
-        ));
-    }
-    tokio::task::spawn_blocking(move || {
-        let env = host
-            .env_for(&station_id)
-            .map_err(|e| ApiError::Internal(e.to_string()))?;
+    on_replay_host(host, station_id, move |env| {
         let mut s = Session::restore(env, &initial, &log)
             .map_err(|e| ApiError::Internal(format!("replay: {e}")))?;
         let views = if draft {
@@ -74,7 +89,6 @@ pub(super) async fn replay_on(
         Ok((s, jpeg))
     })
     .await
-    .map_err(|e| ApiError::Internal(e.to_string()))?
 }
 
 /// What a result recorded, to compare a replay with.
