@@ -131,3 +131,67 @@ async fn a_dural_puncture_is_a_violation_tick_and_open_attempts_have_no_debrief(
         "{dural}"
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_reveal_outlines_the_structures_the_needle_passed_through() {
+    let srv = demo_server_for(true, None, &station_toml()).await;
+    let learner = Client::login(srv.addr, "learner@demo.invalid").await;
+    let (attempt, session) = learner.start_demo_attempt().await;
+    let path = format!("/api/attempts/{attempt}/reveal");
+    let mut ws = learner.websocket(session["ws"].as_str().unwrap()).await;
+    let mut got = Received::default();
+    // In AP, down the midline through the demo dural sac (y -35 to -20, |x| < 8, z -60 to 40).
+    ws.send(1, json!({ "type": "needle_place", "instrument": "spinal-22g", "entry_mm": [0, -120, 0], "direction": [0, 1, 0], "bevel_reference": [1, 0, 0] })).await;
+    ws.send(2, json!({ "type": "needle_feed", "mm": 45 })).await;
+    ws.send(3, json!({ "type": "needle_feed", "mm": 45 })).await;
+    ws.send(4, json!({ "type": "shot" })).await;
+    ws.until(&mut got, |r| acked(r).len() == 4).await;
+    let (s, body) = learner.call("GET", &path, None).await;
+    assert_eq!(s, 409, "{body}");
+    ws.send(5, json!({ "type": "submit" })).await;
+    ws.until(&mut got, |r| {
+        r.texts.iter().any(|t| t["type"] == "technical_result")
+    })
+    .await;
+    let (s, r) = learner.call("GET", &path, None).await;
+    assert_eq!(s, 200, "{r}");
+    assert_eq!(r["step"], 5);
+    let touched: Vec<&str> = r["touched"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t.as_str().unwrap())
+        .collect();
+    assert!(touched.contains(&"dural_sac"), "{touched:?}");
+    let sac = r["outlines"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|o| o["structure"] == "dural_sac")
+        .unwrap_or_else(|| panic!("{r}"));
+    // The sac is 16 mm wide at the isocentre: about 16 x 2.03 / 0.586 = 55 pixels in AP, centred.
+    let rows: Vec<u64> = sac["runs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|run| run[0].as_u64().unwrap())
+        .collect();
+    let cols: Vec<u64> = sac["runs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|run| [run[1].as_u64().unwrap(), run[2].as_u64().unwrap()])
+        .collect();
+    let (x0, x1) = (*cols.iter().min().unwrap(), *cols.iter().max().unwrap());
+    assert!((50..=62).contains(&(x1 - x0 + 1)), "{x0}..{x1}");
+    assert!(x0 < 256 && x1 > 256, "{x0}..{x1}");
+    assert!(rows.iter().min() < rows.iter().max());
+    assert!(
+        r["outlines"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|o| o["structure"] != "skin"),
+        "envelopes are not outlined"
+    );
+}

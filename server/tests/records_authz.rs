@@ -494,6 +494,17 @@ fn rows() -> Vec<Row> {
         ),
         r(
             M::GET,
+            "/api/attempts/{attempt_id}/reveal",
+            |w| {
+                (
+                    format!("/api/attempts/{}/reveal", w.attempt_submitted),
+                    None,
+                )
+            },
+            [401, 404, 404, 404, 404, 404],
+        ),
+        r(
+            M::GET,
             "/api/attempts/{attempt_id}/debrief",
             |w| {
                 (

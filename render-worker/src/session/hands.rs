@@ -417,7 +417,7 @@ fn marker_point(
 }
 
 /// Point of the recorded channel at buried arc length `s_mm` (the entry for `s <= 0`).
-fn point_at_arc(tract: &Tract, entry: DVec3, s_mm: f64) -> DVec3 {
+pub(crate) fn point_at_arc(tract: &Tract, entry: DVec3, s_mm: f64) -> DVec3 {
     let Some(i) = tract
         .segments
         .iter()

@@ -359,6 +359,13 @@ impl Session {
         &self.world
     }
 
+    /// The projection of the last fluoroscopy image on screen, if one was taken.
+    pub fn displayed_projection(&self) -> Option<sim_core::fluoro::geometry::Projection> {
+        self.modalities
+            .iter()
+            .find_map(|m| m.displayed_projection())
+    }
+
     /// The station's views this session renders.
     pub fn views(&self) -> Vec<ViewId> {
         self.modalities

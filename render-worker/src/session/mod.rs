@@ -61,6 +61,7 @@ pub mod offer;
 pub mod preparation;
 pub mod protocol;
 pub mod region;
+pub mod reveal;
 pub mod scoring;
 pub mod world;
 

@@ -1,7 +1,8 @@
 //! The debrief of a submitted attempt, shared by the learner's screen and the faculty review:
 //! each criterion with its measured value, its tolerance and one line that explains the
-//! verdict, and the events of the session in order (images, punctures, losses of resistance,
-//! injections, bone contacts, safety violations) as ticks for the replay bar.
+//! verdict, the events of the session in order (images, punctures, losses of resistance,
+//! injections, bone contacts, safety violations) as ticks for the replay bar, and the reveal
+//! (where the needle really went, outlined over the last image).
 //!
 //! The events come from replaying the recorded log on the replay host one command at a time,
 //! so they are exactly what happened (the log carries the clock). A safety violation is the
@@ -15,8 +16,8 @@ use sim_core::rubric::{Criterion, Station, Tolerance, Unit};
 use utoipa::ToSchema;
 use uuid::Uuid;
 
+use super::recorded::{parse_recorded, recorded_session};
 use super::route_state::{Caller, DispatchState};
-use super::routes::{parse_recorded, recorded_session};
 use super::verify::on_replay_host;
 use crate::error::ApiError;
 use crate::records::extract::ApiPath;
@@ -317,6 +318,66 @@ pub(super) async fn debrief(
         steps,
         events,
         notice: sim_core::rubric::TECHNICAL_RESULT_NOTICE.into(),
+    }))
+}
+
+/// Where the needle went, over the last image of the attempt's session.
+#[derive(Debug, Clone, Serialize, ToSchema)]
+pub struct RevealView {
+    /// Attempt.
+    pub attempt_id: Uuid,
+    /// The replay step whose image the outlines belong to (the whole log:
+    /// `GET /api/attempts/{id}/replay/frame?step={step}`).
+    pub step: u32,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Structures the final needle's tract passed through, in the order the tip entered them.
+    pub touched: Vec<String>,
+    /// Outlines of the touched structures (envelopes such as the skin left out): runs
+    /// `[row, first column, last column]` of outline pixels.
+    #[schema(value_type = Vec<Object>)]
+    pub outlines: Vec<render_worker::session::reveal::Outline>,
+}
+
+/// `GET /api/attempts/{attempt_id}/reveal`: the structures the needle passed through, outlined
+/// over the last image of the session. The learner once submitted; faculty and admins.
+#[utoipa::path(get, path = "/api/attempts/{attempt_id}/reveal", tag = "sessions",
+    params(("attempt_id" = Uuid, Path, description = "Attempt id")),
+    responses((status = 200, body = RevealView), (status = 400, description = "Malformed attempt id"), (status = 401),
+        (status = 404, description = "No such attempt visible to the caller, no recorded session, or no needle or image in it"),
+        (status = 409, description = "Not submitted yet"),
+        (status = 503, description = "The anatomy is being prepared")))]
+pub(super) async fn reveal(
+    State(state): State<DispatchState>,
+    Caller(user): Caller,
+    ApiPath(attempt_id): ApiPath<Uuid>,
+) -> Result<axum::Json<RevealView>, ApiError> {
+    let (session_id, station_id, initial, result_id, ..) =
+        recorded_session(&state, &user, attempt_id).await?;
+    if result_id.is_none() {
+        return Err(ApiError::Conflict(
+            "the reveal opens once the attempt is submitted".into(),
+        ));
+    }
+    let (initial, log) = parse_recorded(&state, session_id, initial).await?;
+    let step = log.len() as u32;
+    let host = state.dispatcher.inner.replay.clone();
+    let r = on_replay_host(host, station_id, move |env| {
+        let s = Session::restore(env, &initial, &log)
+            .map_err(|e| ApiError::Internal(format!("replay: {e}")))?;
+        Ok(render_worker::session::reveal::reveal(&s))
+    })
+    .await?
+    .ok_or_else(|| ApiError::NotFound("a needle and an image in the session".into()))?;
+    Ok(axum::Json(RevealView {
+        attempt_id,
+        step,
+        width: r.width,
+        height: r.height,
+        touched: r.touched,
+        outlines: r.outlines,
     }))
 }
 

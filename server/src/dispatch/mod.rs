@@ -50,6 +50,7 @@ mod disclosure;
 mod dispatcher;
 mod durable;
 mod notices;
+mod recorded;
 mod registry;
 mod relay;
 mod replica;

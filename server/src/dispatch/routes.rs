@@ -18,6 +18,7 @@ use serde_json::json;
 use utoipa::{IntoParams, OpenApi, ToSchema};
 use uuid::Uuid;
 
+use super::recorded::{parse_recorded, recorded_session, visible_attempt};
 use super::route_state::{Caller, DispatchState};
 use super::{
     Dispatcher, LiveSession, PlaceError, SessionRecord, TakeoverError, relay, revoke, store, verify,
@@ -27,7 +28,6 @@ use crate::error::ApiError;
 use crate::records::RecordsState;
 use crate::records::activity::{ActivityKind, record_activity};
 use crate::records::auth::CurrentUser;
-use crate::records::authz::attempt_visible;
 use crate::records::extract::{ApiPath, ApiQuery};
 use crate::records::results::ReplayVerdict;
 
@@ -132,7 +132,7 @@ enum FrameQuality {
 /// The OpenAPI description of the dispatch routes (merged into `/api/openapi.json`).
 #[derive(OpenApi)]
 #[openapi(
-    paths(start_session, session_info, session_ws, replay, replay_frame, debrief::debrief, worker_routes::register_worker, worker_routes::list_workers),
+    paths(start_session, session_info, session_ws, replay, replay_frame, debrief::debrief, debrief::reveal, worker_routes::register_worker, worker_routes::list_workers),
     components(schemas(SessionView, ReplayView, ReplaySide, worker_routes::WorkerRegistration)),
     tags((name = "sessions", description = "Live simulation sessions, their websocket, replay and render workers"))
 )]
@@ -167,6 +167,7 @@ pub fn router<S: Clone + Send + Sync + 'static>(
         .route("/api/attempts/{attempt_id}/replay", get(replay))
         .route("/api/attempts/{attempt_id}/replay/frame", get(replay_frame))
         .route("/api/attempts/{attempt_id}/debrief", get(debrief::debrief))
+        .route("/api/attempts/{attempt_id}/reveal", get(debrief::reveal))
         .route("/api/sessions/{session_id}", get(session_info))
         .route("/api/sessions/{session_id}/ws", get(session_ws))
         .route(
@@ -196,25 +197,6 @@ fn session_json(s: &LiveSession, st: &SessionRecord) -> SessionView {
         last_seq: st.log.last().map_or(0, |e| e.seq),
         submitted: st.result_id.is_some(),
     }
-}
-
-/// The attempt as the caller may see it: (learner, station, state, course); 404 when not
-/// visible.
-async fn visible_attempt(
-    state: &DispatchState,
-    user: &CurrentUser,
-    attempt_id: Uuid,
-) -> Result<(Uuid, String, String, Uuid), ApiError> {
-    sqlx::query_as(&format!(
-        "SELECT a.learner_id, a.station_id, a.state, a.course_id FROM attempts a WHERE a.id = $3 AND {}",
-        attempt_visible(1, 2)
-    ))
-    .bind(user.id)
-    .bind(user.is_admin())
-    .bind(attempt_id)
-    .fetch_optional(&state.records.pool)
-    .await?
-    .ok_or_else(|| ApiError::NotFound("attempt".into()))
 }
 
 /// `POST /api/attempts/{attempt_id}/session`: the learner's live session for an attempt (the
@@ -633,25 +615,6 @@ async fn session_ws(
         .on_upgrade(move |socket| relay::relay(dispatcher, records, s, socket, generation)))
 }
 
-/// The newest recorded session of a visible attempt (submitted ones first).
-pub(super) async fn recorded_session(
-    state: &DispatchState,
-    user: &CurrentUser,
-    attempt_id: Uuid,
-) -> Result<store::RecordedSession, ApiError> {
-    let (learner, _, attempt_state, _) = visible_attempt(state, user, attempt_id).await?;
-    // A replay scores the log: opened to the learner mid-attempt, it would tell them the tip's
-    // distance from the target (see `disclosure`). Reviewers may look at any time.
-    if learner == user.id && attempt_state == "in_progress" {
-        return Err(ApiError::Conflict(
-            "the replay of an attempt opens to its learner once the attempt is submitted".into(),
-        ));
-    }
-    store::newest_recorded(&state.records.pool, attempt_id)
-        .await?
-        .ok_or_else(|| ApiError::NotFound("recorded session".into()))
-}
-
 /// Replays `log` from `initial` on the replay host: the session and its displayed image.
 async fn replay_to(
     state: &DispatchState,
@@ -668,20 +631,6 @@ async fn replay_to(
         draft,
     )
     .await
-}
-
-/// A recorded session's initial snapshot (stored JSON) and its logged commands.
-pub(super) async fn parse_recorded(
-    state: &DispatchState,
-    session_id: Uuid,
-    initial: serde_json::Value,
-) -> Result<(SessionSnapshot, Vec<LogEntry>), ApiError> {
-    let initial = serde_json::from_value(initial)
-        .map_err(|e| ApiError::Internal(format!("stored snapshot: {e}")))?;
-    let log = store::load_commands(&state.records.pool, session_id)
-        .await
-        .map_err(|e| ApiError::Internal(format!("stored log: {e}")))?;
-    Ok((initial, log))
 }
 
 /// `GET /api/attempts/{attempt_id}/replay`: the recorded log (the timeline) of the attempt's

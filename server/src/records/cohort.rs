@@ -25,9 +25,9 @@ use super::reviews::csv_field;
 use super::state::RecordsState;
 use crate::error::ApiError;
 
-/// Scored attempts the competency judgement reads (the most recent ones). Simulator choice,
-/// after the consecutive-successes rule of cumulative-sum style procedural assessment: three
-/// in a row, as the issue asks.
+/// Scored attempts the competency judgement reads (the most recent ones). Simulator choice:
+/// three consecutive acceptable attempts, the window of the consecutive-successes rules common
+/// in procedural skills assessment; faculty judge what the figures cannot.
 pub const COMPETENCY_WINDOW: usize = 3;
 
 /// Which attempts the dashboard covers.

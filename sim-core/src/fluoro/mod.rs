@@ -54,6 +54,7 @@ pub mod contrast;
 pub mod detector;
 pub mod dose;
 pub mod draft;
+pub mod footprint;
 pub mod geometry;
 pub mod nesting;
 pub mod receptor;

@@ -138,6 +138,13 @@ pub trait Modality: Send {
         None
     }
 
+    /// The projection of the image this modality displays last (the fluoroscopy modality: the
+    /// last image's C-arm pose and detector), `None` from a modality without one or before the
+    /// first image.
+    fn displayed_projection(&self) -> Option<sim_core::fluoro::geometry::Projection> {
+        None
+    }
+
     /// Whether fluid is still leaving a syringe this modality drives (a contrast injection under
     /// way at `world.clock_ms`); the loss-of-resistance syringe cannot go on the hub meanwhile.
     fn injecting(&self) -> bool {

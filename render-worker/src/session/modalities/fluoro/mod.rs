@@ -10,13 +10,13 @@
 //! caught up, or after a restore) is exactly the image of that moment.
 
 mod backend;
-mod render;
 pub mod brightness;
 pub mod collimator;
 pub mod dose;
 pub mod draft;
 pub mod magnification;
 pub mod pulse;
+mod render;
 pub mod scatter;
 mod state;
 mod steel;
@@ -25,23 +25,21 @@ pub mod temporal;
 use std::sync::Arc;
 
 use glam::DVec3;
-use sim_core::fluoro::receptor::{Distortion, ReceptorKind};
 use sim_core::fluoro::brightness::{FrameExposure, Technique, magnification_target_factor};
-use sim_core::fluoro::{
-    Collimation, IodineField, Projection,
-};
+use sim_core::fluoro::receptor::{Distortion, ReceptorKind};
+use sim_core::fluoro::{Collimation, IodineField, Projection};
 use sim_core::rubric::Measurements;
 
-pub use crate::session::config::FluoroConfig;
 pub use super::modality::DraftUse;
+pub use crate::session::config::FluoroConfig;
 pub use backend::{
     BackendProfile, CpuFluoroBackend, FluoroBackend, FluoroRenderError, FluoroRenderer,
     GpuFluoroBackend,
 };
 use dose::DoseTally;
-pub use steel::{NEEDLE_FACETS, NeedleShaft, needle_meshes};
-use steel::simplify_polyline;
 pub use state::{AcquiredImage, Annotation, FluoroState};
+use steel::simplify_polyline;
+pub use steel::{NEEDLE_FACETS, NeedleShaft, needle_meshes};
 
 use super::modality::{Modality, ModalityContext, ModalityError, ModalitySpec};
 use crate::session::anatomy::{
@@ -151,7 +149,10 @@ impl FluoroModality {
     /// The technique of the image on display and of the next exposure, for acknowledgements.
     fn technique_json(&self) -> serde_json::Value {
         brightness::technique_json(
-            self.state.images.last().map(|i| (i.kvp, i.ma, i.detector_kerma_ngy)),
+            self.state
+                .images
+                .last()
+                .map(|i| (i.kvp, i.ma, i.detector_kerma_ngy)),
             Technique {
                 kvp: self.state.kvp,
                 ma: self.state.ma,
@@ -335,12 +336,8 @@ impl FluoroModality {
             || self.state.scatter.is_some();
         let (measured, next, image_scatter) = if meters {
             let metering = self.metering.get(&world.region, &projection);
-            let signal = scatter::metering_factor(
-                self.state.scatter,
-                metering,
-                technique.kvp,
-                &projection,
-            );
+            let signal =
+                scatter::metering_factor(self.state.scatter, metering, technique.kvp, &projection);
             let (measured, next) = brightness::step(
                 &mut self.state.brightness,
                 metering,
@@ -368,7 +365,9 @@ impl FluoroModality {
             iodine_version: world.iodine.as_ref().map(|_| world.iodine_version),
             mas: self.state.detector_noise.then_some(technique.ma * seconds),
             detector_kerma_ngy: measured.is_finite().then_some(measured),
-            run: live.then_some(self.state.live_runs).filter(|_| self.state.temporal.is_some()),
+            run: live
+                .then_some(self.state.live_runs)
+                .filter(|_| self.state.temporal.is_some()),
             filter: self.state.temporal.filter(|_| live).map(|t| t.level),
             scatter: image_scatter,
         });
@@ -431,7 +430,10 @@ pub static SPEC: ModalitySpec = ModalitySpec {
         CommandSpec::new(pulse::PULSE_RATE_KIND, None),
         CommandSpec::new(brightness::BRIGHTNESS_KIND, None),
         CommandSpec::new(collimator::COLLIMATION_KIND, Some(Engagement::ViewChanged)),
-        CommandSpec::new(magnification::MAGNIFICATION_KIND, Some(Engagement::ViewChanged)),
+        CommandSpec::new(
+            magnification::MAGNIFICATION_KIND,
+            Some(Engagement::ViewChanged),
+        ),
         CommandSpec::new(temporal::FILTER_KIND, None),
         CommandSpec::new(scatter::GRID_KIND, Some(Engagement::ViewChanged)),
     ],
@@ -631,6 +633,10 @@ impl Modality for FluoroModality {
         }
     }
 
+    fn displayed_projection(&self) -> Option<Projection> {
+        self.state.images.last().map(|i| i.projection)
+    }
+
     fn image_ray(&self, pixel: [f64; 2]) -> Option<Result<(DVec3, DVec3), ImageRayError>> {
         let Some(image) = self.state.images.last() else {
             return Some(Err(ImageRayError::NoImage {
@@ -645,9 +651,10 @@ impl Modality for FluoroModality {
                 height: h,
             }));
         }
-        let r = image
-            .projection
-            .pixel_ray(undistorted(self.state.receptor, &image.projection, pixel));
+        let r =
+            image
+                .projection
+                .pixel_ray(undistorted(self.state.receptor, &image.projection, pixel));
         Some(Ok((
             DVec3::from_array(r.origin_mm),
             DVec3::from_array(r.dir),
