@@ -27,7 +27,6 @@ pub mod xapi;
 
 use axum::Router;
 use axum::routing::{any, get};
-use tower_http::services::{ServeDir, ServeFile};
 use tower_http::trace::TraceLayer;
 
 pub use config::Config;
@@ -37,8 +36,9 @@ pub use state::AppState;
 
 /// The complete HTTP application.
 pub fn app(state: AppState) -> Router {
-    let web = ServeDir::new(&state.config.web_dir).fallback(ServeFile::new(state.config.web_dir.join("index.html")));
-    let records_state = records::RecordsState::from_parts(state.pool.clone(), state.config.records.clone());
+    let web_dir = state.config.web_dir.clone();
+    let records_state =
+        records::RecordsState::from_parts(state.pool.clone(), state.config.records.clone());
     let tls = routes::headers::Tls(state.config.records.cookie_secure);
     let (records_router, mut doc) = records::router(records_state.clone());
     doc.merge(dispatch::openapi());
@@ -50,7 +50,11 @@ pub fn app(state: AppState) -> Router {
     };
     let (xapi_router, xapi_doc) = xapi::router(xapi_state);
     doc.merge(xapi_doc);
-    let lti_state = lti::LtiState::new(state.pool.clone(), records_state.clone(), state.config.public_url.as_str());
+    let lti_state = lti::LtiState::new(
+        state.pool.clone(),
+        records_state.clone(),
+        state.config.public_url.as_str(),
+    );
     let (lti_router, lti_doc) = lti::router(lti_state);
     doc.merge(lti_doc);
     doc.info.title = "pain-sim API".into();
@@ -58,7 +62,10 @@ pub fn app(state: AppState) -> Router {
     let doc = std::sync::Arc::new(doc);
     Router::new()
         .route("/healthz", get(routes::health::healthz))
-        .route("/api/openapi.json", get(move || async move { axum::Json(doc.as_ref().clone()) }))
+        .route(
+            "/api/openapi.json",
+            get(move || async move { axum::Json(doc.as_ref().clone()) }),
+        )
         .merge(records_router)
         .merge(xapi_router)
         .merge(lti_router)
@@ -66,9 +73,14 @@ pub fn app(state: AppState) -> Router {
         .route("/api/{*rest}", any(routes::headers::api_not_found))
         .route("/api", any(routes::headers::api_not_found))
         .route("/api/", any(routes::headers::api_not_found))
-        .fallback_service(web)
-        .layer(axum::extract::DefaultBodyLimit::max(state.config.max_body_bytes))
-        .layer(axum::middleware::from_fn_with_state(tls, routes::headers::security_headers))
+        .fallback(move |req| routes::web::serve(web_dir.clone(), req))
+        .layer(axum::extract::DefaultBodyLimit::max(
+            state.config.max_body_bytes,
+        ))
+        .layer(axum::middleware::from_fn_with_state(
+            tls,
+            routes::headers::security_headers,
+        ))
         .layer(TraceLayer::new_for_http())
         .with_state(state)
 }

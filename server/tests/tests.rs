@@ -38,6 +38,7 @@ mod records_support;
 mod security_headers;
 mod server_process;
 mod session_sigkill;
+mod web_client_files;
 mod xapi_authz;
 mod xapi_credentials;
 mod xapi_documents;

@@ -30,6 +30,20 @@ export const ALLOWED = new Set([
   'Zlib',
 ]);
 
+// Test tools under a weak, file-level copyleft licence, accepted by name: each must be a
+// development dependency only (the lockfile marks it `dev`; nothing under web-client/ that the
+// server serves imports it), must carry exactly the licence listed, and is used unmodified. The
+// Apache Software Foundation lists MPL-2.0 in "Category B" (https://www.apache.org/legal/
+// resolved.html#category-b): fine for an Apache-2.0 project to use unmodified, which is all a
+// test run does. deny.toml grants per-crate exceptions the same way.
+export const TEST_TOOL_EXCEPTIONS = [
+  {
+    name: 'axe-core',
+    license: 'MPL-2.0',
+    why: 'the accessibility rules engine the browser tests run on every screen (WCAG 2.1 A/AA); injected into the test browser only',
+  },
+];
+
 /** Splits an SPDX licence expression into tokens: ids, parentheses, AND, OR, WITH. */
 function tokenize(expression) {
   return expression.replace(/\(/g, ' ( ').replace(/\)/g, ' ) ').trim().split(/\s+/).filter(Boolean);
@@ -153,7 +167,12 @@ export function check(dir) {
       problems.push(`${name}@${entry.version}: the lockfile records no licence`);
     } else {
       try {
-        if (!satisfies(license)) problems.push(`${name}@${entry.version}: "${license}" is not in the allow-list`);
+        const exception = TEST_TOOL_EXCEPTIONS.find((x) => x.name === name && x.license === license);
+        if (exception && entry.dev !== true) {
+          problems.push(`${name}@${entry.version}: "${license}" is accepted for a test tool only, and the lockfile does not mark it dev`);
+        } else if (!exception && !satisfies(license)) {
+          problems.push(`${name}@${entry.version}: "${license}" is not in the allow-list`);
+        }
       } catch (e) {
         problems.push(`${name}@${entry.version}: ${e.message}`);
       }
@@ -188,11 +207,12 @@ function summarize(dir, { packages, problems }) {
   console.log(problems.length === 0 ? 'npm licences: ok' : `npm licences: ${problems.length} problem(s)`);
 }
 
-/** Writes a fixture project: `packages` maps lockfile path to { license, installedLicense }. */
+/** Writes a fixture project: `packages` maps lockfile path to { license, installedLicense,
+ * dev }. */
 function writeFixture(root, packages) {
   const lock = { name: 'fixture', version: '0.0.0', lockfileVersion: 3, requires: true, packages: { '': { name: 'fixture' } } };
   for (const [path, p] of Object.entries(packages)) {
-    lock.packages[path] = { version: '1.0.0', license: p.license };
+    lock.packages[path] = { version: '1.0.0', license: p.license, ...(p.dev ? { dev: true } : {}) };
     mkdirSync(join(root, path), { recursive: true });
     writeFileSync(join(root, path, 'package.json'),
       JSON.stringify({ name: nameOfPath(path), version: '1.0.0', license: p.installedLicense ?? p.license }));
@@ -215,6 +235,15 @@ function selfTest() {
     { what: 'a conjunction with a copyleft licence', fails: true, packages: {
       'node_modules/planted-and': { license: 'MIT AND LGPL-2.1-or-later' },
     } },
+    { what: 'a listed test tool as a dev dependency', fails: false, packages: {
+      'node_modules/axe-core': { license: 'MPL-2.0', dev: true },
+    } },
+    { what: 'a listed test tool shipped as a runtime dependency', fails: true, packages: {
+      'node_modules/axe-core': { license: 'MPL-2.0' },
+    } },
+    { what: 'an unlisted MPL-2.0 dev dependency', fails: true, packages: {
+      'node_modules/planted-mpl': { license: 'MPL-2.0', dev: true },
+    } },
     { what: 'a package without a licence', fails: true, packages: {
       'node_modules/planted-none': { license: undefined },
     } },
@@ -231,7 +260,7 @@ function selfTest() {
       if (failed !== c.fails) {
         throw new Error(`self-test "${c.what}": expected ${c.fails ? 'a failure' : 'a pass'}, got ${JSON.stringify(result.problems)}`);
       }
-      if (c.fails && !result.problems.some((p) => p.includes('planted-'))) {
+      if (c.fails && !result.problems.some((p) => p.includes('planted-') || p.includes('axe-core'))) {
         throw new Error(`self-test "${c.what}": the failure does not name the planted package: ${result.problems}`);
       }
       console.log(`self-test: ${c.what}: ${failed ? 'rejected' : 'accepted'} as expected`);
