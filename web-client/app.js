@@ -5,6 +5,7 @@ import { api, setCsrf, ApiError } from './api.js';
 import { LiveSession } from './session.js';
 import { UltrasoundStation } from './ultrasound.js';
 import { NeedleControls } from './needle.js';
+import { FluoroScreen } from './fluoro-view.js';
 
 const $ = (id) => document.getElementById(id);
 const views = ['login-view', 'learner-view', 'session-view', 'faculty-view'];
@@ -149,6 +150,17 @@ async function newAttempt(stationId) {
 // ---------------------------------------------------------------- learner: the live session
 
 const pose = { orbital: 0, angular: 0 };
+/** The pose commands sent, in order, until a frame shows them: the pose of a displayed image is
+ * that of the newest pose command its frame reflects (the overlays and hub tilts follow it). */
+let posesSent = [];
+let shownPose = { orbital: 0, angular: 0 };
+function poseOfFrame(inputSeq) {
+  while (posesSent.length && posesSent[0].seq <= inputSeq) {
+    const p = posesSent.shift();
+    shownPose = { orbital: p.orbital, angular: p.angular };
+  }
+  return shownPose;
+}
 let poseTimer = null;
 let lastPoseSent = 0;
 
@@ -160,10 +172,23 @@ function sendPose(now = false) {
   if (!live) return;
   // At most one pose command per 50 ms while dragging (simulator choice: 20 Hz is smooth for a
   // C-arm and keeps the log short); the final pose is always sent.
-  const go = () => { lastPoseSent = performance.now(); live.send({ type: 'carm_pose', orbital_deg: pose.orbital, angular_deg: pose.angular }); };
+  const go = () => {
+    lastPoseSent = performance.now();
+    const seq = live.send({ type: 'carm_pose', orbital_deg: pose.orbital, angular_deg: pose.angular });
+    posesSent.push({ seq, orbital: pose.orbital, angular: pose.angular });
+  };
   clearTimeout(poseTimer);
+  poseTimer = null;
   const since = performance.now() - lastPoseSent;
-  if (now || since >= 50) go(); else poseTimer = setTimeout(go, 50 - since);
+  if (now || since >= 50) go(); else poseTimer = setTimeout(() => { poseTimer = null; go(); }, 50 - since);
+}
+
+/** A shot: a C-arm move still held back by the throttle goes first, so the image shows the
+ * pose the learner set. */
+function takeShot() {
+  if (!live) return;
+  if (poseTimer) sendPose(true);
+  live.send({ type: 'shot' });
 }
 
 function clamp(v, lo, hi) { return Math.max(lo, Math.min(hi, v)); }
@@ -180,6 +205,13 @@ function logLine(text) {
 
 const us = new UltrasoundStation({ send: (command) => (live ? live.send(command) : null), log: logLine });
 const needle = new NeedleControls({ send: (command) => (live ? live.send(command) : null), log: logLine });
+const fluoroScreen = new FluoroScreen({
+  needle,
+  rotate,
+  shot: takeShot,
+  live: () => !!live,
+  storage: window.localStorage,
+});
 
 /** Views this page has panels of its own for; any other view a session's modalities offer
  * gets a generic panel (`otherViews`). */
@@ -263,9 +295,11 @@ async function openSession(attemptId, stationId) {
     $('injected').textContent = '0.00 mL';
     $('instrument').replaceChildren(...station.instruments.filter((i) => i.kind.includes('needle'))
       .map((i) => el('option', { value: i.id, textContent: `${i.id} (${i.kind})` })));
-    const ctx = $('fluoro').getContext('2d');
-    ctx.fillStyle = '#000';
-    ctx.fillRect(0, 0, 512, 512);
+    // A new session shows its pose from the start: the client's pose is sent with the first
+    // C-arm move; until a frame says otherwise the image is AP (the session's start).
+    posesSent = [];
+    shownPose = { orbital: 0, angular: 0 };
+    fluoroScreen.reset();
     live = new LiveSession(s.ws);
     // A new session starts with the beam off.
     $('live').setAttribute('aria-pressed', 'false');
@@ -277,7 +311,7 @@ async function openSession(attemptId, stationId) {
     const listed = station.modalities || [];
     $('fluoro-viewer').hidden = !listed.includes('fluoroscopy');
     $('carm-controls').hidden = !listed.includes('fluoroscopy');
-    window.__sim = { session: s, live, stats: live.stats, station, us, needle, views: null };
+    window.__sim = { session: s, live, stats: live.stats, station, us, needle, screen: fluoroScreen, views: null };
     let drawn = 0;
     live.addEventListener('connection', (e) => { $('conn').textContent = e.detail.state; });
     live.addEventListener('hello', (e) => {
@@ -286,14 +320,14 @@ async function openSession(attemptId, stationId) {
       window.__sim.views = views;
       live.setVisible(views);
       showViews(views, e.detail.session.protocol);
+      fluoroScreen.hello(live);
       $('pps').value = String(live.constant('fluoroscopy', 'default_pulse_rate_pps', 7.5));
     });
     live.addEventListener('frame', (e) => {
       const { bitmap, frame } = e.detail;
       if (frame.view === 'fluoroscopy') {
         needle.fluoroFrame(frame);
-        ctx.drawImage(bitmap, 0, 0, 512, 512);
-        bitmap.close();
+        fluoroScreen.frame(bitmap, frame, poseOfFrame(frame.inputSeq));
         // A draft (a cheap preview while the C-arm moves) says so until the full frame comes.
         $('fluoro-draft').hidden = !frame.draft;
       } else if (otherViews.has(frame.view)) {
@@ -315,6 +349,7 @@ async function openSession(attemptId, stationId) {
       if (o.depth_mm != null) $('depth').textContent = `${fmt(o.depth_mm, 1)} mm`;
       if (o.injected_ml != null) $('injected').textContent = `${fmt(o.injected_ml, 2)} mL`;
       if (o.dose) $('dose').textContent = doseWords(o.dose);
+      fluoroScreen.ack(o);
       // The rate the session runs at, as the fluoroscopy modality acknowledged it.
       if (o.pulse_rate_pps != null) { $('pps').value = String(o.pulse_rate_pps); window.__sim.pulseRate = o.pulse_rate_pps; }
       if (o.technique) showTechnique(o.technique);
@@ -351,6 +386,8 @@ async function openSession(attemptId, stationId) {
     live.addEventListener('technical_result', (e) => showResult(e.detail.result));
     live.addEventListener('technical_result_error', (e) => { say(`The result could not be stored: ${e.detail.message}`); });
     live.connect();
+    // The keys work wherever the focus is (fluoro-view.js); the image takes it for the wheel
+    // and the screen reader's description.
     $('fluoro').focus();
   } catch (e) {
     say(e.message);
@@ -385,6 +422,10 @@ setInterval(() => {
 
 $('orbital').addEventListener('input', (e) => { pose.orbital = Number(e.target.value); sendPose(); });
 $('angular').addEventListener('input', (e) => { pose.angular = Number(e.target.value); sendPose(); });
+// C-arm buttons: 5 degrees a press, 1 with Shift (as the keys, fluoro-view.js).
+for (const [id, o, a] of [['carm-rao', -1, 0], ['carm-lao', 1, 0], ['carm-cranial', 0, 1], ['carm-caudal', 0, -1]]) {
+  $(id).addEventListener('click', (e) => { const d = e.shiftKey ? 1 : 5; rotate(o * d, a * d); });
+}
 // Technique: the committed spectra run from 40 to 120 kVp in 5 kVp steps; 80 kVp and 2 mA are
 // the session's defaults (render_worker::session::fluoro).
 $('kvp').replaceChildren(...Array.from({ length: 17 }, (_, i) => 40 + 5 * i).map((v) => el('option', { value: String(v), textContent: String(v), selected: v === 80 })));
@@ -465,7 +506,7 @@ function showTechnique(t) {
   if (t.limited_by) parts.push(`held by the ${limited[t.limited_by] || t.limited_by}`);
   $('technique').textContent = parts.join(' · ');
 }
-$('shot').addEventListener('click', () => live && live.send({ type: 'shot' }));
+$('shot').addEventListener('click', takeShot);
 // Pulsed fluoroscopy: the learner's pulse rate (the session starts at the hello's
 // `default_pulse_rate_pps`). While live runs the client ticks the session clock once per pulse,
 // so a change that came between two pulses is imaged by the next one (ticks move only the
@@ -540,64 +581,7 @@ $('plunger').addEventListener('keyup', (e) => { if (e.key === 'Enter' || e.key =
 $('submit').addEventListener('click', () => live && live.send({ type: 'submit' }));
 $('leave').addEventListener('click', () => { if (live) { live.close(); live = null; } learnerHome(); });
 
-// Keyboard on the image (listed on screen in #fluoro-keys): S/Space shoot; the needle's keys;
-// arrows rotate the C-arm unless the marker or the hub is chosen.
-$('fluoro').addEventListener('keydown', (e) => {
-  const k = e.key;
-  const step = e.shiftKey ? 1 : 5;
-  const handled = {
-    ArrowLeft: () => rotate(-step, 0), ArrowRight: () => rotate(step, 0),
-    ArrowUp: () => rotate(0, step), ArrowDown: () => rotate(0, -step),
-    s: () => live && live.send({ type: 'shot' }), ' ': () => live && live.send({ type: 'shot' }),
-  }[k.length === 1 ? k.toLowerCase() : k];
-  if (needle.key(e)) e.preventDefault();
-  else if (handled) { e.preventDefault(); handled(); }
-});
-
-// Mouse and touch (pointer events): a drag moves what the mode says (C-arm, skin marker or
-// hub); Shift + drag and two fingers tilt the hub; the wheel feeds or withdraws.
-function carmDrag(at) {
-  const start = { x: at.x, y: at.y, o: pose.orbital, a: pose.angular };
-  return {
-    move: (p) => {
-      // 4 screen pixels per degree (simulator choice: a full-width drag turns about 120 degrees).
-      pose.orbital = clamp(Math.round(start.o + (p.x - start.x) / 4), -90, 90);
-      pose.angular = clamp(Math.round(start.a - (p.y - start.y) / 4), -40, 40);
-      sendPose();
-    },
-    end: () => sendPose(true),
-  };
-}
-const pointers = new Map();
-let drag = null;
-function dragPoint() {
-  const ps = [...pointers.values()];
-  return { x: ps.reduce((s, p) => s + p.x, 0) / ps.length, y: ps.reduce((s, p) => s + p.y, 0) / ps.length };
-}
-$('fluoro').addEventListener('pointerdown', (e) => {
-  pointers.set(e.pointerId, { x: e.clientX, y: e.clientY });
-  e.target.setPointerCapture(e.pointerId);
-  if (drag) drag.end();
-  const kind = pointers.size > 1 || e.shiftKey ? 'hub' : needle.mode();
-  drag = kind === 'carm' ? carmDrag(dragPoint()) : needle.drag(kind, dragPoint(), e.target);
-});
-$('fluoro').addEventListener('pointermove', (e) => {
-  if (!pointers.has(e.pointerId)) return;
-  pointers.set(e.pointerId, { x: e.clientX, y: e.clientY });
-  if (drag) drag.move(dragPoint());
-});
-// A finger lifted from a two-finger tilt ends the drag (the rest would jump the midpoint).
-const endDrag = (e) => {
-  pointers.delete(e.pointerId);
-  if (drag) { drag.end(); drag = null; }
-};
-$('fluoro').addEventListener('pointerup', endDrag);
-$('fluoro').addEventListener('pointercancel', endDrag);
-$('fluoro').addEventListener('wheel', (e) => {
-  if (!live) return;
-  e.preventDefault();
-  needle.wheel(e);
-}, { passive: false });
+// Keys, pointer and wheel on the fluoroscopy image: fluoro-view.js (FluoroScreen).
 
 // ---------------------------------------------------------------- faculty: queue, replay, review
 

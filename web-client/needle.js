@@ -64,6 +64,16 @@ export class NeedleControls {
     this.markerThrottle = new Throttle(() => this.sendMarker());
     this.tiltThrottle = new Throttle(() => this.sendTilt());
     this.wheelPx = 0;
+    /** How the fluoroscopy viewer maps the screen (`setView`); until then, the image fills the
+     * canvas unflipped and the view is AP. */
+    this.view = {
+      pixelAt: (canvas, at) => {
+        const r = canvas.getBoundingClientRect();
+        return [((at.x - r.left) * this.imageSize[0]) / r.width, ((at.y - r.top) * this.imageSize[1]) / r.height];
+      },
+      cursorAt: (p) => [(100 * p[0]) / this.imageSize[0], (100 * p[1]) / this.imageSize[1]],
+      tilt: (dx, dy) => ({ cc: dy, ml: dx }),
+    };
     this.clear();
     this.wire();
   }
@@ -98,10 +108,19 @@ export class NeedleControls {
     $('lor').hidden = !(station.instruments || []).some((i) => i.kind === 'loss-of-resistance-syringe');
   }
 
-  /** What drag and arrows on the image act on: 'carm', 'marker' or 'hub'. */
+  /** What a left drag and the arrows on the image act on: 'view' (window/level and pan),
+   * 'marker' or 'hub'. */
   mode() {
     const checked = document.querySelector('input[name="drag-mode"]:checked');
-    return checked ? checked.value : 'carm';
+    return checked ? checked.value : 'view';
+  }
+
+  /** The viewer's screen mapping: `pixelAt(canvas, {x, y})` (client point -> image pixel, through
+   * the inverse of zoom, pan and flips), `cursorAt(p)` (image pixel -> [left %, top %] of the
+   * canvas) and `tilt(dx, dy)` (a screen direction, right and up, in degrees -> the hub tilt
+   * `{ cc, ml }` in the pose of the displayed image). */
+  setView(view) {
+    this.view = view;
   }
 
   setMode(mode) {
@@ -136,11 +155,19 @@ export class NeedleControls {
   moveMarker(p) {
     const [w, h] = this.imageSize;
     this.markerPixel = [Math.min(w - 0.5, Math.max(0.5, p[0])), Math.min(h - 0.5, Math.max(0.5, p[1]))].map((v) => round(v, 0.5));
-    const cur = $('marker-cursor');
-    cur.style.left = `${(100 * this.markerPixel[0]) / w}%`;
-    cur.style.top = `${(100 * this.markerPixel[1]) / h}%`;
-    cur.hidden = false;
+    this.placeCursor();
+    $('marker-cursor').hidden = false;
     this.markerThrottle.call();
+  }
+
+  /** Puts the marker cursor over the marker's pixel as the viewer now shows it (called again
+   * after a zoom, pan or flip). */
+  placeCursor() {
+    if (!this.markerPixel) return;
+    const [left, top] = this.view.cursorAt(this.markerPixel);
+    const cur = $('marker-cursor');
+    cur.style.left = `${left}%`;
+    cur.style.top = `${top}%`;
   }
 
   /** Hub tilt in degrees: `cc` > 0 aims more cranially, `ml` > 0 towards the patient's left. */
@@ -173,16 +200,22 @@ export class NeedleControls {
   // ------------------------------------------------------------ drags, keys and the wheel
 
   /** Image pixel under a pointer position on `canvas` (its CSS size may differ from the
-   * image's). */
+   * image's; the viewer's zoom, pan and flips are undone). */
   pixelAt(canvas, at) {
-    const r = canvas.getBoundingClientRect();
-    return [((at.x - r.left) * this.imageSize[0]) / r.width, ((at.y - r.top) * this.imageSize[1]) / r.height];
+    return this.view.pixelAt(canvas, at);
+  }
+
+  /** A screen direction (right, up; degrees of tilt) as a hub tilt, sent in TILT_QUANTUM_DEG
+   * steps by drags. */
+  screenTilt(dx, dy) {
+    return this.view.tilt(dx, dy);
   }
 
   /** A drag of `kind` ('marker' or 'hub') starting at screen point `at` on `canvas`: an object
    * with `move(at)` and `end()`. Dragging the hub is dragging where the tip should aim in the
-   * image: up aims cranially, right towards the patient's left (in AP the patient's right is on
-   * the screen's left). */
+   * image: the screen direction becomes the patient direction of the displayed view (in AP up
+   * aims cranially and right towards the patient's left; in a lateral view right is along the
+   * beam's cross axis, front to back, and tilts nothing). */
   drag(kind, at, canvas) {
     if (kind === 'marker') {
       this.moveMarker(this.pixelAt(canvas, at));
@@ -195,8 +228,9 @@ export class NeedleControls {
     const sent = { cc: 0, ml: 0 };
     return {
       move: (p) => {
-        const cc = round((start.y - p.y) / TILT_PX_PER_DEG, TILT_QUANTUM_DEG);
-        const ml = round((p.x - start.x) / TILT_PX_PER_DEG, TILT_QUANTUM_DEG);
+        const t = this.screenTilt((p.x - start.x) / TILT_PX_PER_DEG, (start.y - p.y) / TILT_PX_PER_DEG);
+        const cc = round(t.cc, TILT_QUANTUM_DEG);
+        const ml = round(t.ml, TILT_QUANTUM_DEG);
         if (cc === sent.cc && ml === sent.ml) return;
         this.tiltBy(cc - sent.cc, ml - sent.ml);
         Object.assign(sent, { cc, ml });
@@ -205,36 +239,46 @@ export class NeedleControls {
     };
   }
 
-  /** Keys on the fluoroscopy canvas that act on the needle; true when handled. Arrows act here
-   * in the marker and hub modes (the C-arm mode leaves them to the caller). */
-  key(e) {
-    const k = e.key.length === 1 ? e.key.toLowerCase() : e.key;
-    const mm = e.shiftKey ? FINE_STEP_MM : STEP_MM;
-    const arrow = { ArrowUp: [0, 1], ArrowDown: [0, -1], ArrowLeft: [-1, 0], ArrowRight: [1, 0] }[k];
+  /** An arrow (`[right, up]`, one step) in the marker or hub mode; false in any other mode.
+   * The marker moves MARKER_KEY_PX image pixels (1 with `fine`) on the screen, so flips are
+   * followed; the hub tilts TILT_STEP_DEG (TILT_FINE_DEG with `fine`) towards the screen
+   * direction in the pose of the displayed image. */
+  nudge(arrow, fine) {
     const mode = this.mode();
-    if (arrow && mode === 'hub') {
-      const d = e.shiftKey ? TILT_FINE_DEG : TILT_STEP_DEG;
-      this.tiltBy(arrow[1] * d, arrow[0] * d);
+    if (mode === 'hub') {
+      const d = fine ? TILT_FINE_DEG : TILT_STEP_DEG;
+      const t = this.screenTilt(arrow[0] * d, arrow[1] * d);
+      this.tiltBy(t.cc, t.ml);
       return true;
     }
-    if (arrow && mode === 'marker') {
-      const d = e.shiftKey ? 1 : MARKER_KEY_PX;
+    if (mode === 'marker') {
+      const d = fine ? 1 : MARKER_KEY_PX;
       const p = this.markerPixel || this.imageSize.map((v) => v / 2);
-      this.moveMarker([p[0] + arrow[0] * d, p[1] - arrow[1] * d]);
+      // The pixel under the cursor moved by d screen pixels' worth of image pixels: through the
+      // viewer, so a flipped image moves the marker the way the key points.
+      const [left, top] = this.view.cursorAt(p);
+      const [l2, t2] = this.view.cursorAt([p[0] + 1, p[1] + 1]);
+      const sx = Math.sign(l2 - left) || 1;
+      const sy = Math.sign(t2 - top) || 1;
+      this.moveMarker([p[0] + sx * arrow[0] * d, p[1] - sy * arrow[1] * d]);
       return true;
     }
-    const action = {
-      f: () => this.feed(mm),
-      w: () => this.withdraw(mm),
-      r: () => this.send({ type: 'needle_roll', deg: 90 }),
-      p: () => this.puncture(),
-      a: () => this.send({ type: 'aspirate' }),
-      c: () => this.setMode('carm'),
-      m: () => this.setMode('marker'),
-      h: () => this.setMode('hub'),
-    }[k];
-    if (!action || e.ctrlKey || e.metaKey || e.altKey) return false;
-    action();
+    return false;
+  }
+
+  /** A needle action of the key map ('feed', 'withdraw', 'roll', 'puncture', 'aspirate'); `fine`
+   * (Shift) halves the feed and withdraw steps. True when `id` is one. */
+  action(id, fine) {
+    const mm = fine ? FINE_STEP_MM : STEP_MM;
+    const act = {
+      feed: () => this.feed(mm),
+      withdraw: () => this.withdraw(mm),
+      roll: () => this.send({ type: 'needle_roll', deg: 90 }),
+      puncture: () => this.puncture(),
+      aspirate: () => this.send({ type: 'aspirate' }),
+    }[id];
+    if (!act) return false;
+    act();
     return true;
   }
 

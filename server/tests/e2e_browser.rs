@@ -2,8 +2,11 @@
 //! driving Debian's `/usr/bin/chromium`) against the real server on a loopback port, with the
 //! demo accounts and the demo station. The learner logs in, opens the station, takes shots,
 //! rotates the C-arm, drags the skin marker, punctures there and advances the needle and
-//! submits; faculty set up TOTP, open the replay and approve. The script reports pixel
-//! statistics of the canvas after each step. `e2e_ultrasound.mjs` scans the demo station with
+//! submits; on the way it checks the fluoroscopy viewer (window/level, zoom, pan, invert, flips,
+//! the orientation letters, keys pressed with no click on the image) and the key map (`?`, a
+//! remap kept over a reload); faculty set up TOTP, open the replay and approve. The script
+//! reports pixel statistics of the canvas after each step. The client's pure modules have unit
+//! tests under node (`web_client_unit_tests_under_node`). `e2e_ultrasound.mjs` scans the demo station with
 //! ultrasound; `e2e_epidural.mjs` performs a whole interlaminar epidural by hand on the phantom
 //! (`e2e_epidural` module).
 //!
@@ -125,7 +128,7 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
     let srv = demo_server_with(true, None, &["contrast"]).await;
     // The skin marker goes where the skin behind the demo target (x = 12 mm, z = 0; the flat
     // posterior skin of the demo region at y = -120 mm) images in the view the script rotates
-    // to (20 degrees by keys and 10 by a 40 px drag), the C-arm centred on the L4 body centre
+    // to (20 degrees by keys and 10 by two button presses), the C-arm centred on the L4 body centre
     // (the origin of the demo region).
     let rotated = Projection {
         orbital_deg: 30.0,
@@ -152,11 +155,15 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
             "needle",
             "injected",
             "collimated",
+            "viewer",
+            "keymap",
             "submitted",
+            "reloaded",
             "totp",
             "approved"
         ]
     );
+    assert_viewer(&report);
     // The collimator: shutters at half the width (150 mm of 300) and a 230 mm iris. Behind the
     // shutters (5 % in from each side) and outside the iris (a top corner of the blades'
     // field) the shutter black; the middle shows the patient.
@@ -283,6 +290,170 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
     assert_eq!(state, "approved");
 }
 
+/// The fluoroscopy viewer's checks of `e2e.mjs` (`viewer`, `keymap`): keys pressed with the
+/// focus on the page's body act; window/level, invert, flip, zoom, pan, escape and reset change
+/// the drawn pixels as they should; the orientation letters follow flips and the C-arm; `?`
+/// opens the key map, a taken key is refused, a free one is kept, shoots, and survives a reload.
+fn assert_viewer(report: &Value) {
+    let v = &report["viewer"];
+    assert_eq!(report["focus_for_keys"], "BODY", "{report:#}");
+    assert_eq!(v["focus"], "BODY", "{v:#}");
+    assert_eq!(v["frames_during"], 0, "{v:#}");
+    // Window/level: 150 px left narrows the window from 255 to 105 levels; the middle row is
+    // redrawn through exactly that look-up table (grey levels stretched 255 / 105 times about
+    // the level), so its pixels change.
+    let wl = &v["wl"];
+    assert_eq!(wl["view"]["window"], 105, "{wl:#}");
+    assert_eq!(wl["lut_error"], 0, "{wl:#}");
+    assert!(wl["max_diff"].as_f64().unwrap() > 10.0, "{wl:#}");
+    assert!(wl["corner"].as_str().unwrap().contains("W 105"), "{wl:#}");
+    // Escape in a drag: the level is back where the drag began.
+    assert_eq!(
+        v["escape"]["level_after"], v["escape"]["level_before"],
+        "{v:#}"
+    );
+    // Reset, invert and flip are exact on the 8-bit canvas.
+    assert_eq!(v["reset"]["max_diff"], 0, "{v:#}");
+    assert_eq!(v["invert"]["view_invert"], true, "{v:#}");
+    assert_eq!(v["invert"]["max_error"], 0, "{v:#}");
+    assert_eq!(v["flip"]["max_error"], 0, "{v:#}");
+    let (before, after) = (&v["flip"]["letters_before"], &v["flip"]["letters_after"]);
+    assert_eq!(before["left"], after["right"], "{v:#}");
+    assert_eq!(before["right"], after["left"], "{v:#}");
+    assert_eq!(before["top"], after["top"], "{v:#}");
+    // The image on display is the LAO 30 one (the needle's view): its right edge is the
+    // patient's left and back (screen-right (-cos 30, -sin 30, 0)).
+    assert_eq!(before["right"], "LP", "{v:#}");
+    assert_eq!(before["left"], "RA", "{v:#}");
+    assert_eq!(v["before"]["corners"]["view"], "LAO 30°", "{v:#}");
+    assert!(
+        v["before"]["corners"]["technique"]
+            .as_str()
+            .unwrap()
+            .contains("kVp"),
+        "{v:#}"
+    );
+    assert!(
+        v["before"]["corners"]["dose"]
+            .as_str()
+            .unwrap()
+            .contains("mGy (est.)"),
+        "{v:#}"
+    );
+    // Zoom: `+` is 1.25 times, the right drag up zooms further; the image changed and the
+    // scale bar's pixels per millimetre follow the zoom (1.25 times as long per mm).
+    let z = &v["zoom"];
+    assert!((z["key"].as_f64().unwrap() - 1.25).abs() < 1e-9, "{z:#}");
+    assert!(z["drag"].as_f64().unwrap() > 1.25, "{z:#}");
+    assert!(z["changed"].as_f64().unwrap() > 10.0, "{z:#}");
+    let per_mm = |s: &Value| s["fraction"].as_f64().unwrap() / s["mm"].as_f64().unwrap();
+    assert_eq!(z["scale_before"]["hidden"], false, "{z:#}");
+    let ratio = per_mm(&z["scale_key"]) / per_mm(&z["scale_before"]);
+    assert!(
+        (ratio - 1.25).abs() < 1e-6,
+        "scale bar ratio {ratio}: {z:#}"
+    );
+    // Pan: 40 CSS px right, in canvas pixels.
+    let pan = &v["pan"];
+    let expected = 40.0 / pan["css_per_canvas_px"].as_f64().unwrap();
+    assert!(
+        (pan["pan"][0].as_f64().unwrap() - expected).abs() < 1.0,
+        "{pan:#}"
+    );
+    assert_eq!(v["after_reset"]["zoom"], 1, "{v:#}");
+    assert_eq!(v["after_reset"]["flipH"], false, "{v:#}");
+    // LAO 90 by keys: the lateral view's letters (screen-right posterior), swapped by a flip.
+    let lat = &v["lateral"];
+    assert_eq!(lat["orbital"], 90, "{lat:#}");
+    assert_eq!(lat["corners"]["view"], "lateral", "{lat:#}");
+    for (k, l) in [("left", "A"), ("right", "P"), ("top", "H"), ("bottom", "F")] {
+        assert_eq!(lat["letters"][k], l, "{lat:#}");
+    }
+    assert_eq!(lat["flipped"]["left"], "P", "{lat:#}");
+    // Hub keys in the lateral view: screen-right (posterior) sends no tilt, up one.
+    assert_eq!(lat["hub_commands"]["right"], 0, "{lat:#}");
+    assert_eq!(lat["hub_commands"]["up"], 1, "{lat:#}");
+    // The layout: at 1440 x 900 the image is at least 60 % of the width with the controls
+    // beside it; on a 800 px tablet it spans the content width (less the page's 1 rem padding
+    // on each side: 95 %) with the controls below; light and dark themes differ; a control
+    // reached by the keyboard shows a solid focus ring.
+    let l = &v["layout"];
+    let f = |p: &str, k: &str| l[p][k].as_f64().unwrap();
+    assert!(f("desktop", "image_width") >= 0.6 * 1440.0, "{l:#}");
+    assert!(
+        f("desktop", "controls_left") >= f("desktop", "image_right"),
+        "{l:#}"
+    );
+    assert!(
+        f("tablet", "image_width") >= 0.9 * f("tablet", "content"),
+        "{l:#}"
+    );
+    assert!(
+        f("tablet", "controls_top") >= f("tablet", "image_bottom"),
+        "{l:#}"
+    );
+    assert_ne!(l["light_bg"], l["dark_bg"], "{l:#}");
+    assert_eq!(l["focus_outline"]["style"], "solid", "{l:#}");
+    // The key map.
+    let k = &report["keymap"];
+    assert_eq!(k["opened"]["open"], true, "{k:#}");
+    assert!(k["opened"]["rows"].as_u64().unwrap() >= 20, "{k:#}");
+    assert!(k["conflict"].as_str().unwrap().contains("already"), "{k:#}");
+    assert_eq!(k["escape_capture"]["open"], true, "{k:#}");
+    assert_eq!(k["escape_capture"]["message"], "Not changed.", "{k:#}");
+    assert!(k["remapped"].as_str().unwrap().ends_with(": G."), "{k:#}");
+    assert_eq!(k["help_shot"], "G", "{k:#}");
+    assert_eq!(k["closed"], true, "{k:#}");
+    let shots = k["shots"].as_array().unwrap();
+    assert_eq!(
+        shots[1].as_u64().unwrap(),
+        shots[0].as_u64().unwrap() + 1,
+        "the remapped key shoots: {k:#}"
+    );
+    assert_eq!(k["after_reload"]["help_shot"], "G", "{k:#}");
+    assert_eq!(k["after_reload"]["shot_shortcut"], "G", "{k:#}");
+}
+
+/// The web client's unit tests (`web-client/tests/unit/*.test.mjs`: the key map, the viewer
+/// transform, the overlays' geometry, the frame parser) under node's own test runner; they need
+/// node only, no browser. Fails when any of them fails.
+#[test]
+fn web_client_unit_tests_under_node() {
+    let dir = web_client_dir().join("tests/unit");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .expect("web-client/tests/unit")
+        .map(|e| e.expect("a directory entry").path())
+        .filter(|p| p.to_string_lossy().ends_with(".test.mjs"))
+        .collect();
+    files.sort();
+    assert!(files.len() >= 4, "unit test files: {files:?}");
+    let run = std::process::Command::new("node")
+        .arg("--test")
+        .args(&files)
+        .current_dir(web_client_dir())
+        .output();
+    let out = match run {
+        Ok(out) => out,
+        Err(e) => {
+            let required = std::env::var_os("CI").is_some()
+                || std::env::var("REQUIRE_GPU").is_ok_and(|v| v == "1");
+            assert!(
+                !required,
+                "node is needed for the web client's unit tests: {e}"
+            );
+            eprintln!("SKIPPED web_client_unit_tests_under_node: node is missing ({e})");
+            return;
+        }
+    };
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "node --test failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("# fail 0"), "{stdout}");
+}
+
 /// The ultrasound station in the browser (`web-client/tests/e2e_ultrasound.mjs`): the demo
 /// station with ultrasound (curvilinear and linear probes, the scan site at its target), scanned
 /// by a drag on the placement view and the keyboard, the probe put over the target, the needle
@@ -293,8 +464,18 @@ async fn ultrasound_station_in_headless_chromium() {
         return;
     }
     let _turn = BROWSER_TURN.lock().await;
-    let srv = demo_server_for(true, None, &ultrasound_demo_station_toml()).await;
-    let report = run_script("e2e_ultrasound.mjs", srv.addr, "ultrasound", &[]).await;
+    let toml = ultrasound_demo_station_toml();
+    let srv = demo_server_for(true, None, &toml).await;
+    // Where the probe must go: the station's first target, read from its definition here (a
+    // learner's browser gets the targets without their positions).
+    let target = first_target_position(&toml);
+    let report = run_script(
+        "e2e_ultrasound.mjs",
+        srv.addr,
+        "ultrasound",
+        &[("E2E_US_TARGET_MM", &target)],
+    )
+    .await;
     // The whole report, for the figures (one line).
     eprintln!("ultrasound in the browser: {report}");
     let steps = strings(&report["steps"]);
@@ -468,6 +649,19 @@ async fn ultrasound_station_in_headless_chromium() {
         report["console_errors"].as_array().unwrap().is_empty(),
         "{report:#}"
     );
+}
+
+/// The `position_mm` of the first `[[targets]]` table of a station definition, as the JSON
+/// array it is written as (`[12.0, -18.0, 0.0]`).
+fn first_target_position(toml: &str) -> String {
+    let targets = &toml[toml.find("[[targets]]").expect("a [[targets]] table")..];
+    let line = targets
+        .lines()
+        .find(|l| l.trim_start().starts_with("position_mm"))
+        .expect("the target's position_mm");
+    let value = line.split_once('=').expect("position_mm = [...]").1.trim();
+    serde_json::from_str::<Vec<f64>>(value).expect("a JSON array of numbers");
+    value.to_owned()
 }
 
 /// The demo station with ultrasound: [`demo_station_toml`] listing `"ultrasound"`, with a

@@ -103,6 +103,210 @@ async function capture(page, name) {
   return stats;
 }
 
+/** The viewer's state, overlays and a few canvas figures (grey levels of the middle row). */
+async function viewerState(page) {
+  return page.evaluate(() => {
+    const s = window.__sim.screen;
+    const c = document.getElementById('fluoro');
+    const row = [...c.getContext('2d').getImageData(0, c.height / 2, c.width, 1).data].filter((_, i) => i % 4 === 0);
+    const text = (id) => document.getElementById(id).textContent;
+    const bar = document.getElementById('scale-bar');
+    return {
+      view: JSON.parse(JSON.stringify(s.view)),
+      letters: { left: text('orient-left'), right: text('orient-right'), top: text('orient-top'), bottom: text('orient-bottom') },
+      corners: { view: text('corner-view'), technique: text('corner-technique'), dose: text('corner-dose'), zoom: text('corner-zoom') },
+      scale: { hidden: bar.hidden, mm: Number(bar.dataset.mm), fraction: Number(bar.dataset.fraction), css_width: bar.getBoundingClientRect().width },
+      row,
+    };
+  });
+}
+
+const rowStd = (row) => {
+  const m = row.reduce((a, b) => a + b, 0) / row.length;
+  return Math.sqrt(row.reduce((a, b) => a + (b - m) * (b - m), 0) / row.length);
+};
+const maxRowDiff = (a, b) => Math.max(...a.map((v, i) => Math.abs(v - b[i])));
+
+/** Window/level, invert, flip, zoom, pan, escape and reset on the last image, by the mouse and
+ * by keys pressed with the focus on the page's body; then the C-arm to LAO 90 and a shot. */
+async function viewerChecks(page) {
+  const out = {};
+  // Every answer in and the last frame drawn, so the image holds still while it is measured.
+  await waitUntil(page, () => window.__sim.live.pending.size === 0);
+  await waitUntil(page, () => Number(document.getElementById('frame-count').textContent) === window.__sim.stats.frames);
+  const framesAtStart = await framesSoFar(page);
+  await page.check('input[name="drag-mode"][value="view"]');
+  await page.evaluate(() => document.activeElement && document.activeElement.blur());
+  out.focus = await page.evaluate(() => document.activeElement.tagName);
+  await page.locator('#fluoro').scrollIntoViewIfNeeded();
+  const box = await page.locator('#fluoro').boundingBox();
+  const [cx, cy] = [box.x + box.width / 2, box.y + box.height / 2];
+  const before = await viewerState(page);
+  out.before = { ...before, row: undefined };
+  // Window/level: a left drag 150 px left narrows the window (more contrast).
+  await page.mouse.move(cx, cy);
+  await page.mouse.down();
+  await page.mouse.move(cx - 150, cy, { steps: 5 });
+  await page.mouse.up();
+  const wl = await viewerState(page);
+  // The look-up table of the new window and level (viewer.js `lut`), applied to the row as it
+  // was: the drawn row must be exactly that.
+  const lower = wl.view.level - wl.view.window / 2;
+  const expected = before.row.map((g) => Math.round(Math.max(0, Math.min(255, (255 * (g - lower)) / wl.view.window))));
+  out.wl = {
+    view: wl.view, corner: wl.corners.zoom, std_before: rowStd(before.row), std_after: rowStd(wl.row),
+    max_diff: maxRowDiff(before.row, wl.row), lut_error: maxRowDiff(expected, wl.row),
+  };
+  // Escape during a drag puts the window/level back where the drag started.
+  await page.mouse.move(cx, cy);
+  await page.mouse.down();
+  await page.mouse.move(cx, cy + 60, { steps: 3 });
+  await page.keyboard.press('Escape');
+  await page.mouse.move(cx, cy + 90, { steps: 2 });
+  await page.mouse.up();
+  out.escape = { level_after: (await viewerState(page)).view.level, level_before: wl.view.level };
+  // Space resets everything: the canvas is the frame as decoded again.
+  await page.keyboard.press(' ');
+  const reset = await viewerState(page);
+  out.reset = { view: reset.view, max_diff: maxRowDiff(before.row, reset.row) };
+  // Invert: every grey level g becomes 255 - g.
+  await page.keyboard.press('i');
+  const inv = await viewerState(page);
+  out.invert = { view_invert: inv.view.invert, max_error: Math.max(...before.row.map((g, i) => Math.abs(255 - g - inv.row[i]))) };
+  await page.keyboard.press('i');
+  // Flip: the row mirrored, and the letters of the left and right edges swapped.
+  await page.keyboard.press('h');
+  const flip = await viewerState(page);
+  out.flip = {
+    letters_before: before.letters, letters_after: flip.letters,
+    max_error: Math.max(...before.row.map((g, i) => Math.abs(g - flip.row[before.row.length - 1 - i]))),
+  };
+  await page.keyboard.press('h');
+  // Zoom: `+` and a right drag up; the scale bar grows with it.
+  await page.keyboard.press('+');
+  const z1 = await viewerState(page);
+  await page.mouse.move(cx, cy);
+  await page.mouse.down({ button: 'right' });
+  await page.mouse.move(cx, cy - 100, { steps: 4 });
+  await page.mouse.up({ button: 'right' });
+  const z2 = await viewerState(page);
+  out.zoom = {
+    key: z1.view.zoom, drag: z2.view.zoom, corner: z2.corners.zoom,
+    scale_before: before.scale, scale_key: z1.scale, changed: maxRowDiff(before.row, z1.row),
+  };
+  // Pan: a middle drag 40 px right moves the image 40 CSS px right.
+  await page.mouse.move(cx, cy);
+  await page.mouse.down({ button: 'middle' });
+  await page.mouse.move(cx + 40, cy, { steps: 4 });
+  await page.mouse.up({ button: 'middle' });
+  const pan = await viewerState(page);
+  out.pan = { pan: pan.view.pan, css_per_canvas_px: box.width / 512 };
+  // The skin marker cursor, if shown, and a marker pixel under a pointer follow the view: the
+  // pixel under the canvas centre is the image point the zoom and pan put there.
+  out.pixel_at_centre = await page.evaluate(([x, y]) => window.__sim.screen.pixelAt({ x, y }), [cx, cy]);
+  await page.keyboard.press(' ');
+  out.after_reset = (await viewerState(page)).view;
+  // No frame came while the view was measured (the rows compared are of one image).
+  out.frames_during = (await framesSoFar(page)) - framesAtStart;
+  // The C-arm to LAO 90 by keys, a shot: the letters are those of a lateral view.
+  for (let i = 0; i < 12; i++) await page.keyboard.press('Control+ArrowRight');
+  await page.waitForTimeout(120);
+  await waitUntil(page, () => window.__sim.live.pending.size === 0);
+  await act(page, () => page.keyboard.press('x'));
+  const lateral = await viewerState(page);
+  out.lateral = { orbital: Number(await page.inputValue('#orbital')), letters: lateral.letters, corners: lateral.corners };
+  await page.keyboard.press('h');
+  out.lateral.flipped = (await viewerState(page)).letters;
+  await page.keyboard.press(' ');
+  // Hub keys follow the screen: in the lateral view screen-right is posterior, which no hub
+  // tilt can aim at (no command), while up is still cranial (one 1 degree tilt).
+  await page.check('input[name="drag-mode"][value="hub"]');
+  await page.evaluate(() => document.activeElement && document.activeElement.blur());
+  const seq = () => page.evaluate(() => window.__sim.live.seq);
+  const settleTilt = () => waitUntil(page, () => !window.__sim.needle.tiltThrottle.timer && !window.__sim.needle.tilt && window.__sim.live.pending.size === 0);
+  const s0 = await seq();
+  await page.keyboard.press('ArrowRight');
+  await page.waitForTimeout(120);
+  await settleTilt();
+  const s1 = await seq();
+  await page.keyboard.press('Shift+ArrowUp');
+  await settleTilt();
+  out.lateral.hub_commands = { right: s1 - s0, up: (await seq()) - s1 };
+  await page.check('input[name="drag-mode"][value="view"]');
+  await page.evaluate(() => document.activeElement && document.activeElement.blur());
+  out.layout = await layoutChecks(page);
+  return out;
+}
+
+/** The session screen's layout at 1440 x 900 (the image beside the controls, at least 60 % of
+ * the width) and at a tablet's 800 x 1200 (the image the whole width, the controls below), the
+ * light and dark themes, and the focus ring; the viewport is put back afterwards. */
+async function layoutChecks(page) {
+  const measure = () => page.evaluate(() => {
+    const f = document.getElementById('fluoro').getBoundingClientRect();
+    const c = document.querySelector('#session-view .controls').getBoundingClientRect();
+    return { viewport: innerWidth, content: document.documentElement.clientWidth, image_width: f.width, image_right: f.right, image_bottom: f.bottom, controls_left: c.left, controls_top: c.top };
+  });
+  const out = {};
+  const original = page.viewportSize();
+  await page.setViewportSize({ width: 1440, height: 900 });
+  out.desktop = await measure();
+  if (outDir) await page.screenshot({ path: join(outDir, 'layout-1440x900.png') });
+  await page.setViewportSize({ width: 800, height: 1200 });
+  out.tablet = await measure();
+  if (outDir) await page.screenshot({ path: join(outDir, 'layout-800x1200.png') });
+  await page.setViewportSize(original);
+  const bg = () => page.evaluate(() => getComputedStyle(document.body).backgroundColor);
+  await page.emulateMedia({ colorScheme: 'light' });
+  out.light_bg = await bg();
+  await page.emulateMedia({ colorScheme: 'dark' });
+  out.dark_bg = await bg();
+  await page.emulateMedia({ colorScheme: null });
+  // A control reached by the keyboard shows its focus ring.
+  await page.focus('#shot');
+  await page.keyboard.press('Shift+Tab');
+  await page.keyboard.press('Tab');
+  out.focus_outline = await page.evaluate(() => {
+    const s = getComputedStyle(document.activeElement);
+    return { id: document.activeElement.id, style: s.outlineStyle, width: s.outlineWidth };
+  });
+  await page.evaluate(() => document.activeElement && document.activeElement.blur());
+  return out;
+}
+
+/** `?` opens the key map; a remap is refused on a taken key and kept on a free one; the new key
+ * shoots. */
+async function keymapChecks(page) {
+  const out = {};
+  await page.evaluate(() => document.activeElement && document.activeElement.blur());
+  await page.keyboard.press('?');
+  out.opened = await page.evaluate(() => {
+    const d = document.getElementById('keymap-dialog');
+    return { open: d.open, heading: d.querySelector('h2').textContent, rows: d.querySelectorAll('tbody tr').length };
+  });
+  // A key another action has: refused, with the reason.
+  await page.click('#keymap-rows button[data-action="shot"]');
+  await page.keyboard.press('i');
+  out.conflict = await page.textContent('#keymap-message');
+  // Escape while a key is awaited cancels the change and leaves the dialog open.
+  await page.click('#keymap-rows button[data-action="shot"]');
+  await page.keyboard.press('Escape');
+  out.escape_capture = await page.evaluate(() => ({ open: document.getElementById('keymap-dialog').open, message: document.getElementById('keymap-message').textContent }));
+  // A free key: taken.
+  await page.click('#keymap-rows button[data-action="shot"]');
+  await page.keyboard.press('g');
+  out.remapped = await page.textContent('#keymap-message');
+  out.help_shot = await page.textContent('#fluoro-keys kbd[data-action="shot"]');
+  await page.keyboard.press('Escape');
+  out.closed = await page.evaluate(() => !document.getElementById('keymap-dialog').open);
+  await page.evaluate(() => document.activeElement && document.activeElement.blur());
+  const shots = await page.evaluate(() => window.__sim.screen.info.acquisitions);
+  await act(page, () => page.keyboard.press('g'));
+  await waitUntil(page, () => window.__sim.live.pending.size === 0);
+  out.shots = [shots, await page.evaluate(() => window.__sim.screen.info.acquisitions)];
+  return out;
+}
+
 await runReport(async (page, report) => {
 
   // Learner.
@@ -125,16 +329,15 @@ await runReport(async (page, report) => {
   await act(page, () => page.click('#shot'));
   const repeat = await capture(page, '1b-repeat-shot');
 
-  // Rotate the C-arm by keyboard (20 degrees LAO) and by a mouse drag, then shoot.
-  await page.focus('#fluoro');
-  for (let i = 0; i < 4; i++) await page.keyboard.press('ArrowRight');
-  const box = await page.locator('#fluoro').boundingBox();
-  await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
-  await page.mouse.down();
-  await page.mouse.move(box.x + box.width / 2 + 40, box.y + box.height / 2, { steps: 5 });
-  await page.mouse.up();
+  // Rotate the C-arm by keyboard (20 degrees LAO, Ctrl + arrow, with the focus on the page's
+  // body: the keys need no click on the image) and by its buttons (10 more), then shoot by key.
+  await page.evaluate(() => document.activeElement && document.activeElement.blur());
+  report.focus_for_keys = await page.evaluate(() => document.activeElement.tagName);
+  for (let i = 0; i < 4; i++) await page.keyboard.press('Control+ArrowRight');
+  for (let i = 0; i < 2; i++) await page.click('#carm-lao');
   report.orbital_deg = Number(await page.inputValue('#orbital'));
-  await act(page, () => page.keyboard.press('s'));
+  await page.evaluate(() => document.activeElement && document.activeElement.blur());
+  await act(page, () => page.keyboard.press('x'));
   const rotated = await capture(page, '2-rotated');
   report.steps.push('rotated');
 
@@ -169,7 +372,7 @@ await runReport(async (page, report) => {
   await page.mouse.up();
   await waitUntil(page, () => window.__sim.live.pending.size === 0);
   report.marker_text = await page.textContent('#marker-state');
-  await page.check('input[name="drag-mode"][value="carm"]');
+  await page.check('input[name="drag-mode"][value="view"]');
   await setPose(0, 0);
   await page.click('#puncture');
   await waitUntil(page, () => window.__sim.live.pending.size === 0);
@@ -284,11 +487,25 @@ await runReport(async (page, report) => {
   report.command_errors = await page.evaluate(() => window.__sim.stats.errors);
   report.session_log = await page.textContent('#session-log');
 
+  report.viewer = await viewerChecks(page);
+  report.steps.push('viewer');
+  report.keymap = await keymapChecks(page);
+  report.steps.push('keymap');
+
   await page.click('#submit');
   await page.waitForSelector('#result:not([hidden])');
   report.result_text = (await page.textContent('#result')).replace(/\s+/g, ' ').trim();
   report.acks = await acksSoFar(page);
   report.steps.push('submitted');
+  // The remapped key survives a reload (the learner's home page loads the key map too).
+  await page.reload();
+  await page.waitForSelector('#learner-view:not([hidden])');
+  report.keymap.after_reload = await page.evaluate(() => ({
+    help_shot: document.querySelector('#fluoro-keys kbd[data-action="shot"]').textContent,
+    shot_shortcut: document.getElementById('shot').getAttribute('aria-keyshortcuts'),
+    stored: localStorage.getItem('painsim.fluoro-keymap.v1'),
+  }));
+  report.steps.push('reloaded');
   await page.click('#logout');
   await page.waitForSelector('#login-view:not([hidden])');
 

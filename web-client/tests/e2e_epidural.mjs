@@ -99,16 +99,16 @@ async function canvasBox(page) {
   return page.locator('#fluoro').boundingBox();
 }
 
-/** Sets the C-arm with the arrow keys in C-arm mode (5 degrees a press, 1 with Shift). */
+/** Sets the C-arm with its keys, Ctrl + arrows (5 degrees a press, 1 with Shift), pressed with
+ * the focus on the page's body (the keys need no click on the image). */
 async function carmTo(page, orbital, angular) {
-  await page.check('input[name="drag-mode"][value="carm"]');
-  await page.focus('#fluoro');
+  await page.evaluate(() => document.activeElement && document.activeElement.blur());
   for (;;) {
     const o = Number(await page.inputValue('#orbital'));
     const a = Number(await page.inputValue('#angular'));
     if (o === orbital && a === angular) break;
     const [key, d] = o !== orbital ? [o < orbital ? 'ArrowRight' : 'ArrowLeft', Math.abs(orbital - o)] : [a < angular ? 'ArrowUp' : 'ArrowDown', Math.abs(angular - a)];
-    await page.keyboard.press(d >= 5 ? key : `Shift+${key}`);
+    await page.keyboard.press(d >= 5 ? `Control+${key}` : `Control+Shift+${key}`);
   }
   // Pose commands are throttled to one per 50 ms (app.js): let the last one go.
   await page.waitForTimeout(120);

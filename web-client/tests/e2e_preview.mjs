@@ -27,11 +27,11 @@ runReport(async (page, report) => {
   });
   await page.focus('#fluoro');
   for (let k = 0; k < 3; k++) {
-    // A C-arm turn by key (sent within 50 ms), then a shot.
-    await page.keyboard.press('ArrowRight');
+    // A C-arm turn by key (Ctrl + arrow, sent within 50 ms), then a shot by key (X).
+    await page.keyboard.press('Control+ArrowRight');
     await page.waitForTimeout(200);
     const before = await page.evaluate(() => window.__sim.stats.frames);
-    await page.keyboard.press('s');
+    await page.keyboard.press('x');
     // Until the full frame of the shot is drawn.
     await waitUntil(page, (n) => {
       const s = window.__sim.stats;

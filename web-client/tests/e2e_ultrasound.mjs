@@ -237,7 +237,11 @@ await runReport(async (page, report) => {
 
   // Over the target: slide along the marker and across the slice by the keyboard (Ctrl+arrow
   // 5 mm, arrow 1 mm) until the face centre is above it (within half a step).
-  const target = await page.evaluate(() => window.__sim.station.targets[0].position_mm);
+  // The target's position comes from the Rust test (E2E_US_TARGET_MM): the station the learner's
+  // browser gets lists its targets without positions.
+  const target = process.env.E2E_US_TARGET_MM
+    ? JSON.parse(process.env.E2E_US_TARGET_MM)
+    : await page.evaluate(() => window.__sim.station.targets[0].position_mm);
   let offsets = null;
   for (let round = 0; round < 4; round++) {
     const o = await outcome(page);
