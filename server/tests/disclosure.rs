@@ -143,6 +143,8 @@ const ALLOWED_KEYS: &[&str] = &[
     "width_mm",
     "height_mm",
     "iris_diameter_mm",
+    "carm_deg",
+    "image_carm_deg",
     "left_mm",
     "right_mm",
     "top_mm",

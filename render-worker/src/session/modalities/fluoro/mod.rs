@@ -602,6 +602,11 @@ impl Modality for FluoroModality {
             "acquisitions": self.state.shots + self.state.live_runs,
             "exposure_s": self.exposure_ms_at(now) as f64 / 1000.0,
             "image": self.state.images.last().map(|i| i.index),
+            // The C-arm's angles as its console shows them, now and for the image on screen
+            // (a client's orientation markers follow the image, also after a reconnect).
+            "carm_deg": [self.state.orbital_deg, self.state.angular_deg],
+            "image_carm_deg": self.state.images.last()
+                .map(|i| [i.projection.orbital_deg, i.projection.angular_deg]),
             "dose": self.dose_json(world),
         }))
     }
