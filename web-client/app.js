@@ -6,6 +6,7 @@ import { LiveSession } from './session.js';
 import { UltrasoundStation } from './ultrasound.js';
 import { NeedleControls } from './needle.js';
 import { FluoroScreen } from './fluoro-view.js';
+import { viewName } from './orientation.js';
 
 const $ = (id) => document.getElementById(id);
 const views = ['login-view', 'learner-view', 'session-view', 'faculty-view'];
@@ -124,6 +125,11 @@ async function learnerHome() {
       b.addEventListener('click', () => openSession(a.id, a.station_id));
       td.append(b);
     }
+    if (a.latest_outcome) {
+      const link = el('a', { href: `/debrief.html?attempt=${encodeURIComponent(a.id)}`, textContent: 'Debrief' });
+      link.setAttribute('aria-label', `Debrief of the attempt at ${a.station_id}`);
+      td.append(' ', link);
+    }
     return el('tr', {}, el('td', { textContent: a.station_id }), el('td', { textContent: a.state.replace('_', ' ') }),
       el('td', { textContent: a.latest_outcome ? `${outcomeWords(a.latest_outcome)} (${fmt(a.latest_score)})` : '–' }),
       el('td', { textContent: new Date(a.updated_at).toLocaleString() }), td);
@@ -162,6 +168,11 @@ function poseOfFrame(inputSeq) {
   return shownPose;
 }
 let poseTimer = null;
+/** Acquisitions the fluoroscopy acknowledgements reported last (null: unknown, a resumed
+ * session), and the C-arm view announced last. */
+let lastAcquisitions = null;
+let lastViewName = 'AP';
+let viewAnnounceTimer = null;
 let lastPoseSent = 0;
 
 function sendPose(now = false) {
@@ -189,6 +200,7 @@ function takeShot() {
   if (!live) return;
   if (poseTimer) sendPose(true);
   live.send({ type: 'shot' });
+  if (!$('fluoro-wait').hidden) $('fluoro-wait').textContent = 'Taking the first image…';
 }
 
 function clamp(v, lo, hi) { return Math.max(lo, Math.min(hi, v)); }
@@ -299,6 +311,8 @@ async function openSession(attemptId, stationId) {
     // C-arm move; until a frame says otherwise the image is AP (the session's start).
     posesSent = [];
     shownPose = { orbital: 0, angular: 0 };
+    lastAcquisitions = 0;
+    lastViewName = 'AP';
     fluoroScreen.reset();
     live = new LiveSession(s.ws);
     // A new session starts with the beam off.
@@ -313,14 +327,29 @@ async function openSession(attemptId, stationId) {
     $('carm-controls').hidden = !listed.includes('fluoroscopy');
     window.__sim = { session: s, live, stats: live.stats, station, us, needle, screen: fluoroScreen, views: null };
     let drawn = 0;
-    live.addEventListener('connection', (e) => { $('conn').textContent = e.detail.state; });
+    $('fluoro-wait').hidden = false;
+    $('fluoro-wait').textContent = 'No image yet: press X or the Shot button for the first image.';
+    let connectionLost = false;
+    live.addEventListener('connection', (e) => {
+      $('conn').textContent = e.detail.state;
+      if (e.detail.state === 'closed' && !live.closed) {
+        connectionLost = true;
+        say('Connection lost: reconnecting by itself. Your commands are kept and sent again once it is back. If it does not come back within a minute, check the network and reload the page: the attempt resumes where it was.');
+      }
+    });
     live.addEventListener('hello', (e) => {
       $('conn').textContent = 'live';
+      if (connectionLost) { connectionLost = false; say('Connection back: the session goes on where it was.'); }
       const views = e.detail.session.views || ['fluoroscopy'];
+      $('session-mode').textContent = e.detail.session.mode === 'assessment'
+        ? 'Assessment mode: no hints; the result comes in the debrief after you submit.'
+        : 'Practice mode: hints such as "needle in the scan plane" are shown.';
       window.__sim.views = views;
       live.setVisible(views);
       showViews(views, e.detail.session.protocol);
       fluoroScreen.hello(live);
+      // A resumed session: how many images it has is learnt from its next acknowledgement.
+      if (e.detail.last_seq > 0) lastAcquisitions = null;
       $('pps').value = String(live.constant('fluoroscopy', 'default_pulse_rate_pps', 7.5));
     });
     live.addEventListener('frame', (e) => {
@@ -328,6 +357,7 @@ async function openSession(attemptId, stationId) {
       if (frame.view === 'fluoroscopy') {
         needle.fluoroFrame(frame);
         fluoroScreen.frame(bitmap, frame, poseOfFrame(frame.inputSeq));
+        $('fluoro-wait').hidden = true;
         // A draft (a cheap preview while the C-arm moves) says so until the full frame comes.
         $('fluoro-draft').hidden = !frame.draft;
       } else if (otherViews.has(frame.view)) {
@@ -349,6 +379,36 @@ async function openSession(attemptId, stationId) {
       if (o.depth_mm != null) $('depth').textContent = `${fmt(o.depth_mm, 1)} mm`;
       if (o.injected_ml != null) $('injected').textContent = `${fmt(o.injected_ml, 2)} mL`;
       if (o.dose) $('dose').textContent = doseWords(o.dose);
+      // The C-arm's angles as the worker has them: after a reconnect (no pose of ours in
+      // flight) they set the controls and the pose of the image on screen.
+      // A new C-arm view is announced once the C-arm settles (simulator choice: 600 ms after
+      // the last pose acknowledgement, so a drag is one announcement, not twenty).
+      if (Array.isArray(o.carm_deg)) {
+        const name = viewName({ orbital: o.carm_deg[0], angular: o.carm_deg[1] });
+        clearTimeout(viewAnnounceTimer);
+        if (name !== lastViewName) {
+          viewAnnounceTimer = setTimeout(() => { $('announcer').textContent = `C-arm view: ${name}.`; }, 600);
+          lastViewName = name;
+        }
+      }
+      if (Array.isArray(o.carm_deg) && !posesSent.length && !poseTimer) {
+        [pose.orbital, pose.angular] = o.carm_deg.map(Math.round);
+        $('orbital-out').textContent = `${pose.orbital}°`;
+        $('angular-out').textContent = `${pose.angular}°`;
+        $('orbital').value = pose.orbital;
+        $('angular').value = pose.angular;
+      }
+      if (Array.isArray(o.image_carm_deg) && !posesSent.length) {
+        shownPose = { orbital: o.image_carm_deg[0], angular: o.image_carm_deg[1] };
+      }
+      // A new acquisition (a shot or a live run) is announced with the view it was taken in.
+      if (o.acquisitions != null && o.acquisitions !== lastAcquisitions) {
+        if (lastAcquisitions != null && Array.isArray(o.image_carm_deg)) {
+          const [orbital, angular] = o.image_carm_deg;
+          $('announcer').textContent = `Image acquired (${o.acquisitions} so far): ${viewName({ orbital, angular })}.`;
+        }
+        lastAcquisitions = o.acquisitions;
+      }
       fluoroScreen.ack(o);
       // The rate the session runs at, as the fluoroscopy modality acknowledged it.
       if (o.pulse_rate_pps != null) { $('pps').value = String(o.pulse_rate_pps); window.__sim.pulseRate = o.pulse_rate_pps; }
@@ -403,6 +463,18 @@ function doseWords(d) {
 function showResult(r) {
   if (window.__sim) window.__sim.result = r;
   $('result').hidden = false;
+  const attemptId = window.__sim && window.__sim.session && window.__sim.session.attempt_id;
+  $('result-debrief').hidden = !attemptId;
+  if (attemptId) $('result-debrief').href = `/debrief.html?attempt=${encodeURIComponent(attemptId)}`;
+  if (r.withheld) {
+    // Assessment mode: the session carries no figures; the debrief has them.
+    $('result-summary').textContent = 'Submitted. This station runs in assessment mode, so the session shows no figures: the debrief has the result. It now waits for faculty review.';
+    $('result-criteria').hidden = true;
+    $('result-notice').textContent = '';
+    $('result-title').focus();
+    return;
+  }
+  $('result-criteria').hidden = false;
   $('result-summary').textContent = `Technical result: ${outcomeWords(r.outcome)}; weighted score ${fmt(r.score)} (measured weight ${fmt(r.measured_weight_fraction)}). It now waits for faculty review.`;
   const criteria = (r.detail && r.detail.criteria) || [];
   $('result-criteria').tBodies[0].replaceChildren(...criteria.map((c) => el('tr', {},
@@ -592,6 +664,11 @@ async function facultyHome() {
   $('review').hidden = true;
   $('totp-setup').hidden = me.mfa;
   try {
+    // One dashboard link per course taught and station of the catalog.
+    const [courses, stations] = await Promise.all([api('GET', '/api/courses'), api('GET', '/api/stations')]);
+    const taught = courses.filter((c) => c.my_role === 'faculty' || me.role === 'admin');
+    $('cohort-links').replaceChildren(...taught.flatMap((c) => stations.map((st) => el('li', {},
+      el('a', { href: `/cohort.html?course=${encodeURIComponent(c.id)}&station=${encodeURIComponent(st.id)}`, textContent: `${c.code}: ${st.title}` })))));
     const queue = await api('GET', '/api/reviews?state=submitted');
     $('queue').tBodies[0].replaceChildren(...queue.map((a) => {
       const b = el('button', { type: 'button', textContent: 'Review' });
@@ -656,6 +733,7 @@ async function openReview(a) {
     reviewing = { attempt: a, replay, detail };
     $('review').hidden = false;
     $('review-title').textContent = `${a.learner_name} — ${a.station_id}`;
+    $('review-debrief').href = `/debrief.html?attempt=${encodeURIComponent(a.id)}`;
     $('timeline').max = String(replay.timeline.length);
     $('timeline-list').replaceChildren(...replay.timeline.map((e, i) => {
       const b = el('button', { type: 'button', textContent: `${e.command.type} (${(e.t_ms / 1000).toFixed(1)} s)` });

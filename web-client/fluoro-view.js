@@ -14,6 +14,7 @@ import {
 } from './viewer.js';
 import { edgeLetters, viewName, scaleBar, screenToTilt, SOURCE_TO_DETECTOR_MM, SOURCE_TO_ISOCENTRE_MM } from './orientation.js';
 import * as keymap from './keymap.js';
+import { ImageStore } from './image-store.js';
 
 const $ = (id) => document.getElementById(id);
 
@@ -67,6 +68,12 @@ export class FluoroScreen {
     this.info = { technique: null, pps: null, dose: null, acquisitions: null, fieldMm: null };
     this.geometry = { sidMm: SOURCE_TO_DETECTOR_MM, sodMm: SOURCE_TO_ISOCENTRE_MM };
     this.keys = keymap.load(storage);
+    this.store = new ImageStore({
+      list: $('stored-images'),
+      reference: $('reference-image'),
+      caption: $('reference-caption'),
+      announce: (text) => { $('announcer').textContent = text; },
+    });
     this.pointers = new Map();
     this.drag = null;
     needle.setView({
@@ -92,6 +99,7 @@ export class FluoroScreen {
 
   /** A new session: the default view, a black image, no readouts. */
   reset() {
+    this.store.reset();
     this.view = defaultView();
     this.pose = { orbital: 0, angular: 0 };
     this.hasImage = false;
@@ -321,6 +329,10 @@ export class FluoroScreen {
       zoomIn: () => this.setView(zoomBy(v, ZOOM_STEP)),
       zoomOut: () => this.setView(zoomBy(v, 1 / ZOOM_STEP)),
       cancel: () => this.cancelDrag(),
+      store: () => {
+        if (this.hasImage) this.store.store(this.raw, viewName(this.pose));
+        else $('announcer').textContent = 'No image to store yet: take a shot first.';
+      },
       modeView: () => this.needle.setMode('view'),
       modeMarker: () => this.needle.setMode('marker'),
       modeHub: () => this.needle.setMode('hub'),

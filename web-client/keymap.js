@@ -25,6 +25,7 @@ export const ACTIONS = [
   { id: 'zoomIn', key: '+', group: 'View', label: 'Zoom in' },
   { id: 'zoomOut', key: '-', group: 'View', label: 'Zoom out' },
   { id: 'cancel', key: 'Escape', group: 'View', label: 'Cancel a drag or close a dialog' },
+  { id: 'store', key: 's', group: 'View', label: 'Store the image on screen in the strip (choose one there as the reference)' },
   { id: 'modeView', key: '1', group: 'Pointer', label: 'Left drag adjusts window/level; arrows pan' },
   { id: 'modeMarker', key: '2', group: 'Pointer', label: 'Left drag and arrows move the skin marker' },
   { id: 'modeHub', key: '3', group: 'Pointer', label: 'Left drag and arrows tilt the needle hub' },

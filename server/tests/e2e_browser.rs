@@ -152,6 +152,7 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
             "session open",
             "shot",
             "rotated",
+            "stored",
             "needle",
             "injected",
             "collimated",
@@ -164,6 +165,23 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
         ]
     );
     assert_viewer(&report);
+    // Before the first image the canvas says how to get one; the image hides it.
+    let w = &report["first_image_wait"];
+    assert_eq!(w["before"]["shown"], true, "{w}");
+    assert!(w["before"]["text"].as_str().unwrap().contains("first image"), "{w}");
+    assert_eq!(w["after_hidden"], true, "{w}");
+    // The shot by key is announced with its view (aria-live); two stored images, the AP shown
+    // as the reference beside the live oblique.
+    let said = report["announced_after_shot"].as_str().unwrap();
+    assert!(said.starts_with("Image acquired") && said.contains("LAO 30"), "{said}");
+    let st = &report["stored"];
+    assert_eq!(st["count"], 2, "{st}");
+    assert!(st["labels"][0].as_str().unwrap().contains("Image 1: AP"), "{st}");
+    assert!(st["labels"][1].as_str().unwrap().contains("Image 2: LAO 30"), "{st}");
+    assert_eq!(st["reference_shown"], true, "{st}");
+    assert_eq!(st["reference_src_blob"], true, "{st}");
+    assert!(st["reference_alt"].as_str().unwrap().contains("Image 1: AP"), "{st}");
+    assert_eq!(st["pressed"], serde_json::json!(["true", "false"]), "{st}");
     // The collimator: shutters at half the width (150 mm of 300) and a 230 mm iris. Behind the
     // shutters (5 % in from each side) and outside the iris (a top corner of the blades'
     // field) the shutter black; the middle shows the patient.

@@ -317,6 +317,12 @@ await runReport(async (page, report) => {
     unlabeled_buttons: [...document.querySelectorAll('#session-view button')].filter((b) => !(b.textContent.trim() || b.getAttribute('aria-label'))).length,
   }));
 
+  // Before the first image: the canvas says how to get one (never a silent black image).
+  report.first_image_wait = { before: await page.evaluate(() => ({
+    shown: !document.getElementById('fluoro-wait').hidden,
+    text: document.getElementById('fluoro-wait').textContent,
+  })) };
+
   // Highest tube current: least quantum noise, so input-driven changes stand out clearly.
   const acksBefore = await acksSoFar(page);
   await page.fill('#ma', '20');
@@ -325,6 +331,11 @@ await runReport(async (page, report) => {
   await act(page, () => page.click('#shot'));
   const first = await capture(page, '1-first-shot');
   report.steps.push('shot');
+  report.first_image_wait.after_hidden = await page.evaluate(() => document.getElementById('fluoro-wait').hidden);
+  // Store the AP image in the strip by key (focus on the page, no click on the image).
+  await page.evaluate(() => document.activeElement && document.activeElement.blur());
+  await page.keyboard.press('s');
+  await waitUntil(page, () => document.querySelectorAll('#stored-images li').length === 1);
   // Control: the same view again differs only by quantum noise (a new noise seed per image).
   await act(page, () => page.click('#shot'));
   const repeat = await capture(page, '1b-repeat-shot');
@@ -340,6 +351,20 @@ await runReport(async (page, report) => {
   await act(page, () => page.keyboard.press('x'));
   const rotated = await capture(page, '2-rotated');
   report.steps.push('rotated');
+  report.announced_after_shot = await page.textContent('#announcer');
+  // Store the oblique too, then show the AP as the reference beside it.
+  await page.keyboard.press('s');
+  await waitUntil(page, () => document.querySelectorAll('#stored-images li').length === 2);
+  await page.click('#stored-images li:first-child button');
+  report.stored = await page.evaluate(() => ({
+    count: document.querySelectorAll('#stored-images li').length,
+    labels: [...document.querySelectorAll('#stored-images button')].map((b) => b.getAttribute('aria-label')),
+    reference_shown: !document.getElementById('reference-image').hidden,
+    reference_src_blob: (document.getElementById('reference-image').getAttribute('src') || '').startsWith('blob:'),
+    reference_alt: document.getElementById('reference-image').alt,
+    pressed: [...document.querySelectorAll('#stored-images button')].map((b) => b.getAttribute('aria-pressed')),
+  }));
+  report.steps.push('stored');
 
   // Needle: the skin marker dragged on the rotated image to the pixel where the skin behind the
   // target images (E2E_MARKER: computed by the Rust test for this pose), the C-arm back to AP
