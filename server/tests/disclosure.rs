@@ -293,16 +293,7 @@ async fn set_mode(client: &Client, course: &str, station: &str, mode: Value) -> 
 }
 
 async fn demo_course(client: &Client) -> String {
-    let (_, courses) = client.call("GET", "/api/courses", None).await;
-    courses
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["code"] == "DEMO-101")
-        .expect("demo course")["id"]
-        .as_str()
-        .unwrap()
-        .to_string()
+    client.demo_course().await.as_str().unwrap().to_string()
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

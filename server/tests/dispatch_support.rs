@@ -270,17 +270,22 @@ impl Client {
         (id, session)
     }
 
-    /// Opens a demo attempt and asks for its session: the attempt id, the status and the body.
-    pub async fn try_demo_attempt(&self) -> (String, (u16, Value)) {
+    /// The id of the demo course (`DEMO-101`) as the caller's course list gives it.
+    pub async fn demo_course(&self) -> Value {
         let (s, courses) = self.call("GET", "/api/courses", None).await;
         assert_eq!(s, 200);
-        let course = courses
+        courses
             .as_array()
             .unwrap()
             .iter()
             .find(|c| c["code"] == "DEMO-101")
             .expect("demo course")["id"]
-            .clone();
+            .clone()
+    }
+
+    /// Opens a demo attempt and asks for its session: the attempt id, the status and the body.
+    pub async fn try_demo_attempt(&self) -> (String, (u16, Value)) {
+        let course = self.demo_course().await;
         let id = self.new_attempt_in(&course).await;
         let answer = self.session_of(&id).await;
         (id, answer)

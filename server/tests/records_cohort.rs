@@ -186,6 +186,10 @@ async fn the_cohort_shows_rates_curves_dose_and_competency_to_its_faculty_only()
         .await;
     assert_eq!(r.json["learners"].as_array().unwrap().len(), 1);
     assert_eq!(r.json["attempts"], 3);
+    assert_eq!(
+        r.json["band"], c["band"],
+        "the band stays the whole cohort's"
+    );
     let r = app
         .send(
             Method::GET,

@@ -15,6 +15,8 @@ mod dispatch_hardening;
 mod dispatch_support;
 mod dispatch_ws_fuzz;
 mod e2e_browser;
+mod e2e_cohort;
+mod e2e_debrief;
 mod e2e_epidural;
 mod e2e_session_start;
 mod embedded;

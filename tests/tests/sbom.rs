@@ -190,6 +190,12 @@ fn sbom_lists_both_lockfiles_in_cyclonedx_1_5() {
     let tempfile = component(&bom, &format!("pkg:cargo/tempfile@{tempfile_version}"));
     assert_eq!(tempfile["scope"], "excluded");
 
+    // The chart library copied into the web client (web-client/vendor/uplot/vendor.json).
+    let uplot = component(&bom, "pkg:npm/uplot@1.6.32");
+    assert_eq!(uplot["scope"], "required", "served to browsers");
+    assert_eq!(uplot["licenses"][0]["expression"], "MIT");
+    assert_eq!(uplot["hashes"].as_array().unwrap().len(), 3, "{uplot}");
+
     let npm = npm_lock();
     let playwright = &npm["packages"]["node_modules/playwright-core"];
     let version = str_field(playwright, "version");

@@ -154,7 +154,8 @@ pub struct Cohort {
     pub criteria: Vec<CriterionRate>,
     /// Per learner, by e-mail.
     pub learners: Vec<LearnerCurve>,
-    /// Quartiles of the cohort's scores by scored-attempt number.
+    /// Quartiles of the whole cohort's scores by scored-attempt number (the reference band:
+    /// the learner filter does not narrow it; the mode filter does).
     pub band: Vec<BandPoint>,
     /// "Met" is a technical statement; competency is a faculty judgement the figures inform.
     pub notice: String,
@@ -393,18 +394,28 @@ async fn cohort_of(
          FROM attempts a JOIN users u ON u.id = a.learner_id
          LEFT JOIN LATERAL (SELECT outcome, score, measurements, detail FROM technical_results t
                             WHERE t.attempt_id = a.id ORDER BY t.seq DESC LIMIT 1) r ON true
-         WHERE a.course_id = $1 AND a.station_id = $2
-           AND ($3::uuid IS NULL OR a.learner_id = $3) AND ($4::text IS NULL OR a.mode = $4)
+         WHERE a.course_id = $1 AND a.station_id = $2 AND ($3::text IS NULL OR a.mode = $3)
          ORDER BY a.learner_id, a.created_at, a.id
          LIMIT 20000",
     )
     .bind(course_id)
     .bind(&f.station_id)
-    .bind(f.learner_id)
     .bind(f.mode.map(|m| m.as_str()))
     .fetch_all(&state.pool)
     .await?;
-    Ok(analyse(course_id, &station.station, &rows))
+    let whole = analyse(course_id, &station.station, &rows);
+    let Some(learner) = f.learner_id else {
+        return Ok(whole);
+    };
+    // One learner against the whole cohort's band (a band of their own scores is no reference).
+    let theirs: Vec<AttemptRow> = rows
+        .into_iter()
+        .filter(|r| r.learner_id == learner)
+        .collect();
+    Ok(Cohort {
+        band: whole.band,
+        ..analyse(course_id, &station.station, &theirs)
+    })
 }
 
 /// A course's cohort at one station (its faculty, or an admin).

@@ -20,6 +20,7 @@
 mod bom;
 mod cargo_deps;
 mod npm_deps;
+mod vendored;
 
 use std::path::{Path, PathBuf};
 
@@ -68,6 +69,10 @@ fn main() -> anyhow::Result<()> {
     let (npm, npm_root) = npm_deps::components(&root.join("web-client"))?;
     components.extend(npm);
     roots.push(npm_root);
+    // Files copied into the web client are roots of their own: nothing in a lockfile names them.
+    let vendored = vendored::components(&root.join("web-client").join("vendor"))?;
+    roots.extend(vendored.iter().map(|c| c.bom_ref.clone()));
+    components.extend(vendored);
     let crates = components
         .iter()
         .filter(|c| {
