@@ -1,44 +1,20 @@
-// The learner view (stations, the live session, the technical result) and the faculty view
-// (review queue, replay with a timeline, approve or return). Plain modules, no build step.
+// The main page: health, login, and the learner's live session with its technical result. The
+// stations screen is stations.js, the faculty screen faculty.js, what they share ui.js. Plain
+// modules, no build step.
 
 import { api, setCsrf, ApiError } from './api.js';
+import { $, show, say, fmt, el, outcomeWords } from './ui.js';
+import { learnerHome } from './stations.js';
+import { facultyHome } from './faculty.js';
 import { LiveSession } from './session.js';
 import { UltrasoundStation } from './ultrasound.js';
 import { NeedleControls } from './needle.js';
 import { FluoroScreen } from './fluoro-view.js';
 import { viewName } from './orientation.js';
 
-const $ = (id) => document.getElementById(id);
-const views = ['login-view', 'learner-view', 'session-view', 'faculty-view'];
 let me = null;
 let live = null;
 let station = null;
-
-function show(id) {
-  for (const v of views) $(v).hidden = v !== id;
-  const heading = $(id).querySelector('h2');
-  if (heading) { heading.tabIndex = -1; heading.focus(); }
-}
-
-function say(text) {
-  $('message').textContent = text || '';
-}
-
-function fmt(v, digits = 2) {
-  return v == null ? '–' : Number(v).toFixed(digits);
-}
-
-function el(tag, props = {}, ...children) {
-  const e = document.createElement(tag);
-  Object.assign(e, props);
-  for (const c of children) e.append(c);
-  return e;
-}
-
-/** Plain words for rubric outcomes: a technical statement, never a verdict on the person. */
-function outcomeWords(outcome) {
-  return { met: 'technical criteria met', not_met: 'technical criteria not met', incomplete: 'incomplete (some measurements missing)' }[outcome] || (outcome || 'not scored yet');
-}
 
 // ---------------------------------------------------------------- health and login
 
@@ -67,8 +43,8 @@ async function loggedIn(s) {
   $('who').hidden = false;
   $('who-name').textContent = `${s.user.display_name} (${s.user.role}${s.user.is_demo ? ', demo account' : ''})`;
   say('');
-  if (s.user.role === 'learner') await learnerHome();
-  else await facultyHome();
+  if (s.user.role === 'learner') await learnerHome(openSession);
+  else await facultyHome(s);
 }
 
 $('login-form').addEventListener('submit', async (ev) => {
@@ -100,58 +76,6 @@ $('logout').addEventListener('click', async () => {
   $('who').hidden = true;
   show('login-view');
 });
-
-// ---------------------------------------------------------------- learner: stations and attempts
-
-async function learnerHome() {
-  show('learner-view');
-  const [courses, stations, attempts] = await Promise.all([
-    api('GET', '/api/courses'), api('GET', '/api/stations'), api('GET', '/api/attempts'),
-  ]);
-  const sel = $('course-select');
-  sel.replaceChildren(...courses.filter((c) => c.my_role === 'learner').map((c) => el('option', { value: c.id, textContent: `${c.code} — ${c.title}` })));
-  $('station-list').replaceChildren(...stations.map((s) => {
-    const b = el('button', { type: 'button', textContent: 'Start attempt' });
-    b.setAttribute('aria-label', `Start an attempt at ${s.title}`);
-    b.dataset.station = s.id;
-    b.addEventListener('click', () => newAttempt(s.id));
-    return el('li', {}, el('h3', { textContent: s.title }), el('p', { textContent: `${s.modalities.join(', ')} · ${s.criteria} criteria` }), b);
-  }));
-  const rows = attempts.map((a) => {
-    const td = el('td');
-    if (a.state === 'in_progress' || a.state === 'returned') {
-      const b = el('button', { type: 'button', textContent: 'Continue' });
-      b.setAttribute('aria-label', `Continue the attempt at ${a.station_id}`);
-      b.addEventListener('click', () => openSession(a.id, a.station_id));
-      td.append(b);
-    }
-    if (a.latest_outcome) {
-      const link = el('a', { href: `/debrief.html?attempt=${encodeURIComponent(a.id)}`, textContent: 'Debrief' });
-      link.setAttribute('aria-label', `Debrief of the attempt at ${a.station_id}`);
-      td.append(' ', link);
-    }
-    return el('tr', {}, el('td', { textContent: a.station_id }), el('td', { textContent: a.state.replace('_', ' ') }),
-      el('td', { textContent: a.latest_outcome ? `${outcomeWords(a.latest_outcome)} (${fmt(a.latest_score)})` : '–' }),
-      el('td', { textContent: new Date(a.updated_at).toLocaleString() }), td);
-  });
-  $('my-attempts').tBodies[0].replaceChildren(...rows);
-  // An LTI launch lands on /?course=...&station=...: preselect the course, point at the station.
-  const linked = new URLSearchParams(location.search);
-  if (linked.get('course')) sel.value = linked.get('course');
-  const station = linked.get('station') && $('station-list').querySelector(`button[data-station="${CSS.escape(linked.get('station'))}"]`);
-  if (station) station.focus();
-}
-
-async function newAttempt(stationId) {
-  try {
-    const courseId = $('course-select').value;
-    if (!courseId) { say('You are not enrolled as a learner in any course.'); return; }
-    const a = await api('POST', '/api/attempts', { course_id: courseId, station_id: stationId });
-    await openSession(a.id, stationId);
-  } catch (e) {
-    say(e.message);
-  }
-}
 
 // ---------------------------------------------------------------- learner: the live session
 
@@ -302,6 +226,10 @@ async function openSession(attemptId, stationId) {
     if (live) live.close();
     show('session-view');
     $('session-title').textContent = station.title;
+    // The station's goal and its criteria, in the rubric's order (safety ones marked).
+    $('station-goal').textContent = (station.description || '').trim();
+    $('station-steps').replaceChildren(...((station.rubric && station.rubric.criteria) || []).map((c) =>
+      el('li', { textContent: c.critical ? `${c.description} (safety: a failure fails the attempt)` : c.description })));
     $('result').hidden = true;
     $('syringe').hidden = !(station.modalities || []).includes('contrast');
     $('injected').textContent = '0.00 mL';
@@ -651,126 +579,9 @@ $('plunger').addEventListener('pointercancel', releasePlunger);
 $('plunger').addEventListener('keydown', (e) => { if ((e.key === 'Enter' || e.key === ' ') && !e.repeat) pressPlunger(e); });
 $('plunger').addEventListener('keyup', (e) => { if (e.key === 'Enter' || e.key === ' ') releasePlunger(); });
 $('submit').addEventListener('click', () => live && live.send({ type: 'submit' }));
-$('leave').addEventListener('click', () => { if (live) { live.close(); live = null; } learnerHome(); });
+$('leave').addEventListener('click', () => { if (live) { live.close(); live = null; } learnerHome(openSession); });
 
 // Keys, pointer and wheel on the fluoroscopy image: fluoro-view.js (FluoroScreen).
 
-// ---------------------------------------------------------------- faculty: queue, replay, review
-
-let reviewing = null;
-
-async function facultyHome() {
-  show('faculty-view');
-  $('review').hidden = true;
-  $('totp-setup').hidden = me.mfa;
-  try {
-    // One dashboard link per course taught and station of the catalog.
-    const [courses, stations] = await Promise.all([api('GET', '/api/courses'), api('GET', '/api/stations')]);
-    const taught = courses.filter((c) => c.my_role === 'faculty' || me.role === 'admin');
-    $('cohort-links').replaceChildren(...taught.flatMap((c) => stations.map((st) => el('li', {},
-      el('a', { href: `/cohort.html?course=${encodeURIComponent(c.id)}&station=${encodeURIComponent(st.id)}`, textContent: `${c.code}: ${st.title}` })))));
-    const queue = await api('GET', '/api/reviews?state=submitted');
-    $('queue').tBodies[0].replaceChildren(...queue.map((a) => {
-      const b = el('button', { type: 'button', textContent: 'Review' });
-      b.setAttribute('aria-label', `Review the attempt of ${a.learner_name} at ${a.station_id}`);
-      b.addEventListener('click', () => openReview(a));
-      return el('tr', {}, el('td', { textContent: a.learner_name }), el('td', { textContent: a.station_id }),
-        el('td', { textContent: a.state }), el('td', { textContent: `${outcomeWords(a.latest_outcome)} (${fmt(a.latest_score)})` }),
-        el('td', { textContent: provenanceWords(a.latest_source, a.latest_replay_check) }), el('td', {}, b));
-    }));
-  } catch (e) {
-    say(e.message);
-  }
-}
-
-$('totp-enroll').addEventListener('click', async () => {
-  try {
-    const t = await api('POST', '/api/auth/totp/enroll');
-    $('totp-secret').textContent = t.secret_base32;
-    $('totp-secret-box').hidden = false;
-    $('totp-confirm-code').focus();
-  } catch (e) { say(e.message); }
-});
-$('totp-confirm').addEventListener('click', async () => {
-  try {
-    await api('POST', '/api/auth/totp/confirm', { code: $('totp-confirm-code').value.trim() });
-    // Confirming counts as a login with a code for this session; later logins ask for one.
-    me.mfa = true;
-    $('totp-secret-box').hidden = true;
-    await facultyHome();
-    say('Authenticator set up. Future logins ask for a code.');
-  } catch (e) { say(e.message); }
-});
-
-// Where a technical result came from and what replaying its log showed, in words for faculty.
-const SOURCE_WORDS = { server: 'computed by the simulation', client: 'reported by a client (legacy, not replayable)' };
-const CHECK_WORDS = {
-  pending: 'replay check pending',
-  identical: 'replay reproduces it exactly',
-  differs: 'REPLAY DIFFERS: do not trust this result',
-  unavailable: 'no log to replay',
-};
-function provenanceWords(source, check) {
-  if (!source) return '—';
-  return `${SOURCE_WORDS[source] || source}; ${CHECK_WORDS[check] || check || 'replay check pending'}`;
-}
-
-function setStep(k) {
-  if (!reviewing) return;
-  $('timeline').value = String(k);
-  const steps = reviewing.replay.timeline;
-  $('timeline-out').textContent = k === 0 ? 'start' : `${k} / ${steps.length}: ${steps[k - 1].command.type} at ${(steps[k - 1].t_ms / 1000).toFixed(1)} s`;
-  for (const [i, li] of [...$('timeline-list').children].entries()) {
-    if (i + 1 === k) li.setAttribute('aria-current', 'step'); else li.removeAttribute('aria-current');
-  }
-  $('replay-frame').src = `/api/attempts/${reviewing.attempt.id}/replay/frame?step=${k}`;
-}
-
-async function openReview(a) {
-  say('');
-  try {
-    const [replay, detail] = await Promise.all([api('GET', `/api/attempts/${a.id}/replay`), api('GET', `/api/attempts/${a.id}`)]);
-    reviewing = { attempt: a, replay, detail };
-    $('review').hidden = false;
-    $('review-title').textContent = `${a.learner_name} — ${a.station_id}`;
-    $('review-debrief').href = `/debrief.html?attempt=${encodeURIComponent(a.id)}`;
-    $('timeline').max = String(replay.timeline.length);
-    $('timeline-list').replaceChildren(...replay.timeline.map((e, i) => {
-      const b = el('button', { type: 'button', textContent: `${e.command.type} (${(e.t_ms / 1000).toFixed(1)} s)` });
-      b.addEventListener('click', () => setStep(i + 1));
-      return el('li', {}, b);
-    }));
-    $('replay-check').textContent = replay.identical
-      ? 'Replay reproduces the recorded measurements, score, final state and final image exactly.'
-      : 'Replay differs from the record (see the server log).';
-    const r = detail.results[detail.results.length - 1];
-    $('review-result').replaceChildren(el('p', { textContent: r ? `Technical result: ${outcomeWords(r.outcome)}, score ${fmt(r.score)}.` : 'No technical result.' }),
-      el('p', { className: 'notice', textContent: detail.notice || '' }));
-    $('review-provenance').textContent = r
-      ? `Source: ${provenanceWords(r.source, r.replay_check && r.replay_check.verdict)}.`
-      : '';
-    setStep(replay.timeline.length);
-    $('review-title').focus();
-  } catch (e) {
-    say(e.message);
-  }
-}
-
-$('timeline').addEventListener('input', (e) => setStep(Number(e.target.value)));
-$('review-form').addEventListener('submit', async (ev) => {
-  ev.preventDefault();
-  if (!reviewing) return;
-  const decision = ev.submitter ? ev.submitter.value : 'approve';
-  try {
-    await api('POST', `/api/attempts/${reviewing.attempt.id}/review`, { decision, comment: $('review-comment').value });
-    say(decision === 'approve' ? 'Approved.' : 'Returned to the learner.');
-    $('review-comment').value = '';
-    reviewing = null;
-    await facultyHome();
-  } catch (e) {
-    say(e.message);
-    if (e.status === 403 && /TOTP/i.test(e.message)) $('totp-setup').hidden = false;
-  }
-});
 
 start();

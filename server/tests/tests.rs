@@ -14,6 +14,7 @@ mod dispatch_capacity;
 mod dispatch_hardening;
 mod dispatch_support;
 mod dispatch_ws_fuzz;
+mod e2e_a11y;
 mod e2e_browser;
 mod e2e_cohort;
 mod e2e_debrief;
