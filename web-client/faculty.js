@@ -76,13 +76,19 @@ function setStep(k) {
     if (i + 1 === k) li.setAttribute('aria-current', 'step'); else li.removeAttribute('aria-current');
   }
   $('replay-frame').src = `/api/attempts/${reviewing.attempt.id}/replay/frame?step=${k}`;
+  // An ultrasound station: the B-mode image of the same step beside it (none before the
+  // probe is on the skin: the server answers 204 and the image stays hidden).
+  if (reviewing.ultrasound) $('replay-us-frame').src = `/api/attempts/${reviewing.attempt.id}/replay/frame?step=${k}&view=ultrasound`;
 }
 
 async function openReview(a) {
   say('');
   try {
-    const [replay, detail] = await Promise.all([api('GET', `/api/attempts/${a.id}/replay`), api('GET', `/api/attempts/${a.id}`)]);
-    reviewing = { attempt: a, replay, detail };
+    const [replay, detail, station] = await Promise.all([api('GET', `/api/attempts/${a.id}/replay`), api('GET', `/api/attempts/${a.id}`),
+      api('GET', `/api/stations/${encodeURIComponent(a.station_id)}`)]);
+    const ultrasound = (station.modalities || []).includes('ultrasound');
+    reviewing = { attempt: a, replay, detail, ultrasound };
+    $('replay-us-frame').hidden = true;
     $('review').hidden = false;
     $('review-title').textContent = `${a.learner_name} — ${a.station_id}`;
     $('review-debrief').href = `/debrief.html?attempt=${encodeURIComponent(a.id)}`;
@@ -124,3 +130,6 @@ $('review-form').addEventListener('submit', async (ev) => {
     if (e.status === 403 && /TOTP/i.test(e.message)) $('totp-setup').hidden = false;
   }
 });
+
+$('replay-us-frame').addEventListener('load', () => { $('replay-us-frame').hidden = false; });
+$('replay-us-frame').addEventListener('error', () => { $('replay-us-frame').hidden = true; });

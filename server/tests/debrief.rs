@@ -81,6 +81,39 @@ async fn the_debrief_explains_each_criterion_and_ticks_every_event() {
     let (s, f) = faculty.call("GET", &path, None).await;
     assert_eq!(s, 200);
     assert_eq!(f["events"], d["events"]);
+    // And the ultrasound images of the replay, not only the fluoroscopy ones (the station's
+    // probe rests on the skin over its target from the start): the first and the last step's
+    // B-mode images differ, as the probe was picked up, moved and set deeper in between.
+    let frame = |q: String| {
+        let url = format!(
+            "http://{}/api/attempts/{attempt}/replay/frame?{q}",
+            srv.addr
+        );
+        let cookie = faculty.cookie.clone();
+        async move {
+            reqwest::Client::new()
+                .get(url)
+                .header("Cookie", cookie)
+                .send()
+                .await
+                .unwrap()
+        }
+    };
+    let steps = d["steps"].as_u64().unwrap();
+    let mut jpegs = Vec::new();
+    for q in [
+        "step=1&view=ultrasound".to_string(),
+        format!("step={steps}&view=ultrasound"),
+    ] {
+        let r = frame(q).await;
+        assert_eq!(r.status(), 200);
+        assert_eq!(r.headers()["content-type"], "image/jpeg");
+        let jpeg = r.bytes().await.unwrap();
+        assert_eq!(&jpeg[..2], &[0xFF, 0xD8], "a JPEG");
+        jpegs.push(jpeg);
+    }
+    assert_ne!(jpegs[0], jpegs[1]);
+    assert_eq!(frame("step=1&view=sideways".into()).await.status(), 400);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -12,7 +12,7 @@ use axum::http::header::{CONTENT_TYPE, HOST, ORIGIN, RETRY_AFTER};
 use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
-use render_worker::session::{LogEntry, Session, SessionSnapshot};
+use render_worker::session::{LogEntry, Session, SessionSnapshot, ViewId};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use utoipa::{IntoParams, OpenApi, ToSchema};
@@ -116,6 +116,24 @@ struct StepQuery {
     #[serde(default)]
     #[param(inline)]
     quality: FrameQuality,
+    /// `fluoroscopy` (default), `ultrasound` (the B-mode image) or `placement` (the external
+    /// view of the probe and needle); 204 when the session had no image of that view yet.
+    #[serde(default)]
+    #[param(inline)]
+    view: ReplayedView,
+}
+
+/// Which view of a replayed session.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, ToSchema)]
+#[serde(rename_all = "lowercase")]
+enum ReplayedView {
+    /// The fluoroscopy image.
+    #[default]
+    Fluoroscopy,
+    /// The ultrasound B-mode image.
+    Ultrasound,
+    /// The ultrasound placement view.
+    Placement,
 }
 
 /// Which rendering of a replayed image.
@@ -615,12 +633,14 @@ async fn session_ws(
         .on_upgrade(move |socket| relay::relay(dispatcher, records, s, socket, generation)))
 }
 
-/// Replays `log` from `initial` on the replay host: the session and its displayed image.
+/// Replays `log` from `initial` on the replay host: the session and its displayed image of
+/// `view`.
 async fn replay_to(
     state: &DispatchState,
     station_id: String,
     initial: SessionSnapshot,
     log: Vec<LogEntry>,
+    view: ViewId,
     draft: bool,
 ) -> Result<(Session, Option<Vec<u8>>), ApiError> {
     verify::replay_on(
@@ -628,6 +648,7 @@ async fn replay_to(
         station_id,
         initial,
         log,
+        view,
         draft,
     )
     .await
@@ -650,7 +671,15 @@ async fn replay(
     let (session_id, station_id, initial, result_id, final_state, final_frame, score, outcome) =
         recorded_session(&state, &user, attempt_id).await?;
     let (initial, log) = parse_recorded(&state, session_id, initial).await?;
-    let (s, jpeg) = replay_to(&state, station_id.clone(), initial, log.clone(), false).await?;
+    let (s, jpeg) = replay_to(
+        &state,
+        station_id.clone(),
+        initial,
+        log.clone(),
+        ViewId::FLUOROSCOPY,
+        false,
+    )
+    .await?;
     let measurements: Option<serde_json::Value> = match result_id {
         Some(id) => {
             sqlx::query_scalar("SELECT measurements FROM technical_results WHERE id = $1")
@@ -725,7 +754,12 @@ async fn replay_frame(
     // A step beyond the log shows the last image: the log of a live session still grows.
     log.truncate(usize::try_from(q.step).unwrap_or(usize::MAX));
     let draft = q.quality == FrameQuality::Draft;
-    let (_, jpeg) = replay_to(&state, station_id, initial, log, draft).await?;
+    let view = match q.view {
+        ReplayedView::Fluoroscopy => ViewId::FLUOROSCOPY,
+        ReplayedView::Ultrasound => ViewId::ULTRASOUND,
+        ReplayedView::Placement => ViewId::PLACEMENT,
+    };
+    let (_, jpeg) = replay_to(&state, station_id, initial, log, view, draft).await?;
     Ok(match jpeg {
         Some(j) => ([(CONTENT_TYPE, "image/jpeg")], j).into_response(),
         None => StatusCode::NO_CONTENT.into_response(),

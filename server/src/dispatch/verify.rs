@@ -59,27 +59,27 @@ pub(super) async fn on_replay_host<T: Send + 'static>(
 }
 
 /// Restores `initial` on `host`, replays `log`, and renders what the learner saw last: the
-/// session and the JPEG of its fluoroscopy view (if it has one), or with `draft` the draft of
-/// that view that a live session shows before it (none where the view has no draft).
+/// session and the JPEG of its `view` (if it has one), or with `draft` the draft of that view
+/// that a live session shows before it (none where the view has no draft).
 pub(super) async fn replay_on(
     host: SessionHost,
     station_id: String,
     initial: SessionSnapshot,
     log: Vec<LogEntry>,
+    view: ViewId,
     draft: bool,
 ) -> Result<(Session, Option<Vec<u8>>), ApiError> {
     on_replay_host(host, station_id, move |env| {
         let mut s = Session::restore(env, &initial, &log)
             .map_err(|e| ApiError::Internal(format!("replay: {e}")))?;
         let views = if draft {
-            s.replay_draft(ViewId::FLUOROSCOPY)
-                .map(|d| d.into_iter().collect())
+            s.replay_draft(view).map(|d| d.into_iter().collect())
         } else {
             let visible: BTreeSet<ViewId> = s.views().into_iter().collect();
             s.render_dirty(&visible)
         }
         .map_err(|e| ApiError::Internal(format!("replay render: {e}")))?;
-        let jpeg = match views.into_iter().find(|v| v.view == ViewId::FLUOROSCOPY) {
+        let jpeg = match views.into_iter().find(|v| v.view == view) {
             Some(v) => Some(
                 render_worker::session::frame::encode_jpeg(&v.image)
                     .map_err(|e| ApiError::Internal(e.to_string()))?,
@@ -197,7 +197,16 @@ async fn check_one(
             return None;
         }
     };
-    match replay_on(host.clone(), station_id, initial, log, false).await {
+    match replay_on(
+        host.clone(),
+        station_id,
+        initial,
+        log,
+        ViewId::FLUOROSCOPY,
+        false,
+    )
+    .await
+    {
         Ok((s, jpeg)) => Some(compare(&recorded, &s, jpeg.as_deref())),
         Err(ApiError::Unavailable(_)) => None,
         Err(e) => Some((
