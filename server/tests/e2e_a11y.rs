@@ -2,6 +2,9 @@
 //! (`web-client/tests/a11y.mjs` in headless Chromium): login, stations, the fluoroscopy and
 //! ultrasound session, the key map dialog, the result, the debrief, the review queue, a review,
 //! the cohort dashboard and the LTI admin page.
+//!
+//! `PAINSIM_E2E_SCREENSHOTS=$PWD/docs cargo test -p server --test tests -- e2e_a11y` also
+//! rewrites the README's pictures in `docs/screens/`.
 
 use crate::disclosure::station_toml;
 use crate::dispatch_support::demo_server_for;

@@ -406,6 +406,12 @@ fn assert_viewer(report: &Value) {
         f("tablet", "image_width") >= 0.9 * f("tablet", "content"),
         "{l:#}"
     );
+    // At 1024 x 768 and on the tablet nothing scrolls sideways, and the image keeps half the
+    // width or more.
+    for p in ["small", "tablet"] {
+        assert!(f(p, "scroll_width") <= f(p, "viewport"), "{p}: {l:#}");
+    }
+    assert!(f("small", "image_width") >= 0.5 * 1024.0, "{l:#}");
     assert!(
         f("tablet", "controls_top") >= f("tablet", "image_bottom"),
         "{l:#}"

@@ -239,19 +239,22 @@ async function viewerChecks(page) {
 }
 
 /** The session screen's layout at 1440 x 900 (the image beside the controls, at least 60 % of
- * the width) and at a tablet's 800 x 1200 (the image the whole width, the controls below), the
+ * the width), at 1024 x 768 (no sideways scrolling) and at a tablet's 800 x 1200 (the image the whole width, the controls below), the
  * light and dark themes, and the focus ring; the viewport is put back afterwards. */
 async function layoutChecks(page) {
   const measure = () => page.evaluate(() => {
     const f = document.getElementById('fluoro').getBoundingClientRect();
     const c = document.querySelector('#session-view .controls').getBoundingClientRect();
-    return { viewport: innerWidth, content: document.documentElement.clientWidth, image_width: f.width, image_right: f.right, image_bottom: f.bottom, controls_left: c.left, controls_top: c.top };
+    return { viewport: innerWidth, content: document.documentElement.clientWidth, scroll_width: document.documentElement.scrollWidth, image_width: f.width, image_right: f.right, image_bottom: f.bottom, controls_left: c.left, controls_top: c.top };
   });
   const out = {};
   const original = page.viewportSize();
   await page.setViewportSize({ width: 1440, height: 900 });
   out.desktop = await measure();
   if (outDir) await page.screenshot({ path: join(outDir, 'layout-1440x900.png') });
+  await page.setViewportSize({ width: 1024, height: 768 });
+  out.small = await measure();
+  if (outDir) await page.screenshot({ path: join(outDir, 'layout-1024x768.png') });
   await page.setViewportSize({ width: 800, height: 1200 });
   out.tablet = await measure();
   if (outDir) await page.screenshot({ path: join(outDir, 'layout-800x1200.png') });
