@@ -173,7 +173,6 @@ const ALLOWED_KEYS: &[&str] = &[
     "withdrawn_mm",
     "attached",
     "hold",
-    "aspirate",
     "text",
     "lor",
     "resistance",
@@ -345,6 +344,19 @@ async fn an_assessment_session_tells_the_browser_nothing_it_could_not_see() {
     assert!(
         stops.contains(&&json!("hard_stop")),
         "a bone contact in the script: {stops:?}"
+    );
+    // What aspiration drew back, in the words of what the eye sees, without its category.
+    let aspirated = texts
+        .iter()
+        .find(|t| t["seq"] == 25)
+        .expect("the aspiration's acknowledgement");
+    assert_eq!(
+        aspirated["outcome"]["text"], "nothing comes back",
+        "{aspirated}"
+    );
+    assert!(
+        aspirated["outcome"].get("aspirate").is_none(),
+        "{aspirated}"
     );
     let lor: Vec<&Value> = texts
         .iter()

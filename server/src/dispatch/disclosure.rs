@@ -48,6 +48,9 @@ pub const NEVER: &[&str] = &[
     "incidence_deg",
     // Scoring: a mark's distance from the structure it names.
     "annotation_error_mm",
+    // What aspiration drew back as a category (`csf`, `blood`): the browser gets what the eye
+    // sees in the hub (`text`: "clear fluid drips back"), not the model's name for it.
+    "aspirate",
 ];
 
 /// Coaching hints: sent in practice mode only.
