@@ -566,4 +566,11 @@ async fn a_learner_cannot_score_an_open_attempt_through_its_replay() {
     .await;
     let (s, body) = learner.call("GET", &replay, None).await;
     assert_eq!(s, 200, "the learner's own replay once submitted: {body}");
+    // No needle in this session: its reveal touches nothing (not a 404).
+    let (s, r) = learner
+        .call("GET", &format!("/api/attempts/{attempt}/reveal"), None)
+        .await;
+    assert_eq!(s, 200, "{r}");
+    assert_eq!(r["touched"], json!([]));
+    assert_eq!(r["width"], 512);
 }

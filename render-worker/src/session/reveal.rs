@@ -41,11 +41,19 @@ pub struct Reveal {
     pub outlines: Vec<Outline>,
 }
 
-/// The reveal of a session's current needle in its last fluoroscopy image; `None` without a
-/// needle or without an image.
+/// The reveal of a session's current needle in its last fluoroscopy image (nothing touched
+/// when there is no needle); `None` without an image.
 pub fn reveal(session: &Session) -> Option<Reveal> {
     let projection = session.displayed_projection()?;
-    let needle = session.world().needle.as_ref()?;
+    let [width, height] = projection.detector_pixels;
+    let Some(needle) = session.world().needle.as_ref() else {
+        return Some(Reveal {
+            width,
+            height,
+            touched: Vec::new(),
+            outlines: Vec::new(),
+        });
+    };
     let region = &session.env().region;
     let depth = needle.state.buried_mm();
     let entry = needle.state.entry.position_mm;
@@ -60,7 +68,6 @@ pub fn reveal(session: &Session) -> Option<Reveal> {
             touched.push(name.to_string());
         }
     }
-    let [width, height] = projection.detector_pixels;
     let pixels = f64::from(width) * f64::from(height);
     let outlines = touched
         .iter()

@@ -342,11 +342,12 @@ pub struct RevealView {
 }
 
 /// `GET /api/attempts/{attempt_id}/reveal`: the structures the needle passed through, outlined
-/// over the last image of the session. The learner once submitted; faculty and admins.
+/// over the last image of the session (none when the session had no needle). The learner once
+/// submitted; faculty and admins.
 #[utoipa::path(get, path = "/api/attempts/{attempt_id}/reveal", tag = "sessions",
     params(("attempt_id" = Uuid, Path, description = "Attempt id")),
     responses((status = 200, body = RevealView), (status = 400, description = "Malformed attempt id"), (status = 401),
-        (status = 404, description = "No such attempt visible to the caller, no recorded session, or no needle or image in it"),
+        (status = 404, description = "No such attempt visible to the caller, no recorded session, or no fluoroscopy image in it"),
         (status = 409, description = "Not submitted yet"),
         (status = 503, description = "The anatomy is being prepared")))]
 pub(super) async fn reveal(
@@ -370,7 +371,7 @@ pub(super) async fn reveal(
         Ok(render_worker::session::reveal::reveal(&s))
     })
     .await?
-    .ok_or_else(|| ApiError::NotFound("a needle and an image in the session".into()))?;
+    .ok_or_else(|| ApiError::NotFound("a fluoroscopy image in the session".into()))?;
     Ok(axum::Json(RevealView {
         attempt_id,
         step,
