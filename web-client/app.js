@@ -99,11 +99,16 @@ let lastViewName = 'AP';
 let viewAnnounceTimer = null;
 let lastPoseSent = 0;
 
-function sendPose(now = false) {
+/** The C-arm controls show `pose`. */
+function showPose() {
   $('orbital-out').textContent = `${pose.orbital}°`;
   $('angular-out').textContent = `${pose.angular}°`;
   $('orbital').value = pose.orbital;
   $('angular').value = pose.angular;
+}
+
+function sendPose(now = false) {
+  showPose();
   if (!live) return;
   // At most one pose command per 50 ms while dragging (simulator choice: 20 Hz is smooth for a
   // C-arm and keeps the log short); the final pose is always sent.
@@ -321,10 +326,7 @@ async function openSession(attemptId, stationId) {
       }
       if (Array.isArray(o.carm_deg) && !posesSent.length && !poseTimer) {
         [pose.orbital, pose.angular] = o.carm_deg.map(Math.round);
-        $('orbital-out').textContent = `${pose.orbital}°`;
-        $('angular-out').textContent = `${pose.angular}°`;
-        $('orbital').value = pose.orbital;
-        $('angular').value = pose.angular;
+        showPose();
       }
       if (Array.isArray(o.image_carm_deg) && !posesSent.length) {
         shownPose = { orbital: o.image_carm_deg[0], angular: o.image_carm_deg[1] };

@@ -11,34 +11,22 @@
 // PNGs), into SCREENSHOT_DIR: `PAINSIM_E2E_SCREENSHOTS=docs cargo test -p server --test tests
 // -- e2e_a11y` regenerates docs/screens/, which the README shows.
 
-import { mkdirSync, readFileSync, writeFileSync } from 'node:fs';
+import { mkdirSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
-import { createRequire } from 'node:module';
 
-import { login, runReport, waitUntil, expectHttpError } from './harness.mjs';
+import { axeViolations, login, runReport, waitUntil, expectHttpError, WCAG_21_AA } from './harness.mjs';
 
 const base = process.argv[2];
 const shots = process.argv[3];
-const require = createRequire(import.meta.url);
-const AXE_SOURCE = readFileSync(require.resolve('axe-core/axe.min.js'), 'utf8');
-/** The rule sets the issue names: WCAG 2.1 level A and AA (which include 2.0's). */
-const TAGS = ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa'];
+/** The rule sets: WCAG 2.1 level A and AA, with 2.0's. */
+const TAGS = WCAG_21_AA;
 
 // The debrief and review replay the session on the server, which answers 503 while the
 // anatomy is prepared (the pages retry); and 409 before a submit is by design.
 expectHttpError(/^\/api\/attempts\/[^/]+\/(debrief|reveal|replay)/, 503);
 
 async function audit(page, screen, report) {
-  await page.evaluate(AXE_SOURCE);
-  const violations = await page.evaluate(async (tags) => {
-    const r = await window.axe.run(document, { runOnly: { type: 'tag', values: tags }, resultTypes: ['violations'] });
-    return r.violations.map((v) => ({
-      id: v.id,
-      impact: v.impact,
-      help: v.help,
-      nodes: v.nodes.slice(0, 6).map((n) => ({ target: n.target.join(' '), summary: n.failureSummary })),
-    }));
-  }, TAGS);
+  const violations = await axeViolations(page, TAGS);
   report.screens.push({ screen, violations });
   if (shots) {
     const file = `${screen.replace(/[^a-z0-9]+/gi, '-').toLowerCase()}.png`;

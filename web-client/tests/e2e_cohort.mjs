@@ -10,9 +10,8 @@
 // (the e-mail of the learner to filter by).
 
 import { mkdirSync, readFileSync } from 'node:fs';
-import { createRequire } from 'node:module';
 import { join } from 'node:path';
-import { login, runReport, waitUntil } from './harness.mjs';
+import { axeViolations, login, runReport, waitUntil } from './harness.mjs';
 
 const base = process.argv[2] || 'http://127.0.0.1:8080/';
 const shots = process.argv[3] || null;
@@ -138,12 +137,7 @@ await runReport(async (page, report) => {
 
   // axe-core's WCAG 2.0 and 2.1 A and AA rules over the whole page. Evaluated through the DevTools
   // protocol, which the page's Content-Security-Policy does not govern.
-  const require = createRequire(import.meta.url);
-  await page.evaluate(readFileSync(require.resolve('axe-core/axe.min.js'), 'utf8'));
-  report.axe = await page.evaluate(async () => {
-    const r = await globalThis.axe.run(document, { runOnly: { type: 'tag', values: ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa'] } });
-    return r.violations.map((v) => ({ id: v.id, impact: v.impact, nodes: v.nodes.slice(0, 3).map((n) => n.target.join(' ')) }));
-  });
+  report.axe = await axeViolations(page);
   report.steps.push('axe');
 
   // The station's mode set to assessment, saved, and still so after a reload.

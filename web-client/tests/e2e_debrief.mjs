@@ -15,10 +15,9 @@
 // Prints one JSON object on stdout (the figures the Rust test asserts on) and exits 0 when every
 // step passed, 1 with {"ok": false, "error": ...} otherwise. Page captures go to out-dir.
 
-import { mkdirSync, readFileSync } from 'node:fs';
-import { createRequire } from 'node:module';
+import { mkdirSync } from 'node:fs';
 import { join } from 'node:path';
-import { login, runReport, waitUntil } from './harness.mjs';
+import { axeViolations, login, runReport, waitUntil } from './harness.mjs';
 
 const base = process.argv[2];
 const outDir = process.argv[3] || null;
@@ -154,14 +153,8 @@ async function accessibility(page) {
   });
 }
 
-async function axe(page) {
-  const require = createRequire(import.meta.url);
-  await page.evaluate(readFileSync(require.resolve('axe-core/axe.min.js'), 'utf8'));
-  return page.evaluate(async () => {
-    const r = await globalThis.axe.run(document, { runOnly: { type: 'tag', values: ['wcag2a', 'wcag2aa'] } });
-    return r.violations.map((v) => ({ id: v.id, impact: v.impact, nodes: v.nodes.slice(0, 3).map((n) => n.target.join(' ')) }));
-  });
-}
+/** axe-core's WCAG 2.0 A and AA rules on the page as it is now. */
+const axe = (page) => axeViolations(page, ['wcag2a', 'wcag2aa']);
 
 await runReport(async (page, report) => {
   // The learner's own submitted attempt.

@@ -4,7 +4,8 @@
 // learner.
 
 import { chromium } from 'playwright-core';
-import { mkdtempSync, rmSync } from 'node:fs';
+import { mkdtempSync, readFileSync, rmSync } from 'node:fs';
+import { createRequire } from 'node:module';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 
@@ -114,4 +115,24 @@ export async function runReport(steps) {
   }
   console.log(JSON.stringify(report));
   process.exit(report.ok ? 0 : 1);
+}
+
+/** The rule sets of the accessibility checks: WCAG 2.0 and 2.1, levels A and AA. */
+export const WCAG_21_AA = ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa'];
+
+/** axe-core's violations of `tags` on the page as it is now. axe-core (web-client/node_modules)
+ * is injected through the DevTools protocol, which the page's Content-Security-Policy does not
+ * govern, so the policy stays as the server sends it. */
+export async function axeViolations(page, tags = WCAG_21_AA) {
+  const require = createRequire(import.meta.url);
+  await page.evaluate(readFileSync(require.resolve('axe-core/axe.min.js'), 'utf8'));
+  return page.evaluate(async (t) => {
+    const r = await window.axe.run(document, { runOnly: { type: 'tag', values: t }, resultTypes: ['violations'] });
+    return r.violations.map((v) => ({
+      id: v.id,
+      impact: v.impact,
+      help: v.help,
+      nodes: v.nodes.slice(0, 6).map((n) => ({ target: n.target.join(' '), summary: n.failureSummary })),
+    }));
+  }, tags);
 }

@@ -18,7 +18,7 @@ use uuid::Uuid;
 
 use super::recorded::{parse_recorded, recorded_session};
 use super::route_state::{Caller, DispatchState};
-use super::verify::on_replay_host;
+use super::verify::{on_replay_host, restore};
 use crate::error::ApiError;
 use crate::records::extract::ApiPath;
 
@@ -303,8 +303,7 @@ pub(super) async fn debrief(
     let steps = log.len() as u32;
     let host = state.dispatcher.inner.replay.clone();
     let events = on_replay_host(host, station_id.clone(), move |env| {
-        let mut s = Session::restore(env, &initial, &[])
-            .map_err(|e| ApiError::Internal(format!("replay: {e}")))?;
+        let mut s = restore(env, &initial, &[])?;
         Ok(events_of(&mut s, &log, &critical))
     })
     .await?;
@@ -366,8 +365,7 @@ pub(super) async fn reveal(
     let step = log.len() as u32;
     let host = state.dispatcher.inner.replay.clone();
     let r = on_replay_host(host, station_id, move |env| {
-        let s = Session::restore(env, &initial, &log)
-            .map_err(|e| ApiError::Internal(format!("replay: {e}")))?;
+        let s = restore(env, &initial, &log)?;
         Ok(render_worker::session::reveal::reveal(&s))
     })
     .await?

@@ -58,6 +58,15 @@ pub(super) async fn on_replay_host<T: Send + 'static>(
     .map_err(|e| ApiError::Internal(e.to_string()))?
 }
 
+/// A session restored from `initial` with `log` replayed, a failure as an internal error.
+pub(super) fn restore(
+    env: SessionEnv,
+    initial: &SessionSnapshot,
+    log: &[LogEntry],
+) -> Result<Session, ApiError> {
+    Session::restore(env, initial, log).map_err(|e| ApiError::Internal(format!("replay: {e}")))
+}
+
 /// Restores `initial` on `host`, replays `log`, and renders what the learner saw last: the
 /// session and the JPEG of its `view` (if it has one), or with `draft` the draft of that view
 /// that a live session shows before it (none where the view has no draft).
@@ -70,8 +79,7 @@ pub(super) async fn replay_on(
     draft: bool,
 ) -> Result<(Session, Option<Vec<u8>>), ApiError> {
     on_replay_host(host, station_id, move |env| {
-        let mut s = Session::restore(env, &initial, &log)
-            .map_err(|e| ApiError::Internal(format!("replay: {e}")))?;
+        let mut s = restore(env, &initial, &log)?;
         let views = if draft {
             s.replay_draft(view).map(|d| d.into_iter().collect())
         } else {

@@ -20,33 +20,13 @@ pub const NOT_SERVED: [&str; 5] = [
 /// Whether a request path names one of [`NOT_SERVED`] (compared after percent-decoding, so
 /// `/%6Eode_modules/` is refused too).
 pub fn is_tooling(path: &str) -> bool {
-    let decoded = percent_decode(path);
+    let decoded = percent_encoding::percent_decode_str(path).decode_utf8_lossy();
     let first = decoded
         .trim_start_matches('/')
         .split(['/', '\\'])
         .next()
         .unwrap_or("");
     NOT_SERVED.iter().any(|n| first.eq_ignore_ascii_case(n))
-}
-
-fn percent_decode(s: &str) -> String {
-    let b = s.as_bytes();
-    let mut out = Vec::with_capacity(b.len());
-    let mut i = 0;
-    while i < b.len() {
-        let hex = |c: u8| (c as char).to_digit(16);
-        if b[i] == b'%'
-            && i + 2 < b.len()
-            && let (Some(h), Some(l)) = (hex(b[i + 1]), hex(b[i + 2]))
-        {
-            out.push((h * 16 + l) as u8);
-            i += 3;
-        } else {
-            out.push(b[i]);
-            i += 1;
-        }
-    }
-    String::from_utf8_lossy(&out).into_owned()
 }
 
 /// Serves the client from `dir`.
