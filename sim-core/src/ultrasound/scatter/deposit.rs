@@ -10,9 +10,11 @@ use super::super::beam::{Beam, FWHM_PER_SIGMA};
 use super::super::probe::{ProbeFrame, ScanGeometry};
 use super::super::tissue::{AcousticMedium, Texture};
 use super::amplitude::iq_of_hash;
+use super::column::{Column, EchoCache, Reach, ScatterContext};
 use super::fascicle::fascicle_factor;
 use super::grid::{CellSum, IqGrid};
-use super::lookup::{EXP_LEN, cis, exp_neg_in, exp_table};
+use super::lookup::{cis, exp_neg_in, exp_table};
+use super::oblique::{ConvexReach, column_oblique};
 use super::tables::BeamTables;
 use crate::rng::splitmix64;
 
@@ -155,6 +157,7 @@ pub(crate) fn deposit_scatterers(
     // fills little of it. Each row visits only the columns whose in-plane trace can meet the
     // reach (every other column's scatterers are all out of reach, so the sum is unchanged).
     let columns = ColumnSpan::new(geo, &cx.reach, &unit, (am, ab), h, t_e * drift);
+    let region = ConvexReach::new(geo, &cx.reach);
     for ia in idx_lo(aa)..=idx_hi(aa) {
         // Two interleaved halves of the lattice (a fixed split, so the sum is deterministic).
         if ia.rem_euclid(2) as u64 != part {
@@ -227,13 +230,16 @@ pub(crate) fn deposit_scatterers(
                 k_first: idx_lo(am),
                 pos,
             };
-            let state = (&mut at, &mut *grid, &mut cells, &mut echo);
-            let sums = (sum_i, sum_q);
-            (sum_i, sum_q) = if square {
-                column_on_axis::<true>(am, &cx, &col, state, sums)
+            if square {
+                let state = (&at, &mut echo);
+                (sum_i, sum_q) = column_on_axis(am, &cx, &col, state, (sum_i, sum_q));
             } else {
-                column_on_axis::<false>(am, &cx, &col, state, sums)
-            };
+                match am {
+                    0 => column_oblique::<0>(&cx, &col, &region, grid, &mut cells, &mut echo),
+                    1 => column_oblique::<1>(&cx, &col, &region, grid, &mut cells, &mut echo),
+                    _ => column_oblique::<2>(&cx, &col, &region, grid, &mut cells, &mut echo),
+                }
+            }
         }
     }
     at.deposit(grid, &mut cells, sum_i, sum_q);
@@ -295,7 +301,9 @@ impl ColumnSpan {
             b = b.min(t1);
         }
         // Empty, or NaN from a degenerate frame (then nothing of the row is in reach either).
-        if a.partial_cmp(&b).is_none_or(|o| o == std::cmp::Ordering::Greater) {
+        if a.partial_cmp(&b)
+            .is_none_or(|o| o == std::cmp::Ordering::Greater)
+        {
             return (1, 0);
         }
         // A cell of slack on each side against rounding.
@@ -349,72 +357,30 @@ fn reach_area(geo: &ScanGeometry, reach: &Reach) -> (f64, f64, f64, f64) {
     }
 }
 
-/// What every column of one deposit shares.
-struct ScatterContext<'a> {
-    geo: &'a ScanGeometry,
-    tables: &'a BeamTables,
-    medium: &'a dyn AcousticMedium,
-    exp_tab: &'a [f64; EXP_LEN],
-    reach: Reach,
-    /// Wavenumber, rad/mm.
-    k0: f64,
-    /// Lattice cell, mm.
-    h: f64,
-    /// Amplitude scale (see [`amplitude_norm`]).
-    norm: f64,
-    seed: u64,
-}
-
-/// One lattice column: its cells `k` along axis `AM`, the probe-frame point of the first
-/// and the step between cells, the other two indices (in `p`), the hash levels that do not
-/// depend on `k` (axis 2) or on the column (axes 0 and 1, per row), and the region point with
-/// the fixed coordinates set.
-struct Column<'a> {
-    k: std::ops::Range<i64>,
-    q: DVec3,
-    step: DVec3,
-    p: [i64; 3],
-    /// For `AM` 2: the hash's first two levels.
-    prefix: u64,
-    /// For `AM` 0 or 1: the hash's first two levels for every `k` of the row, from `k_first`.
-    row_hash: &'a [u64],
-    k_first: i64,
-    pos: DVec3,
-}
-
-/// The last echogenicity seen (dB) and its amplitude (the `powf` is done on change only).
-struct EchoCache {
-    db: f64,
-    amp: f64,
-}
-
 /// [`column_sum`] for column axis `am` (each compiled on its own).
 #[inline(always)]
-fn column_on_axis<const SQUARE: bool>(
+fn column_on_axis(
     am: usize,
     cx: &ScatterContext<'_>,
     col: &Column<'_>,
-    (at, grid, cells, echo): (&mut PlanePoint, &mut IqGrid, &mut CellSum, &mut EchoCache),
+    (at, echo): (&PlanePoint, &mut EchoCache),
     sums: (f64, f64),
 ) -> (f64, f64) {
     match am {
-        0 => column_sum::<0, SQUARE>(cx, col, at, grid, cells, echo, sums),
-        1 => column_sum::<1, SQUARE>(cx, col, at, grid, cells, echo, sums),
-        _ => column_sum::<2, SQUARE>(cx, col, at, grid, cells, echo, sums),
+        0 => column_sum::<0>(cx, col, at, echo, sums),
+        1 => column_sum::<1>(cx, col, at, echo, sums),
+        _ => column_sum::<2>(cx, col, at, echo, sums),
     }
 }
 
-/// Adds the column's scatterers to the running sum `(sum_i, sum_q)` at `at`, depositing it and
-/// moving `at` whenever the in-plane point changes (`SQUARE`: it never does within a column,
-/// and `at` is already the column's point). Generic over the column axis `AM` and `SQUARE`, so
-/// that each of the six loops is compiled with its indices and checks fixed.
+/// Adds the scatterers of a column square to the slice (all at the in-plane point `at`) to the
+/// running sum `(sum_i, sum_q)` at `at`. Generic over the column axis `AM`, so that each of the
+/// three loops is compiled with its indices fixed.
 #[inline(always)]
-fn column_sum<const AM: usize, const SQUARE: bool>(
+fn column_sum<const AM: usize>(
     cx: &ScatterContext<'_>,
     col: &Column<'_>,
-    at: &mut PlanePoint,
-    grid: &mut IqGrid,
-    cells: &mut CellSum,
+    at: &PlanePoint,
     echo: &mut EchoCache,
     (mut sum_i, mut sum_q): (f64, f64),
 ) -> (f64, f64) {
@@ -423,36 +389,12 @@ fn column_sum<const AM: usize, const SQUARE: bool>(
     let lines_max = (geo.lines - 1) as f64;
     let mut q = col.q;
     let mut pos = col.pos;
-    let p2 = col.p[2] as u64;
     for k in col.k.clone() {
         let here = q;
         q += col.step;
-        if !SQUARE && !at.is(here.x, here.y) {
-            at.deposit(grid, cells, sum_i, sum_q);
-            (sum_i, sum_q) = (0.0, 0.0);
-            let line = geo.plane_to_line(here.x, here.y);
-            *at = PlanePoint::new(here.x, here.y, line, cx.tables, cx.k0, &cx.reach);
-        }
-        if !SQUARE && !at.inside {
+        let Some((hsh, tissue)) = col.scatterer::<AM>(cx, k, &mut pos, echo) else {
             continue;
-        }
-        let ku = k as u64;
-        let hsh = match AM {
-            0 | 1 => splitmix64(col.row_hash[(k - col.k_first) as usize] ^ p2),
-            _ => splitmix64(col.prefix ^ ku),
         };
-        pos[AM] = k as f64 * cx.h;
-        let tissue = cx.medium.props(pos);
-        if tissue.scatter_density < 1.0 {
-            let keep = crate::rng::unit_f64(splitmix64(hsh));
-            if keep >= tissue.scatter_density {
-                continue;
-            }
-        }
-        if tissue.echogenicity_db != echo.db {
-            echo.db = tissue.echogenicity_db;
-            echo.amp = cx.norm * 10f64.powf(echo.db / 20.0);
-        }
         let mut w =
             echo.amp * (exp_neg_in(cx.exp_tab, here.z * here.z * at.elev_inv2s2) * at.elev_energy);
         if tissue.texture == Texture::Fascicular {
@@ -465,12 +407,6 @@ fn column_sum<const AM: usize, const SQUARE: bool>(
         sum_q += cq * w;
     }
     (sum_i, sum_q)
-}
-
-/// The in-plane reach of the scatter sum: line index and depth (mm) ranges.
-struct Reach {
-    u: (f64, f64),
-    z: (f64, f64),
 }
 
 /// Everything a scatterer's deposit needs that depends only on its in-plane point (the
@@ -560,6 +496,7 @@ fn amplitude_norm(beam: &Beam, tables: &BeamTables, h: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
+    use super::super::column::test_frames;
     use super::*;
     use crate::ultrasound::probe::{ProbeKind, ProbePose};
 
@@ -568,11 +505,7 @@ mod tests {
     /// change the deposit.
     #[test]
     fn the_columns_a_row_skips_are_all_out_of_reach() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut rand = move || {
-            state = splitmix64(state);
-            crate::rng::unit_f64(state)
-        };
+        let mut rand = test_frames::uniform(0x2545_f491_4f6c_dd1d);
         let h = 0.2;
         let t_e = 3.0;
         for kind in [ProbeKind::Linear, ProbeKind::Curvilinear] {
@@ -591,16 +524,7 @@ mod tests {
                         180.0 * rand() - 90.0
                     },
                 );
-                let geo = ScanGeometry {
-                    spec: kind.spec(),
-                    frame: pose.frame().unwrap(),
-                    lines: 128,
-                    depth_mm: 60.0,
-                };
-                let reach = Reach {
-                    u: (-4.0, 127.0 + 4.0),
-                    z: (-1.5, 60.0 + 1.5),
-                };
+                let (geo, reach) = test_frames::scan_at(kind, pose);
                 let f = &geo.frame;
                 let unit: [DVec3; 3] =
                     std::array::from_fn(|a| f.to_probe(f.origin + DVec3::AXES[a]));
@@ -623,13 +547,8 @@ mod tests {
                         for i in 0..=8 {
                             let e = t_e * (i as f64 / 4.0 - 1.0);
                             let q = qc + unit[am] * (e / em);
-                            let (u, z) = geo.plane_to_line(q.x, q.y);
-                            let inside = u >= reach.u.0
-                                && u <= reach.u.1
-                                && z >= reach.z.0
-                                && z <= reach.z.1;
                             assert!(
-                                !inside,
+                                !test_frames::in_reach(&geo, &reach, q.x, q.y),
                                 "{kind:?} trial {trial}: row {ia} column {ib} skipped but in reach at e {e}"
                             );
                         }

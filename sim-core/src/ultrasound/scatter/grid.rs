@@ -62,26 +62,32 @@ impl IqGrid {
     }
 
     /// The top-left node and bilinear weights of a deposit at `(u, s)`, as [`IqGrid::deposit`]
-    /// takes them (`None` where it drops the deposit).
+    /// takes them (`None` where it drops the deposit). The same values as there, through
+    /// signed conversions: the baseline x86-64 target converts `f64` to and from `usize` with
+    /// a branchy sequence but to and from `i64` with one instruction, and both agree on every
+    /// value that passes the checks (non-negative and below the grid's size).
     #[inline]
     fn cell(&self, u: f64, s: f64) -> Option<(usize, [f64; 4])> {
-        let up = u + self.pad_l as f64;
-        let sp = s + self.pad_s as f64;
-        if up.is_nan() || sp.is_nan() || up < 0.0 || sp < 0.0 {
+        let up = u + self.pad_l as i64 as f64;
+        let sp = s + self.pad_s as i64 as f64;
+        // NaN fails both comparisons.
+        if !(up >= 0.0 && sp >= 0.0) {
             return None;
         }
-        let (u0, s0) = (up as usize, sp as usize);
+        // Non-negative, so truncation is floor; +inf saturates to i64::MAX and fails below.
+        let (u0, s0) = (up as i64, sp as i64);
+        let st = self.stride() as i64;
+        if u0 >= self.total_lines() as i64 - 1 || s0 >= st - 1 {
+            return None;
+        }
         let (fu, fs) = (up - u0 as f64, sp - s0 as f64);
-        if u0 + 1 >= self.total_lines() || s0 + 1 >= self.stride() {
-            return None;
-        }
         let w = [
             (1.0 - fu) * (1.0 - fs),
             (1.0 - fu) * fs,
             fu * (1.0 - fs),
             fu * fs,
         ];
-        Some((u0 * self.stride() + s0, w))
+        Some(((u0 * st + s0) as usize, w))
     }
 
     pub fn add(&mut self, other: &IqGrid) {
@@ -122,20 +128,35 @@ impl CellSum {
             self.flush(grid);
             self.node = node;
         }
-        for (c, wc) in w.iter().enumerate() {
-            self.sum[2 * c] += a * wc;
-            self.sum[2 * c + 1] += b * wc;
-        }
+        let sum = &mut self.sum;
+        sum[0] += a * w[0];
+        sum[1] += b * w[0];
+        sum[2] += a * w[1];
+        sum[3] += b * w[1];
+        sum[4] += a * w[2];
+        sum[5] += b * w[2];
+        sum[6] += a * w[3];
+        sum[7] += b * w[3];
     }
 
     /// Adds the sums to the grid and starts afresh.
+    #[inline]
     pub fn flush(&mut self, grid: &mut IqGrid) {
         if self.node != usize::MAX {
             let st = grid.stride();
-            for (c, offset) in [0, 1, st, st + 1].into_iter().enumerate() {
-                grid.re[self.node + offset] += self.sum[2 * c] as f32;
-                grid.im[self.node + offset] += self.sum[2 * c + 1] as f32;
-            }
+            let n = self.node;
+            // The cell's two nodes on its line and the two on the next (`cell` keeps them all
+            // on the grid).
+            let (re, im) = (&mut grid.re[n..n + st + 2], &mut grid.im[n..n + st + 2]);
+            let sum = &self.sum;
+            re[0] += sum[0] as f32;
+            im[0] += sum[1] as f32;
+            re[1] += sum[2] as f32;
+            im[1] += sum[3] as f32;
+            re[st] += sum[4] as f32;
+            im[st] += sum[5] as f32;
+            re[st + 1] += sum[6] as f32;
+            im[st + 1] += sum[7] as f32;
         }
         *self = CellSum::new();
     }

@@ -24,15 +24,19 @@
 //! - `lookup`: the `cis` and `exp(-x)` tables of the scatter loop.
 //! - `amplitude`: a scatterer's signed I/Q amplitude from the hash of its cell.
 //! - `fascicle`: the fascicle honeycomb and anisotropy of nerve scatterers.
+//! - `column`: what the deposit of one lattice column needs (context, reach, a cell's scatterer).
 //! - `deposit`: the lattice bounds and the deposit of every scatterer within reach.
+//! - `oblique`: the deposit of a column that crosses the slice obliquely, scatterer by scatterer.
 //! - `convolve`: the lateral and axial Gaussians that finish the convolution.
 
 mod amplitude;
+mod column;
 mod convolve;
 mod deposit;
 mod fascicle;
 mod grid;
 mod lookup;
+mod oblique;
 mod tables;
 
 pub use deposit::{LatticeBounds, lattice_bounds};
