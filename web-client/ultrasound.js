@@ -136,8 +136,10 @@ export class UltrasoundStation {
       this.bitmap = bitmap;
       this.bitmapFrame = f;
       this.drawBmode();
+      // A draft (a cheap preview while the probe moves) says so until the full frame comes.
+      $('us-draft').hidden = !f.draft;
     }
-    Object.assign(d, { frames: d.frames + 1, frameSeq: f.frameSeq, inputSeq: f.inputSeq });
+    Object.assign(d, { frames: d.frames + 1, frameSeq: f.frameSeq, inputSeq: f.inputSeq, draft: !!f.draft });
     return true;
   }
 

@@ -1,7 +1,8 @@
 //! Ultrasound in a session: the one-off cost of the session's prefetch before its first input
 //! (painting the acoustic volume of the region's crop) and of its first scan, and the cost of
 //! each probe move as the learner sees it: the command,
-//! the B-mode frame (sim-core CPU reference through the session's backend) and the placement
+//! the B-mode frame (sim-core CPU reference through the session's backend) and its draft (shown
+//! first, see `Sampling::draft`), square to the region's axes and rocked, and the placement
 //! view, on the procedural phantom (meshed at 4 mm as in the tests, painted at 0.5 mm),
 //! curvilinear probe at its default 100 mm depth and sampling.
 //!
@@ -68,21 +69,38 @@ fn main() {
     let t = Instant::now();
     s.render_dirty(&pl).expect("render");
     let first_pl_s = t.elapsed().as_secs_f64();
-    let (mut cmd, mut bmode, mut place) = (Vec::new(), Vec::new(), Vec::new());
-    for k in 0..moves {
+    let (mut cmd, mut bmode, mut place, mut drafts) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut oblique, mut oblique_drafts) = (Vec::new(), Vec::new());
+    // Slides square to the region's axes (the probe as placed), then the same slides with the
+    // probe rocked and turned (oblique to the scatter lattice, as a learner holds it).
+    for k in 0..2 * moves {
+        let turn = if k == moves { 1.0 } else { 0.0 };
         let t = Instant::now();
         apply(
             &mut s,
             Command::ProbeMove {
                 slide_mm: [if k % 2 == 0 { 1.0 } else { -1.0 }, 0.0],
-                tilt_deg: [0.0, 0.0],
-                rotate_deg: 0.0,
+                tilt_deg: [4.0 * turn, -3.0 * turn],
+                rotate_deg: 7.0 * turn,
             },
         );
         cmd.push(t.elapsed().as_secs_f64());
+        // What a live session does: the draft at once, then the full frame.
+        let t = Instant::now();
+        let d = s.render_drafts(&us).expect("render");
+        assert_eq!(d.len(), 1, "the CPU reference drafts each image");
+        let draft_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         s.render_dirty(&us).expect("render");
-        bmode.push(t.elapsed().as_secs_f64());
+        let full_s = t.elapsed().as_secs_f64();
+        if k < moves {
+            bmode.push(full_s);
+            drafts.push(draft_s);
+        } else {
+            oblique.push(full_s);
+            oblique_drafts.push(draft_s);
+        }
         let t = Instant::now();
         s.render_dirty(&pl).expect("render");
         place.push(t.elapsed().as_secs_f64());
@@ -110,7 +128,20 @@ fn main() {
         median_ms(&bmode)
     );
     println!(
-        "| placement frame, median of {moves} | {:.1} |",
+        "| its draft (shown first), median of {moves} | {:.0} |",
+        median_ms(&drafts)
+    );
+    println!(
+        "| B-mode frame, probe rocked 4 and 3 degrees and turned 7, median of {moves} | {:.0} |",
+        median_ms(&oblique)
+    );
+    println!(
+        "| its draft (shown first), median of {moves} | {:.0} |",
+        median_ms(&oblique_drafts)
+    );
+    println!(
+        "| placement frame, median of {} | {:.1} |",
+        2 * moves,
         median_ms(&place)
     );
 }

@@ -566,7 +566,8 @@ fn the_gpu_backend_gives_the_session_frame_of_the_reference() {
     // new target the frames differ in whole scan lines that graze a bone interface (0.45 % of
     // the pixels by more than 8 grey levels: f32 and f64 decide a grazing hit differently),
     // which this tolerance does not cover.
-    let t = DVec3::from_array(region().landmarks["L4_body_centre"]) + DVec3::new(-20.0, -42.0, -21.0);
+    let t =
+        DVec3::from_array(region().landmarks["L4_body_centre"]) + DVec3::new(-20.0, -42.0, -21.0);
     let gpu = Backends::new(
         Backends::cpu(0).fluoro,
         Arc::new(GpuUltrasoundBackend { ctx }),
@@ -646,4 +647,95 @@ fn a_session_prefetch_paints_the_acoustic_volume_and_changes_no_frame() {
     let b = plain.render_dirty(&views).unwrap();
     assert_eq!(a.len(), 1);
     assert!(a == b, "the prefetched session's first frame differs");
+}
+
+/// The CPU reference without live drafts, as a device whose full frames are fast would be.
+struct NoDrafts;
+
+impl modalities::ultrasound::UltrasoundBackend for NoDrafts {
+    fn describe(&self) -> String {
+        "sim-core CPU reference, no drafts".into()
+    }
+
+    fn renderer(&self) -> Box<dyn modalities::ultrasound::UltrasoundRenderer> {
+        Box::new(modalities::ultrasound::CpuUltrasoundBackend)
+    }
+}
+
+/// A moving probe is answered by a draft of the B-mode view before its full frame (on the CPU
+/// reference, whose oblique frame costs tens of milliseconds): same size and input, marked as
+/// a draft, once per image, none for the placement view; close to the full frame on 8 x 8 block
+/// means (its speckle is its own, on a coarser lattice); the view stays dirty for the full
+/// frame. A replay of the log up to each step renders the draft and the full frame that were
+/// shown bit for bit. A backend without drafts gets none live.
+#[test]
+fn b_mode_drafts_come_before_full_frames_while_the_probe_moves_and_replay_exactly() {
+    let mut r = run_at(IN_PLANE);
+    let initial = r.s.snapshot();
+    let both: BTreeSet<ViewId> = [ViewId::ULTRASOUND, ViewId::PLACEMENT].into();
+    let tilt = |slide: f64, tilt: f64, rotate: f64| Command::ProbeMove {
+        slide_mm: [slide, 0.5],
+        tilt_deg: [tilt, -tilt],
+        rotate_deg: rotate,
+    };
+    let steps = [
+        transverse_over(target(IN_PLANE)),
+        tilt(3.0, 4.0, 6.0),
+        tilt(-1.5, -2.0, 9.0),
+    ];
+    let mut shown = Vec::new();
+    for (k, command) in steps.into_iter().enumerate() {
+        r.ok(100 * (k as u64 + 1), command);
+        let drafts = r.s.render_drafts(&both).unwrap();
+        assert_eq!(drafts.len(), 1, "step {k}: one draft, of the B-mode view");
+        let d = &drafts[0];
+        assert!(d.draft && d.view == ViewId::ULTRASOUND, "step {k}");
+        assert!(
+            r.s.render_drafts(&both).unwrap().is_empty(),
+            "step {k}: an image is drafted once"
+        );
+        let full = r.s.render_dirty(&both).unwrap();
+        let f = full
+            .iter()
+            .find(|v| v.view == ViewId::ULTRASOUND)
+            .expect("the full frame follows the draft");
+        assert!(!f.draft);
+        assert_eq!((d.input_seq, d.t_ms), (f.input_seq, f.t_ms), "step {k}");
+        assert_eq!(
+            (d.image.width, d.image.height),
+            (f.image.width, f.image.height),
+            "step {k}: a draft keeps the image size"
+        );
+        assert!(d.image != f.image, "step {k}: the draft is the full frame");
+        // Close to the full frame: the same anatomy with its own, coarser speckle. Bound 8 grey
+        // levels on 8 x 8 block means, the mean over the image (the sim-core `ultrasound`
+        // bench: 2.0-4.4 on its layered scene; speckle alone varies a block mean by a few).
+        let diffs = sim_core::compare::block_mean_diffs(
+            &d.image.pixels,
+            &f.image.pixels,
+            d.image.width as usize,
+            8,
+        );
+        let mean_diff = diffs.iter().sum::<f64>() / diffs.len() as f64;
+        println!("step {k}: draft against full frame, 8 x 8 block means differ by {mean_diff:.2}");
+        assert!(mean_diff < 8.0, "step {k}: {mean_diff}");
+        shown.push((r.s.log().len(), d.image.clone(), f.image.clone()));
+    }
+    for (n, draft, full) in shown {
+        let mut replayed = Session::restore(env_of(IN_PLANE), &initial, &r.s.log()[..n]).unwrap();
+        let d = replayed.replay_draft(ViewId::ULTRASOUND).unwrap();
+        assert!(d.expect("a draft").image == draft, "step {n}: draft");
+        let views: BTreeSet<ViewId> = [ViewId::ULTRASOUND].into();
+        let f = replayed.render_dirty(&views).unwrap().pop().unwrap();
+        assert!(f.image == full, "step {n}: full frame");
+    }
+    // A backend whose full frames are fast has no live drafts (a replay still draws one).
+    let backends = Backends::new(Backends::cpu(0).fluoro, Arc::new(NoDrafts));
+    let mut fast = Run::new(
+        SessionEnv::new(station(IN_PLANE), region(), backends),
+        config(),
+    );
+    fast.ok(100, transverse_over(target(IN_PLANE)));
+    assert!(fast.s.render_drafts(&both).unwrap().is_empty());
+    assert!(fast.s.replay_draft(ViewId::ULTRASOUND).unwrap().is_some());
 }

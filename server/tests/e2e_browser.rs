@@ -168,19 +168,43 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
     // Before the first image the canvas says how to get one; the image hides it.
     let w = &report["first_image_wait"];
     assert_eq!(w["before"]["shown"], true, "{w}");
-    assert!(w["before"]["text"].as_str().unwrap().contains("first image"), "{w}");
+    assert!(
+        w["before"]["text"]
+            .as_str()
+            .unwrap()
+            .contains("first image"),
+        "{w}"
+    );
     assert_eq!(w["after_hidden"], true, "{w}");
     // The shot by key is announced with its view (aria-live); two stored images, the AP shown
     // as the reference beside the live oblique.
     let said = report["announced_after_shot"].as_str().unwrap();
-    assert!(said.starts_with("Image acquired") && said.contains("LAO 30"), "{said}");
+    assert!(
+        said.starts_with("Image acquired") && said.contains("LAO 30"),
+        "{said}"
+    );
     let st = &report["stored"];
     assert_eq!(st["count"], 2, "{st}");
-    assert!(st["labels"][0].as_str().unwrap().contains("Image 1: AP"), "{st}");
-    assert!(st["labels"][1].as_str().unwrap().contains("Image 2: LAO 30"), "{st}");
+    assert!(
+        st["labels"][0].as_str().unwrap().contains("Image 1: AP"),
+        "{st}"
+    );
+    assert!(
+        st["labels"][1]
+            .as_str()
+            .unwrap()
+            .contains("Image 2: LAO 30"),
+        "{st}"
+    );
     assert_eq!(st["reference_shown"], true, "{st}");
     assert_eq!(st["reference_src_blob"], true, "{st}");
-    assert!(st["reference_alt"].as_str().unwrap().contains("Image 1: AP"), "{st}");
+    assert!(
+        st["reference_alt"]
+            .as_str()
+            .unwrap()
+            .contains("Image 1: AP"),
+        "{st}"
+    );
     assert_eq!(st["pressed"], serde_json::json!(["true", "false"]), "{st}");
     // The collimator: shutters at half the width (150 mm of 300) and a 230 mm iris. Behind the
     // shutters (5 % in from each side) and outside the iris (a top corner of the blades'
@@ -196,10 +220,16 @@ async fn learner_session_and_faculty_approval_in_headless_chromium() {
     // Mag 2 from the page: half the 300 mm field.
     assert_eq!(report["magnified_field_mm"], 150.0, "{report:#}");
     // The curve (the acknowledged technique names it) and the filter, chosen on the page.
-    assert_eq!(report["curve_and_filter"]["brightness"], "low_dose", "{report:#}");
+    assert_eq!(
+        report["curve_and_filter"]["brightness"], "low_dose",
+        "{report:#}"
+    );
     assert_eq!(report["curve_and_filter"]["filter"], "high", "{report:#}");
     assert_eq!(report["curve_and_filter"]["grid"], "out", "{report:#}");
-    assert_eq!(report["curve_and_filter"]["detector"], "flat_panel", "{report:#}");
+    assert_eq!(
+        report["curve_and_filter"]["detector"], "flat_panel",
+        "{report:#}"
+    );
 
     // Frames are not blank: a fluoroscopy image of the demo boxes has bone and soft tissue, so
     // its grey levels spread (a blank or single-grey canvas has a standard deviation near 0;
@@ -640,6 +670,18 @@ async fn ultrasound_station_in_headless_chromium() {
         text.contains("tip itself was imaged") || text.contains("Tip"),
         "{text}"
     );
+    // Progressive B-mode frames: the worker (the CPU reference) drafts each new image, the
+    // page shows the draft with its "Preview" badge and hides the badge when the full frame of
+    // the same input comes; the last image drawn is a full one.
+    let pv = &report["preview"];
+    assert!(pv["drafts"].as_u64().unwrap() >= 5, "{pv:#}");
+    let badge = strings(&pv["badge"]);
+    assert!(
+        badge.windows(2).any(|w| w == ["shown", "hidden"]),
+        "the badge was shown then hidden: {pv:#}"
+    );
+    assert_eq!(pv["last_drawn_draft"], false, "{pv:#}");
+    assert_eq!(pv["badge_hidden"], true, "{pv:#}");
     assert_eq!(report["command_errors"], 0, "{report:#}");
     assert_eq!(report["accessible"]["unlabeled_buttons"], 0, "{report:#}");
     assert_eq!(report["accessible"]["unlabeled_inputs"], 0, "{report:#}");

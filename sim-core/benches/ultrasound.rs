@@ -6,7 +6,8 @@
 //! (same pixel grid, same scatter seed) against a fine reference (4x the default lines, 2x the
 //! default samples, 0.025 mm march): NCC of the grey levels and their mean absolute difference.
 //! Time is the median of whole `scan` calls (scatter, march, envelope, scan conversion). A last
-//! line times a pose oblique to the scatterer lattice (see the comment there).
+//! line times a pose oblique to the scatterer lattice (see the comment there), and a last table
+//! the draft of a frame against the full one (square and oblique, default sampling).
 //!
 //! `BENCH_QUICK=1` runs one repetition and a shorter list (CI, under 5 s).
 
@@ -149,5 +150,65 @@ fn main() {
             "Oblique pose (beam (0.1, 0.2, 1), 17 degrees), 256 lines: {:.1} ms",
             t * 1e3
         );
+        // The draft a session shows while the probe moves (`Sampling::draft`), against the full
+        // frame of the same pose: its speckle is its own (a coarser lattice), so the error is
+        // taken on 8 x 8 pixel block means (the anatomy a learner steers by), grey levels.
+        println!();
+        println!(
+            "| pose | full frame (ms) | draft (ms) | draft error, 8x8 block means: mean / p99 (grey) |"
+        );
+        println!("|---|---:|---:|---:|");
+        let square = req(Sampling::for_settings(&spec, &settings));
+        let oblique = ScanRequest {
+            sampling: square.sampling,
+            ..oblique
+        };
+        for (name, full) in [("square", square), ("oblique", oblique)] {
+            let draft = ScanRequest {
+                sampling: full.sampling.draft(),
+                ..full
+            };
+            let (a, b) = (scan(&full).expect("valid"), scan(&draft).expect("valid"));
+            let (mean, p99) = block_error(&a, &b);
+            let t_full = Timing::run(reps, || {
+                black_box(scan(black_box(&full)).expect("valid request"));
+            })
+            .median_s();
+            let t_draft = Timing::run(reps, || {
+                black_box(scan(black_box(&draft)).expect("valid request"));
+            })
+            .median_s();
+            println!(
+                "| {name} | {:.1} | {:.1} | {mean:.2} / {p99:.2} |",
+                t_full * 1e3,
+                t_draft * 1e3
+            );
+        }
     }
+}
+
+/// Mean and 99th percentile of the absolute difference of 8 x 8 pixel block means (blocks
+/// wholly inside both images), grey levels.
+fn block_error(a: &BModeFrame, b: &BModeFrame) -> (f64, f64) {
+    assert_eq!(
+        (a.width, a.height),
+        (b.width, b.height),
+        "a draft keeps the image size"
+    );
+    let mut d = Vec::new();
+    for by in (0..a.height / 8).map(|i| 8 * i) {
+        for bx in (0..a.width / 8).map(|i| 8 * i) {
+            let idx = (0..64).map(|i| (by + i / 8) * a.width + bx + i % 8);
+            if idx.clone().any(|i| !a.inside[i] || !b.inside[i]) {
+                continue;
+            }
+            let diff: f64 = idx
+                .map(|i| f64::from(a.pixels[i]) - f64::from(b.pixels[i]))
+                .sum();
+            d.push((diff / 64.0).abs());
+        }
+    }
+    d.sort_by(f64::total_cmp);
+    let mean = d.iter().sum::<f64>() / d.len().max(1) as f64;
+    (mean, d.get(d.len() * 99 / 100).copied().unwrap_or(0.0))
 }

@@ -92,6 +92,14 @@ await runReport(async (page, report) => {
   // The ultrasound panel of the same station: a probe in hand and a B-mode image.
   await page.selectOption('#us-probe', 'linear-probe');
   await waitUntil(page, () => window.__sim.us && window.__sim.us.outcome && window.__sim.us.outcome.probe === 'linear');
+  // The full B-mode frame of the linear probe (a draft with its "Preview" badge comes first).
+  await waitUntil(page, () => {
+    const d = window.__sim.us.drawn.ultrasound;
+    const seq = window.__sim.live.seq;
+    // A state query (sent after some commands) changes no view.
+    const want = seq === window.__sim.us.lastQuerySeq ? seq - 1 : seq;
+    return window.__sim.live.pending.size === 0 && !!d && d.inputSeq >= want && !d.draft;
+  });
   await page.locator('#bmode').scrollIntoViewIfNeeded();
   await audit(page, 'ultrasound session', report);
 

@@ -4,6 +4,9 @@
 // target, places the needle in the scan plane and advances it, freezes and unfreezes, and
 // submits.
 //
+// Each probe move is drawn first as a draft with its "Preview" badge, then as the full frame
+// (`preview` in the report).
+//
 // Usage: node tests/e2e_ultrasound.mjs <base-url> [out-dir]
 // Prints one JSON object on stdout (the figures the Rust test asserts on) and exits 0 when every
 // step passed, 1 with {"ok": false, "error": ...} otherwise. Canvas captures go to out-dir.
@@ -35,7 +38,8 @@ async function settle(page, view = 'ultrasound', minSeq = null) {
     const s = window.__sim.live.seq;
     return s === window.__sim.us.lastQuerySeq ? s - 1 : s;
   });
-  await waitUntil(page, ([v, s]) => { const d = window.__sim.us.drawn[v]; return !!d && d.inputSeq >= s; }, [view, seq]);
+  // The full frame: a draft (a preview while the probe moves) of the same input comes first.
+  await waitUntil(page, ([v, s]) => { const d = window.__sim.us.drawn[v]; return !!d && d.inputSeq >= s && !d.draft; }, [view, seq]);
   // All received frames decoded and drawn (the frame counter counts draws).
   await waitUntil(page, () => Number(document.getElementById('frame-count').textContent) === window.__sim.stats.frames);
 }
@@ -138,6 +142,14 @@ async function press(page, key, n) {
 
 await runReport(async (page, report) => {
   report.station = await openFirstStation(page, base);
+  // Every change of the B-mode "Preview" badge's visibility, recorded as it happens (a draft
+  // shows for tens of milliseconds before the full frame of the same input).
+  await page.evaluate(() => {
+    window.__usBadge = [];
+    const el = document.getElementById('us-draft');
+    new MutationObserver(() => window.__usBadge.push(el.hidden ? 'hidden' : 'shown'))
+      .observe(el, { attributes: true, attributeFilter: ['hidden'] });
+  });
   // The client asks for the probe's state right after connecting; both views arrive.
   await waitUntil(page, () => !!(window.__sim.us.outcome && window.__sim.us.drawn.placement));
   await settle(page);
@@ -382,6 +394,13 @@ await runReport(async (page, report) => {
   report.steps.push('tilted');
 
   report.frames = frames;
+  report.preview = await page.evaluate(() => ({
+    drafts: window.__sim.stats.views.ultrasound.drafts,
+    frames: window.__sim.stats.views.ultrasound.frames,
+    badge: window.__usBadge,
+    last_drawn_draft: window.__sim.us.drawn.ultrasound.draft,
+    badge_hidden: document.getElementById('us-draft').hidden,
+  }));
   report.command_errors = await page.evaluate(() => window.__sim.stats.errors);
   report.session_log = await page.textContent('#session-log');
   await page.click('#submit');

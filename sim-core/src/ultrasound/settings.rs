@@ -141,6 +141,23 @@ impl Sampling {
         }
     }
 
+    /// A draft of the same frame: the preview a session shows while the probe is still moving,
+    /// before the full frame. Same image pixels (so the same image size), half the lines, the
+    /// samples per line and the march steps, and a scatterer lattice twice as coarse (an
+    /// eighth of the scatterers, the cost that dominates an oblique pose). Its speckle is fixed
+    /// to the tissue like the full frame's, on its own lattice, and less developed (fewer
+    /// scatterers per resolution cell); the `ultrasound` bench reports its time and its
+    /// difference from the full frame.
+    pub fn draft(self) -> Sampling {
+        Sampling {
+            lines: (self.lines / 2).max(2),
+            samples_per_line: (self.samples_per_line / 2).max(16),
+            march_step_mm: (2.0 * self.march_step_mm).min(2.0),
+            pixel_mm: self.pixel_mm,
+            scatter_cell_mm: (2.0 * self.scatter_cell_mm).min(2.0),
+        }
+    }
+
     /// Refuses sampling that cannot make a frame, naming the field.
     pub fn validate(&self) -> Result<(), UltrasoundError> {
         check_range("sampling.lines", self.lines as f64, 2.0, 4096.0)?;

@@ -26,6 +26,12 @@ pub trait UltrasoundBackend: Send + Sync {
 
     /// A renderer for one session (it may hold device buffers).
     fn renderer(&self) -> Box<dyn UltrasoundRenderer>;
+
+    /// Whether a live session shows a draft (`Sampling::draft`) before each full frame: where
+    /// the full frame takes tens of milliseconds, so a moving probe is answered at once.
+    fn drafts(&self) -> bool {
+        false
+    }
 }
 
 /// Makes frames for one session.
@@ -49,6 +55,12 @@ impl UltrasoundBackend for CpuUltrasoundBackend {
 
     fn renderer(&self) -> Box<dyn UltrasoundRenderer> {
         Box::new(CpuUltrasoundBackend)
+    }
+
+    /// On the CPU an oblique pose costs 60-70 ms a frame on two cores, its draft 11-25 ms
+    /// (the sim-core `ultrasound` bench).
+    fn drafts(&self) -> bool {
+        true
     }
 }
 

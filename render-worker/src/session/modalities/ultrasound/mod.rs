@@ -42,7 +42,7 @@ pub use backend::{
 pub use medium::AcousticVolume;
 pub use scene::{ScanScene, needle_shaft, scene_needle_view};
 
-use super::modality::{Modality, ModalityContext, ModalityError, ModalitySpec};
+use super::modality::{DraftUse, Modality, ModalityContext, ModalityError, ModalitySpec};
 use crate::session::anatomy::primary_target;
 use crate::session::command::{
     Command, CommandError, CommandSpec, Engagement, ErrorCode, MAX_PROBE_SNAP_MM,
@@ -90,6 +90,8 @@ pub struct UltrasoundModality {
     /// Bumped when the displayed B-mode scene may have changed / when the probe or needle moved.
     versions: [u64; 2],
     rendered: [Option<u64>; 2],
+    /// The B-mode version last drafted in a live session (one draft per image).
+    drafted: Option<u64>,
 }
 
 impl std::fmt::Debug for UltrasoundModality {
@@ -212,6 +214,7 @@ pub fn build(ctx: &ModalityContext<'_>) -> Box<dyn Modality> {
         volume: None,
         versions: [0, 0],
         rendered: [None, None],
+        drafted: None,
     })
 }
 
@@ -251,6 +254,41 @@ impl UltrasoundModality {
             settings: self.state.settings,
             needle: needle_shaft(world),
         }
+    }
+
+    /// The B-mode image of the displayed scene: the full frame by the session's renderer, or
+    /// (`draft`) the draft by the CPU reference.
+    fn scan_displayed(&mut self, world: &World, draft: bool) -> Result<ViewImage, ModalityError> {
+        let scene = self.displayed_scene(world);
+        let volume = self.volume();
+        let medium = volume.medium();
+        let spec = scene.probe.spec();
+        let sampling = Sampling::for_settings(&spec, &scene.settings);
+        let req = ScanRequest {
+            probe: scene.probe,
+            pose: scene.pose,
+            settings: scene.settings,
+            sampling: if draft { sampling.draft() } else { sampling },
+            medium: &medium,
+            needle: scene.needle,
+            targets: &[],
+            seed: self.state.seed,
+        };
+        let frame = if draft {
+            sim_core::ultrasound::scan(&req).map_err(UltrasoundRenderError::from)
+        } else {
+            let renderer = self.renderer.get_or_insert_with(|| self.backend.renderer());
+            renderer.scan(&req, &volume)
+        }
+        .map_err(|e| ModalityError::Render {
+            modality: "ultrasound",
+            message: e.to_string(),
+        })?;
+        Ok(ViewImage {
+            width: frame.width as u32,
+            height: frame.height as u32,
+            pixels: frame.pixels,
+        })
     }
 
     /// The scan geometry and what the displayed image shows of the needle.
@@ -583,33 +621,9 @@ impl Modality for UltrasoundModality {
     fn render(&mut self, view: ViewId, world: &World) -> Result<Option<ViewImage>, ModalityError> {
         match view {
             ViewId::ULTRASOUND => {
-                let scene = self.displayed_scene(world);
-                let volume = self.volume();
-                let medium = volume.medium();
-                let spec = scene.probe.spec();
-                let req = ScanRequest {
-                    probe: scene.probe,
-                    pose: scene.pose,
-                    settings: scene.settings,
-                    sampling: Sampling::for_settings(&spec, &scene.settings),
-                    medium: &medium,
-                    needle: scene.needle,
-                    targets: &[],
-                    seed: self.state.seed,
-                };
-                let renderer = self.renderer.get_or_insert_with(|| self.backend.renderer());
-                let frame = renderer
-                    .scan(&req, &volume)
-                    .map_err(|e| ModalityError::Render {
-                        modality: "ultrasound",
-                        message: e.to_string(),
-                    })?;
+                let frame = self.scan_displayed(world, false)?;
                 self.rendered[0] = Some(self.versions[0]);
-                Ok(Some(ViewImage {
-                    width: frame.width as u32,
-                    height: frame.height as u32,
-                    pixels: frame.pixels,
-                }))
+                Ok(Some(frame))
             }
             ViewId::PLACEMENT => {
                 let cam = placement::Camera::for_site(&self.region, self.state.site_mm);
@@ -625,6 +639,31 @@ impl Modality for UltrasoundModality {
             }
             _ => Ok(None),
         }
+    }
+
+    /// The B-mode image drafted with [`Sampling::draft`] by the CPU reference (the same
+    /// image on every machine, so a replay renders the draft that was shown). Live, only where
+    /// the backend's full frame is slow ([`UltrasoundBackend::drafts`]) and once per image; the
+    /// placement view has none.
+    fn render_draft(
+        &mut self,
+        view: ViewId,
+        world: &World,
+        use_: DraftUse,
+    ) -> Result<Option<ViewImage>, ModalityError> {
+        if view != ViewId::ULTRASOUND {
+            return Ok(None);
+        }
+        if use_ == DraftUse::Live
+            && (!self.backend.drafts() || self.drafted == Some(self.versions[0]))
+        {
+            return Ok(None);
+        }
+        let frame = self.scan_displayed(world, true)?;
+        if use_ == DraftUse::Live {
+            self.drafted = Some(self.versions[0]);
+        }
+        Ok(Some(frame))
     }
 
     fn measure(&self, world: &World, out: &mut Measurements) {
