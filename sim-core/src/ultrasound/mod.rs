@@ -54,6 +54,7 @@ pub mod error;
 pub mod frame;
 pub mod needle;
 mod parallel;
+mod pixel_map;
 pub mod probe;
 pub mod scatter;
 pub mod settings;
