@@ -667,7 +667,8 @@ impl modalities::ultrasound::UltrasoundBackend for NoDrafts {
 /// a draft, once per image, none for the placement view; close to the full frame on 8 x 8 block
 /// means (its speckle is its own, on a coarser lattice); the view stays dirty for the full
 /// frame. A replay of the log up to each step renders the draft and the full frame that were
-/// shown bit for bit. A backend without drafts gets none live.
+/// shown bit for bit. Freezing and unfreezing with nothing moved draft nothing; a backend
+/// without drafts gets none live.
 #[test]
 fn b_mode_drafts_come_before_full_frames_while_the_probe_moves_and_replay_exactly() {
     let mut r = run_at(IN_PLANE);
@@ -728,6 +729,16 @@ fn b_mode_drafts_come_before_full_frames_while_the_probe_moves_and_replay_exactl
         let views: BTreeSet<ViewId> = [ViewId::ULTRASOUND].into();
         let f = replayed.render_dirty(&views).unwrap().pop().unwrap();
         assert!(f.image == full, "step {n}: full frame");
+    }
+    // Freezing holds the scene on screen: no draft flashes before the same image; unfrozen
+    // with nothing moved, neither.
+    for (k, on) in [true, false].into_iter().enumerate() {
+        r.ok(1000 + k as u64, Command::ProbeFreeze { on });
+        assert!(
+            r.s.render_drafts(&both).unwrap().is_empty(),
+            "freeze {on}: no draft of the image on screen"
+        );
+        r.s.render_dirty(&both).unwrap();
     }
     // A backend whose full frames are fast has no live drafts (a replay still draws one).
     let backends = Backends::new(Backends::cpu(0).fluoro, Arc::new(NoDrafts));

@@ -97,11 +97,17 @@ pub(crate) fn scan_convert(
     // Grey level + 1 per pixel, 0 outside the scanned region; rows split over two threads.
     let mut grey = vec![0u16; width * height];
     let dr = settings.dynamic_range_db;
-    let map = super::pixel_map::pixel_map(geo, [x0, y0], pixel_mm, (width, height));
+    let map = (width * height <= super::pixel_map::MAP_PIXELS_MAX)
+        .then(|| super::pixel_map::pixel_map(geo, [x0, y0], pixel_mm, (width, height)));
     super::parallel::in_two(&mut grey, width, |rows, y_first| {
         for (i, row) in rows.chunks_mut(width).enumerate() {
-            let at = &map.line_depth[(y_first + i) * width..][..width];
-            for (out, &(u, z)) in row.iter_mut().zip(at) {
+            let y = y_first + i;
+            let ym = y0 + y as f64 * pixel_mm;
+            for (x, out) in row.iter_mut().enumerate() {
+                let (u, z) = match &map {
+                    Some(m) => m.line_depth[y * width + x],
+                    None => geo.plane_to_line(x0 + x as f64 * pixel_mm, ym),
+                };
                 let Some(a) = sample_envelope(&envelope, u, z / envelope.sample_mm) else {
                     continue;
                 };

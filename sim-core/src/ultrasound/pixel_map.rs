@@ -12,6 +12,9 @@ use super::probe::{ProbeKind, ScanGeometry};
 /// Maps kept, most recently used last (our choice: a draft's and a full frame's geometry for a
 /// couple of probes or depths; a curvilinear map of the default 820 x 554 pixels is 7.3 MB).
 const MAPS_KEPT: usize = 4;
+/// Largest image with a map, pixels (our choice: 4 times the default image; a finer pixel
+/// pitch asked of the library is converted pixel by pixel, so the maps stay under 32 MB each).
+pub(crate) const MAP_PIXELS_MAX: usize = 2_000_000;
 
 /// What a map depends on: the array, its lines, and the pixel grid (origin, pitch, size).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -75,6 +78,10 @@ pub(crate) fn pixel_map(
     }
     let m = Arc::new(compute(geo, key, origin, pixel_mm, size));
     if let Ok(mut c) = MAPS.lock() {
+        // Another thread may have made the same map meanwhile: one copy is kept.
+        if let Some(kept) = c.get(&key) {
+            return kept;
+        }
         c.keep(&m);
     }
     m

@@ -36,35 +36,24 @@ impl IqGrid {
         self.lines + 2 * self.pad_l
     }
 
-    /// Adds `(a, b)` at fractional unpadded coordinates (bilinear; nodes off the grid are dropped).
+    /// Adds `(a, b)` at fractional unpadded coordinates (bilinear; a deposit whose cell is not
+    /// wholly on the grid is dropped).
     #[inline]
     pub fn deposit(&mut self, u: f64, s: f64, a: f64, b: f64) {
-        let up = u + self.pad_l as f64;
-        let sp = s + self.pad_s as f64;
-        if up.is_nan() || sp.is_nan() || up < 0.0 || sp < 0.0 {
+        let Some((node, w)) = self.cell(u, s) else {
             return;
-        }
-        // Both are non-negative here, so truncation is floor (and no libm call).
-        let (u0, s0) = (up as usize, sp as usize);
-        let (fu, fs) = (up - u0 as f64, sp - s0 as f64);
-        if u0 + 1 >= self.total_lines() || s0 + 1 >= self.stride() {
-            return;
-        }
+        };
         let st = self.stride();
-        for (du, wu) in [(0, 1.0 - fu), (1, fu)] {
-            for (ds, ws) in [(0, 1.0 - fs), (1, fs)] {
-                let i = (u0 + du) * st + s0 + ds;
-                let w = wu * ws;
-                self.re[i] += (a * w) as f32;
-                self.im[i] += (b * w) as f32;
-            }
+        for (offset, wc) in [0, 1, st, st + 1].into_iter().zip(w) {
+            self.re[node + offset] += (a * wc) as f32;
+            self.im[node + offset] += (b * wc) as f32;
         }
     }
 
-    /// The top-left node and bilinear weights of a deposit at `(u, s)`, as [`IqGrid::deposit`]
-    /// takes them (`None` where it drops the deposit). The same values as there, through
-    /// signed conversions: the baseline x86-64 target converts `f64` to and from `usize` with
-    /// a branchy sequence but to and from `i64` with one instruction, and both agree on every
+    /// The top-left node and bilinear weights of a deposit at `(u, s)`, `None` where it is
+    /// dropped (NaN, negative, or a cell not wholly on the grid, infinities included). Through
+    /// signed conversions: the baseline x86-64 target converts `f64` to and from `usize` with a
+    /// branchy sequence but to and from `i64` with one instruction, and the two agree on every
     /// value that passes the checks (non-negative and below the grid's size).
     #[inline]
     fn cell(&self, u: f64, s: f64) -> Option<(usize, [f64; 4])> {
@@ -190,5 +179,46 @@ impl Drop for IqGrid {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Deposits whose cell is not wholly on the grid (huge, infinite, NaN, negative or edge
+    /// coordinates, a point target far outside the frame) are dropped without a panic; one
+    /// inside spreads its amplitude over its four nodes, and the cell sum adds the same.
+    #[test]
+    fn grid_deposits_off_the_grid_are_dropped() {
+        let mut g = IqGrid::new(8, 10, 2, 3);
+        let (lines, stride) = (g.total_lines() as f64, g.stride() as f64);
+        for (u, s) in [
+            (1e300, 1.0),
+            (1.0, 1e300),
+            (9.3e18, 1.0),
+            (f64::INFINITY, 1.0),
+            (1.0, f64::NEG_INFINITY),
+            (f64::NAN, 1.0),
+            (-2.5, 1.0),
+            (1.0, -3.5),
+            (lines - 1.0 - 2.0, 1.0),
+            (1.0, stride - 1.0 - 3.0),
+        ] {
+            g.deposit(u, s, 1.0, -1.0);
+            let mut c = CellSum::new();
+            c.deposit(&mut g, u, s, 1.0, -1.0);
+            c.flush(&mut g);
+            assert!(
+                g.re.iter().chain(&g.im).all(|&v| v == 0.0),
+                "({u}, {s}) dropped"
+            );
+        }
+        g.deposit(2.25, 3.5, 1.0, -2.0);
+        let mut c = CellSum::new();
+        c.deposit(&mut g, 2.25, 3.5, 1.0, -2.0);
+        c.flush(&mut g);
+        let (re, im): (f32, f32) = (g.re.iter().sum(), g.im.iter().sum());
+        assert!((re - 2.0).abs() < 1e-6 && (im + 4.0).abs() < 1e-6, "{re} {im}");
     }
 }

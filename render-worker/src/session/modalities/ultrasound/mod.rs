@@ -92,6 +92,9 @@ pub struct UltrasoundModality {
     rendered: [Option<u64>; 2],
     /// The B-mode version last drafted in a live session (one draft per image).
     drafted: Option<u64>,
+    /// The scene of the last full B-mode frame: an image of the same scene (freeze, unfreeze
+    /// with nothing moved) gets no draft.
+    full_scene: Option<ScanScene>,
 }
 
 impl std::fmt::Debug for UltrasoundModality {
@@ -215,7 +218,20 @@ pub fn build(ctx: &ModalityContext<'_>) -> Box<dyn Modality> {
         versions: [0, 0],
         rendered: [None, None],
         drafted: None,
+        full_scene: None,
     })
+}
+
+/// `scene` with its `frozen` flag cleared: the freeze button changes what is held, not the
+/// image of the scene.
+fn unfrozen(scene: ScanScene) -> ScanScene {
+    ScanScene {
+        settings: Settings {
+            frozen: false,
+            ..scene.settings
+        },
+        ..scene
+    }
 }
 
 /// Maps a sim-core settings field to the command's.
@@ -622,6 +638,7 @@ impl Modality for UltrasoundModality {
         match view {
             ViewId::ULTRASOUND => {
                 let frame = self.scan_displayed(world, false)?;
+                self.full_scene = Some(self.displayed_scene(world));
                 self.rendered[0] = Some(self.versions[0]);
                 Ok(Some(frame))
             }
@@ -644,7 +661,7 @@ impl Modality for UltrasoundModality {
     /// The B-mode image drafted with [`Sampling::draft`] by the CPU reference (the same
     /// image on every machine, so a replay renders the draft that was shown). Live, only where
     /// the backend's full frame is slow ([`UltrasoundBackend::drafts`]) and once per image; the
-    /// placement view has none.
+    /// placement view has none, and neither has an image of the scene on screen (freezing).
     fn render_draft(
         &mut self,
         view: ViewId,
@@ -655,7 +672,9 @@ impl Modality for UltrasoundModality {
             return Ok(None);
         }
         if use_ == DraftUse::Live
-            && (!self.backend.drafts() || self.drafted == Some(self.versions[0]))
+            && (!self.backend.drafts()
+                || self.drafted == Some(self.versions[0])
+                || self.full_scene.map(unfrozen) == Some(unfrozen(self.displayed_scene(world))))
         {
             return Ok(None);
         }
