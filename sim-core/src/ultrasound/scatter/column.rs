@@ -15,6 +15,14 @@ pub(super) struct Reach {
     pub z: (f64, f64),
 }
 
+impl Reach {
+    /// Whether line index `u` and depth `z` (mm) are within reach.
+    #[inline]
+    pub fn contains(&self, u: f64, z: f64) -> bool {
+        u >= self.u.0 && u <= self.u.1 && z >= self.z.0 && z <= self.z.1
+    }
+}
+
 /// What every column of one deposit shares.
 pub(super) struct ScatterContext<'a> {
     pub geo: &'a ScanGeometry,
@@ -120,6 +128,6 @@ pub(super) mod test_frames {
     /// Whether the in-plane point `(x, y)` is within `reach`.
     pub fn in_reach(geo: &ScanGeometry, reach: &Reach, x: f64, y: f64) -> bool {
         let (u, z) = geo.plane_to_line(x, y);
-        u >= reach.u.0 && u <= reach.u.1 && z >= reach.z.0 && z <= reach.z.1
+        reach.contains(u, z)
     }
 }

@@ -318,16 +318,12 @@ impl ColumnSpan {
 /// within `reach`: the padded lines' footprint (linear) or annular sector (curvilinear).
 fn reach_area(geo: &ScanGeometry, reach: &Reach) -> (f64, f64, f64, f64) {
     use super::super::probe::ProbeKind;
-    let n = (geo.lines.max(2) - 1) as f64;
+    let at = |u: f64| geo.line_coordinate(u);
     match geo.spec.kind {
-        ProbeKind::Linear => {
-            let x = |u: f64| (u / n - 0.5) * geo.spec.footprint_mm;
-            (x(reach.u.0), x(reach.u.1), reach.z.0, reach.z.1)
-        }
+        ProbeKind::Linear => (at(reach.u.0), at(reach.u.1), reach.z.0, reach.z.1),
         ProbeKind::Curvilinear => {
             let r0 = geo.spec.radius_mm;
-            let half = geo.half_sector_rad();
-            let theta = |u: f64| ((2.0 * u / n - 1.0) * half).clamp(-PI, PI);
+            let theta = |u: f64| at(u).clamp(-PI, PI);
             let (t0, t1) = (theta(reach.u.0), theta(reach.u.1));
             let (r_lo, r_hi) = ((r0 + reach.z.0).max(0.0), (r0 + reach.z.1).max(0.0));
             // The box of an annular sector: its corners, and where it crosses an axis.
@@ -448,7 +444,7 @@ impl PlanePoint {
         k0: f64,
         reach: &Reach,
     ) -> PlanePoint {
-        if !(u >= reach.u.0 && u <= reach.u.1 && z >= reach.z.0 && z <= reach.z.1) {
+        if !reach.contains(u, z) {
             // Out of reach: its scatterers are skipped, nothing else is needed.
             return PlanePoint {
                 x: x.to_bits(),

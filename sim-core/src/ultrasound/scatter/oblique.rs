@@ -26,11 +26,10 @@ impl ConvexReach {
     /// padded sector cut by the outer radius (curvilinear; no clip where the wedge is not
     /// convex, more than a half turn).
     pub(super) fn new(geo: &ScanGeometry, reach: &Reach) -> ConvexReach {
-        let n = (geo.lines.max(2) - 1) as f64;
+        let at = |u: f64| geo.line_coordinate(u);
         match geo.spec.kind {
             ProbeKind::Linear => {
-                let x = |u: f64| (u / n - 0.5) * geo.spec.footprint_mm;
-                let (x0, x1) = (x(reach.u.0), x(reach.u.1));
+                let (x0, x1) = (at(reach.u.0), at(reach.u.1));
                 ConvexReach {
                     planes: vec![
                         (-1.0, 0.0, -x0),
@@ -43,9 +42,7 @@ impl ConvexReach {
             }
             ProbeKind::Curvilinear => {
                 let r0 = geo.spec.radius_mm;
-                let half = geo.half_sector_rad();
-                let theta = |u: f64| (2.0 * u / n - 1.0) * half;
-                let (t0, t1) = (theta(reach.u.0), theta(reach.u.1));
+                let (t0, t1) = (at(reach.u.0), at(reach.u.1));
                 let r_hi = (r0 + reach.z.1).max(0.0);
                 let disc = Some((0.0, -r0, r_hi));
                 if t1 - t0 >= std::f64::consts::PI || t0 < -std::f64::consts::PI {
@@ -169,7 +166,7 @@ pub(super) fn column_oblique<const AM: usize>(
             let (u, z) = geo.plane_to_line(here.x, here.y);
             (u, z, (f64::NAN, f64::NAN))
         };
-        if !(u >= cx.reach.u.0 && u <= cx.reach.u.1 && z >= cx.reach.z.0 && z <= cx.reach.z.1) {
+        if !cx.reach.contains(u, z) {
             continue;
         }
         let Some((hsh, tissue)) = col.scatterer::<AM>(cx, k, &mut pos, echo) else {
