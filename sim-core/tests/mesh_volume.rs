@@ -63,12 +63,11 @@ fn assert_within(rows: &[(String, f64, f64, f64)], limit: f64, flavum: &str) {
 }
 
 /// The goal on the grid learners get is every structure within 5 % of its analytic volume, the
-/// ligamentum flavum included. Meshed from level sets, every structure but the flavum is
-/// within 5 % and the flavum within 6 % (-5.4 % measured: its faces are almost all junctions
-/// with the canal, the laminae and the epidural fat, whose vertices fall back where surfaces
-/// would cross; -8.9 % for the shipped mask meshes).
+/// ligamentum flavum included. Meshed from level sets, the worst is the L5 cortex at -4.47 %
+/// and the flavum is at -4.22 % (-5.40 % while the triangles beside its junctions kept their
+/// chords; -8.9 % for the shipped mask meshes).
 #[test]
-fn mesh_volume_of_every_structure_but_the_flavum_is_within_5_percent_on_the_default_grid() {
+fn mesh_volume_of_every_structure_is_within_5_percent_on_the_default_grid() {
     let params = PhantomParams::level_set_meshed(1.5);
     let region = phantom::build(&params, &mut |_| {}).expect("phantom builds");
     let triangles: usize = region
@@ -78,12 +77,7 @@ fn mesh_volume_of_every_structure_but_the_flavum_is_within_5_percent_on_the_defa
         .sum();
     eprintln!("{triangles} triangles");
     let rows = compare(&region, &params);
-    assert_within(&rows, 0.06, "ligamentum_flavum");
-    let others: Vec<_> = rows
-        .iter()
-        .filter(|r| r.0 != "ligamentum_flavum" && r.3.abs() >= 0.05)
-        .collect();
-    assert!(others.is_empty(), "{others:?}");
+    assert_within(&rows, 0.05, "ligamentum_flavum");
 }
 
 /// What the shipped meshes (masks' 0.5 levels, the default phantom) give against the same
@@ -110,12 +104,12 @@ fn mesh_volume_of_every_structure_is_within_10_percent_at_3_mm() {
     assert_within(&rows, 0.10, "ligamentum_flavum");
 }
 
-/// The other procedural phantom, the neck on its default 1 mm grid: every structure within 7 %.
-/// Its 2.5 mm flavum is the worst (-5.6 % measured: the interpolated positions that keep
-/// crossing surfaces apart sit inside it), the only structure of either phantom's default
-/// grid beyond 5 %; every other neck structure is within 5 %.
+/// The other procedural phantom, the neck on its default 1 mm grid: every structure within 5 %.
+/// Its 2.5 mm flavum is the worst at -4.96 % (close to the goal: its extraction alone loses
+/// 5.6 %, where its rims and the wedges between it and the laminae are thinner than the
+/// lattice, and refinement wins back 1.6 points less the splits that would cross the laminae).
 #[test]
-fn mesh_volume_of_every_cervical_structure_is_within_7_percent() {
+fn mesh_volume_of_every_cervical_structure_is_within_5_percent() {
     let params = cervical::default_params().meshed_from_level_sets();
     let region = cervical::build(&params, &mut |_| {}).expect("cervical phantom builds");
     let rows = compare_anatomy(&region, &params, &cervical::anatomy(&params));
@@ -124,12 +118,7 @@ fn mesh_volume_of_every_cervical_structure_is_within_7_percent() {
         .find(|r| r.0.contains("flavum"))
         .map(|r| r.0.clone())
         .expect("the neck has a flavum");
-    assert_within(&rows, 0.07, &flavum);
-    let others: Vec<_> = rows
-        .iter()
-        .filter(|r| r.0 != flavum && r.3.abs() >= 0.05)
-        .collect();
-    assert!(others.is_empty(), "{others:?}");
+    assert_within(&rows, 0.05, &flavum);
 }
 
 /// The reference itself: halving the octree's smallest cell from the one the reference uses

@@ -57,14 +57,49 @@ fn triangles_cross(p: [[f64; 3]; 3], q: [[f64; 3]; 3]) -> bool {
     a1.min(b1) - a0.max(b0) > 1e-6 * 1e-3 * scale
 }
 
+/// Whether two triangles that share the corner `a` (and no other) cross: their intersection
+/// reaches beyond `a`. `p = [a, b, c]`, `q = [a, d, e]`, the shared corner first. Each triangle
+/// meets the other's plane in a segment from `a` (where its other two corners lie on opposite
+/// sides of that plane); the triangles overlap beyond `a` when both segments exist and leave `a`
+/// the same way along the planes' common line. Corners in the other's plane (a meeting along an
+/// edge) do not count, as in [`triangles_cross`].
+fn corner_sharing_triangles_cross(p: [[f64; 3]; 3], q: [[f64; 3]; 3]) -> bool {
+    let (p, q) = (p.map(DVec3::from), q.map(DVec3::from));
+    let a = p[0];
+    // Where the edge between the other two corners of `t` crosses the plane through `a` with
+    // normal `n`, relative to `a`; `None` when both lie on one side (or either on the plane).
+    let reach = |t: [DVec3; 3], n: DVec3| -> Option<DVec3> {
+        let (db, dc) = (n.dot(t[1] - a), n.dot(t[2] - a));
+        if !((db > 0.0 && dc < 0.0) || (db < 0.0 && dc > 0.0)) {
+            return None;
+        }
+        Some(t[1] + (t[2] - t[1]) * (db / (db - dc)) - a)
+    };
+    let np = (p[1] - a).cross(p[2] - a);
+    let nq = (q[1] - a).cross(q[2] - a);
+    let (Some(up), Some(uq)) = (reach(p, nq), reach(q, np)) else {
+        return false;
+    };
+    // Both lie on the common line through `a`; they overlap beyond `a` when they point the same
+    // way. The shorter one is the overlap; under a nanometre it is rounding at the corner. Two
+    // triangles all but coplanar (neighbours on a smooth surface) have a common line that
+    // rounding sets anywhere: points that are not on one line within a millionth of a radian
+    // are not a crossing (a fold that flat encloses no volume worth a check).
+    let (lp, lq) = (up.length(), uq.length());
+    up.dot(uq) > 0.0 && lp.min(lq) > 1e-6 * 1e-3 && up.cross(uq).length() <= 1e-6 * lp * lq
+}
+
 /// Pairs of triangles from different patches that cross each other (see [`triangles_cross`]),
 /// as `(patch, triangle index)` pairs, sorted. Only pairs with at least one triangle from a
-/// patch in `fresh` are tested; triangles sharing a vertex are not compared (they meet at it).
+/// patch in `fresh` are tested. Triangles sharing an edge are not compared (they meet along
+/// it); those sharing one corner are compared only when `corners` is set (see
+/// [`corner_sharing_triangles_cross`]), otherwise taken to meet at it.
 pub(super) fn crossing_pairs(
     source: &[Vec<[u32; 3]>],
     positions: &[[f64; 3]],
     fresh: &[bool],
     cell_mm: f64,
+    corners: bool,
 ) -> Vec<((u32, u32), (u32, u32))> {
     let mut tris: Vec<(u32, u32)> = Vec::new();
     let mut boxes: Vec<([f64; 3], [f64; 3])> = Vec::new();
@@ -117,12 +152,25 @@ pub(super) fn crossing_pairs(
                             continue;
                         }
                         let b = source[pj as usize][tj as usize];
-                        if a.iter().any(|v| b.contains(v)) {
-                            continue;
-                        }
-                        let pa = a.map(|g| positions[g as usize]);
-                        let pb = b.map(|g| positions[g as usize]);
-                        if triangles_cross(pa, pb) {
+                        let shared = a.iter().filter(|v| b.contains(v)).count();
+                        let crosses = match shared {
+                            0 => triangles_cross(
+                                a.map(|g| positions[g as usize]),
+                                b.map(|g| positions[g as usize]),
+                            ),
+                            1 if corners => {
+                                let s = a.iter().position(|v| b.contains(v)).unwrap_or(0);
+                                let r = b.iter().position(|&v| v == a[s]).unwrap_or(0);
+                                corner_sharing_triangles_cross(
+                                    [a[s], a[(s + 1) % 3], a[(s + 2) % 3]]
+                                        .map(|g| positions[g as usize]),
+                                    [b[r], b[(r + 1) % 3], b[(r + 2) % 3]]
+                                        .map(|g| positions[g as usize]),
+                                )
+                            }
+                            _ => false,
+                        };
+                        if crosses {
                             out.push(if i < j {
                                 ((pi, ti), (pj, tj))
                             } else {
@@ -196,4 +244,68 @@ pub(super) fn mean_edge_mm(source: &[Vec<[u32; 3]>], positions: &[[f64; 3]]) -> 
         }
     }
     (sum / n.max(1) as f64).max(1e-6)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const A: [f64; 3] = [0.0, 0.0, 0.0];
+
+    /// A fan triangle at `a`: corners at unit distance in the directions `deg0` and `deg1`
+    /// (degrees in the x-y plane), lifted by `z0` and `z1`.
+    fn fan(deg0: f64, deg1: f64, z0: f64, z1: f64) -> [[f64; 3]; 3] {
+        let at = |d: f64, z: f64| {
+            let r = d.to_radians();
+            [r.cos(), r.sin(), z]
+        };
+        [A, at(deg0, z0), at(deg1, z1)]
+    }
+
+    #[test]
+    fn a_triangle_folded_over_its_neighbour_at_a_shared_corner_crosses_it() {
+        // The second triangle covers the first's sector, tilted through its plane.
+        let p = fan(0.0, 60.0, 0.0, 0.0);
+        let q = fan(10.0, 50.0, -0.3, 0.3);
+        assert!(corner_sharing_triangles_cross(p, q));
+        assert!(corner_sharing_triangles_cross(q, p));
+        // Lifted clear of it: they meet at the corner only.
+        let q = fan(10.0, 50.0, 0.1, 0.3);
+        assert!(!corner_sharing_triangles_cross(p, q));
+    }
+
+    #[test]
+    fn neighbours_around_a_corner_of_a_smooth_surface_do_not_cross() {
+        // Disjoint sectors of one plane, exactly and with rounding-sized lifts (whose common
+        // line with the plane rounding sets anywhere), and of a gently bent surface.
+        for (z0, z1) in [(0.0, 0.0), (1e-17, -1e-17), (-3e-16, 2e-16)] {
+            let p = fan(0.0, 60.0, 0.0, 0.0);
+            let q = fan(90.0, 150.0, z0, z1);
+            assert!(!corner_sharing_triangles_cross(p, q), "{z0} {z1}");
+        }
+        let p = fan(0.0, 60.0, 0.02, 0.03);
+        let q = fan(70.0, 130.0, 0.03, 0.01);
+        assert!(!corner_sharing_triangles_cross(p, q));
+    }
+
+    #[test]
+    fn crossing_pairs_compare_corner_sharing_triangles_only_when_asked() {
+        let positions = vec![
+            A,
+            [1.0, 0.0, 0.0],
+            [0.5, 0.866, 0.0],
+            [0.98, 0.17, -0.3],
+            [0.64, 0.77, 0.3],
+        ];
+        let source = vec![vec![[0, 1, 2]], vec![[0, 3, 4]]];
+        let fresh = [true, true];
+        assert!(crossing_pairs(&source, &positions, &fresh, 2.0, false).is_empty());
+        assert_eq!(
+            crossing_pairs(&source, &positions, &fresh, 2.0, true),
+            vec![((0, 0), (1, 0))]
+        );
+        // Sharing an edge is a meeting, whatever `corners` says.
+        let source = vec![vec![[0, 1, 2]], vec![[0, 1, 4]]];
+        assert!(crossing_pairs(&source, &positions, &fresh, 2.0, true).is_empty());
+    }
 }

@@ -136,8 +136,13 @@ pub(super) fn decimate_family(
     // phantom's deep soft tissue, which later structures leave) are not laminar to begin with;
     // decimation is only kept from making new crossings.
     let mut exempt: Vec<(u32, u32)> = Vec::new();
-    for ((ca, _), (cb, _)) in crossing_pairs(&chunks, &fam.positions, &vec![true; n_chunk], cell_mm)
-    {
+    for ((ca, _), (cb, _)) in crossing_pairs(
+        &chunks,
+        &fam.positions,
+        &vec![true; n_chunk],
+        cell_mm,
+        false,
+    ) {
         for &(m, _) in owners_of_chunk(ca) {
             for &(n, _) in owners_of_chunk(cb) {
                 if m != n {
@@ -241,7 +246,7 @@ pub(super) fn decimate_family(
         }
         // Different structures must not cross (nor a structure itself): lock the input vertices
         // around each crossing and redo the chunks that hold them.
-        let mut crossings = crossing_pairs(&result, &fam.positions, &fresh, cell_mm);
+        let mut crossings = crossing_pairs(&result, &fam.positions, &fresh, cell_mm, false);
         crossings.retain(|&((ca, _), (cb, _))| relevant(ca, cb));
         crossing_counts.push(crossings.len());
         for &((ca, ta), (cb, tb)) in &crossings {
@@ -320,7 +325,7 @@ pub(super) fn decimate_family(
                     .is_err()
             })
             .collect();
-        for ((ca, _), (cb, _)) in crossing_pairs(&result, &fam.positions, &now, cell_mm) {
+        for ((ca, _), (cb, _)) in crossing_pairs(&result, &fam.positions, &now, cell_mm, false) {
             if !relevant(ca, cb) {
                 continue;
             }

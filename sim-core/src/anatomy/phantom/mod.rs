@@ -270,7 +270,8 @@ impl PhantomParams {
         p.pipeline.upsample = mesh_upsample(voxel_mm);
         // Edges whose midpoints sit more than a twenty-fifth of a voxel off the solids' surfaces
         // are split onto them (simulator choice: on the default grid 3.7 M triangles and every
-        // structure within 4.5 % of its analytic volume, against 3.5 M and 4.6 % at 0.06 voxel).
+        // structure within 4.5 % of its analytic volume, against 3.5 M and 4.6 % at 0.06 voxel;
+        // 3.8 M since refinement also splits beside junctions).
         p.pipeline.surface_tolerance_mm = Some(0.04 * voxel_mm);
         p
     }
@@ -464,7 +465,7 @@ impl PhantomParams {
     /// Meshed from level sets ([`PhantomParams::level_set_meshed`]), layers are thickened to one
     /// voxel only, so that the label volume (sampled at voxel centres) still shows them: the
     /// level-set meshes keep a layer one lattice spacing thick within 5 % of its volume (the
-    /// default grid's 1.5 mm cortex: -2.0 to -4.4 %, measured), and a thicker cortex would leave
+    /// default grid's 1.5 mm cortex: -2.0 to -4.5 %, measured), and a thicker cortex would leave
     /// the thin iliac wing a marrow core thinner than the lattice, which no lattice mesh holds
     /// (-7 % with 1.5 voxels of cortex).
     ///
