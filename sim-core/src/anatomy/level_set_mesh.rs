@@ -52,9 +52,18 @@ fn field_value(g: f64, h: f64) -> f32 {
 /// Samples `f` on `grid` (lattice points at voxel centres) into field values, settling whole
 /// blocks by the Lipschitz bound. Returns the values and the number of evaluations.
 pub fn sample_level_set(f: LevelSetFn<'_>, grid: &VolumeGrid) -> (Vec<f32>, usize) {
+    let (values, _, evals) = sample_bound(f, grid);
+    (values, evals)
+}
+
+/// [`sample_level_set`], also returning the bound itself at every point it evaluated (NaN at
+/// the points of settled blocks), so that extraction need not evaluate the ends of its edges
+/// again.
+fn sample_bound(f: LevelSetFn<'_>, grid: &VolumeGrid) -> (Vec<f32>, Vec<f64>, usize) {
     let [nx, ny, nz] = grid.dims;
     let h = grid.min_spacing_mm();
     let mut values = vec![0f32; grid.len()];
+    let mut bound = vec![f64::NAN; grid.len()];
     let mut evals = 0;
     for bk in (0..nz).step_by(BLOCK) {
         let ek = (bk + BLOCK).min(nz);
@@ -78,11 +87,14 @@ pub fn sample_level_set(f: LevelSetFn<'_>, grid: &VolumeGrid) -> (Vec<f32>, usiz
                 for k in bk..ek {
                     for j in bj..ej {
                         for i in bi..ei {
-                            values[grid.index(i, j, k)] = match settled {
+                            let idx = grid.index(i, j, k);
+                            values[idx] = match settled {
                                 Some(v) => v,
                                 None => {
                                     evals += 1;
-                                    field_value(f(grid.voxel_center_mm(i, j, k)), h)
+                                    let g = f(grid.voxel_center_mm(i, j, k));
+                                    bound[idx] = g;
+                                    field_value(g, h)
                                 }
                             };
                         }
@@ -91,7 +103,7 @@ pub fn sample_level_set(f: LevelSetFn<'_>, grid: &VolumeGrid) -> (Vec<f32>, usiz
             }
         }
     }
-    (values, evals)
+    (values, bound, evals)
 }
 
 /// The zero of `f` on the segment `a -> b` where `fa = f(a)` and `fb = f(b)` have opposite signs,
@@ -153,7 +165,7 @@ pub struct LevelSetSurface {
 /// points must be outside) and places every vertex on it. `None` when a point on the box's faces
 /// is inside.
 pub fn extract_level_set(f: LevelSetFn<'_>, grid: &VolumeGrid) -> Option<LevelSetSurface> {
-    let (values, mut evals) = sample_level_set(f, grid);
+    let (values, bound, mut evals) = sample_bound(f, grid);
     let (mut mesh, mut crossings) = extract_isosurface_keyed(
         &ScalarField {
             grid: *grid,
@@ -164,16 +176,26 @@ pub fn extract_level_set(f: LevelSetFn<'_>, grid: &VolumeGrid) -> Option<LevelSe
     )?;
     let interpolated_mm = mesh.vertices_mm.clone();
     for (v, c) in mesh.vertices_mm.iter_mut().zip(crossings.iter_mut()) {
-        let a = grid.voxel_center_mm(c.lower[0], c.lower[1], c.lower[2]);
-        let b = grid.voxel_center_mm(
+        let upper = [
             c.lower[0] + usize::from(c.axes & 1),
             c.lower[1] + usize::from((c.axes >> 1) & 1),
             c.lower[2] + usize::from((c.axes >> 2) & 1),
-        );
-        // The samples' signs are the bound's; its values there are only known within the clamp
-        // band, so the ends are evaluated again.
-        let (fa, fb) = (f(a), f(b));
-        evals += 2;
+        ];
+        let a = grid.voxel_center_mm(c.lower[0], c.lower[1], c.lower[2]);
+        let b = grid.voxel_center_mm(upper[0], upper[1], upper[2]);
+        // The samples' signs are the bound's; the field values hold it only within the clamp
+        // band, so the ends take the bound kept by the sampling, or are evaluated again where a
+        // settled block kept none.
+        let mut end = |p: [f64; 3], i: [usize; 3]| {
+            let g = bound[grid.index(i[0], i[1], i[2])];
+            if g.is_nan() {
+                evals += 1;
+                f(p)
+            } else {
+                g
+            }
+        };
+        let (fa, fb) = (end(a, c.lower), end(b, upper));
         if (fa < 0.0) == (fb < 0.0) {
             continue;
         }
