@@ -131,7 +131,7 @@ pub fn mesh_family(
         // checks then see the final positions.
         let fallback = fam.fallback.clone();
         let (restored, passes) =
-            fall_back_where_crossing(&mut fam.positions, &input, &fallback, &[], 1);
+            fall_back_where_crossing(&mut fam.positions, &input, &fallback, &[]);
         region_notes.push(format!(
             "level sets: {restored} of {} vertices interpolated where exact positions made surfaces cross ({passes} passes)",
             fam.positions.len()
@@ -216,7 +216,7 @@ pub fn mesh_family(
         let base = fam.positions.len() - parents.len();
         let fallback: Vec<[f64; 3]> = fam.positions[..base].to_vec();
         let (restored, passes) =
-            fall_back_where_crossing(&mut fam.positions, &current, &fallback, &parents, 0);
+            fall_back_where_crossing(&mut fam.positions, &current, &fallback, &parents);
         region_notes.push(format!(
             "level-set refinement: {restored} splits undone where surfaces crossed ({passes} passes)"
         ));
@@ -250,27 +250,29 @@ fn crossing_corners(cross: &[(TriangleRef, TriangleRef)], source: &[Vec<[u32; 3]
 }
 
 /// The fall-back loop of [`mesh_family`] for level-set families: where triangles of two patches
-/// cross (and did not where every vertex is at its fallback), the vertices of both and `rings`
-/// rings around them move to their fallbacks, repeated until nothing new crosses. Vertices
-/// below `fallback.len()` fall back to `fallback`; those after are split vertices, one per
-/// `parents` entry in order, and fall back to the middle of the edge they split.
+/// cross (and did not where every vertex is at its fallback), the vertices of both (and a ring
+/// around them, for exact vertices) move to their fallbacks, repeated until nothing new
+/// crosses. Vertices below `fallback.len()` fall back to `fallback`; those after are split
+/// vertices, one per `parents` entry in order, and fall back to the middle of the edge they
+/// split.
 ///
 /// With exact vertices falling back to interpolated ones (no `parents`), one ring keeps the
 /// fewest vertices off the surface (the loop repeats where that is not enough), and a pair
 /// that crosses where every vertex is back counts only where one of its corners is elsewhere.
-/// For splits (`parents`), only the crossing triangles' corners go back (`rings` 0: with a ring,
-/// 206 k of the default phantom's 259 k splits went back in three rounds, against 105 k, and
-/// the ligamentum flavum lost 0.5 % more of its volume), triangles sharing a corner are compared too (a split beside a junction can fold
-/// over a neighbour's triangle at that corner), and a pair that crossed before the splits (the
-/// flat triangles) is not new and does not count. Returns the vertices moved and the passes.
+/// For splits (`parents`), only the crossing triangles' corners go back (with a ring, 206 k of
+/// the default phantom's 259 k splits went back in three rounds, against 105 k, and the
+/// ligamentum flavum lost 0.5 % more of its volume), triangles sharing a corner are compared
+/// too (a split beside a junction can fold over a neighbour's triangle at that corner), and a
+/// pair that crossed before the splits (the flat triangles) is not new and does not count.
+/// Returns the vertices moved and the passes.
 fn fall_back_where_crossing(
     positions: &mut [[f64; 3]],
     source: &[Vec<[u32; 3]>],
     fallback: &[[f64; 3]],
     parents: &[(u32, u32)],
-    rings: usize,
 ) -> (usize, usize) {
     let splits = !parents.is_empty();
+    let rings = if splits { 0 } else { 1 };
     let all = vec![true; source.len()];
     let base = fallback.len();
     let back_of = |v: usize, pos: &[[f64; 3]]| -> [f64; 3] {

@@ -21,6 +21,7 @@
 //! the junction edges themselves was tried: it changed no structure's volume by 0.1 %, and
 //! where three surfaces meet it folded triangles that share the new vertex.)
 
+use glam::DVec3;
 use rustc_hash::FxHashMap;
 
 use super::par::par_map;
@@ -87,20 +88,6 @@ fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
 /// Edges per parallel job.
 const CHUNK: usize = 4096;
 
-/// Twice the area vector of the triangle `a, b, c` (its normal, outward for a triangle wound as
-/// the patch's first owner holds it).
-fn normal(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> [f64; 3] {
-    let (u, v): ([f64; 3], [f64; 3]) = (
-        std::array::from_fn(|k| b[k] - a[k]),
-        std::array::from_fn(|k| c[k] - a[k]),
-    );
-    [
-        u[1] * v[2] - u[2] * v[1],
-        u[2] * v[0] - u[0] * v[2],
-        u[0] * v[1] - u[1] * v[0],
-    ]
-}
-
 /// Least cosine between a split's move and the edge's normal (outward where the midpoint is
 /// inside, inward where it is outside): a projection that leaves sideways or backwards has found
 /// another sheet of the surface (the other face of a layer thinner than the move) and is not
@@ -114,7 +101,7 @@ fn split_point(
     f: LevelSetFn<'_>,
     pa: [f64; 3],
     pb: [f64; 3],
-    normal: [f64; 3],
+    normal: DVec3,
     tolerance_mm: f64,
 ) -> Option<[f64; 3]> {
     let mid: [f64; 3] = std::array::from_fn(|k| 0.5 * (pa[k] + pb[k]));
@@ -127,11 +114,12 @@ fn split_point(
     }
     let len = dist(pa, pb);
     let on_surface = ON_SURFACE_FRACTION * tolerance_mm;
-    let n_len = normal.iter().map(|x| x * x).sum::<f64>().sqrt();
     project(f, mid, g, on_surface, MAX_MOVE_FRACTION * len).filter(|&q| {
         let d = dist(q, mid);
-        let along = -g.signum() * (0..3).map(|k| (q[k] - mid[k]) * normal[k]).sum::<f64>();
-        d > tolerance_mm && d > MIN_SAGITTA_FRACTION * len && along >= MIN_MOVE_COSINE * d * n_len
+        let along = -g.signum() * (DVec3::from(q) - DVec3::from(mid)).dot(normal);
+        d > tolerance_mm
+            && d > MIN_SAGITTA_FRACTION * len
+            && along >= MIN_MOVE_COSINE * d * normal.length()
     })
 }
 
@@ -167,26 +155,27 @@ pub(super) fn refine_family(
     for _ in 0..rounds {
         // Every edge inside one patch (used twice by it and by no other patch), with that
         // patch and the sum of its triangles' normals, in a deterministic order.
-        let mut users: FxHashMap<(u32, u32), (usize, u32, [f64; 3])> = FxHashMap::default();
+        let mut users: FxHashMap<(u32, u32), (usize, u32, DVec3)> = FxHashMap::default();
         for (p, tris) in triangles.iter().enumerate() {
             for t in tris {
-                let [x, y, z] = t.map(|v| positions[v as usize]);
-                let n = normal(x, y, z);
+                // Twice the area vector: outward as the patch's first owner holds the triangle.
+                let [x, y, z] = t.map(|v| DVec3::from(positions[v as usize]));
+                let n = (y - x).cross(z - x);
                 for k in 0..3 {
                     let (a, b) = (t[k], t[(k + 1) % 3]);
                     let e = users
                         .entry((a.min(b), a.max(b)))
-                        .or_insert((p, 0, [0.0; 3]));
+                        .or_insert((p, 0, DVec3::ZERO));
                     e.1 = if e.0 == p && e.1 != u32::MAX {
                         e.1 + 1
                     } else {
                         u32::MAX
                     };
-                    e.2 = std::array::from_fn(|i| e.2[i] + n[i]);
+                    e.2 += n;
                 }
             }
         }
-        let mut edges: Vec<((u32, u32), usize, [f64; 3])> = users
+        let mut edges: Vec<((u32, u32), usize, DVec3)> = users
             .into_iter()
             .filter(|(e, (_, n, _))| *n == 2 && !settled.contains(e))
             .map(|(e, (p, _, n))| (e, p, n))
