@@ -3,6 +3,7 @@
 //! published means, and closed meshes from the shared pipeline.
 
 use glam::DVec3;
+use sim_core::anatomy::asset::RegionAsset;
 use sim_core::anatomy::phantom::cervical::{self, dims::PUBLISHED};
 use sim_core::anatomy::phantom::model::Anatomy;
 use sim_core::anatomy::pipeline::check_solid;
@@ -263,17 +264,26 @@ fn coarse_cervical_build_is_deterministic_and_closed() {
     );
 }
 
-/// The default grid (1 mm), the cervical phantom every learner gets: every mesh closed; prints
-/// the structure table and the build time. A check of what ships, so it runs with the suite.
+/// The cervical phantom every learner gets (default parameters: 1 mm grid, meshed from level
+/// sets), built once per test binary (the mesh-volume tests read it too).
+pub(crate) fn default_cervical() -> &'static RegionAsset {
+    static A: std::sync::OnceLock<RegionAsset> = std::sync::OnceLock::new();
+    A.get_or_init(|| {
+        let t0 = std::time::Instant::now();
+        let region = cervical::build(&cervical::default_params(), &mut |_| {}).unwrap();
+        eprintln!(
+            "default cervical phantom: {:.1} s",
+            t0.elapsed().as_secs_f64()
+        );
+        region
+    })
+}
+
+/// The default cervical phantom: every mesh closed; prints the structure table. A check of
+/// what ships, so it runs with the suite.
 #[test]
 fn default_cervical_build() {
-    let params = cervical::default_params();
-    let t0 = std::time::Instant::now();
-    let region = cervical::build(&params, &mut |_| {}).unwrap();
-    eprintln!(
-        "default cervical phantom: {:.1} s",
-        t0.elapsed().as_secs_f64()
-    );
+    let region = default_cervical();
     for s in &region.structures {
         check_solid(&s.name, &s.mesh, "cervical").unwrap();
         eprintln!(

@@ -394,29 +394,39 @@ fn phantom_meshes_form_a_laminar_family() {
     assert_eq!(bad, 0, "worst {worst} mm");
 }
 
-/// Largest difference between the priority rule and the linear sum on a ray through the phantom
-/// meshed from its level sets, mm. Vertices lie on the solids' surfaces, and where that makes
-/// surfaces cross they fall back to the masks' positions (see `interfaces`); where a surface on
-/// its level set meets an interpolated one a sliver remains (measured: 0.023 mm on 2 of 3000
-/// rays on the 5 mm grid, 0.083 mm on 3 with another L5 height; 0.42 mm on 73 rays before
-/// crossing surfaces fell back). A tenth of a millimetre of tissue changes a ray's transmission
-/// by under 0.3 % at 80 kVp. This is why the shipped phantom still meshes its masks.
-const LEVEL_SET_SLIVER_MM: f64 = 0.1;
-
 /// The phantom meshed from its level sets on a 5 mm grid: the priority rule equals the linear
-/// sum up to [`LEVEL_SET_SLIVER_MM`] on at most one ray in 500.
+/// sum on every ray, as for mask meshes (measured 5.7e-13 mm at worst). Where surfaces on their
+/// level sets would cross, vertices fall back to the masks' positions (see `interfaces`); the
+/// slivers once measured here (0.023 mm on 2 of 3000 rays) were two defects since mended: a
+/// decimation fold through a neighbour's triangle at a shared corner, and the sampling settling
+/// a block inside a structure while a corner of it lay in a later one.
 #[test]
-fn level_set_phantom_meshes_are_laminar_to_slivers() {
+fn level_set_phantom_meshes_are_laminar() {
     let params = PhantomParams::level_set_meshed(5.0);
     let region = phantom::build(&params, &mut |_| {}).unwrap();
     let (worst, bad) = phantom_ray_differences(&region);
     eprintln!(
         "5 mm level-set phantom: worst priority-vs-linear difference {worst:.2e} mm, {bad} of 3000 rays over {LAMINAR_TOLERANCE_MM} mm"
     );
-    assert!(
-        worst < LEVEL_SET_SLIVER_MM && bad <= 6,
-        "worst {worst} mm, {bad} rays"
-    );
+    assert_eq!(bad, 0, "worst {worst} mm");
+}
+
+/// Tolerance for the shipped phantom, read back from its folder as the platform loads it: its
+/// positions are stored as `f32`, whose spacing at 100 mm is 7.6e-6 mm, so chords of meshes that
+/// meet there agree to about that (measured 6.7e-7 mm at worst on 3000 rays); an overlap the
+/// meshing made would be hundredths of a millimetre or more.
+const STORED_LAMINAR_TOLERANCE_MM: f64 = 1e-5;
+
+/// The shipped phantom (default parameters: 1.5 mm grid meshed from level sets, the build the
+/// morphometry tests share and the platform loads): the priority rule equals the linear sum on
+/// every ray to [`STORED_LAMINAR_TOLERANCE_MM`] (before the two mends above, 0.85 mm of psoas
+/// doubled a piece of the L3 root on one ray).
+#[test]
+fn shipped_phantom_meshes_are_laminar() {
+    let region = crate::morphometry::default_phantom();
+    let (worst, _) = phantom_ray_differences(region);
+    eprintln!("shipped phantom: worst priority-vs-linear difference {worst:.2e} mm");
+    assert!(worst < STORED_LAMINAR_TOLERANCE_MM, "worst {worst} mm");
 }
 
 /// Build time and triangle count of the phantom on the default 1.5 mm grid (figures for the

@@ -100,7 +100,7 @@ pub fn mesh_upsample(voxel_mm: f64) -> u32 {
 const MAX_THICKENED_CORTEX_MM: f64 = 7.5;
 
 /// Generator identifier recorded in the provenance; bump the number when the model changes shape.
-pub const GENERATOR: &str = "lumbosacral-phantom/4";
+pub const GENERATOR: &str = "lumbosacral-phantom/5";
 
 /// Region name and default folder name under `assets/`.
 pub const REGION_NAME: &str = "lumbar-phantom";
@@ -209,13 +209,16 @@ pub struct PhantomParams {
 }
 
 impl Default for PhantomParams {
+    /// What the platform ships: the 1.5 mm grid meshed from the solids' level sets
+    /// ([`PhantomParams::level_set_meshed`]).
     fn default() -> Self {
-        PhantomParams::with_voxel_mm(1.5)
+        PhantomParams::level_set_meshed(1.5)
     }
 }
 
 impl PhantomParams {
-    /// Default anatomy and extent on a grid of `voxel_mm` (tests use coarser grids).
+    /// Default anatomy and extent on a grid of `voxel_mm`, meshed from the masks' 0.5 levels
+    /// (tests use coarser grids: a mask build is several times faster than a level-set one).
     pub fn with_voxel_mm(voxel_mm: f64) -> PhantomParams {
         PhantomParams {
             anatomy: AnatomyParams::default(),
@@ -255,8 +258,9 @@ impl PhantomParams {
     /// lattice of about 1.5 mm ([`mesh_upsample`]), and layers thickened to one voxel instead of
     /// one and a half (see [`PhantomParams::effective_anatomy`]). Every lumbar structure's mesh
     /// is then within 5 % of its analytic volume on the 1.5 mm grid and within 10 % at 3 mm (the
-    /// tests' `mesh_volume`). Not yet what the platform ships: its meshes are laminar only to
-    /// slivers of a few hundredths of a millimetre (the tests' `laminar`).
+    /// tests' `mesh_volume`). What the platform ships on the 1.5 mm grid
+    /// ([`PhantomParams::default`]); its meshes are laminar to round-off, as the mask meshes are
+    /// (the tests' `laminar`).
     pub fn level_set_meshed(voxel_mm: f64) -> PhantomParams {
         PhantomParams::with_voxel_mm(voxel_mm).meshed_from_level_sets()
     }

@@ -35,8 +35,8 @@ mod soft;
 
 use std::path::Path;
 
-use super::model::{Anatomy, AnatomyParams, Landmark};
 use super::model::Parts;
+use super::model::{Anatomy, AnatomyParams, Landmark};
 use super::{PhantomParams, PhantomVolumes};
 use crate::anatomy::asset::RegionAsset;
 use crate::anatomy::error::AnatomyError;
@@ -44,7 +44,7 @@ use crate::anatomy::pipeline::Progress;
 use crate::material::MaterialClass;
 
 /// Generator identifier recorded in the provenance; bump the number when the model changes shape.
-pub const GENERATOR: &str = "cervical-phantom/1";
+pub const GENERATOR: &str = "cervical-phantom/2";
 
 /// Region name and default folder name under `assets/`.
 pub const REGION_NAME: &str = "cervical-phantom";
@@ -53,10 +53,10 @@ pub const REGION_NAME: &str = "cervical-phantom";
 /// 2.5 mm posterior epidural space that the lumbar phantom's 1.5 mm grid would blur (our choice).
 pub const DEFAULT_VOXEL_MM: f64 = 1.0;
 
-
-/// The default parameters.
+/// The default parameters, what the platform ships: the default grid meshed from the solids'
+/// level sets ([`PhantomParams::meshed_from_level_sets`]).
 pub fn default_params() -> PhantomParams {
-    params_with_voxel_mm(DEFAULT_VOXEL_MM)
+    params_with_voxel_mm(DEFAULT_VOXEL_MM).meshed_from_level_sets()
 }
 
 /// Default anatomy and extent of the neck on a grid of `voxel_mm` (tests use coarser grids).

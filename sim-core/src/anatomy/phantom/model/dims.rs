@@ -44,9 +44,10 @@ pub(super) struct LevelDims {
 }
 
 /// L1..L5 (Panjabi 1992 and Zindrick 1987 means, rounded; see the module docs). The L5 body is
-/// 26 mm tall, within two SD of both its anterior (30.3 +- 1.9 mm) and posterior (26.3 +- 1.9 mm)
-/// CT heights (Cook and Baker 2021, Table 6): the model's bodies are not wedged, so one height
-/// serves both.
+/// 28 mm tall, the mean of its anterior (30.3 +- 1.9 mm) and posterior (26.3 +- 1.9 mm) CT
+/// heights (Cook and Baker 2021, Table 6), rounded: the model's bodies are not wedged, so one
+/// height serves both, each within 1.3 SD on the meshes. (At 26 mm the anterior height measured
+/// 26.50 mm on the level-set meshes, exactly 2 SD below its mean.)
 pub(super) const LUMBAR: [LevelDims; 5] = [
     LevelDims {
         name: "L1",
@@ -112,7 +113,7 @@ pub(super) const LUMBAR: [LevelDims; 5] = [
         name: "L5",
         body_width: 49.0,
         body_depth: 35.0,
-        body_height: 26.0,
+        body_height: 28.0,
         pedicle_width: 18.0,
         pedicle_height: 14.0,
         pedicle_angle_deg: 30.0,
