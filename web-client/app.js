@@ -189,6 +189,7 @@ const PREPARATION_STAGES = {
   voxelize: 'building the body from its parameters',
   labels: 'labelling the structures',
   mesh: 'meshing the structures',
+  interfaces: 'joining the surfaces of touching structures',
 };
 
 /** What the server says while a station's anatomy is prepared (503 `anatomy_preparing`). */

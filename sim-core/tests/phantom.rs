@@ -456,7 +456,9 @@ fn coarse_build_is_deterministic_and_its_meshes_are_closed() {
     })
     .unwrap();
     assert!(
-        stages.contains_key("voxelize") && stages.contains_key("mesh"),
+        ["voxelize", "labels", "mesh", "interfaces"]
+            .iter()
+            .all(|s| stages.contains_key(s)),
         "{stages:?}"
     );
     check_region(&a, &params);

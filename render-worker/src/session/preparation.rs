@@ -29,7 +29,7 @@ pub enum RegionReadiness {
     /// Being loaded or built.
     Building {
         /// Stage of the build (`"start"`, or the phantom pipeline's `"voxelize"`, `"labels"`,
-        /// `"mesh"`).
+        /// `"mesh"`, `"interfaces"`).
         stage: String,
         /// Estimated fraction done, 0 to 1 (see [`build_fraction`]).
         fraction: f64,
@@ -51,17 +51,20 @@ pub enum RegionReadiness {
 }
 
 /// Expected duration of a phantom build when no progress has been reported yet, s. Measured:
-/// about 18 s for the default lumbar phantom on the 2-core development machine.
-pub const EXPECTED_BUILD_S: f64 = 20.0;
+/// 95 s for the default lumbar phantom (meshed from level sets) on the 2-core development
+/// machine, 34 s for the neck, 110-115 s for the slim and obese habitus.
+pub const EXPECTED_BUILD_S: f64 = 100.0;
 
 /// Longest `Retry-After` handed out, s. Simulator choice: a client told to come back in at most
 /// a few seconds shows progress that moves, and starts within that much of the build's end.
 pub const MAX_RETRY_AFTER_S: f64 = 3.0;
 
 /// Fraction of a phantom build done at a progress report. The stage weights are a simulator
-/// choice from one timed build of the default phantom on 2 cores (voxelization about 40 % of
-/// the time, label volume 10 %, meshing the structures the rest); they only shape the progress
-/// shown and the `Retry-After` estimate.
+/// choice from timed builds of the default lumbar phantom on 2 cores: voxelization and the
+/// label volume 5-6 % of the time, extracting the structures 4 % (mask meshes) to 26 % (level
+/// sets), and the family steps that share their interfaces ("interfaces": welding, level-set
+/// placement, decimation, refinement) the rest, 68-77 % (66 of 97 s, 20 of 27 s). They only
+/// shape the progress shown and the `Retry-After` estimate.
 pub fn build_fraction(p: &Progress) -> f64 {
     let part = if p.total == 0 {
         0.0
@@ -69,9 +72,10 @@ pub fn build_fraction(p: &Progress) -> f64 {
         (p.done as f64 / p.total as f64).clamp(0.0, 1.0)
     };
     match p.stage {
-        "voxelize" => 0.40 * part,
-        "labels" => 0.40 + 0.10 * part,
-        "mesh" => 0.50 + 0.45 * part,
+        "voxelize" => 0.05 * part,
+        "labels" => 0.05 + 0.05 * part,
+        "mesh" => 0.10 + 0.20 * part,
+        "interfaces" => 0.30 + 0.70 * part,
         _ => 0.0,
     }
 }

@@ -290,6 +290,7 @@ pub fn mesh_structure(
         params.decimation.as_ref(),
         &[],
         None,
+        &mut |_, _, _| {},
     )?;
     Ok(out.meshes.remove(0))
 }
@@ -431,12 +432,28 @@ pub fn build_region_on_level_sets(
         },
     );
     let extracted: Vec<ExtractedSurface> = extracted.into_iter().collect::<Result<_, _>>()?;
+    progress(&Progress {
+        stage: "mesh",
+        done: total,
+        total,
+        item: String::new(),
+    });
+    // The family steps (welding, decimation, refinement) take most of a build: 20 of 27 s for the
+    // default phantom's mask meshes and 66 of 97 s for its level-set meshes on 2 cores.
     let meshed = mesh_family(
         &extracted,
         params.smoothing.as_ref(),
         params.decimation.as_ref(),
         &kept_sets,
         params.surface_tolerance_mm,
+        &mut |step, done, total| {
+            progress(&Progress {
+                stage: "interfaces",
+                done,
+                total,
+                item: step.to_string(),
+            });
+        },
     )?;
     drop(extracted);
     let mut out = Vec::with_capacity(total);
@@ -450,12 +467,6 @@ pub fn build_region_on_level_sets(
         });
     }
     notes.extend(meshed.notes);
-    progress(&Progress {
-        stage: "mesh",
-        done: total,
-        total,
-        item: String::new(),
-    });
     Ok(RegionAsset {
         name: name.to_string(),
         structures: out,

@@ -71,14 +71,28 @@ const REFINE_ROUNDS: usize = 5;
 /// interfaces exactly (see the module doc), then refines the patches of structures that come
 /// with a level set (`level_sets`, one per item or empty) until their edges' midpoints are within
 /// `surface_tolerance_mm` of the surface. Returns each mesh with its notes, in input order; every
-/// mesh is checked (closed, consistently wound, positive volume) after each stage.
+/// mesh is checked (closed, consistently wound, positive volume) after each stage, and
+/// `progress` is told each stage done as `(stage, done, total)`.
 pub fn mesh_family(
     items: &[ExtractedSurface],
     smoothing: Option<&TaubinParams>,
     decimation: Option<&DecimationParams>,
     level_sets: &[Option<LevelSetFn<'_>>],
     surface_tolerance_mm: Option<f64>,
+    progress: &mut dyn FnMut(&'static str, usize, usize),
 ) -> Result<FamilyMeshes, AnatomyError> {
+    let level_set_family = level_sets.iter().any(Option::is_some);
+    let refining = surface_tolerance_mm.is_some() && level_set_family;
+    let total = 1
+        + usize::from(level_set_family)
+        + usize::from(smoothing.is_some())
+        + usize::from(decimation.is_some())
+        + 2 * usize::from(refining);
+    let mut done = 0;
+    let mut step = |stage: &'static str| {
+        done += 1;
+        progress(stage, done, total);
+    };
     let mut fam = weld_and_partition(items);
     let names: Vec<String> = items.iter().map(|it| it.name.clone()).collect();
     let mut notes: Vec<Vec<String>> = vec![Vec::new(); items.len()];
@@ -122,7 +136,7 @@ pub fn mesh_family(
         Ok(meshes)
     }
     let mut meshes = check_all(&fam, &names, &input, "welding shared interfaces")?;
-    let level_set_family = level_sets.iter().any(Option::is_some);
+    step("weld");
     if level_set_family {
         // Every vertex starts on its level set. Where exact positions make two surfaces cross
         // (two structures passing within a lattice cell of each other), the vertices of the
@@ -137,6 +151,7 @@ pub fn mesh_family(
             fam.positions.len()
         ));
         meshes = check_all(&fam, &names, &input, "placing vertices on the level sets")?;
+        step("level sets");
     }
     if let Some(sp) = smoothing {
         let extracted_positions = fam.positions.clone();
@@ -172,6 +187,7 @@ pub fn mesh_family(
             "smoothing: {restored} vertices restored to their extracted positions in {passes} passes where surfaces crossed"
         ));
         meshes = check_all(&fam, &names, &input, "smoothing")?;
+        step("smoothing");
     }
     let mut current = input;
     if let Some(dp) = decimation {
@@ -184,10 +200,11 @@ pub fn mesh_family(
         }
         meshes = check_all(&fam, &names, &result, "decimation")?;
         current = result;
+        step("decimation");
     }
     let mut parents = Vec::new();
     if let Some(tol) = surface_tolerance_mm
-        && level_sets.iter().any(Option::is_some)
+        && refining
     {
         let before: Vec<usize> = meshes.iter().map(TriMesh::triangle_count).collect();
         let refined = refine::refine_family(&fam, &current, level_sets, tol, REFINE_ROUNDS);
@@ -209,6 +226,7 @@ pub fn mesh_family(
             "level-set refinement: {} edges split (tolerance {tol} mm)",
             refined.splits
         ));
+        step("refinement");
     }
     if !parents.is_empty() {
         // A split that bulges a surface into another is undone (its vertex back to the middle
@@ -226,6 +244,9 @@ pub fn mesh_family(
             &current,
             "undoing splits where surfaces crossed",
         )?;
+    }
+    if refining {
+        step("undoing crossing splits");
     }
     Ok(FamilyMeshes {
         meshes: meshes.into_iter().zip(notes).collect(),
