@@ -202,14 +202,13 @@ pub fn mesh_family(
         current = result;
         step("decimation");
     }
-    let mut parents = Vec::new();
     if let Some(tol) = surface_tolerance_mm
         && refining
     {
         let before: Vec<usize> = meshes.iter().map(TriMesh::triangle_count).collect();
         let refined = refine::refine_family(&fam, &current, level_sets, tol, REFINE_ROUNDS);
         fam.positions = refined.positions;
-        parents = refined.parents;
+        let parents = refined.parents;
         current = refined.triangles;
         meshes = check_all(&fam, &names, &current, "refinement on the level set")?;
         for (m, n) in notes.iter_mut().enumerate() {
@@ -227,25 +226,23 @@ pub fn mesh_family(
             refined.splits
         ));
         step("refinement");
-    }
-    if !parents.is_empty() {
-        // A split that bulges a surface into another is undone (its vertex back to the middle
-        // of the edge it split), with a ring around it.
-        let base = fam.positions.len() - parents.len();
-        let fallback: Vec<[f64; 3]> = fam.positions[..base].to_vec();
-        let (restored, passes) =
-            fall_back_where_crossing(&mut fam.positions, &current, &fallback, &parents);
-        region_notes.push(format!(
-            "level-set refinement: {restored} splits undone where surfaces crossed ({passes} passes)"
-        ));
-        meshes = check_all(
-            &fam,
-            &names,
-            &current,
-            "undoing splits where surfaces crossed",
-        )?;
-    }
-    if refining {
+        if !parents.is_empty() {
+            // A split that bulges a surface into another is undone (its vertex back to the
+            // middle of the edge it split; see `fall_back_where_crossing`).
+            let base = fam.positions.len() - parents.len();
+            let fallback: Vec<[f64; 3]> = fam.positions[..base].to_vec();
+            let (restored, passes) =
+                fall_back_where_crossing(&mut fam.positions, &current, &fallback, &parents);
+            region_notes.push(format!(
+                "level-set refinement: {restored} splits undone where surfaces crossed ({passes} passes)"
+            ));
+            meshes = check_all(
+                &fam,
+                &names,
+                &current,
+                "undoing splits where surfaces crossed",
+            )?;
+        }
         step("undoing crossing splits");
     }
     Ok(FamilyMeshes {
