@@ -462,20 +462,7 @@ impl LBuffer {
                 let Some(bufs) = &self.anatomy.buffers.bufs else {
                     continue;
                 };
-                let runs = match list {
-                    Some(Some(runs)) => runs,
-                    Some(None) => Vec::new(),
-                    None => vec![all],
-                };
-                if !runs.iter().all(|r| r.is_empty()) {
-                    pass.set_pipeline(pipeline);
-                    pass.set_bind_group(0, &bind, &[]);
-                    pass.set_vertex_buffer(0, bufs.vertices.slice(..));
-                    pass.set_index_buffer(bufs.indices.slice(..), wgpu::IndexFormat::Uint32);
-                    for r in runs {
-                        pass.draw_indexed(r, 0, 0..1);
-                    }
-                }
+                draw_runs(&mut pass, pipeline, &bind, bufs, runs_or(list, all));
             }
         }
         let needle = self.needle.as_ref()?;
@@ -501,24 +488,9 @@ impl LBuffer {
             let attachments = [attach(&vd, 0.0)];
             let mut pass = encoder.begin_render_pass(&pass_desc("fluoro displaced", &attachments));
             if let (Some(bufs), Some([x, y, w, h])) = (&self.anatomy.buffers.bufs, rect) {
-                let runs = match disp_list {
-                    Some(Some(runs)) => runs,
-                    Some(None) => Vec::new(),
-                    None => {
-                        let all = 0..bufs.index_count;
-                        vec![all]
-                    }
-                };
-                if !runs.is_empty() {
-                    pass.set_pipeline(&pipelines.displaced);
-                    pass.set_bind_group(0, &bind, &[]);
-                    pass.set_scissor_rect(x, y, w, h);
-                    pass.set_vertex_buffer(0, bufs.vertices.slice(..));
-                    pass.set_index_buffer(bufs.indices.slice(..), wgpu::IndexFormat::Uint32);
-                    for r in runs {
-                        pass.draw_indexed(r, 0, 0..1);
-                    }
-                }
+                pass.set_scissor_rect(x, y, w, h);
+                let runs = runs_or(disp_list, 0..bufs.index_count);
+                draw_runs(&mut pass, &pipelines.displaced, &bind, bufs, runs);
             }
         }
         rect
@@ -606,6 +578,40 @@ impl LBuffer {
             }
         }
         (!runs.is_empty()).then_some(runs)
+    }
+}
+
+/// The runs of the anatomy's index buffer to draw: the culled ones (`Some`), none
+/// (`Some(None)`: no chunk reaches the target), or, without culling, `all`.
+fn runs_or(
+    culled: Option<Option<Vec<std::ops::Range<u32>>>>,
+    all: std::ops::Range<u32>,
+) -> Vec<std::ops::Range<u32>> {
+    match culled {
+        Some(Some(runs)) => runs,
+        Some(None) => Vec::new(),
+        None => vec![all],
+    }
+}
+
+/// Records `pipeline` drawing `runs` of the anatomy's index buffer in `pass` (nothing when every
+/// run is empty).
+fn draw_runs(
+    pass: &mut wgpu::RenderPass<'_>,
+    pipeline: &wgpu::RenderPipeline,
+    bind: &wgpu::BindGroup,
+    bufs: &MeshBuffers,
+    runs: Vec<std::ops::Range<u32>>,
+) {
+    if runs.iter().all(|r| r.is_empty()) {
+        return;
+    }
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, bind, &[]);
+    pass.set_vertex_buffer(0, bufs.vertices.slice(..));
+    pass.set_index_buffer(bufs.indices.slice(..), wgpu::IndexFormat::Uint32);
+    for r in runs {
+        pass.draw_indexed(r, 0, 0..1);
     }
 }
 
