@@ -13,88 +13,13 @@
 
 use glam::{DMat3, DVec2, DVec3};
 
-/// An axis-aligned box `(min, max)` in millimetres.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Aabb {
-    /// Lower corner.
-    pub min: DVec3,
-    /// Upper corner.
-    pub max: DVec3,
-}
+mod aabb;
+mod bound;
+mod cull;
 
-impl Aabb {
-    /// The box `centre +- half`.
-    pub fn centered(centre: DVec3, half: DVec3) -> Aabb {
-        Aabb {
-            min: centre - half,
-            max: centre + half,
-        }
-    }
-
-    /// An infinite box (for unbounded shapes such as half-spaces).
-    pub fn everything() -> Aabb {
-        Aabb {
-            min: DVec3::splat(f64::NEG_INFINITY),
-            max: DVec3::splat(f64::INFINITY),
-        }
-    }
-
-    /// Smallest box holding both.
-    pub fn union(self, o: Aabb) -> Aabb {
-        Aabb {
-            min: self.min.min(o.min),
-            max: self.max.max(o.max),
-        }
-    }
-
-    /// Overlap of both (may be empty: some `min > max`).
-    pub fn intersect(self, o: Aabb) -> Aabb {
-        Aabb {
-            min: self.min.max(o.min),
-            max: self.max.min(o.max),
-        }
-    }
-
-    /// Grown by `r` on every side.
-    pub fn expand(self, r: f64) -> Aabb {
-        Aabb {
-            min: self.min - DVec3::splat(r),
-            max: self.max + DVec3::splat(r),
-        }
-    }
-
-    /// True when the box holds no point.
-    pub fn is_empty(&self) -> bool {
-        self.min.x > self.max.x || self.min.y > self.max.y || self.min.z > self.max.z
-    }
-
-    /// Whether the box is finite on every side.
-    pub fn is_finite(&self) -> bool {
-        self.min.is_finite() && self.max.is_finite()
-    }
-
-    /// Box of this box's corners mapped by `f` (exact for affine maps).
-    fn map_corners(self, f: impl Fn(DVec3) -> DVec3) -> Aabb {
-        if !self.is_finite() {
-            return Aabb::everything();
-        }
-        let mut out = Aabb {
-            min: DVec3::splat(f64::INFINITY),
-            max: DVec3::splat(f64::NEG_INFINITY),
-        };
-        for c in 0..8 {
-            let p = DVec3::new(
-                if c & 1 == 0 { self.min.x } else { self.max.x },
-                if c & 2 == 0 { self.min.y } else { self.max.y },
-                if c & 4 == 0 { self.min.z } else { self.max.z },
-            );
-            let q = f(p);
-            out.min = out.min.min(q);
-            out.max = out.max.max(q);
-        }
-        out
-    }
-}
+pub use aabb::Aabb;
+pub use bound::Cull;
+use bound::MARGIN_MM;
 
 /// A rigid placement: `world = rotation * local + translation`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -217,6 +142,10 @@ pub enum Sdf {
     Placed(Box<Sdf>, Rigid),
     /// The child stretched by `scale` along the local axes (a distance bound, not exact).
     Scaled(Box<Sdf>, DVec3),
+    /// The child unchanged, with a lower bound of its value away from its box that lets a
+    /// union or a subtraction skip it where it cannot change their value (see
+    /// [`Sdf::prepared`]).
+    Bounded(Box<Sdf>, Cull),
 }
 
 /// Polynomial smooth minimum (Quilez): equal to `min(a, b)` when `|a - b| >= k`, rounded within.
@@ -299,22 +228,48 @@ impl Sdf {
                 d
             }
             Sdf::HalfSpace { normal, offset } => normal.dot(p) - offset,
-            Sdf::Union(c) => c.iter().fold(f64::INFINITY, |d, s| d.min(s.eval(p))),
+            // A child skipped here (its lower bound shows it cannot lower the minimum, or lies
+            // beyond the blend) would leave the value unchanged bit for bit (see `cull`).
+            Sdf::Union(c) => c.iter().fold(f64::INFINITY, |d, s| {
+                if s.lower_bound(p) > d + MARGIN_MM {
+                    d
+                } else {
+                    d.min(s.eval(p))
+                }
+            }),
             Sdf::SmoothUnion(c, k) => {
                 let mut it = c.iter();
                 let first = it.next().map_or(f64::INFINITY, |s| s.eval(p));
+                let beyond = k.max(0.0) + MARGIN_MM;
                 it.fold(first, |d, s| {
-                    // Skip children far beyond the blend: they cannot change the result.
-                    let e = s.eval(p);
-                    smin(d, e, *k)
+                    if s.lower_bound(p) > d + beyond {
+                        d
+                    } else {
+                        smin(d, s.eval(p), *k)
+                    }
                 })
             }
             Sdf::Intersect(c) => c.iter().fold(f64::NEG_INFINITY, |d, s| d.max(s.eval(p))),
-            Sdf::Subtract(a, b) => a.eval(p).max(-b.eval(p)),
-            Sdf::SmoothSubtract(a, b, k) => -smin(-a.eval(p), b.eval(p), *k),
+            Sdf::Subtract(a, b) => {
+                let fa = a.eval(p);
+                if b.lower_bound(p) > -fa + MARGIN_MM {
+                    fa
+                } else {
+                    fa.max(-b.eval(p))
+                }
+            }
+            Sdf::SmoothSubtract(a, b, k) => {
+                let fa = a.eval(p);
+                if b.lower_bound(p) > -fa + k.max(0.0) + MARGIN_MM {
+                    fa
+                } else {
+                    -smin(-fa, b.eval(p), *k)
+                }
+            }
             Sdf::Offset(a, r) => a.eval(p) - r,
             Sdf::Placed(a, rigid) => a.eval(rigid.to_local(p)),
             Sdf::Scaled(a, s) => a.eval(p / *s) * s.min_element(),
+            Sdf::Bounded(a, _) => a.eval(p),
         }
     }
 
@@ -358,6 +313,7 @@ impl Sdf {
             Sdf::Offset(a, r) => a.bounds().expand(r.max(0.0)),
             Sdf::Placed(a, rigid) => a.bounds().map_corners(|q| rigid.to_world(q)),
             Sdf::Scaled(a, s) => a.bounds().map_corners(|q| q * *s),
+            Sdf::Bounded(a, _) => a.bounds(),
         }
     }
 

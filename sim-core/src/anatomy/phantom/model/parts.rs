@@ -31,7 +31,8 @@ impl Parts {
         self.0.push(PhantomPart {
             name: name.to_string(),
             material,
-            sdf,
+            // Children that cannot change the value at a point are skipped (same values).
+            sdf: sdf.prepared(),
             nested,
         });
     }
