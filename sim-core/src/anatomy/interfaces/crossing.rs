@@ -89,6 +89,158 @@ fn corner_sharing_triangles_cross(p: [[f64; 3]; 3], q: [[f64; 3]; 3]) -> bool {
     up.dot(uq) > 0.0 && lp.min(lq) > 1e-6 * 1e-3 && up.cross(uq).length() <= 1e-6 * lp * lq
 }
 
+/// A triangle's axis-aligned box, mm.
+type TriBox = ([f64; 3], [f64; 3]);
+
+/// A triangle pair as `(patch, triangle index)` pairs.
+type Pair = ((u32, u32), (u32, u32));
+
+/// The box of triangle `t`.
+fn triangle_box(t: [u32; 3], positions: &[[f64; 3]]) -> TriBox {
+    let v = t.map(|g| positions[g as usize]);
+    let lo: [f64; 3] = std::array::from_fn(|a| v[0][a].min(v[1][a]).min(v[2][a]));
+    let hi: [f64; 3] = std::array::from_fn(|a| v[0][a].max(v[1][a]).max(v[2][a]));
+    (lo, hi)
+}
+
+/// The cells of a uniform grid of edge `cell_mm` that `b` meets, visited in order.
+fn for_cells(b: &TriBox, cell_mm: f64, mut f: impl FnMut([i64; 3])) {
+    let c0 = b.0.map(|x| (x / cell_mm).floor() as i64);
+    let c1 = b.1.map(|x| (x / cell_mm).floor() as i64);
+    for z in c0[2]..=c1[2] {
+        for y in c0[1]..=c1[1] {
+            for x in c0[0]..=c1[0] {
+                f([x, y, z]);
+            }
+        }
+    }
+}
+
+fn boxes_overlap(a: &TriBox, b: &TriBox) -> bool {
+    !(0..3).any(|d| a.0[d] > b.1[d] || b.0[d] > a.1[d])
+}
+
+/// Whether triangles `a` and `b` (of different patches) cross: [`triangles_cross`] when they share
+/// no corner, [`corner_sharing_triangles_cross`] when they share one and `corners` is set; never
+/// when they share an edge (they meet along it).
+fn pair_crosses(a: [u32; 3], b: [u32; 3], positions: &[[f64; 3]], corners: bool) -> bool {
+    let shared = a.iter().filter(|v| b.contains(v)).count();
+    match shared {
+        0 => triangles_cross(
+            a.map(|g| positions[g as usize]),
+            b.map(|g| positions[g as usize]),
+        ),
+        1 if corners => {
+            let s = a.iter().position(|v| b.contains(v)).unwrap_or(0);
+            let r = b.iter().position(|&v| v == a[s]).unwrap_or(0);
+            corner_sharing_triangles_cross(
+                [a[s], a[(s + 1) % 3], a[(s + 2) % 3]].map(|g| positions[g as usize]),
+                [b[r], b[(r + 1) % 3], b[(r + 2) % 3]].map(|g| positions[g as usize]),
+            )
+        }
+        _ => false,
+    }
+}
+
+/// Every triangle of a family with its `(patch, index)` and box, and the triangles of each grid
+/// cell its box meets (ids in ascending order within a cell). Two triangles whose boxes overlap
+/// share a cell.
+struct TriangleGrid {
+    tris: Vec<(u32, u32)>,
+    boxes: Vec<TriBox>,
+    cells: FxHashMap<[i64; 3], Vec<u32>>,
+    cell_mm: f64,
+}
+
+impl TriangleGrid {
+    fn new(source: &[Vec<[u32; 3]>], positions: &[[f64; 3]], cell_mm: f64) -> TriangleGrid {
+        let mut tris: Vec<(u32, u32)> = Vec::new();
+        let mut boxes: Vec<TriBox> = Vec::new();
+        let mut cells: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
+        for (p, ts) in source.iter().enumerate() {
+            for (i, t) in ts.iter().enumerate() {
+                let b = triangle_box(*t, positions);
+                let id = tris.len() as u32;
+                tris.push((p as u32, i as u32));
+                for_cells(&b, cell_mm, |c| cells.entry(c).or_default().push(id));
+                boxes.push(b);
+            }
+        }
+        TriangleGrid {
+            tris,
+            boxes,
+            cells,
+            cell_mm,
+        }
+    }
+
+    /// The triangle `id`'s corners.
+    fn corners(&self, source: &[Vec<[u32; 3]>], id: u32) -> [u32; 3] {
+        let (p, t) = self.tris[id as usize];
+        source[p as usize][t as usize]
+    }
+
+    /// The pair of triangles `i` and `j`, the lower id first.
+    fn pair(&self, i: u32, j: u32) -> Pair {
+        let (a, b) = (self.tris[i as usize], self.tris[j as usize]);
+        if i < j { (a, b) } else { (b, a) }
+    }
+
+    /// Every crossing pair with a triangle of a patch in `fresh` (sorted, each once), tested
+    /// cell by cell in parallel.
+    fn crossing_pairs(
+        &self,
+        source: &[Vec<[u32; 3]>],
+        positions: &[[f64; 3]],
+        fresh: &[bool],
+        corners: bool,
+    ) -> Vec<Pair> {
+        let tris = &self.tris;
+        let cells: Vec<&Vec<u32>> = self
+            .cells
+            .values()
+            .filter(|c| {
+                c.len() > 1
+                    && c.iter().any(|&i| fresh[tris[i as usize].0 as usize])
+                    && c.iter()
+                        .any(|&i| tris[i as usize].0 != tris[c[0] as usize].0)
+            })
+            .collect();
+        let chunk = 256;
+        let found = par_map(
+            cells.len().div_ceil(chunk),
+            &|ci| {
+                let mut out = Vec::new();
+                for cell in &cells[ci * chunk..((ci + 1) * chunk).min(cells.len())] {
+                    for (k, &i) in cell.iter().enumerate() {
+                        let pi = tris[i as usize].0;
+                        let a = self.corners(source, i);
+                        let abox = &self.boxes[i as usize];
+                        for &j in &cell[k + 1..] {
+                            let pj = tris[j as usize].0;
+                            if pi == pj || !(fresh[pi as usize] || fresh[pj as usize]) {
+                                continue;
+                            }
+                            if !boxes_overlap(abox, &self.boxes[j as usize]) {
+                                continue;
+                            }
+                            if pair_crosses(a, self.corners(source, j), positions, corners) {
+                                out.push(self.pair(i, j));
+                            }
+                        }
+                    }
+                }
+                out
+            },
+            &mut |_| {},
+        );
+        let mut pairs: Vec<_> = found.into_iter().flatten().collect();
+        pairs.sort_unstable();
+        pairs.dedup();
+        pairs
+    }
+}
+
 /// Pairs of triangles from different patches that cross each other (see [`triangles_cross`]),
 /// as `(patch, triangle index)` pairs, sorted. Only pairs with at least one triangle from a
 /// patch in `fresh` are tested. Triangles sharing an edge are not compared (they meet along
@@ -100,94 +252,147 @@ pub(super) fn crossing_pairs(
     fresh: &[bool],
     cell_mm: f64,
     corners: bool,
-) -> Vec<((u32, u32), (u32, u32))> {
-    let mut tris: Vec<(u32, u32)> = Vec::new();
-    let mut boxes: Vec<([f64; 3], [f64; 3])> = Vec::new();
-    let mut cells: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
-    for (p, ts) in source.iter().enumerate() {
-        for (i, t) in ts.iter().enumerate() {
-            let v = t.map(|g| positions[g as usize]);
-            let lo: [f64; 3] = std::array::from_fn(|a| v[0][a].min(v[1][a]).min(v[2][a]));
-            let hi: [f64; 3] = std::array::from_fn(|a| v[0][a].max(v[1][a]).max(v[2][a]));
-            let id = tris.len() as u32;
-            tris.push((p as u32, i as u32));
-            boxes.push((lo, hi));
-            let c0 = lo.map(|x| (x / cell_mm).floor() as i64);
-            let c1 = hi.map(|x| (x / cell_mm).floor() as i64);
-            for z in c0[2]..=c1[2] {
-                for y in c0[1]..=c1[1] {
-                    for x in c0[0]..=c1[0] {
-                        cells.entry([x, y, z]).or_default().push(id);
-                    }
+) -> Vec<Pair> {
+    TriangleGrid::new(source, positions, cell_mm).crossing_pairs(source, positions, fresh, corners)
+}
+
+/// The crossing pairs of a family whose vertices move a few at a time (the loops that put
+/// vertices back where surfaces cross): after the first full search, [`LiveCrossings::moved`]
+/// re-tests only the triangles around the vertices that moved, against the triangles their new
+/// boxes meet. The pairs are always those [`crossing_pairs`] would find at the current positions
+/// with every patch fresh (tested against it in `tests`).
+pub(super) struct LiveCrossings<'a> {
+    source: &'a [Vec<[u32; 3]>],
+    corners: bool,
+    grid: TriangleGrid,
+    /// Triangle ids of each vertex (`starts[v]..starts[v + 1]` in `ids`).
+    starts: Vec<u32>,
+    ids: Vec<u32>,
+    /// Crossing pairs as triangle ids, the lower first.
+    pairs: rustc_hash::FxHashSet<(u32, u32)>,
+    /// Scratch: triangles moved in the current update.
+    marked: Vec<bool>,
+}
+
+impl<'a> LiveCrossings<'a> {
+    pub(super) fn new(
+        source: &'a [Vec<[u32; 3]>],
+        positions: &[[f64; 3]],
+        cell_mm: f64,
+        corners: bool,
+    ) -> LiveCrossings<'a> {
+        let grid = TriangleGrid::new(source, positions, cell_mm);
+        let all = vec![true; source.len()];
+        let index: FxHashMap<(u32, u32), u32> = grid
+            .tris
+            .iter()
+            .enumerate()
+            .map(|(id, &t)| (t, id as u32))
+            .collect();
+        let pairs = grid
+            .crossing_pairs(source, positions, &all, corners)
+            .into_iter()
+            .map(|(a, b)| (index[&a], index[&b]))
+            .collect();
+        let mut starts = vec![0u32; positions.len() + 1];
+        for t in source.iter().flatten() {
+            for &v in t {
+                starts[v as usize + 1] += 1;
+            }
+        }
+        for v in 0..positions.len() {
+            starts[v + 1] += starts[v];
+        }
+        let mut next = starts.clone();
+        let mut ids = vec![0u32; starts[positions.len()] as usize];
+        for (id, t) in source.iter().flatten().enumerate() {
+            for &v in t {
+                ids[next[v as usize] as usize] = id as u32;
+                next[v as usize] += 1;
+            }
+        }
+        let marked = vec![false; grid.tris.len()];
+        LiveCrossings {
+            source,
+            corners,
+            grid,
+            starts,
+            ids,
+            pairs,
+            marked,
+        }
+    }
+
+    /// The crossing pairs now, as `(patch, triangle index)` pairs, sorted.
+    pub(super) fn pairs(&self) -> Vec<Pair> {
+        let mut out: Vec<Pair> = self
+            .pairs
+            .iter()
+            .map(|&(i, j)| self.grid.pair(i, j))
+            .collect();
+        out.sort_unstable();
+        out
+    }
+
+    /// Takes the vertices in `moved` to their new `positions` (every other vertex must be where
+    /// it was at the last call) and re-tests the triangles around them.
+    pub(super) fn moved(&mut self, positions: &[[f64; 3]], moved: &[u32]) {
+        let mut tris: Vec<u32> = Vec::new();
+        for &v in moved {
+            let (a, b) = (self.starts[v as usize], self.starts[v as usize + 1]);
+            for &t in &self.ids[a as usize..b as usize] {
+                if !self.marked[t as usize] {
+                    self.marked[t as usize] = true;
+                    tris.push(t);
                 }
             }
         }
-    }
-    let cells: Vec<Vec<u32>> = cells
-        .into_values()
-        .filter(|c| {
-            c.len() > 1
-                && c.iter().any(|&i| fresh[tris[i as usize].0 as usize])
-                && c.iter()
-                    .any(|&i| tris[i as usize].0 != tris[c[0] as usize].0)
-        })
-        .collect();
-    let chunk = 256;
-    let found = par_map(
-        cells.len().div_ceil(chunk),
-        &|ci| {
-            let mut out = Vec::new();
-            for cell in &cells[ci * chunk..((ci + 1) * chunk).min(cells.len())] {
-                for (k, &i) in cell.iter().enumerate() {
-                    let (pi, ti) = tris[i as usize];
-                    let a = source[pi as usize][ti as usize];
-                    let (alo, ahi) = boxes[i as usize];
-                    for &j in &cell[k + 1..] {
-                        let (pj, tj) = tris[j as usize];
-                        if pi == pj || !(fresh[pi as usize] || fresh[pj as usize]) {
-                            continue;
-                        }
-                        let (blo, bhi) = boxes[j as usize];
-                        if (0..3).any(|d| alo[d] > bhi[d] || blo[d] > ahi[d]) {
-                            continue;
-                        }
-                        let b = source[pj as usize][tj as usize];
-                        let shared = a.iter().filter(|v| b.contains(v)).count();
-                        let crosses = match shared {
-                            0 => triangles_cross(
-                                a.map(|g| positions[g as usize]),
-                                b.map(|g| positions[g as usize]),
-                            ),
-                            1 if corners => {
-                                let s = a.iter().position(|v| b.contains(v)).unwrap_or(0);
-                                let r = b.iter().position(|&v| v == a[s]).unwrap_or(0);
-                                corner_sharing_triangles_cross(
-                                    [a[s], a[(s + 1) % 3], a[(s + 2) % 3]]
-                                        .map(|g| positions[g as usize]),
-                                    [b[r], b[(r + 1) % 3], b[(r + 2) % 3]]
-                                        .map(|g| positions[g as usize]),
-                                )
-                            }
-                            _ => false,
-                        };
-                        if crosses {
-                            out.push(if i < j {
-                                ((pi, ti), (pj, tj))
-                            } else {
-                                ((pj, tj), (pi, ti))
-                            });
-                        }
+        let marked = &self.marked;
+        self.pairs
+            .retain(|&(i, j)| !marked[i as usize] && !marked[j as usize]);
+        let grid = &mut self.grid;
+        for &t in &tris {
+            let old = grid.boxes[t as usize];
+            for_cells(&old, grid.cell_mm, |c| {
+                if let Some(list) = grid.cells.get_mut(&c) {
+                    list.retain(|&x| x != t);
+                }
+            });
+            let b = triangle_box(grid.corners(self.source, t), positions);
+            for_cells(&b, grid.cell_mm, |c| {
+                grid.cells.entry(c).or_default().push(t)
+            });
+            grid.boxes[t as usize] = b;
+        }
+        for &i in &tris {
+            let pi = self.grid.tris[i as usize].0;
+            let a = self.grid.corners(self.source, i);
+            let abox = self.grid.boxes[i as usize];
+            for_cells(&abox, self.grid.cell_mm, |c| {
+                let Some(list) = self.grid.cells.get(&c) else {
+                    return;
+                };
+                for &j in list {
+                    // Two moved triangles are tested once, from the lower id.
+                    if j == i || (self.marked[j as usize] && j < i) {
+                        continue;
+                    }
+                    if self.grid.tris[j as usize].0 == pi
+                        || !boxes_overlap(&abox, &self.grid.boxes[j as usize])
+                    {
+                        continue;
+                    }
+                    let b = self.grid.corners(self.source, j);
+                    if pair_crosses(a, b, positions, self.corners) {
+                        self.pairs.insert((i.min(j), i.max(j)));
                     }
                 }
-            }
-            out
-        },
-        &mut |_| {},
-    );
-    let mut pairs: Vec<_> = found.into_iter().flatten().collect();
-    pairs.sort_unstable();
-    pairs.dedup();
-    pairs
+            });
+        }
+        for &t in &tris {
+            self.marked[t as usize] = false;
+        }
+    }
 }
 
 /// Locks, in the two patches of a crossing, every input vertex inside the box of the two
@@ -307,5 +512,63 @@ mod tests {
         // Sharing an edge is a meeting, whatever `corners` says.
         let source = vec![vec![[0, 1, 2]], vec![[0, 1, 4]]];
         assert!(crossing_pairs(&source, &positions, &fresh, 2.0, true).is_empty());
+    }
+
+    /// Two bumpy sheets (two patches each) that cross in places, their vertices moved a few at a
+    /// time: the live pairs are the full search's after every move, with and without the
+    /// corner test.
+    #[test]
+    fn live_crossings_follow_moves_as_a_full_search_would() {
+        let n = 14usize;
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut rnd = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut positions = Vec::new();
+        let mut source = vec![Vec::new(); 4];
+        for sheet in 0..2 {
+            let base = positions.len() as u32;
+            for j in 0..n {
+                for i in 0..n {
+                    positions.push([i as f64, j as f64, 0.15 * sheet as f64 + 0.3 * rnd()]);
+                }
+            }
+            let at = |i: usize, j: usize| base + (j * n + i) as u32;
+            for j in 0..n - 1 {
+                for i in 0..n - 1 {
+                    let patch = 2 * sheet + usize::from(i >= n / 2);
+                    source[patch].push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
+                    source[patch].push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
+                }
+            }
+        }
+        let all = vec![true; source.len()];
+        for corners in [false, true] {
+            let mut pos = positions.clone();
+            let mut live = LiveCrossings::new(&source, &pos, 2.5, corners);
+            let first = crossing_pairs(&source, &pos, &all, 2.5, corners);
+            assert!(!first.is_empty(), "the sheets cross");
+            assert_eq!(live.pairs(), first);
+            for _ in 0..40 {
+                let moved: Vec<u32> = (0..5)
+                    .map(|_| ((rnd() + 0.5) * pos.len() as f64) as u32 % pos.len() as u32)
+                    .collect();
+                for &v in &moved {
+                    // Now and then far enough to change cells.
+                    let reach = if rnd() > 0.3 { 3.0 } else { 0.4 };
+                    for x in &mut pos[v as usize] {
+                        *x += reach * rnd();
+                    }
+                }
+                live.moved(&pos, &moved);
+                assert_eq!(
+                    live.pairs(),
+                    crossing_pairs(&source, &pos, &all, 2.5, corners)
+                );
+            }
+        }
     }
 }

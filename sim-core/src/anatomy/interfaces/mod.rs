@@ -57,7 +57,7 @@ use super::error::AnatomyError;
 use super::level_set_mesh::LevelSetFn;
 use super::smooth::TaubinParams;
 use crate::mesh::TriMesh;
-use crossing::{crossing_pairs, mean_edge_mm};
+use crossing::{LiveCrossings, crossing_pairs, mean_edge_mm};
 use decimation::decimate_family;
 use smoothing::smooth_family;
 use weld::{Family, weld_and_partition};
@@ -315,6 +315,8 @@ fn fall_back_where_crossing(
         .collect();
     let mut moved = vec![false; positions.len()];
     let (mut restored, mut passes) = (0usize, 0usize);
+    // The crossing pairs are found once, then re-tested only around the vertices that move.
+    let mut live = LiveCrossings::new(source, positions, cell_mm, splits);
     loop {
         // A pair that crosses where all is back is not new (see above).
         let at_back = |(p, t): (u32, u32), pos: &[[f64; 3]]| {
@@ -322,7 +324,8 @@ fn fall_back_where_crossing(
                 .iter()
                 .all(|&v| pos[v as usize] == all_back[v as usize])
         };
-        let cross: Vec<_> = crossing_pairs(source, positions, &all, cell_mm, splits)
+        let cross: Vec<_> = live
+            .pairs()
             .into_iter()
             .filter(|&(a, b)| {
                 !(before.contains(&(a, b))
@@ -343,11 +346,17 @@ fn fall_back_where_crossing(
             }
         }
         // Split vertices follow their parents (they come after them).
+        let mut changed = Vec::new();
         for v in 0..positions.len() {
             if moved[v] {
-                positions[v] = back_of(v, positions);
+                let back = back_of(v, positions);
+                if back.map(f64::to_bits) != positions[v].map(f64::to_bits) {
+                    changed.push(v as u32);
+                }
+                positions[v] = back;
             }
         }
+        live.moved(positions, &changed);
         restored += fresh;
         if fresh == 0 {
             break;
