@@ -143,8 +143,7 @@ fn pair_crosses(a: [u32; 3], b: [u32; 3], positions: &[[f64; 3]], corners: bool)
 }
 
 /// Every triangle of a family with its `(patch, index)` and box, and the triangles of each grid
-/// cell its box meets (ids in ascending order within a cell). Two triangles whose boxes overlap
-/// share a cell.
+/// cell its box meets. Two triangles whose boxes overlap share a cell.
 struct TriangleGrid {
     tris: Vec<(u32, u32)>,
     boxes: Vec<TriBox>,
@@ -154,16 +153,42 @@ struct TriangleGrid {
 
 impl TriangleGrid {
     fn new(source: &[Vec<[u32; 3]>], positions: &[[f64; 3]], cell_mm: f64) -> TriangleGrid {
+        TriangleGrid::around(source, positions, cell_mm, None)
+    }
+
+    /// The grid of every triangle, or with `fresh`, of the cells that hold a triangle of a fresh
+    /// patch only (a pair to test has a fresh triangle, and shares one of its cells): triangles
+    /// of the other patches are listed only in those cells.
+    fn around(
+        source: &[Vec<[u32; 3]>],
+        positions: &[[f64; 3]],
+        cell_mm: f64,
+        fresh: Option<&[bool]>,
+    ) -> TriangleGrid {
         let mut tris: Vec<(u32, u32)> = Vec::new();
         let mut boxes: Vec<TriBox> = Vec::new();
         let mut cells: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
         for (p, ts) in source.iter().enumerate() {
             for (i, t) in ts.iter().enumerate() {
-                let b = triangle_box(*t, positions);
-                let id = tris.len() as u32;
                 tris.push((p as u32, i as u32));
-                for_cells(&b, cell_mm, |c| cells.entry(c).or_default().push(id));
-                boxes.push(b);
+                boxes.push(triangle_box(*t, positions));
+            }
+        }
+        let fresh_patch = |id: usize| fresh.is_none_or(|f| f[tris[id].0 as usize]);
+        for (id, b) in boxes.iter().enumerate() {
+            if fresh_patch(id) {
+                for_cells(b, cell_mm, |c| cells.entry(c).or_default().push(id as u32));
+            }
+        }
+        if fresh.is_some() {
+            for (id, b) in boxes.iter().enumerate() {
+                if !fresh_patch(id) {
+                    for_cells(b, cell_mm, |c| {
+                        if let Some(list) = cells.get_mut(&c) {
+                            list.push(id as u32);
+                        }
+                    });
+                }
             }
         }
         TriangleGrid {
@@ -253,7 +278,9 @@ pub(super) fn crossing_pairs(
     cell_mm: f64,
     corners: bool,
 ) -> Vec<Pair> {
-    TriangleGrid::new(source, positions, cell_mm).crossing_pairs(source, positions, fresh, corners)
+    let partly = fresh.iter().any(|f| !f);
+    TriangleGrid::around(source, positions, cell_mm, partly.then_some(fresh))
+        .crossing_pairs(source, positions, fresh, corners)
 }
 
 /// The crossing pairs of a family whose vertices move a few at a time (the loops that put
