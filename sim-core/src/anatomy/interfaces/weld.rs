@@ -1,8 +1,6 @@
 //! Steps 1 and 2 of the family meshing (see [`super`]): welding the vertices that touching
 //! structures share and partitioning the triangles into patches by their owners.
 
-use std::collections::BTreeMap;
-
 use rustc_hash::FxHashMap;
 
 use super::surface::{ExtractedSurface, WELD_EDGE_FRACTION};
@@ -119,37 +117,76 @@ pub(super) fn weld_and_partition(items: &[ExtractedSurface]) -> Family {
             }
         }
     }
-    let mut owners_of: FxHashMap<[u32; 3], Vec<(u32, bool)>> = FxHashMap::default();
+    // The owners of each triangle made of shared vertices: its records (corners, mesh, winding)
+    // sorted by corners, stably, so each triangle's owners keep mesh order (sorting millions of
+    // records costs less than a map of lists).
+    let mut shared: Vec<([u32; 3], u32, u32, bool)> = Vec::new();
     for (m, ts) in tris.iter().enumerate() {
-        for &t in ts {
+        for (i, &t) in ts.iter().enumerate() {
             if t.iter().all(|&g| multi[g as usize]) {
                 let (key, even) = canonical(t);
-                owners_of.entry(key).or_default().push((m as u32, even));
+                shared.push((key, m as u32, i as u32, even));
             }
         }
     }
-    let mut patch_index: BTreeMap<Vec<(u32, bool)>, usize> = BTreeMap::new();
+    shared.sort_by_key(|r| r.0);
+    // Per mesh and triangle, its owners as a range of `owners` when it has several (empty
+    // otherwise).
+    let mut owner_range: Vec<Vec<(u32, u32)>> =
+        tris.iter().map(|ts| vec![(0, 0); ts.len()]).collect();
+    let mut owners: Vec<(u32, bool)> = Vec::new();
+    let mut start = 0;
+    while start < shared.len() {
+        let mut end = start + 1;
+        while end < shared.len() && shared[end].0 == shared[start].0 {
+            end += 1;
+        }
+        if end - start > 1 {
+            let range = (owners.len() as u32, (owners.len() + end - start) as u32);
+            for &(_, m, i, even) in &shared[start..end] {
+                owners.push((m, even));
+                owner_range[m as usize][i as usize] = range;
+            }
+        }
+        start = end;
+    }
+    drop(shared);
+    let mut patch_index: FxHashMap<Vec<(u32, bool)>, usize> = FxHashMap::default();
     let mut patches: Vec<Patch> = Vec::new();
+    let mut key: Vec<(u32, bool)> = Vec::new();
     for (m, ts) in tris.iter().enumerate() {
-        for &t in ts {
-            let owners: Vec<(u32, bool)> = match owners_of.get(&canonical(t).0) {
-                Some(list) if list.len() > 1 => {
-                    if list[0].0 != m as u32 {
-                        // Added with the first owner's triangles.
-                        continue;
-                    }
-                    let first = list[0].1;
-                    list.iter().map(|&(o, e)| (o, e != first)).collect()
+        let mut single: Option<usize> = None;
+        for (i, &t) in ts.iter().enumerate() {
+            let (a, b) = owner_range[m][i];
+            let p = if a < b {
+                let list = &owners[a as usize..b as usize];
+                if list[0].0 != m as u32 {
+                    // Added with the first owner's triangles.
+                    continue;
                 }
-                _ => vec![(m as u32, false)],
+                let first = list[0].1;
+                key.clear();
+                key.extend(list.iter().map(|&(o, e)| (o, e != first)));
+                match patch_index.get(key.as_slice()) {
+                    Some(&p) => p,
+                    None => {
+                        patches.push(Patch {
+                            owners: key.clone(),
+                            triangles: Vec::new(),
+                        });
+                        patch_index.insert(key.clone(), patches.len() - 1);
+                        patches.len() - 1
+                    }
+                }
+            } else {
+                *single.get_or_insert_with(|| {
+                    patches.push(Patch {
+                        owners: vec![(m as u32, false)],
+                        triangles: Vec::new(),
+                    });
+                    patches.len() - 1
+                })
             };
-            let p = *patch_index.entry(owners.clone()).or_insert_with(|| {
-                patches.push(Patch {
-                    owners,
-                    triangles: Vec::new(),
-                });
-                patches.len() - 1
-            });
             patches[p].triangles.push(t);
         }
     }
