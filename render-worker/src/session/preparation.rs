@@ -50,10 +50,10 @@ pub enum RegionReadiness {
     },
 }
 
-/// Expected duration of a phantom build when no progress has been reported yet, s. Measured:
-/// 95 s for the default lumbar phantom (meshed from level sets) on the 2-core development
-/// machine, 34 s for the neck, 110-115 s for the slim and obese habitus.
-pub const EXPECTED_BUILD_S: f64 = 100.0;
+/// Expected duration of a phantom build when no progress has been reported yet, s. Measured
+/// (dev profile) on the 2-core development machine: 61 s for the default lumbar phantom (meshed
+/// from level sets), 24 s for the neck, 68 and 82 s for the slim and obese habitus.
+pub const EXPECTED_BUILD_S: f64 = 70.0;
 
 /// Longest `Retry-After` handed out, s. Simulator choice: a client told to come back in at most
 /// a few seconds shows progress that moves, and starts within that much of the build's end.
@@ -61,10 +61,11 @@ pub const MAX_RETRY_AFTER_S: f64 = 3.0;
 
 /// Fraction of a phantom build done at a progress report. The stage weights are a simulator
 /// choice from timed builds of the default lumbar phantom on 2 cores: voxelization and the
-/// label volume 5-6 % of the time, extracting the structures 4 % (mask meshes) to 26 % (level
+/// label volume 5-7 % of the time, extracting the structures 4 % (mask meshes) to 20 % (level
 /// sets), and the family steps that share their interfaces ("interfaces": welding, level-set
-/// placement, decimation, refinement) the rest, 68-77 % (66 of 97 s, 20 of 27 s). They only
-/// shape the progress shown and the `Retry-After` estimate.
+/// placement, decimation, refinement) the rest, 70-77 % (44 of 63 s for the level-set default,
+/// 20 of 27 s for mask meshes). They only shape the progress shown and the `Retry-After`
+/// estimate.
 pub fn build_fraction(p: &Progress) -> f64 {
     let part = if p.total == 0 {
         0.0

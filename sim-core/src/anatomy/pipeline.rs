@@ -439,7 +439,7 @@ pub fn build_region_on_level_sets(
         item: String::new(),
     });
     // The family steps (welding, decimation, refinement) take most of a build: 20 of 27 s for the
-    // default phantom's mask meshes and 66 of 97 s for its level-set meshes on 2 cores.
+    // default phantom's mask meshes and 44 of 63 s for its level-set meshes on 2 cores.
     let meshed = mesh_family(
         &extracted,
         params.smoothing.as_ref(),
