@@ -211,15 +211,16 @@ impl TriangleGrid {
         if i < j { (a, b) } else { (b, a) }
     }
 
-    /// Every crossing pair with a triangle of a patch in `fresh` (sorted, each once), tested
-    /// cell by cell in parallel.
-    fn crossing_pairs(
+    /// Every crossing pair with a triangle of a patch in `fresh`, as triangle ids, the lower
+    /// first (sorted, each once; ids follow `(patch, index)` order), tested cell by cell in
+    /// parallel.
+    fn crossing_ids(
         &self,
         source: &[Vec<[u32; 3]>],
         positions: &[[f64; 3]],
         fresh: &[bool],
         corners: bool,
-    ) -> Vec<Pair> {
+    ) -> Vec<(u32, u32)> {
         let tris = &self.tris;
         let cells: Vec<&Vec<u32>> = self
             .cells
@@ -250,7 +251,7 @@ impl TriangleGrid {
                                 continue;
                             }
                             if pair_crosses(a, self.corners(source, j), positions, corners) {
-                                out.push(self.pair(i, j));
+                                out.push((i.min(j), i.max(j)));
                             }
                         }
                     }
@@ -279,8 +280,11 @@ pub(super) fn crossing_pairs(
     corners: bool,
 ) -> Vec<Pair> {
     let partly = fresh.iter().any(|f| !f);
-    TriangleGrid::around(source, positions, cell_mm, partly.then_some(fresh))
-        .crossing_pairs(source, positions, fresh, corners)
+    let grid = TriangleGrid::around(source, positions, cell_mm, partly.then_some(fresh));
+    grid.crossing_ids(source, positions, fresh, corners)
+        .into_iter()
+        .map(|(i, j)| grid.pair(i, j))
+        .collect()
 }
 
 /// The crossing pairs of a family whose vertices move a few at a time (the loops that put
@@ -310,16 +314,9 @@ impl<'a> LiveCrossings<'a> {
     ) -> LiveCrossings<'a> {
         let grid = TriangleGrid::new(source, positions, cell_mm);
         let all = vec![true; source.len()];
-        let index: FxHashMap<(u32, u32), u32> = grid
-            .tris
-            .iter()
-            .enumerate()
-            .map(|(id, &t)| (t, id as u32))
-            .collect();
         let pairs = grid
-            .crossing_pairs(source, positions, &all, corners)
+            .crossing_ids(source, positions, &all, corners)
             .into_iter()
-            .map(|(a, b)| (index[&a], index[&b]))
             .collect();
         let mut starts = vec![0u32; positions.len() + 1];
         for t in source.iter().flatten() {
