@@ -122,14 +122,6 @@ pub fn grid_extent(grid: &VolumeGrid) -> Aabb {
     }
 }
 
-/// Exact signed distance to the box `b` (negative inside).
-fn box_distance(b: &Aabb, p: DVec3) -> f64 {
-    let c = 0.5 * (b.min + b.max);
-    let half = 0.5 * (b.max - b.min);
-    let q = (p - c).abs() - half;
-    q.max(DVec3::ZERO).length() + q.max_element().min(0.0)
-}
-
 fn overlaps(a: &Aabb, lo: DVec3, hi: DVec3) -> bool {
     !(a.min.cmpgt(hi).any() || a.max.cmplt(lo).any())
 }
@@ -146,9 +138,9 @@ impl StructureLevelSet<'_> {
     /// while a corner of it was in the later solid (a piece of the L3 root inside the psoas
     /// without a cavity around it, 0.85 mm of doubled tissue on a ray).
     pub fn eval(&self, p: DVec3) -> f64 {
-        let mut g = self.solid.eval(p).max(box_distance(&self.extent, p));
+        let mut g = self.solid.eval(p).max(self.extent.signed_distance_mm(p));
         for (s, b) in &self.later {
-            let d = box_distance(b, p);
+            let d = b.signed_distance_mm(p);
             if -d > g {
                 g = g.max(-s.eval(p).max(d));
             }
@@ -228,7 +220,7 @@ impl StructureLevelSet<'_> {
         // leaves' occupancies); one below -reach covers the whole cell, which is then empty.
         let mut g = self.solid.eval(c);
         if clip {
-            g = g.max(box_distance(&self.extent, c));
+            g = g.max(self.extent.signed_distance_mm(c));
         }
         let mut cands = scratch.pop().unwrap_or_default();
         cands.clear();

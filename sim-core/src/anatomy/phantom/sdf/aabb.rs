@@ -57,6 +57,14 @@ impl Aabb {
         self.min.x > self.max.x || self.min.y > self.max.y || self.min.z > self.max.z
     }
 
+    /// Exact signed distance from `p` to the box, mm (negative inside).
+    pub fn signed_distance_mm(&self, p: DVec3) -> f64 {
+        let c = 0.5 * (self.min + self.max);
+        let half = 0.5 * (self.max - self.min);
+        let q = (p - c).abs() - half;
+        q.max(DVec3::ZERO).length() + q.max_element().min(0.0)
+    }
+
     /// Whether the box is finite on every side.
     pub fn is_finite(&self) -> bool {
         self.min.is_finite() && self.max.is_finite()

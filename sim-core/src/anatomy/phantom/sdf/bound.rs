@@ -36,11 +36,12 @@ impl Cull {
     /// The lower bound at `p`, mm: minus infinity inside the box (no bound there).
     #[inline]
     pub fn lower(&self, p: DVec3) -> f64 {
-        let q = (self.bbox.min - p).max(p - self.bbox.max);
-        if q.cmple(DVec3::ZERO).all() {
-            return f64::NEG_INFINITY;
+        let d = self.bbox.signed_distance_mm(p);
+        if d > 0.0 {
+            self.lambda * d - self.c
+        } else {
+            f64::NEG_INFINITY
         }
-        self.lambda * q.max(DVec3::ZERO).length() - self.c
     }
 
     pub(super) fn exact(bbox: Aabb) -> Cull {
