@@ -4,8 +4,9 @@
 //! draws from one [`GpuAnatomy`] behind an `Arc`. On a software adapter such as lavapipe its
 //! buffers are host memory: 108 bytes per drawn triangle (three 32-byte vertices, three 4-byte
 //! indices), about 416 MB for the default lumbar phantom's 3.85 M triangles. Culled passes draw
-//! runs of this one index buffer; no per-frame index list is made. What changes per
-//! renderer (needle, uniforms, targets, caches) is in `LBuffer`, `ResolvePass` and
+//! runs of this one index buffer; no per-frame index list is made. The render targets that no
+//! frame is using are pooled here too (`TargetPool`). What changes per renderer (needle,
+//! uniforms, the full image's geometric L-buffer, caches) is in `LBuffer`, `ResolvePass` and
 //! `FrameCache`.
 
 use std::any::Any;
@@ -15,7 +16,7 @@ use sim_core::fluoro::Scene;
 use sim_core::fluoro::nesting::{NestedMesh, nesting_plan, triangle_cross};
 use wgpu::util::DeviceExt;
 
-use super::pipelines::Pipelines;
+use super::pipelines::{Pipelines, TargetPool};
 use super::types::{FluoroGpuError, Vertex};
 use crate::gpu::GpuContext;
 
@@ -32,6 +33,8 @@ pub struct GpuAnatomy {
     pub(super) pipelines: Pipelines,
     /// Cortical shell used by the cancellous clamp, mm (the scene's).
     pub(super) cortical_shell_mm: f64,
+    /// The render targets no frame of its renderers is using.
+    pub(super) pool: TargetPool,
 }
 
 impl std::fmt::Debug for GpuAnatomy {
@@ -69,6 +72,7 @@ impl GpuAnatomy {
             buffers,
             pipelines: Pipelines::new(ctx),
             cortical_shell_mm: scene.cortical_shell_mm,
+            pool: TargetPool::default(),
         }))
     }
 
@@ -88,6 +92,12 @@ impl GpuAnatomy {
             .bufs
             .as_ref()
             .map_or(0, |b| b.vertices.size() + b.indices.size())
+    }
+
+    /// Render-target sets that no frame of this anatomy's renderers is using now, kept for the
+    /// next frame of any of them: (supersampled regions' geometric L-buffers, frame targets).
+    pub fn free_target_sets(&self) -> (usize, usize) {
+        self.pool.free_sets()
     }
 
     /// Whether this anatomy lives on `ctx`'s device.
@@ -381,6 +391,106 @@ mod tests {
         assert_eq!(
             a.render_chords(&p).expect("chords"),
             private_a.render_chords(&p).expect("chords")
+        );
+    }
+
+    /// Renderers of one anatomy take turns with the pooled targets: each frame writes another
+    /// renderer's leftovers. Needle-only frames resolve only the needle's columns of a few rows
+    /// on top of the kept transmission, and a renderer without a needle or with iodine shares the
+    /// same sets, yet every frame equals, bit for bit, the frame of a renderer with its own
+    /// upload and pool; the pool then holds the sets, no renderer does.
+    #[test]
+    fn renderers_taking_turns_with_pooled_targets_draw_their_own_frames() {
+        let Some(ctx) = crate::gpu::context_for_tests() else {
+            return;
+        };
+        let scene = phantom();
+        let shared = GpuAnatomy::new(&ctx, &scene).expect("anatomy");
+        let mut on_shared: Vec<_> = (0..3)
+            .map(|_| GpuFluoroRenderer::with_anatomy(Arc::clone(&shared)))
+            .collect();
+        let mut private: Vec<_> = (0..3)
+            .map(|_| GpuFluoroRenderer::new(&ctx, &scene).expect("renderer"))
+            .collect();
+        let r = equal_area_vertex_radius(0.36, 16);
+        let needle =
+            |x: f64, depth: f64| capped_cylinder([x, -60.0, 10.0], [x + 30.0, depth, 30.0], r, 16);
+        let ap = Projection {
+            detector_pixels: [96, 80],
+            pixel_pitch_mm: [1.2; 2],
+            ..Projection::default()
+        };
+        let oblique = Projection {
+            orbital_deg: 20.0,
+            ..ap
+        };
+        let settings = RenderSettings {
+            supersample: 2,
+            ..RenderSettings::default()
+        };
+        let field = sim_core::fluoro::IodineField {
+            volume: sim_core::volume::Volume {
+                grid: sim_core::volume::VolumeGrid {
+                    dims: [6, 6, 6],
+                    spacing_mm: [5.0; 3],
+                    origin_mm: [-12.0; 3],
+                },
+                data: vec![0.3; 216],
+            },
+        };
+        let mut partial = 0;
+        for step in 0..8 {
+            for (k, (s, p)) in on_shared.iter_mut().zip(&mut private).enumerate() {
+                // Renderer 0 feeds its needle under a fixed AP view (partial resolves), 1 moves
+                // its needle sideways under an oblique view, 2 has no needle until step 4 and
+                // then iodine on odd steps.
+                let (projection, mesh, iodine) = match k {
+                    0 => (
+                        ap,
+                        Some(needle(-30.0, -20.0 + 4.0 * f64::from(step))),
+                        false,
+                    ),
+                    1 => (oblique, Some(needle(f64::from(step) - 10.0, 0.0)), false),
+                    _ => (ap, (step >= 4).then(|| needle(5.0, 5.0)), step % 2 == 1),
+                };
+                for renderer in [&mut *s, &mut *p] {
+                    match &mesh {
+                        Some(m) => renderer.update_needle(m),
+                        None => renderer.clear_needle(),
+                    }
+                }
+                let iodine = iodine.then_some(&field);
+                // Renderer 0 without supersampling: what it resolves is its needle's rectangle.
+                let settings = RenderSettings {
+                    supersample: if k == 0 { 1 } else { 2 },
+                    ..settings
+                };
+                let a = s
+                    .render_transmission_supersampled(&projection, &settings, iodine)
+                    .expect("frame");
+                let resolved = s.last_timings().resolved_samples;
+                let b = p
+                    .render_transmission_supersampled(&projection, &settings, iodine)
+                    .expect("frame");
+                let differ = a
+                    .transmission
+                    .iter()
+                    .zip(&b.transmission)
+                    .filter(|(x, y)| x.to_bits() != y.to_bits())
+                    .count();
+                assert_eq!(differ, 0, "renderer {k}, step {step}");
+                if k == 0 && step > 0 {
+                    assert!(resolved < 96 * 80, "renderer 0 resolves its needle only");
+                    partial += 1;
+                }
+            }
+        }
+        assert!(partial >= 7);
+        let (regions, frames) = shared.free_target_sets();
+        assert!(
+            (1..=super::super::pipelines::POOL_KEEP).contains(&frames)
+                && regions <= super::super::pipelines::POOL_KEEP,
+            "{regions} region and {frames} frame sets free"
         );
     }
 }

@@ -6,11 +6,14 @@
 //! of the needle's old and new pixel rectangles is resolved and read back, since outside it
 //! every input of the resolve is unchanged), the last displayed transmission ([`FrameKey`]: a
 //! shot with nothing changed costs only the CPU's noise and display) and the exposure mask
-//! ([`ExposureKey`]). These, the targets and the needle are what a renderer holds of its own
-//! (measured on lavapipe at 512 x 512: 17 MB after its first frame, 14 MB of it the full-image
-//! targets, and a few MB more for the supersampled needle region); the anatomy is shared. Each cached frame is bit-identical to a frame from scratch, and so is
-//! culling (tests in `render-worker/tests/fluoro_cache.rs`). The pixel-rectangle arithmetic of
-//! the partial resolve is in `types.rs`.
+//! ([`ExposureKey`]). These, the full image's geometric L-buffer and the needle are what a
+//! renderer holds of its own between frames (at 512 x 512: 5 MB of L-buffer, 1 MB each for the
+//! two kept transmissions); the anatomy is shared, and so are the other targets, which a frame
+//! takes from the anatomy's pool and gives back (`pipelines::TargetPool`; before, each renderer
+//! held its own, 14 MB for the full image and a few MB for the supersampled needle region).
+//! Each cached frame is bit-identical to a frame from scratch, and so is culling (tests in
+//! `render-worker/tests/fluoro_cache.rs`; renderers sharing the pool: `anatomy.rs`'s tests).
+//! The pixel-rectangle arithmetic of the partial resolve is in `types.rs`.
 
 use sim_core::fluoro::{EnergyModel, Projection};
 
@@ -161,8 +164,15 @@ impl FrameCache {
         self.geometry = Some(key);
         let transmission = match previous {
             Some(mut p) => {
-                let start = out.rows.start as usize * width;
-                p.transmission[start..start + out.data.len()].copy_from_slice(&out.data);
+                // Only the resolved columns: the rest of the read-back rows is whatever the
+                // pooled transmission buffer held.
+                let cols = out.cols.start as usize..out.cols.end as usize;
+                let rows = out.data.chunks_exact(width);
+                for (row, data) in (out.rows.start as usize..).zip(rows) {
+                    let start = row * width;
+                    p.transmission[start + cols.start..start + cols.end]
+                        .copy_from_slice(&data[cols.clone()]);
+                }
                 p.transmission
             }
             None => out.data,

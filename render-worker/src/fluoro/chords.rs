@@ -90,19 +90,19 @@ pub(super) fn read_pass(
     raw: &mut [[f32; CHORD_CHANNELS]],
     steel: &mut Vec<f32>,
 ) -> Result<(), GpuError> {
-    let mut a = read_texture(ctx, t, &t.a, 4)?;
+    let mut a = read_texture(ctx, t, &t.geometry.a, 4)?;
     for (x, k) in a.chunks_exact_mut(4).zip(scale) {
         x.iter_mut().for_each(|c| *c *= k);
     }
     if has_needle {
-        let d = read_texture(ctx, t, &t.d, 4)?;
+        let d = read_texture(ctx, t, &t.frame.d, 4)?;
         for (x, y) in a.iter_mut().zip(d) {
             *x += y;
         }
     }
     if pass == 0 {
         *steel = if has_needle {
-            read_texture(ctx, t, &t.chord, 1)?
+            read_texture(ctx, t, &t.frame.chord, 1)?
         } else {
             vec![0.0; raw.len()]
         };

@@ -371,11 +371,11 @@ impl LBuffer {
         let device = &ctx.device;
         let view_of = |x: &wgpu::Texture| x.create_view(&wgpu::TextureViewDescriptor::default());
         let (va, vs, vd, vh, vc) = (
-            view_of(&t.a),
-            view_of(&t.s),
-            view_of(&t.d),
-            view_of(&t.hull),
-            view_of(&t.chord),
+            view_of(&t.geometry.a),
+            view_of(&t.geometry.s),
+            view_of(&t.frame.d),
+            view_of(&t.frame.hull),
+            view_of(&t.frame.chord),
         );
         fn attach(
             v: &wgpu::TextureView,

@@ -74,7 +74,7 @@ use std::time::Instant;
 use crate::gpu::GpuContext;
 use cache::{FrameCache, FrameKey, FullPlan};
 use lbuffer::LBuffer;
-use pipelines::Targets;
+use pipelines::{GeometryTargets, Targets};
 use resolve::{ResolveInput, ResolvePass};
 use types::{
     CHORD_CHANNELS, CHORD_PASSES, Layout, Passes, Pending, PixelRect, PixelRectOut, union_rect,
@@ -91,8 +91,12 @@ pub struct GpuFluoroRenderer {
     anatomy: Arc<GpuAnatomy>,
     /// The L-buffer passes' state: this renderer's needle, uniforms and culling boxes.
     lbuffer: LBuffer,
-    /// Targets of the full image (0) and of the supersampled needle region (1).
+    /// Targets of the full image (0) and of the supersampled needle region (1) while a frame
+    /// is recorded and read back; given back to the anatomy's pool when it ends
+    /// (`release_targets`), except the full image's geometric L-buffer (`kept_geometry`).
     targets: [Option<Targets>; 2],
+    /// The full image's geometric L-buffer between frames (what the geometry cache refers to).
+    kept_geometry: Option<GeometryTargets>,
     resolve: ResolvePass,
     cache: FrameCache,
     /// Bumped whenever the needle changes.
@@ -143,6 +147,7 @@ impl GpuFluoroRenderer {
         GpuFluoroRenderer {
             lbuffer: LBuffer::new(Arc::clone(&anatomy)),
             targets: [None, None],
+            kept_geometry: None,
             resolve: ResolvePass::new(&ctx),
             cache: FrameCache::default(),
             needle_generation: 0,
@@ -227,6 +232,17 @@ impl GpuFluoroRenderer {
         energy: &EnergyModel,
         iodine: Option<&IodineField>,
     ) -> Result<GpuTransmission, FluoroGpuError> {
+        let result = self.transmission_in_frame(projection, energy, iodine);
+        self.release_targets();
+        result
+    }
+
+    fn transmission_in_frame(
+        &mut self,
+        projection: &Projection,
+        energy: &EnergyModel,
+        iodine: Option<&IodineField>,
+    ) -> Result<GpuTransmission, FluoroGpuError> {
         let model = SpectralModel::new(*energy)?;
         self.timings = FrameTimings::default();
         let mut enc = self.encoder();
@@ -272,6 +288,17 @@ impl GpuFluoroRenderer {
     /// [`GpuFluoroRenderer::caching`] and no iodine, a call with the same projection, energy,
     /// supersampling and needle as the previous one returns its result without GPU work.
     pub fn render_transmission_supersampled(
+        &mut self,
+        projection: &Projection,
+        settings: &RenderSettings,
+        iodine: Option<&IodineField>,
+    ) -> Result<GpuTransmission, FluoroGpuError> {
+        let result = self.supersampled_in_frame(projection, settings, iodine);
+        self.release_targets();
+        result
+    }
+
+    fn supersampled_in_frame(
         &mut self,
         projection: &Projection,
         settings: &RenderSettings,
@@ -417,16 +444,51 @@ impl GpuFluoroRenderer {
 
 /// Recording a frame: the passes of one region, the caches of the full image, the chords.
 impl GpuFluoroRenderer {
-    /// Makes `targets[ri]` `size` samples; replacing the full image's drops what the caches
-    /// kept of it.
+    /// Makes `targets[ri]` `size` samples for this frame. The full image's geometric L-buffer is
+    /// the one kept from the last frame when its size matches (another drops what the caches
+    /// kept of it); everything else comes from the anatomy's pool.
     fn ensure_targets(&mut self, ri: usize, size: [u32; 2]) {
         if self.targets[ri].as_ref().is_some_and(|t| t.size == size) {
             return;
         }
-        if ri == 0 {
-            self.cache.targets_replaced();
-        }
-        self.targets[ri] = Some(Targets::new(&self.ctx.device, size));
+        self.release_target(ri);
+        let pool = &self.anatomy.pool;
+        let device = &self.ctx.device;
+        let kept = match ri {
+            0 => self.kept_geometry.take().filter(|g| g.size == size),
+            _ => None,
+        };
+        let geometry = kept.unwrap_or_else(|| {
+            if ri == 0 {
+                self.cache.targets_replaced();
+            }
+            pool.take_geometry(device, size)
+        });
+        self.targets[ri] = Some(Targets {
+            size,
+            geometry,
+            frame: pool.take_frame(device, size),
+        });
+    }
+
+    /// Ends a frame's hold on `targets[ri]`: the full image keeps its geometric L-buffer, the
+    /// rest goes back to the pool.
+    fn release_target(&mut self, ri: usize) {
+        let Some(t) = self.targets[ri].take() else {
+            return;
+        };
+        let geometry = if ri == 0 {
+            self.kept_geometry = Some(t.geometry);
+            None
+        } else {
+            Some(t.geometry)
+        };
+        self.anatomy.pool.give_back(geometry, t.frame);
+    }
+
+    /// Ends a frame (see [`GpuFluoroRenderer::release_target`]).
+    fn release_targets(&mut self) {
+        (0..self.targets.len()).for_each(|ri| self.release_target(ri));
     }
 
     /// Records the passes of `passes`, then the resolve over one region, or (with `previous`,
@@ -469,6 +531,7 @@ impl GpuFluoroRenderer {
                     return Pending {
                         ri,
                         rows: 0..0,
+                        cols: 0..0,
                         bytes: 0,
                         needle_rect,
                     };
@@ -494,6 +557,7 @@ impl GpuFluoroRenderer {
         Pending {
             ri,
             rows: rect[1]..rect[1] + rect[3],
+            cols: rect[0]..rect[0] + rect[2],
             bytes,
             needle_rect,
         }
@@ -556,6 +620,15 @@ impl GpuFluoroRenderer {
     /// needle, cortical and cancellous geometric chords and their displaced parts), read back and
     /// resolved on the CPU in the CPU reference's order (clamp, then remove the needle).
     pub fn render_chords(
+        &mut self,
+        projection: &Projection,
+    ) -> Result<Vec<[f32; CHANNELS]>, FluoroGpuError> {
+        let result = self.chords_in_frame(projection);
+        self.release_targets();
+        result
+    }
+
+    fn chords_in_frame(
         &mut self,
         projection: &Projection,
     ) -> Result<Vec<[f32; CHANNELS]>, FluoroGpuError> {

@@ -22,14 +22,30 @@ pub(super) struct Pipelines {
     pub(super) resolve_layout: wgpu::BindGroupLayout,
 }
 
-/// Render targets of one detector size.
+/// Render targets of one region size for one frame: the geometric L-buffer and the rest. A
+/// renderer keeps only the full image's geometric part between frames (its cache); everything
+/// else is written before it is read within each frame, so it is taken from the anatomy's
+/// [`TargetPool`] when a frame starts and given back when it ends.
 pub(super) struct Targets {
+    pub(super) size: [u32; 2],
+    pub(super) geometry: GeometryTargets,
+    pub(super) frame: FrameTargets,
+}
+
+/// The geometric L-buffer of one size.
+pub(super) struct GeometryTargets {
     pub(super) size: [u32; 2],
     /// Geometric L-buffer (needle-independent): the non-scalar meshes in the transmission
     /// layout, every mesh in the chord layout.
     pub(super) a: wgpu::Texture,
     /// Geometric L-buffer of the scalar meshes, transmission layout (water-basis channel).
     pub(super) s: wgpu::Texture,
+}
+
+/// The targets a frame writes before it reads them (the needle's passes clear theirs, the
+/// resolve writes every sample it reads back), so any renderer of the anatomy can use them next.
+pub(super) struct FrameTargets {
+    pub(super) size: [u32; 2],
     /// Displaced part (zero outside the needle's pixel box).
     pub(super) d: wgpu::Texture,
     pub(super) hull: wgpu::Texture,
@@ -38,8 +54,82 @@ pub(super) struct Targets {
     /// The resolve's render target: it only sizes the pass (write mask empty; cleared, one byte
     /// per sample, and discarded); the output is `out_t`.
     pub(super) resolve: wgpu::Texture,
-    /// Kept mapped-readable copy of `out_t` (no allocation per frame).
+    /// Mapped-readable copy of `out_t` (no allocation per frame).
     pub(super) staging: wgpu::Buffer,
+}
+
+/// Target sets no frame is using, shared by every renderer of one anatomy (see [`Targets`]).
+/// Before, each renderer held all of its full-image and supersampled-region targets between
+/// frames (14 MB at 512 x 512, 9 MB of it besides the kept L-buffer, plus a few MB for the
+/// region), most of a session's memory. A set is taken when a frame starts (one of its size,
+/// else a new one) and given back when it ends; at most [`POOL_KEEP`] sets of each kind stay
+/// free, the oldest are dropped.
+#[derive(Default)]
+pub(super) struct TargetPool {
+    free: std::sync::Mutex<FreeTargets>,
+}
+
+#[derive(Default)]
+struct FreeTargets {
+    geometry: Vec<GeometryTargets>,
+    frame: Vec<FrameTargets>,
+}
+
+/// Free sets kept per kind. Each frame in flight holds a set from its encoding to its read-back;
+/// sessions render when their learner acts and the device runs one queue's submissions in
+/// order, so a few sets serve many sessions, and more would only hold memory (a set beyond is
+/// dropped, and made again by the frame that needs it).
+pub(super) const POOL_KEEP: usize = 4;
+
+impl TargetPool {
+    /// A free geometric L-buffer of `size`, or a new one. Its contents are undefined: the
+    /// geometric pass clears it.
+    pub(super) fn take_geometry(&self, device: &wgpu::Device, size: [u32; 2]) -> GeometryTargets {
+        let found = {
+            let mut free = self.lock();
+            let i = free.geometry.iter().rposition(|g| g.size == size);
+            i.map(|i| free.geometry.remove(i))
+        };
+        found.unwrap_or_else(|| GeometryTargets::new(device, size))
+    }
+
+    /// Free frame targets of `size`, or new ones.
+    pub(super) fn take_frame(&self, device: &wgpu::Device, size: [u32; 2]) -> FrameTargets {
+        let found = {
+            let mut free = self.lock();
+            let i = free.frame.iter().rposition(|f| f.size == size);
+            i.map(|i| free.frame.remove(i))
+        };
+        found.unwrap_or_else(|| FrameTargets::new(device, size))
+    }
+
+    /// Gives back what a frame used (the geometric part only where the renderer does not keep
+    /// it), dropping the oldest free sets beyond [`POOL_KEEP`].
+    pub(super) fn give_back(&self, geometry: Option<GeometryTargets>, frame: FrameTargets) {
+        let evicted = {
+            let mut free = self.lock();
+            free.frame.push(frame);
+            free.geometry.extend(geometry);
+            let frame = (free.frame.len() > POOL_KEEP).then(|| free.frame.remove(0));
+            let geometry = (free.geometry.len() > POOL_KEEP).then(|| free.geometry.remove(0));
+            (geometry, frame)
+        };
+        // Freed outside the lock.
+        drop(evicted);
+    }
+
+    /// Free sets (geometric, frame) now.
+    pub(super) fn free_sets(&self) -> (usize, usize) {
+        let free = self.lock();
+        (free.geometry.len(), free.frame.len())
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, FreeTargets> {
+        // The lists stay consistent whatever panicked while holding them.
+        self.free
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
 }
 
 const FMT_A: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
@@ -224,44 +314,63 @@ impl Pipelines {
     }
 }
 
-impl Targets {
-    /// Every target and buffer of one region size.
-    pub(super) fn new(device: &wgpu::Device, size: [u32; 2]) -> Targets {
-        let tex = |label: &str, format| {
-            device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: wgpu::Extent3d {
-                    width: size[0],
-                    height: size[1],
-                    depth_or_array_layers: 1,
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-                    | wgpu::TextureUsages::TEXTURE_BINDING
-                    | wgpu::TextureUsages::COPY_SRC,
-                view_formats: &[],
-            })
-        };
-        Targets {
+fn texture(
+    device: &wgpu::Device,
+    size: [u32; 2],
+    label: &str,
+    format: wgpu::TextureFormat,
+) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width: size[0],
+            height: size[1],
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+            | wgpu::TextureUsages::TEXTURE_BINDING
+            | wgpu::TextureUsages::COPY_SRC,
+        view_formats: &[],
+    })
+}
+
+impl GeometryTargets {
+    fn new(device: &wgpu::Device, size: [u32; 2]) -> GeometryTargets {
+        GeometryTargets {
             size,
-            a: tex("fluoro lbuffer", FMT_A),
-            s: tex("fluoro lbuffer, water-basis channel", FMT_SCALAR),
-            d: tex("fluoro displaced lbuffer", FMT_A),
-            hull: tex("fluoro needle hull", FMT_HULL),
-            chord: tex("fluoro needle chord", FMT_CHORD),
-            resolve: tex("fluoro resolve target", FMT_RESOLVE),
+            a: texture(device, size, "fluoro lbuffer", FMT_A),
+            s: texture(
+                device,
+                size,
+                "fluoro lbuffer, water-basis channel",
+                FMT_SCALAR,
+            ),
+        }
+    }
+}
+
+impl FrameTargets {
+    fn new(device: &wgpu::Device, size: [u32; 2]) -> FrameTargets {
+        let bytes = u64::from(size[0]) * u64::from(size[1]) * 4;
+        FrameTargets {
+            size,
+            d: texture(device, size, "fluoro displaced lbuffer", FMT_A),
+            hull: texture(device, size, "fluoro needle hull", FMT_HULL),
+            chord: texture(device, size, "fluoro needle chord", FMT_CHORD),
+            resolve: texture(device, size, "fluoro resolve target", FMT_RESOLVE),
             out_t: device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("fluoro transmission"),
-                size: u64::from(size[0]) * u64::from(size[1]) * 4,
+                size: bytes,
                 usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
                 mapped_at_creation: false,
             }),
             staging: device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("fluoro transmission readback"),
-                size: u64::from(size[0]) * u64::from(size[1]) * 4,
+                size: bytes,
                 usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             }),
@@ -304,4 +413,57 @@ fn resolve_layout_entries() -> [wgpu::BindGroupLayoutEntry; 9] {
         entry(7, texture(wgpu::TextureViewDimension::D2)),
         entry(8, texture(wgpu::TextureViewDimension::D2)),
     ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A frame takes a pooled set of its size when there is one, a set of another size is never
+    /// handed out, and at most `POOL_KEEP` sets of each kind stay free (the oldest go).
+    #[test]
+    fn the_pool_hands_out_sets_of_the_asked_size_and_keeps_a_few() {
+        let Some(ctx) = crate::gpu::context_for_tests() else {
+            return;
+        };
+        let device = &ctx.device;
+        let pool = TargetPool::default();
+        let (small, large) = ([8, 4], [16, 8]);
+        let taken: Vec<_> = (0..POOL_KEEP + 2)
+            .map(|_| {
+                (
+                    pool.take_geometry(device, small),
+                    pool.take_frame(device, small),
+                )
+            })
+            .collect();
+        assert_eq!(pool.free_sets(), (0, 0));
+        for (g, f) in taken {
+            pool.give_back(Some(g), f);
+        }
+        assert_eq!(pool.free_sets(), (POOL_KEEP, POOL_KEEP));
+        let f = pool.take_frame(device, large);
+        assert_eq!(f.size, large);
+        assert_eq!(
+            pool.free_sets(),
+            (POOL_KEEP, POOL_KEEP),
+            "a new set, none taken"
+        );
+        let g = pool.take_geometry(device, small);
+        assert_eq!(g.size, small);
+        assert_eq!(pool.free_sets(), (POOL_KEEP - 1, POOL_KEEP));
+        pool.give_back(None, f);
+        assert_eq!(
+            pool.free_sets(),
+            (POOL_KEEP - 1, POOL_KEEP),
+            "the oldest went"
+        );
+        assert_eq!(pool.take_frame(device, large).size, large);
+        assert_eq!(
+            pool.free_sets(),
+            (POOL_KEEP - 1, POOL_KEEP - 1),
+            "the pooled one"
+        );
+        drop(g);
+    }
 }

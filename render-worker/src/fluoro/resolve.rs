@@ -287,11 +287,11 @@ impl ResolvePass {
                 },
                 wgpu::BindGroupEntry {
                     binding: 1,
-                    resource: wgpu::BindingResource::TextureView(&view_of(&t.a)),
+                    resource: wgpu::BindingResource::TextureView(&view_of(&t.geometry.a)),
                 },
                 wgpu::BindGroupEntry {
                     binding: 2,
-                    resource: wgpu::BindingResource::TextureView(&view_of(&t.chord)),
+                    resource: wgpu::BindingResource::TextureView(&view_of(&t.frame.chord)),
                 },
                 wgpu::BindGroupEntry {
                     binding: 3,
@@ -303,7 +303,7 @@ impl ResolvePass {
                 },
                 wgpu::BindGroupEntry {
                     binding: 5,
-                    resource: t.out_t.as_entire_binding(),
+                    resource: t.frame.out_t.as_entire_binding(),
                 },
                 wgpu::BindGroupEntry {
                     binding: 6,
@@ -311,16 +311,17 @@ impl ResolvePass {
                 },
                 wgpu::BindGroupEntry {
                     binding: 7,
-                    resource: wgpu::BindingResource::TextureView(&view_of(&t.d)),
+                    resource: wgpu::BindingResource::TextureView(&view_of(&t.frame.d)),
                 },
                 wgpu::BindGroupEntry {
                     binding: 8,
-                    resource: wgpu::BindingResource::TextureView(&view_of(&t.s)),
+                    resource: wgpu::BindingResource::TextureView(&view_of(&t.geometry.s)),
                 },
             ],
         });
         {
             let target = t
+                .frame
                 .resolve
                 .create_view(&wgpu::TextureViewDescriptor::default());
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -358,9 +359,9 @@ impl ResolvePass {
         let row_bytes = u64::from(size[0]) * 4;
         let bytes = row_bytes * u64::from(rect[3]);
         enc.copy_buffer_to_buffer(
-            &t.out_t,
+            &t.frame.out_t,
             row_bytes * u64::from(rect[1]),
-            &t.staging,
+            &t.frame.staging,
             0,
             bytes,
         );
@@ -383,7 +384,8 @@ pub(super) fn submit_and_read(
     for p in pending.iter().filter(|p| p.bytes > 0) {
         let (tx, rx) = std::sync::mpsc::channel();
         let t = targets[p.ri].as_ref().expect("targets");
-        t.staging
+        t.frame
+            .staging
             .map_async(wgpu::MapMode::Read, ..p.bytes, move |r| {
                 // The receiver lives until recv() below returns, so a send error cannot happen.
                 let _ = tx.send(r);
@@ -403,16 +405,21 @@ pub(super) fn submit_and_read(
         let data = if p.bytes > 0 {
             let t = targets[p.ri].as_ref().expect("targets");
             let data = {
-                let view = t.staging.get_mapped_range(..p.bytes).map_err(readback)?;
+                let view = t
+                    .frame
+                    .staging
+                    .get_mapped_range(..p.bytes)
+                    .map_err(readback)?;
                 bytemuck::cast_slice::<u8, f32>(&view).to_vec()
             };
-            t.staging.unmap();
+            t.frame.staging.unmap();
             data
         } else {
             Vec::new()
         };
         outs.push(PixelRectOut {
             rows: p.rows.clone(),
+            cols: p.cols.clone(),
             data,
             needle_rect: p.needle_rect,
         });

@@ -161,14 +161,18 @@ pub(super) const NO_NEEDLE: f64 = 1.0e30;
 pub(super) struct Pending {
     pub(super) ri: usize,
     pub(super) rows: std::ops::Range<u32>,
+    /// The resolved columns of those rows (the read-back holds whole rows; outside these
+    /// columns it is whatever the pooled buffer held).
+    pub(super) cols: std::ops::Range<u32>,
     /// Bytes to read back (0: nothing was resolved).
     pub(super) bytes: u64,
     pub(super) needle_rect: Option<[u32; 4]>,
 }
 
-/// Resolved rows of one [`PixelRect`].
+/// Resolved rows of one [`PixelRect`] (whole rows; only `cols` of them were resolved).
 pub(super) struct PixelRectOut {
     pub(super) rows: std::ops::Range<u32>,
+    pub(super) cols: std::ops::Range<u32>,
     pub(super) data: Vec<f32>,
     pub(super) needle_rect: Option<[u32; 4]>,
 }
