@@ -376,8 +376,8 @@ fn memory(rt: &tokio::runtime::Runtime, quick: bool) {
         t.elapsed().as_secs_f64()
     );
     println!(
-        "Each session: a shot, its needle placed and fed 20 mm, a second shot. The first \
-         session's increment includes a shared upload.\n"
+        "Each session: a shot, its needle placed and fed 20 mm, a second shot; memory is read \
+         1.6 s after the last frame. The first session's increment includes a shared upload.\n"
     );
     // As `Backends::open` chooses (the GPU when it opens and passes its self-test), plus, on a
     // GPU, the baseline of one anatomy upload per session (what every session cost before the
@@ -435,7 +435,9 @@ fn memory(rt: &tokio::runtime::Runtime, quick: bool) {
                 handles.push(s);
             }
             let per_ms = t.elapsed().as_secs_f64() * 1000.0 / added.max(1) as f64;
-            std::thread::sleep(Duration::from_millis(200));
+            // Measured at rest: a process that has rendered nothing for a second hands the
+            // allocator's free memory back (`render_worker::alloc::busy`).
+            std::thread::sleep(Duration::from_millis(1_600));
             let rss = rss_mb();
             let per = match last_mb {
                 Some((m, k)) if n > k => format!("{:.1}", (rss - m) / (n - k) as f64),

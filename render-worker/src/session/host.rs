@@ -733,7 +733,10 @@ fn run_actor(
     // Before the first input: a learner looks at the station before the first shot, and the
     // renderer and the first view are ready by then (a command that comes sooner waits for
     // this, no longer than its own frame would have taken).
-    session.prefetch();
+    {
+        let _busy = crate::alloc::busy();
+        session.prefetch();
+    }
     let started = Instant::now();
     let base_ms = session.world().clock_ms;
     let mut frame_seq = 0u64;
@@ -769,6 +772,9 @@ fn run_actor(
         if !session.has_dirty(&visible) {
             continue;
         }
+        // A frame in flight until it is published (see `alloc::busy`: free memory goes back
+        // to the system once no session has rendered for a while).
+        let _busy = crate::alloc::busy();
         // Progressive frames: a draft at once where a view has one (the C-arm moved on a large
         // region), and the full frame only once no newer input waits (a drag still in flight
         // gets drafts only; the frame header marks them, see `frame`).
