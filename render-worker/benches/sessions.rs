@@ -7,7 +7,9 @@
 //!
 //! Last, resident memory with 0, 1, 8 and 16 live sessions on the default lumbar phantom station
 //! (the phantom is built once into the target folder, about 70 s on 2 cores, and read back from
-//! there in about 5 s afterwards), against the baseline of one anatomy upload per session.
+//! there in about 5 s afterwards), against the baseline of one anatomy upload per session; then
+//! one of those sessions goes on for 60 more frames (120 in full mode), and what stays resident
+//! per frame is reported (a leak shows there).
 //! `cargo bench -p render-worker --bench sessions -- memory` runs that section alone.
 
 use std::collections::BTreeSet;
@@ -385,7 +387,12 @@ fn memory(rt: &tokio::runtime::Runtime, quick: bool) {
     let mut variants: Vec<(&str, Backends, &[usize])> = Vec::new();
     match render_worker::session::devices::open_gpu() {
         Ok(ctx) => {
-            variants.push(("one per region", Backends::gpu(ctx.clone()), &[0, 1, 8, 16]));
+            // Its draft scene is built before the rows (sessions otherwise start building it at
+            // their first C-arm move, in the middle of a measurement).
+            let shared = GpuFluoroBackend::new(ctx.clone());
+            shared.wait_for_draft_scene(&region);
+            let shared = Backends::new(Arc::new(shared), Backends::gpu(ctx.clone()).ultrasound);
+            variants.push(("one per region", shared, &[0, 1, 8, 16]));
             let private = Backends::new(
                 Arc::new(GpuFluoroBackend::with_private_uploads(ctx.clone())),
                 Backends::gpu(ctx).ultrasound,
@@ -404,6 +411,7 @@ fn memory(rt: &tokio::runtime::Runtime, quick: bool) {
         "| renderer | anatomy upload | live sessions | RSS (MiB) | added per session since the row above (MiB) | session set-up and both shots, mean (ms) |"
     );
     println!("|---|---|---:|---:|---:|---:|");
+    let mut soaks = Vec::new();
     for (label, backends, counts) in variants {
         let profile = backends.fluoro.profile();
         let top = counts.iter().copied().max().unwrap_or(0);
@@ -454,10 +462,63 @@ fn memory(rt: &tokio::runtime::Runtime, quick: bool) {
                 profile.kind, profile.device
             );
         }
+        // The soak on the renderer sessions get (the baseline has no draft scene built).
+        if let Some(first) = handles.first().filter(|_| soaks.is_empty()) {
+            soaks.push((label, soak(rt, first, if quick { 60 } else { 120 })));
+        }
         // Session threads release their GPU resources before the next variant.
         h.shutdown();
         drop(handles);
     }
+    println!(
+        "\nOne live session goes on (C-arm moves of 0.5 degrees and 0.5 mm needle feeds in turn, \
+         a shot after each, after as many frames to warm up; memory read 1.6 s after the last \
+         frame): what stays resident per frame \
+         (a leak shows here).\n"
+    );
+    println!("| anatomy upload | frames | RSS before (MiB) | RSS after (MiB) | per frame (MiB) |");
+    println!("|---|---:|---:|---:|---:|");
+    for (label, (frames, before, after)) in soaks {
+        println!(
+            "| {label} | {frames} | {before:.0} | {after:.0} | {:.3} |",
+            (after - before) / frames as f64
+        );
+    }
+}
+
+/// `frames` more frames of session `s` (alternately a C-arm move and a needle feed, each with a
+/// shot) after as many to warm up: (frames, RSS before, RSS after), MiB, each read at rest.
+fn soak(rt: &tokio::runtime::Runtime, s: &SessionHandle, frames: u64) -> (u64, f64, f64) {
+    run_soak_frames(rt, s, 0..frames);
+    std::thread::sleep(Duration::from_millis(1_600));
+    let before = rss_mb();
+    run_soak_frames(rt, s, frames..2 * frames);
+    std::thread::sleep(Duration::from_millis(1_600));
+    (frames, before, rss_mb())
+}
+
+fn run_soak_frames(rt: &tokio::runtime::Runtime, s: &SessionHandle, frames: std::ops::Range<u64>) {
+    rt.block_on(async {
+        for k in frames {
+            let seq = 1_000 + 2 * k;
+            let command = if k % 2 == 0 {
+                Command::CarmPose {
+                    orbital_deg: 0.5 * (k % 40) as f64,
+                    angular_deg: 0.0,
+                    table_mm: [0.0; 3],
+                }
+            } else {
+                Command::NeedleFeed { mm: 0.5 }
+            };
+            s.command(Envelope { seq, command }).await.expect("command");
+            let shot = Envelope {
+                seq: seq + 1,
+                command: Command::Shot,
+            };
+            s.command(shot).await.expect("command");
+            frame_of(s, seq + 1).await;
+        }
+    });
 }
 
 /// Waits until the session has published a fluoroscopy frame showing input `seq`.

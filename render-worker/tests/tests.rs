@@ -13,6 +13,7 @@ mod modality_seam;
 mod needle_handling;
 mod session_host;
 mod sessions;
+mod shaders;
 mod ultrasound;
 mod ultrasound_gpu;
 mod worker_process;

@@ -12,7 +12,7 @@ struct Params {
     blades: vec4<f32>,
     // (iris radius squared mm^2 or -1, column pitch mm, row pitch mm, cortical shell mm).
     misc: vec4<f32>,
-    // (columns, rows, spectral bins, iodine present).
+    // (columns, rows, spectral bins, iodine present); w is unread (the pipeline variant decides).
     dims: vec4<u32>,
     // 60 keV coefficients per cm: cortical, cancellous, steel, stock iodine.
     mu: vec4<f32>,
@@ -26,7 +26,8 @@ struct Params {
     // Sampled region: (first pixel column, first row, 1 / samples per pixel axis, 0); sample
     // (i, j) is at continuous pixel coordinates first + (i + 0.5, j + 0.5) / n.
     region: vec4<f32>,
-    // Whole detector (columns, rows, needle present, 0).
+    // Whole detector (columns, rows, needle present, 0); z is unread (the pipeline variant
+    // decides, see `resolve_sample`).
     full: vec4<u32>,
     lut_dims: vec4<u32>,
     // Resolved rectangle of samples: (first column, first row, columns, rows). Unread here (the
@@ -161,7 +162,12 @@ fn resolve_sample(id: vec2<u32>) {
     let geometric = textureLoad(lbuf, p, 0) + vec4<f32>(textureLoad(sbuf, p, 0).x, 0.0, 0.0, 0.0);
     var a = geometric * (len / dot(params.row_w.xyz, d));
     var steel = 0.0;
-    if (has_needle && params.full.z != 0u) {
+    // Branch on pipeline constants only, never on a uniform value: lavapipe inlines uniforms
+    // that decide an `if` holding texture reads and builds the shader again whenever the
+    // uniform buffer changes (every frame), keeping every build: with `params.full.z != 0u`
+    // here a session grew by 1.4 MB per frame with a needle. The variant with the needle's
+    // inputs is only drawn over the needle's box, the iodine variant only with a field.
+    if (has_needle) {
         steel = max(textureLoad(needle_chord, p, 0).x, 0.0);
         a += textureLoad(dbuf, p, 0);
     }
@@ -173,7 +179,7 @@ fn resolve_sample(id: vec2<u32>) {
     let a_bone = max(a.y + (params.mu.x - params.mu.y) * (a.w - c), 0.0) * 0.1;
     let a_iron = params.mu.z * steel * 0.1;
     var a_iod = 0.0;
-    if (has_iodine && params.dims.w != 0u) {
+    if (has_iodine) {
         a_iod = params.mu.w * iodine_column(d / len, len) * 0.1;
     }
     // Without steel or iodine, T depends on (A_water, A_bone) only: bilinear in the ln T table.
