@@ -97,6 +97,9 @@ pub struct GpuFluoroRenderer {
     targets: [Option<Targets>; 2],
     /// The full image's geometric L-buffer between frames (what the geometry cache refers to).
     kept_geometry: Option<GeometryTargets>,
+    /// Whether a frame of this renderer holds its turn at the pool (`TargetPool::enter`),
+    /// from its first target to `release_targets`.
+    admitted: bool,
     resolve: ResolvePass,
     cache: FrameCache,
     /// Bumped whenever the needle changes.
@@ -148,6 +151,7 @@ impl GpuFluoroRenderer {
             lbuffer: LBuffer::new(Arc::clone(&anatomy)),
             targets: [None, None],
             kept_geometry: None,
+            admitted: false,
             resolve: ResolvePass::new(&ctx),
             cache: FrameCache::default(),
             needle_generation: 0,
@@ -442,6 +446,14 @@ impl GpuFluoroRenderer {
     }
 }
 
+/// A renderer dropped in the middle of a frame (a panic while rendering) gives its targets and
+/// its turn back.
+impl Drop for GpuFluoroRenderer {
+    fn drop(&mut self) {
+        self.release_targets();
+    }
+}
+
 /// Recording a frame: the passes of one region, the caches of the full image, the chords.
 impl GpuFluoroRenderer {
     /// Makes `targets[ri]` `size` samples for this frame. The full image's geometric L-buffer is
@@ -452,6 +464,10 @@ impl GpuFluoroRenderer {
             return;
         }
         self.release_target(ri);
+        if !self.admitted {
+            self.anatomy.pool.enter();
+            self.admitted = true;
+        }
         let pool = &self.anatomy.pool;
         let device = &self.ctx.device;
         let kept = match ri {
@@ -486,9 +502,12 @@ impl GpuFluoroRenderer {
         self.anatomy.pool.give_back(geometry, t.frame);
     }
 
-    /// Ends a frame (see [`GpuFluoroRenderer::release_target`]).
+    /// Ends a frame (see [`GpuFluoroRenderer::release_target`]) and its turn at the pool.
     fn release_targets(&mut self) {
         (0..self.targets.len()).for_each(|ri| self.release_target(ri));
+        if std::mem::take(&mut self.admitted) {
+            self.anatomy.pool.leave();
+        }
     }
 
     /// Records the passes of `passes`, then the resolve over one region, or (with `previous`,
