@@ -86,7 +86,8 @@ pub struct Busy(());
 
 impl Drop for Busy {
     fn drop(&mut self) {
-        LAST_FRAME_END_MS.store(now_ms(), Ordering::SeqCst);
+        // The latest end wins when frames end at once on several threads.
+        LAST_FRAME_END_MS.fetch_max(now_ms(), Ordering::SeqCst);
         BUSY.fetch_sub(1, Ordering::SeqCst);
     }
 }

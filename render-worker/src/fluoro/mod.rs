@@ -237,7 +237,7 @@ impl GpuFluoroRenderer {
         iodine: Option<&IodineField>,
     ) -> Result<GpuTransmission, FluoroGpuError> {
         let result = self.transmission_in_frame(projection, energy, iodine);
-        self.release_targets();
+        self.release_targets(result.is_ok());
         result
     }
 
@@ -298,7 +298,7 @@ impl GpuFluoroRenderer {
         iodine: Option<&IodineField>,
     ) -> Result<GpuTransmission, FluoroGpuError> {
         let result = self.supersampled_in_frame(projection, settings, iodine);
-        self.release_targets();
+        self.release_targets(result.is_ok());
         result
     }
 
@@ -446,11 +446,11 @@ impl GpuFluoroRenderer {
     }
 }
 
-/// A renderer dropped in the middle of a frame (a panic while rendering) gives its targets and
-/// its turn back.
+/// A renderer dropped in the middle of a frame (a panic while rendering) gives its turn back;
+/// the targets it held are dropped (see [`GpuFluoroRenderer::release_targets`]).
 impl Drop for GpuFluoroRenderer {
     fn drop(&mut self) {
-        self.release_targets();
+        self.release_targets(false);
     }
 }
 
@@ -463,7 +463,7 @@ impl GpuFluoroRenderer {
         if self.targets[ri].as_ref().is_some_and(|t| t.size == size) {
             return;
         }
-        self.release_target(ri);
+        self.release_target(ri, true);
         if !self.admitted {
             self.anatomy.pool.enter();
             self.admitted = true;
@@ -488,8 +488,8 @@ impl GpuFluoroRenderer {
     }
 
     /// Ends a frame's hold on `targets[ri]`: the full image keeps its geometric L-buffer, the
-    /// rest goes back to the pool.
-    fn release_target(&mut self, ri: usize) {
+    /// rest goes back to the pool if `pool` (else it is dropped).
+    fn release_target(&mut self, ri: usize, pool: bool) {
         let Some(t) = self.targets[ri].take() else {
             return;
         };
@@ -499,12 +499,17 @@ impl GpuFluoroRenderer {
         } else {
             Some(t.geometry)
         };
-        self.anatomy.pool.give_back(geometry, t.frame);
+        if pool {
+            self.anatomy.pool.give_back(geometry, t.frame);
+        }
     }
 
-    /// Ends a frame (see [`GpuFluoroRenderer::release_target`]) and its turn at the pool.
-    fn release_targets(&mut self) {
-        (0..self.targets.len()).for_each(|ri| self.release_target(ri));
+    /// Ends a frame (see [`GpuFluoroRenderer::release_target`]) and its turn at the pool. A
+    /// frame that failed (`completed` false) drops its frame targets instead of pooling them: a
+    /// failed read-back can leave a read-back buffer mapped, which would fail the next frame of
+    /// whichever renderer took it.
+    fn release_targets(&mut self, completed: bool) {
+        (0..self.targets.len()).for_each(|ri| self.release_target(ri, completed));
         if std::mem::take(&mut self.admitted) {
             self.anatomy.pool.leave();
         }
@@ -643,7 +648,7 @@ impl GpuFluoroRenderer {
         projection: &Projection,
     ) -> Result<Vec<[f32; CHANNELS]>, FluoroGpuError> {
         let result = self.chords_in_frame(projection);
-        self.release_targets();
+        self.release_targets(result.is_ok());
         result
     }
 
