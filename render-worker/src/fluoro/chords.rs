@@ -16,7 +16,7 @@ fn read_texture(
     tex: &wgpu::Texture,
     channels: usize,
 ) -> Result<Vec<f32>, GpuError> {
-    let [w, h] = t.size;
+    let [w, h] = t.size();
     let row = w as usize * channels * 4;
     let padded = row.div_ceil(256) * 256;
     let buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {

@@ -231,7 +231,7 @@ impl LBuffer {
     ) -> Option<[u32; 4]> {
         let ri = region.index();
         let size = region.size;
-        debug_assert_eq!(t.size, size, "targets sized for the region");
+        debug_assert_eq!(t.size(), size, "targets sized for the region");
         let frame = projection.frame();
         let rays = projection.gpu_ray_frame();
         let v4 = |v: [f32; 3]| [v[0], v[1], v[2], 0.0];

@@ -236,9 +236,7 @@ impl GpuFluoroRenderer {
         energy: &EnergyModel,
         iodine: Option<&IodineField>,
     ) -> Result<GpuTransmission, FluoroGpuError> {
-        let result = self.transmission_in_frame(projection, energy, iodine);
-        self.release_targets(result.is_ok());
-        result
+        self.framed(|r| r.transmission_in_frame(projection, energy, iodine))
     }
 
     fn transmission_in_frame(
@@ -297,9 +295,7 @@ impl GpuFluoroRenderer {
         settings: &RenderSettings,
         iodine: Option<&IodineField>,
     ) -> Result<GpuTransmission, FluoroGpuError> {
-        let result = self.supersampled_in_frame(projection, settings, iodine);
-        self.release_targets(result.is_ok());
-        result
+        self.framed(|r| r.supersampled_in_frame(projection, settings, iodine))
     }
 
     fn supersampled_in_frame(
@@ -460,7 +456,7 @@ impl GpuFluoroRenderer {
     /// the one kept from the last frame when its size matches (another drops what the caches
     /// kept of it); everything else comes from the anatomy's pool.
     fn ensure_targets(&mut self, ri: usize, size: [u32; 2]) {
-        if self.targets[ri].as_ref().is_some_and(|t| t.size == size) {
+        if self.targets[ri].as_ref().is_some_and(|t| t.size() == size) {
             return;
         }
         self.release_target(ri, true);
@@ -481,7 +477,6 @@ impl GpuFluoroRenderer {
             pool.take_geometry(device, size)
         });
         self.targets[ri] = Some(Targets {
-            size,
             geometry,
             frame: pool.take_frame(device, size),
         });
@@ -502,6 +497,17 @@ impl GpuFluoroRenderer {
         if pool {
             self.anatomy.pool.give_back(geometry, t.frame);
         }
+    }
+
+    /// Runs one frame, `frame`, then ends it (`release_targets`), whether it succeeded or not:
+    /// every public rendering call goes through here.
+    fn framed<T>(
+        &mut self,
+        frame: impl FnOnce(&mut Self) -> Result<T, FluoroGpuError>,
+    ) -> Result<T, FluoroGpuError> {
+        let result = frame(self);
+        self.release_targets(result.is_ok());
+        result
     }
 
     /// Ends a frame (see [`GpuFluoroRenderer::release_target`]) and its turn at the pool. A
@@ -647,9 +653,7 @@ impl GpuFluoroRenderer {
         &mut self,
         projection: &Projection,
     ) -> Result<Vec<[f32; CHANNELS]>, FluoroGpuError> {
-        let result = self.chords_in_frame(projection);
-        self.release_targets(result.is_ok());
-        result
+        self.framed(|r| r.chords_in_frame(projection))
     }
 
     fn chords_in_frame(

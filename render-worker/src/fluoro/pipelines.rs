@@ -29,9 +29,15 @@ pub(super) struct Pipelines {
 /// else is written before it is read within each frame, so it is taken from the anatomy's
 /// [`TargetPool`] when a frame starts and given back when it ends.
 pub(super) struct Targets {
-    pub(super) size: [u32; 2],
     pub(super) geometry: GeometryTargets,
     pub(super) frame: FrameTargets,
+}
+
+impl Targets {
+    /// Samples per axis (both parts have the same).
+    pub(super) fn size(&self) -> [u32; 2] {
+        self.geometry.size
+    }
 }
 
 /// The geometric L-buffer of one size.
@@ -109,21 +115,13 @@ impl TargetPool {
     /// A free geometric L-buffer of `size`, or a new one. Its contents are undefined: the
     /// geometric pass clears it.
     pub(super) fn take_geometry(&self, device: &wgpu::Device, size: [u32; 2]) -> GeometryTargets {
-        let found = {
-            let mut free = self.lock();
-            let i = free.geometry.iter().rposition(|g| g.size == size);
-            i.map(|i| free.geometry.remove(i))
-        };
+        let found = take_sized(&mut self.lock().geometry, |g| g.size == size);
         found.unwrap_or_else(|| GeometryTargets::new(device, size))
     }
 
     /// Free frame targets of `size`, or new ones.
     pub(super) fn take_frame(&self, device: &wgpu::Device, size: [u32; 2]) -> FrameTargets {
-        let found = {
-            let mut free = self.lock();
-            let i = free.frame.iter().rposition(|f| f.size == size);
-            i.map(|i| free.frame.remove(i))
-        };
+        let found = take_sized(&mut self.lock().frame, |f| f.size == size);
         found.unwrap_or_else(|| FrameTargets::new(device, size))
     }
 
@@ -134,9 +132,10 @@ impl TargetPool {
             let mut free = self.lock();
             free.frame.push(frame);
             free.geometry.extend(geometry);
-            let frame = (free.frame.len() > POOL_KEEP).then(|| free.frame.remove(0));
-            let geometry = (free.geometry.len() > POOL_KEEP).then(|| free.geometry.remove(0));
-            (geometry, frame)
+            (
+                oldest_beyond_keep(&mut free.geometry),
+                oldest_beyond_keep(&mut free.frame),
+            )
         };
         // Freed outside the lock.
         drop(evicted);
@@ -172,6 +171,17 @@ impl TargetPool {
         // The lists stay consistent whatever panicked while holding them.
         self.free.lock().unwrap_or_else(PoisonError::into_inner)
     }
+}
+
+/// The most recently given back of `free` that `fits`, taken out of the list.
+fn take_sized<T>(free: &mut Vec<T>, fits: impl Fn(&T) -> bool) -> Option<T> {
+    let i = free.iter().rposition(fits)?;
+    Some(free.remove(i))
+}
+
+/// The oldest of `free` if it holds more than [`POOL_KEEP`], taken out of the list.
+fn oldest_beyond_keep<T>(free: &mut Vec<T>) -> Option<T> {
+    (free.len() > POOL_KEEP).then(|| free.remove(0))
 }
 
 const FMT_A: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
