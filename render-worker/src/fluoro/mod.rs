@@ -14,11 +14,13 @@
 //!   [`nesting_plan`] decides which mesh adds its chord to which material and subtracts it from
 //!   which container (CPU geometry, tested in sim-core); the drawn triangles are uploaded, the
 //!   meshes that only touch the water-basis channel first; `Pipelines::new` (`pipelines.rs`)
-//!   builds every pass. This is read-only and shared behind an `Arc` by every renderer of that
-//!   scene on that device ([`GpuFluoroRenderer::with_anatomy`]; a session server keeps one per
+//!   builds every pass. This is read-only (but for its pool of render targets no frame is
+//!   using, `pipelines::TargetPool`) and shared behind an `Arc` by every renderer of that scene
+//!   on that device ([`GpuFluoroRenderer::with_anatomy`]; a session server keeps one per
 //!   region). Each renderer adds its own state: `LBuffer::new` (`lbuffer.rs`: needle, uniforms,
-//!   culling boxes), targets, `ResolvePass` and `FrameCache`. [`GpuFluoroRenderer::new`] does
-//!   both for one scene.
+//!   culling boxes), the full image's geometric L-buffer, `ResolvePass` and `FrameCache`; the
+//!   other targets it takes from the pool for each frame. [`GpuFluoroRenderer::new`] does both
+//!   for one scene.
 //! - Pass 1, geometric anatomy L-buffer (`lbuffer.rs`, `LBuffer::encode`; `lbuffer.wgsl`
 //!   `fs_anatomy`, `fs_anatomy_scalar`): signed axial depths times per-mesh weights, additive
 //!   blending, no depth test; independent of the needle.
@@ -142,8 +144,9 @@ impl GpuFluoroRenderer {
     }
 
     /// A renderer drawing `anatomy` (on the anatomy's device), no needle yet. Every renderer of
-    /// the same anatomy reads its buffers and pipelines; what this one allocates is its own
-    /// needle, uniforms, targets (sized on the first frame) and caches. Its frames are those of
+    /// the same anatomy reads its buffers and pipelines and shares its pool of targets; what this
+    /// one allocates is its own needle, uniforms, the full image's geometric L-buffer (sized on
+    /// the first frame) and caches. Its frames are those of
     /// a renderer made by [`GpuFluoroRenderer::new`] from the same scene, bit for bit.
     pub fn with_anatomy(anatomy: Arc<GpuAnatomy>) -> GpuFluoroRenderer {
         let ctx = anatomy.ctx.clone();
