@@ -60,7 +60,7 @@ fn now_ms() -> u64 {
 }
 
 /// A frame in flight: hold it while a session renders and publishes. Once the process has had no
-/// frame in flight for [`QUIET_MS`], a background thread hands the allocator's free memory back
+/// frame in flight for `QUIET_MS` (1 s), a background thread hands the allocator's free memory back
 /// to the system (once per quiet period). glibc keeps memory freed inside its heaps: every
 /// session's frames free megabytes of transient buffers between longer-lived allocations, and
 /// that memory stayed resident (sessions bench, memory section, default lumbar station: about

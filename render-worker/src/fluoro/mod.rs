@@ -446,7 +446,7 @@ impl GpuFluoroRenderer {
 }
 
 /// A renderer dropped in the middle of a frame (a panic while rendering) gives its turn back;
-/// the targets it held are dropped (see [`GpuFluoroRenderer::release_targets`]).
+/// the targets it held are dropped (see `GpuFluoroRenderer::release_targets`).
 impl Drop for GpuFluoroRenderer {
     fn drop(&mut self) {
         self.release_targets(false);
