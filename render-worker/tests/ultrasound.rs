@@ -750,3 +750,51 @@ fn b_mode_drafts_come_before_full_frames_while_the_probe_moves_and_replay_exactl
     assert!(fast.s.render_drafts(&both).unwrap().is_empty());
     assert!(fast.s.replay_draft(ViewId::ULTRASOUND).unwrap().is_some());
 }
+
+/// The painted acoustic volume carries its palette form (a dozen tissues, one byte per
+/// voxel), and the CPU reference reading it gives the frame of the CT numbers and labels bit
+/// for bit: square to the lattice and rocked, both probes, a lookup per scatterer either way.
+#[test]
+fn the_palette_medium_gives_the_frames_of_the_ct_numbers() {
+    use render_worker::session::modalities::ultrasound::medium::acoustic_volume;
+    use sim_core::ultrasound::{ProbeKind, ProbePose, Sampling, ScanRequest, Settings, scan};
+    let station = station(IN_PLANE);
+    let site = render_worker::session::anatomy::primary_target(&station).expect("a target");
+    let volume = acoustic_volume(&region(), site);
+    let indexed = volume.indexed.as_ref().expect("a painted volume fits a palette");
+    assert!(
+        (2..=16).contains(&indexed.tissues()),
+        "{} tissues",
+        indexed.tissues()
+    );
+    let skin = skin_above(DVec3::from_array(site));
+    for probe in [ProbeKind::Linear, ProbeKind::Curvilinear] {
+        let spec = probe.spec();
+        let settings = Settings::default_for(&spec);
+        for (beam, turn) in [(DVec3::Y, 0.0), (DVec3::new(0.07, 1.0, -0.05), 7.0)] {
+            let pose = ProbePose::from_rotation(skin - DVec3::Y * 2.0, beam, turn);
+            let frame = |medium: &dyn sim_core::ultrasound::AcousticMedium| {
+                scan(&ScanRequest {
+                    probe,
+                    pose,
+                    settings,
+                    sampling: Sampling::for_settings(&spec, &settings),
+                    medium,
+                    needle: None,
+                    targets: &[],
+                    seed: 3,
+                })
+                .expect("a valid scan")
+            };
+            let (ct, palette) = (frame(&volume.medium()), frame(&volume.cpu_medium()));
+            assert!(
+                ct.pixels == palette.pixels && ct.envelope.data == palette.envelope.data,
+                "{probe:?}, beam {beam}: the palette changed the frame"
+            );
+            assert!(
+                ct.pixels.iter().any(|&g| g > 40),
+                "{probe:?}: the frame shows tissue"
+            );
+        }
+    }
+}

@@ -220,19 +220,10 @@ pub struct CtMedium<'a> {
     pub labels: Option<&'a Volume<u8>>,
 }
 
-impl AcousticMedium for CtMedium<'_> {
-    fn props(&self, p_mm: DVec3) -> AcousticProps {
-        let g = &self.hu.grid;
-        let v = g.world_to_voxel(p_mm.to_array());
-        let mut ijk = [0usize; 3];
-        for a in 0..3 {
-            let r = v[a].round();
-            if !(r >= 0.0 && r < g.dims[a] as f64) {
-                return AIR;
-            }
-            ijk[a] = r as usize;
-        }
-        let idx = g.index(ijk[0], ijk[1], ijk[2]);
+impl CtMedium<'_> {
+    /// The properties of voxel `idx` (linear index on the grid of `hu`): its label's class,
+    /// else the HU mapping.
+    pub fn voxel_props(&self, idx: usize) -> AcousticProps {
         if let Some(class) = self
             .labels
             .and_then(|l| MaterialClass::from_label(l.data[idx]))
@@ -240,5 +231,14 @@ impl AcousticMedium for CtMedium<'_> {
             return class_props(class);
         }
         hu_props(f64::from(self.hu.data[idx]))
+    }
+}
+
+impl AcousticMedium for CtMedium<'_> {
+    fn props(&self, p_mm: DVec3) -> AcousticProps {
+        match self.hu.grid.nearest_voxel(p_mm.to_array()) {
+            Some(idx) => self.voxel_props(idx),
+            None => AIR,
+        }
     }
 }

@@ -10,14 +10,20 @@
 //! table otherwise); classes with their own acoustic entry (bone, vessel, nerve, dura/CSF,
 //! epidural fat, muscle, ligament, disc) are also labelled, so their properties come from the
 //! class table and fat and other soft tissue from the HU mapping (`sim_core::ultrasound::tissue`).
+//!
+//! The CPU reference reads the same tissue through a palette (`IndexedMedium`: one byte per
+//! voxel, in cache-line bricks, and the properties of each distinct tissue computed once), which
+//! gives the same properties at every point and made the session's B-mode frame about a quarter
+//! faster (`ultrasound_session` bench: 62 -> 42 ms square, 114 -> 86 ms rocked).
 
 use std::sync::{Arc, Mutex};
 
+use glam::DVec3;
 use sim_core::anatomy::phantom::TissueHu;
 use sim_core::fluoro::FluoroMaterial;
 use sim_core::geom::Hit;
 use sim_core::material::MaterialClass;
-use sim_core::ultrasound::CtMedium;
+use sim_core::ultrasound::{AcousticMedium, AcousticProps, CtMedium, IndexedMedium};
 use sim_core::volume::{Volume, VolumeGrid};
 
 use crate::session::region::Region;
@@ -54,14 +60,45 @@ pub struct AcousticVolume {
     pub hi_mm: [f64; 3],
     /// Identifies this volume among the cached ones (for renderers that upload it once).
     pub key: u64,
+    /// The same tissue as a palette of properties per (label, HU) pair (one byte per voxel):
+    /// what the CPU reference reads, equal to [`medium`](Self::medium) bit for bit and faster
+    /// per lookup. `None` where the volume holds more distinct tissues than a palette takes.
+    pub indexed: Option<IndexedMedium>,
 }
 
 impl AcousticVolume {
-    /// The medium the scanner reads.
+    /// The medium the scanner reads (CT numbers and labels, what the GPU path uploads).
     pub fn medium(&self) -> CtMedium<'_> {
         CtMedium {
             hu: &self.hu,
             labels: Some(&self.labels),
+        }
+    }
+
+    /// The medium the CPU reference reads: the palette where there is one, else
+    /// [`medium`](Self::medium); the same properties at every point.
+    pub fn cpu_medium(&self) -> CpuMedium<'_> {
+        match &self.indexed {
+            Some(m) => CpuMedium::Indexed(m),
+            None => CpuMedium::Ct(self.medium()),
+        }
+    }
+}
+
+/// What [`AcousticVolume::cpu_medium`] gives.
+#[derive(Debug, Clone, Copy)]
+pub enum CpuMedium<'a> {
+    /// The palette form.
+    Indexed(&'a IndexedMedium),
+    /// The CT numbers and labels.
+    Ct(CtMedium<'a>),
+}
+
+impl AcousticMedium for CpuMedium<'_> {
+    fn props(&self, p_mm: DVec3) -> AcousticProps {
+        match self {
+            CpuMedium::Indexed(m) => m.props(p_mm),
+            CpuMedium::Ct(m) => m.props(p_mm),
         }
     }
 }
@@ -222,11 +259,16 @@ pub fn paint(region: &Region, lo: [f64; 3], hi: [f64; 3], key: u64) -> AcousticV
             }
         }
     }
+    let indexed = IndexedMedium::from_ct(&CtMedium {
+        hu: &hu,
+        labels: Some(&labels),
+    });
     AcousticVolume {
         hu,
         labels,
         lo_mm: lo,
         hi_mm: hi,
         key,
+        indexed,
     }
 }

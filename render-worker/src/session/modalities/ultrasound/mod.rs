@@ -277,7 +277,7 @@ impl UltrasoundModality {
     fn scan_displayed(&mut self, world: &World, draft: bool) -> Result<ViewImage, ModalityError> {
         let scene = self.displayed_scene(world);
         let volume = self.volume();
-        let medium = volume.medium();
+        let medium = volume.cpu_medium();
         let spec = scene.probe.spec();
         let sampling = Sampling::for_settings(&spec, &scene.settings);
         let req = ScanRequest {
