@@ -48,6 +48,7 @@
 //! Not modelled: refraction and speed-of-sound aberration (depth assumes 1540 m/s), multiple
 //! scattering except the needle's reverberation, side lobes, tissue deformation.
 
+mod angle;
 pub mod beam;
 mod echo;
 pub mod error;

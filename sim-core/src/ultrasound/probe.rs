@@ -239,7 +239,7 @@ impl ScanGeometry {
             ProbeKind::Curvilinear => {
                 let r0 = self.spec.radius_mm;
                 let yc = y + r0;
-                let theta = x.atan2(yc);
+                let theta = super::angle::atan2(x, yc);
                 let r = (x * x + yc * yc).sqrt();
                 ((theta / self.half_sector_rad() + 1.0) * 0.5 * n, r - r0)
             }
