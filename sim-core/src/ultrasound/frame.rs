@@ -111,7 +111,9 @@ pub(crate) fn scan_convert(
                 let Some(a) = sample_envelope(&envelope, u, z / envelope.sample_mm) else {
                     continue;
                 };
-                let db = 20.0 * a.max(1e-12).log10() + settings.gain_db + settings.tgc_at_db(z);
+                let db = super::decibel::amplitude_db(a.max(1e-12))
+                    + settings.gain_db
+                    + settings.tgc_at_db(z);
                 let g = ((db + dr) / dr).clamp(0.0, 1.0) * 255.0;
                 *out = u16::from((g + 0.5) as u8) + 1;
             }

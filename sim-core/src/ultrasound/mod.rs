@@ -50,6 +50,7 @@
 
 mod angle;
 pub mod beam;
+mod decibel;
 mod echo;
 pub mod error;
 pub mod frame;
