@@ -86,6 +86,17 @@ pub fn unit_f64_nonzero(x: u64) -> f64 {
     ((x >> 11) + 1) as f64 / TWO_POW_53
 }
 
+/// Uniform deviates in `[0, 1)` from `seed`: SplitMix64 steps through [`unit_f64`] (the
+/// tests' random inputs).
+#[cfg(test)]
+pub(crate) fn uniform_stream(seed: u64) -> impl FnMut() -> f64 {
+    let mut state = seed;
+    move || {
+        state = splitmix64(state);
+        unit_f64(state)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -47,15 +47,11 @@ mod tests {
 
     /// Against libm over random points in every direction and at every scale, at the table's
     /// knots and half-way between them, on the 45-degree diagonals, at zero and for non-finite
-    /// input: within 6e-16 of the angle (a few ulp; the worst seen is 4.4e-16), exactly libm's outside the
-    /// +-45-degree cone.
+    /// input: within 6e-16 of the angle (a few ulp; the worst seen is 4.4e-16), exactly libm's
+    /// outside the +-45-degree cone.
     #[test]
     fn the_angle_is_libm_s_within_a_couple_of_ulp() {
-        let mut state = 11u64;
-        let mut rand = move || {
-            state = crate::rng::splitmix64(state);
-            crate::rng::unit_f64(state)
-        };
+        let mut rand = crate::rng::uniform_stream(11);
         let mut points: Vec<(f64, f64)> = Vec::new();
         for _ in 0..400_000 {
             let scale = 10f64.powf(12.0 * rand() - 6.0);

@@ -56,11 +56,7 @@ mod tests {
     /// for zero, negatives, subnormals and non-finite input.
     #[test]
     fn decibels_are_libm_s_within_a_few_ulp() {
-        let mut state = 5u64;
-        let mut rand = move || {
-            state = crate::rng::splitmix64(state);
-            crate::rng::unit_f64(state)
-        };
+        let mut rand = crate::rng::uniform_stream(5);
         let mut values: Vec<f64> = (0..400_000)
             .map(|_| 10f64.powf(17.0 * rand() - 13.0))
             .collect();

@@ -126,14 +126,6 @@ mod tests {
     use crate::material::MaterialClass;
     use crate::volume::Volume;
 
-    fn uniform(seed: u64) -> impl FnMut() -> f64 {
-        let mut state = seed;
-        move || {
-            state = crate::rng::splitmix64(state);
-            crate::rng::unit_f64(state)
-        }
-    }
-
     /// A small CT of `values` HU (cycled with a stride that mixes them) and some labelled
     /// voxels, on a grid with unequal spacings and an off-integer origin.
     fn ct_volumes(values: &[f32]) -> (Volume<f32>, Volume<u8>) {
@@ -164,7 +156,7 @@ mod tests {
         ];
         let (hu, labels) = ct_volumes(&values);
         let g = hu.grid;
-        let mut rand = uniform(7);
+        let mut rand = crate::rng::uniform_stream(7);
         for with_labels in [false, true] {
             let ct = CtMedium {
                 hu: &hu,
