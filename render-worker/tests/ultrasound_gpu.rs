@@ -212,6 +212,39 @@ fn layered_scene_with_bone_and_needle_matches_the_cpu() {
     }
 }
 
+/// A probe rocked and turned (the lattice's columns cross the slice obliquely, so each
+/// scatterer has its own in-plane point; the CPU steps a curvilinear array's points over
+/// pieces of a column, the GPU converts each in f32): both probes agree within the tolerances.
+#[test]
+fn oblique_poses_match_the_cpu() {
+    let Some(ctx) = context_for_tests() else {
+        return;
+    };
+    let (hu, labels) = layered();
+    let medium = CtMedium {
+        hu: &hu,
+        labels: Some(&labels),
+    };
+    let mut us = GpuUltrasound::new(&ctx).expect("pipelines");
+    for probe in [ProbeKind::Linear, ProbeKind::Curvilinear] {
+        for (beam, turn) in [
+            (DVec3::new(0.1, 0.2, 1.0), 17.0),
+            (DVec3::new(-0.05, 0.0, 1.0), -40.0),
+        ] {
+            let req = ScanRequest {
+                pose: ProbePose::from_rotation(DVec3::ZERO, beam, turn),
+                ..request(probe, &medium, Some(needle()), &[])
+            };
+            let cpu = scan(&req).expect("cpu frame");
+            let gpu = us.scan(&req, &medium, 4).expect("gpu frame");
+            check(
+                &format!("oblique {probe:?} {beam} {turn}"),
+                &agreement(&gpu, &cpu),
+            );
+        }
+    }
+}
+
 #[test]
 fn air_under_the_face_is_gel_on_the_gpu_too() {
     let Some(ctx) = context_for_tests() else {

@@ -37,6 +37,7 @@ mod fascicle;
 mod grid;
 mod lookup;
 mod oblique;
+mod sector;
 mod tables;
 
 pub use deposit::{LatticeBounds, lattice_bounds};

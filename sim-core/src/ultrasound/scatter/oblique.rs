@@ -10,6 +10,7 @@ use super::column::{Column, EchoCache, Reach, ScatterContext};
 use super::fascicle::fascicle_factor;
 use super::grid::{CellSum, IqGrid};
 use super::lookup::{cis, exp_neg_in};
+use super::sector::SectorSteps;
 
 /// A convex region of the plane (image coordinates, mm) that holds every point within the
 /// reach: half-planes `a . p <= b` and, for a sector, a disc. Its clip of a column is one
@@ -156,6 +157,8 @@ pub(super) fn column_oblique<const AM: usize>(
         ((1.0, 0.0), (1.0, 0.0))
     };
     let mut pos = col.pos;
+    // Curvilinear array: each point's angle from the previous one's (see `sector`).
+    let mut sector = SectorSteps::new(geo);
     for k in k_lo..=k_hi {
         let here = q0 + col.step * (k - k_lo) as f64;
         let (u, z, (cs, sn)) = if linear {
@@ -163,7 +166,7 @@ pub(super) fn column_oblique<const AM: usize>(
             carrier = (c.0 * turn.0 - c.1 * turn.1, c.0 * turn.1 + c.1 * turn.0);
             (here.x * lines_per_mm + 0.5 * n, here.y, c)
         } else {
-            let (u, z) = geo.plane_to_line(here.x, here.y);
+            let (u, z) = sector.next(here.x, here.y);
             (u, z, (f64::NAN, f64::NAN))
         };
         if !cx.reach.contains(u, z) {
