@@ -40,6 +40,20 @@ fn layered() -> (Volume<f32>, Volume<u8>) {
     layered_test_volume(grid())
 }
 
+/// Runs `test` with the GPU and the layered scene as a medium (nothing without an adapter:
+/// see `context_for_tests`).
+fn with_layered_scene(test: impl FnOnce(&render_worker::gpu::GpuContext, &CtMedium<'_>)) {
+    let Some(ctx) = context_for_tests() else {
+        return;
+    };
+    let (hu, labels) = layered();
+    let medium = CtMedium {
+        hu: &hu,
+        labels: Some(&labels),
+    };
+    test(&ctx, &medium);
+}
+
 /// Probe at the origin looking along +z, marker towards +x (elevation is +y).
 fn pose() -> ProbePose {
     ProbePose {
@@ -187,62 +201,51 @@ fn both_probes_match(ctx: &render_worker::gpu::GpuContext, hu: &Volume<f32>, key
 
 #[test]
 fn layered_scene_with_bone_and_needle_matches_the_cpu() {
-    let Some(ctx) = context_for_tests() else {
-        return;
-    };
-    let (hu, labels) = layered();
-    let medium = CtMedium {
-        hu: &hu,
-        labels: Some(&labels),
-    };
-    let targets = [PointTarget {
-        position_mm: DVec3::new(10.0, 0.0, 60.0),
-        amplitude: 0.5,
-    }];
-    let mut us = GpuUltrasound::new(&ctx).expect("pipelines");
-    for probe in [ProbeKind::Linear, ProbeKind::Curvilinear] {
-        let req = request(probe, &medium, Some(needle()), &targets);
-        let cpu = scan(&req).expect("cpu frame");
-        let gpu = us.scan(&req, &medium, 2).expect("gpu frame");
-        assert_eq!(
-            gpu.needle, cpu.needle,
-            "{probe:?}: the needle view is sim-core's"
-        );
-        check(&format!("layered {probe:?}"), &agreement(&gpu, &cpu));
-    }
+    with_layered_scene(|ctx, medium| {
+        let targets = [PointTarget {
+            position_mm: DVec3::new(10.0, 0.0, 60.0),
+            amplitude: 0.5,
+        }];
+        let mut us = GpuUltrasound::new(ctx).expect("pipelines");
+        for probe in [ProbeKind::Linear, ProbeKind::Curvilinear] {
+            let req = request(probe, medium, Some(needle()), &targets);
+            let cpu = scan(&req).expect("cpu frame");
+            let gpu = us.scan(&req, medium, 2).expect("gpu frame");
+            assert_eq!(
+                gpu.needle, cpu.needle,
+                "{probe:?}: the needle view is sim-core's"
+            );
+            check(&format!("layered {probe:?}"), &agreement(&gpu, &cpu));
+        }
+    });
 }
 
 /// A probe rocked and turned (the lattice's columns cross the slice obliquely, so each
-/// scatterer has its own in-plane point; the CPU steps a curvilinear array's points over
-/// pieces of a column, the GPU converts each in f32): both probes agree within the tolerances.
+/// scatterer has its own in-plane point; under a curvilinear array the CPU steps each point's
+/// angle from the last one's, the GPU converts each in f32): both probes agree within the
+/// tolerances.
 #[test]
 fn oblique_poses_match_the_cpu() {
-    let Some(ctx) = context_for_tests() else {
-        return;
-    };
-    let (hu, labels) = layered();
-    let medium = CtMedium {
-        hu: &hu,
-        labels: Some(&labels),
-    };
-    let mut us = GpuUltrasound::new(&ctx).expect("pipelines");
-    for probe in [ProbeKind::Linear, ProbeKind::Curvilinear] {
-        for (beam, turn) in [
-            (DVec3::new(0.1, 0.2, 1.0), 17.0),
-            (DVec3::new(-0.05, 0.0, 1.0), -40.0),
-        ] {
-            let req = ScanRequest {
-                pose: ProbePose::from_rotation(DVec3::ZERO, beam, turn),
-                ..request(probe, &medium, Some(needle()), &[])
-            };
-            let cpu = scan(&req).expect("cpu frame");
-            let gpu = us.scan(&req, &medium, 4).expect("gpu frame");
-            check(
-                &format!("oblique {probe:?} {beam} {turn}"),
-                &agreement(&gpu, &cpu),
-            );
+    with_layered_scene(|ctx, medium| {
+        let mut us = GpuUltrasound::new(ctx).expect("pipelines");
+        for probe in [ProbeKind::Linear, ProbeKind::Curvilinear] {
+            for (beam, turn) in [
+                (DVec3::new(0.1, 0.2, 1.0), 17.0),
+                (DVec3::new(-0.05, 0.0, 1.0), -40.0),
+            ] {
+                let req = ScanRequest {
+                    pose: ProbePose::from_rotation(DVec3::ZERO, beam, turn),
+                    ..request(probe, medium, Some(needle()), &[])
+                };
+                let cpu = scan(&req).expect("cpu frame");
+                let gpu = us.scan(&req, medium, 4).expect("gpu frame");
+                check(
+                    &format!("oblique {probe:?} {beam} {turn}"),
+                    &agreement(&gpu, &cpu),
+                );
+            }
         }
-    }
+    });
 }
 
 #[test]
@@ -268,27 +271,21 @@ fn air_under_the_face_is_gel_on_the_gpu_too() {
 
 #[test]
 fn repeated_gpu_frames_are_bit_identical() {
-    let Some(ctx) = context_for_tests() else {
-        return;
-    };
-    let (hu, labels) = layered();
-    let medium = CtMedium {
-        hu: &hu,
-        labels: Some(&labels),
-    };
-    let mut us = GpuUltrasound::new(&ctx).expect("pipelines");
-    let req = request(ProbeKind::Linear, &medium, Some(needle()), &[]);
-    let a = us.scan(&req, &medium, 3).expect("first");
-    let b = us.scan(&req, &medium, 3).expect("second");
-    assert_eq!(a.pixels, b.pixels);
-    let bits = |f: &BModeFrame| {
-        f.envelope
-            .data
-            .iter()
-            .map(|v| v.to_bits())
-            .collect::<Vec<_>>()
-    };
-    assert_eq!(bits(&a), bits(&b));
+    with_layered_scene(|ctx, medium| {
+        let mut us = GpuUltrasound::new(ctx).expect("pipelines");
+        let req = request(ProbeKind::Linear, medium, Some(needle()), &[]);
+        let a = us.scan(&req, medium, 3).expect("first");
+        let b = us.scan(&req, medium, 3).expect("second");
+        assert_eq!(a.pixels, b.pixels);
+        let bits = |f: &BModeFrame| {
+            f.envelope
+                .data
+                .iter()
+                .map(|v| v.to_bits())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(bits(&a), bits(&b));
+    });
 }
 
 #[test]
