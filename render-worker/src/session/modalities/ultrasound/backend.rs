@@ -58,8 +58,8 @@ impl UltrasoundBackend for CpuUltrasoundBackend {
         Box::new(CpuUltrasoundBackend)
     }
 
-    /// On the CPU an oblique pose costs 60-70 ms a frame on two cores, its draft 11-25 ms
-    /// (the sim-core `ultrasound` bench).
+    /// On the CPU a session frame costs about 40 ms square to the lattice and 75 ms rocked on
+    /// two cores, its draft 12-17 ms (the render-worker `ultrasound_session` bench).
     fn drafts(&self) -> bool {
         true
     }
