@@ -130,7 +130,7 @@ pub struct Volume<T> {
 /// `(-0.5, 0)`, counts as 0, as `r >= 0.0` takes it), `n` or more, or NaN. Exact: below 2^52 the
 /// fraction `v - trunc(v)` is computed without rounding, and half rounds away from zero.
 #[inline]
-fn round_in(v: f64, n: usize) -> Option<usize> {
+pub(crate) fn round_in(v: f64, n: usize) -> Option<usize> {
     // NaN fails the comparison; `n as f64 - 0.5` is exact for any grid that fits in memory.
     if !(v > -0.5 && v < n as f64 - 0.5) {
         return None;

@@ -13,8 +13,8 @@ use std::collections::HashMap;
 
 use glam::DVec3;
 
-use super::tissue::{AIR, AcousticMedium, AcousticProps, CtMedium};
-use crate::volume::VolumeGrid;
+use super::tissue::{AIR, AcousticMedium, AcousticProps, CtMedium, LatticeColumn, ScatterProps};
+use crate::volume::{VolumeGrid, round_in};
 
 /// Most distinct (label, HU) pairs a palette holds: one byte per voxel.
 pub const MAX_TISSUES: usize = 256;
@@ -37,6 +37,8 @@ pub struct IndexedMedium {
     /// Palette index per voxel, in bricks (see [`IndexedMedium::slot`]).
     index: Vec<u8>,
     palette: Vec<AcousticProps>,
+    /// What the scatter deposit reads of each palette entry.
+    scatter: Vec<ScatterProps>,
 }
 
 impl IndexedMedium {
@@ -94,6 +96,7 @@ impl IndexedMedium {
             grid,
             bricks,
             index,
+            scatter: palette.iter().map(ScatterProps::from).collect(),
             palette,
         })
     }
@@ -112,11 +115,51 @@ fn slot(bricks: [usize; 3], x: usize, y: usize, z: usize) -> usize {
 }
 
 impl AcousticMedium for IndexedMedium {
+    #[inline]
     fn props(&self, p_mm: DVec3) -> AcousticProps {
         match self.grid.nearest_ijk(p_mm.to_array()) {
             Some([x, y, z]) => self.palette[usize::from(self.index[slot(self.bricks, x, y, z)])],
             None => AIR,
         }
+    }
+
+    /// The two fixed coordinates are rounded once, and along the column only `axis` is, by the
+    /// same arithmetic as [`props`](AcousticMedium::props) (the grid's axes are independent).
+    fn scatter_along(&self, column: &LatticeColumn, out: &mut Vec<ScatterProps>) {
+        let LatticeColumn {
+            base_mm,
+            axis,
+            h_mm,
+            ref ks,
+        } = *column;
+        out.clear();
+        let g = &self.grid;
+        // Any coordinate of the grid on the column's axis: the others decide whether the
+        // column meets the grid at all.
+        let mut probe = base_mm.to_array();
+        probe[axis] = g.origin_mm[axis];
+        let air = ScatterProps::from(&AIR);
+        let Some(mut ijk) = g.nearest_ijk(probe) else {
+            out.extend(ks.clone().map(|_| air));
+            return;
+        };
+        let (o, s, n) = (g.origin_mm[axis], g.spacing_mm[axis], g.dims[axis]);
+        // The slot of voxel 0 on the axis, and its step per brick and within a brick.
+        ijk[axis] = 0;
+        let [x, y, z] = ijk;
+        let first = slot(self.bricks, x, y, z);
+        let per_brick = [1, self.bricks[0], self.bricks[0] * self.bricks[1]][axis] * BRICK.pow(3);
+        let within = [1, BRICK, BRICK * BRICK][axis];
+        out.extend(
+            ks.clone()
+                .map(|k| match round_in((k as f64 * h_mm - o) / s, n) {
+                    Some(i) => {
+                        let at = first + (i / BRICK) * per_brick + (i % BRICK) * within;
+                        self.scatter[usize::from(self.index[at])]
+                    }
+                    None => air,
+                }),
+        );
     }
 }
 
@@ -201,6 +244,59 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Lookups along lattice columns (every axis, columns inside, grazing and outside the
+    /// grid, fixed coordinates on half-voxel boundaries, grids whose sides are not a multiple
+    /// of a brick) equal point lookups bit for bit, for the palette and for the trait's
+    /// default (the CT medium).
+    #[test]
+    fn column_lookups_equal_point_lookups() {
+        let values = [-1000.0, -100.0, 20.0, 35.5, 50.0, 299.0, 1000.0];
+        let (hu, labels) = ct_volumes(&values);
+        let g = hu.grid;
+        let ct = CtMedium {
+            hu: &hu,
+            labels: Some(&labels),
+        };
+        let indexed = IndexedMedium::from_ct(&ct).expect("fits");
+        let mut rand = crate::rng::uniform_stream(19);
+        let mut out = Vec::new();
+        let mut meeting = 0;
+        for trial in 0..3_000 {
+            let axis = trial % 3;
+            let h = [0.2, 0.34, 0.5, 1.1][trial % 4];
+            let mut base: [f64; 3] = std::array::from_fn(|a| {
+                let extent = g.dims[a] as f64 * g.spacing_mm[a];
+                g.origin_mm[a] + (1.4 * rand() - 0.2) * extent
+            });
+            if trial % 5 == 0 {
+                // A fixed coordinate on a half-voxel boundary.
+                let a = (axis + 1) % 3;
+                let j = (rand() * g.dims[a] as f64) as i64 as f64;
+                base[a] = g.origin_mm[a] + (j + 0.5) * g.spacing_mm[a];
+            }
+            let lo = ((g.origin_mm[axis] - 3.0) / h) as i64 - (rand() * 5.0) as i64;
+            let ks = lo..lo + (rand() * 60.0) as i64;
+            for medium in [&indexed as &dyn AcousticMedium, &ct] {
+                let column = LatticeColumn {
+                    base_mm: DVec3::from_array(base),
+                    axis,
+                    h_mm: h,
+                    ks: ks.clone(),
+                };
+                medium.scatter_along(&column, &mut out);
+                assert_eq!(out.len(), ks.clone().count());
+                for (k, got) in ks.clone().zip(&out) {
+                    let mut p = base;
+                    p[axis] = k as f64 * h;
+                    let want = ScatterProps::from(&ct.props(DVec3::from_array(p)));
+                    assert_eq!(*got, want, "axis {axis}, k {k}, {p:?}");
+                }
+            }
+            meeting += usize::from(out.iter().any(|p| *p != ScatterProps::from(&AIR)));
+        }
+        assert!(meeting > 1_000, "most columns meet the grid ({meeting})");
     }
 
     /// A volume with more distinct tissues than a palette holds is refused, one with exactly

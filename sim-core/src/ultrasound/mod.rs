@@ -72,7 +72,9 @@ pub use indexed::IndexedMedium;
 pub use needle::{NeedleShaft, NeedleView, needle_view};
 pub use probe::{ProbeFrame, ProbeKind, ProbePose, ProbeSpec, ScanGeometry};
 pub use settings::{Sampling, Settings, TGC_BANDS};
-pub use tissue::{AcousticMedium, AcousticProps, CtMedium, Texture, UniformMedium};
+pub use tissue::{
+    AcousticMedium, AcousticProps, CtMedium, LatticeColumn, ScatterProps, Texture, UniformMedium,
+};
 
 pub use echo::{AIR_BELOW_MRAYL, GEL, GEL_MAX_MM, sphere_directions};
 use echo::{LineContext, LineEchoes, march_line};

@@ -186,6 +186,51 @@ fn lerp_props(a: &AcousticProps, b: &AcousticProps, t: f64) -> AcousticProps {
     }
 }
 
+/// What the scatter deposit reads of a tissue (see [`AcousticMedium::scatter_along`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScatterProps {
+    /// [`AcousticProps::echogenicity_db`].
+    pub echogenicity_db: f64,
+    /// [`AcousticProps::scatter_density`].
+    pub scatter_density: f64,
+    /// [`AcousticProps::texture`].
+    pub texture: Texture,
+}
+
+impl From<&AcousticProps> for ScatterProps {
+    fn from(p: &AcousticProps) -> ScatterProps {
+        ScatterProps {
+            echogenicity_db: p.echogenicity_db,
+            scatter_density: p.scatter_density,
+            texture: p.texture,
+        }
+    }
+}
+
+/// Cells `ks` of a scatterer lattice column: the point `base_mm` with its coordinate `axis`
+/// (0, 1 or 2) replaced by `k as f64 * h_mm`.
+#[derive(Debug, Clone)]
+pub struct LatticeColumn {
+    /// A point of the column (its `axis` coordinate is not read), mm.
+    pub base_mm: DVec3,
+    /// The region axis the column runs along.
+    pub axis: usize,
+    /// Lattice cell, mm.
+    pub h_mm: f64,
+    /// The cells, in order.
+    pub ks: std::ops::Range<i64>,
+}
+
+impl LatticeColumn {
+    /// The point of cell `k`.
+    #[inline]
+    pub fn point(&self, k: i64) -> DVec3 {
+        let mut p = self.base_mm;
+        p[self.axis] = k as f64 * self.h_mm;
+        p
+    }
+}
+
 /// Where the acoustic properties come from. Implementations must be pure functions of the point
 /// (the frame is deterministic and the scatterers are fixed to the tissue).
 pub trait AcousticMedium: Sync {
@@ -196,6 +241,20 @@ pub trait AcousticMedium: Sync {
     /// where the texture is [`Texture::Fascicular`].
     fn fibre_axis(&self, _p_mm: DVec3) -> Option<DVec3> {
         None
+    }
+
+    /// What the scatter deposit reads of the tissue at each cell of a lattice column, in
+    /// order, into `out` (cleared first). Each must be [`props`](Self::props) at the cell's
+    /// point, which the default asks; a medium on a voxel grid rounds the two fixed coordinates
+    /// once.
+    fn scatter_along(&self, column: &LatticeColumn, out: &mut Vec<ScatterProps>) {
+        out.clear();
+        out.extend(
+            column
+                .ks
+                .clone()
+                .map(|k| ScatterProps::from(&self.props(column.point(k)))),
+        );
     }
 }
 

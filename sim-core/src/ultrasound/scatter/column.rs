@@ -4,7 +4,7 @@
 use glam::DVec3;
 
 use super::super::probe::ScanGeometry;
-use super::super::tissue::{AcousticMedium, AcousticProps};
+use super::super::tissue::{AcousticMedium, LatticeColumn, ScatterProps};
 use super::lookup::EXP_LEN;
 use super::tables::BeamTables;
 use crate::rng::splitmix64;
@@ -57,23 +57,41 @@ pub(super) struct Column<'a> {
 }
 
 impl Column<'_> {
-    /// The hash and tissue of the scatterer of cell `k` (along axis `AM`; `pos` gets its region
-    /// point), `None` where the tissue's scatter density leaves the cell empty; `echo` gets the
-    /// tissue's amplitude.
+    /// The tissue of cells `ks` of this column (along axis `AM`), into `out`: one call to the
+    /// medium per column.
+    #[inline(always)]
+    pub(super) fn tissue<const AM: usize>(
+        &self,
+        cx: &ScatterContext<'_>,
+        ks: std::ops::Range<i64>,
+        out: &mut Vec<ScatterProps>,
+    ) {
+        let column = LatticeColumn {
+            base_mm: self.pos,
+            axis: AM,
+            h_mm: cx.h,
+            ks,
+        };
+        cx.medium.scatter_along(&column, out);
+    }
+
+    /// The hash of the scatterer of cell `k` (along axis `AM`; `pos` gets its region point),
+    /// whose tissue [`Column::tissue`] gave, `None` where the tissue's scatter density leaves
+    /// the cell empty; `echo` gets the tissue's amplitude.
     #[inline(always)]
     pub(super) fn scatterer<const AM: usize>(
         &self,
         cx: &ScatterContext<'_>,
         k: i64,
+        tissue: &ScatterProps,
         pos: &mut DVec3,
         echo: &mut EchoCache,
-    ) -> Option<(u64, AcousticProps)> {
+    ) -> Option<u64> {
         let hsh = match AM {
             0 | 1 => splitmix64(self.row_hash[(k - self.k_first) as usize] ^ self.p[2] as u64),
             _ => splitmix64(self.prefix ^ k as u64),
         };
         pos[AM] = k as f64 * cx.h;
-        let tissue = cx.medium.props(*pos);
         if tissue.scatter_density < 1.0 {
             let keep = crate::rng::unit_f64(splitmix64(hsh));
             if keep >= tissue.scatter_density {
@@ -84,7 +102,7 @@ impl Column<'_> {
             echo.db = tissue.echogenicity_db;
             echo.amp = cx.norm * 10f64.powf(echo.db / 20.0);
         }
-        Some((hsh, tissue))
+        Some(hsh)
     }
 }
 

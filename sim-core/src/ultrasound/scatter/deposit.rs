@@ -8,7 +8,7 @@ use glam::DVec3;
 
 use super::super::beam::{Beam, FWHM_PER_SIGMA};
 use super::super::probe::{ProbeFrame, ScanGeometry};
-use super::super::tissue::{AcousticMedium, Texture};
+use super::super::tissue::{AcousticMedium, ScatterProps, Texture};
 use super::amplitude::iq_of_hash;
 use super::column::{Column, EchoCache, Reach, ScatterContext};
 use super::fascicle::fascicle_factor;
@@ -128,6 +128,8 @@ pub(crate) fn deposit_scatterers(
     let mut p = [0i64; 3];
     let mut row_hash: Vec<u64> = Vec::new();
     let mut cells = CellSum::new();
+    // The tissue of the current column's cells (one call to the medium per column).
+    let mut tissues: Vec<ScatterProps> = Vec::new();
     // The scatterers of a lattice column share their in-plane point whenever the column is
     // along the slice normal (a probe square to the lattice); everything that depends only on
     // that point is computed once and the column's sum is deposited once.
@@ -230,14 +232,14 @@ pub(crate) fn deposit_scatterers(
                 k_first: idx_lo(am),
                 pos,
             };
+            let state = (&mut echo, &mut tissues);
             if square {
-                let state = (&at, &mut echo);
-                (sum_i, sum_q) = column_on_axis(am, &cx, &col, state, (sum_i, sum_q));
+                (sum_i, sum_q) = column_on_axis(am, &cx, &col, (&at, state), (sum_i, sum_q));
             } else {
                 match am {
-                    0 => column_oblique::<0>(&cx, &col, &region, grid, &mut cells, &mut echo),
-                    1 => column_oblique::<1>(&cx, &col, &region, grid, &mut cells, &mut echo),
-                    _ => column_oblique::<2>(&cx, &col, &region, grid, &mut cells, &mut echo),
+                    0 => column_oblique::<0>(&cx, &col, &region, grid, &mut cells, state),
+                    1 => column_oblique::<1>(&cx, &col, &region, grid, &mut cells, state),
+                    _ => column_oblique::<2>(&cx, &col, &region, grid, &mut cells, state),
                 }
             }
         }
@@ -359,13 +361,13 @@ fn column_on_axis(
     am: usize,
     cx: &ScatterContext<'_>,
     col: &Column<'_>,
-    (at, echo): (&PlanePoint, &mut EchoCache),
+    (at, state): (&PlanePoint, (&mut EchoCache, &mut Vec<ScatterProps>)),
     sums: (f64, f64),
 ) -> (f64, f64) {
     match am {
-        0 => column_sum::<0>(cx, col, at, echo, sums),
-        1 => column_sum::<1>(cx, col, at, echo, sums),
-        _ => column_sum::<2>(cx, col, at, echo, sums),
+        0 => column_sum::<0>(cx, col, at, state, sums),
+        1 => column_sum::<1>(cx, col, at, state, sums),
+        _ => column_sum::<2>(cx, col, at, state, sums),
     }
 }
 
@@ -377,7 +379,7 @@ fn column_sum<const AM: usize>(
     cx: &ScatterContext<'_>,
     col: &Column<'_>,
     at: &PlanePoint,
-    echo: &mut EchoCache,
+    (echo, tissues): (&mut EchoCache, &mut Vec<ScatterProps>),
     (mut sum_i, mut sum_q): (f64, f64),
 ) -> (f64, f64) {
     let geo = cx.geo;
@@ -385,10 +387,11 @@ fn column_sum<const AM: usize>(
     let lines_max = (geo.lines - 1) as f64;
     let mut q = col.q;
     let mut pos = col.pos;
-    for k in col.k.clone() {
+    col.tissue::<AM>(cx, col.k.clone(), tissues);
+    for (k, tissue) in col.k.clone().zip(tissues.iter()) {
         let here = q;
         q += col.step;
-        let Some((hsh, tissue)) = col.scatterer::<AM>(cx, k, &mut pos, echo) else {
+        let Some(hsh) = col.scatterer::<AM>(cx, k, tissue, &mut pos, echo) else {
             continue;
         };
         let mut w =

@@ -5,7 +5,7 @@
 //! index, depth and carrier phase of consecutive scatterers follow by constant steps.
 
 use super::super::probe::{ProbeKind, ScanGeometry};
-use super::super::tissue::Texture;
+use super::super::tissue::{ScatterProps, Texture};
 use super::column::{Column, EchoCache, Reach, ScatterContext};
 use super::fascicle::fascicle_factor;
 use super::grid::{CellSum, IqGrid};
@@ -127,7 +127,7 @@ pub(super) fn column_oblique<const AM: usize>(
     region: &ConvexReach,
     grid: &mut IqGrid,
     cells: &mut CellSum,
-    echo: &mut EchoCache,
+    (echo, tissues): (&mut EchoCache, &mut Vec<ScatterProps>),
 ) {
     let geo = cx.geo;
     let k_first = col.k.start;
@@ -159,7 +159,8 @@ pub(super) fn column_oblique<const AM: usize>(
     let mut pos = col.pos;
     // Curvilinear array: each point's angle from the previous one's (see `sector`).
     let mut sector = SectorSteps::new(geo);
-    for k in k_lo..=k_hi {
+    col.tissue::<AM>(cx, k_lo..k_hi + 1, tissues);
+    for (k, tissue) in (k_lo..=k_hi).zip(tissues.iter()) {
         let here = q0 + col.step * (k - k_lo) as f64;
         let (u, z, (cs, sn)) = if linear {
             let c = carrier;
@@ -172,7 +173,7 @@ pub(super) fn column_oblique<const AM: usize>(
         if !cx.reach.contains(u, z) {
             continue;
         }
-        let Some((hsh, tissue)) = col.scatterer::<AM>(cx, k, &mut pos, echo) else {
+        let Some(hsh) = col.scatterer::<AM>(cx, k, tissue, &mut pos, echo) else {
             continue;
         };
         let s = z / cx.tables.dz;

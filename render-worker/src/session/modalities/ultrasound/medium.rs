@@ -23,7 +23,9 @@ use sim_core::anatomy::phantom::TissueHu;
 use sim_core::fluoro::FluoroMaterial;
 use sim_core::geom::Hit;
 use sim_core::material::MaterialClass;
-use sim_core::ultrasound::{AcousticMedium, AcousticProps, CtMedium, IndexedMedium};
+use sim_core::ultrasound::{
+    AcousticMedium, AcousticProps, CtMedium, IndexedMedium, LatticeColumn, ScatterProps,
+};
 use sim_core::volume::{Volume, VolumeGrid};
 
 use crate::session::region::Region;
@@ -95,10 +97,18 @@ pub enum CpuMedium<'a> {
 }
 
 impl AcousticMedium for CpuMedium<'_> {
+    #[inline]
     fn props(&self, p_mm: DVec3) -> AcousticProps {
         match self {
             CpuMedium::Indexed(m) => m.props(p_mm),
             CpuMedium::Ct(m) => m.props(p_mm),
+        }
+    }
+
+    fn scatter_along(&self, column: &LatticeColumn, out: &mut Vec<ScatterProps>) {
+        match self {
+            CpuMedium::Indexed(m) => m.scatter_along(column, out),
+            CpuMedium::Ct(m) => m.scatter_along(column, out),
         }
     }
 }
