@@ -15,12 +15,14 @@
 //!   finest mesh of the run (same pixels), i.e. what a coarser mesh costs in fidelity.
 //!
 //! Then, per mesh and image size, the phases of a session's displayed frame (80 kVp, 2 x 2
-//! supersampling at the needle, quantum noise) in four cases: from scratch (caches off: every
+//! supersampling at the needle, quantum noise) in five cases: from scratch (caches off: every
 //! pass, the whole resolve and read-back, as every frame was rendered before the caches), after
 //! a C-arm move (geometry redrawn), after a needle-only move (the common case: feed, roll,
-//! withdraw; only the needle, the anatomy under its pixel box and its rows are redone), and with
-//! nothing changed (a new shot at the same pose: only the noise and display). Each cached frame
-//! is checked bit for bit against the frame from scratch.
+//! withdraw; only the needle, the anatomy under its pixel box and its rows are redone), with
+//! nothing changed (a new shot at the same pose: only the noise and display), and the same new
+//! shot with a session's detector (scatter behind the grid and the flat panel's profile, whose
+//! signal the renderer keeps for new shots). Each cached frame is checked bit for bit against
+//! the frame from scratch.
 //!
 //! `BENCH_QUICK=1`: two coarse meshes, GPU at both sizes, CPU reference at 512 x 512 only (under a
 //! minute on 2 cores in the dev profile). Without it: three meshes, CPU reference at both sizes.
@@ -35,7 +37,9 @@ use render_worker::gpu::GpuContext;
 use sim_core::anatomy::phantom::{self, PhantomParams};
 use sim_core::compare::Compare;
 use sim_core::fluoro::attenuation::basis_depths;
+use sim_core::fluoro::receptor::{ReceptorKind, ReceptorSettings};
 use sim_core::fluoro::render::to_display;
+use sim_core::fluoro::scatter::superposition::ScatterSettings;
 use sim_core::fluoro::{
     EnergyModel, FluoroMaterial, Projection, QuantumNoise, RenderSettings, Scene, SpectralModel,
     render_chords, render_transmission,
@@ -376,14 +380,36 @@ fn phase_table(
         gpu.update_needle(&needle(0));
         // Warm-up (pipelines, tables, targets).
         let _ = gpu.render_frame(&ap, &settings(0), None).expect("frame");
-        let cases: [(&str, bool); 4] = [
+        // A session's detector: scatter behind the grid and the flat panel's profile (a
+        // 150 mm air gap, about the default C-arm's at the L4 isocentre).
+        let session = |k: usize| RenderSettings {
+            scatter: Some(ScatterSettings {
+                kvp: 80,
+                grid: true,
+                air_gap_mm: 150.0,
+                pixel_pitch_mm: ap.pixel_pitch_mm[0],
+            }),
+            receptor: Some(ReceptorSettings {
+                kind: ReceptorKind::FlatPanel,
+                pixel_pitch_mm: ap.pixel_pitch_mm[0],
+            }),
+            ..settings(k)
+        };
+        let cases: [(&str, bool); 5] = [
             ("from scratch (caches off)", false),
             ("C-arm moved", true),
             ("needle moved 1 mm, same pose", true),
             ("nothing changed (new shot)", true),
+            ("new shot, scatter and flat panel (a session's)", true),
         ];
         for (case, (name, caching)) in cases.into_iter().enumerate() {
             gpu.caching = caching;
+            if case == 4 {
+                // The shot that makes the detector signal the timed ones reuse.
+                let _ = gpu
+                    .render_frame(&ap, &session(frames + 1), None)
+                    .expect("frame");
+            }
             let (t, wall, exact) = phases(
                 &mut gpu,
                 frames,
@@ -393,7 +419,8 @@ fn phase_table(
                         g.update_needle(&needle(k + 1));
                         (ap, settings(k))
                     }
-                    _ => (ap, settings(k)),
+                    3 => (ap, settings(k)),
+                    _ => (ap, session(k)),
                 },
                 |k, p, s| match case {
                     0 | 1 => reference(0, p, s),

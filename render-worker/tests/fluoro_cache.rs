@@ -47,6 +47,32 @@ fn small_ap() -> Projection {
     }
 }
 
+/// A renderer that keeps its caches and one that renders every frame from scratch, of
+/// [`sphere_scene`].
+fn cached_and_scratch(
+    ctx: &render_worker::gpu::GpuContext,
+) -> (GpuFluoroRenderer, GpuFluoroRenderer) {
+    let scene = sphere_scene();
+    let cached = GpuFluoroRenderer::new(ctx, &scene).expect("renderer");
+    let mut scratch = GpuFluoroRenderer::new(ctx, &scene).expect("renderer");
+    scratch.caching = false;
+    (cached, scratch)
+}
+
+/// A uniform iodine field, 0.2 of the stock, over the middle of the scene.
+fn iodine_field() -> IodineField {
+    IodineField {
+        volume: Volume {
+            grid: VolumeGrid {
+                dims: [8, 8, 8],
+                spacing_mm: [4.0; 3],
+                origin_mm: [-14.0, -14.0, -14.0],
+            },
+            data: vec![0.2; 512],
+        },
+    }
+}
+
 fn frame(
     r: &mut GpuFluoroRenderer,
     p: &Projection,
@@ -62,10 +88,7 @@ fn cached_and_incremental_frames_equal_frames_from_scratch() {
     let Some(ctx) = context_for_tests() else {
         return;
     };
-    let scene = sphere_scene();
-    let mut cached = GpuFluoroRenderer::new(&ctx, &scene).expect("renderer");
-    let mut scratch = GpuFluoroRenderer::new(&ctx, &scene).expect("renderer");
-    scratch.caching = false;
+    let (mut cached, mut scratch) = cached_and_scratch(&ctx);
     let ap = small_ap();
     let oblique = Projection {
         orbital_deg: -25.0,
@@ -77,19 +100,7 @@ fn cached_and_incremental_frames_equal_frames_from_scratch() {
         supersample: 2,
         ..RenderSettings::default()
     };
-    let field = {
-        let grid = VolumeGrid {
-            dims: [8, 8, 8],
-            spacing_mm: [4.0; 3],
-            origin_mm: [-14.0, -14.0, -14.0],
-        };
-        IodineField {
-            volume: Volume {
-                grid,
-                data: vec![0.2; 512],
-            },
-        }
-    };
+    let field = iodine_field();
     // A needle feed (same line, deeper), a roll-free sideways move, a withdrawal.
     let (a, b) = ([-40.0, -60.0, 10.0], [-5.0, -15.0, 15.0]);
     let deeper = [10.0, 5.0, 17.0];
@@ -286,4 +297,74 @@ fn a_prefetched_frame_is_the_frame_from_scratch_without_gpu_work() {
             "prefetched {prefetched:?}: the frame differs"
         );
     }
+}
+
+/// Displayed frames with scatter and a receptor profile (a session's defaults): a new shot of
+/// an unchanged view reuses the kept detector signal (only the noise and the display are
+/// redone) and equals the frame of a renderer without caches bit for bit; after a needle move,
+/// a technique change or iodine the signal is made again, and those frames equal too.
+#[test]
+fn new_shots_reuse_the_detector_signal_and_equal_frames_from_scratch() {
+    use sim_core::fluoro::QuantumNoise;
+    use sim_core::fluoro::receptor::{ReceptorKind, ReceptorSettings};
+    use sim_core::fluoro::scatter::superposition::ScatterSettings;
+    let Some(ctx) = context_for_tests() else {
+        return;
+    };
+    let (mut cached, mut scratch) = cached_and_scratch(&ctx);
+    let p = small_ap();
+    let shot = |kvp: u32, seed: u64| RenderSettings {
+        energy: EnergyModel::Spectral { kvp },
+        supersample: 2,
+        noise: Some(QuantumNoise {
+            photons_per_pixel: 1500.0 + 100.0 * seed as f64,
+            seed,
+        }),
+        scatter: Some(ScatterSettings {
+            kvp,
+            grid: true,
+            air_gap_mm: 150.0,
+            pixel_pitch_mm: p.pixel_pitch_mm[0],
+        }),
+        receptor: Some(ReceptorSettings {
+            kind: ReceptorKind::ImageIntensifier,
+            pixel_pitch_mm: p.pixel_pitch_mm[0],
+        }),
+        ..RenderSettings::default()
+    };
+    let field = iodine_field();
+    let (a, b) = ([-40.0, -60.0, 10.0], [-5.0, -15.0, 15.0]);
+    cached.update_needle(&needle(a, b));
+    scratch.update_needle(&needle(a, b));
+    // (settings, iodine, move the needle first, the signal may be reused)
+    let steps = [
+        (shot(80, 1), false, false, false),
+        (shot(80, 2), false, false, true),
+        (shot(80, 3), false, false, true),
+        (shot(80, 4), false, true, false),
+        (shot(80, 5), false, false, true),
+        (shot(95, 6), false, false, false),
+        (shot(95, 7), true, false, false),
+        (shot(95, 8), true, false, false),
+        (shot(95, 9), false, false, false),
+        (shot(95, 10), false, false, true),
+    ];
+    let mut reused = 0;
+    for (k, (s, iodine, moved, reusable)) in steps.into_iter().enumerate() {
+        if moved {
+            cached.update_needle(&needle(a, [10.0, 5.0, 17.0]));
+            scratch.update_needle(&needle(a, [10.0, 5.0, 17.0]));
+        }
+        let field = iodine.then_some(&field);
+        let c = cached.render_frame(&p, &s, field).expect("frame");
+        let t = cached.last_timings();
+        let f = scratch.render_frame(&p, &s, field).expect("frame");
+        assert!(
+            c == f,
+            "step {k}: the frame differs from the frame from scratch"
+        );
+        assert_eq!(t.signal_reused, reusable, "step {k}");
+        reused += usize::from(t.signal_reused);
+    }
+    assert_eq!(reused, 4);
 }

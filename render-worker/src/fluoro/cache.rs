@@ -5,17 +5,20 @@
 //! C-arm stays), the last full-image transmission without iodine ([`Resolved`]: only the union
 //! of the needle's old and new pixel rectangles is resolved and read back, since outside it
 //! every input of the resolve is unchanged), the last displayed transmission ([`FrameKey`]: a
-//! shot with nothing changed costs only the CPU's noise and display) and the exposure mask
-//! ([`ExposureKey`]). These, the full image's geometric L-buffer and the needle are what a
+//! shot with nothing changed costs only the CPU's noise and display) with its detector signal
+//! (scatter, glare and the receptor's blur, which do not depend on the noise) and the exposure
+//! mask ([`ExposureKey`]). These, the full image's geometric L-buffer and the needle are what a
 //! renderer holds of its own between frames (at 512 x 512: 5 MB of L-buffer, 1 MB each for the
-//! two kept transmissions); the anatomy is shared, and so are the other targets, which a frame
-//! takes from the anatomy's pool and gives back (`pipelines::TargetPool`; before, each renderer
-//! held its own, 14 MB for the full image and a few MB for the supersampled needle region).
+//! two kept transmissions and the signal); the anatomy is shared, and so are the other
+//! targets, which a frame takes from the anatomy's pool and gives back
+//! (`pipelines::TargetPool`; before, each renderer held its own, 14 MB for the full image and a
+//! few MB for the supersampled needle region).
 //! Each cached frame is bit-identical to a frame from scratch, and so is culling (tests in
 //! `render-worker/tests/fluoro_cache.rs`; renderers sharing the pool: `anatomy.rs`'s tests).
 //! The pixel-rectangle arithmetic of the partial resolve is in `types.rs`.
 
-use sim_core::fluoro::{EnergyModel, Projection};
+use sim_core::fluoro::render::DetectorSignal;
+use sim_core::fluoro::{EnergyModel, Projection, RenderSettings};
 
 use super::types::{GpuTransmission, Layout, Passes, PixelRectOut};
 
@@ -69,6 +72,9 @@ pub(super) struct FrameCache {
     resolved: Option<Resolved>,
     /// The last displayed-frame transmission and what decided it.
     last_frame: Option<(FrameKey, GpuTransmission)>,
+    /// The detector signal (scatter, glare, receptor) of the last displayed frame's
+    /// transmission, for new shots of it: only the noise and the display are redone.
+    signal: Option<(FrameKey, DetectorSignal)>,
     /// The exposure mask of the last frame, reused while the detector and the collimator stay.
     exposure: Option<(ExposureKey, Vec<bool>)>,
 }
@@ -196,9 +202,28 @@ impl FrameCache {
             .map(|(_, t)| t)
     }
 
-    /// Forgets the kept displayed-frame transmission.
+    /// Forgets the kept displayed-frame transmission (and its detector signal).
     pub(super) fn forget_frame(&mut self) {
         self.last_frame = None;
+        self.signal = None;
+    }
+
+    /// The kept detector signal, if it was made of the transmission of `key` under the scatter
+    /// and receptor of `settings`.
+    pub(super) fn signal(
+        &self,
+        key: &FrameKey,
+        settings: &RenderSettings,
+    ) -> Option<&DetectorSignal> {
+        self.signal
+            .as_ref()
+            .filter(|(k, s)| k == key && s.serves(settings))
+            .map(|(_, s)| s)
+    }
+
+    /// Keeps the detector signal of the transmission of `key`.
+    pub(super) fn keep_signal(&mut self, key: FrameKey, signal: DetectorSignal) {
+        self.signal = Some((key, signal));
     }
 
     /// Keeps a displayed-frame transmission for `key`.

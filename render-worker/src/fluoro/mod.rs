@@ -65,6 +65,7 @@ mod types;
 use sim_core::fluoro::nesting::NestedMesh;
 #[cfg(doc)]
 use sim_core::fluoro::nesting::nesting_plan;
+use sim_core::fluoro::render::DetectorSignal;
 use sim_core::fluoro::{
     EnergyModel, FluoroMaterial, Image, IodineField, Projection, RenderSettings, Scene,
     SpectralModel, TransmissionImage,
@@ -309,12 +310,7 @@ impl GpuFluoroRenderer {
     ) -> Result<GpuTransmission, FluoroGpuError> {
         let model = SpectralModel::new(settings.energy)?;
         self.timings = FrameTimings::default();
-        let key = FrameKey {
-            projection: *projection,
-            energy: settings.energy,
-            supersample: settings.supersample,
-            needle_generation: self.needle_generation,
-        };
+        let key = self.frame_key(projection, settings);
         if self.caching && iodine.is_none() {
             if let Some(t) = self.cache.frame(&key) {
                 self.timings.frame_reused = true;
@@ -394,6 +390,16 @@ impl GpuFluoroRenderer {
         Ok(out)
     }
 
+    /// What decides the displayed transmission of a frame of `projection` (see [`FrameKey`]).
+    fn frame_key(&self, projection: &Projection, settings: &RenderSettings) -> FrameKey {
+        FrameKey {
+            projection: *projection,
+            energy: settings.energy,
+            supersample: settings.supersample,
+            needle_generation: self.needle_generation,
+        }
+    }
+
     /// Whether a frame of `projection` would find its geometric L-buffer kept (the C-arm has not
     /// moved since the last frame: only the needle's pixels, or nothing, are drawn again).
     pub fn geometry_cached(&self, projection: &Projection) -> bool {
@@ -429,17 +435,40 @@ impl GpuFluoroRenderer {
     ) -> Result<Image, FluoroGpuError> {
         let g = self.render_transmission_supersampled(projection, settings, iodine)?;
         let started = Instant::now();
+        // A new shot of the kept transmission: its kept detector signal (scatter, glare, the
+        // receptor's blur) is the one this frame would make, so only the noise and the display
+        // are redone (the same frame bit for bit: `DetectorSignal`).
+        let key = self.frame_key(projection, settings);
+        let keeps = self.caching
+            && iodine.is_none()
+            && (settings.scatter.is_some() || settings.receptor.is_some());
+        if keeps && self.timings.frame_reused {
+            if let Some(signal) = self.cache.signal(&key, settings) {
+                let frame = signal.finish(settings);
+                self.timings.signal_reused = true;
+                self.timings.finish_ms = started.elapsed().as_secs_f64() * 1e3;
+                return Ok(frame);
+            }
+        }
         // The collimator mask depends on the detector and the blades only, not on the C-arm's
         // pose: kept across C-arm moves. The f32 transmission is finished as it is, without an
         // f64 copy (8 MB at 1024 x 1024 to allocate and fault in, and to hold per session).
         let exposed = self.cache.exposure_mask(projection);
-        let frame = sim_core::fluoro::render::finish_frame_f32(
-            g.width,
-            g.height,
-            &g.transmission,
-            exposed,
-            settings,
-        );
+        let frame = if keeps {
+            let signal =
+                DetectorSignal::of_f32(g.width, g.height, &g.transmission, exposed, settings);
+            let frame = signal.finish(settings);
+            self.cache.keep_signal(key, signal);
+            frame
+        } else {
+            sim_core::fluoro::render::finish_frame_f32(
+                g.width,
+                g.height,
+                &g.transmission,
+                exposed,
+                settings,
+            )
+        };
         self.timings.finish_ms = started.elapsed().as_secs_f64() * 1e3;
         Ok(frame)
     }

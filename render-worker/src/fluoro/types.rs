@@ -95,6 +95,9 @@ pub struct FrameTimings {
     pub geometry_reused: bool,
     /// Whether the whole transmission was reused (nothing changed).
     pub frame_reused: bool,
+    /// Whether the detector signal (scatter, glare, receptor) was reused too: only the noise
+    /// and the display were done.
+    pub signal_reused: bool,
 }
 
 impl FrameTimings {

@@ -62,6 +62,17 @@ pub fn finish_frame_f32(
     exposed: &[bool],
     settings: &RenderSettings,
 ) -> Image {
+    finish(samples_f32(width, height, transmission, exposed), settings)
+}
+
+/// The samples of an `f32` transmission; panics when the slices do not hold `width x height`
+/// pixels.
+fn samples_f32<'a>(
+    width: u32,
+    height: u32,
+    transmission: &'a [f32],
+    exposed: &'a [bool],
+) -> Samples<'a, f32> {
     let (w, h) = (width as usize, height as usize);
     assert!(
         transmission.len() == w * h && exposed.len() == w * h,
@@ -70,69 +81,126 @@ pub fn finish_frame_f32(
         transmission.len(),
         exposed.len()
     );
-    finish(
-        Samples {
-            width: w,
-            height: h,
-            transmission,
-            exposed,
-        },
-        settings,
-    )
+    Samples {
+        width: w,
+        height: h,
+        transmission,
+        exposed,
+    }
 }
 
 fn finish<T: Copy + Into<f64> + Sync>(t: Samples<'_, T>, settings: &RenderSettings) -> Image {
     if settings.scatter.is_none() && settings.receptor.is_none() {
         return finish_total(t, settings);
     }
-    let threads = settings.threads;
-    let Some(r) = settings.receptor.as_ref() else {
-        let signal = match settings
-            .scatter
-            .as_ref()
-            .and_then(|s| with_scatter(t, s, threads))
-        {
-            Some(total) => total,
-            None => t.transmission.iter().map(|&v| v.into() as f32).collect(),
-        };
-        return finish_total(
+    DetectorSignal::from_samples(t, settings).finish(settings)
+}
+
+/// What a frame's detector holds before the quantum noise: the transmission with the scatter
+/// and the receptor's veiling glare added and its blur and distortion applied, and the mask of
+/// the pixels that get a signal. It depends on the transmission, `settings.scatter` and
+/// `settings.receptor` only, not on the noise, the technique's quanta or the display, so a
+/// renderer that keeps it finishes a new shot of an unchanged view from it
+/// ([`DetectorSignal::finish`]) without that work, bit for bit as [`finish_frame_f32`] (the
+/// finish makes its frames the same way). With neither scatter nor a receptor profile it is the
+/// transmission itself.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DetectorSignal {
+    width: usize,
+    height: usize,
+    signal: Vec<f32>,
+    exposed: Vec<bool>,
+    scatter: Option<ScatterSettings>,
+    receptor: Option<receptor::ReceptorSettings>,
+}
+
+impl DetectorSignal {
+    /// The signal of an `f32` transmission (row-major `width x height`, what the GPU renderer
+    /// reads back) with its exposure mask, under `settings`' scatter and receptor.
+    pub fn of_f32(
+        width: u32,
+        height: u32,
+        transmission: &[f32],
+        exposed: &[bool],
+        settings: &RenderSettings,
+    ) -> DetectorSignal {
+        DetectorSignal::from_samples(samples_f32(width, height, transmission, exposed), settings)
+    }
+
+    /// Whether this signal is the one `settings` would make of the same transmission (the same
+    /// scatter and receptor).
+    pub fn serves(&self, settings: &RenderSettings) -> bool {
+        self.scatter == settings.scatter && self.receptor == settings.receptor
+    }
+
+    /// The displayed frame: noise, automatic brightness, tone mapping, shutters and the
+    /// receptor's vignetting, as [`finish_frame_f32`] finishes the transmission this signal was
+    /// made of. `settings` must be served by this signal ([`DetectorSignal::serves`]).
+    pub fn finish(&self, settings: &RenderSettings) -> Image {
+        debug_assert!(
+            self.serves(settings),
+            "a signal finished under other settings"
+        );
+        let mut image = finish_total(
             Samples {
-                width: t.width,
-                height: t.height,
-                transmission: &signal,
-                exposed: t.exposed,
+                width: self.width,
+                height: self.height,
+                transmission: &self.signal,
+                exposed: &self.exposed,
             },
             settings,
         );
-    };
-    let mut signal = settings
-        .scatter
-        .as_ref()
-        .and_then(|s| scatter_and_glare(t, s, r, threads));
-    let mask = match signal.as_mut() {
-        // Scatter and glare in one pass: the point-spread core and distortion remain.
-        Some(signal) => {
-            receptor::apply_after_glare(signal, t.exposed, t.width, t.height, r, threads)
+        if let Some(r) = &self.receptor {
+            vignette(&mut image, &self.exposed, r.kind, settings);
         }
-        None => {
-            let mut s: Vec<f32> = t.transmission.iter().map(|&v| v.into() as f32).collect();
-            let mask = receptor::apply(&mut s, t.exposed, t.width, t.height, r, threads);
-            signal = Some(s);
-            mask
-        }
-    };
-    let signal = signal.expect("set on both paths");
-    let mut image = finish_total(
-        Samples {
+        image
+    }
+
+    fn from_samples<T: Copy + Into<f64> + Sync>(
+        t: Samples<'_, T>,
+        settings: &RenderSettings,
+    ) -> DetectorSignal {
+        let threads = settings.threads;
+        let copy = || -> Vec<f32> { t.transmission.iter().map(|&v| v.into() as f32).collect() };
+        let (signal, exposed) = match settings.receptor.as_ref() {
+            None => {
+                let signal = settings
+                    .scatter
+                    .as_ref()
+                    .and_then(|s| with_scatter(t, s, threads))
+                    .unwrap_or_else(copy);
+                (signal, t.exposed.to_vec())
+            }
+            Some(r) => {
+                let mut glared = settings
+                    .scatter
+                    .as_ref()
+                    .and_then(|s| scatter_and_glare(t, s, r, threads));
+                let mask = match glared.as_mut() {
+                    // Scatter and glare in one pass: the point-spread core and distortion remain.
+                    Some(signal) => receptor::apply_after_glare(
+                        signal, t.exposed, t.width, t.height, r, threads,
+                    ),
+                    None => {
+                        let mut s = copy();
+                        let mask =
+                            receptor::apply(&mut s, t.exposed, t.width, t.height, r, threads);
+                        glared = Some(s);
+                        mask
+                    }
+                };
+                (glared.expect("set on both paths"), mask)
+            }
+        };
+        DetectorSignal {
             width: t.width,
             height: t.height,
-            transmission: &signal,
-            exposed: &mask,
-        },
-        settings,
-    );
-    vignette(&mut image, &mask, r.kind, settings);
-    image
+            signal,
+            exposed,
+            scatter: settings.scatter,
+            receptor: settings.receptor,
+        }
+    }
 }
 
 /// Scatter and the receptor's veiling glare folded into one pass over the pixels: with the

@@ -18,7 +18,7 @@ mod transmission;
 mod tests;
 
 pub use display::{exposure_centre, to_display, to_display_centred};
-pub use frame::{finish_frame, finish_frame_f32, render_frame};
+pub use frame::{DetectorSignal, finish_frame, finish_frame_f32, render_frame};
 pub use noise::apply_noise;
 pub use settings::{
     Exposure, Image, QuantumNoise, RenderSettings, SHUTTER_GREY, TransmissionImage,

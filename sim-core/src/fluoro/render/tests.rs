@@ -219,7 +219,11 @@ fn ln_factorial_matches_the_exact_sum() {
     // The table holds the series bit for bit, and beyond it the series answers.
     for k in (0..20_000u32).step_by(7).chain([8191, 8192, 8193]) {
         let k = f64::from(k);
-        assert_eq!(ln_factorial(k).to_bits(), ln_factorial_series(k).to_bits(), "{k}");
+        assert_eq!(
+            ln_factorial(k).to_bits(),
+            ln_factorial_series(k).to_bits(),
+            "{k}"
+        );
     }
 }
 
@@ -512,6 +516,89 @@ fn the_f32_finish_equals_the_finish_of_the_widened_copy() {
             finish_frame_f32(t.width, t.height, &narrow, &t.exposed, &settings),
             finish_frame(&widened, &settings)
         );
+    }
+}
+
+/// A detector signal kept from one finish finishes later shots (other seeds, other quanta,
+/// no noise) exactly as the whole finish of the transmission does, for every combination of
+/// scatter and receptor profile; it serves only the scatter and receptor it was made with.
+#[test]
+fn a_kept_detector_signal_finishes_new_shots_as_the_transmission_does() {
+    use crate::fluoro::receptor::{ReceptorKind, ReceptorSettings};
+    use crate::fluoro::scatter::superposition::ScatterSettings;
+    let p = small_projection(64);
+    let t =
+        render_transmission(&body_with_needle(3.3), None, &p, &RenderSettings::default()).unwrap();
+    let narrow: Vec<f32> = t.transmission.iter().map(|&x| x as f32).collect();
+    let pitch = p.pixel_pitch_mm[0];
+    let scatter = ScatterSettings {
+        kvp: 80,
+        grid: true,
+        air_gap_mm: 150.0,
+        pixel_pitch_mm: pitch,
+    };
+    let receptor = |kind| ReceptorSettings {
+        kind,
+        pixel_pitch_mm: pitch,
+    };
+    let shots = [
+        None,
+        Some(QuantumNoise {
+            photons_per_pixel: 2000.0,
+            seed: 5,
+        }),
+        Some(QuantumNoise {
+            photons_per_pixel: 700.0,
+            seed: 6,
+        }),
+    ];
+    let plain = finish_frame_f32(
+        t.width,
+        t.height,
+        &narrow,
+        &t.exposed,
+        &RenderSettings::default(),
+    );
+    for scatter in [None, Some(scatter)] {
+        for receptor in [
+            None,
+            Some(receptor(ReceptorKind::FlatPanel)),
+            Some(receptor(ReceptorKind::ImageIntensifier)),
+        ] {
+            let with = |noise| RenderSettings {
+                noise,
+                scatter,
+                receptor,
+                ..RenderSettings::default()
+            };
+            let kept =
+                DetectorSignal::of_f32(t.width, t.height, &narrow, &t.exposed, &with(shots[1]));
+            for noise in shots {
+                let settings = with(noise);
+                assert!(kept.serves(&settings));
+                let whole = finish_frame_f32(t.width, t.height, &narrow, &t.exposed, &settings);
+                assert!(
+                    kept.finish(&settings) == whole,
+                    "scatter {scatter:?}, receptor {receptor:?}, noise {noise:?}"
+                );
+                if noise.is_none() && (scatter.is_some() || receptor.is_some()) {
+                    assert!(whole != plain, "scatter or the receptor changes the frame");
+                }
+            }
+            let other = RenderSettings {
+                scatter: Some(ScatterSettings {
+                    kvp: 95,
+                    ..scatter.unwrap_or(ScatterSettings {
+                        kvp: 80,
+                        grid: false,
+                        air_gap_mm: 0.0,
+                        pixel_pitch_mm: pitch,
+                    })
+                }),
+                ..with(None)
+            };
+            assert!(!kept.serves(&other), "another scatter needs another signal");
+        }
     }
 }
 
