@@ -302,7 +302,8 @@ fn a_prefetched_frame_is_the_frame_from_scratch_without_gpu_work() {
 /// Displayed frames with scatter and a receptor profile (a session's defaults): a new shot of
 /// an unchanged view reuses the kept detector signal (only the noise and the display are
 /// redone) and equals the frame of a renderer without caches bit for bit; after a needle move,
-/// a technique change or iodine the signal is made again, and those frames equal too.
+/// a technique change, iodine or another air gap the signal is made again, and those frames
+/// equal too.
 #[test]
 fn new_shots_reuse_the_detector_signal_and_equal_frames_from_scratch() {
     use sim_core::fluoro::QuantumNoise;
@@ -333,6 +334,13 @@ fn new_shots_reuse_the_detector_signal_and_equal_frames_from_scratch() {
         ..RenderSettings::default()
     };
     let field = iodine_field();
+    let wider = |s: RenderSettings| RenderSettings {
+        scatter: s.scatter.map(|c| ScatterSettings {
+            air_gap_mm: 120.0,
+            ..c
+        }),
+        ..s
+    };
     let (a, b) = ([-40.0, -60.0, 10.0], [-5.0, -15.0, 15.0]);
     cached.update_needle(&needle(a, b));
     scratch.update_needle(&needle(a, b));
@@ -348,6 +356,9 @@ fn new_shots_reuse_the_detector_signal_and_equal_frames_from_scratch() {
         (shot(95, 8), true, false, false),
         (shot(95, 9), false, false, false),
         (shot(95, 10), false, false, true),
+        // Another air gap at the same view and technique: a new signal, then kept.
+        (wider(shot(95, 11)), false, false, false),
+        (wider(shot(95, 12)), false, false, true),
     ];
     let mut reused = 0;
     for (k, (s, iodine, moved, reusable)) in steps.into_iter().enumerate() {
@@ -366,5 +377,5 @@ fn new_shots_reuse_the_detector_signal_and_equal_frames_from_scratch() {
         assert_eq!(t.signal_reused, reusable, "step {k}");
         reused += usize::from(t.signal_reused);
     }
-    assert_eq!(reused, 4);
+    assert_eq!(reused, 5);
 }

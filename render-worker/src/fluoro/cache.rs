@@ -9,10 +9,10 @@
 //! (scatter, glare and the receptor's blur, which do not depend on the noise) and the exposure
 //! mask ([`ExposureKey`]). These, the full image's geometric L-buffer and the needle are what a
 //! renderer holds of its own between frames (at 512 x 512: 5 MB of L-buffer, 1 MB each for the
-//! two kept transmissions and the signal); the anatomy is shared, and so are the other
-//! targets, which a frame takes from the anatomy's pool and gives back
-//! (`pipelines::TargetPool`; before, each renderer held its own, 14 MB for the full image and a
-//! few MB for the supersampled needle region).
+//! two kept transmissions and the signal, and the signal's mask of 0.25 MB); the anatomy is
+//! shared, and so are the other targets, which a frame takes from the anatomy's pool and gives
+//! back (`pipelines::TargetPool`; before, each renderer held its own, 14 MB for the full image
+//! and a few MB for the supersampled needle region).
 //! Each cached frame is bit-identical to a frame from scratch, and so is culling (tests in
 //! `render-worker/tests/fluoro_cache.rs`; renderers sharing the pool: `anatomy.rs`'s tests).
 //! The pixel-rectangle arithmetic of the partial resolve is in `types.rs`.

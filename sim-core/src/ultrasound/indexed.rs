@@ -2,8 +2,10 @@
 //! point: each voxel holds the index of its (label, HU) pair in a palette of
 //! [`AcousticProps`], computed by the same functions [`CtMedium::props`] calls. Every lookup
 //! returns what `CtMedium` returns, bit for bit (tested), at a fraction of the cost: the scatter
-//! deposit asks the medium once per lattice scatterer (millions per frame), and the HU mapping
-//! interpolates seven fields per call.
+//! deposit asks the medium for every lattice scatterer (millions per frame; a column at a time,
+//! `AcousticMedium::scatter_along`), and the HU mapping interpolates seven fields per call.
+//! The index takes one byte per voxel plus the padding of the grid's partial bricks (a grid
+//! whose sides are multiples of 4 voxels has none).
 //!
 //! Painted volumes (a region's structures, one CT number and label per structure) hold a dozen
 //! pairs; a volume with more than [`MAX_TISSUES`] (a real CT's continuum of HU) is refused, and
@@ -16,7 +18,7 @@ use glam::DVec3;
 use super::tissue::{AIR, AcousticMedium, AcousticProps, CtMedium, LatticeColumn, ScatterProps};
 use crate::volume::{VolumeGrid, round_in};
 
-/// Most distinct (label, HU) pairs a palette holds: one byte per voxel.
+/// Most distinct (label, HU) pairs a palette holds: a one-byte index.
 pub const MAX_TISSUES: usize = 256;
 
 /// Side of a brick of the index volume, voxels: a brick of `4^3` one-byte indices is one
@@ -47,7 +49,10 @@ impl IndexedMedium {
     /// properties) take two entries and NaN ones are kept as they are.
     pub fn from_ct(ct: &CtMedium<'_>) -> Option<IndexedMedium> {
         let grid = ct.hu.grid;
-        let n = grid.len();
+        let n = grid
+            .dims
+            .iter()
+            .try_fold(1usize, |n, &d| n.checked_mul(d))?;
         if ct.hu.data.len() != n
             || ct
                 .labels
@@ -58,7 +63,11 @@ impl IndexedMedium {
         let mut palette = Vec::new();
         let mut seen: HashMap<(u8, u32), u8> = HashMap::new();
         let bricks = grid.dims.map(|d| d.div_ceil(BRICK));
-        let mut index = vec![0u8; bricks.iter().product::<usize>() * BRICK.pow(3)];
+        // A grid too large to index is refused (its voxel count would wrap).
+        let slots = bricks
+            .iter()
+            .try_fold(BRICK.pow(3), |n, &b| n.checked_mul(b))?;
+        let mut index = vec![0u8; slots];
         // Painted volumes come in long runs of one tissue: the last pair short-cuts the map.
         let mut last: Option<((u8, u32), u8)> = None;
         let [nx, ny, nz] = grid.dims;
@@ -340,6 +349,21 @@ mod tests {
         })
         .expect("fits");
         assert_eq!(m.tissues(), 1);
+        // A grid whose voxel count would wrap: refused, not indexed out of bounds.
+        let huge = Volume {
+            grid: VolumeGrid {
+                dims: [1 << 40, 1 << 40, 1],
+                ..grid
+            },
+            data: vec![0.0f32; 4],
+        };
+        assert!(
+            IndexedMedium::from_ct(&CtMedium {
+                hu: &huge,
+                labels: None
+            })
+            .is_none()
+        );
         // Labels on another grid than the HU: refused, not misread.
         let labels = Volume::filled(
             VolumeGrid {

@@ -127,10 +127,24 @@ impl DetectorSignal {
         DetectorSignal::from_samples(samples_f32(width, height, transmission, exposed), settings)
     }
 
-    /// Whether this signal is the one `settings` would make of the same transmission (the same
-    /// scatter and receptor).
+    /// Whether this signal is the one `settings` would make of the same transmission: the same
+    /// scatter and receptor, bit for bit (so settings holding a NaN serve their own signal).
     pub fn serves(&self, settings: &RenderSettings) -> bool {
-        self.scatter == settings.scatter && self.receptor == settings.receptor
+        let scatter = |s: &Option<ScatterSettings>| {
+            s.map(|s| {
+                (
+                    s.kvp,
+                    s.grid,
+                    s.air_gap_mm.to_bits(),
+                    s.pixel_pitch_mm.to_bits(),
+                )
+            })
+        };
+        let receptor = |r: &Option<receptor::ReceptorSettings>| {
+            r.map(|r| (r.kind, r.pixel_pitch_mm.to_bits()))
+        };
+        scatter(&self.scatter) == scatter(&settings.scatter)
+            && receptor(&self.receptor) == receptor(&settings.receptor)
     }
 
     /// The displayed frame: noise, automatic brightness, tone mapping, shutters and the

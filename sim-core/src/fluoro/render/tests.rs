@@ -521,7 +521,11 @@ fn the_f32_finish_equals_the_finish_of_the_widened_copy() {
 
 /// A detector signal kept from one finish finishes later shots (other seeds, other quanta,
 /// no noise) exactly as the whole finish of the transmission does, for every combination of
-/// scatter and receptor profile; it serves only the scatter and receptor it was made with.
+/// scatter and receptor profile; it serves only the scatter and receptor it was made with (and
+/// settings holding a NaN serve their own signal). The whole finish makes its frames through
+/// the same signal; that it still makes the frames it made before the signal existed is what
+/// render-worker's pinned session hashes check (scatter and the flat panel are a session's
+/// defaults).
 #[test]
 fn a_kept_detector_signal_finishes_new_shots_as_the_transmission_does() {
     use crate::fluoro::receptor::{ReceptorKind, ReceptorSettings};
@@ -598,6 +602,15 @@ fn a_kept_detector_signal_finishes_new_shots_as_the_transmission_does() {
                 ..with(None)
             };
             assert!(!kept.serves(&other), "another scatter needs another signal");
+            let nan = RenderSettings {
+                receptor: Some(ReceptorSettings {
+                    kind: ReceptorKind::FlatPanel,
+                    pixel_pitch_mm: f64::NAN,
+                }),
+                ..with(None)
+            };
+            let odd = DetectorSignal::of_f32(t.width, t.height, &narrow, &t.exposed, &nan);
+            assert!(odd.serves(&nan) && odd.finish(&nan) == odd.finish(&nan));
         }
     }
 }

@@ -9,10 +9,10 @@
 //! `|c / d|` is about 1e-3 and the series to the seventh power leaves out less than 1e-28 rad).
 //! The angle is taken afresh by `plane_to_line`'s arctangent every [`RESTART_POINTS`] points,
 //! where a turn is not small, and behind the apex (where the angle wraps at a half turn).
-//! Against the conversion point by point (test below): within 6e-13 lines (tens of ulp of a
-//! line index of a few hundred). Frames differ from those of the conversion point by point by
-//! round-off only (the recorded reference envelopes of `tests/ultrasound.rs`: 1.2e-5 relative
-//! at worst, as before). A rocked session frame's deposit: 66-69 -> 61-62 ms.
+//! Against the conversion point by point (test below, bound 1e-11): at most 5.7e-13 lines
+//! (tens of ulp of a line index of a few hundred). Frames differ from those of the conversion
+//! point by point by round-off only (the recorded reference envelopes of `tests/ultrasound.rs`:
+//! 1.2e-5 relative at worst, as before). A rocked session frame's deposit: 66-69 -> 61-62 ms.
 
 use super::super::probe::ScanGeometry;
 

@@ -13,8 +13,8 @@
 //!
 //! The CPU reference reads the same tissue through a palette (`IndexedMedium`: one byte per
 //! voxel, in cache-line bricks, and the properties of each distinct tissue computed once), which
-//! gives the same properties at every point and made the session's B-mode frame about a quarter
-//! faster (`ultrasound_session` bench: 62 -> 42 ms square, 114 -> 86 ms rocked).
+//! gives the same properties at every point (`ultrasound_session` bench, the palette alone:
+//! 62 -> 42 ms square, 114 -> 86 ms rocked; with the later changes to the deposit, 34 and 71).
 
 use std::sync::{Arc, Mutex};
 
@@ -102,6 +102,13 @@ impl AcousticMedium for CpuMedium<'_> {
         match self {
             CpuMedium::Indexed(m) => m.props(p_mm),
             CpuMedium::Ct(m) => m.props(p_mm),
+        }
+    }
+
+    fn fibre_axis(&self, p_mm: DVec3) -> Option<DVec3> {
+        match self {
+            CpuMedium::Indexed(m) => m.fibre_axis(p_mm),
+            CpuMedium::Ct(m) => m.fibre_axis(p_mm),
         }
     }
 
