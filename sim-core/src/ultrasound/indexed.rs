@@ -132,6 +132,10 @@ impl AcousticMedium for IndexedMedium {
         }
     }
 
+    fn lookups_by_column(&self) -> bool {
+        true
+    }
+
     /// The two fixed coordinates are rounded once, and along the column only `axis` is, by the
     /// same arithmetic as [`props`](AcousticMedium::props) (the grid's axes are independent).
     fn scatter_along(&self, column: &LatticeColumn, out: &mut Vec<ScatterProps>) {

@@ -243,6 +243,14 @@ pub trait AcousticMedium: Sync {
         None
     }
 
+    /// Whether the scatter deposit should ask [`scatter_along`](Self::scatter_along) once per
+    /// lattice column rather than [`props`](Self::props) once per cell: `true` where the column
+    /// lookup is the cheaper (a voxel grid that rounds the fixed coordinates once); the default
+    /// `false` keeps a cheap `props` (an analytic medium) free of the column buffer.
+    fn lookups_by_column(&self) -> bool {
+        false
+    }
+
     /// What the scatter deposit reads of the tissue at each cell of a lattice column, in
     /// order, into `out` (cleared first). Each must be [`props`](Self::props) at the cell's
     /// point, which the default asks; a medium on a voxel grid rounds the two fixed coordinates

@@ -37,6 +37,8 @@ pub(super) struct ScatterContext<'a> {
     /// Amplitude scale (see `deposit::amplitude_norm`).
     pub norm: f64,
     pub seed: u64,
+    /// `medium.lookups_by_column()`, asked once.
+    pub by_column: bool,
 }
 
 /// One lattice column: its cells `k` along axis `AM`, the probe-frame point of the first
@@ -57,8 +59,9 @@ pub(super) struct Column<'a> {
 }
 
 impl Column<'_> {
-    /// The tissue of cells `ks` of this column (along axis `AM`), into `out`: one call to the
-    /// medium per column.
+    /// Where the medium looks up by column ([`ScatterContext::by_column`]), the tissue of cells
+    /// `ks` of this column (along axis `AM`) into `out`, one call to the medium per column;
+    /// else nothing (see [`Column::tissue_at`]).
     #[inline(always)]
     pub(super) fn tissue<const AM: usize>(
         &self,
@@ -66,6 +69,9 @@ impl Column<'_> {
         ks: std::ops::Range<i64>,
         out: &mut Vec<ScatterProps>,
     ) {
+        if !cx.by_column {
+            return;
+        }
         let column = LatticeColumn {
             base_mm: self.pos,
             axis: AM,
@@ -73,6 +79,24 @@ impl Column<'_> {
             ks,
         };
         cx.medium.scatter_along(&column, out);
+    }
+
+    /// The tissue of cell `k`, the `i`-th of the range [`Column::tissue`] was given: from
+    /// `tissues` where the medium looks up by column, else from the medium at the cell's point.
+    #[inline(always)]
+    pub(super) fn tissue_at<const AM: usize>(
+        &self,
+        cx: &ScatterContext<'_>,
+        (i, k): (usize, i64),
+        tissues: &[ScatterProps],
+    ) -> ScatterProps {
+        if cx.by_column {
+            tissues[i]
+        } else {
+            let mut p = self.pos;
+            p[AM] = k as f64 * cx.h;
+            ScatterProps::from(&cx.medium.props(p))
+        }
     }
 
     /// The hash of the scatterer of cell `k` (along axis `AM`; `pos` gets its region point),

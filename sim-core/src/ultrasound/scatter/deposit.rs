@@ -152,6 +152,7 @@ pub(crate) fn deposit_scatterers(
         h,
         norm,
         seed,
+        by_column: medium.lookups_by_column(),
     };
     // Square to the lattice, a column keeps its in-plane point exactly (steps of zero).
     let square = step_m.x == 0.0 && step_m.y == 0.0;
@@ -388,7 +389,8 @@ fn column_sum<const AM: usize>(
     let mut q = col.q;
     let mut pos = col.pos;
     col.tissue::<AM>(cx, col.k.clone(), tissues);
-    for (k, tissue) in col.k.clone().zip(tissues.iter()) {
+    for (i, k) in col.k.clone().enumerate() {
+        let tissue = &col.tissue_at::<AM>(cx, (i, k), tissues);
         let here = q;
         q += col.step;
         let Some(hsh) = col.scatterer::<AM>(cx, k, tissue, &mut pos, echo) else {

@@ -160,7 +160,7 @@ pub(super) fn column_oblique<const AM: usize>(
     // Curvilinear array: each point's angle from the previous one's (see `sector`).
     let mut sector = SectorSteps::new(geo);
     col.tissue::<AM>(cx, k_lo..k_hi + 1, tissues);
-    for (k, tissue) in (k_lo..=k_hi).zip(tissues.iter()) {
+    for (i, k) in (k_lo..=k_hi).enumerate() {
         let here = q0 + col.step * (k - k_lo) as f64;
         let (u, z, (cs, sn)) = if linear {
             let c = carrier;
@@ -173,6 +173,7 @@ pub(super) fn column_oblique<const AM: usize>(
         if !cx.reach.contains(u, z) {
             continue;
         }
+        let tissue = &col.tissue_at::<AM>(cx, (i, k), tissues);
         let Some(hsh) = col.scatterer::<AM>(cx, k, tissue, &mut pos, echo) else {
             continue;
         };

@@ -112,6 +112,13 @@ impl AcousticMedium for CpuMedium<'_> {
         }
     }
 
+    fn lookups_by_column(&self) -> bool {
+        match self {
+            CpuMedium::Indexed(m) => m.lookups_by_column(),
+            CpuMedium::Ct(m) => m.lookups_by_column(),
+        }
+    }
+
     fn scatter_along(&self, column: &LatticeColumn, out: &mut Vec<ScatterProps>) {
         match self {
             CpuMedium::Indexed(m) => m.scatter_along(column, out),
