@@ -761,12 +761,8 @@ fn the_palette_medium_gives_the_frames_of_the_ct_numbers() {
     let station = station(IN_PLANE);
     let site = render_worker::session::anatomy::primary_target(&station).expect("a target");
     let volume = acoustic_volume(&region(), site);
-    let indexed = volume.indexed.as_ref().expect("a painted volume fits a palette");
-    assert!(
-        (2..=16).contains(&indexed.tissues()),
-        "{} tissues",
-        indexed.tissues()
-    );
+    let tissues = volume.indexed.tissues();
+    assert!((2..=16).contains(&tissues), "{tissues} tissues");
     let skin = skin_above(DVec3::from_array(site));
     for probe in [ProbeKind::Linear, ProbeKind::Curvilinear] {
         let spec = probe.spec();
@@ -786,7 +782,7 @@ fn the_palette_medium_gives_the_frames_of_the_ct_numbers() {
                 })
                 .expect("a valid scan")
             };
-            let (ct, palette) = (frame(&volume.medium()), frame(&volume.cpu_medium()));
+            let (ct, palette) = (frame(&volume.medium()), frame(&volume.indexed));
             assert!(
                 ct.pixels == palette.pixels && ct.envelope.data == palette.envelope.data,
                 "{probe:?}, beam {beam}: the palette changed the frame"

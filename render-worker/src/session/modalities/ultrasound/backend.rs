@@ -36,7 +36,7 @@ pub trait UltrasoundBackend: Send + Sync {
 
 /// Makes frames for one session.
 pub trait UltrasoundRenderer: Send {
-    /// The frame of `req`, whose medium is `volume.cpu_medium()` (the same tissue as
+    /// The frame of `req`, whose medium is `volume.indexed` (the same tissue as
     /// `volume.medium()`).
     fn scan(
         &mut self,

@@ -18,14 +18,12 @@
 
 use std::sync::{Arc, Mutex};
 
-use glam::DVec3;
 use sim_core::anatomy::phantom::TissueHu;
 use sim_core::fluoro::FluoroMaterial;
 use sim_core::geom::Hit;
 use sim_core::material::MaterialClass;
-use sim_core::ultrasound::{
-    AcousticMedium, AcousticProps, CtMedium, IndexedMedium, LatticeColumn, ScatterProps,
-};
+use sim_core::ultrasound::indexed::MAX_TISSUES;
+use sim_core::ultrasound::{CtMedium, IndexedMedium};
 use sim_core::volume::{Volume, VolumeGrid};
 
 use crate::session::region::Region;
@@ -64,8 +62,9 @@ pub struct AcousticVolume {
     pub key: u64,
     /// The same tissue as a palette of properties per (label, HU) pair (one byte per voxel):
     /// what the CPU reference reads, equal to [`medium`](Self::medium) bit for bit and faster
-    /// per lookup. `None` where the volume holds more distinct tissues than a palette takes.
-    pub indexed: Option<IndexedMedium>,
+    /// per lookup. A painted volume always has one: it holds at most a pair per material class
+    /// and air (see `paint`).
+    pub indexed: IndexedMedium,
 }
 
 impl AcousticVolume {
@@ -74,55 +73,6 @@ impl AcousticVolume {
         CtMedium {
             hu: &self.hu,
             labels: Some(&self.labels),
-        }
-    }
-
-    /// The medium the CPU reference reads: the palette where there is one, else
-    /// [`medium`](Self::medium); the same properties at every point.
-    pub fn cpu_medium(&self) -> CpuMedium<'_> {
-        match &self.indexed {
-            Some(m) => CpuMedium::Indexed(m),
-            None => CpuMedium::Ct(self.medium()),
-        }
-    }
-}
-
-/// What [`AcousticVolume::cpu_medium`] gives.
-#[derive(Debug, Clone, Copy)]
-pub enum CpuMedium<'a> {
-    /// The palette form.
-    Indexed(&'a IndexedMedium),
-    /// The CT numbers and labels.
-    Ct(CtMedium<'a>),
-}
-
-impl AcousticMedium for CpuMedium<'_> {
-    #[inline]
-    fn props(&self, p_mm: DVec3) -> AcousticProps {
-        match self {
-            CpuMedium::Indexed(m) => m.props(p_mm),
-            CpuMedium::Ct(m) => m.props(p_mm),
-        }
-    }
-
-    fn fibre_axis(&self, p_mm: DVec3) -> Option<DVec3> {
-        match self {
-            CpuMedium::Indexed(m) => m.fibre_axis(p_mm),
-            CpuMedium::Ct(m) => m.fibre_axis(p_mm),
-        }
-    }
-
-    fn lookups_by_column(&self) -> bool {
-        match self {
-            CpuMedium::Indexed(m) => m.lookups_by_column(),
-            CpuMedium::Ct(m) => m.lookups_by_column(),
-        }
-    }
-
-    fn scatter_along(&self, column: &LatticeColumn, out: &mut Vec<ScatterProps>) {
-        match self {
-            CpuMedium::Indexed(m) => m.scatter_along(column, out),
-            CpuMedium::Ct(m) => m.scatter_along(column, out),
         }
     }
 }
@@ -283,10 +233,14 @@ pub fn paint(region: &Region, lo: [f64; 3], hi: [f64; 3], key: u64) -> AcousticV
             }
         }
     }
+    // Every voxel holds air or its structure class's CT number and label: at most one
+    // (label, HU) pair per class and air, which a palette always takes.
+    const _: () = assert!(MaterialClass::ALL.len() < MAX_TISSUES);
     let indexed = IndexedMedium::from_ct(&CtMedium {
         hu: &hu,
         labels: Some(&labels),
-    });
+    })
+    .expect("a painted volume holds at most a (label, HU) pair per class and air");
     AcousticVolume {
         hu,
         labels,

@@ -277,7 +277,7 @@ impl UltrasoundModality {
     fn scan_displayed(&mut self, world: &World, draft: bool) -> Result<ViewImage, ModalityError> {
         let scene = self.displayed_scene(world);
         let volume = self.volume();
-        let medium = volume.cpu_medium();
+
         let spec = scene.probe.spec();
         let sampling = Sampling::for_settings(&spec, &scene.settings);
         let req = ScanRequest {
@@ -285,7 +285,7 @@ impl UltrasoundModality {
             pose: scene.pose,
             settings: scene.settings,
             sampling: if draft { sampling.draft() } else { sampling },
-            medium: &medium,
+            medium: &volume.indexed,
             needle: scene.needle,
             targets: &[],
             seed: self.state.seed,
