@@ -36,7 +36,7 @@ pub struct IndexedMedium {
     grid: VolumeGrid,
     /// Bricks per axis.
     bricks: [usize; 3],
-    /// Palette index per voxel, in bricks (see [`IndexedMedium::slot`]).
+    /// Palette index per voxel, in bricks (see [`slot`]).
     index: Vec<u8>,
     palette: Vec<AcousticProps>,
     /// What the scatter deposit reads of each palette entry.

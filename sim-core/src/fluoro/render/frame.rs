@@ -185,26 +185,30 @@ impl DetectorSignal {
                     .unwrap_or_else(copy);
                 (signal, t.exposed.to_vec())
             }
-            Some(r) => {
-                let mut glared = settings
-                    .scatter
-                    .as_ref()
-                    .and_then(|s| scatter_and_glare(t, s, r, threads));
-                let mask = match glared.as_mut() {
-                    // Scatter and glare in one pass: the point-spread core and distortion remain.
-                    Some(signal) => receptor::apply_after_glare(
-                        signal, t.exposed, t.width, t.height, r, threads,
-                    ),
-                    None => {
-                        let mut s = copy();
-                        let mask =
-                            receptor::apply(&mut s, t.exposed, t.width, t.height, r, threads);
-                        glared = Some(s);
-                        mask
-                    }
-                };
-                (glared.expect("set on both paths"), mask)
-            }
+            Some(r) => match settings
+                .scatter
+                .as_ref()
+                .and_then(|s| scatter_and_glare(t, s, r, threads))
+            {
+                // Scatter and glare in one pass: the point-spread core and distortion remain.
+                Some(mut glared) => {
+                    let mask = receptor::apply_after_glare(
+                        &mut glared,
+                        t.exposed,
+                        t.width,
+                        t.height,
+                        r,
+                        threads,
+                    );
+                    (glared, mask)
+                }
+                None => {
+                    let mut signal = copy();
+                    let mask =
+                        receptor::apply(&mut signal, t.exposed, t.width, t.height, r, threads);
+                    (signal, mask)
+                }
+            },
         };
         DetectorSignal {
             width: t.width,
