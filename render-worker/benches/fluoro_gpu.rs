@@ -380,13 +380,13 @@ fn phase_table(
         gpu.update_needle(&needle(0));
         // Warm-up (pipelines, tables, targets).
         let _ = gpu.render_frame(&ap, &settings(0), None).expect("frame");
-        // A session's detector: scatter behind the grid and the flat panel's profile (a
-        // 150 mm air gap, about the default C-arm's at the L4 isocentre).
+        // A session's detector: scatter behind the grid and the flat panel's profile, with the
+        // air gap of the default C-arm's AP view of L4 (606 mm: the brightness bench's table).
         let session = |k: usize| RenderSettings {
             scatter: Some(ScatterSettings {
                 kvp: 80,
                 grid: true,
-                air_gap_mm: 150.0,
+                air_gap_mm: 606.0,
                 pixel_pitch_mm: ap.pixel_pitch_mm[0],
             }),
             receptor: Some(ReceptorSettings {
