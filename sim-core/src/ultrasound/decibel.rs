@@ -13,8 +13,10 @@
 
 use std::sync::OnceLock;
 
+/// Leading mantissa bits that pick the table's interval.
+const BITS: u32 = 7;
 /// Intervals of the mantissa's table.
-const INTERVALS: usize = 128;
+const INTERVALS: usize = 1 << BITS;
 
 /// `(c, 1 / c, ln c)` per interval: `c = 1 + (j + 1/2) / 128`.
 fn table() -> &'static [(f64, f64, f64); INTERVALS] {
@@ -37,7 +39,7 @@ pub(crate) fn amplitude_db(a: f64) -> f64 {
     let bits = a.to_bits();
     let e = (bits >> 52) as i64 - 1023;
     let mantissa = bits & ((1 << 52) - 1);
-    let (c, inv_c, ln_c) = table()[(mantissa >> (52 - 7)) as usize];
+    let (c, inv_c, ln_c) = table()[(mantissa >> (52 - BITS)) as usize];
     let m = f64::from_bits(mantissa | 1.0f64.to_bits());
     let r = (m - c) * inv_c;
     let r2 = r * r;
