@@ -214,6 +214,11 @@ impl TriangleGrid {
     /// Every crossing pair with a triangle of a patch in `fresh`, as triangle ids, the lower
     /// first (sorted, each once; ids follow `(patch, index)` order), tested cell by cell in
     /// parallel.
+    ///
+    /// Each pair is tested once, in its *reference cell*: the cell of the lowest corner of the
+    /// two boxes' overlap, which both boxes meet. Within a cell the triangles are swept in order
+    /// of their boxes' lowest x, so that a triangle meets only those whose boxes reach it along
+    /// x (sort and sweep) instead of every other one in the cell.
     fn crossing_ids(
         &self,
         source: &[Vec<[u32; 3]>],
@@ -222,10 +227,10 @@ impl TriangleGrid {
         corners: bool,
     ) -> Vec<(u32, u32)> {
         let tris = &self.tris;
-        let cells: Vec<&Vec<u32>> = self
+        let cells: Vec<(&[i64; 3], &Vec<u32>)> = self
             .cells
-            .values()
-            .filter(|c| {
+            .iter()
+            .filter(|(_, c)| {
                 c.len() > 1
                     && c.iter().any(|&i| fresh[tris[i as usize].0 as usize])
                     && c.iter()
@@ -237,19 +242,30 @@ impl TriangleGrid {
             cells.len().div_ceil(chunk),
             &|ci| {
                 let mut out = Vec::new();
-                for cell in &cells[ci * chunk..((ci + 1) * chunk).min(cells.len())] {
-                    for (k, &i) in cell.iter().enumerate() {
+                let mut order: Vec<u32> = Vec::new();
+                for &(key, cell) in &cells[ci * chunk..((ci + 1) * chunk).min(cells.len())] {
+                    order.clear();
+                    order.extend_from_slice(cell);
+                    order.sort_unstable_by(|&a, &b| {
+                        self.boxes[a as usize].0[0].total_cmp(&self.boxes[b as usize].0[0])
+                    });
+                    for (k, &i) in order.iter().enumerate() {
                         let pi = tris[i as usize].0;
-                        let a = self.corners(source, i);
                         let abox = &self.boxes[i as usize];
-                        for &j in &cell[k + 1..] {
+                        for &j in &order[k + 1..] {
+                            let bbox = &self.boxes[j as usize];
+                            // Every later box starts beyond this one along x.
+                            if bbox.0[0] > abox.1[0] {
+                                break;
+                            }
                             let pj = tris[j as usize].0;
                             if pi == pj || !(fresh[pi as usize] || fresh[pj as usize]) {
                                 continue;
                             }
-                            if !boxes_overlap(abox, &self.boxes[j as usize]) {
+                            if !boxes_overlap(abox, bbox) || !self.is_reference(key, abox, bbox) {
                                 continue;
                             }
+                            let a = self.corners(source, i);
                             if pair_crosses(a, self.corners(source, j), positions, corners) {
                                 out.push((i.min(j), i.max(j)));
                             }
@@ -262,8 +278,14 @@ impl TriangleGrid {
         );
         let mut pairs: Vec<_> = found.into_iter().flatten().collect();
         pairs.sort_unstable();
-        pairs.dedup();
         pairs
+    }
+
+    /// Whether `cell` is the reference cell of two overlapping boxes: the one holding the lowest
+    /// corner of their overlap (computed as [`for_cells`] computes a box's first cell, so both
+    /// boxes list it).
+    fn is_reference(&self, cell: &[i64; 3], a: &TriBox, b: &TriBox) -> bool {
+        (0..3).all(|d| (a.0[d].max(b.0[d]) / self.cell_mm).floor() as i64 == cell[d])
     }
 }
 
@@ -536,6 +558,73 @@ mod tests {
         // Sharing an edge is a meeting, whatever `corners` says.
         let source = vec![vec![[0, 1, 2]], vec![[0, 1, 4]]];
         assert!(crossing_pairs(&source, &positions, &fresh, 2.0, true).is_empty());
+    }
+
+    /// Every pair is tested in exactly one cell (its reference cell), whatever the cells' size
+    /// against the triangles': random triangles of four patches, some sharing corners, give the
+    /// pairs a test of every pair would, with cells from a tenth of a triangle to many.
+    #[test]
+    fn crossing_pairs_are_those_of_testing_every_pair() {
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut rnd = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut positions: Vec<[f64; 3]> = (0..300)
+            .map(|_| [8.0 * rnd(), 8.0 * rnd(), 8.0 * rnd()])
+            .collect();
+        // Negative coordinates too (cells below zero).
+        for p in positions.iter_mut().step_by(3) {
+            p[1] -= 8.0;
+        }
+        let mut source: Vec<Vec<[u32; 3]>> = vec![Vec::new(); 4];
+        for i in 0..240 {
+            // Corners near each other (small triangles), from a shared pool of vertices.
+            let a = (rnd() * 300.0) as u32 % 300;
+            let mut t = [a, a, a];
+            for c in &mut t[1..] {
+                *c = (a + 1 + (rnd() * 20.0) as u32) % 300;
+            }
+            if t[1] != t[2] {
+                source[i % 4].push(t);
+            }
+        }
+        for corners in [false, true] {
+            let mut every = Vec::new();
+            for (pa, ta) in source.iter().enumerate() {
+                for (pb, tb) in source.iter().enumerate().skip(pa + 1) {
+                    for (i, &a) in ta.iter().enumerate() {
+                        for (j, &b) in tb.iter().enumerate() {
+                            if pair_crosses(a, b, &positions, corners) {
+                                every.push(((pa as u32, i as u32), (pb as u32, j as u32)));
+                            }
+                        }
+                    }
+                }
+            }
+            every.sort_unstable();
+            assert!(every.len() > 20, "{} crossing pairs", every.len());
+            for cell_mm in [0.4, 1.3, 3.0, 20.0] {
+                let all = vec![true; source.len()];
+                assert_eq!(
+                    crossing_pairs(&source, &positions, &all, cell_mm, corners),
+                    every
+                );
+                // With one patch fresh: the pairs that have a triangle of it.
+                let fresh = [false, true, false, false];
+                let some: Vec<Pair> = every
+                    .iter()
+                    .copied()
+                    .filter(|&((pa, _), (pb, _))| pa == 1 || pb == 1)
+                    .collect();
+                assert_eq!(
+                    crossing_pairs(&source, &positions, &fresh, cell_mm, corners),
+                    some
+                );
+            }
+        }
     }
 
     /// Two bumpy sheets (two patches each) that cross in places, their vertices moved a few at a

@@ -146,7 +146,34 @@ pub(super) fn refine_family(
     tolerance_mm: f64,
     rounds: usize,
 ) -> Refined {
-    let mut positions = fam.positions.clone();
+    let level_set_of = |p: usize| {
+        fam.patches[p]
+            .owners
+            .first()
+            .and_then(|&(m, _)| level_sets.get(m as usize).copied().flatten())
+    };
+    refine_patches(
+        &fam.positions,
+        source,
+        &level_set_of,
+        tolerance_mm,
+        rounds,
+        false,
+    )
+}
+
+/// [`refine_family`] on `positions` with the level set of each patch from `level_set_of`; with
+/// `every_edge_each_round`, each round looks at every triangle again (the reference the rounds'
+/// shortcut is tested against).
+fn refine_patches<'a>(
+    positions: &[[f64; 3]],
+    source: &[Vec<[u32; 3]>],
+    level_set_of: &(dyn Fn(usize) -> Option<LevelSetFn<'a>> + Sync),
+    tolerance_mm: f64,
+    rounds: usize,
+    every_edge_each_round: bool,
+) -> Refined {
+    let mut positions = positions.to_vec();
     let mut triangles: Vec<Vec<[u32; 3]>> = source.to_vec();
     let mut splits = 0;
     let mut parents = Vec::new();
@@ -154,17 +181,28 @@ pub(super) fn refine_family(
     // The edges of pillows are never split either (see [`pillow_edges`]).
     let mut settled: rustc_hash::FxHashSet<(u32, u32)> =
         triangles.iter().flat_map(|t| pillow_edges(t)).collect();
+    // The first vertex made by the last round (every vertex before the first round). A round
+    // can only split an edge with a vertex the last one made: an edge between older vertices
+    // has the users it had in the last round (a subdivision keeps each unsplit edge in one
+    // child), so it was tested then and settled, or split and gone, or is not used twice by one
+    // patch (a junction, a non-manifold edge) and still is not. The triangles of a new vertex are
+    // all new ones, so later rounds look at the last round's triangles alone.
+    let mut made_from: u32 = 0;
     for _ in 0..rounds {
+        let made = |t: &[u32; 3]| t.iter().any(|&v| v >= made_from);
         // Every edge inside one patch (used twice by it and by no other patch), with that
         // patch and the sum of its triangles' normals, in a deterministic order.
         let mut users: FxHashMap<(u32, u32), (usize, u32, DVec3)> = FxHashMap::default();
         for (p, tris) in triangles.iter().enumerate() {
-            for t in tris {
+            for t in tris.iter().filter(|t| made(t)) {
                 // Twice the area vector: outward as the patch's first owner holds the triangle.
                 let [x, y, z] = t.map(|v| DVec3::from(positions[v as usize]));
                 let n = (y - x).cross(z - x);
                 for k in 0..3 {
                     let (a, b) = (t[k], t[(k + 1) % 3]);
+                    if a.max(b) < made_from {
+                        continue;
+                    }
                     let e = users
                         .entry((a.min(b), a.max(b)))
                         .or_insert((p, 0, DVec3::ZERO));
@@ -191,10 +229,7 @@ pub(super) fn refine_family(
                 edges[(c * CHUNK).min(edges.len())..((c + 1) * CHUNK).min(edges.len())]
                     .iter()
                     .map(|&((a, b), p, n)| {
-                        let f = fam.patches[p]
-                            .owners
-                            .first()
-                            .and_then(|&(m, _)| level_sets.get(m as usize).copied().flatten())?;
+                        let f = level_set_of(p)?;
                         split_point(f, pos[a as usize], pos[b as usize], n, tolerance_mm)
                     })
                     .collect()
@@ -202,6 +237,7 @@ pub(super) fn refine_family(
             &mut |_| {},
         );
         let mut mid_of: FxHashMap<(u32, u32), u32> = FxHashMap::default();
+        let next_from = positions.len() as u32;
         for (&(e, _, _), q) in edges.iter().zip(found.into_iter().flatten()) {
             match q {
                 Some(q) => {
@@ -221,8 +257,15 @@ pub(super) fn refine_family(
         for tris in &mut triangles {
             let old = std::mem::take(tris);
             for t in old {
-                subdivide(t, &mid_of, &positions, tris);
+                if made(&t) {
+                    subdivide(t, &mid_of, &positions, tris);
+                } else {
+                    tris.push(t);
+                }
             }
+        }
+        if !every_edge_each_round {
+            made_from = next_from;
         }
     }
     Refined {
@@ -314,6 +357,102 @@ fn subdivide(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An icosahedron on the sphere of radius `r` about the origin: vertices and outward faces.
+    fn icosahedron(r: f64) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
+        let phi = 0.5 * (1.0 + 5f64.sqrt());
+        let mut v = Vec::new();
+        for (a, b) in [(1.0, phi), (-1.0, phi), (1.0, -phi), (-1.0, -phi)] {
+            v.extend([[0.0, a, b], [a, b, 0.0], [b, 0.0, a]]);
+        }
+        let v: Vec<DVec3> = v
+            .into_iter()
+            .map(|p| DVec3::from(p).normalize() * r)
+            .collect();
+        let edge = (v[0] - v[1]).length().min((v[0] - v[2]).length());
+        let near = |i: usize, j: usize| (v[i] - v[j]).length() < 1.01 * edge;
+        let mut faces = Vec::new();
+        for i in 0..12 {
+            for j in i + 1..12 {
+                for k in j + 1..12 {
+                    if near(i, j) && near(j, k) && near(i, k) {
+                        let n = (v[j] - v[i]).cross(v[k] - v[i]);
+                        let t = [i as u32, j as u32, k as u32];
+                        faces.push(if n.dot(v[i]) > 0.0 {
+                            t
+                        } else {
+                            [t[0], t[2], t[1]]
+                        });
+                    }
+                }
+            }
+        }
+        (v.iter().map(DVec3::to_array).collect(), faces)
+    }
+
+    /// The shortcut of later rounds (only the last round's triangles, only edges with a new
+    /// vertex) refines exactly as looking at every triangle each round would, on a family with
+    /// junctions: an icosahedron on a sphere of 10 mm in two patches, and its mirror image that
+    /// touches it along one edge, a third patch without a level set (never refined). That edge
+    /// is used by two triangles of each body; once the first body's two are subdivided at their
+    /// other edges, the last round's triangles alone use it twice.
+    #[test]
+    fn later_rounds_refine_as_a_full_rescan_would() {
+        let r = 10.0;
+        let (mut positions, a_faces) = icosahedron(r);
+        // The shared edge: the highest one; the second body is the first mirrored in the plane
+        // that touches the first along it.
+        let mid = |t: [u32; 3], k: usize| {
+            (DVec3::from(positions[t[k] as usize])
+                + DVec3::from(positions[t[(k + 1) % 3] as usize]))
+                * 0.5
+        };
+        let (t, k) = a_faces
+            .iter()
+            .flat_map(|&t| (0..3).map(move |k| (t, k)))
+            .max_by(|x, y| mid(x.0, x.1).z.total_cmp(&mid(y.0, y.1).z))
+            .expect("faces");
+        let (ea, eb) = (t[k], t[(k + 1) % 3]);
+        let m = mid(t, k);
+        let n = m.normalize();
+        let mirror = |p: DVec3| p - 2.0 * (p - m).dot(n) * n;
+        let base = positions.len() as u32;
+        let map: Vec<u32> = (0..12u32)
+            .map(|i| if i == ea || i == eb { i } else { base + i })
+            .collect();
+        for i in 0..12 {
+            positions.push(mirror(DVec3::from(positions[i])).to_array());
+        }
+        // Mirroring turns the winding over.
+        let b_faces: Vec<[u32; 3]> = a_faces
+            .iter()
+            .map(|t| [map[t[0] as usize], map[t[2] as usize], map[t[1] as usize]])
+            .collect();
+        let centroid_z = |t: &[u32; 3]| t.iter().map(|&v| positions[v as usize][2]).sum::<f64>();
+        let (upper, lower): (Vec<[u32; 3]>, Vec<[u32; 3]>) =
+            a_faces.iter().partition(|t| centroid_z(t) > 0.0);
+        let source = vec![upper, lower, b_faces];
+        let sphere = move |p: [f64; 3]| DVec3::from(p).length() - r;
+        let level_set_of = |p: usize| -> Option<LevelSetFn<'_>> { (p < 2).then_some(&sphere) };
+        let fast = refine_patches(&positions, &source, &level_set_of, 0.06, 5, false);
+        let full = refine_patches(&positions, &source, &level_set_of, 0.06, 5, true);
+        let shared = |tris: &[Vec<[u32; 3]>]| {
+            tris.iter()
+                .flatten()
+                .filter(|t| t.contains(&ea) && t.contains(&eb))
+                .count()
+        };
+        assert_eq!(shared(&source), 4);
+        assert_eq!(shared(&full.triangles), 4, "a junction edge is never split");
+        // More splits than the first round can make (the first body's patches have 30 edges
+        // less their junction).
+        assert!(full.splits > 30, "{} splits", full.splits);
+        assert_eq!(fast.splits, full.splits);
+        assert_eq!(fast.parents, full.parents);
+        assert_eq!(fast.triangles, full.triangles);
+        let bits = |p: &[[f64; 3]]| p.iter().map(|q| q.map(f64::to_bits)).collect::<Vec<_>>();
+        assert_eq!(bits(&fast.positions), bits(&full.positions));
+    }
 
     #[test]
     fn a_pillow_keeps_its_edges_and_other_triangles_do_not() {
