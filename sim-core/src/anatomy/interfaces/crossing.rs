@@ -216,9 +216,10 @@ impl TriangleGrid {
     /// parallel.
     ///
     /// Each pair is tested once, in its *reference cell*: the cell of the lowest corner of the
-    /// two boxes' overlap, which both boxes meet. Within a cell the triangles are swept in order
-    /// of their boxes' lowest x, so that a triangle meets only those whose boxes reach it along
-    /// x (sort and sweep) instead of every other one in the cell.
+    /// two boxes' overlap, which both boxes meet. Within a cell the triangles of each two
+    /// patches are swept in order of their boxes' lowest x ([`sweep`]), so that a triangle meets
+    /// only the other patch's triangles whose boxes reach it along x, not every triangle in the
+    /// cell.
     fn crossing_ids(
         &self,
         source: &[Vec<[u32; 3]>],
@@ -242,33 +243,46 @@ impl TriangleGrid {
             cells.len().div_ceil(chunk),
             &|ci| {
                 let mut out = Vec::new();
-                let mut order: Vec<u32> = Vec::new();
+                // Per cell: (lowest x, highest x, patch, id), sorted by patch and then lowest x.
+                let mut order: Vec<(f64, f64, u32, u32)> = Vec::new();
+                let mut groups: Vec<std::ops::Range<usize>> = Vec::new();
                 for &(key, cell) in &cells[ci * chunk..((ci + 1) * chunk).min(cells.len())] {
                     order.clear();
-                    order.extend_from_slice(cell);
-                    order.sort_unstable_by(|&a, &b| {
-                        self.boxes[a as usize].0[0].total_cmp(&self.boxes[b as usize].0[0])
-                    });
-                    for (k, &i) in order.iter().enumerate() {
-                        let pi = tris[i as usize].0;
-                        let abox = &self.boxes[i as usize];
-                        for &j in &order[k + 1..] {
-                            let bbox = &self.boxes[j as usize];
-                            // Every later box starts beyond this one along x.
-                            if bbox.0[0] > abox.1[0] {
-                                break;
-                            }
-                            let pj = tris[j as usize].0;
-                            if pi == pj || !(fresh[pi as usize] || fresh[pj as usize]) {
+                    order.extend(cell.iter().map(|&i| {
+                        let b = &self.boxes[i as usize];
+                        (b.0[0], b.1[0], tris[i as usize].0, i)
+                    }));
+                    order.sort_unstable_by(|a, b| a.2.cmp(&b.2).then(a.0.total_cmp(&b.0)));
+                    groups.clear();
+                    let mut from = 0;
+                    for k in 1..=order.len() {
+                        if k == order.len() || order[k].2 != order[from].2 {
+                            groups.push(from..k);
+                            from = k;
+                        }
+                    }
+                    let mut test = |i: u32, j: u32| {
+                        let (abox, bbox) = (&self.boxes[i as usize], &self.boxes[j as usize]);
+                        if boxes_overlap(abox, bbox)
+                            && self.is_reference(key, abox, bbox)
+                            && pair_crosses(
+                                self.corners(source, i),
+                                self.corners(source, j),
+                                positions,
+                                corners,
+                            )
+                        {
+                            out.push((i.min(j), i.max(j)));
+                        }
+                    };
+                    for (g, ga) in groups.iter().enumerate() {
+                        for gb in &groups[g + 1..] {
+                            let (a, b) = (&order[ga.clone()], &order[gb.clone()]);
+                            if !(fresh[a[0].2 as usize] || fresh[b[0].2 as usize]) {
                                 continue;
                             }
-                            if !boxes_overlap(abox, bbox) || !self.is_reference(key, abox, bbox) {
-                                continue;
-                            }
-                            let a = self.corners(source, i);
-                            if pair_crosses(a, self.corners(source, j), positions, corners) {
-                                out.push((i.min(j), i.max(j)));
-                            }
+                            sweep(a, b, false, &mut test);
+                            sweep(b, a, true, &mut test);
                         }
                     }
                 }
@@ -286,6 +300,30 @@ impl TriangleGrid {
     /// boxes list it).
     fn is_reference(&self, cell: &[i64; 3], a: &TriBox, b: &TriBox) -> bool {
         (0..3).all(|d| (a.0[d].max(b.0[d]) / self.cell_mm).floor() as i64 == cell[d])
+    }
+}
+
+/// Calls `test(i, j)` for every `i` of `a` and `j` of `b` (each `(lowest x, highest x, _, id)`,
+/// sorted by lowest x) whose x ranges overlap and where `j` starts at or after `i` along x
+/// (`strictly`: after it), so that `sweep(a, b, false)` and `sweep(b, a, true)` together meet
+/// every overlapping pair once.
+fn sweep(
+    a: &[(f64, f64, u32, u32)],
+    b: &[(f64, f64, u32, u32)],
+    strictly: bool,
+    test: &mut impl FnMut(u32, u32),
+) {
+    let mut first = 0;
+    for &(lo, hi, _, i) in a {
+        while first < b.len() && (b[first].0 < lo || (strictly && b[first].0 == lo)) {
+            first += 1;
+        }
+        for &(blo, _, _, j) in &b[first..] {
+            if blo > hi {
+                break;
+            }
+            test(i, j);
+        }
     }
 }
 
