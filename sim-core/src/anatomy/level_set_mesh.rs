@@ -11,7 +11,8 @@
 //! passes between two lattice points without containing either) stays unseen: a finer mesh
 //! lattice (`PipelineParams::upsample`) is the remedy, and it costs what the finer grid costs
 //! only near surfaces (whole 8^3 blocks the bound shows to be inside or outside are filled
-//! without evaluating it).
+//! without evaluating it, and the 4^3 and 2^3 sub-blocks of the others whose every point it
+//! shows to be beyond the clamp band).
 //!
 //! The lattice is the one the mask path up-samples to (fine sample `i'` of a box of coarse voxels
 //! at coarse index `(i' + 0.5) / u - 0.5`), so a structure meshed from its bound and one meshed
@@ -56,54 +57,134 @@ pub fn sample_level_set(f: LevelSetFn<'_>, grid: &VolumeGrid) -> (Vec<f32>, usiz
     (values, evals)
 }
 
+/// Margin beyond which a sub-block's points are certain to be outside the clamp band, mm: far
+/// above the rounding of the bound and of the distances in the box (about 1e-13 mm for
+/// coordinates within a metre), far below any feature.
+const SETTLE_MARGIN_MM: f64 = 1e-9;
+
 /// [`sample_level_set`], also returning the bound itself at every point it evaluated (NaN at
 /// the points of settled blocks), so that extraction need not evaluate the ends of its edges
 /// again.
+///
+/// A block of [`BLOCK`]^3 points is settled (every value 0 or 1) when its centre's bound exceeds
+/// the block's half-diagonal. A block that is not is sampled in sub-blocks of half the edge, down
+/// to 2^3 ([`sample_sub_blocks`]), each settled only where every point of it lies beyond the
+/// clamp band (bound at least half a spacing from zero), so that its values are exactly those
+/// that evaluating each point gives.
 fn sample_bound(f: LevelSetFn<'_>, grid: &VolumeGrid) -> (Vec<f32>, Vec<f64>, usize) {
     let [nx, ny, nz] = grid.dims;
-    let h = grid.min_spacing_mm();
-    let mut values = vec![0f32; grid.len()];
-    let mut bound = vec![f64::NAN; grid.len()];
-    let mut evals = 0;
+    let mut out = Sampled {
+        values: vec![0f32; grid.len()],
+        bound: vec![f64::NAN; grid.len()],
+        evals: 0,
+    };
     for bk in (0..nz).step_by(BLOCK) {
         let ek = (bk + BLOCK).min(nz);
         for bj in (0..ny).step_by(BLOCK) {
             let ej = (bj + BLOCK).min(ny);
             for bi in (0..nx).step_by(BLOCK) {
                 let ei = (bi + BLOCK).min(nx);
-                let lo = grid.voxel_center_mm(bi, bj, bk);
-                let hi = grid.voxel_center_mm(ei - 1, ej - 1, ek - 1);
-                let c: [f64; 3] = std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]));
-                let reach = 0.5 * (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
-                let gc = f(c);
-                evals += 1;
-                let settled = if gc > reach {
-                    Some(0.0)
+                let (lo, hi) = ([bi, bj, bk], [ei, ej, ek]);
+                let (gc, reach) = out.centre(f, grid, lo, hi);
+                if gc > reach {
+                    out.fill(grid, lo, hi, 0.0);
                 } else if gc < -reach {
-                    Some(1.0)
+                    out.fill(grid, lo, hi, 1.0);
                 } else {
-                    None
-                };
-                for k in bk..ek {
-                    for j in bj..ej {
-                        for i in bi..ei {
-                            let idx = grid.index(i, j, k);
-                            values[idx] = match settled {
-                                Some(v) => v,
-                                None => {
-                                    evals += 1;
-                                    let g = f(grid.voxel_center_mm(i, j, k));
-                                    bound[idx] = g;
-                                    field_value(g, h)
-                                }
-                            };
+                    out.sample_sub_blocks(f, grid, lo, hi, BLOCK / 2);
+                }
+            }
+        }
+    }
+    (out.values, out.bound, out.evals)
+}
+
+/// The sampling's output: field values, the bound where evaluated, evaluations made.
+struct Sampled {
+    values: Vec<f32>,
+    bound: Vec<f64>,
+    evals: usize,
+}
+
+impl Sampled {
+    /// The bound at the centre of the box of points `lo..hi` (exclusive) and the box's
+    /// half-diagonal, mm.
+    fn centre(
+        &mut self,
+        f: LevelSetFn<'_>,
+        grid: &VolumeGrid,
+        lo: [usize; 3],
+        hi: [usize; 3],
+    ) -> (f64, f64) {
+        let a = grid.voxel_center_mm(lo[0], lo[1], lo[2]);
+        let b = grid.voxel_center_mm(hi[0] - 1, hi[1] - 1, hi[2] - 1);
+        let c: [f64; 3] = std::array::from_fn(|k| 0.5 * (a[k] + b[k]));
+        let reach = 0.5 * (0..3).map(|k| (b[k] - a[k]).powi(2)).sum::<f64>().sqrt();
+        self.evals += 1;
+        (f(c), reach)
+    }
+
+    /// Sets the value of every point of `lo..hi` to `v`.
+    fn fill(&mut self, grid: &VolumeGrid, lo: [usize; 3], hi: [usize; 3], v: f32) {
+        for k in lo[2]..hi[2] {
+            for j in lo[1]..hi[1] {
+                for i in lo[0]..hi[0] {
+                    self.values[grid.index(i, j, k)] = v;
+                }
+            }
+        }
+    }
+
+    /// Samples the points `lo..hi` in sub-blocks of `size` points a side: a sub-block whose
+    /// centre's bound exceeds its half-diagonal by half a spacing (and [`SETTLE_MARGIN_MM`]) has
+    /// every point beyond the clamp band of [`field_value`] and is filled with 0 or 1; one that
+    /// does not is sampled in sub-blocks of half the size, and below 2 point by point.
+    fn sample_sub_blocks(
+        &mut self,
+        f: LevelSetFn<'_>,
+        grid: &VolumeGrid,
+        lo: [usize; 3],
+        hi: [usize; 3],
+        size: usize,
+    ) {
+        let h = grid.min_spacing_mm();
+        for k in (lo[2]..hi[2]).step_by(size) {
+            for j in (lo[1]..hi[1]).step_by(size) {
+                for i in (lo[0]..hi[0]).step_by(size) {
+                    let s = [i, j, k];
+                    let e: [usize; 3] = std::array::from_fn(|a| (s[a] + size).min(hi[a]));
+                    let points: usize = (0..3).map(|a| e[a] - s[a]).product();
+                    if size >= 2 && points > 1 {
+                        let (g, reach) = self.centre(f, grid, s, e);
+                        let beyond = reach + 0.5 * h + SETTLE_MARGIN_MM;
+                        if g > beyond {
+                            self.fill(grid, s, e, 0.0);
+                            continue;
+                        }
+                        if g < -beyond {
+                            self.fill(grid, s, e, 1.0);
+                            continue;
+                        }
+                        if size > 2 {
+                            self.sample_sub_blocks(f, grid, s, e, size / 2);
+                            continue;
+                        }
+                    }
+                    for kk in s[2]..e[2] {
+                        for jj in s[1]..e[1] {
+                            for ii in s[0]..e[0] {
+                                let idx = grid.index(ii, jj, kk);
+                                self.evals += 1;
+                                let g = f(grid.voxel_center_mm(ii, jj, kk));
+                                self.bound[idx] = g;
+                                self.values[idx] = field_value(g, h);
+                            }
                         }
                     }
                 }
             }
         }
     }
-    (values, bound, evals)
 }
 
 /// The zero of `f` on the segment `a -> b` where `fa = f(a)` and `fb = f(b)` have opposite signs,
@@ -247,6 +328,81 @@ mod tests {
         assert!((v - exact).abs() < 0.06 * exact, "{v} vs {exact}");
         for p in &mesh.vertices_mm {
             assert!(slab(*p).abs() < 1e-5);
+        }
+    }
+
+    /// The sub-blocks settle only points whose own value is 0 or 1: the values are those of
+    /// evaluating every point of each block that is not settled whole, on shapes with thin parts
+    /// (a slab thinner than the lattice, a thin tube) and off-centre lattices, with fewer
+    /// evaluations.
+    #[test]
+    fn sub_blocks_settle_only_what_evaluating_each_point_would() {
+        fn every_point(f: LevelSetFn<'_>, grid: &VolumeGrid) -> (Vec<f32>, usize) {
+            let [nx, ny, nz] = grid.dims;
+            let h = grid.min_spacing_mm();
+            let mut values = vec![0f32; grid.len()];
+            let mut evals = 0;
+            for bk in (0..nz).step_by(BLOCK) {
+                for bj in (0..ny).step_by(BLOCK) {
+                    for bi in (0..nx).step_by(BLOCK) {
+                        let e = [
+                            (bi + BLOCK).min(nx),
+                            (bj + BLOCK).min(ny),
+                            (bk + BLOCK).min(nz),
+                        ];
+                        let lo = grid.voxel_center_mm(bi, bj, bk);
+                        let hi = grid.voxel_center_mm(e[0] - 1, e[1] - 1, e[2] - 1);
+                        let c: [f64; 3] = std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]));
+                        let reach =
+                            0.5 * (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
+                        let gc = f(c);
+                        evals += 1;
+                        for k in bk..e[2] {
+                            for j in bj..e[1] {
+                                for i in bi..e[0] {
+                                    values[grid.index(i, j, k)] = if gc > reach {
+                                        0.0
+                                    } else if gc < -reach {
+                                        1.0
+                                    } else {
+                                        evals += 1;
+                                        field_value(f(grid.voxel_center_mm(i, j, k)), h)
+                                    };
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+            (values, evals)
+        }
+        let slab = |p: [f64; 3]| {
+            let q = [p[0].abs() - 0.7, p[1].abs() - 11.0, p[2].abs() - 9.0];
+            let out = q.iter().map(|x| x.max(0.0).powi(2)).sum::<f64>().sqrt();
+            out + q[0].max(q[1]).max(q[2]).min(0.0)
+        };
+        let tube = |p: [f64; 3]| (p[0] * p[0] + (p[1] - 0.4) * (p[1] - 0.4)).sqrt() - 1.3;
+        let ball = |p: [f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - 13.7;
+        let shapes: [LevelSetFn<'_>; 3] = [&slab, &tube, &ball];
+        for (n, spacing) in [(37usize, 0.75), (30, 1.5), (19, 1.1)] {
+            let mut grid = VolumeGrid::centred_cube(n, spacing);
+            grid.origin_mm = grid.origin_mm.map(|o| o + 0.31 * spacing);
+            for f in shapes {
+                let (values, evals) = sample_level_set(f, &grid);
+                let (reference, reference_evals) = every_point(f, &grid);
+                let differ: Vec<usize> = (0..values.len())
+                    .filter(|&i| values[i].to_bits() != reference[i].to_bits())
+                    .collect();
+                assert!(
+                    differ.is_empty(),
+                    "{n} x {spacing} mm: {} points differ, first {:?}",
+                    differ.len(),
+                    differ
+                        .first()
+                        .map(|&i| (grid.ijk(i), values[i], reference[i]))
+                );
+                assert!(evals < reference_evals, "{evals} vs {reference_evals}");
+            }
         }
     }
 
