@@ -68,42 +68,27 @@ const SETTLE_MARGIN_MM: f64 = 1e-9;
 ///
 /// A block of [`BLOCK`]^3 points is settled (every value 0 or 1) when its centre's bound exceeds
 /// the block's half-diagonal. A block that is not is sampled in sub-blocks of half the edge, down
-/// to 2^3 ([`sample_sub_blocks`]), each settled only where every point of it lies beyond the
-/// clamp band (bound at least half a spacing from zero), so that its values are exactly those
-/// that evaluating each point gives.
+/// to 2^3, each settled only where every point of it lies beyond the clamp band (bound at least
+/// half a spacing from zero), so that its values are exactly those that evaluating each point
+/// gives ([`Sampled::sample_blocks`]).
 fn sample_bound(f: LevelSetFn<'_>, grid: &VolumeGrid) -> (Vec<f32>, Vec<f64>, usize) {
-    let [nx, ny, nz] = grid.dims;
     let mut out = Sampled {
         values: vec![0f32; grid.len()],
         bound: vec![f64::NAN; grid.len()],
         evals: 0,
+        h: grid.min_spacing_mm(),
     };
-    for bk in (0..nz).step_by(BLOCK) {
-        let ek = (bk + BLOCK).min(nz);
-        for bj in (0..ny).step_by(BLOCK) {
-            let ej = (bj + BLOCK).min(ny);
-            for bi in (0..nx).step_by(BLOCK) {
-                let ei = (bi + BLOCK).min(nx);
-                let (lo, hi) = ([bi, bj, bk], [ei, ej, ek]);
-                let (gc, reach) = out.centre(f, grid, lo, hi);
-                if gc > reach {
-                    out.fill(grid, lo, hi, 0.0);
-                } else if gc < -reach {
-                    out.fill(grid, lo, hi, 1.0);
-                } else {
-                    out.sample_sub_blocks(f, grid, lo, hi, BLOCK / 2);
-                }
-            }
-        }
-    }
+    out.sample_blocks(f, grid, [0; 3], grid.dims, BLOCK, true);
     (out.values, out.bound, out.evals)
 }
 
-/// The sampling's output: field values, the bound where evaluated, evaluations made.
+/// The sampling's output: field values, the bound where evaluated, evaluations made; and the
+/// lattice's smallest spacing `h`, mm (the clamp band of [`field_value`]).
 struct Sampled {
     values: Vec<f32>,
     bound: Vec<f64>,
     evals: usize,
+    h: f64,
 }
 
 impl Sampled {
@@ -135,38 +120,44 @@ impl Sampled {
         }
     }
 
-    /// Samples the points `lo..hi` in sub-blocks of `size` points a side: a sub-block whose
-    /// centre's bound exceeds its half-diagonal by half a spacing (and [`SETTLE_MARGIN_MM`]) has
-    /// every point beyond the clamp band of [`field_value`] and is filled with 0 or 1; one that
-    /// does not is sampled in sub-blocks of half the size, and below 2 point by point.
-    fn sample_sub_blocks(
+    /// Samples the points `lo..hi` in blocks of `size` points a side. A block is filled with 0
+    /// or 1 where its centre's bound exceeds its half-diagonal: by nothing more for the
+    /// `outermost` blocks, and by half a spacing (and [`SETTLE_MARGIN_MM`]) for the sub-blocks,
+    /// whose every point is then beyond the clamp band of [`field_value`]. A block that is not
+    /// filled is sampled in sub-blocks of half the size, and below 2 (or a single point of a
+    /// sub-block) point by point.
+    fn sample_blocks(
         &mut self,
         f: LevelSetFn<'_>,
         grid: &VolumeGrid,
         lo: [usize; 3],
         hi: [usize; 3],
         size: usize,
+        outermost: bool,
     ) {
-        let h = grid.min_spacing_mm();
+        let margin = if outermost {
+            0.0
+        } else {
+            0.5 * self.h + SETTLE_MARGIN_MM
+        };
         for k in (lo[2]..hi[2]).step_by(size) {
             for j in (lo[1]..hi[1]).step_by(size) {
                 for i in (lo[0]..hi[0]).step_by(size) {
                     let s = [i, j, k];
                     let e: [usize; 3] = std::array::from_fn(|a| (s[a] + size).min(hi[a]));
                     let points: usize = (0..3).map(|a| e[a] - s[a]).product();
-                    if size >= 2 && points > 1 {
+                    if outermost || (size >= 2 && points > 1) {
                         let (g, reach) = self.centre(f, grid, s, e);
-                        let beyond = reach + 0.5 * h + SETTLE_MARGIN_MM;
-                        if g > beyond {
+                        if g > reach + margin {
                             self.fill(grid, s, e, 0.0);
                             continue;
                         }
-                        if g < -beyond {
+                        if g < -(reach + margin) {
                             self.fill(grid, s, e, 1.0);
                             continue;
                         }
                         if size > 2 {
-                            self.sample_sub_blocks(f, grid, s, e, size / 2);
+                            self.sample_blocks(f, grid, s, e, size / 2, false);
                             continue;
                         }
                     }
@@ -177,7 +168,7 @@ impl Sampled {
                                 self.evals += 1;
                                 let g = f(grid.voxel_center_mm(ii, jj, kk));
                                 self.bound[idx] = g;
-                                self.values[idx] = field_value(g, h);
+                                self.values[idx] = field_value(g, self.h);
                             }
                         }
                     }
