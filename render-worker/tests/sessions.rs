@@ -11,12 +11,12 @@ mod dose;
 mod magnification;
 mod pulsed;
 mod receptor;
-mod temporal;
 mod rendering;
-mod scatter;
 mod replay;
+mod scatter;
 mod scoring;
 mod support;
+mod temporal;
 mod validation;
 
 use render_worker::session::*;
@@ -133,15 +133,32 @@ fn frames_of_a_scripted_session_are_pinned() {
     );
     if let Some(ctx) = render_worker::gpu::context_for_tests() {
         let adapter = ctx.summary.name.clone();
+        // Every pass drawn by the adapter (how the hash was recorded), then, on a software
+        // adapter, the geometric pass on the CPU (pinned when it came; its other passes are
+        // still the adapter's, so it too is pinned on that adapter only).
         let mut gpu_env = env();
-        gpu_env.backends = Backends::gpu(ctx);
+        let adapter_drawn =
+            std::sync::Arc::new(GpuFluoroBackend::new(ctx.clone()).with_adapter_geometry());
+        gpu_env.backends = Backends::new(adapter_drawn, Backends::gpu(ctx.clone()).ultrasound);
         let (gpu, n) = scripted_frames_sha256(gpu_env, &RECORDED_BEFORE);
         eprintln!("scripted session, GPU ({adapter}): {n} frames, sha256 {gpu}");
+        assert_eq!(n, 8);
+        let mut gpu_env = env();
+        gpu_env.backends = Backends::gpu(ctx.clone());
+        let (cpu_pass, n) = scripted_frames_sha256(gpu_env, &RECORDED_BEFORE);
+        eprintln!(
+            "scripted session, GPU ({adapter}) with the CPU geometric pass ({}): {n} frames, sha256 {cpu_pass}",
+            ctx.summary.is_software
+        );
         assert_eq!(n, 8);
         if adapter == "llvmpipe (LLVM 15.0.6, 256 bits)" {
             assert_eq!(
                 gpu,
                 "ecbc106b6ca2d30445360918924e8276b2ac7a9a2a269fffd05e0bd633e13df1"
+            );
+            assert_eq!(
+                cpu_pass,
+                "48a1df52557b1c387a4d68df92fe983bbdbe999ce2ba4a664f8963e042065d64"
             );
         }
     }

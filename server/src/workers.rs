@@ -170,6 +170,8 @@ impl Workers {
             // The sessions' own GPU renderer: its upload of the region is kept for them.
             if let Some(r) = me.gpu_renderers() {
                 candidates.push(Arc::clone(&r.fluoro));
+                // On a software adapter: the same renderer with the adapter's geometric pass.
+                candidates.extend(r.fluoro.alternatives());
             }
             candidates.push(Backends::cpu(0).fluoro);
             let next = match calibrate_host(&host, &candidates, fixed_capacity) {

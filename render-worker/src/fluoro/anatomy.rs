@@ -17,6 +17,7 @@ use sim_core::fluoro::nesting::{NestedMesh, nesting_plan, triangle_cross};
 use wgpu::util::DeviceExt;
 
 use super::pipelines::{Pipelines, TargetPool};
+use super::raster::CpuGeometry;
 use super::types::{FluoroGpuError, Vertex};
 use crate::gpu::GpuContext;
 
@@ -35,6 +36,9 @@ pub struct GpuAnatomy {
     pub(super) cortical_shell_mm: f64,
     /// The render targets no frame of its renderers is using.
     pub(super) pool: TargetPool,
+    /// The geometric pass on the CPU (`raster.rs`), on a software adapter only: there the
+    /// worker's own rasteriser is several times faster than the adapter's.
+    pub(super) cpu: Option<CpuGeometry>,
 }
 
 impl std::fmt::Debug for GpuAnatomy {
@@ -52,7 +56,36 @@ impl GpuAnatomy {
     /// non-steel entries once (sim-core's [`nesting_plan`]) and uploads their triangles, the
     /// meshes that only touch the water-basis channel first. Steel entries are left out: they
     /// are a renderer's needle.
+    ///
+    /// On a software adapter the anatomy also gets the CPU geometric pass, which reads a copy
+    /// of `scene` ([`GpuAnatomy::shared`] reads the caller's own instead).
     pub fn new(ctx: &GpuContext, scene: &Scene) -> Result<Arc<GpuAnatomy>, FluoroGpuError> {
+        let cpu = ctx.summary.is_software.then(|| Arc::new(scene.clone()));
+        GpuAnatomy::build(ctx, scene, cpu)
+    }
+
+    /// [`GpuAnatomy::new`] of a shared scene: the CPU geometric pass (software adapters) reads
+    /// `scene` itself, no copy.
+    pub fn shared(ctx: &GpuContext, scene: &Arc<Scene>) -> Result<Arc<GpuAnatomy>, FluoroGpuError> {
+        let cpu = ctx.summary.is_software.then(|| Arc::clone(scene));
+        GpuAnatomy::build(ctx, scene, cpu)
+    }
+
+    /// [`GpuAnatomy::shared`] with the CPU geometric pass whatever the adapter (to compare it
+    /// with a hardware rasteriser's).
+    pub fn with_cpu_geometry(
+        ctx: &GpuContext,
+        scene: &Arc<Scene>,
+    ) -> Result<Arc<GpuAnatomy>, FluoroGpuError> {
+        GpuAnatomy::build(ctx, scene, Some(Arc::clone(scene)))
+    }
+
+    /// The anatomy of `scene`, with the CPU geometric pass over `cpu` (the same scene) if given.
+    fn build(
+        ctx: &GpuContext,
+        scene: &Scene,
+        cpu: Option<Arc<Scene>>,
+    ) -> Result<Arc<GpuAnatomy>, FluoroGpuError> {
         let needed = wgpu::Features::FLOAT32_BLENDABLE;
         if !ctx.device.features().contains(needed) {
             return Err(FluoroGpuError::MissingFeature(needed));
@@ -66,7 +99,9 @@ impl GpuAnatomy {
         let mut meshes = nesting_plan(scene);
         meshes.sort_by_cached_key(|d| !d.water_basis_only());
         let buffers = AnatomyBuffers::upload(&ctx.device, scene, &meshes);
+        let cpu = cpu.map(|scene| CpuGeometry::new(scene, &meshes));
         Ok(Arc::new(GpuAnatomy {
+            cpu,
             ctx: ctx.clone(),
             meshes,
             buffers,
@@ -144,7 +179,7 @@ impl AnatomyCache {
         &self,
         ctx: &GpuContext,
         owner: &Arc<K>,
-        scene: impl FnOnce(&K) -> &Scene,
+        scene: impl FnOnce(&K) -> &Arc<Scene>,
     ) -> Result<Arc<GpuAnatomy>, FluoroGpuError> {
         let mut entries = self.entries.lock().unwrap_or_else(PoisonError::into_inner);
         entries.retain(|e| e.anatomy.strong_count() > 0);
@@ -157,7 +192,7 @@ impl AnatomyCache {
         if let Some(anatomy) = found {
             return Ok(anatomy);
         }
-        let anatomy = GpuAnatomy::new(ctx, scene(owner))?;
+        let anatomy = GpuAnatomy::shared(ctx, scene(owner))?;
         let weak_owner: Weak<K> = Arc::downgrade(owner);
         entries.push(CacheEntry {
             owner: weak_owner as Weak<dyn Any + Send + Sync>,
@@ -315,14 +350,14 @@ mod tests {
             return;
         };
         let cache = AnatomyCache::new();
-        let owner = Arc::new(phantom());
+        let owner = Arc::new(Arc::new(phantom()));
         let a = cache.get_or_upload(&ctx, &owner, |s| s).expect("upload");
         let b = cache.get_or_upload(&ctx, &owner, |_| panic!("uploaded again"));
         assert!(Arc::ptr_eq(&a, &b.expect("shared")));
         assert_eq!(cache.live(), 1);
         assert!(a.uploaded_bytes() > 0);
         // Another owner with the same content is another region: its own upload.
-        let other = Arc::new(phantom());
+        let other = Arc::new(Arc::new(phantom()));
         let c = cache.get_or_upload(&ctx, &other, |s| s).expect("upload");
         assert!(!Arc::ptr_eq(&a, &c));
         assert_eq!(cache.live(), 2);

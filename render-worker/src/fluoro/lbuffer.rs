@@ -40,6 +40,7 @@ use sim_core::material::MaterialClass;
 
 use super::anatomy::{GpuAnatomy, MeshBuffers, triangle_vertices, upload};
 use super::pipelines::{Pipelines, Targets};
+use super::raster::{MeshWeights, Refused, SampleProjection};
 use super::types::{
     CANCELLOUS, CHANNELS, CHORD_CHANNELS, CORTICAL, Layout, NO_NEEDLE, Passes, PixelRect, SLOTS,
     Vertex,
@@ -57,6 +58,9 @@ pub(super) struct LBuffer {
     /// Uniforms of the full image (0) and of the supersampled needle region (1).
     view_buf: [wgpu::Buffer; 2],
     weights_buf: wgpu::Buffer,
+    /// Whether the transmission layout's geometric pass runs on the CPU (`raster.rs`) when the
+    /// anatomy has it (set by the renderer before each frame).
+    pub(super) cpu_geometry: bool,
 }
 
 #[repr(C)]
@@ -104,6 +108,7 @@ impl LBuffer {
             needle: None,
             view_buf,
             weights_buf,
+            cpu_geometry: true,
         }
     }
 
@@ -309,6 +314,55 @@ impl LBuffer {
         if !w.is_empty() {
             queue.write_buffer(&self.weights_buf, 0, bytemuck::cast_slice(&w));
         }
+        // The geometric pass on the CPU where the anatomy has it (software adapters), uploaded
+        // into the same targets; a frame it refuses is drawn on the GPU below.
+        let on_cpu = passes.geometry
+            && layout == Layout::Transmission
+            && self.cpu_geometry
+            && self.anatomy.cpu.as_ref().is_some_and(|cpu| {
+                let row64 = |r: [f64; 4], o: f64| -> [f64; 4] {
+                    std::array::from_fn(|k| n * (r[k] - o * m[2][k]))
+                };
+                let p = SampleProjection {
+                    rows: [row64(m[0], x0), row64(m[1], y0), m[2]],
+                    size,
+                };
+                let weights: Vec<MeshWeights> = self
+                    .anatomy
+                    .meshes
+                    .iter()
+                    .zip(w.chunks_exact(3))
+                    .map(|(mesh, w3)| MeshWeights {
+                        g: w3[0],
+                        wref: w3[2][1],
+                        scalar: mesh.water_basis_only(),
+                    })
+                    .collect();
+                match cpu.rasterise(&self.anatomy.meshes, &weights, &p, 0) {
+                    Ok(sums) => {
+                        upload_texture(
+                            queue,
+                            &t.geometry.a,
+                            size,
+                            16,
+                            bytemuck::cast_slice(&sums.a),
+                        );
+                        upload_texture(
+                            queue,
+                            &t.geometry.s,
+                            size,
+                            4,
+                            bytemuck::cast_slice(&sums.s),
+                        );
+                        true
+                    }
+                    Err(Refused) => false,
+                }
+            });
+        let passes = Passes {
+            geometry: passes.geometry && !on_cpu,
+            ..passes
+        };
         // The needle's pixel box in whole samples, clipped to the target.
         let clip = |lo: f32, hi: f32, n: u32| {
             let lo = lo.floor().clamp(0.0, n as f32) as u32;
@@ -579,6 +633,35 @@ impl LBuffer {
         }
         (!runs.is_empty()).then_some(runs)
     }
+}
+
+/// Writes a whole `size` texture from tightly packed rows of `texel_bytes` per texel.
+fn upload_texture(
+    queue: &wgpu::Queue,
+    texture: &wgpu::Texture,
+    size: [u32; 2],
+    texel_bytes: u32,
+    data: &[u8],
+) {
+    queue.write_texture(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d::ZERO,
+            aspect: wgpu::TextureAspect::All,
+        },
+        data,
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(size[0] * texel_bytes),
+            rows_per_image: Some(size[1]),
+        },
+        wgpu::Extent3d {
+            width: size[0],
+            height: size[1],
+            depth_or_array_layers: 1,
+        },
+    );
 }
 
 /// The runs of the anatomy's index buffer to draw: the culled ones (`Some`), none

@@ -23,7 +23,10 @@
 //!   for one scene.
 //! - Pass 1, geometric anatomy L-buffer (`lbuffer.rs`, `LBuffer::encode`; `lbuffer.wgsl`
 //!   `fs_anatomy`, `fs_anatomy_scalar`): signed axial depths times per-mesh weights, additive
-//!   blending, no depth test; independent of the needle.
+//!   blending, no depth test; independent of the needle. On a software adapter (lavapipe)
+//!   the worker's own cores rasterise it instead (`raster.rs`: the same sums in f64 from the
+//!   scene's f64 triangles, uploaded into the same targets), which is several times faster
+//!   there; [`GpuFluoroRenderer::set_cpu_geometry`] switches it off.
 //! - Pass 2, needle (`LBuffer::encode`; `fs_needle`): the needle's hull interval and exact
 //!   chord per pixel.
 //! - Pass 3, displaced anatomy (`LBuffer::encode`, `culled`; `fs_displaced`): the part of each
@@ -59,6 +62,7 @@ mod chords;
 pub mod draft;
 mod lbuffer;
 mod pipelines;
+mod raster;
 mod resolve;
 mod types;
 
@@ -165,6 +169,23 @@ impl GpuFluoroRenderer {
             iodine_step_fraction: 0.25,
             anatomy,
             ctx,
+        }
+    }
+
+    /// Whether the full image's and the supersampled region's geometric L-buffers are
+    /// rasterised on the CPU (`raster.rs`): on a software adapter, unless switched off with
+    /// [`GpuFluoroRenderer::set_cpu_geometry`].
+    pub fn cpu_geometry(&self) -> bool {
+        self.lbuffer.cpu_geometry && self.anatomy.cpu.is_some()
+    }
+
+    /// Switches the CPU geometric pass off (`false`: the adapter draws every pass) or back on
+    /// where the anatomy has it. Forgets the kept geometric L-buffer, so that the next frame
+    /// draws it the chosen way.
+    pub fn set_cpu_geometry(&mut self, on: bool) {
+        if self.lbuffer.cpu_geometry != on {
+            self.lbuffer.cpu_geometry = on;
+            self.cache = FrameCache::default();
         }
     }
 

@@ -645,6 +645,7 @@ pub fn calibrate_when_ready(
     let own = host.backends().fluoro;
     let cpu = Backends::cpu(0).fluoro;
     let mut candidates = vec![Arc::clone(&own)];
+    candidates.extend(own.alternatives());
     if own.profile().kind != cpu.profile().kind {
         candidates.push(cpu);
     }

@@ -40,6 +40,11 @@ pub trait FluoroBackend: Send + Sync {
     fn prefetches(&self) -> bool {
         false
     }
+    /// Other configurations of the same renderer worth timing against it at start-up (the
+    /// calibration's further candidates); none by default.
+    fn alternatives(&self) -> Vec<Arc<dyn FluoroBackend>> {
+        Vec::new()
+    }
     /// Waits for what its renderers started in the background (the GPU backend's draft
     /// scenes), so that frames timed next are not slowed by it.
     fn finish_background_work(&self) {}
@@ -182,6 +187,10 @@ pub struct GpuFluoroBackend {
     kept: Option<Arc<std::sync::Mutex<Vec<Arc<crate::fluoro::GpuAnatomy>>>>>,
     /// The draft scenes of its regions (progressive frames, see `draft`); `None`: no drafts.
     drafts: Option<Arc<DraftAnatomies>>,
+    /// Whether its renderers rasterise the geometric L-buffer on the CPU where the adapter is
+    /// software (`render_worker::fluoro`'s `raster.rs`; default `true`), or leave it to the
+    /// adapter ([`GpuFluoroBackend::with_adapter_geometry`]).
+    cpu_geometry: bool,
 }
 
 impl GpuFluoroBackend {
@@ -189,6 +198,7 @@ impl GpuFluoroBackend {
     pub fn new(ctx: crate::gpu::GpuContext) -> GpuFluoroBackend {
         GpuFluoroBackend {
             share_anatomy: true,
+            cpu_geometry: true,
             anatomies: Arc::default(),
             kept: None,
             drafts: Some(DraftAnatomies::new(
@@ -206,6 +216,22 @@ impl GpuFluoroBackend {
             drafts: min_triangles.map(|n| DraftAnatomies::new(self.ctx.clone(), n)),
             ..self
         }
+    }
+
+    /// The same renderer with every L-buffer pass drawn by the adapter, also on a software
+    /// adapter (the start-up calibration's other candidate there; the frames of sessions
+    /// recorded before the CPU geometric pass). It shares this backend's uploads.
+    pub fn with_adapter_geometry(self) -> GpuFluoroBackend {
+        GpuFluoroBackend {
+            cpu_geometry: false,
+            ..self
+        }
+    }
+
+    /// Whether its renderers draw the geometric L-buffer on the CPU (a software adapter,
+    /// unless made [`GpuFluoroBackend::with_adapter_geometry`]).
+    pub fn cpu_geometry(&self) -> bool {
+        self.cpu_geometry && self.ctx.summary.is_software
     }
 
     /// The draft scene of `region` once it is built (blocking until then), for tests and
@@ -245,9 +271,25 @@ impl GpuFluoroBackend {
 
 impl FluoroBackend for GpuFluoroBackend {
     fn profile(&self) -> BackendProfile {
+        let summary = &self.ctx.summary;
         BackendProfile {
             kind: "gpu".to_string(),
-            device: format!("{} ({})", self.ctx.summary.name, self.ctx.summary.backend),
+            device: if self.cpu_geometry() {
+                format!(
+                    "{} ({}), geometric pass on the CPU",
+                    summary.name, summary.backend
+                )
+            } else {
+                format!("{} ({})", summary.name, summary.backend)
+            },
+        }
+    }
+
+    fn alternatives(&self) -> Vec<Arc<dyn FluoroBackend>> {
+        if self.cpu_geometry() {
+            vec![Arc::new(self.clone().with_adapter_geometry())]
+        } else {
+            Vec::new()
         }
     }
 
@@ -256,7 +298,7 @@ impl FluoroBackend for GpuFluoroBackend {
             self.anatomies
                 .get_or_upload(&self.ctx, region, |r| &r.scene)?
         } else {
-            crate::fluoro::GpuAnatomy::new(&self.ctx, &region.scene)?
+            crate::fluoro::GpuAnatomy::shared(&self.ctx, &region.scene)?
         };
         if let Some(kept) = &self.kept {
             let mut kept = kept
@@ -271,8 +313,10 @@ impl FluoroBackend for GpuFluoroBackend {
             .as_ref()
             .filter(|d| d.start(region))
             .map(|d| DraftRenderer::new(Arc::clone(d), &region.name));
+        let mut renderer = crate::fluoro::GpuFluoroRenderer::with_anatomy(anatomy);
+        renderer.set_cpu_geometry(self.cpu_geometry);
         Ok(Box::new(GpuRenderer {
-            renderer: crate::fluoro::GpuFluoroRenderer::with_anatomy(anatomy),
+            renderer,
             needle: None,
             draft,
         }))
