@@ -306,13 +306,13 @@ fn polychromatic_transmission_and_frame_match_the_cpu() {
     assert!(hi - lo > 50);
 }
 
-/// The geometric pass drawn by the worker's cores (`raster.rs`: f64 sums of the f64 triangles,
+/// The L-buffer passes drawn by the worker's cores (`raster`: f64 sums of the f64 triangles,
 /// what a software adapter gets) and by the adapter's rasteriser (f32 sums of f32 vertices)
 /// give the same transmission as the CPU reference at interior pixels, within the tolerance of
-/// `polychromatic_transmission_and_frame_match_the_cpu` (2e-3 in ln T), with and without the
-/// needle's supersampled region, and within f32 round-off of each other.
+/// `polychromatic_transmission_and_frame_match_the_cpu` (2e-3 in ln T), the CPU's at least as
+/// close, and frames with the needle's supersampled region within a grey level of each other.
 #[test]
-fn the_cpu_geometric_pass_matches_the_adapters_and_the_cpu_reference() {
+fn the_cpu_passes_match_the_adapters_and_the_cpu_reference() {
     let Some(ctx) = context_for_tests() else {
         return;
     };
@@ -380,18 +380,10 @@ fn the_cpu_geometric_pass_matches_the_adapters_and_the_cpu_reference() {
             cpu_d.max_abs < 2e-3 && adapter_d.max_abs < 2e-3,
             "{cpu_d} / {adapter_d}"
         );
-        // The two passes differ by the adapter's f32 vertices and sums: about 1e-4 mm per
-        // crossing at a metre from the source, times at most 0.5 per cm (bone at 80 kVp) over
-        // a few crossings, is within 1e-4 in ln T.
-        let between = Compare::image(w, h)
-            .at(
-                &ln_of(&cpu_t.transmission),
-                &ln_of(&adapter_t.transmission),
-                interior.iter().copied(),
-            )
-            .expect("transmissions of the view's size");
-        eprintln!("view {k}, CPU pass against adapter: {between}");
-        assert!(between.max_abs < 1e-4, "{between}");
+        // f64 sums of f64 triangles, and the needle's distances in f64: the worst pixel is no
+        // worse than the adapter's (whose f32 needle pass is off by 2e-4 at the zoomed view's
+        // needle edge; the rest of both errors is the resolve's, which they share).
+        assert!(cpu_d.max_abs <= adapter_d.max_abs, "{cpu_d} / {adapter_d}");
         // The supersampled needle region (its geometric pass is the CPU's too): the two
         // renderers' frames agree to within one grey level at interior pixels.
         let settings = RenderSettings {

@@ -36,7 +36,7 @@ pub struct GpuAnatomy {
     pub(super) cortical_shell_mm: f64,
     /// The render targets no frame of its renderers is using.
     pub(super) pool: TargetPool,
-    /// The geometric pass on the CPU (`raster.rs`), on a software adapter only: there the
+    /// The L-buffer passes on the CPU (`raster`), on a software adapter only: there the
     /// worker's own rasteriser is several times faster than the adapter's.
     pub(super) cpu: Option<CpuGeometry>,
 }

@@ -40,7 +40,9 @@ use sim_core::material::MaterialClass;
 
 use super::anatomy::{GpuAnatomy, MeshBuffers, triangle_vertices, upload};
 use super::pipelines::{Pipelines, Targets};
-use super::raster::{MeshWeights, Refused, SampleProjection};
+use super::raster::{
+    ChunkBoxes, MeshWeights, NeedleTriangles, Refused, SampleProjection, SampleRect,
+};
 use super::types::{
     CANCELLOUS, CHANNELS, CHORD_CHANNELS, CORTICAL, Layout, NO_NEEDLE, Passes, PixelRect, SLOTS,
     Vertex,
@@ -58,9 +60,11 @@ pub(super) struct LBuffer {
     /// Uniforms of the full image (0) and of the supersampled needle region (1).
     view_buf: [wgpu::Buffer; 2],
     weights_buf: wgpu::Buffer,
-    /// Whether the transmission layout's geometric pass runs on the CPU (`raster.rs`) when the
-    /// anatomy has it (set by the renderer before each frame).
+    /// Whether the transmission layout's anatomy and needle passes run on the CPU (`raster`)
+    /// when the anatomy has it (set by the renderer).
     pub(super) cpu_geometry: bool,
+    /// The anatomy's chunk boxes for the CPU passes under the last projection.
+    cpu_boxes: Option<ChunkBoxes>,
 }
 
 #[repr(C)]
@@ -109,6 +113,7 @@ impl LBuffer {
             view_buf,
             weights_buf,
             cpu_geometry: true,
+            cpu_boxes: None,
         }
     }
 
@@ -314,55 +319,6 @@ impl LBuffer {
         if !w.is_empty() {
             queue.write_buffer(&self.weights_buf, 0, bytemuck::cast_slice(&w));
         }
-        // The geometric pass on the CPU where the anatomy has it (software adapters), uploaded
-        // into the same targets; a frame it refuses is drawn on the GPU below.
-        let on_cpu = passes.geometry
-            && layout == Layout::Transmission
-            && self.cpu_geometry
-            && self.anatomy.cpu.as_ref().is_some_and(|cpu| {
-                let row64 = |r: [f64; 4], o: f64| -> [f64; 4] {
-                    std::array::from_fn(|k| n * (r[k] - o * m[2][k]))
-                };
-                let p = SampleProjection {
-                    rows: [row64(m[0], x0), row64(m[1], y0), m[2]],
-                    size,
-                };
-                let weights: Vec<MeshWeights> = self
-                    .anatomy
-                    .meshes
-                    .iter()
-                    .zip(w.chunks_exact(3))
-                    .map(|(mesh, w3)| MeshWeights {
-                        g: w3[0],
-                        wref: w3[2][1],
-                        scalar: mesh.water_basis_only(),
-                    })
-                    .collect();
-                match cpu.rasterise(&self.anatomy.meshes, &weights, &p, 0) {
-                    Ok(sums) => {
-                        upload_texture(
-                            queue,
-                            &t.geometry.a,
-                            size,
-                            16,
-                            bytemuck::cast_slice(&sums.a),
-                        );
-                        upload_texture(
-                            queue,
-                            &t.geometry.s,
-                            size,
-                            4,
-                            bytemuck::cast_slice(&sums.s),
-                        );
-                        true
-                    }
-                    Err(Refused) => false,
-                }
-            });
-        let passes = Passes {
-            geometry: passes.geometry && !on_cpu,
-            ..passes
-        };
         // The needle's pixel box in whole samples, clipped to the target.
         let clip = |lo: f32, hi: f32, n: u32| {
             let lo = lo.floor().clamp(0.0, n as f32) as u32;
@@ -373,6 +329,19 @@ impl LBuffer {
         let (by0, by1) = clip(needle_box[1], needle_box[3], size[1]);
         let rect = (self.needle.is_some() && bx1 > bx0 && by1 > by0)
             .then(|| [bx0, by0, bx1 - bx0, by1 - by0]);
+        // The passes the CPU draws where the anatomy has them (software adapters), uploaded
+        // into the same targets; what it refuses is drawn on the GPU below.
+        let (geometry_on_cpu, needle_on_cpu) =
+            if layout == Layout::Transmission && self.cpu_geometry {
+                self.cpu_passes(queue, t, projection, region, &w, passes, rect, needle_ref)
+            } else {
+                (false, false)
+            };
+        let passes = Passes {
+            geometry: passes.geometry && !geometry_on_cpu,
+            needle: passes.needle && !needle_on_cpu,
+            displaced: passes.displaced && !needle_on_cpu,
+        };
         // Rectangle samples to full-image pixel coordinates.
         let to_pixels = |r: [u32; 4]| {
             let (inv, o) = (1.0 / n as f32, region.origin.map(|x| x as f32));
@@ -550,6 +519,114 @@ impl LBuffer {
         rect
     }
 
+    /// Draws on the CPU (`raster`) and uploads into `t`: the geometric pass (if
+    /// `passes.geometry`) and, where the needle's box `rect` (samples of `region`) meets the
+    /// target, the needle's and the displaced pass (if both are asked). `weights` are the
+    /// meshes' uniforms (geometric, displaced, references). Returns whether each was drawn: what
+    /// the CPU refuses (a triangle at the source) or the anatomy lacks is left to the adapter.
+    #[expect(clippy::too_many_arguments, reason = "one private recording step")]
+    fn cpu_passes(
+        &mut self,
+        queue: &wgpu::Queue,
+        t: &Targets,
+        projection: &Projection,
+        region: PixelRect,
+        weights: &[[f32; 4]],
+        passes: Passes,
+        rect: Option<[u32; 4]>,
+        needle_ref: f64,
+    ) -> (bool, bool) {
+        let anatomy = Arc::clone(&self.anatomy);
+        let Some(cpu) = anatomy.cpu.as_ref() else {
+            return (false, false);
+        };
+        let needle = rect.filter(|_| passes.needle && passes.displaced);
+        if !passes.geometry && needle.is_none() {
+            return (false, false);
+        }
+        let m = projection.projection_matrix();
+        if !self.cpu_boxes.as_ref().is_some_and(|b| b.under(&m)) {
+            self.cpu_boxes = Some(cpu.chunk_boxes(&m, 0));
+        }
+        let boxes = self.cpu_boxes.as_ref().expect("boxes");
+        // Region samples: n (px - x0), n (py - y0).
+        let n = f64::from(region.n);
+        let origin = region.origin.map(f64::from);
+        let row =
+            |r: [f64; 4], o: f64| -> [f64; 4] { std::array::from_fn(|k| n * (r[k] - o * m[2][k])) };
+        let size = region.size;
+        let p = SampleProjection {
+            rows: [row(m[0], origin[0]), row(m[1], origin[1]), m[2]],
+            size,
+            origin_px: origin,
+            per_px: n,
+        };
+        let meshes = &anatomy.meshes;
+        let geometry = passes.geometry && {
+            let mesh_weights: Vec<MeshWeights> = meshes
+                .iter()
+                .zip(weights.chunks_exact(3))
+                .map(|(mesh, w3)| MeshWeights {
+                    g: w3[0],
+                    wref: w3[2][1],
+                    scalar: mesh.water_basis_only(),
+                })
+                .collect();
+            match cpu.rasterise(meshes, &mesh_weights, &p, boxes, 0) {
+                Ok(sums) => {
+                    let whole = [0, 0, size[0], size[1]];
+                    upload_texture(
+                        queue,
+                        &t.geometry.a,
+                        whole,
+                        16,
+                        bytemuck::cast_slice(&sums.a),
+                    );
+                    upload_texture(
+                        queue,
+                        &t.geometry.s,
+                        whole,
+                        4,
+                        bytemuck::cast_slice(&sums.s),
+                    );
+                    true
+                }
+                Err(Refused) => false,
+            }
+        };
+        let needle_drawn = match (needle, &self.needle) {
+            (Some(r), Some(nd)) => {
+                let displaced: Vec<[f32; 4]> = weights.chunks_exact(3).map(|w3| w3[1]).collect();
+                let (x, y, w, h) = (r[0] as usize, r[1] as usize, r[2] as usize, r[3] as usize);
+                let sample_rect = SampleRect {
+                    cols: x..x + w,
+                    rows: y..y + h,
+                };
+                let triangles = NeedleTriangles {
+                    triangles: bytemuck::cast_slice(&nd.vertices_mm),
+                    reference_mm: needle_ref,
+                };
+                match cpu.needle_passes(&triangles, meshes, &displaced, &p, boxes, &sample_rect, 0)
+                {
+                    Ok(sums) => {
+                        upload_texture(queue, &t.frame.d, r, 16, bytemuck::cast_slice(&sums.d));
+                        upload_texture(
+                            queue,
+                            &t.frame.chord,
+                            r,
+                            4,
+                            bytemuck::cast_slice(&sums.chord),
+                        );
+                        true
+                    }
+                    Err(Refused) => false,
+                }
+            }
+            _ => false,
+        };
+        (geometry, needle_drawn)
+    }
+
     /// The runs of the anatomy's index buffer (ranges of it, in drawing order) that hold the
     /// triangles of every chunk whose pixel bounding box, widened by one pixel, meets the
     /// rectangle `r` (`x0, y0, x1, y1`, continuous full-image pixel coordinates): every pixel
@@ -635,11 +712,12 @@ impl LBuffer {
     }
 }
 
-/// Writes a whole `size` texture from tightly packed rows of `texel_bytes` per texel.
+/// Writes the rectangle `r` (`x, y, columns, rows`) of a texture from tightly packed rows of
+/// `texel_bytes` per texel.
 fn upload_texture(
     queue: &wgpu::Queue,
     texture: &wgpu::Texture,
-    size: [u32; 2],
+    r: [u32; 4],
     texel_bytes: u32,
     data: &[u8],
 ) {
@@ -647,18 +725,22 @@ fn upload_texture(
         wgpu::TexelCopyTextureInfo {
             texture,
             mip_level: 0,
-            origin: wgpu::Origin3d::ZERO,
+            origin: wgpu::Origin3d {
+                x: r[0],
+                y: r[1],
+                z: 0,
+            },
             aspect: wgpu::TextureAspect::All,
         },
         data,
         wgpu::TexelCopyBufferLayout {
             offset: 0,
-            bytes_per_row: Some(size[0] * texel_bytes),
-            rows_per_image: Some(size[1]),
+            bytes_per_row: Some(r[2] * texel_bytes),
+            rows_per_image: Some(r[3]),
         },
         wgpu::Extent3d {
-            width: size[0],
-            height: size[1],
+            width: r[2],
+            height: r[3],
             depth_or_array_layers: 1,
         },
     );

@@ -24,9 +24,10 @@
 //! - Pass 1, geometric anatomy L-buffer (`lbuffer.rs`, `LBuffer::encode`; `lbuffer.wgsl`
 //!   `fs_anatomy`, `fs_anatomy_scalar`): signed axial depths times per-mesh weights, additive
 //!   blending, no depth test; independent of the needle. On a software adapter (lavapipe)
-//!   the worker's own cores rasterise it instead (`raster.rs`: the same sums in f64 from the
-//!   scene's f64 triangles, uploaded into the same targets), which is several times faster
-//!   there; [`GpuFluoroRenderer::set_cpu_geometry`] switches it off.
+//!   the worker's own cores rasterise it and passes 2 and 3 instead (`raster`: the same sums
+//!   in f64 from the scene's f64 triangles, uploaded into the targets the resolve reads),
+//!   which is several times faster there; [`GpuFluoroRenderer::set_cpu_geometry`] switches
+//!   them off.
 //! - Pass 2, needle (`LBuffer::encode`; `fs_needle`): the needle's hull interval and exact
 //!   chord per pixel.
 //! - Pass 3, displaced anatomy (`LBuffer::encode`, `culled`; `fs_displaced`): the part of each
@@ -172,9 +173,9 @@ impl GpuFluoroRenderer {
         }
     }
 
-    /// Whether the full image's and the supersampled region's geometric L-buffers are
-    /// rasterised on the CPU (`raster.rs`): on a software adapter, unless switched off with
-    /// [`GpuFluoroRenderer::set_cpu_geometry`].
+    /// Whether the L-buffer passes of transmission frames (anatomy, needle, displaced; full
+    /// image and supersampled region) are rasterised on the CPU (`raster`): on a software
+    /// adapter, unless switched off with [`GpuFluoroRenderer::set_cpu_geometry`].
     pub fn cpu_geometry(&self) -> bool {
         self.lbuffer.cpu_geometry && self.anatomy.cpu.is_some()
     }

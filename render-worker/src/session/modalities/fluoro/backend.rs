@@ -187,7 +187,7 @@ pub struct GpuFluoroBackend {
     kept: Option<Arc<std::sync::Mutex<Vec<Arc<crate::fluoro::GpuAnatomy>>>>>,
     /// The draft scenes of its regions (progressive frames, see `draft`); `None`: no drafts.
     drafts: Option<Arc<DraftAnatomies>>,
-    /// Whether its renderers rasterise the geometric L-buffer on the CPU where the adapter is
+    /// Whether its renderers rasterise the L-buffer passes on the CPU where the adapter is
     /// software (`render_worker::fluoro`'s `raster.rs`; default `true`), or leave it to the
     /// adapter ([`GpuFluoroBackend::with_adapter_geometry`]).
     cpu_geometry: bool,
@@ -228,7 +228,7 @@ impl GpuFluoroBackend {
         }
     }
 
-    /// Whether its renderers draw the geometric L-buffer on the CPU (a software adapter,
+    /// Whether its renderers draw the L-buffer passes on the CPU (a software adapter,
     /// unless made [`GpuFluoroBackend::with_adapter_geometry`]).
     pub fn cpu_geometry(&self) -> bool {
         self.cpu_geometry && self.ctx.summary.is_software
@@ -276,7 +276,7 @@ impl FluoroBackend for GpuFluoroBackend {
             kind: "gpu".to_string(),
             device: if self.cpu_geometry() {
                 format!(
-                    "{} ({}), geometric pass on the CPU",
+                    "{} ({}), L-buffer passes on the CPU",
                     summary.name, summary.backend
                 )
             } else {

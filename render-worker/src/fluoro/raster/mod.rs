@@ -1,0 +1,629 @@
+//! The L-buffer passes on the CPU (see the module map in `fluoro`): the same sums as
+//! `lbuffer.wgsl`'s `fs_anatomy` and `fs_anatomy_scalar` (here) and `fs_needle` and
+//! `fs_displaced` (`needle.rs`), rasterised by the worker's own cores from the scene's f64
+//! triangles and uploaded into the targets the resolve reads, for adapters whose rasteriser is
+//! itself software (lavapipe: its geometry stage sets up every triangle on one thread, about
+//! 200 ns each, so a C-arm-moved frame of the default phantom spent about 225 of its 260 ms on
+//! the 1.1 M triangles that reach the image, and a needle-moved frame most of its 32 ms on the
+//! few passes over the needle's box).
+//!
+//! # What it computes
+//! For each sample of the target (pixel centres, or the supersampled region's sub-pixel
+//! centres) and each anatomy triangle covering it, the triangle's axial depth
+//! `w = row_w . (point - source)` at the sample's ray, minus the mesh's reference depth, signed
+//! (`-` entering, `+` leaving) and times the mesh's geometric weights: the GPU pass's fragment,
+//! but in f64 from the f64 triangles (the GPU reads f32 vertices and blends in f32). Summed over
+//! a closed mesh the signed depths give its chord times `(row_w . d) / |d|`, as on the GPU.
+//!
+//! # Coverage rule (why each closed mesh's entering and leaving samples pair up)
+//! Vertices are snapped to 1/256 of a sample (as a GPU rasteriser does), so every edge test is
+//! exact integer arithmetic, and two triangles sharing an edge snap it to the same two points. A
+//! sample is covered when it is strictly inside all three edges, or on an edge that the rule
+//! "the edge runs downwards, or horizontally leftwards" (in the triangle's counter-clockwise
+//! order) claims. The rule is antisymmetric, so of two triangles on opposite sides of a shared
+//! edge exactly one takes a sample on it; two triangles on the same side (a silhouette fold)
+//! face opposite ways and take it together. Either way the signed counts stay balanced.
+//! Entering or leaving is the sign of the snapped screen area (what the coverage used) times
+//! the sign of the projection's determinant: `det[P0 P1 P2] = det(M) det[v0-s, v1-s, v2-s]`
+//! and `det[v0-s, v1-s, v2-s] = (v0 - s) . ((v1 - v0) x (v2 - v0))`, negative for a triangle
+//! whose outward normal faces the source.
+//!
+//! # Depth at a sample
+//! A point of the triangle's plane on the ray of sample `(x, y)` has
+//! `w = n.(v0 - s) / n.(M^-1 (x, y, 1))` (the ray's direction `M^-1 (x, y, 1)` has unit axial
+//! depth), so `1 / w` is affine in the sample coordinates: one division per covered sample, no
+//! barycentric interpolation, and no loss on triangles whose snapped corners moved.
+//!
+//! # Order
+//! Every sample belongs to one band of rows; a band's thread visits the chunks in drawing order,
+//! so each sample sums its triangles in drawing order whatever the number of threads: the
+//! result does not depend on the machine's core count.
+
+mod needle;
+#[cfg(test)]
+mod tests;
+
+use std::ops::Range;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use glam::{DMat3, DVec3};
+use sim_core::fluoro::Scene;
+use sim_core::fluoro::nesting::NestedMesh;
+
+pub(super) use needle::NeedleTriangles;
+
+/// Triangles per culling chunk of the CPU pass. Simulator choice: large enough that projecting
+/// the chunks' box corners (eight per chunk) stays a few percent of the pass, small enough that
+/// a band or the needle's box skips most of the anatomy.
+const CHUNK_TRIANGLES: usize = 64;
+
+/// Rows per band. Simulator choice: a band's f64 sums at 1024 samples across (40 bytes per
+/// sample, 1.3 MB) stay within a core's second-level cache.
+const BAND_ROWS: usize = 32;
+
+/// Sub-sample precision of snapped vertices, bits (GPU rasterisers use 8).
+const SUBSAMPLE_BITS: u32 = 8;
+
+/// Snapped coordinates beyond this many samples from the target's origin are refused (the frame
+/// falls back to the GPU pass): with 8 fractional bits, edge products then stay below 2^62.
+/// Simulator choice: 2^20 samples is a hundred times any detector.
+const MAX_SAMPLE_COORDINATE: f64 = (1u64 << 20) as f64;
+
+/// Triangles with a corner nearer than this to the source plane (axial depth, mm) are refused:
+/// the GPU clips them, this pass does not. Simulator choice: no anatomy comes within a
+/// millimetre of the focal spot.
+const MIN_AXIAL_DEPTH_MM: f64 = 1.0;
+
+/// The anatomy as the CPU pass reads it: the scene (shared, never copied) and chunks of each
+/// drawn mesh's triangles in the GPU's drawing order.
+pub(super) struct CpuGeometry {
+    scene: Arc<Scene>,
+    chunks: Vec<Chunk>,
+}
+
+struct Chunk {
+    /// Index of the drawn mesh (in the anatomy's drawing order).
+    mesh: u32,
+    /// Triangles `first..first + count` of the mesh's scene entry.
+    first: u32,
+    count: u32,
+    lo: [f64; 3],
+    hi: [f64; 3],
+}
+
+/// One drawn mesh's weights in the pass: geometric weights (`f32`, the GPU's), its reference
+/// axial depth (mm) and whether it goes to the one-channel target.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct MeshWeights {
+    pub(super) g: [f32; 4],
+    pub(super) wref: f32,
+    pub(super) scalar: bool,
+}
+
+/// Why the CPU pass refused a frame (the GPU pass draws it instead).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct Refused;
+
+/// A target's sampling: rows giving `(x w, y w, w)` of a point (sample coordinates `x, y`; `w`
+/// its axial depth, mm), its size in samples, and where its samples lie in the full image:
+/// sample coordinate `x` is pixel coordinate `origin_px[0] + x / per_px`.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct SampleProjection {
+    pub(super) rows: [[f64; 4]; 3],
+    pub(super) size: [u32; 2],
+    pub(super) origin_px: [f64; 2],
+    pub(super) per_px: f64,
+}
+
+impl SampleProjection {
+    /// The full-image pixel box `(x0, y0, x1, y1)` of the sample centres of `rect`.
+    fn pixel_box(&self, rect: &SampleRect) -> [f64; 4] {
+        let px = |s: usize, a: usize| self.origin_px[a] + (s as f64 + 0.5) / self.per_px;
+        [
+            px(rect.cols.start, 0),
+            px(rect.rows.start, 1),
+            px(rect.cols.end.max(rect.cols.start + 1) - 1, 0),
+            px(rect.rows.end.max(rect.rows.start + 1) - 1, 1),
+        ]
+    }
+}
+
+/// Columns and rows of a target's samples.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub(super) struct SampleRect {
+    pub(super) cols: Range<usize>,
+    pub(super) rows: Range<usize>,
+}
+
+impl SampleRect {
+    fn len(&self) -> usize {
+        self.cols.len() * self.rows.len()
+    }
+}
+
+/// Each chunk's full-image pixel box `(x0, y0, x1, y1)` under one projection (its eight corners
+/// projected; everywhere when a corner is within [`MIN_AXIAL_DEPTH_MM`] of the source plane, so
+/// that its triangles are looked at and refused). A renderer keeps them while its projection
+/// stays: a needle-moved frame culls with them again.
+pub(super) struct ChunkBoxes {
+    matrix: [[f64; 4]; 3],
+    boxes: Vec<[f32; 4]>,
+}
+
+impl ChunkBoxes {
+    /// Whether these are the boxes under `matrix` (the projection's, bit for bit).
+    pub(super) fn under(&self, matrix: &[[f64; 4]; 3]) -> bool {
+        self.matrix
+            .iter()
+            .flatten()
+            .zip(matrix.iter().flatten())
+            .all(|(a, b)| a.to_bits() == b.to_bits())
+    }
+}
+
+/// The geometric L-buffer of a target: `a` four channels per sample (row-major), `s` one.
+pub(super) struct GeometrySums {
+    pub(super) a: Vec<f32>,
+    pub(super) s: Vec<f32>,
+}
+
+impl CpuGeometry {
+    /// The chunks of `meshes` (the anatomy's drawn meshes, in drawing order) in `scene`.
+    pub(super) fn new(scene: Arc<Scene>, meshes: &[NestedMesh]) -> CpuGeometry {
+        let entries = scene.entries();
+        let mut chunks = Vec::new();
+        for (id, mesh) in meshes.iter().enumerate() {
+            let tris = entries[mesh.entry].bvh.triangles_mm();
+            for (k, c) in tris.chunks(CHUNK_TRIANGLES).enumerate() {
+                let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+                for v in c.iter().flatten() {
+                    for a in 0..3 {
+                        lo[a] = lo[a].min(v[a]);
+                        hi[a] = hi[a].max(v[a]);
+                    }
+                }
+                chunks.push(Chunk {
+                    mesh: id as u32,
+                    first: (k * CHUNK_TRIANGLES) as u32,
+                    count: c.len() as u32,
+                    lo,
+                    hi,
+                });
+            }
+        }
+        CpuGeometry { scene, chunks }
+    }
+
+    /// The chunks' pixel boxes under the projection `matrix` (rows giving `(x w, y w, w)` in
+    /// full-image pixel coordinates), on `threads` threads (0: every core).
+    pub(super) fn chunk_boxes(&self, matrix: &[[f64; 4]; 3], threads: usize) -> ChunkBoxes {
+        let mut boxes = vec![[0.0; 4]; self.chunks.len()];
+        let per = self.chunks.len().div_ceil(thread_count(threads)).max(1);
+        std::thread::scope(|scope| {
+            for (out, chunks) in boxes.chunks_mut(per).zip(self.chunks.chunks(per)) {
+                scope.spawn(move || {
+                    for (o, c) in out.iter_mut().zip(chunks) {
+                        *o = chunk_box(matrix, c);
+                    }
+                });
+            }
+        });
+        ChunkBoxes {
+            matrix: *matrix,
+            boxes,
+        }
+    }
+
+    /// The geometric L-buffer of `meshes` (in drawing order, as given to [`CpuGeometry::new`])
+    /// with `weights` under `p`, culled with `boxes` (under `p`'s projection), on `threads`
+    /// threads (0: every core). `Refused` when a triangle that may reach the target comes
+    /// within [`MIN_AXIAL_DEPTH_MM`] of the source plane or projects too far away to snap.
+    pub(super) fn rasterise(
+        &self,
+        meshes: &[NestedMesh],
+        weights: &[MeshWeights],
+        p: &SampleProjection,
+        boxes: &ChunkBoxes,
+        threads: usize,
+    ) -> Result<GeometrySums, Refused> {
+        let [w, h] = p.size.map(|x| x as usize);
+        let rect = SampleRect {
+            cols: 0..w,
+            rows: 0..h,
+        };
+        let mut a = vec![0f32; 4 * w * h];
+        let mut s = vec![0f32; w * h];
+        self.banded(
+            meshes,
+            p,
+            boxes,
+            &rect,
+            (&mut a, Some(&mut s)),
+            threads,
+            |band, span, mesh| {
+                let mw = &weights[mesh];
+                let g = mw.g.map(|x| span.sign() * f64::from(x));
+                let wref = f64::from(mw.wref);
+                if mw.scalar {
+                    band.add::<1>(span, [g[0], 0.0, 0.0, 0.0], wref);
+                } else {
+                    band.add::<4>(span, g, wref);
+                }
+            },
+        )?;
+        Ok(GeometrySums { a, s })
+    }
+
+    /// Adds every anatomy triangle that can reach `rect` (in drawing order, culled with
+    /// `boxes`) to bands of `rect`'s rows with `add(band, span, mesh)`, on `threads` threads,
+    /// then writes the bands' four-channel sums (and one-channel sums, if asked) into `out`
+    /// (row-major over `rect`).
+    #[expect(clippy::too_many_arguments, reason = "one private step of two passes")]
+    fn banded(
+        &self,
+        meshes: &[NestedMesh],
+        p: &SampleProjection,
+        boxes: &ChunkBoxes,
+        rect: &SampleRect,
+        (out4, out1): (&mut [f32], Option<&mut [f32]>),
+        threads: usize,
+        add: impl Fn(&mut Band, &Span, usize) + Sync,
+    ) -> Result<(), Refused> {
+        let frame = Frame::new(p)?;
+        let w = rect.cols.len();
+        let h = rect.rows.len();
+        if w == 0 || h == 0 {
+            return Ok(());
+        }
+        let entries = self.scene.entries();
+        let tris: Vec<&[[[f64; 3]; 3]]> = meshes
+            .iter()
+            .map(|mesh| entries[mesh.entry].bvh.triangles_mm())
+            .collect();
+        let refused = AtomicBool::new(false);
+        // Bands of a few rows, so that a band's sums stay in the core's cache while its
+        // triangles are added; thread `k` takes bands `k`, `k + threads`, ...
+        let rows_per = BAND_ROWS.min(h);
+        let bands_n = h.div_ceil(rows_per);
+        let threads = thread_count(threads).min(bands_n);
+        let mut bands: Vec<Vec<BandOut<'_>>> = (0..threads).map(|_| Vec::new()).collect();
+        let mut ones = out1.map(|o| o.chunks_mut(w * rows_per));
+        for (band, a_band) in out4.chunks_mut(4 * w * rows_per).enumerate() {
+            let s_band = ones.as_mut().and_then(Iterator::next);
+            bands[band % threads].push((band * rows_per, a_band, s_band));
+        }
+        std::thread::scope(|scope| {
+            for mine in bands {
+                let (frame, tris, refused, add) = (&frame, &tris, &refused, &add);
+                scope.spawn(move || {
+                    let mut acc = Band::default();
+                    for (first, a_band, s_band) in mine {
+                        let first_row = rect.rows.start + first;
+                        let rows = first_row..first_row + a_band.len() / (4 * w);
+                        acc.reset(SampleRect {
+                            cols: rect.cols.clone(),
+                            rows,
+                        });
+                        let px = p.pixel_box(&acc.rect);
+                        for (chunk, b) in self.chunks.iter().zip(&boxes.boxes) {
+                            // One pixel of slack each side for the snapping (1/512 of a sample)
+                            // and the boxes' f32 rounding.
+                            let b = b.map(f64::from);
+                            if b[2] < px[0] - 1.0
+                                || b[0] > px[2] + 1.0
+                                || b[3] < px[1] - 1.0
+                                || b[1] > px[3] + 1.0
+                            {
+                                continue;
+                            }
+                            let mesh = chunk.mesh as usize;
+                            let range = chunk.first as usize..(chunk.first + chunk.count) as usize;
+                            for t in &tris[mesh][range] {
+                                match setup(frame, t, &acc.rect) {
+                                    Ok(Some(span)) => add(&mut acc, &span, mesh),
+                                    Ok(None) => {}
+                                    Err(Refused) => {
+                                        refused.store(true, Ordering::Relaxed);
+                                        return;
+                                    }
+                                }
+                            }
+                        }
+                        if refused.load(Ordering::Relaxed) {
+                            return;
+                        }
+                        for (o, v) in a_band.iter_mut().zip(&acc.a) {
+                            *o = *v as f32;
+                        }
+                        if let Some(s_band) = s_band {
+                            for (o, v) in s_band.iter_mut().zip(&acc.s) {
+                                *o = *v as f32;
+                            }
+                        }
+                    }
+                });
+            }
+        });
+        if refused.load(Ordering::Relaxed) {
+            return Err(Refused);
+        }
+        Ok(())
+    }
+}
+
+/// A band's first row (from the rectangle's first) and its rows of the two outputs.
+type BandOut<'a> = (usize, &'a mut [f32], Option<&'a mut [f32]>);
+
+/// `threads`, or every core for 0.
+fn thread_count(threads: usize) -> usize {
+    if threads == 0 {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    } else {
+        threads
+    }
+}
+
+fn chunk_box(matrix: &[[f64; 4]; 3], c: &Chunk) -> [f32; 4] {
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for corner in 0..8 {
+        let v: [f64; 3] = std::array::from_fn(|a| {
+            if corner & (1 << a) == 0 {
+                c.lo[a]
+            } else {
+                c.hi[a]
+            }
+        });
+        let [x, y, w] = project(matrix, &v);
+        if w.is_nan() || w < MIN_AXIAL_DEPTH_MM {
+            return [
+                f32::NEG_INFINITY,
+                f32::NEG_INFINITY,
+                f32::INFINITY,
+                f32::INFINITY,
+            ];
+        }
+        let (x, y) = (x / w, y / w);
+        b = [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)];
+    }
+    b.map(|v| v as f32)
+}
+
+/// `v` rounded to the nearest integer, halves away from zero (as `f64::round`, which is a libm
+/// call on baseline x86-64); `|v|` is at most 2^28 here.
+#[inline(always)]
+fn snap(v: f64) -> i64 {
+    (v + 0.5f64.copysign(v)) as i64
+}
+
+#[inline(always)]
+fn project(rows: &[[f64; 4]; 3], v: &[f64; 3]) -> [f64; 3] {
+    rows.map(|r| r[0] * v[0] + r[1] * v[1] + r[2] * v[2] + r[3])
+}
+
+/// The samples of a rectangle one triangle can cover (its snapped box there), its edge
+/// functions and depth plane, and its facing.
+struct Span {
+    rows: std::ops::RangeInclusive<usize>,
+    cols: std::ops::RangeInclusive<usize>,
+    /// Edge values at the box's first sample, and their steps per column and per row.
+    e_row: [i64; 3],
+    step_x: [i64; 3],
+    step_y: [i64; 3],
+    /// `w = k / (q.x x + q.y y + q.z)` at sample coordinates `(x, y)`.
+    q: DVec3,
+    k: f64,
+    /// Whether the triangle enters its mesh here (see the module doc).
+    entering: bool,
+}
+
+impl Span {
+    /// `-1` entering, `+1` leaving.
+    fn sign(&self) -> f64 {
+        if self.entering { -1.0 } else { 1.0 }
+    }
+
+    /// Calls `visit(i, j, w)` for every sample `(i, j)` the triangle covers, with the axial
+    /// depth `w` (mm) of its plane on that sample's ray.
+    #[inline(always)]
+    fn for_each(&self, mut visit: impl FnMut(usize, usize, f64)) {
+        let mut e_row = self.e_row;
+        let (i0, i1) = (*self.cols.start(), *self.cols.end());
+        for j in self.rows.clone() {
+            let qy = self.q.y * (j as f64 + 0.5) + self.q.z;
+            let mut ev = e_row;
+            for i in i0..=i1 {
+                // All three edge values non-negative: their bitwise or is.
+                if (ev[0] | ev[1] | ev[2]) >= 0 {
+                    visit(i, j, self.k / (self.q.x * (i as f64 + 0.5) + qy));
+                }
+                // The box's edge values stay within 2^62 (`MAX_SAMPLE_COORDINATE`).
+                for (v, step) in ev.iter_mut().zip(self.step_x) {
+                    *v = v.wrapping_add(step);
+                }
+            }
+            for (v, step) in e_row.iter_mut().zip(self.step_y) {
+                *v = v.wrapping_add(step);
+            }
+        }
+    }
+}
+
+/// What every triangle of a target needs.
+struct Frame {
+    rows: [[f64; 4]; 3],
+    /// `M^-1` of the rows' 3 x 3 part: `M^-1 (x, y, 1)` is the direction of sample `(x, y)`'s
+    /// ray with unit axial depth.
+    inv: DMat3,
+    /// `(M^-1)^T`.
+    inv_t: DMat3,
+    /// The focal spot, mm (where the rows give zero).
+    source: DVec3,
+    det_positive: bool,
+}
+
+impl Frame {
+    fn new(p: &SampleProjection) -> Result<Frame, Refused> {
+        let m = DMat3::from_cols(
+            DVec3::new(p.rows[0][0], p.rows[1][0], p.rows[2][0]),
+            DVec3::new(p.rows[0][1], p.rows[1][1], p.rows[2][1]),
+            DVec3::new(p.rows[0][2], p.rows[1][2], p.rows[2][2]),
+        );
+        let det = m.determinant();
+        if !det.is_finite() || det == 0.0 {
+            return Err(Refused);
+        }
+        let inv = m.inverse();
+        Ok(Frame {
+            rows: p.rows,
+            inv,
+            inv_t: inv.transpose(),
+            source: -(inv * DVec3::new(p.rows[0][3], p.rows[1][3], p.rows[2][3])),
+            det_positive: det > 0.0,
+        })
+    }
+
+    /// Distance from the source per mm of axial depth along sample `(x, y)`'s ray.
+    fn distance_per_depth(&self, x: f64, y: f64) -> f64 {
+        (self.inv * DVec3::new(x, y, 1.0)).length()
+    }
+}
+
+const ONE: i64 = 1 << SUBSAMPLE_BITS;
+const HALF: i64 = ONE / 2;
+
+/// The span of triangle `t` within `rect`, or `None` when it covers no sample centre there.
+#[inline]
+fn setup(f: &Frame, t: &[[f64; 3]; 3], rect: &SampleRect) -> Result<Option<Span>, Refused> {
+    let mut fx = [0i64; 3];
+    let mut fy = [0i64; 3];
+    for (k, v) in t.iter().enumerate() {
+        let [xw, yw, w] = project(&f.rows, v);
+        if w.is_nan() || w < MIN_AXIAL_DEPTH_MM {
+            return Err(Refused);
+        }
+        let scale = ONE as f64 / w;
+        let (x, y) = (xw * scale, yw * scale);
+        if !(x.abs() <= MAX_SAMPLE_COORDINATE * ONE as f64
+            && y.abs() <= MAX_SAMPLE_COORDINATE * ONE as f64)
+        {
+            return Err(Refused);
+        }
+        fx[k] = snap(x);
+        fy[k] = snap(y);
+    }
+    // Sample rows and columns of `rect` whose centres lie in the snapped box.
+    let first = |lo: i64| (lo - HALF).div_euclid(ONE) + i64::from((lo - HALF).rem_euclid(ONE) != 0);
+    let last = |hi: i64| (hi - HALF).div_euclid(ONE);
+    let j0 = first(fy[0].min(fy[1]).min(fy[2])).max(rect.rows.start as i64);
+    let j1 = last(fy[0].max(fy[1]).max(fy[2])).min(rect.rows.end as i64 - 1);
+    if j0 > j1 {
+        return Ok(None);
+    }
+    let i0 = first(fx[0].min(fx[1]).min(fx[2])).max(rect.cols.start as i64);
+    let i1 = last(fx[0].max(fx[1]).max(fx[2])).min(rect.cols.end as i64 - 1);
+    if i0 > i1 {
+        return Ok(None);
+    }
+    let area2 = (fx[1] - fx[0]) * (fy[2] - fy[0]) - (fx[2] - fx[0]) * (fy[1] - fy[0]);
+    if area2 == 0 {
+        return Ok(None);
+    }
+    let entering = (area2 > 0) != f.det_positive;
+    if area2 < 0 {
+        fx.swap(1, 2);
+        fy.swap(1, 2);
+    }
+    // The plane's 1 / w at sample (x, y): (q . (x, y, 1)) / k.
+    let v0 = DVec3::from(t[0]);
+    let normal = (DVec3::from(t[1]) - v0).cross(DVec3::from(t[2]) - v0);
+    // Edge functions E(p) = (b - a) x (p - a) at the first sample of the box, their steps,
+    // and the tie rule's bias (-1: a sample on the edge is not taken).
+    let mut e_row = [0i64; 3];
+    let mut step_x = [0i64; 3];
+    let mut step_y = [0i64; 3];
+    let px0 = i0 * ONE + HALF;
+    let py0 = j0 * ONE + HALF;
+    for e in 0..3 {
+        let (a, b) = (e, (e + 1) % 3);
+        let (dx, dy) = (fx[b] - fx[a], fy[b] - fy[a]);
+        let takes_ties = dy > 0 || (dy == 0 && dx < 0);
+        e_row[e] = dx * (py0 - fy[a]) - dy * (px0 - fx[a]) - i64::from(!takes_ties);
+        step_x[e] = -dy * ONE;
+        step_y[e] = dx * ONE;
+    }
+    Ok(Some(Span {
+        rows: j0 as usize..=j1 as usize,
+        cols: i0 as usize..=i1 as usize,
+        e_row,
+        step_x,
+        step_y,
+        q: f.inv_t * normal,
+        k: normal.dot(v0 - f.source),
+        entering,
+    }))
+}
+
+/// One thread's band of rows of a rectangle, summed in f64.
+#[derive(Default)]
+struct Band {
+    rect: SampleRect,
+    a: Vec<f64>,
+    s: Vec<f64>,
+}
+
+impl Band {
+    /// Zeroes the sums for `rect`.
+    fn reset(&mut self, rect: SampleRect) {
+        let n = rect.len();
+        self.a.clear();
+        self.a.resize(4 * n, 0.0);
+        self.s.clear();
+        self.s.resize(n, 0.0);
+        self.rect = rect;
+    }
+
+    /// Index of sample `(i, j)` in the band's sums.
+    #[inline(always)]
+    fn index(&self, i: usize, j: usize) -> usize {
+        (j - self.rect.rows.start) * self.rect.cols.len() + (i - self.rect.cols.start)
+    }
+
+    /// Adds `g (w - wref)` at every sample `span` covers, into the four-channel sums (`C = 4`)
+    /// or the one-channel sums (`C = 1`). (The geometric pass's inner loop: the row is sliced
+    /// once, so each sample costs no bounds check.)
+    #[inline(always)]
+    fn add<const C: usize>(&mut self, span: &Span, g: [f64; 4], wref: f64) {
+        let (i0, i1) = (*span.cols.start(), *span.cols.end());
+        let width = self.rect.cols.len();
+        let col0 = i0 - self.rect.cols.start;
+        let row0 = self.rect.rows.start;
+        let sums = if C == 1 { &mut self.s } else { &mut self.a };
+        let mut e_row = span.e_row;
+        for j in span.rows.clone() {
+            let base = (j - row0) * width + col0;
+            let row = &mut sums[C * base..C * (base + i1 - i0 + 1)];
+            let qy = span.q.y * (j as f64 + 0.5) + span.q.z;
+            let mut ev = e_row;
+            for (i, o) in (i0..=i1).zip(row.chunks_exact_mut(C)) {
+                if (ev[0] | ev[1] | ev[2]) >= 0 {
+                    let d = span.k / (span.q.x * (i as f64 + 0.5) + qy) - wref;
+                    for c in 0..C {
+                        o[c] += g[c] * d;
+                    }
+                }
+                for (v, step) in ev.iter_mut().zip(span.step_x) {
+                    *v = v.wrapping_add(step);
+                }
+            }
+            for (v, step) in e_row.iter_mut().zip(span.step_y) {
+                *v = v.wrapping_add(step);
+            }
+        }
+    }
+}
