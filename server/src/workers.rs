@@ -170,7 +170,7 @@ impl Workers {
             // The sessions' own GPU renderer: its upload of the region is kept for them.
             if let Some(r) = me.gpu_renderers() {
                 candidates.push(Arc::clone(&r.fluoro));
-                // On a software adapter: the same renderer with the adapter's geometric pass.
+                // On a software adapter: the same renderer with the adapter's own L-buffer passes.
                 candidates.extend(r.fluoro.alternatives());
             }
             candidates.push(Backends::cpu(0).fluoro);

@@ -68,14 +68,26 @@ async fn the_server_calibrates_its_renderer_and_capacity_at_start() {
         assert_eq!(c["state"], "done", "{h:#}");
         assert_eq!(c["station"], "demo-station");
         let timings = c["timings"].as_array().expect("timings");
-        // The GPU renderer (when an adapter opened) and the CPU reference, both timed.
-        let expected = if h["render_worker"]["adapter"].is_null() {
+        // The GPU renderer (when an adapter opened; on a software adapter also with the
+        // adapter's own L-buffer passes instead of the CPU's) and the CPU reference, all timed.
+        let adapter = &h["render_worker"]["adapter"];
+        let expected = if adapter.is_null() {
             1
+        } else if adapter["is_software"] == true {
+            3
         } else {
             2
         };
         assert_eq!(timings.len(), expected, "{c:#}");
         assert_eq!(timings.last().unwrap()["renderer"]["kind"], "cpu-reference");
+        if expected == 3 {
+            let device = |k: usize| timings[k]["renderer"]["device"].as_str().unwrap_or("");
+            assert!(
+                device(0).ends_with("L-buffer passes on the CPU")
+                    && !device(1).contains("on the CPU"),
+                "{c:#}"
+            );
+        }
         let chosen = &timings[c["chosen"].as_u64().expect("chosen") as usize];
         assert_eq!(chosen["renderer"], c["renderer"]);
         assert!(chosen["stopped"].is_null(), "{c:#}");

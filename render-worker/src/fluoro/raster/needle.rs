@@ -9,19 +9,19 @@ use super::{ChunkBoxes, CpuGeometry, Frame, Refused, SampleProjection, SampleRec
 use sim_core::fluoro::nesting::NestedMesh;
 
 /// The needle as its passes read it.
-pub(in crate::fluoro) struct NeedleTriangles<'a> {
+pub(crate) struct NeedleTriangles<'a> {
     /// Its triangles, mm (outward counter-clockwise, as the anatomy's).
-    pub(in crate::fluoro) triangles: &'a [[[f64; 3]; 3]],
+    pub(crate) triangles: &'a [[[f64; 3]; 3]],
     /// Distance from the source its chord is summed relative to (the GPU's `needle_ref`), mm.
-    pub(in crate::fluoro) reference_mm: f64,
+    pub(crate) reference_mm: f64,
 }
 
 /// What the resolve reads of the needle within its box (row-major over the box): the displaced
 /// L-buffer (four channels per sample) and the needle's summed signed distances from its
 /// reference (one per sample: its chord, mm).
-pub(in crate::fluoro) struct NeedleSums {
-    pub(in crate::fluoro) d: Vec<f32>,
-    pub(in crate::fluoro) chord: Vec<f32>,
+pub(crate) struct NeedleSums {
+    pub(crate) d: Vec<f32>,
+    pub(crate) chord: Vec<f32>,
 }
 
 impl CpuGeometry {
@@ -32,7 +32,7 @@ impl CpuGeometry {
         clippy::too_many_arguments,
         reason = "one private pass over the anatomy"
     )]
-    pub(in crate::fluoro) fn needle_passes(
+    pub(crate) fn needle_passes(
         &self,
         needle: &NeedleTriangles<'_>,
         meshes: &[NestedMesh],

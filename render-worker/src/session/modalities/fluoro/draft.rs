@@ -102,8 +102,9 @@ impl DraftAnatomies {
             .name("draft-scene".into())
             .spawn(move || {
                 let started = std::time::Instant::now();
-                let scene = draft_scene(&region.scene, &this.params);
-                let slot = match GpuAnatomy::new(&this.ctx, &scene) {
+                // Shared, not copied: on a software adapter the CPU passes read it.
+                let scene = Arc::new(draft_scene(&region.scene, &this.params));
+                let slot = match GpuAnatomy::shared(&this.ctx, &scene) {
                     Ok(a) => {
                         tracing::info!(
                             region = %region.name,
