@@ -306,22 +306,17 @@ fn polychromatic_transmission_and_frame_match_the_cpu() {
     assert!(hi - lo > 50);
 }
 
-/// The L-buffer passes drawn by the worker's cores (`raster`: f64 sums of the f64 triangles,
-/// what a software adapter gets) and by the adapter's rasteriser (f32 sums of f32 vertices)
-/// give the same transmission as the CPU reference at interior pixels, within the tolerance of
-/// `polychromatic_transmission_and_frame_match_the_cpu` (2e-3 in ln T), the CPU's at least as
-/// close, and frames with the needle's supersampled region within a grey level of each other.
-#[test]
-fn the_cpu_passes_match_the_adapters_and_the_cpu_reference() {
-    let Some(ctx) = context_for_tests() else {
-        return;
-    };
-    let scene = std::sync::Arc::new(sphere_scene());
-    let anatomy = |cpu: bool| {
+/// Two renderers of `scene` with its steel entries as the needle: one drawing the L-buffer
+/// passes on the CPU (`raster`, whatever the adapter), one leaving them to the adapter.
+fn cpu_and_adapter_renderers(
+    ctx: &render_worker::gpu::GpuContext,
+    scene: &std::sync::Arc<Scene>,
+) -> (GpuFluoroRenderer, GpuFluoroRenderer) {
+    let renderer = |cpu: bool| {
         let a = if cpu {
-            GpuAnatomy::with_cpu_geometry(&ctx, &scene)
+            GpuAnatomy::with_cpu_geometry(ctx, scene)
         } else {
-            GpuAnatomy::new(&ctx, &scene)
+            GpuAnatomy::new(ctx, scene)
         };
         let mut r = GpuFluoroRenderer::with_anatomy(a.expect("anatomy"));
         let steel: Vec<[f64; 3]> = scene
@@ -339,8 +334,50 @@ fn the_cpu_passes_match_the_adapters_and_the_cpu_reference() {
         r.set_cpu_geometry(cpu);
         r
     };
-    let (mut on_cpu, mut on_adapter) = (anatomy(true), anatomy(false));
+    let (on_cpu, on_adapter) = (renderer(true), renderer(false));
     assert!(on_cpu.cpu_geometry() && !on_adapter.cpu_geometry());
+    (on_cpu, on_adapter)
+}
+
+/// A mesh reaching behind the focal spot's plane (a cylinder around the whole C-arm, which the
+/// adapter clips) is refused by the CPU passes, which then leave every pass to the adapter:
+/// the frames equal those of a renderer that never uses them, bit for bit, needle and
+/// supersampled region included.
+#[test]
+fn frames_the_cpu_passes_refuse_are_the_adapters() {
+    let Some(ctx) = context_for_tests() else {
+        return;
+    };
+    let mut scene = sphere_scene();
+    let room = capped_cylinder([0.0, -3000.0, 0.0], [0.0, 3000.0, 0.0], 3000.0, 16);
+    scene.add("room", FluoroMaterial::Tissue(MaterialClass::Fat), &room);
+    let scene = std::sync::Arc::new(scene);
+    let (mut on_cpu, mut on_adapter) = cpu_and_adapter_renderers(&ctx, &scene);
+    let settings = RenderSettings {
+        energy: EnergyModel::Spectral { kvp: 80 },
+        supersample: 2,
+        ..RenderSettings::default()
+    };
+    for p in sphere_views() {
+        let a = on_cpu.render_frame(&p, &settings, None).unwrap();
+        let b = on_adapter.render_frame(&p, &settings, None).unwrap();
+        assert_eq!(a, b);
+        assert!(on_cpu.last_timings().resolved_samples > 0);
+    }
+}
+
+/// The L-buffer passes drawn by the worker's cores (`raster`: f64 sums of the f64 triangles,
+/// what a software adapter gets) and by the adapter's rasteriser (f32 sums of f32 vertices)
+/// give the same transmission as the CPU reference at interior pixels, within the tolerance of
+/// `polychromatic_transmission_and_frame_match_the_cpu` (2e-3 in ln T), the CPU's at least as
+/// close, and frames with the needle's supersampled region within a grey level of each other.
+#[test]
+fn the_cpu_passes_match_the_adapters_and_the_cpu_reference() {
+    let Some(ctx) = context_for_tests() else {
+        return;
+    };
+    let scene = std::sync::Arc::new(sphere_scene());
+    let (mut on_cpu, mut on_adapter) = cpu_and_adapter_renderers(&ctx, &scene);
     // A software adapter (lavapipe, as in CI) gets the CPU pass by default; a GPU does not.
     assert_eq!(
         GpuFluoroRenderer::new(&ctx, &scene)
