@@ -41,7 +41,7 @@ use sim_core::material::MaterialClass;
 use super::anatomy::{GpuAnatomy, MeshBuffers, triangle_vertices, upload};
 use super::pipelines::{Pipelines, Targets};
 use super::raster::{
-    ChunkBoxes, MeshWeights, NeedleTriangles, Refused, SampleProjection, SampleRect,
+    ChunkBoxes, GeometrySums, MeshWeights, NeedleTriangles, Refused, SampleProjection, SampleRect,
 };
 use super::types::{
     CANCELLOUS, CHANNELS, CHORD_CHANNELS, CORTICAL, Layout, NO_NEEDLE, Passes, PixelRect, SLOTS,
@@ -65,7 +65,26 @@ pub(super) struct LBuffer {
     pub(super) cpu_geometry: bool,
     /// The anatomy's chunk boxes for the CPU passes under the last projection.
     cpu_boxes: Option<ChunkBoxes>,
+    /// The CPU geometric sums of the last supersampled region's padded box.
+    kept_region: Option<KeptRegion>,
 }
+
+/// A supersampled region's geometric sums on the CPU, for a box padded around it.
+struct KeptRegion {
+    /// The projection they were made under.
+    matrix: [[f64; 4]; 3],
+    /// Samples per pixel axis.
+    per_px: usize,
+    /// The padded box, in samples of the full image's grid at that density.
+    rect: SampleRect,
+    sums: GeometrySums,
+}
+
+/// Samples a supersampled region's kept CPU sums reach beyond its box on each side once the
+/// needle moves under one view. Simulator choice: 32 samples (16 pixels at 2 x 2) hold several
+/// 1 mm needle steps at the default C-arm's magnification, for about twice the samples of a
+/// needle's box drawn at the first step.
+const REGION_PAD_SAMPLES: usize = 32;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
@@ -114,6 +133,7 @@ impl LBuffer {
             weights_buf,
             cpu_geometry: true,
             cpu_boxes: None,
+            kept_region: None,
         }
     }
 
@@ -548,18 +568,23 @@ impl LBuffer {
         if !self.cpu_boxes.as_ref().is_some_and(|b| b.under(&m)) {
             self.cpu_boxes = Some(cpu.chunk_boxes(&m, 0));
         }
-        let boxes = self.cpu_boxes.as_ref().expect("boxes");
-        // Region samples: n (px - x0), n (py - y0).
-        let n = f64::from(region.n);
-        let origin = region.origin.map(f64::from);
-        let row =
-            |r: [f64; 4], o: f64| -> [f64; 4] { std::array::from_fn(|k| n * (r[k] - o * m[2][k])) };
-        let size = region.size;
+        // Samples in the full image's grid at the region's density, `n px` and `n py` (the
+        // region's samples are a rectangle of it, offset by `n` times its origin): a sample's
+        // sums then do not depend on where the region lies, so a kept region's can be reused.
+        let n = region.n as usize;
+        let nf = f64::from(region.n);
+        let scaled = |r: [f64; 4]| -> [f64; 4] { r.map(|v| nf * v) };
+        let [full_w, full_h] = projection.detector_pixels.map(|v| v as usize * n);
         let p = SampleProjection {
-            rows: [row(m[0], origin[0]), row(m[1], origin[1]), m[2]],
-            size,
-            origin_px: origin,
-            per_px: n,
+            rows: [scaled(m[0]), scaled(m[1]), m[2]],
+            origin_px: [0.0, 0.0],
+            per_px: nf,
+        };
+        let offset = region.origin.map(|v| v as usize * n);
+        let size = region.size;
+        let target = SampleRect {
+            cols: offset[0]..offset[0] + size[0] as usize,
+            rows: offset[1]..offset[1] + size[1] as usize,
         };
         let meshes = &anatomy.meshes;
         let geometry = passes.geometry && {
@@ -572,7 +597,57 @@ impl LBuffer {
                     scalar: mesh.water_basis_only(),
                 })
                 .collect();
-            match cpu.rasterise(meshes, &mesh_weights, &p, boxes, 0) {
+            let boxes = self.cpu_boxes.as_ref().expect("boxes");
+            let sums = if n == 1 {
+                // The full image: kept between frames as the geometry cache's targets.
+                cpu.rasterise_rect(meshes, &mesh_weights, &p, boxes, &target, 0)
+            } else {
+                // A supersampled region follows the needle's box: its sums are kept, and cut
+                // from while the projection stays and the region lies within them. The first
+                // region under a projection is drawn as it is (a C-arm-moved frame pays
+                // nothing more); once the needle has moved under it, the region is drawn
+                // padded by `REGION_PAD_SAMPLES`, so that the next steps only cut.
+                let same = |a: &[[f64; 4]; 3]| {
+                    a.iter()
+                        .flatten()
+                        .zip(m.iter().flatten())
+                        .all(|(x, y)| x.to_bits() == y.to_bits())
+                };
+                let under_this_view = self
+                    .kept_region
+                    .as_ref()
+                    .filter(|k| k.per_px == n && same(&k.matrix));
+                let kept = under_this_view.filter(|k| k.rect.contains(&target));
+                let margin = if under_this_view.is_some() {
+                    REGION_PAD_SAMPLES
+                } else {
+                    0
+                };
+                match kept {
+                    Some(k) => Ok(k.sums.crop(&k.rect, &target)),
+                    None => {
+                        let pad = |r: &std::ops::Range<usize>, end: usize| {
+                            r.start.saturating_sub(margin)..(r.end + margin).min(end)
+                        };
+                        let padded = SampleRect {
+                            cols: pad(&target.cols, full_w),
+                            rows: pad(&target.rows, full_h),
+                        };
+                        cpu.rasterise_rect(meshes, &mesh_weights, &p, boxes, &padded, 0)
+                            .map(|sums| {
+                                let cut = sums.crop(&padded, &target);
+                                self.kept_region = Some(KeptRegion {
+                                    matrix: m,
+                                    per_px: n,
+                                    rect: padded,
+                                    sums,
+                                });
+                                cut
+                            })
+                    }
+                }
+            };
+            match sums {
                 Ok(sums) => {
                     let whole = [0, 0, size[0], size[1]];
                     upload_texture(
@@ -594,13 +669,14 @@ impl LBuffer {
                 Err(Refused) => false,
             }
         };
+        let boxes = self.cpu_boxes.as_ref().expect("boxes");
         let needle_drawn = match (needle, &self.needle) {
             (Some(r), Some(nd)) => {
                 let displaced: Vec<[f32; 4]> = weights.chunks_exact(3).map(|w3| w3[1]).collect();
-                let (x, y, w, h) = (r[0] as usize, r[1] as usize, r[2] as usize, r[3] as usize);
+                let (x, y) = (offset[0] + r[0] as usize, offset[1] + r[1] as usize);
                 let sample_rect = SampleRect {
-                    cols: x..x + w,
-                    rows: y..y + h,
+                    cols: x..x + r[2] as usize,
+                    rows: y..y + r[3] as usize,
                 };
                 let triangles = NeedleTriangles {
                     triangles: bytemuck::cast_slice(&nd.vertices_mm),

@@ -108,13 +108,12 @@ pub(super) struct MeshWeights {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) struct Refused;
 
-/// A target's sampling: rows giving `(x w, y w, w)` of a point (sample coordinates `x, y`; `w`
-/// its axial depth, mm), its size in samples, and where its samples lie in the full image:
-/// sample coordinate `x` is pixel coordinate `origin_px[0] + x / per_px`.
+/// A grid of samples: rows giving `(x w, y w, w)` of a point (sample coordinates `x, y`; `w`
+/// its axial depth, mm), and where its samples lie in the full image: sample coordinate `x` is
+/// pixel coordinate `origin_px[0] + x / per_px`.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct SampleProjection {
     pub(super) rows: [[f64; 4]; 3],
-    pub(super) size: [u32; 2],
     pub(super) origin_px: [f64; 2],
     pub(super) per_px: f64,
 }
@@ -143,6 +142,16 @@ impl SampleRect {
     fn len(&self) -> usize {
         self.cols.len() * self.rows.len()
     }
+
+    /// Whether every sample of `other` is one of these.
+    pub(super) fn contains(&self, other: &SampleRect) -> bool {
+        other.cols.is_empty()
+            || other.rows.is_empty()
+            || (self.cols.start <= other.cols.start
+                && other.cols.end <= self.cols.end
+                && self.rows.start <= other.rows.start
+                && other.rows.end <= self.rows.end)
+    }
 }
 
 /// Each chunk's full-image pixel box `(x0, y0, x1, y1)` under one projection (its eight corners
@@ -169,6 +178,25 @@ impl ChunkBoxes {
 pub(super) struct GeometrySums {
     pub(super) a: Vec<f32>,
     pub(super) s: Vec<f32>,
+}
+
+impl GeometrySums {
+    /// The sums of `part`, a rectangle within `whole` (the rectangle these sums cover).
+    pub(super) fn crop(&self, whole: &SampleRect, part: &SampleRect) -> GeometrySums {
+        debug_assert!(whole.contains(part), "{part:?} within {whole:?}");
+        let width = whole.cols.len();
+        let (mut a, mut s) = (
+            Vec::with_capacity(4 * part.len()),
+            Vec::with_capacity(part.len()),
+        );
+        for j in part.rows.clone() {
+            let first = (j - whole.rows.start) * width + (part.cols.start - whole.cols.start);
+            let cols = first..first + part.cols.len();
+            a.extend_from_slice(&self.a[4 * cols.start..4 * cols.end]);
+            s.extend_from_slice(&self.s[cols]);
+        }
+        GeometrySums { a, s }
+    }
 }
 
 impl CpuGeometry {
@@ -219,29 +247,29 @@ impl CpuGeometry {
     }
 
     /// The geometric L-buffer of `meshes` (in drawing order, as given to [`CpuGeometry::new`])
-    /// with `weights` under `p`, culled with `boxes` (under `p`'s projection), on `threads`
-    /// threads (0: every core). `Refused` when a triangle that may reach the target comes
-    /// within [`MIN_AXIAL_DEPTH_MM`] of the source plane or projects too far away to snap.
-    pub(super) fn rasterise(
+    /// with `weights` under `p` at the samples of `rect` (row-major over it), culled with
+    /// `boxes` (under `p`'s projection), on `threads` threads (0: every core). `Refused` when
+    /// a triangle that may reach the rectangle comes within [`MIN_AXIAL_DEPTH_MM`] of the
+    /// source plane or projects too far away to snap. Each sample's sums do not depend on the
+    /// rectangle: a rectangle cut from a larger one's sums ([`GeometrySums::crop`]) equals
+    /// its own, bit for bit.
+    pub(super) fn rasterise_rect(
         &self,
         meshes: &[NestedMesh],
         weights: &[MeshWeights],
         p: &SampleProjection,
         boxes: &ChunkBoxes,
+        rect: &SampleRect,
         threads: usize,
     ) -> Result<GeometrySums, Refused> {
-        let [w, h] = p.size.map(|x| x as usize);
-        let rect = SampleRect {
-            cols: 0..w,
-            rows: 0..h,
-        };
-        let mut a = vec![0f32; 4 * w * h];
-        let mut s = vec![0f32; w * h];
+        let n = rect.len();
+        let mut a = vec![0f32; 4 * n];
+        let mut s = vec![0f32; n];
         self.banded(
             meshes,
             p,
             boxes,
-            &rect,
+            rect,
             (&mut a, Some(&mut s)),
             threads,
             |band, span, mesh| {
