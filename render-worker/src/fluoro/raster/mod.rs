@@ -60,9 +60,10 @@ const CHUNK_TRIANGLES: usize = 64;
 
 /// Most rows per band. Simulator choice: a band's f64 sums at 1024 samples across (40 bytes per
 /// sample, 5 MB) still mostly stay in cache, while a triangle is set up once per band its
-/// chunk meets (each set-up reads its 72 bytes from memory): on the default phantom, C-arm-moved
-/// frames took 72 / 70 / 65 ms at 512^2 and 162 / 138 / 136 ms at 1024^2 with bands of 32, 64
-/// and 128 rows.
+/// chunk meets (each set-up reads its 72 bytes from memory): the CPU passes of C-arm-moved
+/// frames of `PhantomParams::with_voxel_mm(1.5)` (a lighter mesh set than the default) took
+/// 72 / 70 / 65 ms at 512^2 and 162 / 138 / 136 ms at 1024^2 with bands of 32, 64 and 128
+/// rows.
 const BAND_ROWS: usize = 128;
 
 /// Sub-sample precision of snapped vertices, bits (GPU rasterisers use 8).

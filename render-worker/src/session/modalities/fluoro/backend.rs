@@ -188,7 +188,7 @@ pub struct GpuFluoroBackend {
     /// The draft scenes of its regions (progressive frames, see `draft`); `None`: no drafts.
     drafts: Option<Arc<DraftAnatomies>>,
     /// Whether its renderers rasterise the L-buffer passes on the CPU where the adapter is
-    /// software (`render_worker::fluoro`'s `raster.rs`; default `true`), or leave it to the
+    /// software (`render_worker::fluoro`'s `raster`; default `true`), or leave it to the
     /// adapter ([`GpuFluoroBackend::with_adapter_geometry`]).
     cpu_geometry: bool,
 }
