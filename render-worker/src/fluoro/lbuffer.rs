@@ -42,6 +42,7 @@ use super::anatomy::{GpuAnatomy, MeshBuffers, triangle_vertices, upload};
 use super::pipelines::{Pipelines, Targets};
 use super::raster::{
     ChunkBoxes, GeometrySums, MeshWeights, NeedleTriangles, Refused, SampleProjection, SampleRect,
+    same_matrix,
 };
 use super::types::{
     CANCELLOUS, CHANNELS, CHORD_CHANNELS, CORTICAL, Layout, NO_NEEDLE, Passes, PixelRect, SLOTS,
@@ -602,50 +603,14 @@ impl LBuffer {
                 // The full image: kept between frames as the geometry cache's targets.
                 cpu.rasterise_rect(meshes, &mesh_weights, &p, boxes, &target, 0)
             } else {
-                // A supersampled region follows the needle's box: its sums are kept, and cut
-                // from while the projection stays and the region lies within them. The first
-                // region under a projection is drawn as it is (a C-arm-moved frame pays
-                // nothing more); once the needle has moved under it, the region is drawn
-                // padded by `REGION_PAD_SAMPLES`, so that the next steps only cut.
-                let same = |a: &[[f64; 4]; 3]| {
-                    a.iter()
-                        .flatten()
-                        .zip(m.iter().flatten())
-                        .all(|(x, y)| x.to_bits() == y.to_bits())
+                let full = SampleRect {
+                    cols: 0..full_w,
+                    rows: 0..full_h,
                 };
-                let under_this_view = self
-                    .kept_region
-                    .as_ref()
-                    .filter(|k| k.per_px == n && same(&k.matrix));
-                let kept = under_this_view.filter(|k| k.rect.contains(&target));
-                let margin = if under_this_view.is_some() {
-                    REGION_PAD_SAMPLES
-                } else {
-                    0
+                let draw = |rect: &SampleRect| {
+                    cpu.rasterise_rect(meshes, &mesh_weights, &p, boxes, rect, 0)
                 };
-                match kept {
-                    Some(k) => Ok(k.sums.crop(&k.rect, &target)),
-                    None => {
-                        let pad = |r: &std::ops::Range<usize>, end: usize| {
-                            r.start.saturating_sub(margin)..(r.end + margin).min(end)
-                        };
-                        let padded = SampleRect {
-                            cols: pad(&target.cols, full_w),
-                            rows: pad(&target.rows, full_h),
-                        };
-                        cpu.rasterise_rect(meshes, &mesh_weights, &p, boxes, &padded, 0)
-                            .map(|sums| {
-                                let cut = sums.crop(&padded, &target);
-                                self.kept_region = Some(KeptRegion {
-                                    matrix: m,
-                                    per_px: n,
-                                    rect: padded,
-                                    sums,
-                                });
-                                cut
-                            })
-                    }
-                }
+                region_sums(&mut self.kept_region, &m, n, &target, &full, draw)
             };
             match sums {
                 Ok(sums) => {
@@ -786,6 +751,49 @@ impl LBuffer {
         }
         (!runs.is_empty()).then_some(runs)
     }
+}
+
+/// The geometric sums of a supersampled region `target` (samples of `full`, the full image's
+/// grid at `n` samples per pixel axis) under `matrix`, drawn by `draw`. A supersampled region
+/// follows the needle's box: its sums are kept in `kept`, and cut from while the projection
+/// stays and the region lies within them. The first region under a projection is drawn as it
+/// is (a C-arm-moved frame pays nothing more); once the needle has moved under it, the region
+/// is drawn padded by [`REGION_PAD_SAMPLES`] (within `full`), so that the next steps only cut.
+fn region_sums(
+    kept: &mut Option<KeptRegion>,
+    matrix: &[[f64; 4]; 3],
+    n: usize,
+    target: &SampleRect,
+    full: &SampleRect,
+    draw: impl FnOnce(&SampleRect) -> Result<GeometrySums, Refused>,
+) -> Result<GeometrySums, Refused> {
+    let under_this_view = kept
+        .as_ref()
+        .filter(|k| k.per_px == n && same_matrix(&k.matrix, matrix));
+    if let Some(k) = under_this_view.filter(|k| k.rect.contains(target)) {
+        return Ok(k.sums.crop(&k.rect, target));
+    }
+    let margin = if under_this_view.is_some() {
+        REGION_PAD_SAMPLES
+    } else {
+        0
+    };
+    let pad = |r: &std::ops::Range<usize>, all: &std::ops::Range<usize>| {
+        r.start.saturating_sub(margin).max(all.start)..(r.end + margin).min(all.end)
+    };
+    let padded = SampleRect {
+        cols: pad(&target.cols, &full.cols),
+        rows: pad(&target.rows, &full.rows),
+    };
+    let sums = draw(&padded)?;
+    let cut = sums.crop(&padded, target);
+    *kept = Some(KeptRegion {
+        matrix: *matrix,
+        per_px: n,
+        rect: padded,
+        sums,
+    });
+    Ok(cut)
 }
 
 /// Writes the rectangle `r` (`x, y, columns, rows`) of a texture from tightly packed rows of

@@ -49,7 +49,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use glam::{DMat3, DVec3};
 use sim_core::fluoro::Scene;
-use sim_core::fluoro::nesting::NestedMesh;
+use sim_core::fluoro::nesting::{NestedMesh, soup_box, triangle_cross};
 
 pub(super) use needle::NeedleTriangles;
 
@@ -144,6 +144,12 @@ impl SampleRect {
         self.cols.len() * self.rows.len()
     }
 
+    /// Index of sample `(i, j)` (one of these) in row-major data over this rectangle.
+    #[inline(always)]
+    fn index(&self, i: usize, j: usize) -> usize {
+        (j - self.rows.start) * self.cols.len() + (i - self.cols.start)
+    }
+
     /// Whether every sample of `other` is one of these.
     pub(super) fn contains(&self, other: &SampleRect) -> bool {
         other.cols.is_empty()
@@ -167,12 +173,17 @@ pub(super) struct ChunkBoxes {
 impl ChunkBoxes {
     /// Whether these are the boxes under `matrix` (the projection's, bit for bit).
     pub(super) fn under(&self, matrix: &[[f64; 4]; 3]) -> bool {
-        self.matrix
-            .iter()
-            .flatten()
-            .zip(matrix.iter().flatten())
-            .all(|(a, b)| a.to_bits() == b.to_bits())
+        same_matrix(&self.matrix, matrix)
     }
+}
+
+/// Whether two projection matrices are the same bit for bit (what decides that work done under
+/// one serves the other).
+pub(super) fn same_matrix(a: &[[f64; 4]; 3], b: &[[f64; 4]; 3]) -> bool {
+    a.iter()
+        .flatten()
+        .zip(b.iter().flatten())
+        .all(|(x, y)| x.to_bits() == y.to_bits())
 }
 
 /// The geometric L-buffer of a target: `a` four channels per sample (row-major), `s` one.
@@ -185,13 +196,12 @@ impl GeometrySums {
     /// The sums of `part`, a rectangle within `whole` (the rectangle these sums cover).
     pub(super) fn crop(&self, whole: &SampleRect, part: &SampleRect) -> GeometrySums {
         debug_assert!(whole.contains(part), "{part:?} within {whole:?}");
-        let width = whole.cols.len();
         let (mut a, mut s) = (
             Vec::with_capacity(4 * part.len()),
             Vec::with_capacity(part.len()),
         );
         for j in part.rows.clone() {
-            let first = (j - whole.rows.start) * width + (part.cols.start - whole.cols.start);
+            let first = whole.index(part.cols.start, j);
             let cols = first..first + part.cols.len();
             a.extend_from_slice(&self.a[4 * cols.start..4 * cols.end]);
             s.extend_from_slice(&self.s[cols]);
@@ -208,13 +218,7 @@ impl CpuGeometry {
         for (id, mesh) in meshes.iter().enumerate() {
             let tris = entries[mesh.entry].bvh.triangles_mm();
             for (k, c) in tris.chunks(CHUNK_TRIANGLES).enumerate() {
-                let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-                for v in c.iter().flatten() {
-                    for a in 0..3 {
-                        lo[a] = lo[a].min(v[a]);
-                        hi[a] = hi[a].max(v[a]);
-                    }
-                }
+                let (lo, hi) = soup_box(c);
                 chunks.push(Chunk {
                     mesh: id as u32,
                     first: (k * CHUNK_TRIANGLES) as u32,
@@ -574,7 +578,7 @@ fn setup(f: &Frame, t: &[[f64; 3]; 3], rect: &SampleRect) -> Result<Option<Span>
     }
     // The plane's 1 / w at sample (x, y): (q . (x, y, 1)) / k.
     let v0 = DVec3::from(t[0]);
-    let normal = (DVec3::from(t[1]) - v0).cross(DVec3::from(t[2]) - v0);
+    let normal = triangle_cross(*t);
     // Edge functions E(p) = (b - a) x (p - a) at the first sample of the box, their steps,
     // and the tie rule's bias (-1: a sample on the edge is not taken).
     let mut e_row = [0i64; 3];
@@ -621,25 +625,16 @@ impl Band {
         self.rect = rect;
     }
 
-    /// Index of sample `(i, j)` in the band's sums.
-    #[inline(always)]
-    fn index(&self, i: usize, j: usize) -> usize {
-        (j - self.rect.rows.start) * self.rect.cols.len() + (i - self.rect.cols.start)
-    }
-
     /// Adds `g (w - wref)` at every sample `span` covers, into the four-channel sums (`C = 4`)
     /// or the one-channel sums (`C = 1`). (The geometric pass's inner loop: the row is sliced
     /// once, so each sample costs no bounds check.)
     #[inline(always)]
     fn add<const C: usize>(&mut self, span: &Span, g: [f64; 4], wref: f64) {
         let (i0, i1) = (*span.cols.start(), *span.cols.end());
-        let width = self.rect.cols.len();
-        let col0 = i0 - self.rect.cols.start;
-        let row0 = self.rect.rows.start;
         let sums = if C == 1 { &mut self.s } else { &mut self.a };
         let mut e_row = span.e_row;
         for j in span.rows.clone() {
-            let base = (j - row0) * width + col0;
+            let base = self.rect.index(i0, j);
             let row = &mut sums[C * base..C * (base + i1 - i0 + 1)];
             let qy = span.q.y * (j as f64 + 0.5) + span.q.z;
             let mut ev = e_row;

@@ -43,8 +43,8 @@ impl CpuGeometry {
         threads: usize,
     ) -> Result<NeedleSums, Refused> {
         let frame = Frame::new(p)?;
-        let (w, n) = (rect.cols.len(), rect.len());
-        let at = |i: usize, j: usize| (j - rect.rows.start) * w + (i - rect.cols.start);
+        let n = rect.len();
+        let at = |i: usize, j: usize| rect.index(i, j);
         let distance = |i: usize, j: usize, depth: f64| {
             depth * frame.distance_per_depth(i as f64 + 0.5, j as f64 + 0.5)
         };
@@ -83,7 +83,7 @@ impl CpuGeometry {
                     let (t0, t1) = hull[at(i, j)];
                     if t1 > t0 {
                         let inside = distance(i, j, depth).clamp(t0, t1) - t0;
-                        let o = 4 * band.index(i, j);
+                        let o = 4 * band.rect.index(i, j);
                         for (sum, wc) in band.a[o..o + 4].iter_mut().zip(weights) {
                             *sum += wc * inside;
                         }
