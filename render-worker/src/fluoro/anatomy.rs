@@ -57,34 +57,26 @@ impl GpuAnatomy {
     /// meshes that only touch the water-basis channel first. Steel entries are left out: they
     /// are a renderer's needle.
     ///
-    /// On a software adapter the anatomy also gets the CPU geometric pass, which reads a copy
-    /// of `scene` ([`GpuAnatomy::shared`] reads the caller's own instead).
+    /// On a software adapter the anatomy also gets the CPU geometric pass (its own compact copy
+    /// of the drawn triangles' corners, `raster::CpuGeometry`).
     pub fn new(ctx: &GpuContext, scene: &Scene) -> Result<Arc<GpuAnatomy>, FluoroGpuError> {
-        let cpu = ctx.summary.is_software.then(|| Arc::new(scene.clone()));
-        GpuAnatomy::build(ctx, scene, cpu)
+        GpuAnatomy::build(ctx, scene, ctx.summary.is_software)
     }
 
-    /// [`GpuAnatomy::new`] of a shared scene: the CPU geometric pass (software adapters) reads
-    /// `scene` itself, no copy.
-    pub fn shared(ctx: &GpuContext, scene: &Arc<Scene>) -> Result<Arc<GpuAnatomy>, FluoroGpuError> {
-        let cpu = ctx.summary.is_software.then(|| Arc::clone(scene));
-        GpuAnatomy::build(ctx, scene, cpu)
-    }
-
-    /// [`GpuAnatomy::shared`] with the CPU geometric pass whatever the adapter (to compare it
+    /// [`GpuAnatomy::new`] with the CPU geometric pass whatever the adapter (to compare it
     /// with a hardware rasteriser's).
     pub fn with_cpu_geometry(
         ctx: &GpuContext,
-        scene: &Arc<Scene>,
+        scene: &Scene,
     ) -> Result<Arc<GpuAnatomy>, FluoroGpuError> {
-        GpuAnatomy::build(ctx, scene, Some(Arc::clone(scene)))
+        GpuAnatomy::build(ctx, scene, true)
     }
 
-    /// The anatomy of `scene`, with the CPU geometric pass over `cpu` (the same scene) if given.
+    /// The anatomy of `scene`, with the CPU geometric pass if `cpu`.
     fn build(
         ctx: &GpuContext,
         scene: &Scene,
-        cpu: Option<Arc<Scene>>,
+        cpu: bool,
     ) -> Result<Arc<GpuAnatomy>, FluoroGpuError> {
         let needed = wgpu::Features::FLOAT32_BLENDABLE;
         if !ctx.device.features().contains(needed) {
@@ -99,7 +91,7 @@ impl GpuAnatomy {
         let mut meshes = nesting_plan(scene);
         meshes.sort_by_cached_key(|d| !d.water_basis_only());
         let buffers = AnatomyBuffers::upload(&ctx.device, scene, &meshes);
-        let cpu = cpu.map(|scene| CpuGeometry::new(scene, &meshes));
+        let cpu = cpu.then(|| CpuGeometry::new(scene, &meshes));
         Ok(Arc::new(GpuAnatomy {
             cpu,
             ctx: ctx.clone(),
@@ -192,7 +184,7 @@ impl AnatomyCache {
         if let Some(anatomy) = found {
             return Ok(anatomy);
         }
-        let anatomy = GpuAnatomy::shared(ctx, scene(owner))?;
+        let anatomy = GpuAnatomy::new(ctx, scene(owner))?;
         let weak_owner: Weak<K> = Arc::downgrade(owner);
         entries.push(CacheEntry {
             owner: weak_owner as Weak<dyn Any + Send + Sync>,

@@ -601,15 +601,14 @@ impl LBuffer {
             let boxes = self.cpu_boxes.as_ref().expect("boxes");
             let sums = if n == 1 {
                 // The full image: kept between frames as the geometry cache's targets.
-                cpu.rasterise_rect(meshes, &mesh_weights, &p, boxes, &target, 0)
+                cpu.rasterise_rect(&mesh_weights, &p, boxes, &target, 0)
             } else {
                 let full = SampleRect {
                     cols: 0..full_w,
                     rows: 0..full_h,
                 };
-                let draw = |rect: &SampleRect| {
-                    cpu.rasterise_rect(meshes, &mesh_weights, &p, boxes, rect, 0)
-                };
+                let draw =
+                    |rect: &SampleRect| cpu.rasterise_rect(&mesh_weights, &p, boxes, rect, 0);
                 region_sums(&mut self.kept_region, &m, n, &target, &full, draw)
             };
             match sums {
@@ -647,8 +646,7 @@ impl LBuffer {
                     triangles: bytemuck::cast_slice(&nd.vertices_mm),
                     reference_mm: needle_ref,
                 };
-                match cpu.needle_passes(&triangles, meshes, &displaced, &p, boxes, &sample_rect, 0)
-                {
+                match cpu.needle_passes(&triangles, &displaced, &p, boxes, &sample_rect, 0) {
                     Ok(sums) => {
                         upload_texture(queue, &t.frame.d, r, 16, bytemuck::cast_slice(&sums.d));
                         upload_texture(

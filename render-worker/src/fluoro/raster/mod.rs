@@ -43,8 +43,8 @@ mod needle;
 #[cfg(test)]
 mod tests;
 
+use std::collections::HashMap;
 use std::ops::Range;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use glam::{DMat3, DVec3};
@@ -79,21 +79,68 @@ const MAX_SAMPLE_COORDINATE: f64 = (1u64 << 20) as f64;
 /// millimetre of the focal spot.
 const MIN_AXIAL_DEPTH_MM: f64 = 1.0;
 
-/// The anatomy as the CPU pass reads it: the scene (shared, never copied) and chunks of each
-/// drawn mesh's triangles in the GPU's drawing order.
+/// The anatomy as the CPU pass reads it: chunks of each drawn mesh's triangles in the GPU's
+/// drawing order, each chunk as its distinct corners (the scene's values, bit for bit) and its
+/// triangles as three indices into them. A chunk's corners are projected and snapped once per
+/// band it meets, not once per triangle corner (a chunk of 64 triangles of the default phantom
+/// has about 53 distinct corners instead of 192), and the pass reads about 13 bytes per
+/// triangle of the default phantom instead of the scene's 72 (its set-up was bound by those
+/// reads).
 pub(super) struct CpuGeometry {
-    scene: Arc<Scene>,
     chunks: Vec<Chunk>,
+    /// Every chunk's distinct corners, chunk after chunk.
+    corners: Corners,
+    /// Every chunk's triangles, each as indices into its chunk's corners, chunk after chunk.
+    triangles: Vec<[u8; 3]>,
 }
 
+/// Corners, mm: `f32` when every corner of the scene is an `f32` value (a region asset's
+/// meshes are stored in `f32`, so the scene's f64 corners all are: the same values in half the
+/// memory and reads), else `f64`.
+enum Corners {
+    F32(Vec<[f32; 3]>),
+    F64(Vec<[f64; 3]>),
+}
+
+/// A stored corner.
+trait Corner: Copy {
+    /// Its coordinates, mm (exactly the scene's).
+    fn mm(self) -> [f64; 3];
+}
+
+impl Corner for [f32; 3] {
+    #[inline(always)]
+    fn mm(self) -> [f64; 3] {
+        self.map(f64::from)
+    }
+}
+
+impl Corner for [f64; 3] {
+    #[inline(always)]
+    fn mm(self) -> [f64; 3] {
+        self
+    }
+}
+
+#[derive(Clone)]
 struct Chunk {
     /// Index of the drawn mesh (in the anatomy's drawing order).
     mesh: u32,
-    /// Triangles `first..first + count` of the mesh's scene entry.
-    first: u32,
-    count: u32,
+    /// Its corners `corners.start..` and triangles `triangles.start..` in [`CpuGeometry`].
+    corners: Range<u32>,
+    triangles: Range<u32>,
     lo: [f64; 3],
     hi: [f64; 3],
+}
+
+impl Chunk {
+    fn corners(&self) -> Range<usize> {
+        self.corners.start as usize..self.corners.end as usize
+    }
+
+    fn triangles(&self) -> Range<usize> {
+        self.triangles.start as usize..self.triangles.end as usize
+    }
 }
 
 /// One drawn mesh's weights in the pass: geometric weights (`f32`, the GPU's), its reference
@@ -212,23 +259,53 @@ impl GeometrySums {
 
 impl CpuGeometry {
     /// The chunks of `meshes` (the anatomy's drawn meshes, in drawing order) in `scene`.
-    pub(super) fn new(scene: Arc<Scene>, meshes: &[NestedMesh]) -> CpuGeometry {
+    pub(super) fn new(scene: &Scene, meshes: &[NestedMesh]) -> CpuGeometry {
         let entries = scene.entries();
         let mut chunks = Vec::new();
+        let mut corners: Vec<[f64; 3]> = Vec::new();
+        let mut triangles = Vec::new();
+        // A chunk's corner index by its coordinates' bits (the same f64 values share a corner).
+        let mut seen: HashMap<[u64; 3], u8> = HashMap::with_capacity(3 * CHUNK_TRIANGLES);
         for (id, mesh) in meshes.iter().enumerate() {
             let tris = entries[mesh.entry].bvh.triangles_mm();
-            for (k, c) in tris.chunks(CHUNK_TRIANGLES).enumerate() {
+            for c in tris.chunks(CHUNK_TRIANGLES) {
                 let (lo, hi) = soup_box(c);
+                seen.clear();
+                let first_corner = corners.len();
+                let first_triangle = triangles.len();
+                for t in c {
+                    let index = t.map(|v| {
+                        *seen.entry(v.map(f64::to_bits)).or_insert_with(|| {
+                            corners.push(v);
+                            // At most 3 x CHUNK_TRIANGLES = 192 corners: a u8.
+                            (corners.len() - 1 - first_corner) as u8
+                        })
+                    });
+                    triangles.push(index);
+                }
                 chunks.push(Chunk {
                     mesh: id as u32,
-                    first: (k * CHUNK_TRIANGLES) as u32,
-                    count: c.len() as u32,
+                    corners: first_corner as u32..corners.len() as u32,
+                    triangles: first_triangle as u32..triangles.len() as u32,
                     lo,
                     hi,
                 });
             }
         }
-        CpuGeometry { scene, chunks }
+        let in_f32 = corners
+            .iter()
+            .flatten()
+            .all(|&v| f64::from(v as f32).to_bits() == v.to_bits());
+        let corners = if in_f32 {
+            Corners::F32(corners.iter().map(|v| v.map(|x| x as f32)).collect())
+        } else {
+            Corners::F64(corners)
+        };
+        CpuGeometry {
+            chunks,
+            corners,
+            triangles,
+        }
     }
 
     /// The chunks' pixel boxes under the projection `matrix` (rows giving `(x w, y w, w)` in
@@ -251,8 +328,8 @@ impl CpuGeometry {
         }
     }
 
-    /// The geometric L-buffer of `meshes` (in drawing order, as given to [`CpuGeometry::new`])
-    /// with `weights` under `p` at the samples of `rect` (row-major over it), culled with
+    /// The geometric L-buffer of the meshes (each with its `weights`, in the drawing order given
+    /// to [`CpuGeometry::new`]) under `p` at the samples of `rect` (row-major over it), culled with
     /// `boxes` (under `p`'s projection), on `threads` threads (0: every core). `Refused` when
     /// a triangle that may reach the rectangle comes within [`MIN_AXIAL_DEPTH_MM`] of the
     /// source plane or projects too far away to snap. Each sample's sums do not depend on the
@@ -260,7 +337,6 @@ impl CpuGeometry {
     /// its own, bit for bit.
     pub(super) fn rasterise_rect(
         &self,
-        meshes: &[NestedMesh],
         weights: &[MeshWeights],
         p: &SampleProjection,
         boxes: &ChunkBoxes,
@@ -271,7 +347,6 @@ impl CpuGeometry {
         let mut a = vec![0f32; 4 * n];
         let mut s = vec![0f32; n];
         self.banded(
-            meshes,
             p,
             boxes,
             rect,
@@ -295,10 +370,8 @@ impl CpuGeometry {
     /// `boxes`) to bands of `rect`'s rows with `add(band, span, mesh)`, on `threads` threads,
     /// then writes the bands' four-channel sums (and one-channel sums, if asked) into `out`
     /// (row-major over `rect`).
-    #[expect(clippy::too_many_arguments, reason = "one private step of two passes")]
     fn banded(
         &self,
-        meshes: &[NestedMesh],
         p: &SampleProjection,
         boxes: &ChunkBoxes,
         rect: &SampleRect,
@@ -312,11 +385,6 @@ impl CpuGeometry {
         if w == 0 || h == 0 {
             return Ok(());
         }
-        let entries = self.scene.entries();
-        let tris: Vec<&[[[f64; 3]; 3]]> = meshes
-            .iter()
-            .map(|mesh| entries[mesh.entry].bvh.triangles_mm())
-            .collect();
         let refused = AtomicBool::new(false);
         // Bands of rows, at least one per thread (a needle's box is a few dozen rows), at most
         // `BAND_ROWS`; thread `k` takes bands `k`, `k + threads`, ...
@@ -332,9 +400,10 @@ impl CpuGeometry {
         }
         std::thread::scope(|scope| {
             for mine in bands {
-                let (frame, tris, refused, add) = (&frame, &tris, &refused, &add);
+                let (frame, refused, add) = (&frame, &refused, &add);
                 scope.spawn(move || {
                     let mut acc = Band::default();
+                    let mut snapped = [[0i64; 2]; 3 * CHUNK_TRIANGLES];
                     for (first, a_band, s_band) in mine {
                         let first_row = rect.rows.start + first;
                         let rows = first_row..first_row + a_band.len() / (4 * w);
@@ -354,17 +423,37 @@ impl CpuGeometry {
                             {
                                 continue;
                             }
-                            let mesh = chunk.mesh as usize;
-                            let range = chunk.first as usize..(chunk.first + chunk.count) as usize;
-                            for t in &tris[mesh][range] {
-                                match setup(frame, t, &acc.rect) {
-                                    Ok(Some(span)) => add(&mut acc, &span, mesh),
-                                    Ok(None) => {}
-                                    Err(Refused) => {
-                                        refused.store(true, Ordering::Relaxed);
-                                        return;
-                                    }
+                            let triangles = &self.triangles[chunk.triangles()];
+                            let mut add = |acc: &mut Band, span: &Span| {
+                                add(acc, span, chunk.mesh as usize);
+                            };
+                            let drawn = match &self.corners {
+                                Corners::F32(c) => {
+                                    let c = &c[chunk.corners()];
+                                    draw_chunk(
+                                        frame,
+                                        c,
+                                        triangles,
+                                        &mut snapped,
+                                        &mut acc,
+                                        &mut add,
+                                    )
                                 }
+                                Corners::F64(c) => {
+                                    let c = &c[chunk.corners()];
+                                    draw_chunk(
+                                        frame,
+                                        c,
+                                        triangles,
+                                        &mut snapped,
+                                        &mut acc,
+                                        &mut add,
+                                    )
+                                }
+                            };
+                            if drawn.is_err() {
+                                refused.store(true, Ordering::Relaxed);
+                                return;
                             }
                         }
                         if refused.load(Ordering::Relaxed) {
@@ -387,6 +476,31 @@ impl CpuGeometry {
         }
         Ok(())
     }
+}
+
+/// Adds the triangles of one chunk (`corners`, and `triangles` indexing them) to `acc` with
+/// `add`, snapping the corners into `snapped` first; `Refused` as [`Frame::snap`].
+#[inline(always)]
+fn draw_chunk<C: Corner>(
+    frame: &Frame,
+    corners: &[C],
+    triangles: &[[u8; 3]],
+    snapped: &mut [[i64; 2]],
+    acc: &mut Band,
+    add: &mut impl FnMut(&mut Band, &Span),
+) -> Result<(), Refused> {
+    for (s, v) in snapped.iter_mut().zip(corners) {
+        *s = frame.snap(&v.mm())?;
+    }
+    for t in triangles {
+        let t = t.map(usize::from);
+        let at = t.map(|k| snapped[k]);
+        let tri = t.map(|k| corners[k].mm());
+        if let Some(span) = setup_snapped(frame, &tri, at, &acc.rect) {
+            add(acc, &span);
+        }
+    }
+    Ok(())
 }
 
 /// A band's first row (from the rectangle's first) and its rows of the two outputs.
@@ -525,22 +639,12 @@ impl Frame {
         })
     }
 
-    /// Distance from the source per mm of axial depth along sample `(x, y)`'s ray.
-    fn distance_per_depth(&self, x: f64, y: f64) -> f64 {
-        (self.inv * DVec3::new(x, y, 1.0)).length()
-    }
-}
-
-const ONE: i64 = 1 << SUBSAMPLE_BITS;
-const HALF: i64 = ONE / 2;
-
-/// The span of triangle `t` within `rect`, or `None` when it covers no sample centre there.
-#[inline]
-fn setup(f: &Frame, t: &[[f64; 3]; 3], rect: &SampleRect) -> Result<Option<Span>, Refused> {
-    let mut fx = [0i64; 3];
-    let mut fy = [0i64; 3];
-    for (k, v) in t.iter().enumerate() {
-        let [xw, yw, w] = project(&f.rows, v);
+    /// Corner `v` in sample coordinates snapped to 1/256 of a sample, or `Refused` when it
+    /// lies within [`MIN_AXIAL_DEPTH_MM`] of the source plane or beyond
+    /// [`MAX_SAMPLE_COORDINATE`].
+    #[inline(always)]
+    fn snap(&self, v: &[f64; 3]) -> Result<[i64; 2], Refused> {
+        let [xw, yw, w] = project(&self.rows, v);
         if w.is_nan() || w < MIN_AXIAL_DEPTH_MM {
             return Err(Refused);
         }
@@ -551,25 +655,51 @@ fn setup(f: &Frame, t: &[[f64; 3]; 3], rect: &SampleRect) -> Result<Option<Span>
         {
             return Err(Refused);
         }
-        fx[k] = snap(x);
-        fy[k] = snap(y);
+        Ok([snap(x), snap(y)])
     }
+
+    /// Distance from the source per mm of axial depth along sample `(x, y)`'s ray.
+    fn distance_per_depth(&self, x: f64, y: f64) -> f64 {
+        (self.inv * DVec3::new(x, y, 1.0)).length()
+    }
+}
+
+const ONE: i64 = 1 << SUBSAMPLE_BITS;
+const HALF: i64 = ONE / 2;
+
+/// The span of triangle `t` within `rect`, or `None` when it covers no sample centre there.
+fn setup(f: &Frame, t: &[[f64; 3]; 3], rect: &SampleRect) -> Result<Option<Span>, Refused> {
+    let at = [f.snap(&t[0])?, f.snap(&t[1])?, f.snap(&t[2])?];
+    Ok(setup_snapped(f, t, at, rect))
+}
+
+/// The span within `rect` of triangle `t` whose corners snap to `at` ([`Frame::snap`]), or
+/// `None` when it covers no sample centre there.
+#[inline(always)]
+fn setup_snapped(
+    f: &Frame,
+    t: &[[f64; 3]; 3],
+    at: [[i64; 2]; 3],
+    rect: &SampleRect,
+) -> Option<Span> {
+    let mut fx = at.map(|v| v[0]);
+    let mut fy = at.map(|v| v[1]);
     // Sample rows and columns of `rect` whose centres lie in the snapped box.
     let first = |lo: i64| (lo - HALF).div_euclid(ONE) + i64::from((lo - HALF).rem_euclid(ONE) != 0);
     let last = |hi: i64| (hi - HALF).div_euclid(ONE);
     let j0 = first(fy[0].min(fy[1]).min(fy[2])).max(rect.rows.start as i64);
     let j1 = last(fy[0].max(fy[1]).max(fy[2])).min(rect.rows.end as i64 - 1);
     if j0 > j1 {
-        return Ok(None);
+        return None;
     }
     let i0 = first(fx[0].min(fx[1]).min(fx[2])).max(rect.cols.start as i64);
     let i1 = last(fx[0].max(fx[1]).max(fx[2])).min(rect.cols.end as i64 - 1);
     if i0 > i1 {
-        return Ok(None);
+        return None;
     }
     let area2 = (fx[1] - fx[0]) * (fy[2] - fy[0]) - (fx[2] - fx[0]) * (fy[1] - fy[0]);
     if area2 == 0 {
-        return Ok(None);
+        return None;
     }
     let entering = (area2 > 0) != f.det_positive;
     if area2 < 0 {
@@ -594,7 +724,7 @@ fn setup(f: &Frame, t: &[[f64; 3]; 3], rect: &SampleRect) -> Result<Option<Span>
         step_x[e] = -dy * ONE;
         step_y[e] = dx * ONE;
     }
-    Ok(Some(Span {
+    Some(Span {
         rows: j0 as usize..=j1 as usize,
         cols: i0 as usize..=i1 as usize,
         e_row,
@@ -603,7 +733,7 @@ fn setup(f: &Frame, t: &[[f64; 3]; 3], rect: &SampleRect) -> Result<Option<Span>
         q: f.inv_t * normal,
         k: normal.dot(v0 - f.source),
         entering,
-    }))
+    })
 }
 
 /// One thread's band of rows of a rectangle, summed in f64.

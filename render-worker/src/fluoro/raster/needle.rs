@@ -6,7 +6,6 @@
 //! closed mesh pair up on every sample.
 
 use super::{ChunkBoxes, CpuGeometry, Frame, Refused, SampleProjection, SampleRect, setup};
-use sim_core::fluoro::nesting::NestedMesh;
 
 /// The needle as its passes read it.
 pub(crate) struct NeedleTriangles<'a> {
@@ -28,14 +27,9 @@ impl CpuGeometry {
     /// The needle's and the displaced pass over `rect` (the needle's box of samples of `p`'s
     /// target): `displaced[m]` are drawn mesh `m`'s displaced weights; the anatomy is culled
     /// with `boxes`, on `threads` threads (0: every core).
-    #[expect(
-        clippy::too_many_arguments,
-        reason = "one private pass over the anatomy"
-    )]
     pub(crate) fn needle_passes(
         &self,
         needle: &NeedleTriangles<'_>,
-        meshes: &[NestedMesh],
         displaced: &[[f32; 4]],
         p: &SampleProjection,
         boxes: &ChunkBoxes,
@@ -71,7 +65,6 @@ impl CpuGeometry {
         let mut d = vec![0f32; 4 * n];
         let hull = &hull;
         self.banded(
-            meshes,
             p,
             boxes,
             rect,

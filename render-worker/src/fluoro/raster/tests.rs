@@ -116,7 +116,7 @@ fn pixel_matrix(p: &SampleProjection) -> [[f64; 4]; 3] {
 }
 
 /// A scene of `meshes` (each of its own material, in this order) as the CPU passes read it.
-fn scene_of(meshes: &[&TriMesh]) -> (CpuGeometry, Vec<NestedMesh>) {
+fn scene_of(meshes: &[&TriMesh]) -> CpuGeometry {
     let material = FluoroMaterial::Tissue(MaterialClass::CorticalBone);
     let mut scene = Scene::new();
     let nested = meshes
@@ -133,7 +133,7 @@ fn scene_of(meshes: &[&TriMesh]) -> (CpuGeometry, Vec<NestedMesh>) {
             }
         })
         .collect::<Vec<_>>();
-    (CpuGeometry::new(Arc::new(scene), &nested), nested)
+    CpuGeometry::new(&scene, &nested)
 }
 
 /// The CPU pass over a scene of `mesh` alone, drawn with `weights`.
@@ -144,9 +144,9 @@ fn one_mesh(
     weights: MeshWeights,
     threads: usize,
 ) -> Result<GeometrySums, Refused> {
-    let (cpu, meshes) = scene_of(&[mesh]);
+    let cpu = scene_of(&[mesh]);
     let boxes = cpu.chunk_boxes(&pixel_matrix(p), threads);
-    cpu.rasterise_rect(&meshes, &[weights], p, &boxes, rect, threads)
+    cpu.rasterise_rect(&[weights], p, &boxes, rect, threads)
 }
 
 /// The CPU pass over one mesh with weights `(1, 0, 0, 0)` (four-channel target) and
@@ -351,7 +351,7 @@ fn needle_passes_match_exact_overlaps() {
         let n_centre = a_centre + n_rot * DVec3::new(0.0, 0.0, 12.0);
         let anatomy = grid_box(4, a_half, a_rot, a_centre);
         let needle_mesh = grid_box(2, n_half, n_rot, n_centre);
-        let (cpu, meshes) = scene_of(&[&anatomy]);
+        let cpu = scene_of(&[&anatomy]);
         let boxes = cpu.chunk_boxes(&pixel_matrix(&p), 1);
         let tris: Vec<[[f64; 3]; 3]> = needle_mesh
             .triangles
@@ -369,10 +369,10 @@ fn needle_passes_match_exact_overlaps() {
         };
         let weights = [[1.0, 0.0, 0.0, 0.0]];
         let got = cpu
-            .needle_passes(&needle, &meshes, &weights, &p, &boxes, &rect, 2)
+            .needle_passes(&needle, &weights, &p, &boxes, &rect, 2)
             .expect("in front of the source");
         let again = cpu
-            .needle_passes(&needle, &meshes, &weights, &p, &boxes, &rect, 1)
+            .needle_passes(&needle, &weights, &p, &boxes, &rect, 1)
             .expect("in front of the source");
         assert!(
             got.d == again.d && got.chord == again.chord,
@@ -455,7 +455,7 @@ fn a_cut_rectangle_equals_its_own_sums() {
             rot,
             DVec3::new(r() - 0.5, r() - 0.5, 0.0),
         );
-        let (cpu, meshes) = scene_of(&[&mesh]);
+        let cpu = scene_of(&[&mesh]);
         let boxes = cpu.chunk_boxes(&pixel_matrix(&p), 1);
         let weights = [MeshWeights {
             g: [1.0, 0.5, 0.25, 2.0],
@@ -471,16 +471,62 @@ fn a_cut_rectangle_equals_its_own_sums() {
             rows: 7..30 + trial,
         };
         let cut = cpu
-            .rasterise_rect(&meshes, &weights, &p, &boxes, &big, 2)
+            .rasterise_rect(&weights, &p, &boxes, &big, 2)
             .expect("in front of the source")
             .crop(&big, &part);
         let own = cpu
-            .rasterise_rect(&meshes, &weights, &p, &boxes, &part, 1)
+            .rasterise_rect(&weights, &p, &boxes, &part, 1)
             .expect("in front of the source");
         assert!(cut.a == own.a && cut.s == own.s, "trial {trial}");
         assert!(
             own.a.iter().chain(&own.s).any(|&v| v != 0.0),
             "trial {trial}: the box reaches the part"
         );
+    }
+}
+
+/// A scene whose corners are all `f32` values (as a region asset's) keeps them in `f32`; its
+/// sums equal those of the same corners kept in `f64`, bit for bit, and each chunk keeps each
+/// distinct corner once.
+#[test]
+fn corners_kept_in_f32_give_the_f64_sums() {
+    let mut rng = SplitMix64::new(0x0f32_c0de);
+    let mut r = move || rng.next_f64();
+    for trial in 0..4 {
+        let p = c_arm_view(1.3, 40.0 * r() - 20.0, 30.0 * r() - 15.0, None);
+        let rot = DQuat::from_euler(glam::EulerRot::XYZ, 6.0 * r(), 6.0 * r(), 6.0 * r());
+        let mut mesh = grid_box(6, [14.0, 11.0, 9.0], rot, DVec3::new(r(), r(), r()));
+        let exact = scene_of(&[&mesh]);
+        assert!(matches!(exact.corners, Corners::F64(_)), "trial {trial}");
+        for v in &mut mesh.vertices_mm {
+            *v = v.map(|x| f64::from(x as f32));
+        }
+        let in_f32 = scene_of(&[&mesh]);
+        let Corners::F32(kept) = &in_f32.corners else {
+            panic!("trial {trial}: f32 corners kept in f64");
+        };
+        // A 6 x 6 grid box has 6 x 36 quads of four corners each, one distinct corner per
+        // quad corner (`grid_box` writes every quad's own), fewer where quads meet exactly.
+        assert!(kept.len() < 3 * in_f32.triangles.len(), "trial {trial}");
+        let as_f64 = CpuGeometry {
+            chunks: in_f32.chunks.clone(),
+            corners: Corners::F64(kept.iter().map(|v| v.map(f64::from)).collect()),
+            triangles: in_f32.triangles.clone(),
+        };
+        let boxes = in_f32.chunk_boxes(&pixel_matrix(&p), 2);
+        let weights = [MeshWeights {
+            g: [1.0, 0.5, 0.25, 2.0],
+            wref: 800.0,
+            scalar: false,
+        }];
+        let rect = whole(64, 48);
+        let got = in_f32
+            .rasterise_rect(&weights, &p, &boxes, &rect, 2)
+            .expect("in front of the source");
+        let want = as_f64
+            .rasterise_rect(&weights, &p, &boxes, &rect, 2)
+            .expect("in front of the source");
+        assert!(got.a == want.a && got.s == want.s, "trial {trial}");
+        assert!(got.a.iter().any(|&v| v != 0.0), "trial {trial}: drawn");
     }
 }

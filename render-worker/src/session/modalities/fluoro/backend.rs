@@ -298,7 +298,7 @@ impl FluoroBackend for GpuFluoroBackend {
             self.anatomies
                 .get_or_upload(&self.ctx, region, |r| &r.scene)?
         } else {
-            crate::fluoro::GpuAnatomy::shared(&self.ctx, &region.scene)?
+            crate::fluoro::GpuAnatomy::new(&self.ctx, &region.scene)?
         };
         if let Some(kept) = &self.kept {
             let mut kept = kept

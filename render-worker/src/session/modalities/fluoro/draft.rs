@@ -102,9 +102,8 @@ impl DraftAnatomies {
             .name("draft-scene".into())
             .spawn(move || {
                 let started = std::time::Instant::now();
-                // Shared, not copied: on a software adapter the CPU passes read it.
-                let scene = Arc::new(draft_scene(&region.scene, &this.params));
-                let slot = match GpuAnatomy::shared(&this.ctx, &scene) {
+                let scene = draft_scene(&region.scene, &this.params);
+                let slot = match GpuAnatomy::new(&this.ctx, &scene) {
                     Ok(a) => {
                         tracing::info!(
                             region = %region.name,
