@@ -3,7 +3,7 @@
 //! meshoptimizer's `simplify` collapses edges by quadric error (Garland & Heckbert, SIGGRAPH
 //! 1997) onto existing vertices and never moves a vertex, so its output only references input
 //! positions. It is topology-preserving in practice but not by contract, so every result is
-//! checked: closed, consistently wound, no degenerate triangles, positive signed volume, and a
+//! checked: closed (see [`Closure`]), no degenerate triangles, positive signed volume, and a
 //! volume within `max_volume_change` of the input mesh's. A result that fails is rejected and the
 //! reduction retried with locks around the defect or a smaller error (see [`decimate`]); if all
 //! attempts fail the input mesh is kept and the report says so.
@@ -58,9 +58,16 @@ pub(crate) fn acceptable(
     before_volume: f64,
     m: &TriMesh,
     max_volume_change: f64,
+    closure: Closure,
 ) -> Result<(), String> {
     let t = m.topology_report();
-    if !t.is_closed_and_consistent() {
+    let closed = match closure {
+        Closure::Manifold => t.is_closed_and_consistent(),
+        Closure::Oriented => {
+            t.degenerate_triangles == 0 && defective_vertices(&m.triangles, closure).is_empty()
+        }
+    };
+    if !closed {
         return Err(format!("topology {t:?}"));
     }
     let v = m.signed_volume_mm3();
@@ -74,8 +81,24 @@ pub(crate) fn acceptable(
     Ok(())
 }
 
-/// Vertices (input ids) on edges that are not shared by exactly two oppositely wound triangles.
-pub(crate) fn defective_vertices(tris: &[[u32; 3]]) -> Vec<u32> {
+/// How closed a decimated surface must be.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Closure {
+    /// Every edge shared by exactly two oppositely wound triangles: the physics meshes (their
+    /// solid checks, and ray casts that pair each entry with an exit, need it).
+    Manifold,
+    /// Every edge traversed as often in one direction as in the other: an edge shared by four
+    /// triangles, two each way (two sheets of the surface touching along it, as where the
+    /// layers of the marching-tetrahedra meshes meet), passes. Enough for what sums signed
+    /// quantities over a closed oriented surface (signed volume; the renderer's signed depth
+    /// sums, which is all a draft scene is drawn with). Demanding a manifold there made the
+    /// reduction back off entirely on the largest meshes of the default phantom, whose own
+    /// welded triangles are not manifold.
+    Oriented,
+}
+
+/// Vertices (input ids) of degenerate triangles and of edges that break `closure`.
+pub(crate) fn defective_vertices(tris: &[[u32; 3]], closure: Closure) -> Vec<u32> {
     let mut bad: Vec<u32> = tris
         .iter()
         .filter(|t| is_degenerate(t))
@@ -83,7 +106,11 @@ pub(crate) fn defective_vertices(tris: &[[u32; 3]]) -> Vec<u32> {
         .copied()
         .collect();
     for &((a, b), (f, r)) in &directed_edge_uses(tris) {
-        if f != 1 || r != 1 {
+        let broken = match closure {
+            Closure::Manifold => f != 1 || r != 1,
+            Closure::Oriented => f != r,
+        };
+        if broken {
             bad.push(a);
             bad.push(b);
         }
@@ -91,8 +118,9 @@ pub(crate) fn defective_vertices(tris: &[[u32; 3]]) -> Vec<u32> {
     bad
 }
 
-/// Decimates a closed mesh; returns the result (or the input, if no attempt passed the checks)
-/// and a one-line report.
+/// Decimates a closed mesh into a closed oriented one ([`Closure::Oriented`]: the draft scenes'
+/// rule; the physics meshes are decimated by `interfaces`, to [`Closure::Manifold`]); returns the
+/// result (or the input, if no attempt passed the checks) and a one-line report.
 ///
 /// Back-off, up to eight attempts: where a result has topological defects (typically two
 /// nearly touching sheets of the surface collapsed onto one edge), the input vertices around the
@@ -135,7 +163,12 @@ pub fn decimate(mesh: &TriMesh, params: &DecimationParams) -> (TriMesh, String) 
         );
         let tris: Vec<[u32; 3]> = out.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
         let candidate = compact(&mesh.vertices_mm, &tris);
-        match acceptable(before_volume, &candidate, params.max_volume_change) {
+        match acceptable(
+            before_volume,
+            &candidate,
+            params.max_volume_change,
+            Closure::Oriented,
+        ) {
             Ok(()) => {
                 let locked = locks.iter().filter(|&&l| l).count();
                 let report = format!(
@@ -148,7 +181,7 @@ pub fn decimate(mesh: &TriMesh, params: &DecimationParams) -> (TriMesh, String) 
                 return (candidate, report);
             }
             Err(why) => {
-                let defects = defective_vertices(&tris);
+                let defects = defective_vertices(&tris, Closure::Oriented);
                 if defects.is_empty() {
                     max_error *= 0.5;
                 } else {
@@ -174,6 +207,56 @@ pub fn decimate(mesh: &TriMesh, params: &DecimationParams) -> (TriMesh, String) 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Two tetrahedra sharing one edge (four triangles on it, two each way) are closed and
+    /// oriented: accepted. With a face removed (a hole), or a face flipped, they are not, and
+    /// the defect's vertices are named.
+    #[test]
+    fn an_edge_shared_by_two_solids_passes_and_holes_do_not() {
+        // Tetrahedron (0, 1, 2, 3) and its mirror (0, 1, 4, 5) through the edge 0-1.
+        let vertices_mm = vec![
+            [0.0, 0.0, 0.0],
+            [0.0, 0.0, 10.0],
+            [10.0, 0.0, 5.0],
+            [5.0, 10.0, 5.0],
+            [-10.0, 0.0, 5.0],
+            [-5.0, -10.0, 5.0],
+        ];
+        let tetra = |[a, b, c, d]: [u32; 4]| [[a, c, b], [a, b, d], [b, c, d], [a, d, c]];
+        let mut triangles: Vec<[u32; 3]> = tetra([0, 1, 2, 3]).to_vec();
+        triangles.extend(tetra([0, 1, 4, 5]));
+        let mut both = TriMesh {
+            vertices_mm,
+            triangles,
+        };
+        if both.signed_volume_mm3() < 0.0 {
+            for t in &mut both.triangles {
+                t.swap(1, 2);
+            }
+        }
+        let volume = both.signed_volume_mm3();
+        assert!(volume > 0.0, "{volume}");
+        let report = both.topology_report();
+        assert_eq!(report.non_manifold_edges, 1, "{report:?}");
+        assert_eq!(acceptable(volume, &both, 0.0, Closure::Oriented), Ok(()));
+        assert!(defective_vertices(&both.triangles, Closure::Oriented).is_empty());
+        // The physics meshes' rule refuses it.
+        assert!(acceptable(volume, &both, 0.0, Closure::Manifold).is_err());
+        assert_eq!(
+            defective_vertices(&both.triangles, Closure::Manifold),
+            vec![0, 1]
+        );
+        let mut holed = both.clone();
+        holed.triangles.remove(2);
+        assert!(acceptable(volume, &holed, 1.0, Closure::Oriented).is_err());
+        let mut bad = defective_vertices(&holed.triangles, Closure::Oriented);
+        bad.sort_unstable();
+        bad.dedup();
+        assert_eq!(bad, vec![1, 2, 3]);
+        let mut flipped = both.clone();
+        flipped.triangles[5].swap(1, 2);
+        assert!(acceptable(volume, &flipped, 1.0, Closure::Oriented).is_err());
+    }
 
     #[test]
     fn decimated_sphere_stays_closed_and_close() {

@@ -34,10 +34,12 @@ pub struct DraftParams {
 impl Default for DraftParams {
     /// A twelfth of the triangles and up to 2 mm deviation (under two detector pixels of the
     /// draft frame at the isocentre of a 300 mm, 256-pixel field at 1.3x magnification), volume
-    /// within 5 %. Simulator choices, measured on the default 1.5 mm lumbar phantom (2.49 M
-    /// triangles): the decimator's checks stop at 0.46 M triangles (6 s on 2 cores), and a
-    /// C-arm-moved draft at 256 x 256 costs 27-34 ms on lavapipe against 132-148 ms for the full
-    /// frame at 512 x 512 (`fluoro_gpu` bench reports both with the error).
+    /// within 5 %. Simulator choices, measured on the default lumbar phantom (3.85 M
+    /// triangles) on 2 cores: 0.32 M triangles in 1.7-1.8 s, and a C-arm-moved draft at
+    /// 256 x 256 costs 16-19 ms on lavapipe against 71-97 ms for the full frame at 512 x 512,
+    /// 0.7-0.8 grey levels from it on average over 8 x 8 blocks (99th percentile 3.4-3.5;
+    /// `fluoro_draft` bench). (While the decimator refused edges shared by four triangles,
+    /// half the phantom's triangles stayed unreduced: 2.04 M in 8 s, drafts of 28-30 ms.)
     fn default() -> Self {
         DraftParams {
             decimation: DecimationParams {

@@ -8,7 +8,7 @@ use rustc_hash::FxHashMap;
 use super::crossing::{crossing_pairs, lock_around_crossing, mean_edge_mm};
 use super::par::par_map;
 use super::weld::Family;
-use crate::anatomy::decimate::{DecimationParams, acceptable, defective_vertices};
+use crate::anatomy::decimate::{Closure, DecimationParams, acceptable, defective_vertices};
 
 /// Edge of the cubes that split patches into chunks for decimation, in mean input edge
 /// lengths (about 25 mm on a 1.5 mm grid). Smaller chunks lock more vertices along their
@@ -206,8 +206,13 @@ pub(super) fn decimate_family(
                 }
                 let tris = fam.mesh_triangles(m, &per_patch);
                 let mesh = fam.assemble(m, &per_patch, &fam.positions);
-                acceptable(before[m], &mesh, params.max_volume_change)
-                    .map_err(|why| (why, defective_vertices(&tris)))
+                acceptable(
+                    before[m],
+                    &mesh,
+                    params.max_volume_change,
+                    Closure::Manifold,
+                )
+                .map_err(|why| (why, defective_vertices(&tris, Closure::Manifold)))
             },
             &mut |_| {},
         );
@@ -320,6 +325,7 @@ pub(super) fn decimate_family(
                         before[m],
                         &fam.assemble(m, &per_patch, &fam.positions),
                         params.max_volume_change,
+                        Closure::Manifold,
                     )
                     .is_err()
             })

@@ -1,14 +1,15 @@
 //! Progressive fluoroscopy frames: the cheap draft shown at once while the C-arm is being
 //! moved, before the full frame (which follows as soon as no newer input is waiting).
 //!
-//! A full frame after a C-arm move redraws every triangle of the anatomy (2.49 M for the default
-//! lumbar phantom: 132-148 ms at 512 x 512 on lavapipe, 2 cores). Its draft draws the region's
-//! draft scene (`sim_core::fluoro::draft`: about a fifth of the triangles, each mesh reduced on
-//! its own) at half the detector resolution with one sample per pixel, then doubles it to the
-//! full frame's size (`crate::fluoro::draft`): 27-34 ms on the same machine.
+//! A full frame after a C-arm move redraws every triangle of the anatomy that reaches the image
+//! (3.85 M in the default lumbar phantom: 71-97 ms at 512 x 512 with lavapipe, 2 cores). Its
+//! draft draws the region's draft scene (`sim_core::fluoro::draft`: a twelfth of the
+//! triangles, each mesh reduced on its own) at half the detector resolution with one sample per
+//! pixel, then doubles it to the full frame's size (`crate::fluoro::draft`): 16-19 ms on the
+//! same machine.
 //!
 //! The draft scene of a region is built once per worker, on a background thread, when the
-//! region's first GPU renderer is made (about 6 s on 2 cores for the default phantom), and
+//! region's first GPU renderer is made (about 2 s on 2 cores for the default phantom), and
 //! uploaded once, with one draft renderer that all its sessions take turns at; until it is
 //! ready a session simply sends no draft. Only
 //! regions of at least [`DRAFT_MIN_TRIANGLES`] get one: below that the full frame is cheap.
@@ -30,7 +31,7 @@ use crate::session::region::Region;
 
 /// Regions with fewer triangles get no draft scene. Simulator choice: the 4 mm test phantom
 /// (about 0.1 M triangles) renders a C-arm-moved frame in tens of milliseconds on lavapipe,
-/// where a draft would add work; the default 1.5 mm phantom (2.49 M) and the 1 mm cervical
+/// where a draft would add work; the default lumbar phantom (3.85 M) and the 1 mm cervical
 /// phantom are well above.
 pub const DRAFT_MIN_TRIANGLES: usize = 1_000_000;
 
