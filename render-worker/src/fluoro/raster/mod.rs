@@ -583,20 +583,93 @@ impl Span {
     /// depth `w` (mm) of its plane on that sample's ray.
     #[inline(always)]
     fn for_each(&self, mut visit: impl FnMut(usize, usize, f64)) {
-        let mut e_row = self.e_row;
-        let (i0, i1) = (*self.cols.start(), *self.cols.end());
-        for j in self.rows.clone() {
+        self.for_each_row(|j, cols| {
             let qy = self.q.y * (j as f64 + 0.5) + self.q.z;
-            let mut ev = e_row;
-            for i in i0..=i1 {
-                // All three edge values non-negative: their bitwise or is.
-                if (ev[0] | ev[1] | ev[2]) >= 0 {
-                    visit(i, j, self.k / (self.q.x * (i as f64 + 0.5) + qy));
+            for i in cols {
+                visit(i, j, self.k / (self.q.x * (i as f64 + 0.5) + qy));
+            }
+        });
+    }
+
+    /// Calls `row(j, cols)` for every row `j` of the span where the triangle covers samples,
+    /// with those samples' columns: where all three edge values are non-negative. Each edge
+    /// value is linear along the row, so each edge keeps a prefix or a suffix of it; where it
+    /// changes sign is estimated in f64 and settled by the exact integer edge values, so the
+    /// samples are exactly those of the per-sample test (`(e0 | e1 | e2) >= 0`), without
+    /// visiting the box's uncovered samples (two thirds of a C-arm-moved frame's) or
+    /// mispredicting a branch at each edge.
+    #[inline(always)]
+    fn for_each_row(&self, mut row: impl FnMut(usize, Range<usize>)) {
+        let (i0, i1) = (*self.cols.start(), *self.cols.end());
+        let width = (i1 - i0 + 1) as i64;
+        if width <= NARROW_SPAN {
+            let mut e_row = self.e_row;
+            for j in self.rows.clone() {
+                let mut ev = e_row;
+                let mut first = None;
+                let mut end = i0;
+                for i in i0..=i1 {
+                    if (ev[0] | ev[1] | ev[2]) >= 0 {
+                        first.get_or_insert(i);
+                        end = i + 1;
+                    }
+                    for (v, step) in ev.iter_mut().zip(self.step_x) {
+                        *v = v.wrapping_add(step);
+                    }
                 }
-                // The box's edge values stay within 2^62 (`MAX_SAMPLE_COORDINATE`).
-                for (v, step) in ev.iter_mut().zip(self.step_x) {
+                if let Some(first) = first {
+                    row(j, first..end);
+                }
+                for (v, step) in e_row.iter_mut().zip(self.step_y) {
                     *v = v.wrapping_add(step);
                 }
+            }
+            return;
+        }
+        let inv = self
+            .step_x
+            .map(|s| if s == 0 { 0.0 } else { 1.0 / s as f64 });
+        let mut e_row = self.e_row;
+        for j in self.rows.clone() {
+            // Covered columns `i0 + lo .. i0 + hi`.
+            let (mut lo, mut hi) = (0i64, width);
+            for ((&v, &s), &inv) in e_row.iter().zip(&self.step_x).zip(&inv) {
+                // The edge value `t` columns on (the box's edge values stay within 2^62, see
+                // `MAX_SAMPLE_COORDINATE`; so do those one column beyond it).
+                let at = |t: i64| v.wrapping_add(s.wrapping_mul(t));
+                if s > 0 {
+                    if v < 0 {
+                        // The first column where the value is non-negative.
+                        // (Truncation, not `ceil`: a libm call on baseline x86-64.)
+                        let mut t = ((-v) as f64 * inv).min(width as f64) as i64;
+                        while t < width && at(t) < 0 {
+                            t += 1;
+                        }
+                        while t > 0 && at(t - 1) >= 0 {
+                            t -= 1;
+                        }
+                        lo = lo.max(t);
+                    }
+                } else if s < 0 {
+                    if v < 0 {
+                        hi = 0;
+                    } else {
+                        // The last column where the value is non-negative.
+                        let mut t = (v as f64 * -inv).min((width - 1) as f64) as i64;
+                        while t > 0 && at(t) < 0 {
+                            t -= 1;
+                        }
+                        while t + 1 < width && at(t + 1) >= 0 {
+                            t += 1;
+                        }
+                        hi = hi.min(t + 1);
+                    }
+                } else if v < 0 {
+                    hi = 0;
+                }
+            }
+            if lo < hi {
+                row(j, i0 + lo as usize..i0 + hi as usize);
             }
             for (v, step) in e_row.iter_mut().zip(self.step_y) {
                 *v = v.wrapping_add(step);
@@ -665,6 +738,9 @@ impl Frame {
 }
 
 const ONE: i64 = 1 << SUBSAMPLE_BITS;
+
+/// Spans at most this many samples wide find their covered runs sample by sample.
+const NARROW_SPAN: i64 = 8;
 const HALF: i64 = ONE / 2;
 
 /// The span of triangle `t` within `rect`, or `None` when it covers no sample centre there.
@@ -756,32 +832,22 @@ impl Band {
     }
 
     /// Adds `g (w - wref)` at every sample `span` covers, into the four-channel sums (`C = 4`)
-    /// or the one-channel sums (`C = 1`). (The geometric pass's inner loop: the row is sliced
-    /// once, so each sample costs no bounds check.)
+    /// or the one-channel sums (`C = 1`). (The geometric pass's inner loop: each covered run
+    /// of a row is sliced once, so each sample costs no bounds check and no coverage test.)
     #[inline(always)]
     fn add<const C: usize>(&mut self, span: &Span, g: [f64; 4], wref: f64) {
-        let (i0, i1) = (*span.cols.start(), *span.cols.end());
+        let rect = &self.rect;
         let sums = if C == 1 { &mut self.s } else { &mut self.a };
-        let mut e_row = span.e_row;
-        for j in span.rows.clone() {
-            let base = self.rect.index(i0, j);
-            let row = &mut sums[C * base..C * (base + i1 - i0 + 1)];
+        span.for_each_row(|j, cols| {
+            let base = rect.index(cols.start, j);
+            let row = &mut sums[C * base..C * (base + cols.len())];
             let qy = span.q.y * (j as f64 + 0.5) + span.q.z;
-            let mut ev = e_row;
-            for (i, o) in (i0..=i1).zip(row.chunks_exact_mut(C)) {
-                if (ev[0] | ev[1] | ev[2]) >= 0 {
-                    let d = span.k / (span.q.x * (i as f64 + 0.5) + qy) - wref;
-                    for c in 0..C {
-                        o[c] += g[c] * d;
-                    }
-                }
-                for (v, step) in ev.iter_mut().zip(span.step_x) {
-                    *v = v.wrapping_add(step);
+            for (i, o) in cols.zip(row.chunks_exact_mut(C)) {
+                let d = span.k / (span.q.x * (i as f64 + 0.5) + qy) - wref;
+                for c in 0..C {
+                    o[c] += g[c] * d;
                 }
             }
-            for (v, step) in e_row.iter_mut().zip(span.step_y) {
-                *v = v.wrapping_add(step);
-            }
-        }
+        });
     }
 }

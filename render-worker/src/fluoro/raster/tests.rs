@@ -530,3 +530,51 @@ fn corners_kept_in_f32_give_the_f64_sums() {
         assert!(got.a.iter().any(|&v| v != 0.0), "trial {trial}: drawn");
     }
 }
+
+/// A span's covered runs are exactly the samples the per-sample edge test takes, for narrow
+/// and wide spans, and for samples on edges (corners on a quarter-sample lattice put many
+/// sample centres exactly on edges).
+#[test]
+fn covered_runs_are_the_per_sample_edge_test() {
+    let p = face_on_samples();
+    let frame = Frame::new(&p).expect("projection");
+    let rect = whole(20, 20);
+    let mut rng = SplitMix64::new(0x0c0f_e4ed);
+    let (mut wide, mut on_edges) = (0usize, 0usize);
+    for trial in 0..4000 {
+        // Corners in the plane Z = 0, which the target maps to samples at (X + 10, Y + 10).
+        let mut corner = || {
+            let mut q = || (rng.next_f64() * 96.0).floor() / 4.0 - 12.0;
+            [q(), q(), 0.0]
+        };
+        let t = [corner(), corner(), corner()];
+        let Some(span) = setup(&frame, &t, &rect).expect("in front of the source") else {
+            continue;
+        };
+        let mut runs = Vec::new();
+        span.for_each_row(|j, cols| runs.extend(cols.map(|i| (i, j))));
+        let mut want = Vec::new();
+        let mut e_row = span.e_row;
+        for j in span.rows.clone() {
+            let mut ev = e_row;
+            for i in span.cols.clone() {
+                if (ev[0] | ev[1] | ev[2]) >= 0 {
+                    want.push((i, j));
+                }
+                on_edges += usize::from(ev.iter().any(|&v| v == 0 || v == -1));
+                for (v, s) in ev.iter_mut().zip(span.step_x) {
+                    *v += s;
+                }
+            }
+            for (v, s) in e_row.iter_mut().zip(span.step_y) {
+                *v += s;
+            }
+        }
+        assert_eq!(runs, want, "trial {trial}: {t:?}");
+        wide += usize::from(span.cols.clone().count() as i64 > NARROW_SPAN && !want.is_empty());
+    }
+    assert!(
+        wide > 500 && on_edges > 500,
+        "{wide} wide spans, {on_edges} samples on edges"
+    );
+}
