@@ -41,6 +41,9 @@ use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 /// The station learners open: the default lumbar phantom's facet injection.
 const STATION: &str = "l4-l5-left-facet";
 
+/// The period of the default 7.5 pulses per second, at which the client ticks while live.
+const PULSE_PERIOD: Duration = Duration::from_micros(133_333);
+
 /// A frame later than this after its command is counted as never delivered, s.
 const LOST_AFTER_S: f64 = 20.0;
 
@@ -142,9 +145,15 @@ impl Learner {
         self.seq
     }
 
-    /// Waits for the frame that reflects `seq`, sending a tick every `tick` if given (live
+    /// Waits for the frame that reflects `seq`; while live (`pulses`: the next pulse's moment
+    /// and the pulse period) sends a tick at every pulse, as the web client's timer does (live
     /// fluoroscopy images a change at the next pulse); returns the latency or None when lost.
-    async fn frame_of(&mut self, seq: u64, sent: Instant, tick: Option<Duration>) -> Option<f64> {
+    async fn frame_of(
+        &mut self,
+        seq: u64,
+        sent: Instant,
+        mut pulses: Option<(&mut Instant, Duration)>,
+    ) -> Option<f64> {
         let deadline = sent + Duration::from_secs_f64(LOST_AFTER_S);
         let mut first = None;
         loop {
@@ -153,13 +162,20 @@ impl Learner {
                 self.figures.lost += 1;
                 return None;
             }
-            let wait = tick.unwrap_or(deadline - now).min(deadline - now);
-            match tokio::time::timeout(wait, self.ws.next()).await {
-                Err(_) => {
-                    if tick.is_some() {
-                        self.send(json!({ "type": "tick" })).await;
-                    }
+            if let Some((next, period)) = pulses.as_mut()
+                && now >= **next
+            {
+                self.send(json!({ "type": "tick" })).await;
+                while **next <= now {
+                    **next += *period;
                 }
+            }
+            let wait = pulses
+                .as_ref()
+                .map_or(deadline, |(next, _)| (**next).min(deadline))
+                .saturating_duration_since(now);
+            match tokio::time::timeout(wait, self.ws.next()).await {
+                Err(_) => {}
                 Ok(Some(Ok(Message::Binary(b)))) => {
                     let f = EncodedFrame::parse(&b).expect("frame");
                     if f.input_seq >= seq {
@@ -305,6 +321,7 @@ async fn run_learner(row: Arc<Row>, seed: u64) -> Figures {
             // A second of live fluoroscopy while the C-arm moves, at the default pulse rate.
             me.send(json!({ "type": "live", "on": true })).await;
             let live_began = Instant::now();
+            let mut next_pulse = live_began + PULSE_PERIOD;
             while live_began.elapsed() < Duration::from_secs(1) {
                 orbital = (orbital + 2.0 * rng.next_f64() - 1.0).clamp(-30.0, 30.0);
                 let t = Instant::now();
@@ -313,7 +330,8 @@ async fn run_learner(row: Arc<Row>, seed: u64) -> Figures {
                         json!({ "type": "carm_pose", "orbital_deg": orbital, "angular_deg": 0.0 }),
                     )
                     .await;
-                me.frame_of(s, t, Some(Duration::from_millis(134))).await;
+                me.frame_of(s, t, Some((&mut next_pulse, PULSE_PERIOD)))
+                    .await;
             }
             me.send(json!({ "type": "live", "on": false })).await;
         }
