@@ -43,11 +43,11 @@ mod needle;
 #[cfg(test)]
 mod tests;
 
-use std::collections::HashMap;
 use std::ops::Range;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use glam::{DMat3, DVec3};
+use rustc_hash::FxHashMap;
 use sim_core::fluoro::Scene;
 use sim_core::fluoro::nesting::{NestedMesh, soup_box, triangle_cross};
 
@@ -92,6 +92,52 @@ pub(super) struct CpuGeometry {
     corners: Corners,
     /// Every chunk's triangles, each as indices into its chunk's corners, chunk after chunk.
     triangles: Vec<[u8; 3]>,
+}
+
+/// Consecutive chunks of [`CpuGeometry`], their ranges counted from the part's start.
+struct Part {
+    chunks: Vec<Chunk>,
+    corners: Vec<[f64; 3]>,
+    triangles: Vec<[u8; 3]>,
+}
+
+impl Part {
+    /// The chunks of `jobs` (drawn mesh index, the chunk's triangles).
+    fn of(jobs: &[(u32, &[[[f64; 3]; 3]])]) -> Part {
+        let mut part = Part {
+            chunks: Vec::with_capacity(jobs.len()),
+            corners: Vec::new(),
+            triangles: Vec::new(),
+        };
+        // A chunk's corner index by its coordinates' bits (the same f64 values share a corner).
+        let mut seen: FxHashMap<[u64; 3], u8> =
+            FxHashMap::with_capacity_and_hasher(3 * CHUNK_TRIANGLES, Default::default());
+        for &(mesh, c) in jobs {
+            let (lo, hi) = soup_box(c);
+            seen.clear();
+            let first_corner = part.corners.len();
+            let first_triangle = part.triangles.len();
+            for t in c {
+                let corners = &mut part.corners;
+                let index = t.map(|v| {
+                    *seen.entry(v.map(f64::to_bits)).or_insert_with(|| {
+                        corners.push(v);
+                        // At most 3 x CHUNK_TRIANGLES = 192 corners: a u8.
+                        (corners.len() - 1 - first_corner) as u8
+                    })
+                });
+                part.triangles.push(index);
+            }
+            part.chunks.push(Chunk {
+                mesh,
+                corners: first_corner as u32..part.corners.len() as u32,
+                triangles: first_triangle as u32..part.triangles.len() as u32,
+                lo,
+                hi,
+            });
+        }
+        part
+    }
 }
 
 /// Corners, mm: `f32` when every corner of the scene is an `f32` value (a region asset's
@@ -258,39 +304,42 @@ impl GeometrySums {
 }
 
 impl CpuGeometry {
-    /// The chunks of `meshes` (the anatomy's drawn meshes, in drawing order) in `scene`.
+    /// The chunks of `meshes` (the anatomy's drawn meshes, in drawing order) in `scene`, made
+    /// on every core (in parts of consecutive chunks, joined in order: the result does not
+    /// depend on the number of cores).
     pub(super) fn new(scene: &Scene, meshes: &[NestedMesh]) -> CpuGeometry {
         let entries = scene.entries();
-        let mut chunks = Vec::new();
+        let jobs: Vec<(u32, &[[[f64; 3]; 3]])> = meshes
+            .iter()
+            .enumerate()
+            .flat_map(|(id, mesh)| {
+                let tris = entries[mesh.entry].bvh.triangles_mm();
+                tris.chunks(CHUNK_TRIANGLES).map(move |c| (id as u32, c))
+            })
+            .collect();
+        let per = jobs.len().div_ceil(thread_count(0)).max(1);
+        let parts: Vec<Part> = std::thread::scope(|scope| {
+            let handles: Vec<_> = jobs
+                .chunks(per)
+                .map(|jobs| scope.spawn(move || Part::of(jobs)))
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().expect("chunking thread"))
+                .collect()
+        });
+        let mut chunks = Vec::with_capacity(jobs.len());
         let mut corners: Vec<[f64; 3]> = Vec::new();
         let mut triangles = Vec::new();
-        // A chunk's corner index by its coordinates' bits (the same f64 values share a corner).
-        let mut seen: HashMap<[u64; 3], u8> = HashMap::with_capacity(3 * CHUNK_TRIANGLES);
-        for (id, mesh) in meshes.iter().enumerate() {
-            let tris = entries[mesh.entry].bvh.triangles_mm();
-            for c in tris.chunks(CHUNK_TRIANGLES) {
-                let (lo, hi) = soup_box(c);
-                seen.clear();
-                let first_corner = corners.len();
-                let first_triangle = triangles.len();
-                for t in c {
-                    let index = t.map(|v| {
-                        *seen.entry(v.map(f64::to_bits)).or_insert_with(|| {
-                            corners.push(v);
-                            // At most 3 x CHUNK_TRIANGLES = 192 corners: a u8.
-                            (corners.len() - 1 - first_corner) as u8
-                        })
-                    });
-                    triangles.push(index);
-                }
-                chunks.push(Chunk {
-                    mesh: id as u32,
-                    corners: first_corner as u32..corners.len() as u32,
-                    triangles: first_triangle as u32..triangles.len() as u32,
-                    lo,
-                    hi,
-                });
-            }
+        for part in parts {
+            let (c0, t0) = (corners.len() as u32, triangles.len() as u32);
+            chunks.extend(part.chunks.into_iter().map(|c| Chunk {
+                corners: c.corners.start + c0..c.corners.end + c0,
+                triangles: c.triangles.start + t0..c.triangles.end + t0,
+                ..c
+            }));
+            corners.extend(part.corners);
+            triangles.extend(part.triangles);
         }
         let in_f32 = corners
             .iter()
