@@ -310,7 +310,7 @@ fn polychromatic_transmission_and_frame_match_the_cpu() {
 /// passes on the CPU (`raster`, whatever the adapter), one leaving them to the adapter.
 fn cpu_and_adapter_renderers(
     ctx: &render_worker::gpu::GpuContext,
-    scene: &std::sync::Arc<Scene>,
+    scene: &Scene,
 ) -> (GpuFluoroRenderer, GpuFluoroRenderer) {
     let renderer = |cpu: bool| {
         let a = if cpu {
@@ -351,7 +351,6 @@ fn frames_the_cpu_passes_refuse_are_the_adapters() {
     let mut scene = sphere_scene();
     let room = capped_cylinder([0.0, -3000.0, 0.0], [0.0, 3000.0, 0.0], 3000.0, 16);
     scene.add("room", FluoroMaterial::Tissue(MaterialClass::Fat), &room);
-    let scene = std::sync::Arc::new(scene);
     let (mut on_cpu, mut on_adapter) = cpu_and_adapter_renderers(&ctx, &scene);
     let settings = RenderSettings {
         energy: EnergyModel::Spectral { kvp: 80 },
@@ -376,7 +375,7 @@ fn the_cpu_passes_match_the_adapters_and_the_cpu_reference() {
     let Some(ctx) = context_for_tests() else {
         return;
     };
-    let scene = std::sync::Arc::new(sphere_scene());
+    let scene = sphere_scene();
     let (mut on_cpu, mut on_adapter) = cpu_and_adapter_renderers(&ctx, &scene);
     // A software adapter (lavapipe, as in CI) gets the CPU pass by default; a GPU does not.
     assert_eq!(
@@ -388,9 +387,9 @@ fn the_cpu_passes_match_the_adapters_and_the_cpu_reference() {
     let energy = EnergyModel::Spectral { kvp: 80 };
     for (k, p) in sphere_views().iter().enumerate() {
         let [w, h] = p.detector_pixels.map(|x| x as usize);
-        let interior = interior_pixels(&render_chords(&*scene, p, 0), w, h);
+        let interior = interior_pixels(&render_chords(&scene, p, 0), w, h);
         let reference = ln_of(
-            &render_transmission(&*scene, None, p, &centre_settings(energy))
+            &render_transmission(&scene, None, p, &centre_settings(energy))
                 .unwrap()
                 .transmission,
         );

@@ -171,7 +171,7 @@ impl AnatomyCache {
         &self,
         ctx: &GpuContext,
         owner: &Arc<K>,
-        scene: impl FnOnce(&K) -> &Arc<Scene>,
+        scene: impl FnOnce(&K) -> &Scene,
     ) -> Result<Arc<GpuAnatomy>, FluoroGpuError> {
         let mut entries = self.entries.lock().unwrap_or_else(PoisonError::into_inner);
         entries.retain(|e| e.anatomy.strong_count() > 0);
@@ -342,14 +342,14 @@ mod tests {
             return;
         };
         let cache = AnatomyCache::new();
-        let owner = Arc::new(Arc::new(phantom()));
+        let owner = Arc::new(phantom());
         let a = cache.get_or_upload(&ctx, &owner, |s| s).expect("upload");
         let b = cache.get_or_upload(&ctx, &owner, |_| panic!("uploaded again"));
         assert!(Arc::ptr_eq(&a, &b.expect("shared")));
         assert_eq!(cache.live(), 1);
         assert!(a.uploaded_bytes() > 0);
         // Another owner with the same content is another region: its own upload.
-        let other = Arc::new(Arc::new(phantom()));
+        let other = Arc::new(phantom());
         let c = cache.get_or_upload(&ctx, &other, |s| s).expect("upload");
         assert!(!Arc::ptr_eq(&a, &c));
         assert_eq!(cache.live(), 2);

@@ -1,7 +1,6 @@
 //! The anatomy a session runs in, loaded once per worker and shared (read-only) by its sessions.
 
 use std::collections::BTreeMap;
-use std::sync::Arc;
 
 use glam::DVec3;
 use sim_core::anatomy::asset::{RegionAsset, Source, StructureAsset};
@@ -18,7 +17,7 @@ pub struct Region {
     /// Region name (e.g. `lumbar-phantom`).
     pub name: String,
     /// Every structure as a scene entry, in asset order (entry `i` is structure `i`).
-    pub scene: Arc<Scene>,
+    pub scene: Scene,
     /// Indices of the cortical-bone entries (the outer bone surface the needle meets).
     pub bone_entries: Vec<usize>,
     /// Named points, model frame, mm.
@@ -56,7 +55,7 @@ impl Region {
             .collect();
         Region {
             name: name.to_string(),
-            scene: Arc::new(scene),
+            scene,
             bone_entries,
             landmarks,
             asset_sha256,

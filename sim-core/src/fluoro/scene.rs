@@ -259,13 +259,6 @@ impl<'a> From<&'a Scene> for SceneRef<'a> {
     }
 }
 
-/// A scene shared behind an `Arc` (a session server's region) reads as the scene itself.
-impl<'a> From<&'a std::sync::Arc<Scene>> for SceneRef<'a> {
-    fn from(scene: &'a std::sync::Arc<Scene>) -> SceneRef<'a> {
-        SceneRef::from(&**scene)
-    }
-}
-
 impl<'a> SceneRef<'a> {
     /// Number of entries, the base scene's and the overlay's.
     pub fn len(&self) -> usize {
