@@ -42,7 +42,7 @@ use super::anatomy::{GpuAnatomy, MeshBuffers, triangle_vertices, upload};
 use super::pipelines::{Pipelines, Targets};
 use super::raster::{
     ChunkBoxes, GeometrySums, MeshWeights, NeedleTriangles, Refused, SampleProjection, SampleRect,
-    same_matrix,
+    projected_box, same_matrix,
 };
 use super::types::{
     CANCELLOUS, CHANNELS, CHORD_CHANNELS, CORTICAL, Layout, NO_NEEDLE, Passes, PixelRect, SLOTS,
@@ -690,43 +690,12 @@ impl LBuffer {
             .is_none_or(|(p, _)| p != projection)
         {
             let m = projection.projection_matrix();
-            let dot =
-                |row: [f64; 4], v: [f64; 3]| row[0] * v[0] + row[1] * v[1] + row[2] * v[2] + row[3];
-            let everywhere = [
-                f32::NEG_INFINITY,
-                f32::NEG_INFINITY,
-                f32::INFINITY,
-                f32::INFINITY,
-            ];
             let boxes = self
                 .anatomy
                 .buffers
                 .chunks
                 .iter()
-                .map(|c| {
-                    let mut b = [
-                        f32::INFINITY,
-                        f32::INFINITY,
-                        f32::NEG_INFINITY,
-                        f32::NEG_INFINITY,
-                    ];
-                    for corner in 0..8 {
-                        let v: [f64; 3] = std::array::from_fn(|a| {
-                            f64::from(if corner & (1 << a) == 0 {
-                                c.lo[a]
-                            } else {
-                                c.hi[a]
-                            })
-                        });
-                        let w = dot(m[2], v);
-                        if w < 1.0 {
-                            return everywhere;
-                        }
-                        let (x, y) = ((dot(m[0], v) / w) as f32, (dot(m[1], v) / w) as f32);
-                        b = [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)];
-                    }
-                    b
-                })
+                .map(|c| projected_box(&m, c.lo.map(f64::from), c.hi.map(f64::from)))
                 .collect();
             self.chunk_boxes = Some((*projection, boxes));
         }

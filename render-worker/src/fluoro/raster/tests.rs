@@ -1,7 +1,8 @@
 //! Tests of the CPU passes against exact chords.
 
+use super::span::NARROW_SPAN;
 use super::*;
-use glam::DQuat;
+use glam::{DMat3, DQuat, DVec3};
 use sim_core::fluoro::{FluoroMaterial, Projection};
 use sim_core::material::MaterialClass;
 use sim_core::mesh::TriMesh;
@@ -438,6 +439,17 @@ fn needle_passes_match_exact_overlaps() {
     );
 }
 
+/// Four unequal channel weights and a reference depth near the samples' own (so that a channel
+/// mixed up with another, or a depth with its reference, shows), on the one-channel target if
+/// `scalar`.
+fn unequal_weights(scalar: bool) -> MeshWeights {
+    MeshWeights {
+        g: [1.0, 0.5, 0.25, 2.0],
+        wref: 800.0,
+        scalar,
+    }
+}
+
 /// A rectangle cut from the sums of a larger one equals the sums drawn for it alone, bit for
 /// bit (what lets a renderer keep a supersampled region's sums for a padded box), in the full
 /// image's grid and a supersampled one, on 1 and 2 threads.
@@ -457,11 +469,7 @@ fn a_cut_rectangle_equals_its_own_sums() {
         );
         let cpu = scene_of(&[&mesh]);
         let boxes = cpu.chunk_boxes(&pixel_matrix(&p), 1);
-        let weights = [MeshWeights {
-            g: [1.0, 0.5, 0.25, 2.0],
-            wref: 800.0,
-            scalar: trial % 3 == 0,
-        }];
+        let weights = [unequal_weights(trial % 3 == 0)];
         let big = SampleRect {
             cols: 3..61,
             rows: 1..47,
@@ -514,11 +522,7 @@ fn corners_kept_in_f32_give_the_f64_sums() {
             triangles: in_f32.triangles.clone(),
         };
         let boxes = in_f32.chunk_boxes(&pixel_matrix(&p), 2);
-        let weights = [MeshWeights {
-            g: [1.0, 0.5, 0.25, 2.0],
-            wref: 800.0,
-            scalar: false,
-        }];
+        let weights = [unequal_weights(false)];
         let rect = whole(64, 48);
         let got = in_f32
             .rasterise_rect(&weights, &p, &boxes, &rect, 2)
