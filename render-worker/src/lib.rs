@@ -5,6 +5,7 @@
 
 pub mod alloc;
 pub mod cluster;
+pub mod exit;
 pub mod fluoro;
 pub mod gallery;
 pub mod gpu;

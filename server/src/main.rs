@@ -37,28 +37,7 @@ fn main() -> ExitCode {
             1
         }
     };
-    exit_watchdog(code);
-    ExitCode::from(code)
+    // Everything that must be kept is stored and the database stopped: leave without the C
+    // library's exit handlers, which race with driver work still running on other threads.
+    render_worker::exit::after_shutdown(code)
 }
-
-/// After this long in the C library's exit teardown (graphics drivers' `atexit` handlers, which
-/// have been seen to hang in other Vulkan programs), the process leaves without them. Everything
-/// that must be kept is stored and the database stopped before this starts. Our choice of limit.
-const EXIT_TEARDOWN_LIMIT: std::time::Duration = std::time::Duration::from_secs(10);
-
-/// Starts a thread that ends the process with `code` if it is still alive `EXIT_TEARDOWN_LIMIT`
-/// from now; an exit that completes normally ends that thread with the process.
-fn exit_watchdog(code: u8) {
-    let _ = std::thread::Builder::new().name("exit-watchdog".into()).spawn(move || {
-        std::thread::sleep(EXIT_TEARDOWN_LIMIT);
-        eprintln!("exit teardown still running after {EXIT_TEARDOWN_LIMIT:?}; leaving without it");
-        leave_now(code);
-    });
-}
-
-#[expect(unsafe_code, reason = "_exit(2) (skip atexit handlers) has no safe wrapper in std")]
-fn leave_now(code: u8) -> ! {
-    // SAFETY: _exit takes no pointers and never returns; it skips only the atexit teardown.
-    unsafe { libc::_exit(i32::from(code)) }
-}
-

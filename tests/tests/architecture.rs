@@ -122,6 +122,32 @@ fn dependency_direction_and_folder_names() {
     }
 }
 
+/// Architecture invariant: a binary that hosts sessions leaves through
+/// `render_worker::exit::after_shutdown` once it has stopped, never by returning from `main`
+/// after its runtime ran: the C library's exit handlers tear down the graphics driver while
+/// threads that `main` does not join (the start-up calibration) may still be inside it.
+#[test]
+fn session_hosting_binaries_leave_without_exit_handlers() {
+    let root = metadata().workspace_root.into_std_path_buf();
+    for main in [
+        "server/src/main.rs",
+        "render-worker/src/bin/render-worker.rs",
+    ] {
+        let src = std::fs::read_to_string(root.join(main)).expect(main);
+        let (_, serving) = src
+            .split_once("block_on(")
+            .unwrap_or_else(|| panic!("{main} runs its server on a runtime"));
+        assert!(
+            serving.contains("render_worker::exit::after_shutdown("),
+            "{main} leaves through render_worker::exit::after_shutdown once served"
+        );
+        assert!(
+            !serving.contains("ExitCode") && !src.contains("process::exit("),
+            "{main} returns no ExitCode once served, and never calls std::process::exit"
+        );
+    }
+}
+
 /// Architecture invariant: wgpu is pinned to one exact version in the workspace manifest.
 #[test]
 fn wgpu_is_pinned_exactly() {

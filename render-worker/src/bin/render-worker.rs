@@ -78,12 +78,12 @@ fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    runtime.block_on(async move {
+    let code = runtime.block_on(async move {
         let listener = match tokio::net::TcpListener::bind(&bind).await {
             Ok(l) => l,
             Err(e) => {
                 eprintln!("render-worker: cannot bind {bind}: {e}");
-                return ExitCode::FAILURE;
+                return 1;
             }
         };
         let addr = listener.local_addr().map(|a| a.to_string()).unwrap_or(bind);
@@ -106,11 +106,16 @@ fn main() -> ExitCode {
         )
         .await;
         match served {
-            Ok(()) => ExitCode::SUCCESS,
+            Ok(()) => 0,
             Err(e) => {
                 eprintln!("render-worker: {e}");
-                ExitCode::FAILURE
+                1
             }
         }
-    })
+    });
+    // The sessions are joined; a blocking task still running holds nothing that must be kept.
+    runtime.shutdown_timeout(std::time::Duration::from_secs(2));
+    // Leave without the C library's exit handlers, which race with driver work still running
+    // on other threads (the start-up calibration): see `render_worker::exit`.
+    render_worker::exit::after_shutdown(code)
 }
