@@ -3,14 +3,17 @@
 //! Nothing here changes after it is built, so every renderer of the same scene on the same device
 //! draws from one [`GpuAnatomy`] behind an `Arc`. On a software adapter such as lavapipe its
 //! buffers are host memory: 108 bytes per drawn triangle (three 32-byte vertices, three 4-byte
-//! indices), about 416 MB for the default lumbar phantom's 3.85 M triangles. Culled passes draw
+//! indices), about 416 MB for the default lumbar phantom's 3.85 M triangles. There the CPU draws
+//! the L-buffer passes (`raster`), so the buffers are made from its geometry on first need only
+//! (the adapter's own passes, or a view the CPU refuses): the upload was 0.6 s of the 0.95 s
+//! that a region's anatomy took to build on 2 cores (default phantom). Culled passes draw
 //! runs of this one index buffer; no per-frame index list is made. The render targets that no
 //! frame is using are pooled here too (`TargetPool`). What changes per renderer (needle,
 //! uniforms, the full image's geometric L-buffer, caches) is in `LBuffer`, `ResolvePass` and
 //! `FrameCache`.
 
 use std::any::Any;
-use std::sync::{Arc, Mutex, PoisonError, Weak};
+use std::sync::{Arc, Mutex, OnceLock, PoisonError, Weak};
 
 use sim_core::fluoro::Scene;
 use sim_core::fluoro::nesting::{NestedMesh, nesting_plan, triangle_cross};
@@ -30,7 +33,9 @@ pub struct GpuAnatomy {
     /// The nesting plan, in drawing order: the meshes that add to the water-basis channel only
     /// first (drawn into the one-channel target).
     pub(super) meshes: Vec<NestedMesh>,
-    pub(super) buffers: AnatomyBuffers,
+    /// The drawn triangles on the device: made with the anatomy when it has no CPU geometry,
+    /// else from that geometry on first need ([`GpuAnatomy::buffers`]).
+    buffers: OnceLock<AnatomyBuffers>,
     pub(super) pipelines: Pipelines,
     /// Cortical shell used by the cancellous clamp, mm (the scene's).
     pub(super) cortical_shell_mm: f64,
@@ -90,8 +95,12 @@ impl GpuAnatomy {
         // first, for the scalar pass (a stable sort: entry order within each group).
         let mut meshes = nesting_plan(scene);
         meshes.sort_by_cached_key(|d| !d.water_basis_only());
-        let buffers = AnatomyBuffers::upload(&ctx.device, scene, &meshes);
         let cpu = cpu.then(|| CpuGeometry::new(scene, &meshes));
+        let buffers = OnceLock::new();
+        if cpu.is_none() {
+            let (vertices, scalar) = scene_vertices(scene, &meshes);
+            let _ = buffers.set(AnatomyBuffers::upload(&ctx.device, &vertices, scalar));
+        }
         Ok(Arc::new(GpuAnatomy {
             cpu,
             ctx: ctx.clone(),
@@ -108,17 +117,33 @@ impl GpuAnatomy {
         &self.meshes
     }
 
-    /// Vertices uploaded (three per drawn triangle).
+    /// Vertices uploaded (three per drawn triangle; 0 while the buffers are not made).
     pub fn vertex_count(&self) -> u32 {
-        self.buffers.bufs.as_ref().map_or(0, |b| b.index_count)
+        self.buffers
+            .get()
+            .and_then(|b| b.bufs.as_ref())
+            .map_or(0, |b| b.index_count)
     }
 
-    /// Bytes of the uploaded vertex and index buffers.
+    /// Bytes of the uploaded vertex and index buffers (0 while they are not made).
     pub fn uploaded_bytes(&self) -> u64 {
         self.buffers
-            .bufs
-            .as_ref()
+            .get()
+            .and_then(|b| b.bufs.as_ref())
             .map_or(0, |b| b.vertices.size() + b.indices.size())
+    }
+
+    /// The drawn triangles on the device, made now from the CPU geometry if they were not
+    /// (the same vertices, bit for bit, as from the scene: `lazy_buffers_hold_the_scenes_vertices`).
+    pub(super) fn buffers(&self) -> &AnatomyBuffers {
+        self.buffers.get_or_init(|| {
+            let cpu = self
+                .cpu
+                .as_ref()
+                .expect("an anatomy made without its buffers has its CPU geometry");
+            let (vertices, scalar) = cpu_vertices(cpu, &self.meshes);
+            AnatomyBuffers::upload(&self.ctx.device, &vertices, scalar)
+        })
     }
 
     /// Render-target sets that no frame of this anatomy's renderers is using now, kept for the
@@ -203,6 +228,13 @@ impl AnatomyCache {
     }
 }
 
+/// The buffers of an anatomy with no triangle drawn (for frames that draw none of them).
+pub(super) static NO_BUFFERS: AnatomyBuffers = AnatomyBuffers {
+    bufs: None,
+    chunks: Vec::new(),
+    scalar_chunks: 0,
+};
+
 /// The anatomy as drawn: one vertex buffer (the scalar meshes' triangles first, then the rest,
 /// each mesh's in its BVH's order) and its culling chunks.
 pub(super) struct AnatomyBuffers {
@@ -229,27 +261,55 @@ pub(super) struct Chunk {
     pub(super) hi: [f32; 3],
 }
 
+/// The vertices of the triangles of `meshes` in `scene`, in drawing order (the scalar meshes
+/// first, as the renderer orders them), and how many belong to the scalar meshes.
+fn scene_vertices(scene: &Scene, meshes: &[NestedMesh]) -> (Vec<Vertex>, usize) {
+    let entries = scene.entries();
+    let scalar_meshes = meshes.partition_point(NestedMesh::water_basis_only);
+    let mut vertices: Vec<Vertex> = Vec::new();
+    let mut scalar_vertices = 0;
+    for (id, mesh) in meshes.iter().enumerate() {
+        if id == scalar_meshes {
+            scalar_vertices = vertices.len();
+        }
+        let tris = entries[mesh.entry].bvh.triangles_mm();
+        vertices.extend(tris.iter().flat_map(|t| triangle_vertices(t, id as u32)));
+    }
+    if scalar_meshes == meshes.len() {
+        scalar_vertices = vertices.len();
+    }
+    (vertices, scalar_vertices)
+}
+
+/// [`scene_vertices`] from the CPU geometry of the same meshes: it keeps every triangle of
+/// every drawn mesh in drawing order with its corners' exact values, so these are the same.
+fn cpu_vertices(cpu: &CpuGeometry, meshes: &[NestedMesh]) -> (Vec<Vertex>, usize) {
+    let scalar_meshes = meshes.partition_point(NestedMesh::water_basis_only);
+    let mut vertices: Vec<Vertex> = Vec::with_capacity(3 * cpu.triangle_count());
+    let mut scalar_vertices = 0;
+    cpu.for_each_triangle(|mesh, t| {
+        if (mesh as usize) < scalar_meshes {
+            scalar_vertices += 3;
+        }
+        vertices.extend(triangle_vertices(&t, mesh));
+    });
+    (vertices, scalar_vertices)
+}
+
 impl AnatomyBuffers {
-    /// Uploads the triangles of `meshes` (the scalar ones first, as the renderer orders them).
-    fn upload(device: &wgpu::Device, scene: &Scene, meshes: &[NestedMesh]) -> AnatomyBuffers {
-        let entries = scene.entries();
-        let scalar_meshes = meshes.partition_point(NestedMesh::water_basis_only);
-        let add = |vertices: &mut Vec<Vertex>, ids: std::ops::Range<usize>| {
-            for id in ids {
-                let tris = entries[meshes[id].entry].bvh.triangles_mm();
-                vertices.extend(tris.iter().flat_map(|t| triangle_vertices(t, id as u32)));
-            }
-        };
-        let mut vertices: Vec<Vertex> = Vec::new();
-        add(&mut vertices, 0..scalar_meshes);
-        let mut chunks = chunks_of(&vertices, 0);
+    /// Uploads `vertices` (the scalar meshes' first `scalar_vertices`, then the rest) and cuts
+    /// them into culling chunks.
+    fn upload(
+        device: &wgpu::Device,
+        vertices: &[Vertex],
+        scalar_vertices: usize,
+    ) -> AnatomyBuffers {
+        let mut chunks = chunks_of(&vertices[..scalar_vertices], 0);
         let scalar_chunks = chunks.len();
-        let scalar_vertices = vertices.len();
-        add(&mut vertices, scalar_meshes..meshes.len());
         // Chunks never straddle the two groups.
-        chunks.extend(chunks_of(&vertices, scalar_vertices));
+        chunks.extend(chunks_of(vertices, scalar_vertices));
         AnatomyBuffers {
-            bufs: (!vertices.is_empty()).then(|| upload(device, &vertices)),
+            bufs: (!vertices.is_empty()).then(|| upload(device, vertices)),
             chunks,
             scalar_chunks,
         }
@@ -336,6 +396,49 @@ mod tests {
         .0
     }
 
+    /// `scene` with every corner rounded to `f32` (each triangle its own three corners).
+    fn rounded_to_f32(scene: &Scene) -> Scene {
+        let mut out = Scene::new();
+        for e in scene.entries() {
+            let tris = e.bvh.triangles_mm();
+            let mesh = sim_core::mesh::TriMesh {
+                vertices_mm: tris
+                    .iter()
+                    .flatten()
+                    .map(|v| v.map(|x| f64::from(x as f32)))
+                    .collect(),
+                triangles: (0..tris.len() as u32)
+                    .map(|k| [3 * k, 3 * k + 1, 3 * k + 2])
+                    .collect(),
+            };
+            out.add_with_priority(e.name.clone(), e.material, e.priority, &mesh);
+        }
+        out
+    }
+
+    /// The buffers made on first need from the CPU geometry hold the vertices made from the
+    /// scene, bit for bit, with the same split between the scalar meshes and the rest: for a
+    /// scene whose corners the CPU geometry keeps in f64 and one it keeps in f32.
+    #[test]
+    fn lazy_buffers_hold_the_scenes_vertices() {
+        for scene in [phantom(), rounded_to_f32(&phantom())] {
+            let mut meshes = nesting_plan(&scene);
+            meshes.sort_by_cached_key(|d| !d.water_basis_only());
+            let (want, want_scalar) = scene_vertices(&scene, &meshes);
+            let (got, got_scalar) = cpu_vertices(&CpuGeometry::new(&scene, &meshes), &meshes);
+            assert!(
+                0 < want_scalar && want_scalar < want.len(),
+                "both groups drawn"
+            );
+            assert_eq!(got_scalar, want_scalar);
+            let bytes = |v: &[Vertex]| bytemuck::cast_slice::<Vertex, u8>(v).to_vec();
+            assert!(
+                bytes(&got) == bytes(&want),
+                "the same vertices, bit for bit"
+            );
+        }
+    }
+
     #[test]
     fn renderers_of_one_owner_share_one_upload_freed_with_the_last() {
         let Some(ctx) = crate::gpu::context_for_tests() else {
@@ -347,6 +450,9 @@ mod tests {
         let b = cache.get_or_upload(&ctx, &owner, |_| panic!("uploaded again"));
         assert!(Arc::ptr_eq(&a, &b.expect("shared")));
         assert_eq!(cache.live(), 1);
+        // Made on first need where the CPU draws the passes (a software adapter).
+        assert_eq!(a.uploaded_bytes() == 0, a.cpu.is_some());
+        a.buffers();
         assert!(a.uploaded_bytes() > 0);
         // Another owner with the same content is another region: its own upload.
         let other = Arc::new(phantom());

@@ -38,7 +38,9 @@ use sim_core::fluoro::nesting::{NestedMesh, soup_box};
 use sim_core::fluoro::{FluoroMaterial, Projection};
 use sim_core::material::MaterialClass;
 
-use super::anatomy::{GpuAnatomy, MeshBuffers, triangle_vertices, upload};
+use super::anatomy::{
+    AnatomyBuffers, GpuAnatomy, MeshBuffers, NO_BUFFERS, triangle_vertices, upload,
+};
 use super::pipelines::{Pipelines, Targets};
 use super::raster::{
     ChunkBoxes, GeometrySums, MeshWeights, NeedleTriangles, Refused, SampleProjection, SampleRect,
@@ -378,37 +380,31 @@ impl LBuffer {
         // displaced pass. `None`: the whole list; `Some(None)`: no triangle reaches it.
         // In the transmission layout the scalar meshes go to their own target.
         let split = layout == Layout::Transmission;
-        let (scalar, chunks) = (
-            self.anatomy.buffers.scalar_chunks,
-            self.anatomy.buffers.chunks.len(),
-        );
+        // The anatomy's buffers are made on first need where the CPU draws its passes.
+        let anatomy = Arc::clone(&self.anatomy);
+        let drawn = passes.geometry || (passes.displaced && rect.is_some());
+        let buffers = if drawn {
+            anatomy.buffers()
+        } else {
+            &NO_BUFFERS
+        };
+        let (scalar, chunks) = (buffers.scalar_chunks, buffers.chunks.len());
         let groups = if split {
             [0..scalar, scalar..chunks]
         } else {
             [0..0, 0..chunks]
         };
         // The vertices of a run of chunks (they cover the vertex buffer in order).
-        let total = self
-            .anatomy
-            .buffers
-            .bufs
-            .as_ref()
-            .map_or(0, |b| b.index_count);
-        let vertex_at = |k: usize| {
-            self.anatomy
-                .buffers
-                .chunks
-                .get(k)
-                .map_or(total, |c| c.first_vertex)
-        };
+        let total = buffers.bufs.as_ref().map_or(0, |b| b.index_count);
+        let vertex_at = |k: usize| buffers.chunks.get(k).map_or(total, |c| c.first_vertex);
         let whole = groups.clone().map(|g| vertex_at(g.start)..vertex_at(g.end));
         let geo_lists = (culling && passes.geometry).then(|| {
             let r = to_pixels([0, 0, size[0], size[1]]);
-            groups.map(|g| self.culled(projection, r, g))
+            groups.map(|g| self.culled(buffers, projection, r, g))
         });
         let disp_list = match rect {
             Some(r) if culling && passes.displaced => {
-                Some(self.culled(projection, to_pixels(r), 0..chunks))
+                Some(self.culled(buffers, projection, to_pixels(r), 0..chunks))
             }
             _ => None,
         };
@@ -503,7 +499,7 @@ impl LBuffer {
                 let bind = anatomy_bind(pipeline, false);
                 let attachments = [attach(view, 0.0)];
                 let mut pass = encoder.begin_render_pass(&pass_desc(label, &attachments));
-                let Some(bufs) = &self.anatomy.buffers.bufs else {
+                let Some(bufs) = &buffers.bufs else {
                     continue;
                 };
                 draw_runs(&mut pass, pipeline, &bind, bufs, runs_or(list, all));
@@ -531,7 +527,7 @@ impl LBuffer {
             let bind = anatomy_bind(&pipelines.displaced, true);
             let attachments = [attach(&vd, 0.0)];
             let mut pass = encoder.begin_render_pass(&pass_desc("fluoro displaced", &attachments));
-            if let (Some(bufs), Some([x, y, w, h])) = (&self.anatomy.buffers.bufs, rect) {
+            if let (Some(bufs), Some([x, y, w, h])) = (&buffers.bufs, rect) {
                 pass.set_scissor_rect(x, y, w, h);
                 let runs = runs_or(disp_list, 0..bufs.index_count);
                 draw_runs(&mut pass, &pipelines.displaced, &bind, bufs, runs);
@@ -680,6 +676,7 @@ impl LBuffer {
     /// (13.5 MB and 8 ms of encoding for a C-arm-moved frame of the default phantom).
     fn culled(
         &mut self,
+        buffers: &AnatomyBuffers,
         projection: &Projection,
         r: [f32; 4],
         chunks: std::ops::Range<usize>,
@@ -690,9 +687,7 @@ impl LBuffer {
             .is_none_or(|(p, _)| p != projection)
         {
             let m = projection.projection_matrix();
-            let boxes = self
-                .anatomy
-                .buffers
+            let boxes = buffers
                 .chunks
                 .iter()
                 .map(|c| projected_box(&m, c.lo.map(f64::from), c.hi.map(f64::from)))
@@ -701,10 +696,7 @@ impl LBuffer {
         }
         let boxes = &self.chunk_boxes.as_ref()?.1;
         let mut runs: Vec<std::ops::Range<u32>> = Vec::new();
-        for (c, b) in self.anatomy.buffers.chunks[chunks.clone()]
-            .iter()
-            .zip(&boxes[chunks])
-        {
+        for (c, b) in buffers.chunks[chunks.clone()].iter().zip(&boxes[chunks]) {
             if b[2] >= r[0] - 1.0 && b[0] <= r[2] + 1.0 && b[3] >= r[1] - 1.0 && b[1] <= r[3] + 1.0
             {
                 let (start, end) = (c.first_vertex, c.first_vertex + c.vertices);

@@ -291,6 +291,26 @@ impl CpuGeometry {
         }
     }
 
+    /// Triangles kept, of every drawn mesh.
+    pub(super) fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// Calls `f(mesh, corners)` for every triangle in drawing order (each mesh's in its scene
+    /// order), with its corners' exact values (mm).
+    pub(super) fn for_each_triangle(&self, mut f: impl FnMut(u32, [[f64; 3]; 3])) {
+        for chunk in &self.chunks {
+            let first = chunk.corners().start;
+            for t in &self.triangles[chunk.triangles()] {
+                let corner = |k: u8| match &self.corners {
+                    Corners::F32(c) => c[first + usize::from(k)].map(f64::from),
+                    Corners::F64(c) => c[first + usize::from(k)],
+                };
+                f(chunk.mesh, t.map(corner));
+            }
+        }
+    }
+
     /// The chunks' pixel boxes under the projection `matrix` (rows giving `(x w, y w, w)` in
     /// full-image pixel coordinates), on `threads` threads (0: every core).
     pub(super) fn chunk_boxes(&self, matrix: &[[f64; 4]; 3], threads: usize) -> ChunkBoxes {
