@@ -398,6 +398,16 @@ fn main() {
     let regions = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("regions");
     let phantom_dir = regions.join(sim_core::anatomy::phantom::REGION_NAME);
     std::fs::create_dir_all(&phantom_dir).expect("region cache folder");
+    // Whether the tests (or an earlier run) left the region built: the ready time below then
+    // includes no meshing.
+    let cache = if phantom_dir
+        .join(sim_core::anatomy::asset::MESHES_FILE)
+        .is_file()
+    {
+        "warm region cache"
+    } else {
+        "region built at start"
+    };
     let assets = tempfile::tempdir().expect("assets folder");
     std::os::unix::fs::symlink(
         &phantom_dir,
@@ -481,7 +491,7 @@ fn main() {
         "## Capacity through the server binary ({cores} cores, {STATION} on the default lumbar phantom)\n"
     );
     println!(
-        "GPU adapter: {}; ready {ready_s:.1} s after start (warm region cache). {} s of scripted learners per row; \
+        "GPU adapter: {}; ready {ready_s:.1} s after start ({cache}). {} s of scripted learners per row; \
          a frame later than {LOST_AFTER_S} s counts as never delivered. RSS with no session: {:.0} MiB.\n",
         h["render_worker"]["adapter"]["name"]
             .as_str()
