@@ -311,3 +311,45 @@ fn the_host_reports_the_calibration_and_takes_its_capacity() {
     ));
     assert_eq!(empty.health().capacity, 5);
 }
+
+/// After the calibration each fluoroscopy region is prepared with the host's renderer: one that
+/// keeps its uploads makes the region's anatomy now and keeps it (a first session then finds it
+/// made); one that keeps nothing, or the CPU reference, prepares nothing.
+#[test]
+fn regions_are_prepared_by_a_renderer_that_keeps_them() {
+    let Some(ctx) = render_worker::gpu::context_for_tests() else {
+        return;
+    };
+    let host_with = |fluoro: Arc<dyn FluoroBackend>| {
+        SessionHost::with_regions(
+            vec![demo_station(&[])],
+            vec![Arc::new(demo_region())],
+            Backends::new(fluoro, Backends::cpu(1).ultrasound),
+            8,
+            small(),
+        )
+    };
+    let keeping = Arc::new(GpuFluoroBackend::keeping_uploads(ctx.clone()).drafting_from(Some(0)));
+    let host = host_with(Arc::clone(&keeping) as Arc<dyn FluoroBackend>);
+    assert_eq!(keeping.shared_anatomies(), 0);
+    assert_eq!(calibration::prepare_fluoroscopy_regions(&host), 1);
+    assert_eq!(keeping.shared_anatomies(), 1, "kept with no renderer alive");
+    let (_, region) = host.fluoroscopy_stations().remove(0);
+    let renderer = keeping.renderer(&region).expect("renderer");
+    assert_eq!(
+        keeping.shared_anatomies(),
+        1,
+        "the first session makes no other"
+    );
+    drop(renderer);
+    // Preparing again makes nothing new.
+    assert_eq!(calibration::prepare_fluoroscopy_regions(&host), 1);
+    assert_eq!(keeping.shared_anatomies(), 1);
+
+    let freeing = Arc::new(GpuFluoroBackend::new(ctx));
+    let host = host_with(Arc::clone(&freeing) as Arc<dyn FluoroBackend>);
+    assert_eq!(calibration::prepare_fluoroscopy_regions(&host), 0);
+    assert_eq!(freeing.shared_anatomies(), 0);
+    let host = host_with(Arc::new(CpuFluoroBackend { threads: 0 }));
+    assert_eq!(calibration::prepare_fluoroscopy_regions(&host), 0);
+}

@@ -186,6 +186,11 @@ impl Workers {
                 }
             };
             *me.calibration.write().unwrap_or_else(|p| p.into_inner()) = next;
+            // Then the other stations' regions, with the renderer chosen: their first sessions
+            // find the anatomy made (see `prepare_fluoroscopy_regions`).
+            let started = std::time::Instant::now();
+            let prepared = render_worker::session::calibration::prepare_fluoroscopy_regions(&host);
+            tracing::info!(regions = prepared, took_s = started.elapsed().as_secs_f64(), "fluoroscopy regions prepared");
         });
         if let Err(e) = spawned {
             tracing::error!(error = %e, "could not start the render calibration");

@@ -11,7 +11,7 @@
 
 use std::process::ExitCode;
 
-use render_worker::session::calibration::calibrate_when_ready;
+use render_worker::session::calibration::{calibrate_when_ready, prepare_fluoroscopy_regions};
 use render_worker::session::config::{self, WorkerConfig, WorkerRegistration};
 use render_worker::session::{Backends, HostConfig, SessionConfig, SessionHost};
 
@@ -61,12 +61,17 @@ fn main() -> ExitCode {
     let calibrated = host.clone();
     let spawned = std::thread::Builder::new()
         .name("render-calibration".into())
-        .spawn(move || match calibrate_when_ready(&calibrated, capacity) {
-            Ok(c) => tracing::info!(renderer = %c.renderer.kind, device = %c.renderer.device,
-                calibrated = c.capacity, capacity = calibrated.capacity(), took_s = c.took_s,
-                "render calibration done"),
-            Err(e) => tracing::error!(error = %e,
-                "render calibration failed; keeping the renderer and capacity it started with"),
+        .spawn(move || {
+            match calibrate_when_ready(&calibrated, capacity) {
+                Ok(c) => tracing::info!(renderer = %c.renderer.kind, device = %c.renderer.device,
+                    calibrated = c.capacity, capacity = calibrated.capacity(), took_s = c.took_s,
+                    "render calibration done"),
+                Err(e) => tracing::error!(error = %e,
+                    "render calibration failed; keeping the renderer and capacity it started with"),
+            }
+            // Regions the renderer keeps are made now rather than by their first sessions.
+            let prepared = prepare_fluoroscopy_regions(&calibrated);
+            tracing::info!(regions = prepared, "fluoroscopy regions prepared");
         });
     if let Err(e) = spawned {
         tracing::error!(error = %e, "could not start the render calibration");

@@ -48,6 +48,14 @@ pub trait FluoroBackend: Send + Sync {
     /// Waits for what its renderers started in the background (the GPU backend's draft
     /// scenes), so that frames timed next are not slowed by it.
     fn finish_background_work(&self) {}
+    /// Makes now, and keeps, what this backend keeps of `region` for its sessions (the GPU
+    /// backend that keeps its uploads: the region's anatomy and draft scene), so that the first
+    /// session of the region does not make them before its first frame; returns whether it
+    /// keeps them (made now, or found made). Backends that keep nothing between sessions do
+    /// nothing and return `false`.
+    fn prepare(&self, _region: &Arc<Region>) -> Result<bool, FluoroRenderError> {
+        Ok(false)
+    }
 }
 
 /// One session's renderer (may hold per-session resources, such as uploaded meshes).
@@ -330,6 +338,17 @@ impl FluoroBackend for GpuFluoroBackend {
         if let Some(d) = &self.drafts {
             d.wait_idle();
         }
+    }
+
+    fn prepare(&self, region: &Arc<Region>) -> Result<bool, FluoroRenderError> {
+        if self.kept.is_none() || !self.share_anatomy {
+            return Ok(false);
+        }
+        // A renderer makes the anatomy (kept) and starts the draft scene; the draft is waited
+        // for, so that regions are prepared one after another.
+        drop(self.renderer(region)?);
+        self.finish_background_work();
+        Ok(true)
     }
 }
 
