@@ -269,14 +269,11 @@ fn scene_vertices(scene: &Scene, meshes: &[NestedMesh]) -> (Vec<Vertex>, usize) 
     let mut vertices: Vec<Vertex> = Vec::new();
     let mut scalar_vertices = 0;
     for (id, mesh) in meshes.iter().enumerate() {
-        if id == scalar_meshes {
-            scalar_vertices = vertices.len();
-        }
         let tris = entries[mesh.entry].bvh.triangles_mm();
+        if id < scalar_meshes {
+            scalar_vertices += 3 * tris.len();
+        }
         vertices.extend(tris.iter().flat_map(|t| triangle_vertices(t, id as u32)));
-    }
-    if scalar_meshes == meshes.len() {
-        scalar_vertices = vertices.len();
     }
     (vertices, scalar_vertices)
 }

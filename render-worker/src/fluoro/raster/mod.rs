@@ -299,15 +299,17 @@ impl CpuGeometry {
     /// Calls `f(mesh, corners)` for every triangle in drawing order (each mesh's in its scene
     /// order), with its corners' exact values (mm).
     pub(super) fn for_each_triangle(&self, mut f: impl FnMut(u32, [[f64; 3]; 3])) {
-        for chunk in &self.chunks {
-            let first = chunk.corners().start;
-            for t in &self.triangles[chunk.triangles()] {
-                let corner = |k: u8| match &self.corners {
-                    Corners::F32(c) => c[first + usize::from(k)].map(f64::from),
-                    Corners::F64(c) => c[first + usize::from(k)],
-                };
-                f(chunk.mesh, t.map(corner));
+        fn each<C: Corner>(g: &CpuGeometry, corners: &[C], f: &mut impl FnMut(u32, [[f64; 3]; 3])) {
+            for chunk in &g.chunks {
+                let c = &corners[chunk.corners()];
+                for t in &g.triangles[chunk.triangles()] {
+                    f(chunk.mesh, t.map(|k| c[usize::from(k)].mm()));
+                }
             }
+        }
+        match &self.corners {
+            Corners::F32(c) => each(self, c, &mut f),
+            Corners::F64(c) => each(self, c, &mut f),
         }
     }
 
@@ -441,9 +443,7 @@ impl CpuGeometry {
         }
         Ok(())
     }
-}
 
-impl CpuGeometry {
     /// Adds every anatomy triangle that can reach `acc`'s rectangle (in drawing order, culled
     /// with `boxes`) to it with `add(band, span, mesh)`, snapping each chunk's corners into
     /// `snapped`; `Refused` as [`Frame::snap`].
