@@ -11,6 +11,7 @@ mod habitus;
 mod lumbar_ct;
 mod modality_seam;
 mod needle_handling;
+mod region_store;
 mod session_host;
 mod sessions;
 mod shaders;

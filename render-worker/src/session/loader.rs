@@ -7,6 +7,7 @@ use sim_core::anatomy::AnatomyError;
 use sim_core::anatomy::asset::RegionAsset;
 use sim_core::anatomy::phantom;
 use sim_core::anatomy::pipeline::Progress;
+use sim_core::fluoro::scene_store::StoreOutcome;
 
 use super::demo::{DEMO_REGION_NAME, demo_region};
 use super::region::Region;
@@ -29,9 +30,11 @@ pub enum RegionLoadError {
 
 /// Loads `assets_root/<name>`, reporting the phantom build's stages to `progress` (a region that
 /// is cached or read from files reports nothing). The phantom regions (lumbar and cervical) are
-/// built there first if missing or stale. The analytic demo region ([`DEMO_REGION_NAME`], boxes of known geometry) is
-/// built in memory when no folder of that name exists, so whole-process tests (the real server
-/// binary) can run sessions that render in milliseconds.
+/// built there first if missing or stale. The scene's trees are stored in the folder too and
+/// reused while they match its meshes ([`Region::from_asset_in`]). The analytic demo region
+/// ([`DEMO_REGION_NAME`], boxes of known geometry) is built in memory when no folder of that
+/// name exists, so whole-process tests (the real server binary) can run sessions that render in
+/// milliseconds.
 pub fn load_region(
     assets_root: &Path,
     name: &str,
@@ -60,5 +63,19 @@ pub fn load_region(
     if phantom::habitus::Habitus::of_region(name).is_some() {
         asset.name = name.to_string();
     }
-    Ok(Region::from_asset(&asset))
+    let (region, outcome) = Region::from_asset_in(&asset, &dir);
+    match outcome {
+        StoreOutcome::Reused => tracing::debug!(region = name, "scene trees reused"),
+        StoreOutcome::Built {
+            why,
+            stored: Ok(()),
+        } => {
+            tracing::info!(region = name, "scene trees built and stored ({why})");
+        }
+        StoreOutcome::Built {
+            why,
+            stored: Err(e),
+        } => tracing::warn!(region = name, "scene trees built ({why}), not stored: {e}"),
+    }
+    Ok(region)
 }

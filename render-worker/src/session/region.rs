@@ -1,10 +1,12 @@
 //! The anatomy a session runs in, loaded once per worker and shared (read-only) by its sessions.
 
 use std::collections::BTreeMap;
+use std::path::Path;
 
 use glam::DVec3;
-use sim_core::anatomy::asset::{RegionAsset, Source, StructureAsset};
+use sim_core::anatomy::asset::{MESHES_FILE, RegionAsset, Source, StructureAsset};
 use sim_core::anatomy::phantom;
+use sim_core::fluoro::scene_store::{STORE_FILE, StoreOutcome};
 use sim_core::fluoro::{FluoroMaterial, Scene};
 use sim_core::material::MaterialClass;
 use sim_core::needle::{BoneSurface, RayHit, Tissue};
@@ -41,19 +43,38 @@ impl Region {
         asset_sha256: BTreeMap<String, String>,
         source: String,
     ) -> Region {
+        Region::from_structures_with(name, structures, landmarks, asset_sha256, source, None).0
+    }
+
+    /// [`Region::from_structures`], the trees taken from (or stored in) `store` when given: the
+    /// file and the key that names its meshes.
+    fn from_structures_with(
+        name: &str,
+        structures: &[StructureAsset],
+        landmarks: BTreeMap<String, [f64; 3]>,
+        asset_sha256: BTreeMap<String, String>,
+        source: String,
+        store: Option<(&Path, &str)>,
+    ) -> (Region, Option<StoreOutcome>) {
         let mut scene = Scene::new();
         let meshes: Vec<_> = structures
             .iter()
             .map(|s| (s.name.clone(), FluoroMaterial::Tissue(s.material), &s.mesh))
             .collect();
-        let first = scene.add_all(&meshes);
+        let (first, outcome) = match store {
+            Some((path, key)) => {
+                let (first, outcome) = scene.add_all_stored(&meshes, path, key);
+                (first, Some(outcome))
+            }
+            None => (scene.add_all(&meshes), None),
+        };
         let bone_entries = structures
             .iter()
             .enumerate()
             .filter(|(_, s)| s.material == MaterialClass::CorticalBone)
             .map(|(k, _)| first + k)
             .collect();
-        Region {
+        let region = Region {
             name: name.to_string(),
             scene,
             bone_entries,
@@ -61,13 +82,49 @@ impl Region {
             asset_sha256,
             source,
             phantom: None,
-        }
+        };
+        (region, outcome)
     }
 
     /// A loaded asset; for a phantom region the landmarks are recomputed from the parameters
     /// recorded in its provenance (the phantom is a pure function of them); a CT region's come
     /// from its manifest (computed from the masks when it was built).
     pub fn from_asset(asset: &RegionAsset) -> Region {
+        Region::from_asset_with(asset, None).0
+    }
+
+    /// [`Region::from_asset`] for the asset read from `dir`: its trees come from the
+    /// [`STORE_FILE`] there when that holds them for these meshes (keyed by the mesh file's
+    /// SHA-256, verified when the asset was read, and the structures' names and sizes), else
+    /// they are built and stored there. The region is the same either way.
+    pub fn from_asset_in(asset: &RegionAsset, dir: &Path) -> (Region, StoreOutcome) {
+        let Some(meshes_sha256) = asset.provenance.files_sha256.get(MESHES_FILE) else {
+            let why = format!("no SHA-256 of {MESHES_FILE} to key stored trees by");
+            let outcome = StoreOutcome::Built {
+                stored: Err(why.clone()),
+                why,
+            };
+            return (Region::from_asset(asset), outcome);
+        };
+        let mut key = format!("{} {MESHES_FILE} sha256 {meshes_sha256};", asset.name);
+        for s in &asset.structures {
+            key.push_str(&format!(
+                " {} {} {} {};",
+                s.name,
+                s.material.name(),
+                s.mesh.vertices_mm.len(),
+                s.mesh.triangles.len()
+            ));
+        }
+        let store = dir.join(STORE_FILE);
+        let (region, outcome) = Region::from_asset_with(asset, Some((&store, &key)));
+        (region, outcome.expect("a store was given"))
+    }
+
+    fn from_asset_with(
+        asset: &RegionAsset,
+        store: Option<(&Path, &str)>,
+    ) -> (Region, Option<StoreOutcome>) {
         let mut params_of_phantom = None;
         let (landmarks, source) = match &asset.provenance.source {
             Source::Phantom {
@@ -106,15 +163,16 @@ impl Region {
                 format!("ct:{ct_file}"),
             ),
         };
-        let mut region = Region::from_structures(
+        let (mut region, outcome) = Region::from_structures_with(
             &asset.name,
             &asset.structures,
             landmarks,
             asset.provenance.files_sha256.clone(),
             source,
+            store,
         );
         region.phantom = params_of_phantom;
-        region
+        (region, outcome)
     }
 
     /// Entry index of a structure by name.

@@ -433,7 +433,7 @@ impl RegionAsset {
 }
 
 /// A suffix that differs between calls in one process (nanoseconds since the epoch, then a counter).
-fn unique_suffix() -> String {
+pub(crate) fn unique_suffix() -> String {
     use std::sync::atomic::{AtomicU64, Ordering};
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let nanos = std::time::SystemTime::now()

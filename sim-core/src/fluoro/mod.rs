@@ -62,6 +62,7 @@ pub mod render;
 mod rows;
 pub mod scatter;
 pub mod scene;
+pub mod scene_store;
 pub mod spectrum;
 pub mod temporal;
 

@@ -34,6 +34,8 @@ mod bvh;
 mod shapes;
 mod triangle;
 
-pub use bvh::{Bvh, Hit, SurfaceHit, inside_intervals};
+pub use bvh::{
+    BVH_BUILDER_VERSION, Bvh, BvhTopology, Hit, SurfaceHit, TopologyError, inside_intervals,
+};
 pub use shapes::{capped_cylinder, equal_area_vertex_radius};
 pub use triangle::{RayPrecomp, intersect_triangle};
