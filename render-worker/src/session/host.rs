@@ -28,7 +28,7 @@ use super::modalities::fluoro::{BackendProfile, FluoroBackend};
 pub use super::preparation::{
     EXPECTED_BUILD_S, MAX_RETRY_AFTER_S, RegionReadiness, build_fraction,
 };
-use super::preparation::{RegionLoader, Regions};
+use super::preparation::{QuickCheck, RegionLoader, Regions};
 use super::region::Region;
 use super::scoring::SubmitResult;
 use super::world::StationContext;
@@ -292,9 +292,11 @@ impl SessionHost {
             })
             .collect();
         let root = config.assets_root.clone();
+        let root_too = config.assets_root.clone();
         Ok(SessionHost::from_parts(
             stations,
             Box::new(move |name, progress| super::loader::load_region(&root, name, progress)),
+            Box::new(move |name| super::loader::is_built(&root_too, name)),
             backends,
             config.capacity,
             config.session,
@@ -317,6 +319,7 @@ impl SessionHost {
                 .map(|(s, h)| (s.id.clone(), (s, h)))
                 .collect(),
             Box::new(|name, _| Err(RegionLoadError::NotLoaded(name.to_string()))),
+            Box::new(|_| false),
             backends,
             capacity,
             session_config,
@@ -331,6 +334,7 @@ impl SessionHost {
     fn from_parts(
         stations: BTreeMap<String, (Station, String)>,
         loader: Box<RegionLoader>,
+        quick: Box<QuickCheck>,
         backends: Backends,
         capacity: usize,
         session_config: SessionConfig,
@@ -339,7 +343,7 @@ impl SessionHost {
         SessionHost {
             inner: Arc::new(Inner {
                 stations,
-                regions: Arc::new(Regions::new(loader)),
+                regions: Arc::new(Regions::with_quick_check(loader, quick)),
                 sessions: Mutex::new(BTreeMap::new()),
                 actors: Mutex::new(Vec::new()),
                 backends: std::sync::RwLock::new(backends),
@@ -468,6 +472,7 @@ impl SessionHost {
                 .map(|(s, h)| (s.id.clone(), (s, h)))
                 .collect(),
             Box::new(loader),
+            Box::new(|_| false),
             backends,
             capacity,
             session_config,

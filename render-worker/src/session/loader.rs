@@ -28,6 +28,22 @@ pub enum RegionLoadError {
     NotLoaded(String),
 }
 
+/// Whether [`load_region`] of `name` would only read files (the region is built and cached, or
+/// is a folder of files, or the in-memory demo region), not build a phantom first. For a
+/// phantom region this reads its provenance record only.
+pub fn is_built(assets_root: &Path, name: &str) -> bool {
+    let dir = assets_root.join(name);
+    if let Some(habitus) = phantom::habitus::Habitus::of_region(name) {
+        let params = habitus.apply(&phantom::PhantomParams::default());
+        phantom::is_cached_for(&dir, phantom::GENERATOR, &params)
+    } else if name == phantom::cervical::REGION_NAME {
+        let params = phantom::cervical::default_params();
+        phantom::is_cached_for(&dir, phantom::cervical::GENERATOR, &params)
+    } else {
+        true
+    }
+}
+
 /// Loads `assets_root/<name>`, reporting the phantom build's stages to `progress` (a region that
 /// is cached or read from files reports nothing). The phantom regions (lumbar and cervical) are
 /// built there first if missing or stale. The scene's trees are stored in the folder too and

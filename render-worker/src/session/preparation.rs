@@ -158,20 +158,42 @@ pub struct Regions {
     prep: Mutex<BTreeMap<String, Prep>>,
     prepared: Condvar,
     loader: Box<RegionLoader>,
-    /// Claimed regions waiting for the preparation thread, next first, and whether that thread
-    /// runs (one at a time: on 2 cores two builds at once would only finish both later).
-    queue: Mutex<(VecDeque<String>, bool)>,
+    /// Whether the loader would only read a region's files (no build).
+    quick: Box<QuickCheck>,
+    /// Claimed regions waiting for preparation, and which preparation threads run.
+    queue: Mutex<Queue>,
+}
+
+/// Whether loading a region would only read its files (a built, cached region), not build it.
+pub type QuickCheck = dyn Fn(&str) -> bool + Send + Sync;
+
+/// The regions waiting for preparation, next first, and the threads that take them: the main
+/// one takes every region in order, one at a time (a phantom build already uses every core: two
+/// builds at once would only finish both later); a helper takes only regions whose loader just
+/// reads files (mostly one core each), so on a restart two load at once.
+#[derive(Default)]
+struct Queue {
+    waiting: VecDeque<String>,
+    main: bool,
+    helper: bool,
 }
 
 impl Regions {
-    /// No region loaded yet; `loader` prepares them.
+    /// No region loaded yet; `loader` prepares them, one at a time.
     pub fn new(loader: Box<RegionLoader>) -> Regions {
+        Regions::with_quick_check(loader, Box::new(|_| false))
+    }
+
+    /// [`Regions::new`], where a region for which `quick` is true (its loader only reads files)
+    /// may load beside another one on a machine of two or more cores.
+    pub fn with_quick_check(loader: Box<RegionLoader>, quick: Box<QuickCheck>) -> Regions {
         Regions {
             loaded: Mutex::new(BTreeMap::new()),
             prep: Mutex::new(BTreeMap::new()),
             prepared: Condvar::new(),
             loader,
-            queue: Mutex::new((VecDeque::new(), false)),
+            quick,
+            queue: Mutex::new(Queue::default()),
         }
     }
 
@@ -220,49 +242,105 @@ impl Regions {
         true
     }
 
-    /// Prepares the claimed `regions` one after the other on a background thread (after those
-    /// already waiting), returns at once. A region a learner asks for meanwhile goes first
-    /// ([`Regions::prefer`]).
+    /// Prepares the claimed `regions` on background threads (after those already waiting), in
+    /// order and one at a time, except that a region that only needs reading may load beside
+    /// another (see [`Regions::with_quick_check`]); returns at once. A region a learner asks for
+    /// meanwhile goes first ([`Regions::prefer`]).
     pub fn spawn_preparation(self: &Arc<Self>, regions: Vec<String>) {
         let mut queue = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
         for r in regions {
-            if !queue.0.contains(&r) {
-                queue.0.push_back(r);
+            if !queue.waiting.contains(&r) {
+                queue.waiting.push_back(r);
             }
         }
-        if queue.1 || queue.0.is_empty() {
+        if queue.waiting.is_empty() {
             return;
         }
-        queue.1 = true;
+        let start_main = !queue.main;
+        queue.main = true;
+        let two_cores = std::thread::available_parallelism().is_ok_and(|n| n.get() >= 2);
+        let start_helper = two_cores && !queue.helper;
+        queue.helper |= start_helper;
         drop(queue);
-        let this = Arc::clone(self);
-        let spawned = std::thread::Builder::new()
-            .name("region-prepare".into())
-            .spawn(move || {
-                loop {
-                    let next = {
-                        let mut queue = this.queue.lock().unwrap_or_else(PoisonError::into_inner);
-                        let next = queue.0.pop_front();
-                        queue.1 = next.is_some();
-                        next
-                    };
-                    let Some(r) = next else { break };
-                    match this.load_claimed(&r) {
-                        Ok(_) => tracing::info!(region = %r, "region ready"),
-                        Err(e) => tracing::error!(region = %r, "region preparation failed: {e}"),
-                    }
+        if start_main {
+            let this = Arc::clone(self);
+            let spawned = std::thread::Builder::new()
+                .name("region-prepare".into())
+                .spawn(move || this.prepare_in_order());
+            if let Err(e) = spawned {
+                tracing::error!("cannot start the region preparation thread: {e}");
+                let mut queue = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
+                queue.main = false;
+                for r in std::mem::take(&mut queue.waiting) {
+                    self.fail(
+                        &r,
+                        format!("cannot start the region preparation thread: {e}"),
+                    );
                 }
-            });
-        if let Err(e) = spawned {
-            tracing::error!("cannot start the region preparation thread: {e}");
-            let mut queue = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
-            queue.1 = false;
-            for r in std::mem::take(&mut queue.0) {
-                self.fail(
-                    &r,
-                    format!("cannot start the region preparation thread: {e}"),
-                );
             }
+        }
+        if start_helper {
+            let this = Arc::clone(self);
+            let spawned = std::thread::Builder::new()
+                .name("region-read".into())
+                .spawn(move || this.read_quick_ones());
+            if spawned.is_err() {
+                // The main thread prepares them all.
+                self.queue
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .helper = false;
+            }
+        }
+    }
+
+    /// The main preparation thread: every waiting region, next first.
+    fn prepare_in_order(&self) {
+        loop {
+            let next = {
+                let mut queue = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
+                let next = queue.waiting.pop_front();
+                queue.main = next.is_some();
+                next
+            };
+            let Some(r) = next else { break };
+            self.prepare_logged(&r);
+        }
+    }
+
+    /// The helper thread: the first waiting region that only needs reading, until none is left
+    /// (the main thread takes the rest).
+    fn read_quick_ones(&self) {
+        loop {
+            let waiting: Vec<String> = self
+                .queue
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .waiting
+                .iter()
+                .cloned()
+                .collect();
+            // Outside the lock: the check reads a file.
+            let candidate = waiting.into_iter().find(|r| (self.quick)(r));
+            let mut queue = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
+            let Some(r) = candidate else {
+                queue.helper = false;
+                break;
+            };
+            // Taken by the main thread meanwhile: look again.
+            let Some(k) = queue.waiting.iter().position(|w| *w == r) else {
+                continue;
+            };
+            queue.waiting.remove(k);
+            drop(queue);
+            self.prepare_logged(&r);
+        }
+    }
+
+    fn prepare_logged(&self, region: &str) {
+        match self.load_claimed(region) {
+            Ok(_) => tracing::info!(region, "region ready"),
+            Err(e) => tracing::error!(region, "region preparation failed: {e}"),
         }
     }
 
@@ -271,11 +349,11 @@ impl Regions {
     /// not for the ones queued before it). True when it was waiting.
     pub fn prefer(&self, region: &str) -> bool {
         let mut queue = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
-        match queue.0.iter().position(|r| r == region) {
+        match queue.waiting.iter().position(|r| r == region) {
             Some(0) => true,
             Some(k) => {
-                if let Some(r) = queue.0.remove(k) {
-                    queue.0.push_front(r);
+                if let Some(r) = queue.waiting.remove(k) {
+                    queue.waiting.push_front(r);
                 }
                 true
             }
@@ -412,5 +490,75 @@ mod tests {
         assert_eq!(next(), "e");
         go_tx.send(()).unwrap();
         assert!(regions.blocking("e").is_ok());
+    }
+
+    /// Regions that only need reading load beside the one in progress (two at most); those that
+    /// need a build never run beside another build.
+    #[test]
+    fn regions_that_only_need_reading_load_two_at_a_time() {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        if std::thread::available_parallelism().map_or(1, |n| n.get()) < 2 {
+            return;
+        }
+        let running = Arc::new(AtomicUsize::new(0));
+        let (started_tx, started_rx) = mpsc::channel::<(String, usize)>();
+        let (go_tx, go_rx) = mpsc::channel::<()>();
+        let go_rx = Mutex::new(go_rx);
+        let builds_at_once = Arc::new(AtomicUsize::new(0));
+        let most_builds = Arc::new(AtomicUsize::new(0));
+        let (r2, b2, m2) = (running.clone(), builds_at_once.clone(), most_builds.clone());
+        let loader = move |name: &str, _progress: &mut dyn FnMut(&Progress)| {
+            let now = r2.fetch_add(1, Ordering::SeqCst) + 1;
+            let build = name.starts_with("cold");
+            if build {
+                let b = b2.fetch_add(1, Ordering::SeqCst) + 1;
+                m2.fetch_max(b, Ordering::SeqCst);
+            }
+            started_tx.send((name.to_string(), now)).unwrap();
+            go_rx.lock().unwrap().recv().unwrap();
+            if build {
+                b2.fetch_sub(1, Ordering::SeqCst);
+            }
+            r2.fetch_sub(1, Ordering::SeqCst);
+            let mut r = crate::session::demo::demo_region();
+            r.name = name.to_string();
+            Ok(r)
+        };
+        let regions = Arc::new(Regions::with_quick_check(
+            Box::new(loader),
+            Box::new(|name: &str| name.starts_with("read")),
+        ));
+        let names: Vec<String> = ["cold-a", "cold-b", "read-c", "read-d"]
+            .map(String::from)
+            .to_vec();
+        for n in &names {
+            assert!(regions.claim(n));
+        }
+        regions.spawn_preparation(names.clone());
+        let next = || {
+            started_rx
+                .recv_timeout(std::time::Duration::from_secs(30))
+                .unwrap()
+        };
+        // The first build and the first region to read start together, before either ends.
+        let mut first_two = [next(), next()];
+        first_two.sort();
+        assert_eq!(first_two[0].0, "cold-a");
+        assert_eq!(first_two[1].0, "read-c");
+        assert_eq!(first_two.iter().map(|s| s.1).max(), Some(2));
+        for _ in 0..2 {
+            go_tx.send(()).unwrap();
+        }
+        // Then the rest, never more than two at once and never two builds at once.
+        let mut rest: Vec<String> = (0..2).map(|_| next().0).collect();
+        for _ in 0..2 {
+            go_tx.send(()).unwrap();
+        }
+        rest.sort();
+        assert_eq!(rest, ["cold-b", "read-d"]);
+        for n in &names {
+            assert!(regions.blocking(n).is_ok(), "{n}");
+        }
+        assert_eq!(most_builds.load(Ordering::SeqCst), 1);
     }
 }
