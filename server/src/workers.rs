@@ -166,6 +166,11 @@ impl Workers {
                 }
                 std::thread::sleep(std::time::Duration::from_millis(250));
             }
+            // Learners who start while the calibration runs get prepared regions.
+            let started = std::time::Instant::now();
+            let prepared = render_worker::session::calibration::prepare_fluoroscopy_regions(&host);
+            tracing::info!(regions = prepared, took_s = started.elapsed().as_secs_f64(),
+                "fluoroscopy regions prepared before the calibration");
             let mut candidates: Vec<Arc<dyn FluoroBackend>> = Vec::new();
             // The sessions' own GPU renderer: its upload of the region is kept for them.
             if let Some(r) = me.gpu_renderers() {
@@ -186,8 +191,7 @@ impl Workers {
                 }
             };
             *me.calibration.write().unwrap_or_else(|p| p.into_inner()) = next;
-            // Then the other stations' regions, with the renderer chosen: their first sessions
-            // find the anatomy made (see `prepare_fluoroscopy_regions`).
+            // Again with the renderer chosen (nothing to do when it is the one prepared above).
             let started = std::time::Instant::now();
             let prepared = render_worker::session::calibration::prepare_fluoroscopy_regions(&host);
             tracing::info!(regions = prepared, took_s = started.elapsed().as_secs_f64(), "fluoroscopy regions prepared");

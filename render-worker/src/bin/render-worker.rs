@@ -69,7 +69,8 @@ fn main() -> ExitCode {
                 Err(e) => tracing::error!(error = %e,
                     "render calibration failed; keeping the renderer and capacity it started with"),
             }
-            // Regions the renderer keeps are made now rather than by their first sessions.
+            // The chosen renderer's regions (those of the renderer it started with were made
+            // before the calibration).
             let prepared = prepare_fluoroscopy_regions(&calibrated);
             tracing::info!(regions = prepared, "fluoroscopy regions prepared");
         });

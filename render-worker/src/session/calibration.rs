@@ -619,13 +619,16 @@ pub fn calibrate_host(
 
 /// Prepares every region of `host`'s fluoroscopy stations with its fluoroscopy renderer
 /// ([`FluoroBackend::prepare`]: the GPU renderer that keeps its uploads makes each region's
-/// anatomy and draft scene now, one region after another), so that the first session of a
-/// station other than the calibrated one does not make them before its first image (0.36 s for
-/// the default phantom's anatomy and 1.7 s for its draft scene, which shared the 2 cores with
-/// that session's first frames). Call it once the calibration chose the renderer, on the
-/// calibration's thread. Returns how many regions the renderer keeps prepared (made now or
-/// before); a region that fails is logged and skipped (its sessions meet the same error and
-/// report it).
+/// anatomy and draft scene now, one region after another), so that a station's first session
+/// does not make them before its first image (0.36 s for the default phantom's anatomy and
+/// 1.7 s for its draft scene when not stored, which shared the 2 cores with that session's
+/// first frames). Call it once the regions are loaded, before the calibration (with the
+/// renderer the host starts with, which the calibration keeps unless another one is faster: the
+/// calibration takes tens of seconds on a small machine, and learners meanwhile get prepared
+/// regions), and again after it (which prepares the chosen renderer's regions if the choice
+/// changed, and costs nothing otherwise), on the calibration's thread. Returns how many regions
+/// the renderer keeps prepared (made now or before); a region that fails is logged and skipped
+/// (its sessions meet the same error and report it).
 pub fn prepare_fluoroscopy_regions(host: &SessionHost) -> usize {
     let backend = host.backends().fluoro;
     let mut seen = BTreeSet::new();
@@ -648,7 +651,8 @@ pub fn prepare_fluoroscopy_regions(host: &SessionHost) -> usize {
 const READY_POLL: Duration = Duration::from_millis(250);
 
 /// [`calibrate_host`] on `host`'s own renderers (its fluoroscopy renderer, then the CPU
-/// reference unless that is the one it has) once no region is being prepared any more (call it
+/// reference unless that is the one it has) once no region is being prepared any more, with the
+/// regions prepared for its renderer first ([`prepare_fluoroscopy_regions`]) (call it
 /// after [`SessionHost::prepare_in_background`]: a region not started counts as pending) and one
 /// of its fluoroscopy stations has its region loaded (blocking: call it on its own thread).
 /// [`CalibrationError::NoStation`] when every preparation ended without such a region.
@@ -668,6 +672,13 @@ pub fn calibrate_when_ready(
         }
         std::thread::sleep(READY_POLL);
     }
+    let started = Instant::now();
+    let prepared = prepare_fluoroscopy_regions(host);
+    tracing::info!(
+        regions = prepared,
+        took_s = started.elapsed().as_secs_f64(),
+        "fluoroscopy regions prepared before the calibration"
+    );
     let own = host.backends().fluoro;
     let cpu = Backends::cpu(0).fluoro;
     let mut candidates = vec![Arc::clone(&own)];

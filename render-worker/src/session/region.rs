@@ -1,7 +1,7 @@
 //! The anatomy a session runs in, loaded once per worker and shared (read-only) by its sessions.
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use glam::DVec3;
 use sim_core::anatomy::asset::{MESHES_FILE, RegionAsset, Source, StructureAsset};
@@ -31,7 +31,24 @@ pub struct Region {
     /// The parameters of a procedural phantom region (the phantom is a pure function of them),
     /// from which the contrast modality builds its transport domains; `None` for other regions.
     pub phantom: Option<phantom::PhantomParams>,
+    /// Where the region's derived scenes are stored, and the key that names its meshes there
+    /// (regions read from a folder; `None` for regions made in memory).
+    pub store: Option<SceneStore>,
 }
+
+/// A region folder's stored scenes ([`STORE_FILE`] for the scene's trees, [`DRAFT_STORE_FILE`]
+/// for the draft scene) and the key of the meshes they were made from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneStore {
+    /// The region's folder.
+    pub dir: PathBuf,
+    /// Names the meshes: the mesh file's SHA-256 and each structure's name, material and size.
+    pub key: String,
+}
+
+/// File name of a region's stored draft scene (see
+/// [`sim_core::fluoro::draft::draft_scene_stored`]).
+pub const DRAFT_STORE_FILE: &str = "draft-scene.bin";
 
 impl Region {
     /// Builds the scene of `structures` (this is where BVHs are built, on every core: 1.7 s on
@@ -82,6 +99,7 @@ impl Region {
             asset_sha256,
             source,
             phantom: None,
+            store: None,
         };
         (region, outcome)
     }
@@ -117,7 +135,11 @@ impl Region {
             ));
         }
         let store = dir.join(STORE_FILE);
-        let (region, outcome) = Region::from_asset_with(asset, Some((&store, &key)));
+        let (mut region, outcome) = Region::from_asset_with(asset, Some((&store, &key)));
+        region.store = Some(SceneStore {
+            dir: dir.to_path_buf(),
+            key,
+        });
         (region, outcome.expect("a store was given"))
     }
 

@@ -355,6 +355,14 @@ impl FluoroBackend for InProcessBackend {
     fn prefetches(&self) -> bool {
         self.current().prefetches()
     }
+
+    fn finish_background_work(&self) {
+        self.current().finish_background_work();
+    }
+
+    fn prepare(&self, region: &Arc<Region>) -> Result<bool, FluoroRenderError> {
+        self.current().prepare(region)
+    }
 }
 
 pub(super) struct Inner {

@@ -16,7 +16,10 @@
 
 use rustc_hash::FxHashMap;
 
+use std::path::Path;
+
 use super::scene::{Scene, SceneEntry};
+use super::scene_store::{Miss, StoreOutcome, decode, encode, write_atomically};
 use crate::anatomy::decimate::{DecimationParams, decimate};
 use crate::anatomy::interfaces::par_map_heaviest_first;
 use crate::geom::Bvh;
@@ -73,12 +76,22 @@ pub fn weld(triangles_mm: &[[[f64; 3]; 3]]) -> TriMesh {
     mesh
 }
 
+/// Version of the drafts [`draft_scene`] makes of a scene with given [`DraftParams`]: a stored
+/// draft ([`draft_scene_stored`]) is reused only under the version that made it. Raise it
+/// whenever [`weld`], the decimator or this module's reduction changes.
+pub const DRAFT_VERSION: u32 = 1;
+
 /// The draft of `scene` (see the module doc): same entries, names, materials and priorities,
 /// each mesh reduced.
 ///
 /// Entries are reduced on every core, largest first; each alone, so the draft does not depend
 /// on the number of cores.
 pub fn draft_scene(scene: &Scene, params: &DraftParams) -> Scene {
+    draft_with_meshes(scene, params).0
+}
+
+/// The draft and its reduced meshes, in entry order.
+fn draft_with_meshes(scene: &Scene, params: &DraftParams) -> (Scene, Vec<TriMesh>) {
     let entries = scene.entries();
     let weights: Vec<usize> = entries.iter().map(|e| e.bvh.triangle_count()).collect();
     let reduced = par_map_heaviest_first(&weights, &|i| {
@@ -89,18 +102,82 @@ pub fn draft_scene(scene: &Scene, params: &DraftParams) -> Scene {
         } else {
             decimate(&mesh, &params.decimation).0
         };
-        SceneEntry {
+        let entry = SceneEntry {
             name: e.name.clone(),
             material: e.material,
             priority: e.priority,
             bvh: Bvh::new(&mesh),
-        }
+        };
+        (entry, mesh)
     });
     let mut draft = Scene::new();
-    for entry in reduced {
+    let mut meshes = Vec::with_capacity(reduced.len());
+    for (entry, mesh) in reduced {
         draft.push_entry(entry);
+        meshes.push(mesh);
     }
-    draft
+    (draft, meshes)
+}
+
+/// [`draft_scene`], taken from the file at `store` when it holds the draft of this scene under
+/// `key` (a description of the scene's meshes that changes whenever they could; the draft
+/// parameters and [`DRAFT_VERSION`] are added here), else made and stored there. The draft is
+/// the same either way, bit for bit; a stale or corrupt file is never served.
+pub fn draft_scene_stored(
+    scene: &Scene,
+    params: &DraftParams,
+    store: &Path,
+    key: &str,
+) -> (Scene, StoreOutcome) {
+    let key = format!("draft {DRAFT_VERSION} {params:?} of {key}");
+    let bytes = std::fs::read(store).ok();
+    match reuse_draft(bytes.as_deref(), &key, scene) {
+        Ok(draft) => (draft, StoreOutcome::Reused),
+        Err(miss) => {
+            let (draft, meshes) = draft_with_meshes(scene, params);
+            let topologies: Vec<_> = draft.entries().iter().map(|e| e.bvh.topology()).collect();
+            let entries: Vec<_> = topologies
+                .iter()
+                .zip(&meshes)
+                .map(|(t, m)| (t, Some(m)))
+                .collect();
+            let stored = write_atomically(store, &encode(&key, &entries))
+                .map_err(|e| format!("{}: {e}", store.display()));
+            let outcome = StoreOutcome::Built {
+                why: miss.to_string(),
+                stored,
+            };
+            (draft, outcome)
+        }
+    }
+}
+
+/// The stored draft of `scene`, entry by entry.
+fn reuse_draft(stored: Option<&[u8]>, key: &str, scene: &Scene) -> Result<Scene, Miss> {
+    let entries = decode(stored.ok_or(Miss::Missing)?, key)?;
+    if entries.len() != scene.entries().len() {
+        return Err(Miss::Corrupt(format!(
+            "{} drafts for {} entries",
+            entries.len(),
+            scene.entries().len()
+        )));
+    }
+    let weights: Vec<usize> = entries.iter().map(|e| e.0.order.len()).collect();
+    let trees = par_map_heaviest_first(&weights, &|i| match &entries[i] {
+        (topology, Some(mesh)) => Bvh::from_topology(mesh, topology).map_err(|e| e.to_string()),
+        (_, None) => Err("stored without its mesh".into()),
+    });
+    let mut draft = Scene::new();
+    for (e, tree) in scene.entries().iter().zip(trees) {
+        let bvh = tree.map_err(|why| Miss::Corrupt(format!("{}: {why}", e.name)))?;
+        draft.push_entry(SceneEntry {
+            name: e.name.clone(),
+            material: e.material,
+            priority: e.priority,
+            bvh,
+        });
+    }
+    Ok(draft)
 }
 
 #[cfg(test)]
@@ -165,5 +242,93 @@ mod tests {
             again.entries()[0].bvh.triangles_mm(),
             draft.entries()[0].bvh.triangles_mm()
         );
+    }
+
+    /// A stored draft is the made one bit for bit; another key (other parameters) or a spoiled
+    /// file is made again and stored, never served.
+    #[test]
+    fn a_stored_draft_is_the_made_one_and_a_bad_store_is_remade() {
+        let big = TriMesh::icosphere([0.0; 3], 40.0, 4);
+        let small = TriMesh::icosphere([3.0, 0.0, 0.0], 5.0, 1);
+        let mut scene = Scene::new();
+        scene.add("outer", FluoroMaterial::Tissue(MaterialClass::Muscle), &big);
+        scene.add(
+            "inner",
+            FluoroMaterial::Tissue(MaterialClass::CorticalBone),
+            &small,
+        );
+        let params = DraftParams::default();
+        let made: Vec<Bvh> = draft_scene(&scene, &params)
+            .entries()
+            .iter()
+            .map(|e| e.bvh.clone())
+            .collect();
+        let bvhs = |s: &Scene| {
+            s.entries()
+                .iter()
+                .map(|e| e.bvh.clone())
+                .collect::<Vec<_>>()
+        };
+        let dir = std::env::temp_dir().join(format!(
+            "draft-store-{}",
+            crate::anatomy::asset::unique_suffix()
+        ));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        let store = dir.join("draft.bin");
+        let (d, outcome) = draft_scene_stored(&scene, &params, &store, "k");
+        assert!(
+            matches!(outcome, StoreOutcome::Built { stored: Ok(()), .. }),
+            "{outcome:?}"
+        );
+        assert_eq!(bvhs(&d), made);
+        let (d, outcome) = draft_scene_stored(&scene, &params, &store, "k");
+        assert_eq!(outcome, StoreOutcome::Reused);
+        assert_eq!(bvhs(&d), made);
+        for (e, m) in d.entries().iter().zip(scene.entries()) {
+            assert_eq!(
+                (&e.name, e.material, e.priority),
+                (&m.name, m.material, m.priority)
+            );
+        }
+        let good = std::fs::read(&store).expect("stored");
+        // Other parameters: stale.
+        let other = DraftParams {
+            min_triangles: 10_000,
+            ..DraftParams::default()
+        };
+        let (_, outcome) = draft_scene_stored(&scene, &other, &store, "k");
+        assert!(matches!(outcome, StoreOutcome::Built { ref why, .. } if why.contains("other")));
+        std::fs::write(&store, &good).expect("restore");
+        // A flipped byte in a vertex, in a triangle, or a truncation: corrupt, remade.
+        for at in [good.len() / 3, good.len() - 40] {
+            let mut bad = good.clone();
+            bad[at] ^= 0x10;
+            std::fs::write(&store, &bad).expect("spoil");
+            let (d, outcome) = draft_scene_stored(&scene, &params, &store, "k");
+            assert!(
+                matches!(outcome, StoreOutcome::Built { ref why, .. } if why.contains("corrupt")),
+                "{outcome:?}"
+            );
+            assert_eq!(bvhs(&d), made);
+            assert_eq!(std::fs::read(&store).expect("rewritten"), good);
+        }
+        // A checksummed file of the right key whose mesh names a missing vertex: refused.
+        let (draft, meshes) = draft_with_meshes(&scene, &params);
+        let mut broken = meshes[1].clone();
+        broken.triangles[0][0] = broken.vertices_mm.len() as u32;
+        let topologies: Vec<_> = draft.entries().iter().map(|e| e.bvh.topology()).collect();
+        let key = format!("draft {DRAFT_VERSION} {params:?} of k");
+        let bytes = encode(
+            &key,
+            &[
+                (&topologies[0], Some(&meshes[0])),
+                (&topologies[1], Some(&broken)),
+            ],
+        );
+        assert!(matches!(
+            reuse_draft(Some(&bytes), &key, &scene),
+            Err(Miss::Corrupt(_))
+        ));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -7,9 +7,14 @@
 //! [`BVH_BUILDER_VERSION`]. A file that is truncated, altered (its SHA-256 trailer), stale or
 //! whose trees do not fit the meshes is never served: the trees are built and the file rewritten.
 //!
-//! Layout (little-endian): [`MAGIC`], the 32-byte SHA-256 of the key, the tree count, then per
-//! tree its slot count, its node count, the slots (`u32` source triangle each) and the nodes
-//! (`u32` first, `u32` count each); last, the SHA-256 of everything before it.
+//! The same file format also holds scenes whose meshes are derived rather than read (the draft
+//! scene, [`super::draft::draft_scene_stored`]): each entry may carry its mesh.
+//!
+//! Layout (little-endian): [`MAGIC`], the 32-byte SHA-256 of the key, the entry count, then per
+//! entry its slot count, its node count, the slots (`u32` source triangle each), the nodes
+//! (`u32` first, `u32` count each), and its mesh or none: a vertex count (`u32::MAX` for none),
+//! a triangle count, the vertices (three `f64` bit patterns each) and the triangles (three `u32`
+//! vertex indices each); last, the SHA-256 of everything before it.
 
 use std::path::Path;
 
@@ -24,8 +29,8 @@ use crate::mesh::TriMesh;
 /// File name of the stored trees in a region folder.
 pub const STORE_FILE: &str = "scene-bvh.bin";
 
-/// First bytes of a stored-trees file (format 1).
-pub const MAGIC: &[u8; 16] = b"painsim-bvh\0\0\0\0\x01";
+/// First bytes of a stored-trees file (format 2).
+pub const MAGIC: &[u8; 16] = b"painsim-bvh\0\0\0\0\x02";
 
 /// What became of the stored trees when a scene was made.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -44,7 +49,7 @@ pub enum StoreOutcome {
 
 /// Why a stored file cannot be used.
 #[derive(Debug, Clone, PartialEq, Eq)]
-enum Miss {
+pub(crate) enum Miss {
     Missing,
     Stale,
     Corrupt(String),
@@ -53,9 +58,9 @@ enum Miss {
 impl std::fmt::Display for Miss {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Miss::Missing => write!(f, "no stored trees"),
-            Miss::Stale => write!(f, "stored trees are for other meshes or another builder"),
-            Miss::Corrupt(why) => write!(f, "stored trees are corrupt ({why})"),
+            Miss::Missing => write!(f, "nothing stored"),
+            Miss::Stale => write!(f, "the store is for other meshes or another version"),
+            Miss::Corrupt(why) => write!(f, "the store is corrupt ({why})"),
         }
     }
 }
@@ -69,25 +74,51 @@ fn key_digest(key: &str) -> [u8; 32] {
     h.finalize().into()
 }
 
-/// The stored form of `topologies` under `key`.
-pub fn encode(key: &str, topologies: &[BvhTopology]) -> Vec<u8> {
-    let size: usize = topologies
+/// Marks an entry stored without its mesh.
+const NO_MESH: u32 = u32::MAX;
+
+/// The stored form of `entries` (each tree's shape, with its mesh when the reader cannot get it
+/// elsewhere) under `key`.
+pub(crate) fn encode(key: &str, entries: &[(&BvhTopology, Option<&TriMesh>)]) -> Vec<u8> {
+    let size: usize = entries
         .iter()
-        .map(|t| 8 + 4 * t.order.len() + 8 * t.nodes.len())
+        .map(|(t, m)| {
+            16 + 4 * t.order.len()
+                + 8 * t.nodes.len()
+                + m.map_or(0, |m| 24 * m.vertices_mm.len() + 12 * m.triangles.len())
+        })
         .sum();
     let mut out = Vec::with_capacity(MAGIC.len() + 32 + 4 + size + 32);
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&key_digest(key));
-    out.extend_from_slice(&(topologies.len() as u32).to_le_bytes());
-    for t in topologies {
-        out.extend_from_slice(&(t.order.len() as u32).to_le_bytes());
-        out.extend_from_slice(&(t.nodes.len() as u32).to_le_bytes());
+    let put = |x: u32, out: &mut Vec<u8>| out.extend_from_slice(&x.to_le_bytes());
+    put(entries.len() as u32, &mut out);
+    for (t, mesh) in entries {
+        put(t.order.len() as u32, &mut out);
+        put(t.nodes.len() as u32, &mut out);
         for s in &t.order {
-            out.extend_from_slice(&s.to_le_bytes());
+            put(*s, &mut out);
         }
         for (first, count) in &t.nodes {
-            out.extend_from_slice(&first.to_le_bytes());
-            out.extend_from_slice(&count.to_le_bytes());
+            put(*first, &mut out);
+            put(*count, &mut out);
+        }
+        match mesh {
+            None => put(NO_MESH, &mut out),
+            Some(m) => {
+                put(m.vertices_mm.len() as u32, &mut out);
+                put(m.triangles.len() as u32, &mut out);
+                for v in &m.vertices_mm {
+                    for c in v {
+                        out.extend_from_slice(&c.to_bits().to_le_bytes());
+                    }
+                }
+                for tri in &m.triangles {
+                    for i in tri {
+                        put(*i, &mut out);
+                    }
+                }
+            }
         }
     }
     let trailer: [u8; 32] = Sha256::digest(&out).into();
@@ -120,10 +151,45 @@ impl Reader<'_> {
             .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect())
     }
+
+    /// A stored mesh: every index in range, every coordinate finite.
+    fn mesh(&mut self, vertices: usize) -> Result<TriMesh, Miss> {
+        let triangles = self.u32()? as usize;
+        let bits = self.u32s(
+            vertices
+                .checked_mul(6)
+                .ok_or(Miss::Corrupt("truncated".into()))?,
+        )?;
+        let vertices_mm: Vec<[f64; 3]> = bits
+            .chunks_exact(6)
+            .map(|w| {
+                std::array::from_fn(|a| {
+                    f64::from_bits(u64::from(w[2 * a]) | (u64::from(w[2 * a + 1]) << 32))
+                })
+            })
+            .collect();
+        if vertices_mm.iter().flatten().any(|c| !c.is_finite()) {
+            return Err(Miss::Corrupt("a stored vertex is not finite".into()));
+        }
+        let flat = self.u32s(
+            triangles
+                .checked_mul(3)
+                .ok_or(Miss::Corrupt("truncated".into()))?,
+        )?;
+        if flat.iter().any(|&i| i as usize >= vertices) {
+            return Err(Miss::Corrupt(
+                "a stored triangle names a missing vertex".into(),
+            ));
+        }
+        Ok(TriMesh {
+            vertices_mm,
+            triangles: flat.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect(),
+        })
+    }
 }
 
-/// The topologies stored in `bytes` under `key` (not yet checked against any mesh).
-fn decode(bytes: &[u8], key: &str) -> Result<Vec<BvhTopology>, Miss> {
+/// The entries stored in `bytes` under `key` (not yet checked against any mesh).
+pub(crate) fn decode(bytes: &[u8], key: &str) -> Result<Vec<(BvhTopology, Option<TriMesh>)>, Miss> {
     let Some((body, trailer)) = bytes.split_last_chunk::<32>() else {
         return Err(Miss::Corrupt("shorter than its checksum".into()));
     };
@@ -152,10 +218,15 @@ fn decode(bytes: &[u8], key: &str) -> Result<Vec<BvhTopology>, Miss> {
                 .checked_mul(2)
                 .ok_or(Miss::Corrupt("truncated".into()))?,
         )?;
-        out.push(BvhTopology {
+        let topology = BvhTopology {
             order,
             nodes: flat.chunks_exact(2).map(|p| (p[0], p[1])).collect(),
-        });
+        };
+        let mesh = match r.u32()? {
+            NO_MESH => None,
+            vertices => Some(r.mesh(vertices as usize)?),
+        };
+        out.push((topology, mesh));
     }
     if !r.0.is_empty() {
         return Err(Miss::Corrupt(format!(
@@ -172,7 +243,13 @@ fn reuse(
     key: &str,
     meshes: &[(String, FluoroMaterial, &TriMesh)],
 ) -> Result<Vec<Bvh>, Miss> {
-    let topologies = decode(stored.ok_or(Miss::Missing)?, key)?;
+    let entries = decode(stored.ok_or(Miss::Missing)?, key)?;
+    if entries.iter().any(|e| e.1.is_some()) {
+        return Err(Miss::Corrupt(
+            "trees stored with meshes of their own".into(),
+        ));
+    }
+    let topologies: Vec<BvhTopology> = entries.into_iter().map(|e| e.0).collect();
     if topologies.len() != meshes.len() {
         return Err(Miss::Corrupt(format!(
             "{} trees for {} meshes",
@@ -193,7 +270,7 @@ fn reuse(
 
 /// Writes `bytes` to `path` through a temporary file in the same folder and a rename, so a
 /// reader never sees half a file.
-fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+pub(crate) fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     let name = path
         .file_name()
         .map_or_else(|| "store".into(), |n| n.to_string_lossy().into_owned());
@@ -227,7 +304,8 @@ impl Scene {
                     .iter()
                     .map(|e| e.bvh.topology())
                     .collect();
-                let stored = write_atomically(store, &encode(key, &topologies))
+                let entries: Vec<_> = topologies.iter().map(|t| (t, None)).collect();
+                let stored = write_atomically(store, &encode(key, &entries))
                     .map_err(|e| format!("{}: {e}", store.display()));
                 let outcome = StoreOutcome::Built {
                     why: miss.to_string(),
@@ -296,7 +374,7 @@ mod tests {
         let (_, outcome) = first.add_all_stored(&named(&m), &store, "key-a");
         assert!(
             matches!(outcome, StoreOutcome::Built { ref why, stored: Ok(()) }
-            if why == "no stored trees"),
+            if why == "nothing stored"),
             "{outcome:?}"
         );
         let mut again = Scene::new();
@@ -352,11 +430,11 @@ mod tests {
             ("orphan", orphan),
             ("cycle", cycle),
         ] {
-            let bytes = encode("k", &t);
+            let bytes = encode("k", &t.iter().map(|t| (t, None)).collect::<Vec<_>>());
             let r = reuse(Some(&bytes), "k", &named(&m));
             assert!(matches!(r, Err(Miss::Corrupt(_))), "{what}: {r:?}");
         }
-        let bytes = encode("k", &good);
+        let bytes = encode("k", &good.iter().map(|t| (t, None)).collect::<Vec<_>>());
         let trees = reuse(Some(&bytes), "k", &named(&m)).expect("good trees");
         assert_eq!(
             trees,

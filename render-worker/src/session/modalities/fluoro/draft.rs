@@ -21,13 +21,14 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Condvar, Mutex, PoisonError};
 
-use sim_core::fluoro::draft::{DraftParams, draft_scene};
+use sim_core::fluoro::draft::{DraftParams, draft_scene, draft_scene_stored};
+use sim_core::fluoro::scene_store::StoreOutcome;
 use sim_core::fluoro::{Image, IodineField, Projection, RenderSettings};
 
 use super::steel::{NeedleShaft, set_needle};
 use crate::fluoro::{GpuAnatomy, GpuFluoroRenderer};
 use crate::gpu::GpuContext;
-use crate::session::region::Region;
+use crate::session::region::{DRAFT_STORE_FILE, Region};
 
 /// Regions with fewer triangles get no draft scene. Simulator choice: the 4 mm test phantom
 /// (about 0.1 M triangles) renders a C-arm-moved frame in tens of milliseconds on lavapipe,
@@ -103,7 +104,28 @@ impl DraftAnatomies {
             .name("draft-scene".into())
             .spawn(move || {
                 let started = std::time::Instant::now();
-                let scene = draft_scene(&region.scene, &this.params);
+                let scene = match &region.store {
+                    Some(store) => {
+                        let path = store.dir.join(DRAFT_STORE_FILE);
+                        let (scene, outcome) =
+                            draft_scene_stored(&region.scene, &this.params, &path, &store.key);
+                        match outcome {
+                            StoreOutcome::Reused => {}
+                            StoreOutcome::Built {
+                                why,
+                                stored: Ok(()),
+                            } => tracing::info!(
+                                region = %region.name, "draft scene made and stored ({why})"),
+                            StoreOutcome::Built {
+                                why,
+                                stored: Err(e),
+                            } => tracing::warn!(
+                                region = %region.name, "draft scene made ({why}), not stored: {e}"),
+                        }
+                        scene
+                    }
+                    None => draft_scene(&region.scene, &this.params),
+                };
                 let slot = match GpuAnatomy::new(&this.ctx, &scene) {
                     Ok(a) => {
                         tracing::info!(
