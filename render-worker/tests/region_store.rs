@@ -92,5 +92,17 @@ fn stored_trees_are_reused_and_a_bad_store_is_rebuilt() {
         "{outcome:?}"
     );
     assert_eq!(trees(&r), built[..built.len() - 1].to_vec());
+
+    // A store that cannot be written (a folder in its place): built, said, and loaded anyway.
+    std::fs::remove_file(dir.join(STORE_FILE)).expect("remove the store");
+    std::fs::create_dir(dir.join(STORE_FILE)).expect("a folder where the store goes");
+    let (r, outcome) = outcome_of(&dir);
+    assert!(
+        matches!(&outcome, StoreOutcome::Built { stored: Err(_), .. }),
+        "{outcome:?}"
+    );
+    assert_eq!(trees(&r), built);
+    let again = load_region(&root, "ct-copy", &mut |_| {}).expect("loads without its store");
+    assert_eq!(trees(&again), built);
     let _ = std::fs::remove_dir_all(&root);
 }
