@@ -16,7 +16,10 @@
 //! Reported per number of learners at once: p50, p95 and p99 latency, frames never delivered,
 //! sessions the server did not open (refused, or no answer within 10 s),
 //! the first image of each new session (from its first shot), and the server's resident memory
-//! with those sessions live; then the largest row held at p99 < 150 ms with no frame lost.
+//! with those sessions live; then the largest row held at p99 < 150 ms with no frame lost; then
+//! the same latencies by what the learner did (first shot, shot after a C-arm drag, shot after
+//! a needle step, pose while live), the live poses also counted from the pulse that images them
+//! (a pose waits up to a pulse period for it, which the learner's pulse rate sets).
 //!
 //! `BENCH_QUICK=1`: rows 1, 4 and 8 of 6 s each; else 1, 4, 8, 16, 24 and 32 of 20 s.
 //! `CAPACITY_ROWS=1,2,3` and `CAPACITY_SECONDS=10` override either.
@@ -102,10 +105,27 @@ fn login(addr: &str) -> Login {
     Login { cookie, csrf }
 }
 
+/// What a learner's input was, for the latency table by action.
+const FIRST_SHOT: &str = "first shot of the session";
+const CARM_SHOT: &str = "shot after a C-arm drag";
+const NEEDLE_SHOT: &str = "shot after a 1 mm needle step";
+const LIVE_POSE: &str = "C-arm pose while live (waits for the next pulse)";
+/// The same frames counted from the pulse that images the pose: the server's part.
+const LIVE_FROM_PULSE: &str = "the same, from that pulse";
+const KINDS: [&str; 5] = [
+    FIRST_SHOT,
+    CARM_SHOT,
+    NEEDLE_SHOT,
+    LIVE_POSE,
+    LIVE_FROM_PULSE,
+];
+
 /// One learner's figures.
 #[derive(Default)]
 struct Figures {
     latencies_ms: Vec<f64>,
+    /// The same latencies by what the learner did (see [`KINDS`]).
+    by_kind: BTreeMap<&'static str, Vec<f64>>,
     /// To the full frame (the same as `latencies_ms` where no draft came first).
     full_latencies_ms: Vec<f64>,
     /// Images whose first frame was a draft.
@@ -152,10 +172,13 @@ impl Learner {
         &mut self,
         seq: u64,
         sent: Instant,
+        kind: &'static str,
         mut pulses: Option<(&mut Instant, Duration)>,
     ) -> Option<f64> {
         let deadline = sent + Duration::from_secs_f64(LOST_AFTER_S);
         let mut first = None;
+        // The first pulse after the input: the one that images it.
+        let mut pulse_at = None;
         loop {
             let now = Instant::now();
             if now >= deadline {
@@ -166,6 +189,7 @@ impl Learner {
                 && now >= **next
             {
                 self.send(json!({ "type": "tick" })).await;
+                pulse_at.get_or_insert(now);
                 while **next <= now {
                     **next += *period;
                 }
@@ -185,6 +209,15 @@ impl Learner {
                         if first.is_none() {
                             first = Some(ms);
                             self.figures.latencies_ms.push(ms);
+                            self.figures.by_kind.entry(kind).or_default().push(ms);
+                            if let Some(p) = pulse_at.filter(|_| kind == LIVE_POSE) {
+                                let from_pulse = p.elapsed().as_secs_f64() * 1e3;
+                                self.figures
+                                    .by_kind
+                                    .entry(LIVE_FROM_PULSE)
+                                    .or_default()
+                                    .push(from_pulse);
+                            }
                             self.figures.drafted += usize::from(f.draft);
                         }
                         if !f.draft {
@@ -202,10 +235,10 @@ impl Learner {
         }
     }
 
-    async fn shot(&mut self) -> Option<f64> {
+    async fn shot(&mut self, kind: &'static str) -> Option<f64> {
         let t = Instant::now();
         let s = self.send(json!({ "type": "shot" })).await;
-        self.frame_of(s, t, None).await
+        self.frame_of(s, t, kind, None).await
     }
 }
 
@@ -283,7 +316,7 @@ async fn run_learner(row: Arc<Row>, seed: u64) -> Figures {
     // A learner looks at the station (goal, first view) for a second or two before the first
     // shot, as after any other pause.
     tokio::time::sleep(Duration::from_secs_f64(1.0 + rng.next_f64())).await;
-    me.figures.first_image_ms = me.shot().await;
+    me.figures.first_image_ms = me.shot(FIRST_SHOT).await;
     me.send(
         json!({ "type": "needle_place", "instrument": needle.instrument,
         "entry_mm": needle.entry_mm, "direction": needle.direction,
@@ -303,7 +336,7 @@ async fn run_learner(row: Arc<Row>, seed: u64) -> Figures {
                     .await;
                 tokio::time::sleep(Duration::from_millis(60)).await;
             }
-            me.shot().await;
+            me.shot(CARM_SHOT).await;
         } else if u < 0.88 {
             // A needle step of 1 mm (forward, or back after 15 mm) and a shot.
             if depth < 15 {
@@ -316,7 +349,7 @@ async fn run_learner(row: Arc<Row>, seed: u64) -> Figures {
                 me.send(json!({ "type": "needle_withdraw", "mm": 14.0 }))
                     .await;
             }
-            me.shot().await;
+            me.shot(NEEDLE_SHOT).await;
         } else {
             // A second of live fluoroscopy while the C-arm moves, at the default pulse rate.
             me.send(json!({ "type": "live", "on": true })).await;
@@ -330,7 +363,7 @@ async fn run_learner(row: Arc<Row>, seed: u64) -> Figures {
                         json!({ "type": "carm_pose", "orbital_deg": orbital, "angular_deg": 0.0 }),
                     )
                     .await;
-                me.frame_of(s, t, Some((&mut next_pulse, PULSE_PERIOD)))
+                me.frame_of(s, t, LIVE_POSE, Some((&mut next_pulse, PULSE_PERIOD)))
                     .await;
             }
             me.send(json!({ "type": "live", "on": false })).await;
@@ -548,6 +581,7 @@ fn main() {
         .expect("demo course")["id"]
         .clone();
     let mut held = BTreeMap::new();
+    let mut by_action = Vec::new();
     for (row_index, &n) in rows.iter().enumerate() {
         let row = Arc::new(Row {
             addr: addr.clone(),
@@ -605,8 +639,35 @@ fn main() {
             rss.2,
         );
         held.insert(n, p99 < P99_GOAL_MS && lost == 0 && not_started == 0);
+        for kind in KINDS {
+            let v = sorted(
+                figures
+                    .iter()
+                    .flat_map(|f| f.by_kind.get(kind).into_iter().flatten().copied()),
+            );
+            if !v.is_empty() {
+                by_action.push(format!(
+                    "| {n} | {kind} | {} | {:.0} | {:.0} | {:.0} | {:.0} |",
+                    v.len(),
+                    percentile_of_sorted(&v, 50.0),
+                    percentile_of_sorted(&v, 95.0),
+                    percentile_of_sorted(&v, 99.0),
+                    percentile_of_sorted(&v, 100.0),
+                ));
+            }
+        }
         // Let submitted sessions close before the next row.
         std::thread::sleep(Duration::from_secs(1));
+    }
+    println!(
+        "\nThe same latencies by what the learner did (the first frame that shows the input; \
+         live, a change shows at the next pulse, {:.0} ms apart):\n",
+        PULSE_PERIOD.as_secs_f64() * 1e3
+    );
+    println!("| learners at once | input | images | p50 (ms) | p95 (ms) | p99 (ms) | max (ms) |");
+    println!("|---:|---|---:|---:|---:|---:|---:|");
+    for line in &by_action {
+        println!("{line}");
     }
     let largest = held.iter().filter(|(_, ok)| **ok).map(|(n, _)| *n).max();
     println!(
