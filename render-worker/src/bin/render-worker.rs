@@ -70,7 +70,7 @@ fn main() -> ExitCode {
                     "render calibration failed; keeping the renderer and capacity it started with"),
             }
             // The chosen renderer's regions (those of the renderer it started with were made
-            // before the calibration).
+            // before the calibration, and it keeps them).
             let prepared = prepare_fluoroscopy_regions(&calibrated);
             tracing::info!(regions = prepared, "fluoroscopy regions prepared");
         });
