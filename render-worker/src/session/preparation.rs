@@ -162,6 +162,10 @@ pub struct Regions {
     quick: Box<QuickCheck>,
     /// Claimed regions waiting for preparation, and which preparation threads run.
     queue: Mutex<Queue>,
+    /// Held by the thread whose loader is building a region (it reports build stages), so
+    /// that builds run one at a time whichever thread took them (a region that looked built
+    /// may turn out damaged and be built again).
+    builds: Mutex<()>,
 }
 
 /// Whether loading a region would only read its files (a built, cached region), not build it.
@@ -194,6 +198,7 @@ impl Regions {
             loader,
             quick,
             queue: Mutex::new(Queue::default()),
+            builds: Mutex::new(()),
         }
     }
 
@@ -377,7 +382,12 @@ impl Regions {
         if let Ok(mut prep) = self.prep.lock() {
             prep.insert(region.to_string(), Prep::building());
         }
+        let mut building = None;
         let mut progress = |p: &Progress| {
+            // The loader reports stages only when it builds: one build at a time from here on.
+            if building.is_none() {
+                building = Some(self.builds.lock().unwrap_or_else(PoisonError::into_inner));
+            }
             if let Ok(mut prep) = self.prep.lock()
                 && let Some(Prep::Building {
                     stage, fraction, ..
@@ -392,6 +402,7 @@ impl Regions {
             self.insert(Arc::clone(&r));
             r
         });
+        drop(building);
         let prepare_s = started.elapsed().as_secs_f64();
         if let Ok(mut prep) = self.prep.lock() {
             let state = match &result {
@@ -560,5 +571,44 @@ mod tests {
             assert!(regions.blocking(n).is_ok(), "{n}");
         }
         assert_eq!(most_builds.load(Ordering::SeqCst), 1);
+    }
+
+    /// A region that looked built but is built after all (a damaged cache: its loader reports
+    /// build stages) waits for the build under way instead of running beside it.
+    #[test]
+    fn a_region_that_turns_out_to_need_a_build_waits_for_the_other_build() {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        let builds = Arc::new(AtomicUsize::new(0));
+        let most = Arc::new(AtomicUsize::new(0));
+        let (b2, m2) = (builds.clone(), most.clone());
+        let loader = move |name: &str, progress: &mut dyn FnMut(&Progress)| {
+            // Both regions build: "damaged" only looked built to the quick check.
+            progress(&Progress {
+                stage: "voxelize",
+                done: 0,
+                total: 1,
+                item: String::new(),
+            });
+            let now = b2.fetch_add(1, Ordering::SeqCst) + 1;
+            m2.fetch_max(now, Ordering::SeqCst);
+            std::thread::sleep(std::time::Duration::from_millis(150));
+            b2.fetch_sub(1, Ordering::SeqCst);
+            let mut r = crate::session::demo::demo_region();
+            r.name = name.to_string();
+            Ok(r)
+        };
+        let regions = Arc::new(Regions::with_quick_check(
+            Box::new(loader),
+            Box::new(|name: &str| name == "damaged"),
+        ));
+        let names: Vec<String> = ["cold", "damaged"].map(String::from).to_vec();
+        for n in &names {
+            assert!(regions.claim(n));
+        }
+        regions.spawn_preparation(names.clone());
+        for n in &names {
+            assert!(regions.blocking(n).is_ok(), "{n}");
+        }
+        assert_eq!(most.load(Ordering::SeqCst), 1, "two builds ran at once");
     }
 }
