@@ -35,7 +35,7 @@ use std::time::{Duration, Instant};
 use futures::{SinkExt, StreamExt};
 use render_worker::session::frame::EncodedFrame;
 use serde_json::{Value, json};
-use server_process::{fast_auth_env, http, spawn_server};
+use server_process::{fast_auth_env, health, http, spawn_server};
 use sim_core::rng::SplitMix64;
 use sim_core::stats::{percentile_of_sorted, sorted};
 use tokio_tungstenite::tungstenite::Message;
@@ -389,13 +389,6 @@ fn rss_mib(pid: u32) -> f64 {
         })
         .and_then(|kb| kb.parse::<f64>().ok())
         .map_or(f64::NAN, |kb| kb / 1024.0)
-}
-
-fn health(addr: &str) -> Value {
-    http(addr, "GET", "/healthz", &[], "")
-        .ok()
-        .and_then(|(_, _, b)| serde_json::from_str(&b).ok())
-        .unwrap_or(Value::Null)
 }
 
 /// A learner's seed: distinct over rows and learners.

@@ -17,18 +17,10 @@ mod server_process;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use serde_json::Value;
-use server_process::{http, spawn_server};
+use server_process::{health, spawn_server};
 use sim_core::fluoro::scene_store::STORE_FILE;
 
 const REGIONS: [&str; 2] = [sim_core::anatomy::phantom::REGION_NAME, "lumbar-ct"];
-
-fn health(addr: &str) -> Value {
-    http(addr, "GET", "/healthz", &[], "")
-        .ok()
-        .and_then(|(_, _, b)| serde_json::from_str(&b).ok())
-        .unwrap_or(Value::Null)
-}
 
 /// One start: seconds from spawn to every region ready, and each region's `prepare_s`.
 fn start_once(data: &Path, env: &[(&str, String)]) -> (f64, Vec<(String, f64)>) {

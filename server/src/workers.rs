@@ -167,10 +167,7 @@ impl Workers {
                 std::thread::sleep(std::time::Duration::from_millis(250));
             }
             // Learners who start while the calibration runs get prepared regions.
-            let started = std::time::Instant::now();
-            let prepared = render_worker::session::calibration::prepare_fluoroscopy_regions(&host);
-            tracing::info!(regions = prepared, took_s = started.elapsed().as_secs_f64(),
-                "fluoroscopy regions prepared before the calibration");
+            render_worker::session::calibration::prepare_fluoroscopy_regions(&host);
             let mut candidates: Vec<Arc<dyn FluoroBackend>> = Vec::new();
             // The sessions' own GPU renderer: its upload of the region is kept for them.
             if let Some(r) = me.gpu_renderers() {
@@ -192,9 +189,7 @@ impl Workers {
             };
             *me.calibration.write().unwrap_or_else(|p| p.into_inner()) = next;
             // Again with the renderer chosen (nothing to do when it is the one prepared above).
-            let started = std::time::Instant::now();
-            let prepared = render_worker::session::calibration::prepare_fluoroscopy_regions(&host);
-            tracing::info!(regions = prepared, took_s = started.elapsed().as_secs_f64(), "fluoroscopy regions prepared");
+            render_worker::session::calibration::prepare_fluoroscopy_regions(&host);
         });
         if let Err(e) = spawned {
             tracing::error!(error = %e, "could not start the render calibration");

@@ -9,14 +9,7 @@ use render_worker::session::demo::demo_station_toml;
 use serde_json::Value;
 use server::test_support::test_db;
 
-use crate::server_process::{fast_auth_env, http_get, spawn_server};
-
-fn health(addr: &str) -> Value {
-    http_get(addr, "/healthz")
-        .ok()
-        .and_then(|(_, b)| serde_json::from_str(&b).ok())
-        .unwrap_or(Value::Null)
-}
+use crate::server_process::{fast_auth_env, health, spawn_server};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_server_calibrates_its_renderer_and_capacity_at_start() {

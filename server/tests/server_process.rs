@@ -47,6 +47,15 @@ pub fn http_get(addr: &str, path: &str) -> std::io::Result<(u16, String)> {
     http(addr, "GET", path, &[], "").map(|(s, _, b)| (s, b))
 }
 
+/// `/healthz` of the server at `addr` as JSON, whatever its status; `Null` when it cannot be
+/// read (not listening yet, or not JSON).
+pub fn health(addr: &str) -> serde_json::Value {
+    http_get(addr, "/healthz")
+        .ok()
+        .and_then(|(_, b)| serde_json::from_str(&b).ok())
+        .unwrap_or(serde_json::Value::Null)
+}
+
 /// A fresh database with the demo accounts and the demo station, and what a spawned `server`
 /// needs to serve them: the station folder, an empty assets folder (the demo region is built in
 /// memory, `render_worker::session::loader::load_region`) and the environment naming both, with

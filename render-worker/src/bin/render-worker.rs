@@ -71,8 +71,7 @@ fn main() -> ExitCode {
             }
             // The chosen renderer's regions (those of the renderer it started with were made
             // before the calibration, and it keeps them).
-            let prepared = prepare_fluoroscopy_regions(&calibrated);
-            tracing::info!(regions = prepared, "fluoroscopy regions prepared");
+            prepare_fluoroscopy_regions(&calibrated);
         });
     if let Err(e) = spawned {
         tracing::error!(error = %e, "could not start the render calibration");

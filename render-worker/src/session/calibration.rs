@@ -627,9 +627,10 @@ pub fn calibrate_host(
 /// calibration takes tens of seconds on a small machine, and learners meanwhile get prepared
 /// regions), and again after it (which prepares the chosen renderer's regions if the choice
 /// changed, and costs nothing otherwise), on the calibration's thread. Returns how many regions
-/// the renderer keeps prepared (made now or before); a region that fails is logged and skipped
-/// (its sessions meet the same error and report it).
+/// the renderer keeps prepared (made now or before), and logs it with the time it took; a
+/// region that fails is logged and skipped (its sessions meet the same error and report it).
 pub fn prepare_fluoroscopy_regions(host: &SessionHost) -> usize {
+    let started = Instant::now();
     let backend = host.backends().fluoro;
     let mut seen = BTreeSet::new();
     let mut prepared = 0;
@@ -643,6 +644,11 @@ pub fn prepare_fluoroscopy_regions(host: &SessionHost) -> usize {
                 "could not prepare the region's fluoroscopy renderer"),
         }
     }
+    tracing::info!(
+        regions = prepared,
+        took_s = started.elapsed().as_secs_f64(),
+        "fluoroscopy regions prepared"
+    );
     prepared
 }
 
@@ -672,13 +678,7 @@ pub fn calibrate_when_ready(
         }
         std::thread::sleep(READY_POLL);
     }
-    let started = Instant::now();
-    let prepared = prepare_fluoroscopy_regions(host);
-    tracing::info!(
-        regions = prepared,
-        took_s = started.elapsed().as_secs_f64(),
-        "fluoroscopy regions prepared before the calibration"
-    );
+    prepare_fluoroscopy_regions(host);
     let own = host.backends().fluoro;
     let cpu = Backends::cpu(0).fluoro;
     let mut candidates = vec![Arc::clone(&own)];

@@ -7,7 +7,6 @@ use sim_core::anatomy::AnatomyError;
 use sim_core::anatomy::asset::RegionAsset;
 use sim_core::anatomy::phantom;
 use sim_core::anatomy::pipeline::Progress;
-use sim_core::fluoro::scene_store::StoreOutcome;
 
 use super::demo::{DEMO_REGION_NAME, demo_region};
 use super::region::Region;
@@ -32,15 +31,26 @@ pub enum RegionLoadError {
 /// is a folder of files, or the in-memory demo region), not build a phantom first. For a
 /// phantom region this reads its provenance record only.
 pub fn is_built(assets_root: &Path, name: &str) -> bool {
-    let dir = assets_root.join(name);
+    phantom_recipe(name).is_none_or(|(generator, params, _)| {
+        phantom::is_cached_for(&assets_root.join(name), generator, &params)
+    })
+}
+
+/// The generator, parameters and build function of `name` when it is a procedural phantom
+/// region (the lumbar phantom and its habitus variants, the neck).
+fn phantom_recipe(name: &str) -> Option<(&'static str, phantom::PhantomParams, phantom::BuildFn)> {
     if let Some(habitus) = phantom::habitus::Habitus::of_region(name) {
         let params = habitus.apply(&phantom::PhantomParams::default());
-        phantom::is_cached_for(&dir, phantom::GENERATOR, &params)
+        Some((phantom::GENERATOR, params, phantom::build))
     } else if name == phantom::cervical::REGION_NAME {
         let params = phantom::cervical::default_params();
-        phantom::is_cached_for(&dir, phantom::cervical::GENERATOR, &params)
+        Some((
+            phantom::cervical::GENERATOR,
+            params,
+            phantom::cervical::build,
+        ))
     } else {
-        true
+        None
     }
 }
 
@@ -60,14 +70,11 @@ pub fn load_region(
     if name == DEMO_REGION_NAME && !dir.exists() {
         return Ok(demo_region());
     }
-    let asset = if let Some(habitus) = phantom::habitus::Habitus::of_region(name) {
-        let params = habitus.apply(&phantom::PhantomParams::default());
-        phantom::ensure_built_with(&dir, &params, progress)
-    } else if name == phantom::cervical::REGION_NAME {
-        let params = phantom::cervical::default_params();
-        phantom::cervical::ensure_built_with(&dir, &params, progress)
-    } else {
-        RegionAsset::load(&dir)
+    let asset = match phantom_recipe(name) {
+        Some((generator, params, build)) => {
+            phantom::ensure_built_by(&dir, generator, &params, build, progress)
+        }
+        None => RegionAsset::load(&dir),
     }
     .map_err(|source| RegionLoadError::Asset {
         name: name.to_string(),
@@ -80,18 +87,6 @@ pub fn load_region(
         asset.name = name.to_string();
     }
     let (region, outcome) = Region::from_asset_in(&asset, &dir);
-    match outcome {
-        StoreOutcome::Reused => tracing::debug!(region = name, "scene trees reused"),
-        StoreOutcome::Built {
-            why,
-            stored: Ok(()),
-        } => {
-            tracing::info!(region = name, "scene trees built and stored ({why})");
-        }
-        StoreOutcome::Built {
-            why,
-            stored: Err(e),
-        } => tracing::warn!(region = name, "scene trees built ({why}), not stored: {e}"),
-    }
+    super::region::log_store_outcome(name, "scene trees", &outcome);
     Ok(region)
 }

@@ -445,6 +445,28 @@ mod tests {
     use super::*;
     use std::sync::mpsc;
 
+    /// The demo region under the name a test loader was asked for.
+    fn named(name: &str) -> Result<Region, RegionLoadError> {
+        let mut r = crate::session::demo::demo_region();
+        r.name = name.to_string();
+        Ok(r)
+    }
+
+    /// Claims `names` and queues them for preparation; returns them.
+    fn claim_and_spawn(regions: &Arc<Regions>, names: &[&str]) -> Vec<String> {
+        let names: Vec<String> = names.iter().map(|n| n.to_string()).collect();
+        for n in &names {
+            assert!(regions.claim(n));
+        }
+        regions.spawn_preparation(names.clone());
+        names
+    }
+
+    /// What a test loader reports next, within 30 s.
+    fn next<T>(rx: &mpsc::Receiver<T>) -> T {
+        rx.recv_timeout(std::time::Duration::from_secs(30)).unwrap()
+    }
+
     /// Regions queued behind a long build: the one a learner asks for (`prefer`) is prepared
     /// next, the others keep their order, and a region already being built is not moved.
     #[test]
@@ -456,21 +478,11 @@ mod tests {
             started_tx.send(name.to_string()).unwrap();
             // Each build waits for the test's go.
             go_rx.lock().unwrap().recv().unwrap();
-            let mut r = crate::session::demo::demo_region();
-            r.name = name.to_string();
-            Ok(r)
+            named(name)
         };
         let regions = Arc::new(Regions::new(Box::new(loader)));
-        let names: Vec<String> = ["a", "b", "c", "d"].map(String::from).to_vec();
-        for n in &names {
-            assert!(regions.claim(n));
-        }
-        regions.spawn_preparation(names.clone());
-        let next = || {
-            started_rx
-                .recv_timeout(std::time::Duration::from_secs(30))
-                .unwrap()
-        };
+        let names = claim_and_spawn(&regions, &["a", "b", "c", "d"]);
+        let next = || next(&started_rx);
         assert_eq!(next(), "a");
         // While "a" builds, a learner asks for "d"; "a" itself is not waiting any more.
         assert!(regions.prefer("d"));
@@ -531,26 +543,14 @@ mod tests {
                 b2.fetch_sub(1, Ordering::SeqCst);
             }
             r2.fetch_sub(1, Ordering::SeqCst);
-            let mut r = crate::session::demo::demo_region();
-            r.name = name.to_string();
-            Ok(r)
+            named(name)
         };
         let regions = Arc::new(Regions::with_quick_check(
             Box::new(loader),
             Box::new(|name: &str| name.starts_with("read")),
         ));
-        let names: Vec<String> = ["cold-a", "cold-b", "read-c", "read-d"]
-            .map(String::from)
-            .to_vec();
-        for n in &names {
-            assert!(regions.claim(n));
-        }
-        regions.spawn_preparation(names.clone());
-        let next = || {
-            started_rx
-                .recv_timeout(std::time::Duration::from_secs(30))
-                .unwrap()
-        };
+        let names = claim_and_spawn(&regions, &["cold-a", "cold-b", "read-c", "read-d"]);
+        let next = || next(&started_rx);
         // The first build and the first region to read start together, before either ends.
         let mut first_two = [next(), next()];
         first_two.sort();
@@ -593,19 +593,13 @@ mod tests {
             m2.fetch_max(now, Ordering::SeqCst);
             std::thread::sleep(std::time::Duration::from_millis(150));
             b2.fetch_sub(1, Ordering::SeqCst);
-            let mut r = crate::session::demo::demo_region();
-            r.name = name.to_string();
-            Ok(r)
+            named(name)
         };
         let regions = Arc::new(Regions::with_quick_check(
             Box::new(loader),
             Box::new(|name: &str| name == "damaged"),
         ));
-        let names: Vec<String> = ["cold", "damaged"].map(String::from).to_vec();
-        for n in &names {
-            assert!(regions.claim(n));
-        }
-        regions.spawn_preparation(names.clone());
+        let names = claim_and_spawn(&regions, &["cold", "damaged"]);
         for n in &names {
             assert!(regions.blocking(n).is_ok(), "{n}");
         }

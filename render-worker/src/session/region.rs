@@ -50,6 +50,22 @@ pub struct SceneStore {
 /// [`sim_core::fluoro::draft::draft_scene_stored`]).
 pub const DRAFT_STORE_FILE: &str = "draft-scene.bin";
 
+/// Logs what became of `region`'s stored `what` (its scene trees, its draft scene): reused
+/// quietly, made and stored, or made and not stored (a warning: every start makes it again).
+pub(crate) fn log_store_outcome(region: &str, what: &str, outcome: &StoreOutcome) {
+    match outcome {
+        StoreOutcome::Reused => tracing::debug!(region, "{what} reused"),
+        StoreOutcome::Built {
+            why,
+            stored: Ok(()),
+        } => tracing::info!(region, "{what} made and stored ({why})"),
+        StoreOutcome::Built {
+            why,
+            stored: Err(e),
+        } => tracing::warn!(region, "{what} made ({why}), not stored: {e}"),
+    }
+}
+
 impl Region {
     /// Builds the scene of `structures` (this is where BVHs are built, on every core: 1.7 s on
     /// one core for the default lumbar phantom, 0.9 s on two).
@@ -63,24 +79,25 @@ impl Region {
         Region::from_structures_with(name, structures, landmarks, asset_sha256, source, None).0
     }
 
-    /// [`Region::from_structures`], the trees taken from (or stored in) `store` when given: the
-    /// file and the key that names its meshes.
+    /// [`Region::from_structures`], the trees taken from (or stored in) `store`'s
+    /// [`STORE_FILE`] when given, which the region then keeps.
     fn from_structures_with(
         name: &str,
         structures: &[StructureAsset],
         landmarks: BTreeMap<String, [f64; 3]>,
         asset_sha256: BTreeMap<String, String>,
         source: String,
-        store: Option<(&Path, &str)>,
+        store: Option<SceneStore>,
     ) -> (Region, Option<StoreOutcome>) {
         let mut scene = Scene::new();
         let meshes: Vec<_> = structures
             .iter()
             .map(|s| (s.name.clone(), FluoroMaterial::Tissue(s.material), &s.mesh))
             .collect();
-        let (first, outcome) = match store {
-            Some((path, key)) => {
-                let (first, outcome) = scene.add_all_stored(&meshes, path, key);
+        let (first, outcome) = match &store {
+            Some(st) => {
+                let (first, outcome) =
+                    scene.add_all_stored(&meshes, &st.dir.join(STORE_FILE), &st.key);
                 (first, Some(outcome))
             }
             None => (scene.add_all(&meshes), None),
@@ -99,7 +116,7 @@ impl Region {
             asset_sha256,
             source,
             phantom: None,
-            store: None,
+            store,
         };
         (region, outcome)
     }
@@ -134,18 +151,17 @@ impl Region {
                 s.mesh.triangles.len()
             ));
         }
-        let store = dir.join(STORE_FILE);
-        let (mut region, outcome) = Region::from_asset_with(asset, Some((&store, &key)));
-        region.store = Some(SceneStore {
+        let store = SceneStore {
             dir: dir.to_path_buf(),
             key,
-        });
+        };
+        let (region, outcome) = Region::from_asset_with(asset, Some(store));
         (region, outcome.expect("a store was given"))
     }
 
     fn from_asset_with(
         asset: &RegionAsset,
-        store: Option<(&Path, &str)>,
+        store: Option<SceneStore>,
     ) -> (Region, Option<StoreOutcome>) {
         let mut params_of_phantom = None;
         let (landmarks, source) = match &asset.provenance.source {

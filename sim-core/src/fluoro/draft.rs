@@ -19,7 +19,7 @@ use rustc_hash::FxHashMap;
 use std::path::Path;
 
 use super::scene::{Scene, SceneEntry};
-use super::scene_store::{Miss, StoreOutcome, decode, encode, write_atomically};
+use super::scene_store::{Miss, StoreOutcome, store_after_miss, trees_from};
 use crate::anatomy::decimate::{DecimationParams, decimate};
 use crate::anatomy::interfaces::par_map_heaviest_first;
 use crate::geom::Bvh;
@@ -129,7 +129,7 @@ pub fn draft_scene_stored(
     store: &Path,
     key: &str,
 ) -> (Scene, StoreOutcome) {
-    let key = format!("draft {DRAFT_VERSION} {params:?} of {key}");
+    let key = draft_key(params, key);
     let bytes = std::fs::read(store).ok();
     match reuse_draft(bytes.as_deref(), &key, scene) {
         Ok(draft) => (draft, StoreOutcome::Reused),
@@ -141,35 +141,22 @@ pub fn draft_scene_stored(
                 .zip(&meshes)
                 .map(|(t, m)| (t, Some(m)))
                 .collect();
-            let stored = write_atomically(store, &encode(&key, &entries))
-                .map_err(|e| format!("{}: {e}", store.display()));
-            let outcome = StoreOutcome::Built {
-                why: miss.to_string(),
-                stored,
-            };
-            (draft, outcome)
+            (draft, store_after_miss(store, &key, &entries, miss))
         }
     }
 }
 
+/// The key of the draft of the scene with meshes named by `key`, made with `params`.
+fn draft_key(params: &DraftParams, key: &str) -> String {
+    format!("draft {DRAFT_VERSION} {params:?} of {key}")
+}
+
 /// The stored draft of `scene`, entry by entry.
 fn reuse_draft(stored: Option<&[u8]>, key: &str, scene: &Scene) -> Result<Scene, Miss> {
-    let entries = decode(stored.ok_or(Miss::Missing)?, key)?;
-    if entries.len() != scene.entries().len() {
-        return Err(Miss::Corrupt(format!(
-            "{} drafts for {} entries",
-            entries.len(),
-            scene.entries().len()
-        )));
-    }
-    let weights: Vec<usize> = entries.iter().map(|e| e.0.order.len()).collect();
-    let trees = par_map_heaviest_first(&weights, &|i| match &entries[i] {
-        (topology, Some(mesh)) => Bvh::from_topology(mesh, topology).map_err(|e| e.to_string()),
-        (_, None) => Err("stored without its mesh".into()),
-    });
+    let names: Vec<&str> = scene.entries().iter().map(|e| e.name.as_str()).collect();
+    let trees = trees_from(stored, key, &names, None)?;
     let mut draft = Scene::new();
-    for (e, tree) in scene.entries().iter().zip(trees) {
-        let bvh = tree.map_err(|why| Miss::Corrupt(format!("{}: {why}", e.name)))?;
+    for (e, bvh) in scene.entries().iter().zip(trees) {
         draft.push_entry(SceneEntry {
             name: e.name.clone(),
             material: e.material,
@@ -317,8 +304,8 @@ mod tests {
         let mut broken = meshes[1].clone();
         broken.triangles[0][0] = broken.vertices_mm.len() as u32;
         let topologies: Vec<_> = draft.entries().iter().map(|e| e.bvh.topology()).collect();
-        let key = format!("draft {DRAFT_VERSION} {params:?} of k");
-        let bytes = encode(
+        let key = draft_key(&params, "k");
+        let bytes = super::super::scene_store::encode(
             &key,
             &[
                 (&topologies[0], Some(&meshes[0])),

@@ -237,40 +237,61 @@ pub(crate) fn decode(bytes: &[u8], key: &str) -> Result<Vec<(BvhTopology, Option
     Ok(out)
 }
 
-/// The trees of `meshes` from `stored` (the file's bytes, or `None` when there is none).
-fn reuse(
+/// The trees stored in `stored` (the file's bytes, or `None` when there is none) under `key`,
+/// one per entry named `names` (for errors), each rebuilt over its mesh: `own[i]` where the
+/// caller has the meshes (the entries were stored without), else the mesh stored with entry `i`.
+pub(crate) fn trees_from(
     stored: Option<&[u8]>,
     key: &str,
-    meshes: &[(String, FluoroMaterial, &TriMesh)],
+    names: &[&str],
+    own: Option<&[&TriMesh]>,
 ) -> Result<Vec<Bvh>, Miss> {
     let entries = decode(stored.ok_or(Miss::Missing)?, key)?;
-    if entries.iter().any(|e| e.1.is_some()) {
-        return Err(Miss::Corrupt(
-            "trees stored with meshes of their own".into(),
-        ));
-    }
-    let topologies: Vec<BvhTopology> = entries.into_iter().map(|e| e.0).collect();
-    if topologies.len() != meshes.len() {
+    if entries.len() != names.len() {
         return Err(Miss::Corrupt(format!(
-            "{} trees for {} meshes",
-            topologies.len(),
-            meshes.len()
+            "{} trees for {} entries",
+            entries.len(),
+            names.len()
         )));
     }
-    let weights: Vec<usize> = meshes.iter().map(|m| m.2.triangles.len()).collect();
-    let trees = par_map_heaviest_first(&weights, &|i| {
-        Bvh::from_topology(meshes[i].2, &topologies[i])
-    });
+    if entries.iter().any(|e| e.1.is_some() == own.is_some()) {
+        return Err(Miss::Corrupt(if own.is_some() {
+            "trees stored with meshes of their own".into()
+        } else {
+            "a tree stored without its mesh".into()
+        }));
+    }
+    let mesh = |i: usize| own.map_or_else(|| entries[i].1.as_ref().expect("checked"), |m| m[i]);
+    let weights: Vec<usize> = (0..entries.len())
+        .map(|i| mesh(i).triangles.len())
+        .collect();
+    let trees = par_map_heaviest_first(&weights, &|i| Bvh::from_topology(mesh(i), &entries[i].0));
     trees
         .into_iter()
-        .zip(meshes)
-        .map(|(t, m)| t.map_err(|e| Miss::Corrupt(format!("{}: {e}", m.0))))
+        .zip(names)
+        .map(|(t, name)| t.map_err(|e| Miss::Corrupt(format!("{name}: {e}"))))
         .collect()
+}
+
+/// Stores `entries` (each tree's shape, with its mesh where the reader cannot get it
+/// elsewhere) in `store` under `key` once `miss` had them built: what to report.
+pub(crate) fn store_after_miss(
+    store: &Path,
+    key: &str,
+    entries: &[(&BvhTopology, Option<&TriMesh>)],
+    miss: Miss,
+) -> StoreOutcome {
+    let stored = write_atomically(store, &encode(key, entries))
+        .map_err(|e| format!("{}: {e}", store.display()));
+    StoreOutcome::Built {
+        why: miss.to_string(),
+        stored,
+    }
 }
 
 /// Writes `bytes` to `path` through a temporary file in the same folder and a rename, so a
 /// reader never sees half a file.
-pub(crate) fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     let name = path
         .file_name()
         .map_or_else(|| "store".into(), |n| n.to_string_lossy().into_owned());
@@ -295,23 +316,18 @@ impl Scene {
         key: &str,
     ) -> (usize, StoreOutcome) {
         let bytes = std::fs::read(store).ok();
-        let (trees, outcome) = match reuse(bytes.as_deref(), key, meshes) {
-            Ok(trees) => (trees, StoreOutcome::Reused),
+        let names: Vec<&str> = meshes.iter().map(|m| m.0.as_str()).collect();
+        let own: Vec<&TriMesh> = meshes.iter().map(|m| m.2).collect();
+        let trees = match trees_from(bytes.as_deref(), key, &names, Some(&own)) {
+            Ok(trees) => trees,
             Err(miss) => {
-                let first = self.entries().len();
-                self.add_all(meshes);
+                let first = self.add_all(meshes);
                 let topologies: Vec<BvhTopology> = self.entries()[first..]
                     .iter()
                     .map(|e| e.bvh.topology())
                     .collect();
                 let entries: Vec<_> = topologies.iter().map(|t| (t, None)).collect();
-                let stored = write_atomically(store, &encode(key, &entries))
-                    .map_err(|e| format!("{}: {e}", store.display()));
-                let outcome = StoreOutcome::Built {
-                    why: miss.to_string(),
-                    stored,
-                };
-                return (first, outcome);
+                return (first, store_after_miss(store, key, &entries, miss));
             }
         };
         let first = self.entries().len();
@@ -323,7 +339,7 @@ impl Scene {
                 bvh,
             });
         }
-        (first, outcome)
+        (first, StoreOutcome::Reused)
     }
 }
 
@@ -411,6 +427,14 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
+    /// The trees of the test meshes from `bytes` stored under key `k`.
+    fn reuse(bytes: &[u8], m: &[TriMesh]) -> Result<Vec<Bvh>, Miss> {
+        let meshes = named(m);
+        let names: Vec<&str> = meshes.iter().map(|x| x.0.as_str()).collect();
+        let own: Vec<&TriMesh> = meshes.iter().map(|x| x.2).collect();
+        trees_from(Some(bytes), "k", &names, Some(&own))
+    }
+
     #[test]
     fn a_checksummed_file_with_wrong_trees_is_refused() {
         let m = meshes();
@@ -431,11 +455,11 @@ mod tests {
             ("cycle", cycle),
         ] {
             let bytes = encode("k", &t.iter().map(|t| (t, None)).collect::<Vec<_>>());
-            let r = reuse(Some(&bytes), "k", &named(&m));
+            let r = reuse(&bytes, &m);
             assert!(matches!(r, Err(Miss::Corrupt(_))), "{what}: {r:?}");
         }
         let bytes = encode("k", &good.iter().map(|t| (t, None)).collect::<Vec<_>>());
-        let trees = reuse(Some(&bytes), "k", &named(&m)).expect("good trees");
+        let trees = reuse(&bytes, &m).expect("good trees");
         assert_eq!(
             trees,
             good.iter()

@@ -100,6 +100,29 @@ fn grow(lo: &mut [f64; 3], hi: &mut [f64; 3], p_lo: [f64; 3], p_hi: [f64; 3]) {
 const EMPTY_LO: [f64; 3] = [f64::INFINITY; 3];
 const EMPTY_HI: [f64; 3] = [f64::NEG_INFINITY; 3];
 
+/// Bounding box `(min, max)` of one triangle, mm.
+fn triangle_box(t: &[[f64; 3]; 3]) -> ([f64; 3], [f64; 3]) {
+    (
+        std::array::from_fn(|a| t[0][a].min(t[1][a]).min(t[2][a])),
+        std::array::from_fn(|a| t[0][a].max(t[1][a]).max(t[2][a])),
+    )
+}
+
+/// The padding of every node box of a tree over triangles with boxes `boxes`: a relative 1e-9
+/// of the scene's size, which dwarfs the slab test's rounding (a few ulp of the distance,
+/// ~1e-13 mm at 1 m) and is far below any geometric feature. (Unions are exact, so the order
+/// of the boxes does not matter.)
+fn node_padding(boxes: impl Iterator<Item = ([f64; 3], [f64; 3])>) -> f64 {
+    let (mut slo, mut shi) = (EMPTY_LO, EMPTY_HI);
+    for (lo, hi) in boxes {
+        grow(&mut slo, &mut shi, lo, hi);
+    }
+    let scale = (0..3)
+        .map(|a| slo[a].abs().max(shi[a].abs()))
+        .fold(1.0, f64::max);
+    1e-9 * scale
+}
+
 impl Bvh {
     /// Builds the hierarchy over every triangle of `mesh`.
     pub fn new(mesh: &TriMesh) -> Bvh {
@@ -108,8 +131,7 @@ impl Bvh {
         let mut boxes: Vec<([f64; 3], [f64; 3])> = Vec::with_capacity(n);
         let mut centroids: Vec<[f64; 3]> = Vec::with_capacity(n);
         for t in &tris_src {
-            let lo = std::array::from_fn(|a| t[0][a].min(t[1][a]).min(t[2][a]));
-            let hi = std::array::from_fn(|a| t[0][a].max(t[1][a]).max(t[2][a]));
+            let (lo, hi) = triangle_box(t);
             boxes.push((lo, hi));
             centroids.push(std::array::from_fn(|a| 0.5 * (lo[a] + hi[a])));
         }
@@ -120,16 +142,7 @@ impl Bvh {
             first: 0,
             count: 0,
         }];
-        // Padding: a relative 1e-9 of the scene's size dwarfs the slab test's rounding (a few ulp
-        // of the distance, ~1e-13 mm at 1 m) and is far below any geometric feature.
-        let (mut slo, mut shi) = (EMPTY_LO, EMPTY_HI);
-        for &(lo, hi) in &boxes {
-            grow(&mut slo, &mut shi, lo, hi);
-        }
-        let scale = (0..3)
-            .map(|a| slo[a].abs().max(shi[a].abs()))
-            .fold(1.0, f64::max);
-        let pad = 1e-9 * scale;
+        let pad = node_padding(boxes.iter().copied());
 
         // Work list of (node index, start, end) ranges of `order`.
         let mut work = vec![(0usize, 0usize, n)];
@@ -346,22 +359,8 @@ impl Bvh {
             return bad("a slot is in no leaf".into());
         }
         let tris: Vec<[[f64; 3]; 3]> = order.iter().map(|&t| mesh.triangle(t as usize)).collect();
-        let tri_box = |t: &[[f64; 3]; 3]| -> ([f64; 3], [f64; 3]) {
-            (
-                std::array::from_fn(|a| t[0][a].min(t[1][a]).min(t[2][a])),
-                std::array::from_fn(|a| t[0][a].max(t[1][a]).max(t[2][a])),
-            )
-        };
-        // The builder's padding, from the same scene box.
-        let (mut slo, mut shi) = (EMPTY_LO, EMPTY_HI);
-        for t in &tris {
-            let (lo, hi) = tri_box(t);
-            grow(&mut slo, &mut shi, lo, hi);
-        }
-        let scale = (0..3)
-            .map(|a| slo[a].abs().max(shi[a].abs()))
-            .fold(1.0, f64::max);
-        let pad = 1e-9 * scale;
+        // The builder's padding, from the same triangles.
+        let pad = node_padding(tris.iter().map(triangle_box));
         let mut nodes: Vec<Node> = shape
             .iter()
             .map(|&(first, count)| Node {
@@ -380,7 +379,7 @@ impl Bvh {
             if count > 0 {
                 let (mut lo, mut hi) = (EMPTY_LO, EMPTY_HI);
                 for t in &tris[first..first + count] {
-                    let (blo, bhi) = tri_box(t);
+                    let (blo, bhi) = triangle_box(t);
                     grow(&mut lo, &mut hi, blo, bhi);
                 }
                 nodes[ni].lo = lo.map(|x| x - pad);

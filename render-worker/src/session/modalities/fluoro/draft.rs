@@ -22,13 +22,12 @@ use std::collections::HashMap;
 use std::sync::{Arc, Condvar, Mutex, PoisonError};
 
 use sim_core::fluoro::draft::{DraftParams, draft_scene, draft_scene_stored};
-use sim_core::fluoro::scene_store::StoreOutcome;
 use sim_core::fluoro::{Image, IodineField, Projection, RenderSettings};
 
 use super::steel::{NeedleShaft, set_needle};
 use crate::fluoro::{GpuAnatomy, GpuFluoroRenderer};
 use crate::gpu::GpuContext;
-use crate::session::region::{DRAFT_STORE_FILE, Region};
+use crate::session::region::{DRAFT_STORE_FILE, Region, log_store_outcome};
 
 /// Regions with fewer triangles get no draft scene. Simulator choice: the 4 mm test phantom
 /// (about 0.1 M triangles) renders a C-arm-moved frame in tens of milliseconds on lavapipe,
@@ -109,19 +108,7 @@ impl DraftAnatomies {
                         let path = store.dir.join(DRAFT_STORE_FILE);
                         let (scene, outcome) =
                             draft_scene_stored(&region.scene, &this.params, &path, &store.key);
-                        match outcome {
-                            StoreOutcome::Reused => {}
-                            StoreOutcome::Built {
-                                why,
-                                stored: Ok(()),
-                            } => tracing::info!(
-                                region = %region.name, "draft scene made and stored ({why})"),
-                            StoreOutcome::Built {
-                                why,
-                                stored: Err(e),
-                            } => tracing::warn!(
-                                region = %region.name, "draft scene made ({why}), not stored: {e}"),
-                        }
+                        log_store_outcome(&region.name, "draft scene", &outcome);
                         scene
                     }
                     None => draft_scene(&region.scene, &this.params),
