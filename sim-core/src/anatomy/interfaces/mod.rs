@@ -125,15 +125,22 @@ pub fn mesh_family(
         source: &[Vec<[u32; 3]>],
         after: &str,
     ) -> Result<Vec<TriMesh>, AnatomyError> {
-        let meshes = par_map(
-            names.len(),
-            &|m| fam.assemble(m, source, &fam.positions),
-            &mut |_| {},
-        );
-        for (m, mesh) in meshes.iter().enumerate() {
-            super::solid::check_solid(&names[m], mesh, after)?;
-        }
-        Ok(meshes)
+        // Each mesh is checked on the thread that assembled it, the largest first; the first
+        // failure in input order is the one reported, whatever the thread count.
+        let weights: Vec<usize> = (0..names.len())
+            .map(|m| {
+                fam.mesh_patches[m]
+                    .iter()
+                    .map(|&(p, _)| source[p].len())
+                    .sum()
+            })
+            .collect();
+        par_map_heaviest_first(&weights, &|m| {
+            let mesh = fam.assemble(m, source, &fam.positions);
+            super::solid::check_solid(&names[m], &mesh, after).map(|()| mesh)
+        })
+        .into_iter()
+        .collect()
     }
     let mut meshes = check_all(&fam, &names, &input, "welding shared interfaces")?;
     step("weld");

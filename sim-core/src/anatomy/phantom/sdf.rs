@@ -15,11 +15,13 @@ use glam::{DMat3, DVec2, DVec3};
 
 mod aabb;
 mod bound;
+mod coarse;
 mod cull;
 
 pub use aabb::Aabb;
 pub use bound::Cull;
 use bound::MARGIN_MM;
+pub use coarse::{COARSE_CELL_MM, CoarseBound};
 
 /// A rigid placement: `world = rotation * local + translation`.
 #[derive(Debug, Clone, Copy, PartialEq)]
