@@ -47,7 +47,9 @@
 
 use super::asset::{Provenance, RegionAsset, Source, StructureAsset, encode_hu};
 use super::error::AnatomyError;
-use super::interfaces::{ExtractedSurface, lattice_edge_key, mesh_family, par_map};
+use super::interfaces::{
+    ExtractedSurface, lattice_edge_key, mesh_family, par_map_heaviest_first_told,
+};
 use super::labels::label_volume;
 use super::level_set_mesh::{LevelSetFn, LevelSetSurface, extract_level_set};
 use super::mask::{mask_offset, nonzero_box};
@@ -409,17 +411,22 @@ pub fn build_region_on_level_sets(
         item: String::new(),
     });
     // Structures are extracted in parallel (one worker per core, each taking the next
-    // structure), then smoothed and decimated together so that touching structures share their
-    // interfaces (`interfaces`); every step writes by index, so the asset is identical whatever
-    // the thread count.
+    // structure, those with the most partial-volume voxels, the most surface, first, so that no
+    // large one starts last), then smoothed and decimated together so that touching structures
+    // share their interfaces (`interfaces`); every step writes by index, so the asset is
+    // identical whatever the thread count.
     let total = kept.len();
     let offsets: Vec<[usize; 3]> = kept
         .iter()
         .map(|s| mask_offset(&grid, s))
         .collect::<Result<_, _>>()?;
+    let surface: Vec<usize> = kept
+        .iter()
+        .map(|s| s.mask.data.iter().filter(|&&v| v > 0.0 && v < 1.0).count())
+        .collect();
     let mut finished = 0;
-    let extracted = par_map(
-        total,
+    let extracted = par_map_heaviest_first_told(
+        &surface,
         &|i| extract_structure(&kept[i], kept_sets[i], params, offsets[i], grid.dims),
         &mut |i| {
             progress(&Progress {

@@ -180,10 +180,30 @@ impl TriangleGrid {
                 for_cells(b, cell_mm, |c| cells.entry(c).or_default().push(id as u32));
             }
         }
-        if fresh.is_some() {
-            for (id, b) in boxes.iter().enumerate() {
-                if !fresh_patch(id) {
-                    for_cells(b, cell_mm, |c| {
+        if let Some(fresh) = fresh {
+            // The other patches' triangles go into the fresh cells only: a patch none of whose
+            // box's cells is one is passed over whole (after a few rounds of the decimation,
+            // most of them).
+            let mut first = 0;
+            for (p, ts) in source.iter().enumerate() {
+                let ids = first..first + ts.len();
+                first = ids.end;
+                if fresh[p] || ts.is_empty() {
+                    continue;
+                }
+                let patch_box = boxes[ids.clone()].iter().fold(boxes[ids.start], |a, b| {
+                    (
+                        std::array::from_fn(|k| a.0[k].min(b.0[k])),
+                        std::array::from_fn(|k| a.1[k].max(b.1[k])),
+                    )
+                });
+                let mut near = false;
+                for_cells(&patch_box, cell_mm, |c| near |= cells.contains_key(&c));
+                if !near {
+                    continue;
+                }
+                for id in ids {
+                    for_cells(&boxes[id], cell_mm, |c| {
                         if let Some(list) = cells.get_mut(&c) {
                             list.push(id as u32);
                         }

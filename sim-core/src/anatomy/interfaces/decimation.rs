@@ -1,8 +1,6 @@
 //! Step 4 of the family meshing (see [`super`]): decimating each patch once, chunk by chunk, with
 //! junction and chunk-border vertices locked, and backing off where a mesh fails its checks.
 
-use std::collections::BTreeMap;
-
 use rustc_hash::FxHashMap;
 
 use super::crossing::{crossing_pairs, lock_around_crossing, mean_edge_mm};
@@ -95,18 +93,40 @@ pub(super) fn decimate_family(
     // a handful of cells.
     let cell_mm = 4.0 * mean_edge;
     let chunk_mm = CHUNK_EDGES * mean_edge;
+    // Each patch's triangles by the cell of their centroids, cells in key order, triangles in
+    // patch order within a cell; the patches in parallel.
+    let per_patch: Vec<Vec<Vec<[u32; 3]>>> = par_map(
+        input.len(),
+        &|p| {
+            let mut keyed: Vec<([i64; 3], u32)> = input[p]
+                .iter()
+                .enumerate()
+                .map(|(i, t)| {
+                    let v = t.map(|g| fam.positions[g as usize]);
+                    let cell: [i64; 3] = std::array::from_fn(|a| {
+                        ((v[0][a] + v[1][a] + v[2][a]) / 3.0 / chunk_mm).floor() as i64
+                    });
+                    (cell, i as u32)
+                })
+                .collect();
+            keyed.sort_unstable();
+            let mut out: Vec<Vec<[u32; 3]>> = Vec::new();
+            for (k, &(cell, i)) in keyed.iter().enumerate() {
+                if k == 0 || keyed[k - 1].0 != cell {
+                    out.push(Vec::new());
+                }
+                if let Some(chunk) = out.last_mut() {
+                    chunk.push(input[p][i as usize]);
+                }
+            }
+            out
+        },
+        &mut |_| {},
+    );
     let mut chunk_patch: Vec<usize> = Vec::new();
     let mut chunks: Vec<Vec<[u32; 3]>> = Vec::new();
-    for (p, tris) in input.iter().enumerate() {
-        let mut by_cell: BTreeMap<[i64; 3], Vec<[u32; 3]>> = BTreeMap::new();
-        for &t in tris {
-            let v = t.map(|g| fam.positions[g as usize]);
-            let cell: [i64; 3] = std::array::from_fn(|a| {
-                ((v[0][a] + v[1][a] + v[2][a]) / 3.0 / chunk_mm).floor() as i64
-            });
-            by_cell.entry(cell).or_default().push(t);
-        }
-        for (_, c) in by_cell {
+    for (p, cs) in per_patch.into_iter().enumerate() {
+        for c in cs {
             chunk_patch.push(p);
             chunks.push(c);
         }
@@ -351,10 +371,14 @@ pub(super) fn decimate_family(
     }
     let per_patch = patch_result(&result);
     let after = fam.mesh_volumes(&per_patch, &fam.positions);
-    let notes = (0..n_mesh)
-        .map(|m| {
+    let notes = par_map(
+        n_mesh,
+        &|m| {
             let ps = &fam.mesh_patches[m];
-            let cs: Vec<usize> = ps.iter().flat_map(|&(p, _)| chunks_of_patch[p].iter().copied()).collect();
+            let cs: Vec<usize> = ps
+                .iter()
+                .flat_map(|&(p, _)| chunks_of_patch[p].iter().copied())
+                .collect();
             let n_in: usize = ps.iter().map(|&(p, _)| input[p].len()).sum();
             let n_out: usize = ps.iter().map(|&(p, _)| per_patch[p].len()).sum();
             let n_rev = cs.iter().filter(|&&c| reverted[c]).count();
@@ -366,8 +390,10 @@ pub(super) fn decimate_family(
                 );
             }
             let err = cs.iter().map(|&c| errors[c]).fold(0.0f32, f32::max);
-            let mut verts: Vec<u32> =
-                cs.iter().flat_map(|&c| chunks[c].iter().flatten().copied()).collect();
+            let mut verts: Vec<u32> = cs
+                .iter()
+                .flat_map(|&c| chunks[c].iter().flatten().copied())
+                .collect();
             verts.sort_unstable();
             verts.dedup();
             let junction = verts.iter().filter(|&&g| fam.junction[g as usize]).count();
@@ -388,8 +414,9 @@ pub(super) fn decimate_family(
                     String::new()
                 }
             )
-        })
-        .collect();
+        },
+        &mut |_| {},
+    );
     let summary = format!(
         "decimation of {} patches in {n_chunk} chunks: new crossings between surfaces per round {crossing_counts:?} (each backed off by local locks); {} pairs of structures crossed before decimation and are not checked",
         fam.patches.len(),

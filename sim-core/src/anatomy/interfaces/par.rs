@@ -42,9 +42,20 @@ pub(crate) fn par_map_heaviest_first<T: Send>(
     weights: &[usize],
     f: &(dyn Fn(usize) -> T + Sync),
 ) -> Vec<T> {
+    par_map_heaviest_first_told(weights, f, &mut |_| {})
+}
+
+/// [`par_map_heaviest_first`], calling `finished(i)` on the calling thread as index `i` finishes.
+pub(crate) fn par_map_heaviest_first_told<T: Send>(
+    weights: &[usize],
+    f: &(dyn Fn(usize) -> T + Sync),
+    finished: &mut dyn FnMut(usize),
+) -> Vec<T> {
     let mut order: Vec<usize> = (0..weights.len()).collect();
     order.sort_by_key(|&i| std::cmp::Reverse(weights[i]));
-    let done = par_map(order.len(), &|k| (order[k], f(order[k])), &mut |_| {});
+    let done = par_map(order.len(), &|k| (order[k], f(order[k])), &mut |k| {
+        finished(order[k]);
+    });
     let mut out: Vec<Option<T>> = (0..weights.len()).map(|_| None).collect();
     for (i, r) in done {
         out[i] = Some(r);
