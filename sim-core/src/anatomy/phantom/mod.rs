@@ -383,25 +383,47 @@ impl PhantomVolumes {
     /// skips it with a note). Nested structures (see [`model::PhantomPart::nested`]) get the mask
     /// of their whole solid, the others the part the painting order leaves to them.
     pub fn masks(&self) -> Vec<StructureMask> {
-        (1..=self.structures.len())
-            .map(|l| {
-                let (name, material) = self.structures[l - 1].clone();
-                let mask = match &self.nested[l - 1] {
-                    Some((ids, fr)) => occupancy_mask(ids, fr, 1),
-                    None => occupancy_mask(&self.structure_ids, &self.fractions, l as u8),
+        // The painted structures share one band of fraction voxels; the structures are made in
+        // parallel (each scans the whole label volume).
+        let band = in_band(&self.structure_ids, &self.fractions);
+        crate::anatomy::interfaces::par_map(
+            self.structures.len(),
+            &|s| {
+                let (name, material) = self.structures[s].clone();
+                let mask = match &self.nested[s] {
+                    Some((ids, fr)) => occupancy_mask(ids, fr, &in_band(ids, fr), 1),
+                    None => {
+                        occupancy_mask(&self.structure_ids, &self.fractions, &band, s as u8 + 1)
+                    }
                 };
                 StructureMask {
                     name,
                     material,
                     mask,
                 }
-            })
-            .collect()
+            },
+            &mut |_| {},
+        )
     }
 }
 
-/// The occupancy of `label` from centre labels plus boundary fractions, cropped to its box.
-fn occupancy_mask(ids: &Volume<u8>, fractions: &[voxelize::Fraction], label: u8) -> Volume<f32> {
+/// Whether each voxel of `ids` has boundary fractions.
+fn in_band(ids: &Volume<u8>, fractions: &[voxelize::Fraction]) -> Vec<bool> {
+    let mut band = vec![false; ids.data.len()];
+    for f in fractions {
+        band[f.voxel as usize] = true;
+    }
+    band
+}
+
+/// The occupancy of `label` from centre labels plus boundary fractions (`in_band`: the voxels
+/// that have some), cropped to its box.
+fn occupancy_mask(
+    ids: &Volume<u8>,
+    fractions: &[voxelize::Fraction],
+    in_band: &[bool],
+    label: u8,
+) -> Volume<f32> {
     let g = ids.grid;
     let mut lo = [usize::MAX; 3];
     let mut hi = [0usize; 3];
@@ -411,15 +433,18 @@ fn occupancy_mask(ids: &Volume<u8>, fractions: &[voxelize::Fraction], label: u8)
             hi[a] = hi[a].max(ijk[a]);
         }
     };
-    for (idx, &l) in ids.data.iter().enumerate() {
-        if l == label {
-            grow(g.ijk(idx));
+    for k in 0..g.dims[2] {
+        for j in 0..g.dims[1] {
+            let row = &ids.data[g.index(0, j, k)..][..g.dims[0]];
+            for (i, &l) in row.iter().enumerate() {
+                if l == label {
+                    grow([i, j, k]);
+                }
+            }
         }
     }
-    let mut in_band = vec![false; ids.data.len()];
     let mut mine = Vec::new();
     for f in fractions {
-        in_band[f.voxel as usize] = true;
         if f.label == label {
             mine.push((f.voxel as usize, f.occupancy));
             grow(g.ijk(f.voxel as usize));

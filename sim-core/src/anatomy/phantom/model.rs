@@ -189,9 +189,15 @@ impl Anatomy {
             };
             let back = -upper.frame.rotation.y_axis;
             let start = DVec3::from(window.position_mm) - back * 10.0;
-            let owner = |p: DVec3| self.structure_at(p.to_array()).map(|i| self.parts[i].name.as_str());
+            let owner = |p: DVec3| {
+                self.structure_at(p.to_array())
+                    .map(|i| self.parts[i].name.as_str())
+            };
             let steps: Vec<f64> = (0..=600).map(|k| f64::from(k) * 0.05).collect();
-            let Some(&enter) = steps.iter().find(|t| owner(start + back * **t) == Some("ligamentum_flavum")) else {
+            let Some(&enter) = steps
+                .iter()
+                .find(|t| owner(start + back * **t) == Some("ligamentum_flavum"))
+            else {
                 continue;
             };
             let leave = steps

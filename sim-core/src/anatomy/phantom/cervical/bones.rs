@@ -328,7 +328,7 @@ pub(super) fn discs(sk: &Skeleton) -> Vec<(String, Sdf)> {
                 0.5 * up.d.body_depth.max(lo.d.body_depth) + 0.5,
             ];
             let disc = Sdf::disc_between(radii, 15.0, rot, (top, up.up()), (bottom, lo.up()))
-            .minus(canal(up));
+                .minus(canal(up));
             (format!("disc_{}_{}", up.d.name, lo.d.name), disc)
         })
         .collect()

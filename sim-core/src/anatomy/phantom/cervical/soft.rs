@@ -4,12 +4,12 @@
 
 use glam::DVec3;
 
-use crate::anatomy::phantom::model::Parts;
 use super::dims::{
     ANTERIOR_EPIDURAL_MM, CORD_HALF_DEPTH_MM, CORD_HALF_WIDTH_MM, FLAVUM_MM, LATERAL_EPIDURAL_MM,
     POSTERIOR_EPIDURAL_MM,
 };
 use super::skeleton::{Skeleton, Vert};
+use crate::anatomy::phantom::model::Parts;
 use crate::anatomy::phantom::model::{AnatomyParams, LEFT, RIGHT};
 use crate::anatomy::phantom::sdf::{Rigid, Sdf};
 use crate::material::MaterialClass;

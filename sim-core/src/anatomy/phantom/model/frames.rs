@@ -38,10 +38,17 @@ fn frame_of(v: &Placed) -> LevelFrame {
     let d = v.dims;
     let pedicle = |s: f64| {
         let j = v.junction(s);
-        let a = DVec3::new(s * (v.pedicle_x() - 2.0), -0.5 * d.body_depth + 5.0, v.pedicle_z());
+        let a = DVec3::new(
+            s * (v.pedicle_x() - 2.0),
+            -0.5 * d.body_depth + 5.0,
+            v.pedicle_z(),
+        );
         // The isthmus: a third of the way from the body to the lamina junction, in front of the
         // articular processes that rise from the junction.
-        (v.frame.to_world(a + 0.35 * (j - a)), v.frame.rotation * (a - j).normalize())
+        (
+            v.frame.to_world(a + 0.35 * (j - a)),
+            v.frame.rotation * (a - j).normalize(),
+        )
     };
     let (pl, al) = pedicle(LEFT);
     let (pr, ar) = pedicle(RIGHT);

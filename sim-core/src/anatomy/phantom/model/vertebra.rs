@@ -220,7 +220,7 @@ pub(super) fn push_discs(parts: &mut Parts, spine: &Spine) {
         let rx = 0.5 * up.dims.body_width.max(lo.dims.body_width) + 1.0;
         let ry = 0.5 * up.dims.body_depth.max(lo.dims.body_depth) + 1.0;
         let disc = Sdf::disc_between([rx, ry], 20.0, mid_rot, (top, up.up()), (bottom, lo.up()))
-        .minus(lumbar_canal(up));
+            .minus(lumbar_canal(up));
         let lo_name = if i < 4 { lo.dims.name } else { "S1" };
         parts.push(
             &format!("disc_{}_{}", up.dims.name, lo_name),
