@@ -1,8 +1,8 @@
 //! Painting implicit solids into a label grid, and the CT underlay made from it.
 //!
-//! The grid is split into slabs of z-slices, one per worker thread (`std::thread::scope`); each
-//! worker paints every structure into its own slab, so the result does not depend on the number of
-//! threads. Inside a slab, voxels are visited in 8 x 8 x 8 blocks: one evaluation at the block
+//! The grid is split into slabs of z-slices (one block of planes each) that the worker threads
+//! (`std::thread::scope`) take in turn; each worker paints every structure into the slab it
+//! holds, so the result does not depend on the number of threads. Inside a slab, voxels are visited in 8 x 8 x 8 blocks: one evaluation at the block
 //! centre settles the whole block when it is farther from the surface than the block's
 //! half-diagonal (the solids are 1-Lipschitz, see [`super::sdf`]), so only blocks that straddle a
 //! surface are evaluated voxel by voxel.
@@ -21,6 +21,35 @@ pub fn worker_count(cap: usize) -> usize {
     std::thread::available_parallelism()
         .map_or(1, |n| n.get())
         .clamp(1, cap.max(1))
+}
+
+/// `f(0..n)` on up to `workers` threads, each taking the next index in turn; results in index
+/// order (so the same whatever the thread count).
+fn in_turn<T: Send>(n: usize, workers: usize, f: &(dyn Fn(usize) -> T + Sync)) -> Vec<T> {
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let mut parts: Vec<(usize, T)> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..workers.clamp(1, n.max(1)))
+            .map(|_| {
+                let next = &next;
+                scope.spawn(move || {
+                    let mut mine = Vec::new();
+                    loop {
+                        let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        if i >= n {
+                            break mine;
+                        }
+                        mine.push((i, f(i)));
+                    }
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().expect("voxelizer worker panicked"))
+            .collect()
+    });
+    parts.sort_by_key(|&(i, _)| i);
+    parts.into_iter().map(|(_, t)| t).collect()
 }
 
 /// Splits `0..nz` into `workers` contiguous ranges of near-equal size.
@@ -61,42 +90,62 @@ pub fn paint_labels(
     let mut data = vec![0u8; grid.len()];
     let plane = nx * ny;
     let bounds: Vec<_> = solids.iter().map(|s| s.bounds()).collect();
+    // Slabs of one block of planes, taken in turn by the workers: the solids crowd some slabs
+    // (the pelvis, the lumbar spine) and leave others nearly empty.
+    let queue = std::sync::Mutex::new(
+        data.chunks_mut(BLOCK * plane)
+            .enumerate()
+            .map(|(s, chunk)| (s * BLOCK, chunk))
+            .rev()
+            .collect::<Vec<_>>(),
+    );
     std::thread::scope(|scope| {
-        let mut rest: &mut [u8] = &mut data;
-        for (z0, z1) in slabs(nz, workers) {
-            let (chunk, tail) = rest.split_at_mut((z1 - z0) * plane);
-            rest = tail;
-            let bounds = &bounds;
+        for _ in 0..workers.clamp(1, nz.div_ceil(BLOCK).max(1)) {
+            let (bounds, queue) = (&bounds, &queue);
             scope.spawn(move || {
-                for (si, solid) in solids.iter().enumerate() {
-                    let label = si as u8 + 1;
-                    let b = bounds[si];
-                    let (i0, i1) =
-                        axis_range(b.min.x, b.max.x, grid.origin_mm[0], grid.spacing_mm[0], nx);
-                    let (j0, j1) =
-                        axis_range(b.min.y, b.max.y, grid.origin_mm[1], grid.spacing_mm[1], ny);
-                    let (k0, k1) =
-                        axis_range(b.min.z, b.max.z, grid.origin_mm[2], grid.spacing_mm[2], nz);
-                    let (k0, k1) = (k0.max(z0), k1.min(z1));
-                    if i0 >= i1 || j0 >= j1 || k0 >= k1 {
-                        continue;
-                    }
-                    paint_one(
-                        grid,
-                        solid,
-                        label,
-                        [i0, i1],
-                        [j0, j1],
-                        [k0, k1],
-                        z0,
-                        chunk,
-                        exhaustive,
-                    );
+                while let Some((z0, chunk)) = queue.lock().ok().and_then(|mut q| q.pop()) {
+                    let z1 = z0 + chunk.len() / plane;
+                    paint_slab(grid, solids, bounds, z0, z1, chunk, exhaustive);
                 }
             });
         }
     });
     Volume { grid: *grid, data }
+}
+
+/// Paints every solid into the slab of planes `z0..z1` (`chunk`, its voxels).
+fn paint_slab(
+    grid: &VolumeGrid,
+    solids: &[&Sdf],
+    bounds: &[super::sdf::Aabb],
+    z0: usize,
+    z1: usize,
+    chunk: &mut [u8],
+    exhaustive: bool,
+) {
+    let [nx, ny, nz] = grid.dims;
+    for (si, solid) in solids.iter().enumerate() {
+        let label = si as u8 + 1;
+        let b = bounds[si];
+        let (i0, i1) = axis_range(b.min.x, b.max.x, grid.origin_mm[0], grid.spacing_mm[0], nx);
+        let (j0, j1) = axis_range(b.min.y, b.max.y, grid.origin_mm[1], grid.spacing_mm[1], ny);
+        let (k0, k1) = axis_range(b.min.z, b.max.z, grid.origin_mm[2], grid.spacing_mm[2], nz);
+        let (k0, k1) = (k0.max(z0), k1.min(z1));
+        if i0 >= i1 || j0 >= j1 || k0 >= k1 {
+            continue;
+        }
+        paint_one(
+            grid,
+            solid,
+            label,
+            [i0, i1],
+            [j0, j1],
+            [k0, k1],
+            z0,
+            chunk,
+            exhaustive,
+        );
+    }
 }
 
 #[expect(
@@ -209,104 +258,88 @@ pub fn partial_volumes(
         }
         false
     };
-    let parts: Vec<Vec<Fraction>> = std::thread::scope(|scope| {
-        let handles: Vec<_> = slabs(nz.div_ceil(BLOCK), workers)
-            .into_iter()
-            .map(|(b0, b1)| {
-                let bounds = &bounds;
-                let differs = &differs;
-                scope.spawn(move || {
-                    let mut out = Vec::new();
-                    let mut band = Vec::new();
-                    let mut cand: Vec<usize> = Vec::new();
-                    let mut f = Vec::new();
-                    for bk in (b0 * BLOCK..(b1 * BLOCK).min(nz)).step_by(BLOCK) {
-                        let ek = (bk + BLOCK).min(nz);
-                        for bj in (0..ny).step_by(BLOCK) {
-                            let ej = (bj + BLOCK).min(ny);
-                            for bi in (0..nx).step_by(BLOCK) {
-                                let ei = (bi + BLOCK).min(nx);
-                                band.clear();
-                                for k in bk..ek {
-                                    for j in bj..ej {
-                                        for i in bi..ei {
-                                            if differs(i, j, k) {
-                                                band.push([i, j, k]);
-                                            }
-                                        }
-                                    }
-                                }
-                                if band.is_empty() {
-                                    continue;
-                                }
-                                let lo = DVec3::from(grid.voxel_center_mm(bi, bj, bk));
-                                let hi = DVec3::from(grid.voxel_center_mm(ei - 1, ej - 1, ek - 1));
-                                let c = 0.5 * (lo + hi);
-                                let reach = 0.5 * (hi - lo).length() + h;
-                                // Candidates: the last solid containing the whole block (its f is
-                                // below -h throughout, so it zeroes everything painted before it)
-                                // and the later solids whose surface may come near the block.
-                                cand.clear();
-                                let mut floor = None;
-                                for (si, solid) in solids.iter().enumerate() {
-                                    let b = bounds[si];
-                                    if b.min.cmpgt(hi).any() || b.max.cmplt(lo).any() {
-                                        continue;
-                                    }
-                                    let fc = solid.eval(c);
-                                    if fc > reach {
-                                        continue;
-                                    }
-                                    if fc < -reach {
-                                        floor = Some(si);
-                                        cand.retain(|&x| x > si);
-                                        continue;
-                                    }
-                                    cand.push(si);
-                                }
-                                for &[i, j, k] in &band {
-                                    let p = DVec3::from(grid.voxel_center_mm(i, j, k));
-                                    f.clear();
-                                    f.extend(cand.iter().map(|&si| solids[si].eval(p)));
-                                    let voxel = grid.index(i, j, k) as u32;
-                                    // Walk from the last painted down, carrying max(-f) of later ones.
-                                    let mut later = f64::NEG_INFINITY;
-                                    let start = out.len();
-                                    for (n, &si) in cand.iter().enumerate().rev() {
-                                        let g = f[n].max(later);
-                                        later = later.max(-f[n]);
-                                        let occ = (0.5 - g / h).clamp(0.0, 1.0);
-                                        if occ > 0.0 {
-                                            out.push(Fraction {
-                                                voxel,
-                                                label: si as u8 + 1,
-                                                occupancy: occ as f32,
-                                            });
-                                        }
-                                    }
-                                    if let Some(si) = floor {
-                                        let occ = (0.5 - later / h).clamp(0.0, 1.0);
-                                        if occ > 0.0 {
-                                            out.push(Fraction {
-                                                voxel,
-                                                label: si as u8 + 1,
-                                                occupancy: occ as f32,
-                                            });
-                                        }
-                                    }
-                                    out[start..].reverse();
-                                }
+    // One row of blocks per job, the rows taken in turn by the workers (see `paint_labels`).
+    let parts: Vec<Vec<Fraction>> = in_turn(nz.div_ceil(BLOCK), workers, &|row| {
+        let mut out = Vec::new();
+        let mut band = Vec::new();
+        let mut cand: Vec<usize> = Vec::new();
+        let mut f = Vec::new();
+        let bk = row * BLOCK;
+        let ek = (bk + BLOCK).min(nz);
+        for bj in (0..ny).step_by(BLOCK) {
+            let ej = (bj + BLOCK).min(ny);
+            for bi in (0..nx).step_by(BLOCK) {
+                let ei = (bi + BLOCK).min(nx);
+                band.clear();
+                for k in bk..ek {
+                    for j in bj..ej {
+                        for i in bi..ei {
+                            if differs(i, j, k) {
+                                band.push([i, j, k]);
                             }
                         }
                     }
-                    out
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().expect("partial-volume worker panicked"))
-            .collect()
+                }
+                if band.is_empty() {
+                    continue;
+                }
+                let lo = DVec3::from(grid.voxel_center_mm(bi, bj, bk));
+                let hi = DVec3::from(grid.voxel_center_mm(ei - 1, ej - 1, ek - 1));
+                let c = 0.5 * (lo + hi);
+                let reach = 0.5 * (hi - lo).length() + h;
+                // Candidates: the last solid containing the whole block (its f is
+                // below -h throughout, so it zeroes everything painted before it)
+                // and the later solids whose surface may come near the block.
+                cand.clear();
+                let mut floor = None;
+                for (si, solid) in solids.iter().enumerate() {
+                    let b = bounds[si];
+                    if b.min.cmpgt(hi).any() || b.max.cmplt(lo).any() {
+                        continue;
+                    }
+                    let fc = solid.eval(c);
+                    if fc > reach {
+                        continue;
+                    }
+                    if fc < -reach {
+                        floor = Some(si);
+                        cand.retain(|&x| x > si);
+                        continue;
+                    }
+                    cand.push(si);
+                }
+                for &[i, j, k] in &band {
+                    let p = DVec3::from(grid.voxel_center_mm(i, j, k));
+                    f.clear();
+                    f.extend(cand.iter().map(|&si| solids[si].eval(p)));
+                    let voxel = grid.index(i, j, k) as u32;
+                    // Walk from the last painted down, carrying max(-f) of later ones.
+                    let mut later = f64::NEG_INFINITY;
+                    let start = out.len();
+                    // Solid `si`'s share of the voxel from its exclusive bound `g`.
+                    let mut share = |si: usize, g: f64| {
+                        let occ = (0.5 - g / h).clamp(0.0, 1.0);
+                        if occ > 0.0 {
+                            out.push(Fraction {
+                                voxel,
+                                label: si as u8 + 1,
+                                occupancy: occ as f32,
+                            });
+                        }
+                    };
+                    for (n, &si) in cand.iter().enumerate().rev() {
+                        share(si, f[n].max(later));
+                        later = later.max(-f[n]);
+                    }
+                    if let Some(si) = floor {
+                        share(si, later);
+                    }
+                    out[start..].reverse();
+                }
+            }
+        }
+
+        out
     });
     let mut all: Vec<Fraction> = parts.into_iter().flatten().collect();
     // Blocks are visited in block order, not voxel order: sort (stable, so per-voxel order stays
