@@ -51,9 +51,10 @@ pub enum RegionReadiness {
 }
 
 /// Expected duration of a phantom build when no progress has been reported yet, s. Measured
-/// (dev profile) on the 2-core development machine: 61 s for the default lumbar phantom (meshed
-/// from level sets), 24 s for the neck, 68 and 82 s for the slim and obese habitus.
-pub const EXPECTED_BUILD_S: f64 = 70.0;
+/// (dev profile) on the 2-core development machine: 37 s for the default lumbar phantom (meshed
+/// from level sets; 50-55 s inside a starting server, which prepares its other regions and its
+/// worker meanwhile), 16-18 s for the neck, 42 and 45 s for the slim and obese habitus.
+pub const EXPECTED_BUILD_S: f64 = 50.0;
 
 /// Longest `Retry-After` handed out, s. Simulator choice: a client told to come back in at most
 /// a few seconds shows progress that moves, and starts within that much of the build's end.
