@@ -110,16 +110,10 @@ pub(super) fn decimate_family(
                 })
                 .collect();
             keyed.sort_unstable();
-            let mut out: Vec<Vec<[u32; 3]>> = Vec::new();
-            for (k, &(cell, i)) in keyed.iter().enumerate() {
-                if k == 0 || keyed[k - 1].0 != cell {
-                    out.push(Vec::new());
-                }
-                if let Some(chunk) = out.last_mut() {
-                    chunk.push(input[p][i as usize]);
-                }
-            }
-            out
+            keyed
+                .chunk_by(|a, b| a.0 == b.0)
+                .map(|run| run.iter().map(|&(_, i)| input[p][i as usize]).collect())
+                .collect::<Vec<Vec<[u32; 3]>>>()
         },
         &mut |_| {},
     );

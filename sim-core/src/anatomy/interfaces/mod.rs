@@ -49,7 +49,7 @@ mod weld;
 
 pub use super::mesher::EdgeCrossing;
 pub use decimation::CHUNK_EDGES;
-pub(crate) use par::{par_map, par_map_heaviest_first, par_map_heaviest_first_told};
+pub(crate) use par::{par_map, par_map_heaviest_first, par_map_heaviest_first_told, par_map_on};
 pub use surface::{ExtractedSurface, WELD_EDGE_FRACTION, lattice_edge_key};
 
 use super::decimate::DecimationParams;

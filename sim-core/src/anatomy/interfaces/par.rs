@@ -7,9 +7,18 @@ pub(crate) fn par_map<T: Send>(
     f: &(dyn Fn(usize) -> T + Sync),
     done: &mut dyn FnMut(usize),
 ) -> Vec<T> {
-    let threads = std::thread::available_parallelism()
-        .map_or(1, |n| n.get())
-        .clamp(1, n.max(1));
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    par_map_on(cores, n, f, done)
+}
+
+/// [`par_map`] on up to `workers` threads.
+pub(crate) fn par_map_on<T: Send>(
+    workers: usize,
+    n: usize,
+    f: &(dyn Fn(usize) -> T + Sync),
+    done: &mut dyn FnMut(usize),
+) -> Vec<T> {
+    let threads = workers.clamp(1, n.max(1));
     let next = std::sync::atomic::AtomicUsize::new(0);
     let mut out: Vec<Option<T>> = (0..n).map(|_| None).collect();
     std::thread::scope(|scope| {

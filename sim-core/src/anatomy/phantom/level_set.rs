@@ -36,10 +36,9 @@ use crate::volume::VolumeGrid;
 #[derive(Debug, Clone)]
 pub struct StructureLevelSet<'a> {
     solid: &'a Sdf,
-    /// Solids painted later whose boxes meet this structure's box, with those boxes.
-    later: Vec<(&'a Sdf, Aabb)>,
-    /// The coarse lower bound of each of `later` (shared between the structures).
-    later_bounds: Vec<Arc<CoarseBound>>,
+    /// Solids painted later whose boxes meet this structure's box, with those boxes and their
+    /// coarse lower bounds (shared between the structures).
+    later: Vec<(&'a Sdf, Aabb, Arc<CoarseBound>)>,
     /// The grid's outer faces.
     extent: Aabb,
     /// Where `g <= 0` may hold: the solid's box within the extent.
@@ -85,14 +84,10 @@ pub fn level_sets<'a>(anatomy: &'a Anatomy, grid: &VolumeGrid) -> Vec<StructureL
             solid: &part.sdf,
             later: lists[i]
                 .iter()
-                .map(|&j| (&anatomy.parts[j].sdf, boxes[j]))
-                .collect(),
-            later_bounds: lists[i]
-                .iter()
                 .map(|&j| {
-                    coarse[j]
-                        .clone()
-                        .expect("every later solid has its lattice")
+                    let lattice = coarse[j].clone();
+                    let lattice = lattice.expect("every later solid has its lattice");
+                    (&anatomy.parts[j].sdf, boxes[j], lattice)
                 })
                 .collect(),
             extent,
@@ -174,7 +169,7 @@ impl StructureLevelSet<'_> {
     /// could be deeper than `-g`): elsewhere `-max(f_j, d_j) <= -f_j <= g` leaves `g` as it is.
     pub fn eval(&self, p: DVec3) -> f64 {
         let mut g = self.solid.eval(p).max(self.extent.signed_distance_mm(p));
-        for ((s, b), coarse) in self.later.iter().zip(&self.later_bounds) {
+        for (s, b, coarse) in &self.later {
             let d = b.signed_distance_mm(p);
             if -d > g && coarse.lower(p) < -g {
                 g = g.max(-s.eval(p).max(d));
@@ -187,7 +182,7 @@ impl StructureLevelSet<'_> {
     /// allows it is evaluated (the reference the bounds are tested against).
     pub fn eval_unbounded(&self, p: DVec3) -> f64 {
         let mut g = self.solid.eval(p).max(self.extent.signed_distance_mm(p));
-        for (s, b) in &self.later {
+        for (s, b, _) in &self.later {
             let d = b.signed_distance_mm(p);
             if -d > g {
                 g = g.max(-s.eval(p).max(d));
@@ -273,7 +268,7 @@ impl StructureLevelSet<'_> {
         let mut cands = scratch.pop().unwrap_or_default();
         cands.clear();
         for &k in parent {
-            let (s, b) = &self.later[usize::from(k)];
+            let (s, b, _) = &self.later[usize::from(k)];
             if !overlaps(b, lo, hi) {
                 continue;
             }
@@ -455,8 +450,7 @@ mod tests {
                     skipped_somewhere |= set
                         .later
                         .iter()
-                        .zip(&set.later_bounds)
-                        .any(|((_, bx), c)| -bx.signed_distance_mm(p) > r && c.lower(p) >= -r);
+                        .any(|(_, bx, c)| -bx.signed_distance_mm(p) > r && c.lower(p) >= -r);
                 }
             }
             assert!(skipped_somewhere, "the bounds skip some later solid");

@@ -10,6 +10,7 @@
 use glam::DVec3;
 
 use super::sdf::Sdf;
+use crate::anatomy::interfaces::par_map_on;
 use crate::rng::{splitmix64, unit_f64, unit_f64_nonzero};
 use crate::volume::{Volume, VolumeGrid};
 
@@ -21,35 +22,6 @@ pub fn worker_count(cap: usize) -> usize {
     std::thread::available_parallelism()
         .map_or(1, |n| n.get())
         .clamp(1, cap.max(1))
-}
-
-/// `f(0..n)` on up to `workers` threads, each taking the next index in turn; results in index
-/// order (so the same whatever the thread count).
-fn in_turn<T: Send>(n: usize, workers: usize, f: &(dyn Fn(usize) -> T + Sync)) -> Vec<T> {
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let mut parts: Vec<(usize, T)> = std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..workers.clamp(1, n.max(1)))
-            .map(|_| {
-                let next = &next;
-                scope.spawn(move || {
-                    let mut mine = Vec::new();
-                    loop {
-                        let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                        if i >= n {
-                            break mine;
-                        }
-                        mine.push((i, f(i)));
-                    }
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .flat_map(|h| h.join().expect("voxelizer worker panicked"))
-            .collect()
-    });
-    parts.sort_by_key(|&(i, _)| i);
-    parts.into_iter().map(|(_, t)| t).collect()
 }
 
 /// Splits `0..nz` into `workers` contiguous ranges of near-equal size.
@@ -87,29 +59,22 @@ pub fn paint_labels(
 ) -> Volume<u8> {
     assert!(solids.len() < 255, "labels are u8");
     let [nx, ny, nz] = grid.dims;
-    let mut data = vec![0u8; grid.len()];
     let plane = nx * ny;
     let bounds: Vec<_> = solids.iter().map(|s| s.bounds()).collect();
     // Slabs of one block of planes, taken in turn by the workers: the solids crowd some slabs
     // (the pelvis, the lumbar spine) and leave others nearly empty.
-    let queue = std::sync::Mutex::new(
-        data.chunks_mut(BLOCK * plane)
-            .enumerate()
-            .map(|(s, chunk)| (s * BLOCK, chunk))
-            .rev()
-            .collect::<Vec<_>>(),
+    let slabs = par_map_on(
+        workers,
+        nz.div_ceil(BLOCK),
+        &|s| {
+            let (z0, z1) = (s * BLOCK, ((s + 1) * BLOCK).min(nz));
+            let mut chunk = vec![0u8; (z1 - z0) * plane];
+            paint_slab(grid, solids, &bounds, z0, z1, &mut chunk, exhaustive);
+            chunk
+        },
+        &mut |_| {},
     );
-    std::thread::scope(|scope| {
-        for _ in 0..workers.clamp(1, nz.div_ceil(BLOCK).max(1)) {
-            let (bounds, queue) = (&bounds, &queue);
-            scope.spawn(move || {
-                while let Some((z0, chunk)) = queue.lock().ok().and_then(|mut q| q.pop()) {
-                    let z1 = z0 + chunk.len() / plane;
-                    paint_slab(grid, solids, bounds, z0, z1, chunk, exhaustive);
-                }
-            });
-        }
-    });
+    let data = slabs.concat();
     Volume { grid: *grid, data }
 }
 
@@ -259,88 +224,93 @@ pub fn partial_volumes(
         false
     };
     // One row of blocks per job, the rows taken in turn by the workers (see `paint_labels`).
-    let parts: Vec<Vec<Fraction>> = in_turn(nz.div_ceil(BLOCK), workers, &|row| {
-        let mut out = Vec::new();
-        let mut band = Vec::new();
-        let mut cand: Vec<usize> = Vec::new();
-        let mut f = Vec::new();
-        let bk = row * BLOCK;
-        let ek = (bk + BLOCK).min(nz);
-        for bj in (0..ny).step_by(BLOCK) {
-            let ej = (bj + BLOCK).min(ny);
-            for bi in (0..nx).step_by(BLOCK) {
-                let ei = (bi + BLOCK).min(nx);
-                band.clear();
-                for k in bk..ek {
-                    for j in bj..ej {
-                        for i in bi..ei {
-                            if differs(i, j, k) {
-                                band.push([i, j, k]);
+    let parts: Vec<Vec<Fraction>> = par_map_on(
+        workers,
+        nz.div_ceil(BLOCK),
+        &|row| {
+            let mut out = Vec::new();
+            let mut band = Vec::new();
+            let mut cand: Vec<usize> = Vec::new();
+            let mut f = Vec::new();
+            let bk = row * BLOCK;
+            let ek = (bk + BLOCK).min(nz);
+            for bj in (0..ny).step_by(BLOCK) {
+                let ej = (bj + BLOCK).min(ny);
+                for bi in (0..nx).step_by(BLOCK) {
+                    let ei = (bi + BLOCK).min(nx);
+                    band.clear();
+                    for k in bk..ek {
+                        for j in bj..ej {
+                            for i in bi..ei {
+                                if differs(i, j, k) {
+                                    band.push([i, j, k]);
+                                }
                             }
                         }
                     }
-                }
-                if band.is_empty() {
-                    continue;
-                }
-                let lo = DVec3::from(grid.voxel_center_mm(bi, bj, bk));
-                let hi = DVec3::from(grid.voxel_center_mm(ei - 1, ej - 1, ek - 1));
-                let c = 0.5 * (lo + hi);
-                let reach = 0.5 * (hi - lo).length() + h;
-                // Candidates: the last solid containing the whole block (its f is
-                // below -h throughout, so it zeroes everything painted before it)
-                // and the later solids whose surface may come near the block.
-                cand.clear();
-                let mut floor = None;
-                for (si, solid) in solids.iter().enumerate() {
-                    let b = bounds[si];
-                    if b.min.cmpgt(hi).any() || b.max.cmplt(lo).any() {
+                    if band.is_empty() {
                         continue;
                     }
-                    let fc = solid.eval(c);
-                    if fc > reach {
-                        continue;
-                    }
-                    if fc < -reach {
-                        floor = Some(si);
-                        cand.retain(|&x| x > si);
-                        continue;
-                    }
-                    cand.push(si);
-                }
-                for &[i, j, k] in &band {
-                    let p = DVec3::from(grid.voxel_center_mm(i, j, k));
-                    f.clear();
-                    f.extend(cand.iter().map(|&si| solids[si].eval(p)));
-                    let voxel = grid.index(i, j, k) as u32;
-                    // Walk from the last painted down, carrying max(-f) of later ones.
-                    let mut later = f64::NEG_INFINITY;
-                    let start = out.len();
-                    // Solid `si`'s share of the voxel from its exclusive bound `g`.
-                    let mut share = |si: usize, g: f64| {
-                        let occ = (0.5 - g / h).clamp(0.0, 1.0);
-                        if occ > 0.0 {
-                            out.push(Fraction {
-                                voxel,
-                                label: si as u8 + 1,
-                                occupancy: occ as f32,
-                            });
+                    let lo = DVec3::from(grid.voxel_center_mm(bi, bj, bk));
+                    let hi = DVec3::from(grid.voxel_center_mm(ei - 1, ej - 1, ek - 1));
+                    let c = 0.5 * (lo + hi);
+                    let reach = 0.5 * (hi - lo).length() + h;
+                    // Candidates: the last solid containing the whole block (its f is
+                    // below -h throughout, so it zeroes everything painted before it)
+                    // and the later solids whose surface may come near the block.
+                    cand.clear();
+                    let mut floor = None;
+                    for (si, solid) in solids.iter().enumerate() {
+                        let b = bounds[si];
+                        if b.min.cmpgt(hi).any() || b.max.cmplt(lo).any() {
+                            continue;
                         }
-                    };
-                    for (n, &si) in cand.iter().enumerate().rev() {
-                        share(si, f[n].max(later));
-                        later = later.max(-f[n]);
+                        let fc = solid.eval(c);
+                        if fc > reach {
+                            continue;
+                        }
+                        if fc < -reach {
+                            floor = Some(si);
+                            cand.retain(|&x| x > si);
+                            continue;
+                        }
+                        cand.push(si);
                     }
-                    if let Some(si) = floor {
-                        share(si, later);
+                    for &[i, j, k] in &band {
+                        let p = DVec3::from(grid.voxel_center_mm(i, j, k));
+                        f.clear();
+                        f.extend(cand.iter().map(|&si| solids[si].eval(p)));
+                        let voxel = grid.index(i, j, k) as u32;
+                        // Walk from the last painted down, carrying max(-f) of later ones.
+                        let mut later = f64::NEG_INFINITY;
+                        let start = out.len();
+                        // Solid `si`'s share of the voxel from its exclusive bound `g`.
+                        let mut share = |si: usize, g: f64| {
+                            let occ = (0.5 - g / h).clamp(0.0, 1.0);
+                            if occ > 0.0 {
+                                out.push(Fraction {
+                                    voxel,
+                                    label: si as u8 + 1,
+                                    occupancy: occ as f32,
+                                });
+                            }
+                        };
+                        for (n, &si) in cand.iter().enumerate().rev() {
+                            share(si, f[n].max(later));
+                            later = later.max(-f[n]);
+                        }
+                        if let Some(si) = floor {
+                            share(si, later);
+                        }
+                        out[start..].reverse();
                     }
-                    out[start..].reverse();
                 }
             }
-        }
 
-        out
-    });
+            out
+        },
+        &mut |_| {},
+    );
     let mut all: Vec<Fraction> = parts.into_iter().flatten().collect();
     // Blocks are visited in block order, not voxel order: sort (stable, so per-voxel order stays
     // ascending by label).
