@@ -381,3 +381,87 @@ async fn two_workers_deliver_every_item_exactly_once() {
         t.await.unwrap();
     }
 }
+
+/// Claim passes of `ob` over `wait` (after the start's own wakes have settled).
+async fn passes_over(ob: &Outbox, wait: Duration) -> u64 {
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let before = ob.claim_passes();
+    tokio::time::sleep(wait).await;
+    ob.claim_passes() - before
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_idle_outbox_sleeps_between_polls() {
+    let db = test_db().await;
+    let ob = Outbox::with_timing(db.pool.clone(), fast());
+    ob.register(Scripted::new("idle", vec![]));
+    let (stop, stopped) = stopper();
+    let task = ob.spawn(stopped);
+    // Nothing pending: a pass per poll (100 ms), so about 15 in 1.5 s; a worker that does not
+    // sleep makes thousands (an empty table's `min` is NULL, not "due now").
+    let wait = Duration::from_millis(1500);
+    let empty = passes_over(&ob, wait).await;
+    // An item due in an hour: the same.
+    let mut tx = db.pool.begin().await.unwrap();
+    outbox::enqueue(&mut tx, "idle", "later", json!({}))
+        .await
+        .unwrap();
+    sqlx::query(
+        "UPDATE outbox SET next_attempt_at = now() + interval '1 hour' WHERE key = 'later'",
+    )
+    .execute(&mut *tx)
+    .await
+    .unwrap();
+    tx.commit().await.unwrap();
+    let later = passes_over(&ob, wait).await;
+    // An item that falls due while another transaction holds its row (as a second worker's
+    // claim holds it until it commits): the claim skips it, and the worker looks again after
+    // its shortest nap (25 ms), not at once.
+    sqlx::query(
+        "UPDATE outbox SET next_attempt_at = now() + interval '400 milliseconds' WHERE key = 'later'",
+    )
+    .execute(&db.pool)
+    .await
+    .unwrap();
+    let mut holder = db.pool.begin().await.unwrap();
+    sqlx::query("SELECT id FROM outbox WHERE key = 'later' FOR UPDATE")
+        .execute(&mut *holder)
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(400)).await;
+    let locked = passes_over(&ob, wait).await;
+    assert_eq!(
+        outbox::kind_status(&db.pool, "idle")
+            .await
+            .unwrap()
+            .delivered,
+        0
+    );
+    holder.rollback().await.unwrap();
+    // Released, it is delivered within a few naps.
+    wait_until(Duration::from_secs(2), async || {
+        outbox::kind_status(&db.pool, "idle")
+            .await
+            .unwrap()
+            .delivered
+            == 1
+    })
+    .await;
+    eprintln!("claim passes in {wait:?}: empty {empty}, due in an hour {later}, locked {locked}");
+    // Bounds: 1.5 s / 100 ms = 15 passes, plus a few wakes; 1.5 s / 25 ms = 60 when locked.
+    assert!(
+        empty <= 25,
+        "idle outbox made {empty} claim passes in {wait:?}"
+    );
+    assert!(
+        later <= 25,
+        "outbox with a later item made {later} passes in {wait:?}"
+    );
+    assert!(
+        locked <= 80,
+        "outbox with a locked due item made {locked} passes in {wait:?}"
+    );
+    assert!(empty >= 5, "the worker still polls ({empty} passes)");
+    stop.send(()).unwrap();
+    task.await.unwrap();
+}

@@ -14,6 +14,7 @@
 //! PostgreSQL delivers at commit); [`Outbox::wake`] does the same from inside the process, and the
 //! workers also poll, so a lost notification only delays an item by [`Timing::poll`].
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -131,6 +132,8 @@ struct Inner {
     timing: Timing,
     deliverers: Mutex<Vec<Arc<dyn Deliver>>>,
     wake: watch::Sender<u64>,
+    /// Times this process's workers looked for due items (see [`Outbox::claim_passes`]).
+    passes: AtomicU64,
 }
 
 impl Outbox {
@@ -147,6 +150,7 @@ impl Outbox {
                 timing,
                 deliverers: Mutex::new(Vec::new()),
                 wake: watch::channel(0).0,
+                passes: AtomicU64::new(0),
             }),
         }
     }
@@ -158,6 +162,12 @@ impl Outbox {
             .lock()
             .expect("outbox deliverers")
             .push(deliverer);
+    }
+
+    /// How many times this process's workers have looked for due items. An idle outbox looks
+    /// about once per [`Timing::poll`] and per wake, not continuously.
+    pub fn claim_passes(&self) -> u64 {
+        self.inner.passes.load(Ordering::Relaxed)
     }
 
     /// Wakes every worker to look for due items now (e.g. after a commit that enqueued some, or
@@ -239,6 +249,7 @@ async fn worker(outbox: Outbox, deliverer: Arc<dyn Deliver>, mut stop: watch::Re
             return;
         }
         wake.mark_unchanged();
+        outbox.inner.passes.fetch_add(1, Ordering::Relaxed);
         let claimed = claim(pool, kind, deliverer.batch_size().max(1), timing.lease).await;
         let items = match claimed {
             Ok(items) => items,
@@ -251,7 +262,7 @@ async fn worker(outbox: Outbox, deliverer: Arc<dyn Deliver>, mut stop: watch::Re
             let nap = next_due_in(pool, kind)
                 .await
                 .unwrap_or(timing.poll)
-                .min(timing.poll);
+                .clamp(MIN_NAP, timing.poll.max(MIN_NAP));
             tokio::select! {
                 () = stopped(&mut stop) => return,
                 _ = wake.changed() => {}
@@ -325,10 +336,18 @@ async fn claim(
     Ok(items)
 }
 
-/// Time until the next undelivered item of `kind` is due (`None`: none pending).
+/// Shortest sleep of a worker whose claim found nothing. An item can be due yet not claimable
+/// (another worker's claim holds its row until that transaction commits, which then moves it a
+/// lease ahead); the worker looks again after this instead of at once. Our choice: 25 ms, short
+/// against any backoff, long against a claim's round trip.
+const MIN_NAP: Duration = Duration::from_millis(25);
+
+/// Time until the next undelivered item of `kind` is due (zero when one is overdue; `None`: none
+/// pending). `min` over no row is NULL, which stays `None` here (SQL's `greatest(NULL, 0)` would
+/// be 0, and an idle worker would never sleep).
 async fn next_due_in(pool: &PgPool, kind: &str) -> Option<Duration> {
     let secs: Option<f64> = sqlx::query_scalar(
-        "SELECT greatest(extract(epoch FROM min(next_attempt_at) - now()), 0)::float8 FROM outbox
+        "SELECT extract(epoch FROM min(next_attempt_at) - now())::float8 FROM outbox
          WHERE kind = $1 AND delivered_at IS NULL AND failed_at IS NULL",
     )
     .bind(kind)
@@ -336,7 +355,7 @@ async fn next_due_in(pool: &PgPool, kind: &str) -> Option<Duration> {
     .await
     .ok()
     .flatten();
-    secs.map(|s| Duration::from_secs_f64(s.max(0.0)))
+    secs.and_then(|s| Duration::try_from_secs_f64(s.max(0.0)).ok())
 }
 
 fn ids(items: &[Claimed]) -> Vec<i64> {
