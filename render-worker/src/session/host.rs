@@ -26,7 +26,7 @@ use super::loader::RegionLoadError;
 use super::machine::{Ack, Session, SessionEnv, SessionSnapshot};
 use super::modalities::fluoro::{BackendProfile, FluoroBackend};
 pub use super::preparation::{
-    EXPECTED_BUILD_S, MAX_RETRY_AFTER_S, RegionReadiness, build_fraction,
+    EXPECTED_BUILD_S, MAX_RETRY_AFTER_S, Pace, RegionReadiness, build_fraction,
 };
 use super::preparation::{QuickCheck, RegionLoader, Regions};
 use super::region::Region;
