@@ -254,6 +254,53 @@ impl TriMesh {
     }
 }
 
+/// Values grouped by a small integer key, laid out in one array (a counting sort: one pass to
+/// count each key's values, one to place them): `bucket(k)` holds key `k`'s values in the order
+/// they were given. Serves the mesh code's per-vertex lists (edges by lower vertex, neighbours,
+/// triangles of each vertex), where millions of small growing vectors cost several times more.
+pub(crate) struct Buckets {
+    /// `starts[k]..starts[k + 1]` is key `k`'s range of `values`.
+    starts: Vec<u32>,
+    values: Vec<u32>,
+}
+
+impl Buckets {
+    /// The `(key, value)` pairs that `pairs()` gives (called twice, the same pairs each time)
+    /// under `keys` keys (each key below). Panics if there are `u32::MAX` values or more.
+    pub(crate) fn new<I>(keys: usize, pairs: impl Fn() -> I) -> Buckets
+    where
+        I: Iterator<Item = (u32, u32)>,
+    {
+        let mut starts = vec![0u32; keys + 1];
+        for (k, _) in pairs() {
+            starts[k as usize + 1] += 1;
+        }
+        for k in 0..keys {
+            starts[k + 1] = starts[k + 1]
+                .checked_add(starts[k])
+                .expect("fewer than 2^32 values");
+        }
+        let mut next = starts.clone();
+        let mut values = vec![0u32; starts[keys] as usize];
+        for (k, v) in pairs() {
+            let slot = &mut next[k as usize];
+            values[*slot as usize] = v;
+            *slot += 1;
+        }
+        Buckets { starts, values }
+    }
+
+    /// Values of key `k`, in the order given.
+    pub(crate) fn bucket(&self, k: usize) -> &[u32] {
+        &self.values[self.starts[k] as usize..self.starts[k + 1] as usize]
+    }
+
+    /// Values of key `k`, to sort or rewrite in place.
+    pub(crate) fn bucket_mut(&mut self, k: usize) -> &mut [u32] {
+        &mut self.values[self.starts[k] as usize..self.starts[k + 1] as usize]
+    }
+}
+
 /// True for a triangle with a repeated vertex index.
 pub fn is_degenerate(t: &[u32; 3]) -> bool {
     t[0] == t[1] || t[1] == t[2] || t[0] == t[2]
@@ -275,30 +322,18 @@ pub fn directed_edge_uses(triangles: &[[u32; 3]]) -> Vec<((u32, u32), (u32, u32)
     if max_id >= 1 << 31 || ids > 6 * triangles.len() + 1024 {
         return directed_edge_uses_sorted(triangles);
     }
-    // Entries: the upper vertex times two, plus one for a use from the upper vertex down.
-    let mut start = vec![0u32; ids + 1];
-    let live = || triangles.iter().filter(|t| !is_degenerate(t));
-    for t in live() {
-        for k in 0..3 {
-            start[t[k].min(t[(k + 1) % 3]) as usize + 1] += 1;
-        }
-    }
-    for v in 0..ids {
-        start[v + 1] += start[v];
-    }
-    let mut next = start.clone();
-    let mut entries = vec![0u32; start[ids] as usize];
-    for t in live() {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            let slot = &mut next[a.min(b) as usize];
-            entries[*slot as usize] = (a.max(b) << 1) | u32::from(a > b);
-            *slot += 1;
-        }
-    }
-    let mut edges = Vec::with_capacity(entries.len() / 2 + 1);
+    // By lower vertex: the upper vertex times two, plus one for a use from the upper vertex down.
+    let half_edges = || {
+        triangles
+            .iter()
+            .filter(|t| !is_degenerate(t))
+            .flat_map(|t| (0..3).map(move |k| (t[k], t[(k + 1) % 3])))
+            .map(|(a, b)| (a.min(b), (a.max(b) << 1) | u32::from(a > b)))
+    };
+    let mut entries = Buckets::new(ids, half_edges);
+    let mut edges = Vec::with_capacity(entries.values.len() / 2 + 1);
     for lo in 0..ids {
-        let bucket = &mut entries[start[lo] as usize..start[lo + 1] as usize];
+        let bucket = entries.bucket_mut(lo);
         bucket.sort_unstable();
         let mut i = 0;
         while i < bucket.len() {
@@ -381,6 +416,30 @@ pub(crate) fn random_soup(state: &mut u64, n: usize, vertices: u32) -> Vec<[u32;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn buckets_hold_each_keys_values_in_the_order_given() {
+        // Random pairs over 0, 1 and 50 keys (some keys empty) against growing vectors.
+        let mut u = 3_u64;
+        for (keys, n) in [(0usize, 0usize), (1, 7), (50, 400), (50, 3)] {
+            let pairs: Vec<(u32, u32)> = (0..n)
+                .map(|_| {
+                    u = crate::rng::splitmix64(u);
+                    ((u % keys as u64) as u32, (u >> 32) as u32)
+                })
+                .collect();
+            let mut want = vec![Vec::new(); keys];
+            for &(k, v) in &pairs {
+                want[k as usize].push(v);
+            }
+            let mut b = Buckets::new(keys, || pairs.iter().copied());
+            for (k, w) in want.iter().enumerate() {
+                assert_eq!(b.bucket(k), &w[..], "key {k} of {keys}");
+                b.bucket_mut(k).reverse();
+                assert_eq!(b.bucket(k).first(), w.last());
+            }
+        }
+    }
 
     #[test]
     fn directed_edge_uses_counts_each_direction_sorted_by_edge() {

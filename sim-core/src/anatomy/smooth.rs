@@ -16,7 +16,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::mesh::TriMesh;
+use crate::mesh::{Buckets, TriMesh};
 
 /// Parameters of [`taubin_smooth`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -61,29 +61,17 @@ pub(crate) fn neighbours_of<'a>(
     vertices: usize,
     triangles: impl IntoIterator<Item = &'a [u32; 3]> + Clone,
 ) -> Vec<Vec<u32>> {
-    let mut start = vec![0usize; vertices + 1];
-    for t in triangles.clone() {
-        for &v in t {
-            start[v as usize + 1] += 2;
-        }
-    }
-    for v in 0..vertices {
-        start[v + 1] += start[v];
-    }
-    let mut next = start.clone();
-    let mut ends = vec![0u32; start[vertices]];
-    for t in triangles {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            ends[next[a as usize]] = b;
-            next[a as usize] += 1;
-            ends[next[b as usize]] = a;
-            next[b as usize] += 1;
-        }
-    }
+    let ends = || {
+        triangles
+            .clone()
+            .into_iter()
+            .flat_map(|t| (0..3).map(move |k| (t[k], t[(k + 1) % 3])))
+            .flat_map(|(a, b)| [(a, b), (b, a)])
+    };
+    let mut ends = Buckets::new(vertices, ends);
     (0..vertices)
         .map(|v| {
-            let list = &mut ends[start[v]..start[v + 1]];
+            let list = ends.bucket_mut(v);
             list.sort_unstable();
             let mut kept = 0;
             for i in 0..list.len() {

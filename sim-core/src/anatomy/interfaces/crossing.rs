@@ -7,6 +7,7 @@ use glam::DVec3;
 
 use super::par::par_map;
 use super::weld::Family;
+use crate::mesh::Buckets;
 
 /// Whether two triangles cross: their intersection is a segment of positive length. Touching
 /// (a vertex or an edge lying in the other triangle's plane) and coplanar pairs do not count.
@@ -376,9 +377,8 @@ pub(super) struct LiveCrossings<'a> {
     source: &'a [Vec<[u32; 3]>],
     corners: bool,
     grid: TriangleGrid,
-    /// Triangle ids of each vertex (`starts[v]..starts[v + 1]` in `ids`).
-    starts: Vec<u32>,
-    ids: Vec<u32>,
+    /// Triangle ids of each vertex.
+    by_vertex: Buckets,
     /// Crossing pairs as triangle ids, the lower first.
     pairs: rustc_hash::FxHashSet<(u32, u32)>,
     /// Scratch: triangles moved in the current update.
@@ -398,30 +398,20 @@ impl<'a> LiveCrossings<'a> {
             .crossing_ids(source, positions, &all, corners)
             .into_iter()
             .collect();
-        let mut starts = vec![0u32; positions.len() + 1];
-        for t in source.iter().flatten() {
-            for &v in t {
-                starts[v as usize + 1] += 1;
-            }
-        }
-        for v in 0..positions.len() {
-            starts[v + 1] += starts[v];
-        }
-        let mut next = starts.clone();
-        let mut ids = vec![0u32; starts[positions.len()] as usize];
-        for (id, t) in source.iter().flatten().enumerate() {
-            for &v in t {
-                ids[next[v as usize] as usize] = id as u32;
-                next[v as usize] += 1;
-            }
-        }
+        let corners_of = || {
+            source
+                .iter()
+                .flatten()
+                .enumerate()
+                .flat_map(|(id, t)| t.map(|v| (v, id as u32)))
+        };
+        let by_vertex = Buckets::new(positions.len(), corners_of);
         let marked = vec![false; grid.tris.len()];
         LiveCrossings {
             source,
             corners,
             grid,
-            starts,
-            ids,
+            by_vertex,
             pairs,
             marked,
         }
@@ -443,8 +433,7 @@ impl<'a> LiveCrossings<'a> {
     pub(super) fn moved(&mut self, positions: &[[f64; 3]], moved: &[u32]) {
         let mut tris: Vec<u32> = Vec::new();
         for &v in moved {
-            let (a, b) = (self.starts[v as usize], self.starts[v as usize + 1]);
-            for &t in &self.ids[a as usize..b as usize] {
+            for &t in self.by_vertex.bucket(v as usize) {
                 if !self.marked[t as usize] {
                     self.marked[t as usize] = true;
                     tris.push(t);
