@@ -321,3 +321,20 @@ fn brightness_leaves_a_kept_technique_that_the_limits_no_longer_allow() {
         within_limits(s.technique, &continuous);
     }
 }
+
+#[test]
+fn metering_gives_the_same_depths_on_any_number_of_threads() {
+    let scene = trunk(340.0, 220.0);
+    for v in [view(0.0), view(35.0), view(90.0)] {
+        let one = meter_on(&scene, &v, 12, 1);
+        assert!(one.depths.len() > 100, "{}", one.depths.len());
+        for threads in [2, 3, 7] {
+            let m = meter_on(&scene, &v, 12, threads);
+            let bits = |m: &Metering| -> Vec<u64> {
+                m.depths.iter().flatten().map(|d| d.to_bits()).collect()
+            };
+            assert_eq!(bits(&m), bits(&one), "{threads} threads");
+            assert_eq!(m.air_gap_mm.to_bits(), one.air_gap_mm.to_bits());
+        }
+    }
+}
