@@ -45,6 +45,7 @@ use super::geometry::Projection;
 use super::rows::thread_count;
 use super::scene::{ChordScratch, SceneRef};
 use super::spectrum::{Basis, Spectrum};
+use crate::anatomy::interfaces::par_map_on;
 
 /// Diameter of the metering disc as a fraction of the detector side. Simulator choice: the
 /// central third, the usual sensing field of an image-intensifier or flat-panel C-arm.
@@ -57,8 +58,8 @@ pub const METERING_FRACTION: f64 = 1.0 / 3.0;
 /// frame may spend on the imaging chain; the `brightness` bench).
 pub const METERING_RAYS_ACROSS: usize = 10;
 
-/// Fewest metering rays a thread takes (fewer rays stay on the calling thread). Simulator
-/// choice: a ray through the default phantom's meshes costs about 50 us, a thread's start tens.
+/// Fewest metering rays per thread. Simulator choice: a ray through the default phantom's
+/// meshes costs about 50 us, a thread's start tens.
 const METERING_RAYS_PER_THREAD: usize = 16;
 
 /// Smallest tube current the controller sets, mA (simulator choice: the low end of a mobile
@@ -298,37 +299,27 @@ pub fn meter_on<'a>(
             }
         }
     }
-    // Each ray on its own (a scratch per thread), in order: the same depths on any number of
-    // threads. The rays are the command's work before its frame (after a C-arm move: about
-    // 80 rays through every mesh of the scene, 3.4-4.9 ms of the default phantom on one core).
-    let depths_of = |rays: &[[f64; 2]]| -> Vec<BasisDepths> {
-        let mut scratch = ChordScratch::default();
-        rays.iter()
-            .map(|&px| {
-                let ray = projection.pixel_ray(px);
-                let chords = scene
-                    .ray_chords(ray.origin_mm, ray.dir, ray.detector_t_mm, &mut scratch)
-                    .chords_mm;
-                basis_depths(&chords, 0.0)
-            })
-            .collect()
-    };
-    let threads = thread_count(threads).min(pixels.len().div_ceil(METERING_RAYS_PER_THREAD));
-    let depths: Vec<BasisDepths> = if threads <= 1 {
-        depths_of(&pixels)
-    } else {
-        let per = pixels.len().div_ceil(threads);
-        std::thread::scope(|s| {
-            let parts: Vec<_> = pixels
-                .chunks(per)
-                .map(|rays| s.spawn(move || depths_of(rays)))
-                .collect();
-            parts
-                .into_iter()
-                .flat_map(|p| p.join().expect("metering thread"))
-                .collect()
-        })
-    };
+    // Each ray on its own, in order: the same depths on any number of threads. The rays are the
+    // command's work before its frame (after a C-arm move: about 80 rays through every mesh of
+    // the scene, 3.4-4.9 ms of the default phantom on one core).
+    let workers = thread_count(threads).min(pixels.len().div_ceil(METERING_RAYS_PER_THREAD));
+    let depths: Vec<BasisDepths> = par_map_on(
+        workers,
+        pixels.len(),
+        &|k| {
+            let ray = projection.pixel_ray(pixels[k]);
+            let chords = scene
+                .ray_chords(
+                    ray.origin_mm,
+                    ray.dir,
+                    ray.detector_t_mm,
+                    &mut ChordScratch::default(),
+                )
+                .chords_mm;
+            basis_depths(&chords, 0.0)
+        },
+        &mut |_| {},
+    );
     let centre = projection.pixel_ray([cx, cy]);
     let mut hits = Vec::new();
     let mut last_exit: Option<f64> = None;
