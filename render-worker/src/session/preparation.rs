@@ -96,18 +96,15 @@ pub fn build_fraction(p: &Progress) -> f64 {
     } else {
         (p.done as f64 / p.total as f64).clamp(0.0, 1.0)
     };
-    STAGE_SPANS
-        .iter()
-        .find(|(stage, ..)| *stage == p.stage)
-        .map_or(0.0, |(_, lo, hi)| lo + (hi - lo) * part)
+    stage_span(p).map_or(0.0, |(lo, hi)| lo + (hi - lo) * part)
 }
 
-/// Where the stage of `p` ends in the fraction shown (1 for a stage without a span).
-fn stage_end(p: &Progress) -> f64 {
+/// Where the stage of `p` starts and ends in the fraction shown (see [`STAGE_SPANS`]).
+fn stage_span(p: &Progress) -> Option<(f64, f64)> {
     STAGE_SPANS
         .iter()
         .find(|(stage, ..)| *stage == p.stage)
-        .map_or(1.0, |(.., hi)| *hi)
+        .map(|&(_, lo, hi)| (lo, hi))
 }
 
 /// A build's progress reports as far as the estimates need them.
@@ -127,7 +124,8 @@ impl Pace {
     pub fn report(&mut self, p: &Progress, at_s: f64) {
         self.fraction = self.fraction.max(build_fraction(p));
         self.reported_s = at_s;
-        self.stage_end = stage_end(p);
+        // A stage without a span ends at 1.
+        self.stage_end = stage_span(p).map_or(1.0, |(_, hi)| hi);
         if self.anchor.is_none() && self.fraction >= PACE_FROM_FRACTION {
             self.anchor = Some((self.fraction, at_s));
         }
