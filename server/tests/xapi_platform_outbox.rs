@@ -94,6 +94,14 @@ async fn wait_until(limit: Duration, mut f: impl AsyncFnMut() -> bool) {
     }
 }
 
+/// Waits (at most `limit`) until `n` items of `kind` are delivered.
+async fn wait_delivered(pool: &PgPool, kind: &str, n: i64, limit: Duration) {
+    wait_until(limit, async || {
+        outbox::kind_status(pool, kind).await.unwrap().delivered == n
+    })
+    .await;
+}
+
 fn stopper() -> (
     tokio::sync::oneshot::Sender<()>,
     impl Future<Output = ()> + Send + 'static,
@@ -149,14 +157,7 @@ async fn retries_back_off_exponentially_then_deliver() {
     let (stop, stopped) = stopper();
     let task = ob.spawn(stopped);
     enqueue_n(&db.pool, "retry", 1).await;
-    wait_until(Duration::from_secs(10), async || {
-        outbox::kind_status(&db.pool, "retry")
-            .await
-            .unwrap()
-            .delivered
-            == 1
-    })
-    .await;
+    wait_delivered(&db.pool, "retry", 1, Duration::from_secs(10)).await;
     let calls = d.calls();
     assert_eq!(calls.len(), 4, "three failures, then the delivery");
     // Attempt k failed -> the next one waits backoff(k) in [base*2^(k-1)/2, base*2^(k-1)]
@@ -293,14 +294,7 @@ async fn a_restart_resumes_and_a_crashed_workers_items_are_delivered_again() {
     second.register(d.clone());
     let (stop2, stopped2) = stopper();
     let task2 = second.spawn(stopped2);
-    wait_until(Duration::from_secs(10), async || {
-        outbox::kind_status(&db.pool, "resume")
-            .await
-            .unwrap()
-            .delivered
-            == 5
-    })
-    .await;
+    wait_delivered(&db.pool, "resume", 5, Duration::from_secs(10)).await;
     let first_redelivery = d.calls()[0].0;
     eprintln!(
         "redelivered {:?} after the crash (lease 1.5 s)",
@@ -344,13 +338,12 @@ async fn two_workers_deliver_every_item_exactly_once() {
         stops.push(stop);
         deliverers.push(d);
     }
-    wait_until(Duration::from_secs(60), async || {
-        outbox::kind_status(&db.pool, "pair")
-            .await
-            .unwrap()
-            .delivered
-            == i64::try_from(n).unwrap()
-    })
+    wait_delivered(
+        &db.pool,
+        "pair",
+        i64::try_from(n).unwrap(),
+        Duration::from_secs(60),
+    )
     .await;
     for d in &deliverers {
         for (_, items) in d.calls() {
@@ -439,14 +432,7 @@ async fn an_idle_outbox_sleeps_between_polls() {
     );
     holder.rollback().await.unwrap();
     // Released, it is delivered within a few naps.
-    wait_until(Duration::from_secs(2), async || {
-        outbox::kind_status(&db.pool, "idle")
-            .await
-            .unwrap()
-            .delivered
-            == 1
-    })
-    .await;
+    wait_delivered(&db.pool, "idle", 1, Duration::from_secs(2)).await;
     eprintln!("claim passes in {wait:?}: empty {empty}, due in an hour {later}, locked {locked}");
     // Bounds: 1.5 s / 100 ms = 15 passes, plus a few wakes; 1.5 s / 25 ms = 60 when locked.
     assert!(
