@@ -460,3 +460,53 @@ fn a_new_session_prefetches_its_first_view_before_any_input() {
     h.close(&restored.info.id).unwrap();
     h.shutdown();
 }
+
+/// A client's tick that comes a little before the pulse a waiting change is due at (its timer
+/// runs on its own clock, out of phase with the session's pulse grid) is held until that pulse
+/// and images the change then, instead of a whole pulse period later.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tick_just_before_a_pulse_images_the_waiting_change_at_that_pulse() {
+    let host = host(2);
+    let h = host.create("demo-station").await.unwrap();
+    // Nothing rendered: the session's thread stays free, so only the hold can delay a tick.
+    h.set_visible(std::collections::BTreeSet::new());
+    let mut seq = 0;
+    let mut command = |command: Command| {
+        seq += 1;
+        h.command(Envelope { seq, command })
+    };
+    let sent = std::time::Instant::now();
+    let since = command(Command::Live { on: true }).await.unwrap().t_ms;
+    // A C-arm move in the pulse that imaged the pedal press waits for the next pulse, due at
+    // `since + 134` (7.5 pulses per second, the default).
+    command(pose(4.0, 0.0)).await.unwrap();
+    let due = since + 134;
+    let images = |snap: &SessionSnapshot| -> Vec<u64> {
+        snap.modalities["fluoroscopy"]["images"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|i| i["t_ms"].as_u64().unwrap())
+            .collect()
+    };
+    // A tick 20 ms early by the session's clock (which started at `since` no earlier than
+    // `sent`): held until the pulse (a quarter period, 33 ms, is the most a tick is held).
+    tokio::time::sleep_until((sent + std::time::Duration::from_millis(due - 20 - since)).into())
+        .await;
+    let ack = command(Command::Tick).await.unwrap();
+    let (snap, _) = h.snapshot().await.unwrap();
+    assert!(
+        (due..due + 15).contains(&ack.t_ms),
+        "tick applied at {} for the pulse at {due}",
+        ack.t_ms
+    );
+    assert_eq!(images(&snap).last(), Some(&ack.t_ms), "{:?}", images(&snap));
+    assert_eq!(
+        snap.modalities["fluoroscopy"]["images"]
+            .as_array()
+            .unwrap()
+            .last()
+            .unwrap()["projection"]["orbital_deg"],
+        4.0
+    );
+}

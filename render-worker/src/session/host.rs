@@ -17,7 +17,7 @@ use sim_core::anatomy::pipeline::Progress;
 use sim_core::rubric::{Station, load_station_dir};
 use tokio::sync::{mpsc, oneshot, watch};
 
-use super::command::{CommandError, Envelope, ErrorCode, LogEntry};
+use super::command::{Command, CommandError, Envelope, ErrorCode, LogEntry};
 use super::config::SessionConfig;
 use super::devices::Backends;
 use super::frame::EncodedFrame;
@@ -762,7 +762,17 @@ fn run_actor(
             match msg {
                 ActorMsg::Command { env, reply } => {
                     let seq = env.seq;
-                    let now = base_ms + started.elapsed().as_millis() as u64;
+                    let clock = || base_ms + started.elapsed().as_millis() as u64;
+                    let mut now = clock();
+                    // A tick a little early for a pulse that images a waiting change is held
+                    // until that pulse (see `pulse::TICK_HOLD_PERIOD_FRACTION`).
+                    if env.command == Command::Tick {
+                        let at = session.tick_time(now);
+                        if at > now {
+                            std::thread::sleep(std::time::Duration::from_millis(at - now));
+                            now = clock().max(at);
+                        }
+                    }
                     let r = match session.apply(env, now) {
                         Ok(a) => Reply::Ack(a),
                         Err(error) => Reply::Error {

@@ -772,6 +772,17 @@ impl Session {
         }
     }
 
+    /// The moment at which a `tick` that comes at `now_ms` should be applied: a little later
+    /// when a modality images a waiting change then and the tick could be early for it (live
+    /// fluoroscopy's next pulse, see [`Modality::tick_hold_until`]), else `now_ms`.
+    pub fn tick_time(&self, now_ms: u64) -> u64 {
+        self.modalities
+            .iter()
+            .filter_map(|m| m.tick_hold_until(now_ms))
+            .min()
+            .map_or(now_ms, |t| t.max(now_ms))
+    }
+
     /// Whether any visible view needs rendering.
     pub fn has_dirty(&self, visible: &BTreeSet<ViewId>) -> bool {
         self.modalities

@@ -199,3 +199,37 @@ fn a_session_recorded_before_pulsing_keeps_the_continuous_beam() {
     let ratio = s.measurements()["air_kerma_mgy"] / shot;
     assert!((ratio - 101.0).abs() < 1e-6, "{ratio}");
 }
+
+/// A tick a little early for the pulse a waiting change is due at is applied at that pulse
+/// (the host asks `Session::tick_time` before applying a tick): within a quarter period before
+/// it (33 ms at 7.5 pulses per second, 8 ms at 30), never earlier, and not once the pedal is
+/// released.
+#[test]
+fn an_early_tick_is_held_for_the_pulse_a_waiting_change_is_due_at() {
+    for (pps, due, hold_ms) in [(7.5, 1134, 33), (30.0, 1034, 8)] {
+        let mut d = Driver::new();
+        d.ok(0, pulse_rate(pps));
+        d.ok(1000, Command::Live { on: true });
+        // A pose in the pulse that imaged the pedal press waits for the next one.
+        d.ok(1010, pose(3.0, 0.0));
+        assert_eq!(live_images(&d.s), [1000], "{pps} pps");
+        for now in [due - hold_ms, due - 1] {
+            assert_eq!(d.s.tick_time(now), due, "{pps} pps, tick at {now}");
+        }
+        for now in [due - hold_ms - 1, 1011, due, due + 40] {
+            assert_eq!(d.s.tick_time(now), now, "{pps} pps, tick at {now}");
+        }
+        // The host applies the held tick at `due`: the pose is imaged by that pulse.
+        let at = d.s.tick_time(due - 3);
+        let ack = d.ok(at, Command::Tick);
+        assert_eq!(ack.t_ms, due);
+        assert_eq!(live_images(&d.s), [1000, due], "{pps} pps");
+        // Released with a change waiting: nothing is held.
+        d.ok(due + 5, pose(6.0, 0.0));
+        d.ok(due + 6, Command::Live { on: false });
+        assert_eq!(
+            d.s.tick_time(due + 2 * (due - 1000) - 3),
+            due + 2 * (due - 1000) - 3
+        );
+    }
+}

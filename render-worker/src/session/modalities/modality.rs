@@ -109,6 +109,15 @@ pub trait Modality: Send {
     /// here; because every clock value comes from a logged command, replay takes the same steps.
     fn advance(&mut self, _from_ms: u64, _world: &World) {}
 
+    /// When a `tick` applied at `now_ms` should be applied instead: the moment, a little later,
+    /// at which a change this modality holds for a clock of its own (live fluoroscopy's next
+    /// pulse) is imaged, if a tick could be early for it; `None` to apply it at once. Only the
+    /// session host asks, before applying a tick; the tick is logged at the moment it is
+    /// applied, so replay needs nothing of this.
+    fn tick_hold_until(&self, _now_ms: u64) -> Option<u64> {
+        None
+    }
+
     /// Reacts to a change of the shared world made by another part of the session.
     fn world_changed(&mut self, change: &WorldChange, world: &World);
 

@@ -619,6 +619,17 @@ impl Modality for FluoroModality {
         }
     }
 
+    fn tick_hold_until(&self, now_ms: u64) -> Option<u64> {
+        let (since, pps) = (self.state.live_since_ms?, self.state.pulse_rate_pps?);
+        if !self.state.pulse_pending {
+            return None;
+        }
+        let last = self.state.images.last().map(|i| i.t_ms);
+        let due = pulse::next_pulse_ms(Some(pps), since, last)?;
+        let hold_ms = pulse::TICK_HOLD_PERIOD_FRACTION * 1000.0 / pps;
+        (due > now_ms && (due - now_ms) as f64 <= hold_ms).then_some(due)
+    }
+
     fn world_changed(&mut self, change: &WorldChange, world: &World) {
         match change {
             WorldChange::Needle | WorldChange::Marker => self.live_change(world),

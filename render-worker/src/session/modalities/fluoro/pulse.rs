@@ -16,7 +16,9 @@
 //! - pulses fire on a fixed grid from the moment the pedal is pressed; a change while live
 //!   (C-arm, technique, needle, marker, spreading contrast) is imaged by the pulse it falls in if
 //!   that pulse has made no image yet, else by the next one, at the first logged moment inside it
-//!   (a later command, or the client's `tick`s, which it sends at the pulse rate while live runs).
+//!   (a later command, or the client's `tick`s, which it sends at the pulse rate while live runs;
+//!   the session host holds a tick that comes a little before such a pulse until the pulse, see
+//!   [`TICK_HOLD_PERIOD_FRACTION`]).
 //!   So live frames cost at most one render per pulse whatever the input rate, and between
 //!   pulses nothing renders (last-image hold).
 //!
@@ -81,9 +83,63 @@ pub fn pulse_due(pps: Option<f64>, live_since_ms: u64, last_ms: Option<u64>, now
     }
 }
 
+/// How early a `tick` may come for the pulse a waiting change is due at, as a fraction of the
+/// pulse period: the session host holds such a tick until that pulse
+/// ([`next_pulse_ms`]) instead of applying it a little before it. A client ticks at the pulse
+/// rate on its own clock, in a phase that the network's delays set against the session's pulse
+/// grid, so about half of its ticks used to land just before a pulse and image the change a
+/// whole period later (the capacity bench's live poses at one learner: 166 ms from tick to
+/// frame at p95; 43 ms with ticks held). Simulator choice: a quarter period
+/// (33 ms at 7.5 pulses per second, 8 ms at 30) absorbs a network's jitter and keeps a tick
+/// that means an earlier moment from waiting long.
+pub const TICK_HOLD_PERIOD_FRACTION: f64 = 0.25;
+
+/// The first moment (ms) at which [`pulse_due`] holds for a change waiting in a live run since
+/// `live_since_ms` whose last image was made at `last_ms`; `None` for the continuous beam,
+/// whose changes never wait.
+pub fn next_pulse_ms(pps: Option<f64>, live_since_ms: u64, last_ms: Option<u64>) -> Option<u64> {
+    let pps = pps?;
+    let Some(last) = last_ms.filter(|&l| l >= live_since_ms) else {
+        return Some(live_since_ms);
+    };
+    // The pulse after the last image's, from the grid's formula; then settled by `pulse_due`
+    // itself, so that the two agree to the millisecond whatever the rounding.
+    let pulse = ((last - live_since_ms) as f64 * pps / 1000.0).floor() + 1.0;
+    let mut t = live_since_ms + (pulse * 1000.0 / pps).ceil() as u64;
+    while t > last + 1 && pulse_due(Some(pps), live_since_ms, Some(last), t - 1) {
+        t -= 1;
+    }
+    while !pulse_due(Some(pps), live_since_ms, Some(last), t) {
+        t += 1;
+    }
+    Some(t)
+}
+
 #[cfg(test)]
 mod tests {
-    use super::{duty, pulse_due};
+    use super::{duty, next_pulse_ms, pulse_due};
+
+    #[test]
+    fn the_next_pulse_is_the_first_moment_a_waiting_change_is_due() {
+        assert_eq!(next_pulse_ms(None, 1000, Some(1000)), None);
+        // Before any image of the run (or with one from before it), at once.
+        assert_eq!(next_pulse_ms(Some(7.5), 1000, None), Some(1000));
+        assert_eq!(next_pulse_ms(Some(7.5), 1000, Some(990)), Some(1000));
+        assert_eq!(next_pulse_ms(Some(7.5), 1000, Some(1000)), Some(1134));
+        assert_eq!(next_pulse_ms(Some(7.5), 1000, Some(1140)), Some(1267));
+        // Every rate, run start and last image: due then and not a millisecond before.
+        for pps in super::PULSE_RATES_PPS {
+            for since in [0u64, 7, 1000, 123_457] {
+                for after in 0..400u64 {
+                    let last = since + after;
+                    let t = next_pulse_ms(Some(pps), since, Some(last)).unwrap();
+                    assert!(t > last, "{pps} {since} {last}: {t}");
+                    assert!(pulse_due(Some(pps), since, Some(last), t));
+                    assert!(!pulse_due(Some(pps), since, Some(last), t - 1));
+                }
+            }
+        }
+    }
 
     #[test]
     fn the_duty_and_the_pulse_grid_follow_the_rate() {
