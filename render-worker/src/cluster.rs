@@ -385,6 +385,22 @@ pub struct Serving {
     pub drain: Duration,
 }
 
+/// `listener` as the server and the worker serve sessions on it: Nagle's algorithm off on every
+/// accepted connection, so that a frame's last segment leaves at once instead of waiting for
+/// the client's acknowledgement of the segments before it (measured through the server, one
+/// learner on loopback: 0.16 ms median, 13.7 ms at p90 and 35 ms at most from the frame's
+/// socket write to the client's read with Nagle on; 0.10 / 0.15 / 0.24 ms with it off).
+pub fn accepting(
+    listener: tokio::net::TcpListener,
+) -> axum::serve::TapIo<tokio::net::TcpListener, fn(&mut TcpStream)> {
+    fn no_delay(tcp: &mut TcpStream) {
+        if let Err(e) = tcp.set_nodelay(true) {
+            tracing::debug!("TCP_NODELAY on an accepted connection: {e}");
+        }
+    }
+    axum::serve::ListenerExt::tap_io(listener, no_delay as fn(&mut TcpStream))
+}
+
 /// Serves `host` on `listener` (heartbeats to the server when registered) until `stop`
 /// resolves, then drains: no new sessions (503 `draining`, `/readyz` 503, the next heartbeat
 /// says so at once), live sessions go on until they end or `serving.drain` passes, then the
@@ -421,7 +437,7 @@ pub async fn serve_until_drained(
     let (quit_tx, quit_rx) = tokio::sync::oneshot::channel::<()>();
     let router = crate::session::http::router(host.clone());
     let served = tokio::spawn(async move {
-        axum::serve(listener, router)
+        axum::serve(accepting(listener), router)
             .with_graceful_shutdown(async move {
                 let _ = quit_rx.await;
             })

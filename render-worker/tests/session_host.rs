@@ -510,3 +510,24 @@ async fn a_tick_just_before_a_pulse_images_the_waiting_change_at_that_pulse() {
         4.0
     );
 }
+
+/// The listener the server and the worker serve sessions on turns Nagle's algorithm off on
+/// every connection it accepts (a plain listener's connections keep it on).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn session_servers_accept_connections_with_nagle_off() {
+    use axum::serve::Listener;
+    let plain = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let served = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let (a, b) = (plain.local_addr().unwrap(), served.local_addr().unwrap());
+    let mut served = render_worker::cluster::accepting(served);
+    let clients = tokio::spawn(async move {
+        let x = tokio::net::TcpStream::connect(a).await.unwrap();
+        let y = tokio::net::TcpStream::connect(b).await.unwrap();
+        (x, y)
+    });
+    let (plain_io, _) = plain.accept().await.unwrap();
+    let (served_io, _) = served.accept().await;
+    assert!(!plain_io.nodelay().unwrap());
+    assert!(served_io.nodelay().unwrap());
+    drop(clients.await.unwrap());
+}

@@ -305,7 +305,8 @@ async fn run_learner(row: Arc<Row>, seed: u64) -> Figures {
         .expect("request");
     req.headers_mut()
         .insert("Cookie", login.cookie.parse().expect("cookie"));
-    let (ws, _) = tokio_tungstenite::connect_async(req)
+    // Nagle's algorithm off, as browsers have it.
+    let (ws, _) = tokio_tungstenite::connect_async_with_config(req, None, true)
         .await
         .expect("websocket");
     let mut me = Learner {

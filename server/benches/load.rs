@@ -95,7 +95,8 @@ async fn run_session(
         .unwrap();
     req.headers_mut()
         .insert("Cookie", login.cookie.parse().unwrap());
-    let (ws, _) = tokio_tungstenite::connect_async(req)
+    // Nagle's algorithm off, as browsers have it.
+    let (ws, _) = tokio_tungstenite::connect_async_with_config(req, None, true)
         .await
         .expect("websocket");
     let (mut tx, mut rx) = ws.split();

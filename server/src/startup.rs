@@ -126,6 +126,7 @@ pub async fn run(config: Config) -> anyhow::Result<()> {
         shutdown_signal().await;
         let _ = signalled_tx.send(());
     };
+    let listener = render_worker::cluster::accepting(listener);
     let serve = axum::serve(listener, app(state).into_make_service_with_connect_info::<std::net::SocketAddr>()).with_graceful_shutdown(signal).into_future();
     // Graceful: in-flight requests finish; a connection still open DRAIN_LIMIT after the signal
     // (a stuck client, an upgraded socket) is dropped rather than holding the process.

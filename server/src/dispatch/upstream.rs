@@ -72,7 +72,10 @@ pub async fn connect(
         } => {
             let (authority, _) = render_worker::cluster::split_url(worker_url)?;
             let url = format!("ws://{authority}/sessions/{worker_session}/ws");
-            let (ws, _) = match tokio_tungstenite::connect_async(&url).await {
+            // Nagle's algorithm off (see `render_worker::cluster::no_delay`): commands are
+            // small writes that must not wait for the worker's acknowledgement of the last.
+            let (ws, _) = match tokio_tungstenite::connect_async_with_config(&url, None, true).await
+            {
                 Ok(c) => c,
                 Err(source) => return Err(UpstreamError::Connect { url, source }),
             };
