@@ -9,5 +9,6 @@ pub mod exit;
 pub mod fluoro;
 pub mod gallery;
 pub mod gpu;
+pub mod priority;
 pub mod session;
 pub mod ultrasound;

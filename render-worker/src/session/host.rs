@@ -801,16 +801,23 @@ fn run_actor(
         // Progressive frames: a draft at once where a view has one (the C-arm moved on a large
         // region), and the full frame only once no newer input waits (a drag still in flight
         // gets drafts only; the frame header marks them, see `frame`).
-        match session.render_drafts(&visible) {
+        let drafted = match session.render_drafts(&visible) {
             Ok(drafts) if !drafts.is_empty() => {
                 publish(&frames, &mut frame_seq, drafts);
                 if !rx.is_empty() {
                     continue;
                 }
+                true
             }
-            Ok(_) => {}
-            Err(e) => tracing::error!("draft render failed: {e}"),
-        }
+            Ok(_) => false,
+            Err(e) => {
+                tracing::error!("draft render failed: {e}");
+                false
+            }
+        };
+        // The full frame behind a draft on screen yields the cores to other sessions' first
+        // frames (see `priority`).
+        let _refining = drafted.then(crate::priority::refining);
         match session.render_dirty(&visible) {
             Ok(views) => publish(&frames, &mut frame_seq, views),
             Err(e) => tracing::error!("render failed: {e}"),

@@ -49,6 +49,8 @@ use std::ops::Range;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use rustc_hash::FxHashMap;
+
+use crate::priority::Priority;
 use sim_core::fluoro::Scene;
 use sim_core::fluoro::nesting::{NestedMesh, soup_box};
 
@@ -318,9 +320,11 @@ impl CpuGeometry {
     pub(super) fn chunk_boxes(&self, matrix: &[[f64; 4]; 3], threads: usize) -> ChunkBoxes {
         let mut boxes = vec![[0.0; 4]; self.chunks.len()];
         let per = self.chunks.len().div_ceil(thread_count(threads)).max(1);
+        let priority = Priority::of_this_thread();
         std::thread::scope(|scope| {
             for (out, chunks) in boxes.chunks_mut(per).zip(self.chunks.chunks(per)) {
                 scope.spawn(move || {
+                    priority.enter();
                     for (o, c) in out.iter_mut().zip(chunks) {
                         *o = projected_box(matrix, c.lo, c.hi);
                     }
@@ -403,10 +407,12 @@ impl CpuGeometry {
             let s_band = ones.as_mut().and_then(Iterator::next);
             bands[band % threads].push((band * rows_per, a_band, s_band));
         }
+        let priority = Priority::of_this_thread();
         std::thread::scope(|scope| {
             for mine in bands {
                 let (frame, refused, add) = (&frame, &refused, &add);
                 scope.spawn(move || {
+                    priority.enter();
                     let mut acc = Band::default();
                     let mut snapped = [[0i64; 2]; 3 * CHUNK_TRIANGLES];
                     for (first, a_band, s_band) in mine {
