@@ -155,6 +155,7 @@ pub fn soup_box(tris: &[[[f64; 3]; 3]]) -> ([f64; 3], [f64; 3]) {
 
 /// The cross product `(b - a) x (c - a)` of a triangle's edges: along its outward normal for an
 /// outward-wound triangle, twice its area long.
+#[inline]
 pub fn triangle_cross([a, b, c]: [[f64; 3]; 3]) -> DVec3 {
     let a = DVec3::from(a);
     (DVec3::from(b) - a).cross(DVec3::from(c) - a)

@@ -137,19 +137,20 @@ impl Span {
             let mut e_row = self.e_row;
             for j in self.rows.clone() {
                 let mut ev = e_row;
-                let mut first = None;
-                let mut end = i0;
+                // The covered samples of a row are one run (the triangle is convex): its first
+                // and one past its last, kept without a branch per sample (coverage is too
+                // irregular to predict).
+                let (mut first, mut last) = (usize::MAX, 0);
                 for i in i0..=i1 {
-                    if (ev[0] | ev[1] | ev[2]) >= 0 {
-                        first.get_or_insert(i);
-                        end = i + 1;
-                    }
+                    let covered = (ev[0] | ev[1] | ev[2]) >= 0;
+                    first = if covered { first.min(i) } else { first };
+                    last = if covered { i } else { last };
                     for (v, step) in ev.iter_mut().zip(self.step_x) {
                         *v = v.wrapping_add(step);
                     }
                 }
-                if let Some(first) = first {
-                    row(j, first..end);
+                if first <= last {
+                    row(j, first..last + 1);
                 }
                 for (v, step) in e_row.iter_mut().zip(self.step_y) {
                     *v = v.wrapping_add(step);
