@@ -22,6 +22,7 @@ pub mod hash;
 pub mod material;
 pub mod mesh;
 pub mod needle;
+pub(crate) mod par;
 pub mod rng;
 pub mod rubric;
 pub mod stats;

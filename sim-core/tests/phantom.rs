@@ -451,8 +451,12 @@ fn coarse_build_is_deterministic_and_its_meshes_are_closed() {
     let params = PhantomParams::with_voxel_mm(4.0);
     let dir = tempfile::tempdir().unwrap();
     let mut stages = BTreeMap::new();
+    let mut family_steps = Vec::new();
     let a = phantom::build(&params, &mut |p| {
         stages.insert(p.stage, p.total);
+        if p.stage == "interfaces" {
+            family_steps.push((p.item.clone(), p.done, p.total));
+        }
     })
     .unwrap();
     assert!(
@@ -461,6 +465,30 @@ fn coarse_build_is_deterministic_and_its_meshes_are_closed() {
             .all(|s| stages.contains_key(s)),
         "{stages:?}"
     );
+    // The family's steps, each weighed by its measured cost, end at the total they announced.
+    use sim_core::anatomy::interfaces::FamilyStep;
+    let weighed: Vec<(String, usize)> = family_steps
+        .iter()
+        .scan(0, |prev, (item, done, _)| {
+            let d = done - *prev;
+            *prev = *done;
+            Some((item.clone(), d))
+        })
+        .collect();
+    let known = [
+        FamilyStep::Weld,
+        FamilyStep::LevelSets,
+        FamilyStep::Smoothing,
+        FamilyStep::Decimation,
+        FamilyStep::Refinement,
+        FamilyStep::UndoingCrossingSplits,
+    ];
+    for (item, d) in &weighed {
+        let step = known.iter().find(|s| s.name() == item.as_str());
+        assert_eq!(step.map(|s| s.cost()), Some(*d), "{item}: {weighed:?}");
+    }
+    let (_, last, total) = family_steps.last().expect("interfaces progress");
+    assert_eq!(last, total, "{family_steps:?}");
     check_region(&a, &params);
     let pa = a.write_to(&dir.path().join("a")).unwrap();
     let b = phantom::build(&params, &mut |_| {}).unwrap();

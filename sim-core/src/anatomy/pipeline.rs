@@ -47,14 +47,13 @@
 
 use super::asset::{Provenance, RegionAsset, Source, StructureAsset, encode_hu};
 use super::error::AnatomyError;
-use super::interfaces::{
-    ExtractedSurface, lattice_edge_key, mesh_family, par_map_heaviest_first_told,
-};
+use super::interfaces::{ExtractedSurface, lattice_edge_key, mesh_family};
 use super::labels::label_volume;
 use super::level_set_mesh::{LevelSetFn, LevelSetSurface, extract_level_set};
 use super::mask::{mask_offset, nonzero_box};
 use super::mesher::{EdgeCrossing, ScalarField, extract_isosurface_keyed};
 use crate::mesh::TriMesh;
+use crate::par::par_map_heaviest_first_told;
 use crate::volume::{Volume, VolumeGrid};
 
 // The per-structure input, the knobs and the final mesh checks live in modules of their own (the

@@ -45,7 +45,7 @@ use super::geometry::Projection;
 use super::rows::thread_count;
 use super::scene::{ChordScratch, SceneRef};
 use super::spectrum::{Basis, Spectrum};
-use crate::anatomy::interfaces::par_map_on;
+use crate::par::par_map_on;
 
 /// Diameter of the metering disc as a fraction of the detector side. Simulator choice: the
 /// central third, the usual sensing field of an image-intensifier or flat-panel C-arm.

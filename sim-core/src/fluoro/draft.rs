@@ -21,9 +21,9 @@ use std::path::Path;
 use super::scene::{Scene, SceneEntry};
 use super::scene_store::{Miss, StoreOutcome, store_after_miss, trees_from};
 use crate::anatomy::decimate::{DecimationParams, decimate};
-use crate::anatomy::interfaces::par_map_heaviest_first;
 use crate::geom::Bvh;
 use crate::mesh::TriMesh;
+use crate::par::par_map_heaviest_first;
 
 /// How far a draft scene is reduced.
 #[derive(Debug, Clone, PartialEq)]

@@ -20,10 +20,10 @@
 use serde::{Deserialize, Serialize};
 
 use super::attenuation::{FluoroMaterial, MaterialChords};
-use crate::anatomy::interfaces::par_map_heaviest_first;
 use crate::geom::{Bvh, Hit};
 use crate::material::MaterialClass;
 use crate::mesh::TriMesh;
+use crate::par::par_map_heaviest_first;
 
 /// Nominal cortical shell thickness, mm (methods page: "a nominal 1.8 mm cortical shell"; not a
 /// CT-measured thickness).

@@ -22,9 +22,9 @@ use sha2::{Digest, Sha256};
 
 use super::attenuation::FluoroMaterial;
 use super::scene::{Scene, SceneEntry};
-use crate::anatomy::interfaces::par_map_heaviest_first;
 use crate::geom::{BVH_BUILDER_VERSION, Bvh, BvhTopology};
 use crate::mesh::TriMesh;
+use crate::par::par_map_heaviest_first;
 
 /// File name of the stored trees in a region folder.
 pub const STORE_FILE: &str = "scene-bvh.bin";

@@ -5,9 +5,9 @@ use rustc_hash::FxHashMap;
 
 use glam::DVec3;
 
-use super::par::par_map;
 use super::weld::Family;
 use crate::mesh::Buckets;
+use crate::par::par_map;
 
 /// Whether two triangles cross: their intersection is a segment of positive length. Touching
 /// (a vertex or an edge lying in the other triangle's plane) and coplanar pairs do not count.

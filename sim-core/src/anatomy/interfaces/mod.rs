@@ -41,7 +41,6 @@
 
 mod crossing;
 mod decimation;
-mod par;
 mod refine;
 mod smoothing;
 mod surface;
@@ -49,7 +48,6 @@ mod weld;
 
 pub use super::mesher::EdgeCrossing;
 pub use decimation::CHUNK_EDGES;
-pub(crate) use par::{par_map, par_map_heaviest_first, par_map_heaviest_first_told, par_map_on};
 pub use surface::{ExtractedSurface, WELD_EDGE_FRACTION, lattice_edge_key};
 
 use super::decimate::DecimationParams;
@@ -57,6 +55,7 @@ use super::error::AnatomyError;
 use super::level_set_mesh::LevelSetFn;
 use super::smooth::TaubinParams;
 use crate::mesh::TriMesh;
+use crate::par::par_map_heaviest_first;
 use crossing::{LiveCrossings, crossing_pairs, mean_edge_mm};
 use decimation::decimate_family;
 use smoothing::smooth_family;
@@ -67,18 +66,43 @@ use weld::{Family, weld_and_partition};
 /// five rounds give its flavum -4.96 % against -5.01 % with three, for 3 % more triangles).
 const REFINE_ROUNDS: usize = 5;
 
-/// A family step's share of the family's time, in tenths of a second of the default lumbar
-/// phantom's cold build on 2 cores (dev profile, measured 2026-12-01: weld 2.0 s, level sets
-/// 4.5 s, decimation 10.4 s, refinement 4.9 s, undoing crossing splits 3.7 s). Smoothing runs
-/// only for mask meshes, which no shipped phantom uses: it is given the weld's share (a pass
-/// over the same vertices), untimed. Only shapes reported progress.
-pub fn step_cost(step: &str) -> usize {
-    match step {
-        "level sets" => 45,
-        "decimation" => 104,
-        "refinement" => 49,
-        "undoing crossing splits" => 37,
-        _ => 20,
+/// A step of [`mesh_family`], as its progress names and weighs it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FamilyStep {
+    Weld,
+    LevelSets,
+    Smoothing,
+    Decimation,
+    Refinement,
+    UndoingCrossingSplits,
+}
+
+impl FamilyStep {
+    /// The name progress reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            FamilyStep::Weld => "weld",
+            FamilyStep::LevelSets => "level sets",
+            FamilyStep::Smoothing => "smoothing",
+            FamilyStep::Decimation => "decimation",
+            FamilyStep::Refinement => "refinement",
+            FamilyStep::UndoingCrossingSplits => "undoing crossing splits",
+        }
+    }
+
+    /// The step's share of the family's time, in tenths of a second of the default lumbar
+    /// phantom's cold build on 2 cores (dev profile, measured 2026-12-01: weld 2.0 s, level
+    /// sets 4.5 s, decimation 10.4 s, refinement 4.9 s, undoing crossing splits 3.7 s).
+    /// Smoothing runs only for mask meshes, which no shipped phantom uses: it is given the
+    /// weld's share (a pass over the same vertices), untimed. Only shapes reported progress.
+    pub fn cost(self) -> usize {
+        match self {
+            FamilyStep::Weld | FamilyStep::Smoothing => 20,
+            FamilyStep::LevelSets => 45,
+            FamilyStep::Decimation => 104,
+            FamilyStep::Refinement => 49,
+            FamilyStep::UndoingCrossingSplits => 37,
+        }
     }
 }
 
@@ -88,7 +112,7 @@ pub fn step_cost(step: &str) -> usize {
 /// `surface_tolerance_mm` of the surface. Returns each mesh with its notes, in input order; every
 /// mesh is checked (closed, consistently wound, positive volume) after each stage, and
 /// `progress` is told each stage done as `(stage, done, total)`: the work done so far and in
-/// all, in units of [`step_cost`], so that `done / total` follows the time.
+/// all, in units of [`FamilyStep::cost`], so that `done / total` follows the time.
 pub fn mesh_family(
     items: &[ExtractedSurface],
     smoothing: Option<&TaubinParams>,
@@ -100,22 +124,22 @@ pub fn mesh_family(
     let level_set_family = level_sets.iter().any(Option::is_some);
     let refining = surface_tolerance_mm.is_some() && level_set_family;
     let steps = [
-        ("weld", true),
-        ("level sets", level_set_family),
-        ("smoothing", smoothing.is_some()),
-        ("decimation", decimation.is_some()),
-        ("refinement", refining),
-        ("undoing crossing splits", refining),
+        (FamilyStep::Weld, true),
+        (FamilyStep::LevelSets, level_set_family),
+        (FamilyStep::Smoothing, smoothing.is_some()),
+        (FamilyStep::Decimation, decimation.is_some()),
+        (FamilyStep::Refinement, refining),
+        (FamilyStep::UndoingCrossingSplits, refining),
     ];
     let total: usize = steps
         .iter()
         .filter(|(_, runs)| *runs)
-        .map(|(s, _)| step_cost(s))
+        .map(|(s, _)| s.cost())
         .sum();
     let mut done = 0;
-    let mut step = |stage: &'static str| {
-        done += step_cost(stage);
-        progress(stage, done, total);
+    let mut step = |stage: FamilyStep| {
+        done += stage.cost();
+        progress(stage.name(), done, total);
     };
     let mut fam = weld_and_partition(items);
     let names: Vec<String> = items.iter().map(|it| it.name.clone()).collect();
@@ -167,7 +191,7 @@ pub fn mesh_family(
         .collect()
     }
     let mut meshes = check_all(&fam, &names, &input, "welding shared interfaces")?;
-    step("weld");
+    step(FamilyStep::Weld);
     if level_set_family {
         // Every vertex starts on its level set. Where exact positions make two surfaces cross
         // (two structures passing within a lattice cell of each other), the vertices of the
@@ -182,7 +206,7 @@ pub fn mesh_family(
             fam.positions.len()
         ));
         meshes = check_all(&fam, &names, &input, "placing vertices on the level sets")?;
-        step("level sets");
+        step(FamilyStep::LevelSets);
     }
     if let Some(sp) = smoothing {
         let extracted_positions = fam.positions.clone();
@@ -218,7 +242,7 @@ pub fn mesh_family(
             "smoothing: {restored} vertices restored to their extracted positions in {passes} passes where surfaces crossed"
         ));
         meshes = check_all(&fam, &names, &input, "smoothing")?;
-        step("smoothing");
+        step(FamilyStep::Smoothing);
     }
     let mut current = input;
     if let Some(dp) = decimation {
@@ -231,7 +255,7 @@ pub fn mesh_family(
         }
         meshes = check_all(&fam, &names, &result, "decimation")?;
         current = result;
-        step("decimation");
+        step(FamilyStep::Decimation);
     }
     if let Some(tol) = surface_tolerance_mm
         && refining
@@ -256,7 +280,7 @@ pub fn mesh_family(
             "level-set refinement: {} edges split (tolerance {tol} mm)",
             refined.splits
         ));
-        step("refinement");
+        step(FamilyStep::Refinement);
         if !parents.is_empty() {
             // A split that bulges a surface into another is undone (its vertex back to the
             // middle of the edge it split; see `fall_back_where_crossing`).
@@ -274,7 +298,7 @@ pub fn mesh_family(
                 "undoing splits where surfaces crossed",
             )?;
         }
-        step("undoing crossing splits");
+        step(FamilyStep::UndoingCrossingSplits);
     }
     Ok(FamilyMeshes {
         meshes: meshes.into_iter().zip(notes).collect(),

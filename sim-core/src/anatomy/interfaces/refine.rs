@@ -24,9 +24,9 @@
 use glam::DVec3;
 use rustc_hash::FxHashMap;
 
-use super::par::par_map;
 use super::weld::Family;
 use crate::anatomy::level_set_mesh::LevelSetFn;
+use crate::par::par_map;
 
 /// Step of the forward differences of the gradient, mm (well below any feature, well above the
 /// rounding of the bounds' evaluation).

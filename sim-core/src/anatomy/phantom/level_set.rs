@@ -64,7 +64,7 @@ pub fn level_sets<'a>(anatomy: &'a Anatomy, grid: &VolumeGrid) -> Vec<StructureL
     // extent (where the structures that consult it can be), built in parallel.
     let mut used = vec![false; anatomy.parts.len()];
     lists.iter().flatten().for_each(|&j| used[j] = true);
-    let coarse: Vec<Option<Arc<CoarseBound>>> = crate::anatomy::interfaces::par_map(
+    let coarse: Vec<Option<Arc<CoarseBound>>> = crate::par::par_map(
         anatomy.parts.len(),
         &|j| {
             used[j].then(|| {
@@ -218,7 +218,7 @@ impl StructureLevelSet<'_> {
         let n = (last - first + DVec3::ONE).max(DVec3::ZERO);
         let (nx, ny, nz) = (n.x as usize, n.y as usize, n.z as usize);
         let all: Vec<u16> = (0..self.later.len() as u16).collect();
-        let slabs = crate::anatomy::interfaces::par_map(
+        let slabs = crate::par::par_map(
             nz,
             &|k| {
                 let mut sum = 0.0;

@@ -386,7 +386,7 @@ impl PhantomVolumes {
         // The painted structures share one band of fraction voxels; the structures are made in
         // parallel (each scans the whole label volume).
         let band = in_band(&self.structure_ids, &self.fractions);
-        crate::anatomy::interfaces::par_map(
+        crate::par::par_map(
             self.structures.len(),
             &|s| {
                 let (name, material) = self.structures[s].clone();

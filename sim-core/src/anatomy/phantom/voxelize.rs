@@ -10,7 +10,7 @@
 use glam::DVec3;
 
 use super::sdf::Sdf;
-use crate::anatomy::interfaces::par_map_on;
+use crate::par::par_map_on;
 use crate::rng::{splitmix64, unit_f64, unit_f64_nonzero};
 use crate::volume::{Volume, VolumeGrid};
 
