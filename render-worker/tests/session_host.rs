@@ -354,6 +354,23 @@ async fn a_burst_sent_without_reading_is_answered_in_order_on_the_worker_socket(
 
 /// A CPU reference that says it prefetches, and counts the prefetches its renderers are asked
 /// for.
+/// A host of the demo station whose fluoroscopy renderers count their prefetches.
+fn counting_host(prefetches: &Arc<std::sync::atomic::AtomicUsize>) -> SessionHost {
+    let backends = Backends::new(
+        Arc::new(CountingPrefetch {
+            prefetches: Arc::clone(prefetches),
+        }),
+        Backends::cpu(1).ultrasound,
+    );
+    SessionHost::with_regions(
+        vec![demo_station(&[])],
+        vec![Arc::new(demo_region())],
+        backends,
+        2,
+        config(),
+    )
+}
+
 struct CountingPrefetch {
     prefetches: Arc<std::sync::atomic::AtomicUsize>,
 }
@@ -418,19 +435,7 @@ impl FluoroRenderer for CountingRenderer {
 #[test]
 fn a_new_session_prefetches_its_first_view_before_any_input() {
     let prefetches = Arc::new(std::sync::atomic::AtomicUsize::new(0));
-    let backends = Backends::new(
-        Arc::new(CountingPrefetch {
-            prefetches: Arc::clone(&prefetches),
-        }),
-        Backends::cpu(1).ultrasound,
-    );
-    let h = SessionHost::with_regions(
-        vec![demo_station(&[])],
-        vec![Arc::new(demo_region())],
-        backends,
-        2,
-        config(),
-    );
+    let h = counting_host(&prefetches);
     let count = || prefetches.load(std::sync::atomic::Ordering::SeqCst);
     let wait_for = |n: usize| {
         let t0 = std::time::Instant::now();
@@ -530,4 +535,57 @@ async fn session_servers_accept_connections_with_nagle_off() {
     assert!(!plain_io.nodelay().unwrap());
     assert!(served_io.nodelay().unwrap());
     drop(clients.await.unwrap());
+}
+
+/// Once a moved C-arm comes to rest (no input for `PREFETCH_AFTER_PAUSE`) the session prefetches
+/// the view, once; not while a drag goes on, not the view on screen, not while live.
+#[test]
+fn a_c_arm_come_to_rest_is_prefetched_once_and_a_drag_is_not() {
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    // The host paces pauses with the runtime it is used in.
+    let _in_runtime = rt.enter();
+    let prefetches = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let h = counting_host(&prefetches);
+    let count = || prefetches.load(std::sync::atomic::Ordering::SeqCst);
+    let pause = host::PREFETCH_AFTER_PAUSE;
+    let s = h.create_blocking("demo-station").expect("session");
+    let mut seq = 0;
+    let mut command = |c: Command| {
+        seq += 1;
+        rt.block_on(s.command(Envelope { seq, command: c }))
+            .expect("command");
+    };
+    command(Command::Shot);
+    std::thread::sleep(3 * pause);
+    assert_eq!(
+        count(),
+        1,
+        "the first view, before any input; none for the view on screen"
+    );
+    // A drag: a pose every 20 ms. While it goes on nothing is prefetched (asserted when the
+    // test's own thread kept the pace: a pause of the machine would be a pause of the drag).
+    let mut longest = std::time::Duration::ZERO;
+    let mut last = std::time::Instant::now();
+    for k in 1..=15 {
+        command(pose(f64::from(k), 0.0));
+        longest = longest.max(last.elapsed());
+        last = std::time::Instant::now();
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    if longest < pause / 2 {
+        assert_eq!(count(), 1, "nothing prefetched during the drag");
+    }
+    // At rest: the view is prefetched once.
+    std::thread::sleep(4 * pause);
+    assert_eq!(count(), 2, "the view the C-arm came to rest at");
+    std::thread::sleep(2 * pause);
+    assert_eq!(count(), 2, "once");
+    // Its shot, then live fluoroscopy with a move: nothing more to prefetch.
+    command(Command::Shot);
+    command(Command::Live { on: true });
+    command(pose(-5.0, 0.0));
+    std::thread::sleep(3 * pause);
+    assert_eq!(count(), 2, "the view on screen, and a move while live");
+    h.close(&s.info.id).unwrap();
+    h.shutdown();
 }

@@ -713,9 +713,12 @@ impl SessionHost {
         let (ftx, frx) = watch::channel(FrameSet::default());
         let visible: BTreeSet<ViewId> = session.views().into_iter().collect();
         let name = format!("session-{}", &id[..8]);
+        // The runtime the host was called in, whose timer paces the session's pauses (a host
+        // used outside any runtime prefetches before the first input only).
+        let runtime = tokio::runtime::Handle::try_current().ok();
         let spawned = std::thread::Builder::new()
             .name(name)
-            .spawn(move || run_actor(session, rx, ftx, visible));
+            .spawn(move || run_actor(session, rx, ftx, visible, runtime));
         match spawned {
             Ok(t) => {
                 if let Ok(mut a) = self.inner.actors.lock() {
@@ -737,11 +740,37 @@ impl SessionHost {
     }
 }
 
+/// How long the input must pause before the session prefetches a view it may be asked for
+/// (a moved C-arm come to rest: see `Modality::prefetch_pending`). Simulator choice: a drag
+/// sends a pose every pointer event (16 ms apart while the pointer moves), so 150 ms without
+/// one is a C-arm set down; a learner then presses the pedal, typically a few hundred ms later,
+/// and the shot finds its view prepared (a new shot of a kept view costs only noise and display).
+pub const PREFETCH_AFTER_PAUSE: std::time::Duration = std::time::Duration::from_millis(150);
+
+/// The session's next message, `Some(None)` when `pause` passed without one (waited for only
+/// with a runtime's timer), `None` when the host has gone.
+fn next_message(
+    rx: &mut mpsc::UnboundedReceiver<ActorMsg>,
+    runtime: Option<&tokio::runtime::Handle>,
+    pause: Option<std::time::Duration>,
+) -> Option<Option<ActorMsg>> {
+    match (runtime, pause) {
+        (Some(rt), Some(pause)) => {
+            match rt.block_on(async { tokio::time::timeout(pause, rx.recv()).await }) {
+                Ok(m) => m.map(Some),
+                Err(_) => Some(None),
+            }
+        }
+        _ => rx.blocking_recv().map(Some),
+    }
+}
+
 fn run_actor(
     mut session: Session,
     mut rx: mpsc::UnboundedReceiver<ActorMsg>,
     frames: watch::Sender<FrameSet>,
     mut visible: BTreeSet<ViewId>,
+    runtime: Option<tokio::runtime::Handle>,
 ) {
     // Before the first input: a learner looks at the station before the first shot, and the
     // renderer and the first view are ready by then (a command that comes sooner waits for
@@ -753,7 +782,20 @@ fn run_actor(
     let started = Instant::now();
     let base_ms = session.world().clock_ms;
     let mut frame_seq = 0u64;
-    while let Some(first) = rx.blocking_recv() {
+    loop {
+        let pause = session.prefetch_pending().then_some(PREFETCH_AFTER_PAUSE);
+        let first = match next_message(&mut rx, runtime.as_ref(), pause) {
+            Some(Some(m)) => m,
+            Some(None) => {
+                // The input paused with a view to prepare: prepared at low priority (work
+                // nobody waits on yet, see `priority`).
+                let _busy = crate::alloc::busy();
+                let _refining = crate::priority::refining();
+                session.prefetch();
+                continue;
+            }
+            None => break,
+        };
         let mut batch = vec![first];
         while let Ok(m) = rx.try_recv() {
             batch.push(m);

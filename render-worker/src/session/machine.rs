@@ -783,6 +783,11 @@ impl Session {
             .map_or(now_ms, |t| t.max(now_ms))
     }
 
+    /// Whether a modality has a view to prefetch ([`Modality::prefetch_pending`]).
+    pub fn prefetch_pending(&self) -> bool {
+        self.modalities.iter().any(|m| m.prefetch_pending())
+    }
+
     /// Whether any visible view needs rendering.
     pub fn has_dirty(&self, visible: &BTreeSet<ViewId>) -> bool {
         self.modalities

@@ -200,6 +200,14 @@ pub trait Modality: Send {
         Ok(())
     }
 
+    /// Whether [`Modality::prefetch`] has a view to prepare that a pause in the input would let
+    /// it do now (the fluoroscopy modality: the C-arm was moved, beam off, to a view neither on
+    /// screen nor prepared). The session host prefetches once the input has paused for
+    /// `host::PREFETCH_AFTER_PAUSE`.
+    fn prefetch_pending(&self) -> bool {
+        false
+    }
+
     /// Adds this modality's measurements (rubric keys) computed from live state.
     fn measure(&self, world: &World, out: &mut Measurements);
 

@@ -76,6 +76,8 @@ pub struct FluoroModality {
     rendered: Option<u64>,
     /// Index of the last image a live draft was rendered for, not part of the state.
     drafted: Option<u64>,
+    /// The view last prefetched, not part of the state.
+    prefetched: Option<Projection>,
     /// Created on the first render.
     renderer: Option<Box<dyn FluoroRenderer>>,
     /// The iodine field of the last image acquired in this process (not part of the state: it
@@ -139,6 +141,7 @@ impl FluoroModality {
             backend,
             rendered: None,
             drafted: None,
+            prefetched: None,
             renderer: None,
             image_iodine: None,
             metering: brightness::MeteringCache::default(),
@@ -619,6 +622,14 @@ impl Modality for FluoroModality {
         }
     }
 
+    fn prefetch_pending(&self) -> bool {
+        let view = Some(self.projection());
+        self.backend.prefetches()
+            && self.state.live_since_ms.is_none()
+            && self.displayed_projection() != view
+            && self.prefetched != view
+    }
+
     fn tick_hold_until(&self, now_ms: u64) -> Option<u64> {
         let (since, pps) = (self.state.live_since_ms?, self.state.pulse_rate_pps?);
         if !self.state.pulse_pending {
@@ -735,12 +746,14 @@ impl Modality for FluoroModality {
     }
 
     fn prefetch(&mut self, world: &World) -> Result<(), ModalityError> {
-        // Before the first image only: the first shot's view is known (the C-arm as it stands,
-        // the steel as it lies), and a learner looks before shooting.
-        if !self.state.images.is_empty() || !self.backend.prefetches() {
+        // The next shot's view (the C-arm as it stands, the steel as it lies, the technique as
+        // set): before the first image, and once a moved C-arm has come to rest (a learner
+        // positions, then shoots). Not while live: a pulse images each change at once.
+        if !self.prefetch_pending() {
             return Ok(());
         }
         let (needle, projection) = (self.instruments(world), self.projection());
+        self.prefetched = Some(projection);
         let settings = self.render_settings(self.state.kvp, self.state.ma, None, &projection, 0);
         self.renderer(world)?
             .prefetch(
@@ -872,6 +885,7 @@ impl Modality for FluoroModality {
         })?;
         self.rendered = None;
         self.drafted = None;
+        self.prefetched = None;
         self.image_iodine = None;
         // Raw frames of another timeline would be served under the same image indices.
         self.raw_frames = temporal::RawFrames::default();
