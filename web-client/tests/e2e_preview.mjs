@@ -27,9 +27,11 @@ runReport(async (page, report) => {
   });
   await page.focus('#fluoro');
   for (let k = 0; k < 3; k++) {
-    // A C-arm turn by key (Ctrl + arrow, sent within 50 ms), then a shot by key (X).
+    // A C-arm turn by key (Ctrl + arrow, sent within 50 ms), then a shot by key (X) within the
+    // pause after which the session would prepare the new view (150 ms: a shot after that
+    // finds it prepared and comes as a full frame without a draft).
     await page.keyboard.press('Control+ArrowRight');
-    await page.waitForTimeout(200);
+    await page.waitForTimeout(60);
     const before = await page.evaluate(() => window.__sim.stats.frames);
     await page.keyboard.press('x');
     // Until the full frame of the shot is drawn.
