@@ -542,8 +542,6 @@ async fn session_servers_accept_connections_with_nagle_off() {
 #[test]
 fn a_c_arm_come_to_rest_is_prefetched_once_and_a_drag_is_not() {
     let rt = tokio::runtime::Runtime::new().unwrap();
-    // The host paces pauses with the runtime it is used in.
-    let _in_runtime = rt.enter();
     let prefetches = Arc::new(std::sync::atomic::AtomicUsize::new(0));
     let h = counting_host(&prefetches);
     let count = || prefetches.load(std::sync::atomic::Ordering::SeqCst);

@@ -713,12 +713,9 @@ impl SessionHost {
         let (ftx, frx) = watch::channel(FrameSet::default());
         let visible: BTreeSet<ViewId> = session.views().into_iter().collect();
         let name = format!("session-{}", &id[..8]);
-        // The runtime the host was called in, whose timer paces the session's pauses (a host
-        // used outside any runtime prefetches before the first input only).
-        let runtime = tokio::runtime::Handle::try_current().ok();
         let spawned = std::thread::Builder::new()
             .name(name)
-            .spawn(move || run_actor(session, rx, ftx, visible, runtime));
+            .spawn(move || run_actor(session, rx, ftx, visible));
         match spawned {
             Ok(t) => {
                 if let Ok(mut a) = self.inner.actors.lock() {
@@ -747,21 +744,32 @@ impl SessionHost {
 /// and the shot finds its view prepared (a new shot of a kept view costs only noise and display).
 pub const PREFETCH_AFTER_PAUSE: std::time::Duration = std::time::Duration::from_millis(150);
 
-/// The session's next message, `Some(None)` when `pause` passed without one (waited for only
-/// with a runtime's timer), `None` when the host has gone.
+/// How often a session looks for input while it waits out a pause (see
+/// [`PREFETCH_AFTER_PAUSE`]): what a command that comes then may wait at most. Simulator
+/// choice: 2 ms, well under a frame's time, and 75 looks per pause cost no measurable CPU. (The
+/// session thread waits without a runtime's timer: the runtime it was started in may end
+/// before it does.)
+const PAUSE_POLL: std::time::Duration = std::time::Duration::from_millis(2);
+
+/// The session's next message, `Some(None)` when `pause` passed without one, `None` when the
+/// host has gone.
 fn next_message(
     rx: &mut mpsc::UnboundedReceiver<ActorMsg>,
-    runtime: Option<&tokio::runtime::Handle>,
     pause: Option<std::time::Duration>,
 ) -> Option<Option<ActorMsg>> {
-    match (runtime, pause) {
-        (Some(rt), Some(pause)) => {
-            match rt.block_on(async { tokio::time::timeout(pause, rx.recv()).await }) {
-                Ok(m) => m.map(Some),
-                Err(_) => Some(None),
+    let Some(pause) = pause else {
+        return rx.blocking_recv().map(Some);
+    };
+    let until = Instant::now() + pause;
+    loop {
+        match rx.try_recv() {
+            Ok(m) => return Some(Some(m)),
+            Err(mpsc::error::TryRecvError::Disconnected) => return None,
+            Err(mpsc::error::TryRecvError::Empty) if Instant::now() >= until => {
+                return Some(None);
             }
+            Err(mpsc::error::TryRecvError::Empty) => std::thread::sleep(PAUSE_POLL),
         }
-        _ => rx.blocking_recv().map(Some),
     }
 }
 
@@ -770,7 +778,6 @@ fn run_actor(
     mut rx: mpsc::UnboundedReceiver<ActorMsg>,
     frames: watch::Sender<FrameSet>,
     mut visible: BTreeSet<ViewId>,
-    runtime: Option<tokio::runtime::Handle>,
 ) {
     // Before the first input: a learner looks at the station before the first shot, and the
     // renderer and the first view are ready by then (a command that comes sooner waits for
@@ -784,7 +791,7 @@ fn run_actor(
     let mut frame_seq = 0u64;
     loop {
         let pause = session.prefetch_pending().then_some(PREFETCH_AFTER_PAUSE);
-        let first = match next_message(&mut rx, runtime.as_ref(), pause) {
+        let first = match next_message(&mut rx, pause) {
             Some(Some(m)) => m,
             Some(None) => {
                 // The input paused with a view to prepare: prepared at low priority (work
