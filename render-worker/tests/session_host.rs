@@ -584,6 +584,12 @@ fn a_c_arm_come_to_rest_is_prefetched_once_and_a_drag_is_not() {
     command(pose(-5.0, 0.0));
     std::thread::sleep(3 * pause);
     assert_eq!(count(), 2, "the view on screen, and a move while live");
+    // Beam off, the fluoroscopy view hidden: a move comes to rest unprepared.
+    command(Command::Live { on: false });
+    s.set_visible(std::collections::BTreeSet::new());
+    command(pose(9.0, 0.0));
+    std::thread::sleep(3 * pause);
+    assert_eq!(count(), 2, "nothing prepared for a hidden view");
     h.close(&s.info.id).unwrap();
     h.shutdown();
 }

@@ -790,7 +790,9 @@ fn run_actor(
     let base_ms = session.world().clock_ms;
     let mut frame_seq = 0u64;
     loop {
-        let pause = session.prefetch_pending().then_some(PREFETCH_AFTER_PAUSE);
+        let pause = session
+            .prefetch_pending(&visible)
+            .then_some(PREFETCH_AFTER_PAUSE);
         let first = match next_message(&mut rx, pause) {
             Some(Some(m)) => m,
             Some(None) => {

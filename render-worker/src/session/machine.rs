@@ -783,9 +783,12 @@ impl Session {
             .map_or(now_ms, |t| t.max(now_ms))
     }
 
-    /// Whether a modality has a view to prefetch ([`Modality::prefetch_pending`]).
-    pub fn prefetch_pending(&self) -> bool {
-        self.modalities.iter().any(|m| m.prefetch_pending())
+    /// Whether a modality with a view in `visible` has something to prefetch
+    /// ([`Modality::prefetch_pending`]): nothing is prepared for a view the client hides.
+    pub fn prefetch_pending(&self, visible: &BTreeSet<ViewId>) -> bool {
+        self.modalities
+            .iter()
+            .any(|m| m.prefetch_pending() && m.views().iter().any(|v| visible.contains(v)))
     }
 
     /// Whether any visible view needs rendering.
