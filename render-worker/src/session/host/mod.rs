@@ -10,17 +10,15 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
-use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 use sim_core::anatomy::pipeline::Progress;
 use sim_core::rubric::{Station, load_station_dir};
 use tokio::sync::{mpsc, oneshot, watch};
 
-use super::command::{Command, CommandError, Envelope, ErrorCode, LogEntry};
+use super::command::{CommandError, Envelope, ErrorCode, LogEntry};
 use super::config::SessionConfig;
 use super::devices::Backends;
-use super::frame::EncodedFrame;
 use super::image::ViewId;
 use super::loader::RegionLoadError;
 use super::machine::{Ack, Session, SessionEnv, SessionSnapshot};
@@ -33,6 +31,11 @@ use super::region::Region;
 use super::scoring::SubmitResult;
 use super::world::StationContext;
 use sim_core::hash::sha256_hex;
+
+mod actor;
+
+use actor::{ActorMsg, run_actor};
+pub use actor::{FrameSet, PREFETCH_AFTER_PAUSE, Reply};
 
 /// Worker settings.
 #[derive(Debug, Clone)]
@@ -127,34 +130,6 @@ pub struct Health {
     /// `Calibration` of `session::calibration`, which records it here).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration: Option<serde_json::Value>,
-}
-
-/// Latest frame of each view.
-pub type FrameSet = Arc<BTreeMap<ViewId, Arc<EncodedFrame>>>;
-
-/// Replies to one connection, in order.
-#[derive(Debug, Clone)]
-pub enum Reply {
-    /// A command was accepted.
-    Ack(Ack),
-    /// A command was rejected.
-    Error {
-        /// Its sequence number.
-        seq: Option<u64>,
-        /// Why.
-        error: CommandError,
-    },
-}
-
-enum ActorMsg {
-    Command {
-        env: Envelope,
-        reply: mpsc::UnboundedSender<Reply>,
-    },
-    Visible(BTreeSet<ViewId>),
-    Snapshot(oneshot::Sender<(SessionSnapshot, Vec<LogEntry>)>),
-    Score(oneshot::Sender<SubmitResult>),
-    Close,
 }
 
 /// A running session: send commands, watch frames.
@@ -735,164 +710,6 @@ impl SessionHost {
         }
         handle
     }
-}
-
-/// How long the input must pause before the session prefetches a view it may be asked for
-/// (a moved C-arm come to rest: see `Modality::prefetch_pending`). Simulator choice: a drag
-/// sends a pose every pointer event (16 ms apart while the pointer moves), so 150 ms without
-/// one is a C-arm set down; a learner then presses the pedal, typically a few hundred ms later,
-/// and the shot finds its view prepared (a new shot of a kept view costs only noise and display).
-pub const PREFETCH_AFTER_PAUSE: std::time::Duration = std::time::Duration::from_millis(150);
-
-/// How often a session looks for input while it waits out a pause (see
-/// [`PREFETCH_AFTER_PAUSE`]): what a command that comes then may wait at most. Simulator
-/// choice: 2 ms, well under a frame's time, and 75 looks per pause cost no measurable CPU. (The
-/// session thread waits without a runtime's timer: the runtime it was started in may end
-/// before it does.)
-const PAUSE_POLL: std::time::Duration = std::time::Duration::from_millis(2);
-
-/// The session's next message, `Some(None)` when `pause` passed without one, `None` when the
-/// host has gone.
-fn next_message(
-    rx: &mut mpsc::UnboundedReceiver<ActorMsg>,
-    pause: Option<std::time::Duration>,
-) -> Option<Option<ActorMsg>> {
-    let Some(pause) = pause else {
-        return rx.blocking_recv().map(Some);
-    };
-    let until = Instant::now() + pause;
-    loop {
-        match rx.try_recv() {
-            Ok(m) => return Some(Some(m)),
-            Err(mpsc::error::TryRecvError::Disconnected) => return None,
-            Err(mpsc::error::TryRecvError::Empty) if Instant::now() >= until => {
-                return Some(None);
-            }
-            Err(mpsc::error::TryRecvError::Empty) => std::thread::sleep(PAUSE_POLL),
-        }
-    }
-}
-
-fn run_actor(
-    mut session: Session,
-    mut rx: mpsc::UnboundedReceiver<ActorMsg>,
-    frames: watch::Sender<FrameSet>,
-    mut visible: BTreeSet<ViewId>,
-) {
-    // Before the first input: a learner looks at the station before the first shot, and the
-    // renderer and the first view are ready by then (a command that comes sooner waits for
-    // this, no longer than its own frame would have taken).
-    {
-        let _busy = crate::alloc::busy();
-        session.prefetch();
-    }
-    let started = Instant::now();
-    let base_ms = session.world().clock_ms;
-    let mut frame_seq = 0u64;
-    loop {
-        let pause = session
-            .prefetch_pending(&visible)
-            .then_some(PREFETCH_AFTER_PAUSE);
-        let first = match next_message(&mut rx, pause) {
-            Some(Some(m)) => m,
-            Some(None) => {
-                // The input paused with a view to prepare: prepared at low priority (work
-                // nobody waits on yet, see `priority`).
-                let _busy = crate::alloc::busy();
-                let _refining = crate::priority::refining();
-                session.prefetch();
-                continue;
-            }
-            None => break,
-        };
-        let mut batch = vec![first];
-        while let Ok(m) = rx.try_recv() {
-            batch.push(m);
-        }
-        for msg in batch {
-            match msg {
-                ActorMsg::Command { env, reply } => {
-                    let seq = env.seq;
-                    let clock = || base_ms + started.elapsed().as_millis() as u64;
-                    let mut now = clock();
-                    // A tick a little early for a pulse that images a waiting change is held
-                    // until that pulse (see `pulse::TICK_HOLD_PERIOD_FRACTION`).
-                    if env.command == Command::Tick {
-                        let at = session.tick_time(now);
-                        if at > now {
-                            std::thread::sleep(std::time::Duration::from_millis(at - now));
-                            now = clock().max(at);
-                        }
-                    }
-                    let r = match session.apply(env, now) {
-                        Ok(a) => Reply::Ack(a),
-                        Err(error) => Reply::Error {
-                            seq: Some(seq),
-                            error,
-                        },
-                    };
-                    let _ = reply.send(r);
-                }
-                ActorMsg::Visible(v) => visible = v,
-                ActorMsg::Snapshot(tx) => {
-                    let _ = tx.send((session.snapshot(), session.log().to_vec()));
-                }
-                ActorMsg::Score(tx) => {
-                    let _ = tx.send(session.score());
-                }
-                ActorMsg::Close => return,
-            }
-        }
-        if !session.has_dirty(&visible) {
-            continue;
-        }
-        // A frame in flight until it is published (see `alloc::busy`: free memory goes back
-        // to the system once no session has rendered for a while).
-        let _busy = crate::alloc::busy();
-        // Progressive frames: a draft at once where a view has one (the C-arm moved on a large
-        // region), and the full frame only once no newer input waits (a drag still in flight
-        // gets drafts only; the frame header marks them, see `frame`).
-        let drafted = match session.render_drafts(&visible) {
-            Ok(drafts) if !drafts.is_empty() => {
-                publish(&frames, &mut frame_seq, drafts);
-                if !rx.is_empty() {
-                    continue;
-                }
-                true
-            }
-            Ok(_) => false,
-            Err(e) => {
-                tracing::error!("draft render failed: {e}");
-                false
-            }
-        };
-        // The full frame behind a draft on screen yields the cores to other sessions' first
-        // frames (see `priority`).
-        let _refining = drafted.then(crate::priority::refining);
-        match session.render_dirty(&visible) {
-            Ok(views) => publish(&frames, &mut frame_seq, views),
-            Err(e) => tracing::error!("render failed: {e}"),
-        }
-    }
-}
-
-/// Encodes `views` (numbered from `frame_seq` on) into the session's frame set.
-fn publish(
-    frames: &watch::Sender<FrameSet>,
-    frame_seq: &mut u64,
-    views: Vec<crate::session::machine::RenderedView>,
-) {
-    let mut set: BTreeMap<ViewId, Arc<EncodedFrame>> = (**frames.borrow()).clone();
-    for v in views {
-        *frame_seq += 1;
-        match EncodedFrame::new(v.view, *frame_seq, v.input_seq, v.t_ms, &v.image) {
-            Ok(f) => {
-                set.insert(v.view, Arc::new(f.with_draft(v.draft)));
-            }
-            Err(e) => tracing::error!("frame encoding failed: {e}"),
-        }
-    }
-    frames.send_replace(Arc::new(set));
 }
 
 /// The distinct names of `uses` (one per user), the most used first, ties by name.
