@@ -6,7 +6,11 @@
 //! view, on the procedural phantom (meshed at 4 mm as in the tests, painted at 0.5 mm),
 //! curvilinear probe at its default 100 mm depth and sampling.
 //!
-//! `BENCH_QUICK=1` runs 3 moves instead of 15 (CI).
+//! A last table drives a session host as a held key does (each oblique move sent once the last
+//! one's first frame came): time to each move's first frame, and the full frames of poses
+//! already left that were published (newer input stops them, see `render_worker::interrupt`).
+//!
+//! `BENCH_QUICK=1` runs 3 moves instead of 15 (CI; 12 held-key moves instead of 60).
 
 #[allow(dead_code)]
 mod common;
@@ -32,7 +36,7 @@ fn main() {
         t0.elapsed().as_secs_f64()
     );
     let mut s = Session::new(
-        SessionEnv::new(station, Arc::clone(&region), Backends::cpu(0)),
+        SessionEnv::new(Arc::clone(&station), Arc::clone(&region), Backends::cpu(0)),
         SessionConfig::default(),
     );
     let skin = snap_to_skin(
@@ -143,5 +147,93 @@ fn main() {
         "| placement frame, median of {} | {:.1} |",
         2 * moves,
         median_ms(&place)
+    );
+    held_keys(&region, &station, skin, 4 * moves);
+}
+
+/// Probe moves as a held key sends them, through a session host (its thread draws a draft of
+/// each move, then the full frame unless newer input stops it): each move sent as soon as the
+/// previous one's first frame has come, the probe rocked and turned (oblique to the scatter
+/// lattice). Reports the time from each move to its first frame, and how many full frames of
+/// poses already left were published (each one a wait for the move after it).
+fn held_keys(region: &Arc<Region>, station: &Arc<StationContext>, skin: DVec3, moves: usize) {
+    let host = SessionHost::with_regions(
+        vec![(station.station.clone(), "bench".into())],
+        vec![Arc::clone(region)],
+        Backends::cpu(0),
+        2,
+        SessionConfig::default(),
+    );
+    let rt = tokio::runtime::Runtime::new().expect("runtime");
+    let (latency, left) = rt.block_on(async {
+        let h = host.create(&station.station.id).await.expect("session");
+        h.set_visible([ViewId::ULTRASOUND].into());
+        let mut frames = h.frames();
+        let mut seq = 1;
+        let mut until = async |seq: u64, full: bool, left: &mut usize| loop {
+            frames.changed().await.expect("session alive");
+            let f = frames.borrow_and_update()[&ViewId::ULTRASOUND].clone();
+            if f.input_seq < seq && !f.draft && f.input_seq > 1 {
+                *left += 1;
+            }
+            if f.input_seq == seq && (!full || !f.draft) {
+                return;
+            }
+        };
+        let mut left = 0;
+        h.command(Envelope {
+            seq,
+            command: Command::ProbePose {
+                position_mm: (skin - DVec3::Y * 5.0).to_array(),
+                beam_dir: [0.0, 1.0, 0.0],
+                marker_dir: [1.0, 0.0, 0.0],
+            },
+        })
+        .await
+        .expect("pose");
+        until(seq, true, &mut left).await;
+        let mut latency = Vec::new();
+        for k in 0..moves {
+            seq += 1;
+            let t = Instant::now();
+            h.command(Envelope {
+                seq,
+                command: Command::ProbeMove {
+                    slide_mm: [if k % 2 == 0 { 0.5 } else { -0.5 }, 0.0],
+                    tilt_deg: [
+                        if k == 0 { 4.0 } else { 0.3 },
+                        if k == 0 { -3.0 } else { 0.2 },
+                    ],
+                    rotate_deg: if k == 0 { 7.0 } else { 0.5 },
+                },
+            })
+            .await
+            .expect("move");
+            until(seq, false, &mut left).await;
+            latency.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        until(seq, true, &mut left).await;
+        (latency, left)
+    });
+    host.shutdown();
+    let mut sorted = latency.clone();
+    sorted.sort_by(f64::total_cmp);
+    let at =
+        |q: f64| sorted[((q * (sorted.len() - 1) as f64).round() as usize).min(sorted.len() - 1)];
+    println!();
+    println!(
+        "Held key, {moves} oblique probe moves through a session host, each sent once the last one's first frame came:"
+    );
+    println!();
+    println!(
+        "| move to its first frame, p50 / p95 / max (ms) | full frames of poses already left |"
+    );
+    println!("|---:|---:|");
+    println!(
+        "| {:.0} / {:.0} / {:.0} | {left} of {} |",
+        at(0.5),
+        at(0.95),
+        sorted[sorted.len() - 1],
+        moves - 1
     );
 }

@@ -9,6 +9,7 @@ pub mod exit;
 pub mod fluoro;
 pub mod gallery;
 pub mod gpu;
+pub mod interrupt;
 pub mod priority;
 pub mod session;
 pub mod ultrasound;

@@ -794,3 +794,89 @@ fn the_palette_medium_gives_the_frames_of_the_ct_numbers() {
         }
     }
 }
+
+/// A probe moved again while the full frame of the pose it leaves is still being computed
+/// stops that frame (see `render_worker::interrupt`): every move is answered by its draft,
+/// no full frame of a pose already left is published, and the last pose gets its full frame.
+/// Without the stop, each move after the first waits for the full frame of the one before
+/// (tens of ms on the CPU, obliquely to the scatter lattice) and that frame is published.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_probe_move_stops_the_full_frame_of_the_pose_it_leaves() {
+    let st = station(IN_PLANE);
+    let host = SessionHost::with_regions(
+        vec![(st.station.clone(), "test".into())],
+        vec![region()],
+        Backends::cpu(0),
+        2,
+        config(),
+    );
+    let h = host.create(IN_PLANE).await.unwrap();
+    h.set_visible(BTreeSet::from([ViewId::ULTRASOUND]));
+    let mut frames = h.frames();
+    let mut seen: Vec<(u64, u64, bool)> = Vec::new();
+    // The next frame published, as (frame, input, draft).
+    let mut next = async || {
+        tokio::time::timeout(std::time::Duration::from_secs(60), frames.changed())
+            .await
+            .expect("a frame within a minute")
+            .unwrap();
+        let f = frames.borrow_and_update()[&ViewId::ULTRASOUND].clone();
+        (f.frame_seq, f.input_seq, f.draft)
+    };
+    let mut seq = 1;
+    h.command(Envelope {
+        seq,
+        command: transverse_over(target(IN_PLANE)),
+    })
+    .await
+    .unwrap();
+    loop {
+        let f = next().await;
+        seen.push(f);
+        if f.1 == seq && !f.2 {
+            break;
+        }
+    }
+    let moves = 6;
+    for _ in 0..moves {
+        seq += 1;
+        // Rocked and rotated a little: an oblique slice, the slower full frame.
+        h.command(Envelope {
+            seq,
+            command: Command::ProbeMove {
+                slide_mm: [0.5, 0.0],
+                tilt_deg: [2.0, 1.0],
+                rotate_deg: 3.0,
+            },
+        })
+        .await
+        .unwrap();
+        // Moved again as soon as the move's draft is on screen.
+        loop {
+            let f = next().await;
+            seen.push(f);
+            if f.1 == seq {
+                assert!(f.2, "move {seq} answered by its draft first: {seen:?}");
+                break;
+            }
+        }
+    }
+    loop {
+        let f = next().await;
+        seen.push(f);
+        if f.1 == seq && !f.2 {
+            break;
+        }
+    }
+    // Every frame published was seen (the watch keeps only the newest).
+    let numbers: Vec<u64> = seen.iter().map(|f| f.0).collect();
+    let first = numbers[0];
+    assert_eq!(
+        numbers,
+        (first..first + numbers.len() as u64).collect::<Vec<_>>(),
+        "{seen:?}"
+    );
+    let left = seen.iter().filter(|f| f.1 > 1 && f.1 < seq && !f.2).count();
+    assert_eq!(left, 0, "full frames of poses already left: {seen:?}");
+    host.shutdown();
+}

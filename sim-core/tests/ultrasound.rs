@@ -7,6 +7,7 @@ use sim_core::ultrasound::tissue::{AIR, CORTICAL_BONE, FAT, MUSCLE, NERVE, SOFT_
 use sim_core::ultrasound::{
     AcousticMedium, AcousticProps, BModeFrame, CtMedium, NeedleShaft, PointTarget, ProbeKind,
     ProbePose, Sampling, ScanRequest, Scanner, Settings, UltrasoundError, UniformMedium, scan,
+    scan_unless,
 };
 use sim_core::volume::{Volume, VolumeGrid};
 
@@ -878,4 +879,52 @@ fn the_frame_matches_the_recorded_reference_within_round_off() {
         now[at],
         recorded[at]
     );
+}
+
+/// A scan that is never stopped is `scan`'s frame bit for bit; one stopped at once, or after a
+/// few of its checks (within the deposit, on either of its threads), gives no frame; and the
+/// checks come often enough to stop a frame early (dozens per frame, not one at the end).
+#[test]
+fn a_stopped_scan_gives_no_frame_and_an_unstopped_one_is_the_scan() {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let probe = ProbeKind::Linear;
+    let s = settings(probe, 40.0, 20.0, 7.5);
+    let sampling = Sampling {
+        lines: 96,
+        ..Sampling::for_settings(&probe.spec(), &s)
+    };
+    let medium = UniformMedium(MUSCLE);
+    // Tilted and rotated: the oblique deposit, the slow path a learner's probe takes.
+    let pose = ProbePose::from_rotation(DVec3::ZERO, DVec3::new(0.1, 0.2, 1.0), 17.0);
+    let req = request(probe, pose, s, sampling, &medium, &[]);
+    let whole = scan(&req).unwrap();
+    let asked = AtomicUsize::new(0);
+    let never = scan_unless(&req, &|| {
+        asked.fetch_add(1, Ordering::Relaxed);
+        false
+    })
+    .unwrap()
+    .expect("a frame");
+    assert_eq!(never.pixels, whole.pixels);
+    assert_eq!(never.envelope.data, whole.envelope.data);
+    let checks = asked.load(Ordering::Relaxed);
+    assert!(checks >= 40, "asked {checks} times in a frame");
+    assert!(scan_unless(&req, &|| true).unwrap().is_none());
+    for after in [1, checks / 2, checks - 1] {
+        let n = AtomicUsize::new(0);
+        let stopped = scan_unless(&req, &|| n.fetch_add(1, Ordering::Relaxed) >= after).unwrap();
+        assert!(
+            stopped.is_none(),
+            "stopped after {after} of {checks} checks"
+        );
+    }
+    // Bad input is still an error, stopped or not.
+    let bad = ScanRequest {
+        pose: ProbePose {
+            beam_dir: DVec3::ZERO,
+            ..pose
+        },
+        ..req
+    };
+    assert!(scan_unless(&bad, &|| true).is_err());
 }

@@ -20,7 +20,7 @@ use super::frame::EncodedFrame;
 use super::hands;
 use super::image::{ViewId, ViewImage};
 use super::modalities::fluoro::DraftUse;
-use super::modalities::{Modality, ModalityContext, ModalityFactory};
+use super::modalities::{Modality, ModalityContext, ModalityError, ModalityFactory};
 use super::region::Region;
 use super::scoring::{self, ReproducibilityRecord, SubmitResult};
 use super::world::{self, Injection, NeedleInstrument, StationContext, World, WorldChange};
@@ -709,6 +709,16 @@ impl Session {
         &mut self,
         visible: &BTreeSet<ViewId>,
     ) -> Result<Vec<RenderedView>, SessionError> {
+        Ok(self.render_views(visible, None)?.0)
+    }
+
+    /// [`Session::render_dirty`] for a render that newer input may stop (its thread watches a
+    /// flag, see `crate::interrupt`): a view whose render was stopped stays dirty, the views
+    /// rendered before it are returned, and the flag says whether one was stopped.
+    pub fn render_dirty_unless_superseded(
+        &mut self,
+        visible: &BTreeSet<ViewId>,
+    ) -> Result<(Vec<RenderedView>, bool), SessionError> {
         self.render_views(visible, None)
     }
 
@@ -719,7 +729,7 @@ impl Session {
         &mut self,
         visible: &BTreeSet<ViewId>,
     ) -> Result<Vec<RenderedView>, SessionError> {
-        self.render_views(visible, Some(DraftUse::Live))
+        Ok(self.render_views(visible, Some(DraftUse::Live))?.0)
     }
 
     /// The draft of the image `view` shows now, as a replay of a draft frame renders it
@@ -728,15 +738,17 @@ impl Session {
     pub fn replay_draft(&mut self, view: ViewId) -> Result<Option<RenderedView>, SessionError> {
         Ok(self
             .render_views(&BTreeSet::from([view]), Some(DraftUse::Replay))?
+            .0
             .pop())
     }
 
-    /// The full renders (`draft` `None`) or the drafts of the dirty views in `views`.
+    /// The full renders (`draft` `None`) or the drafts of the dirty views in `views`, and
+    /// whether newer input stopped one (the rest are then left dirty too).
     fn render_views(
         &mut self,
         views: &BTreeSet<ViewId>,
         draft: Option<DraftUse>,
-    ) -> Result<Vec<RenderedView>, SessionError> {
+    ) -> Result<(Vec<RenderedView>, bool), SessionError> {
         let mut out = Vec::new();
         for m in &mut self.modalities {
             for view in m.dirty_views() {
@@ -744,8 +756,12 @@ impl Session {
                     continue;
                 }
                 let image = match draft {
-                    None => m.render(view, &self.world)?,
-                    Some(use_) => m.render_draft(view, &self.world, use_)?,
+                    None => m.render(view, &self.world),
+                    Some(use_) => m.render_draft(view, &self.world, use_),
+                };
+                let image = match image {
+                    Err(ModalityError::Interrupted { .. }) => return Ok((out, true)),
+                    r => r?,
                 };
                 if let Some(image) = image {
                     out.push(RenderedView {
@@ -758,7 +774,7 @@ impl Session {
                 }
             }
         }
-        Ok(out)
+        Ok((out, false))
     }
 
     /// Lets every modality prepare what its next frames will likely need

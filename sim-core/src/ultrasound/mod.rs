@@ -141,6 +141,18 @@ impl ScanRequest<'_> {
 
 /// Computes one B-mode frame. Bit-identical for identical requests.
 pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
+    Ok(scan_unless(req, &|| false)?.expect("a scan that is never stopped ends with a frame"))
+}
+
+/// [`scan`], given up (`Ok(None)`) once `stop` says so: a caller whose frame was superseded
+/// (the probe moved again while it was computed) asks for the next one instead. `stop` is asked
+/// between rows of the scatterer deposit (a few hundred per frame, each well under a
+/// millisecond) and between the frame's stages; a frame that is not stopped is the one [`scan`]
+/// computes, bit for bit.
+pub fn scan_unless(
+    req: &ScanRequest<'_>,
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Result<Option<BModeFrame>, UltrasoundError> {
     let (geo, beam) = req.geometry()?;
     let samples = req.sampling.samples_per_line;
     let tables = BeamTables::new(&beam, geo.depth_mm, samples);
@@ -164,6 +176,7 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
                 seed: req.seed,
             },
             part,
+            stop,
         );
         g
     };
@@ -174,6 +187,9 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
         g.add(&other.join().expect("scatter thread"));
         g
     });
+    if stop() {
+        return Ok(None);
+    }
     let k0 = 2.0 * std::f64::consts::PI / beam.wavelength_mm();
     for t in req.targets {
         let q = geo.frame.to_probe(t.position_mm);
@@ -222,6 +238,9 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
             }
         }
     });
+    if stop() {
+        return Ok(None);
+    }
     let envelope = Envelope {
         lines: geo.lines,
         samples,
@@ -229,13 +248,13 @@ pub fn scan(req: &ScanRequest<'_>) -> Result<BModeFrame, UltrasoundError> {
         data,
     };
     let view = req.needle.as_ref().map(|n| needle_view(n, &geo, &beam));
-    Ok(frame::scan_convert(
+    Ok(Some(frame::scan_convert(
         &geo,
         &req.settings,
         req.sampling.pixel_mm,
         envelope,
         view,
-    ))
+    )))
 }
 
 /// A scanner that honours freeze: while `settings.frozen` it returns the last live frame.

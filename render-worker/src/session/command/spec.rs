@@ -27,12 +27,29 @@ pub struct CommandSpec {
     pub kind: &'static str,
     /// Its engagement event, if it counts as one.
     pub engagement: Option<Engagement>,
+    /// Whether the command moves what a view shows, so that a refinement of that view still
+    /// being rendered is obsolete once it comes (see `crate::interrupt`): the session stops it
+    /// and drafts the new view instead. Not part of the protocol.
+    #[serde(skip)]
+    pub supersedes: bool,
 }
 
 impl CommandSpec {
     /// A kind and its engagement.
     pub const fn new(kind: &'static str, engagement: Option<Engagement>) -> CommandSpec {
-        CommandSpec { kind, engagement }
+        CommandSpec {
+            kind,
+            engagement,
+            supersedes: false,
+        }
+    }
+
+    /// The same kind, marked as moving what a view shows ([`CommandSpec::supersedes`]).
+    pub const fn superseding(self) -> CommandSpec {
+        CommandSpec {
+            supersedes: true,
+            ..self
+        }
     }
 }
 

@@ -4,6 +4,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use tokio::sync::{mpsc, oneshot, watch};
@@ -41,6 +42,42 @@ pub(super) enum ActorMsg {
     Snapshot(oneshot::Sender<(SessionSnapshot, Vec<LogEntry>)>),
     Score(oneshot::Sender<SubmitResult>),
     Close,
+}
+
+/// What tells a session thread that the refinement it renders is obsolete: the command kinds
+/// of its modalities that move a view (`CommandSpec::supersedes`), and the flag the host
+/// raises when one is sent (see `crate::interrupt`).
+#[derive(Clone)]
+pub(super) struct Supersede {
+    kinds: Arc<BTreeSet<&'static str>>,
+    flag: Arc<AtomicBool>,
+}
+
+impl Supersede {
+    /// The kinds `session`'s modalities declare, the flag lowered.
+    pub(super) fn of(session: &Session) -> Supersede {
+        let kinds = session
+            .specs()
+            .iter()
+            .flat_map(|s| s.commands.iter())
+            .filter(|c| c.supersedes)
+            .map(|c| c.kind)
+            .collect();
+        Supersede {
+            kinds: Arc::new(kinds),
+            flag: Arc::new(AtomicBool::new(false)),
+        }
+    }
+
+    /// Whether `command` moves a view of the session.
+    pub(super) fn moves_a_view(&self, command: &Command) -> bool {
+        self.kinds.contains(command.name())
+    }
+
+    /// Marks a command that moves a view as waiting.
+    pub(super) fn raise(&self) {
+        self.flag.store(true, Ordering::SeqCst);
+    }
 }
 
 /// How long the input must pause before the session prefetches a view it may be asked for
@@ -84,6 +121,7 @@ pub(super) fn run_actor(
     mut rx: mpsc::UnboundedReceiver<ActorMsg>,
     frames: watch::Sender<FrameSet>,
     mut visible: BTreeSet<ViewId>,
+    supersede: Supersede,
 ) {
     // Before the first input: a learner looks at the station before the first shot, and the
     // renderer and the first view are ready by then (a command that comes sooner waits for
@@ -95,23 +133,41 @@ pub(super) fn run_actor(
     let started = Instant::now();
     let base_ms = session.world().clock_ms;
     let mut frame_seq = 0u64;
+    // The last refinement was stopped for newer input: its view is still dirty, so the input
+    // is taken without waiting for more.
+    let mut stopped = false;
     loop {
-        let pause = session
-            .prefetch_pending(&visible)
-            .then_some(PREFETCH_AFTER_PAUSE);
-        let first = match next_message(&mut rx, pause) {
-            Some(Some(m)) => m,
-            Some(None) => {
-                // The input paused with a view to prepare: prepared at low priority (work
-                // nobody waits on yet, see `priority`).
-                let _busy = crate::alloc::busy();
-                let _refining = crate::priority::refining();
-                session.prefetch();
-                continue;
+        let retry = std::mem::take(&mut stopped);
+        let first = if retry {
+            match rx.try_recv() {
+                Ok(m) => Some(m),
+                Err(mpsc::error::TryRecvError::Empty) => None,
+                Err(mpsc::error::TryRecvError::Disconnected) => break,
             }
-            None => break,
+        } else {
+            let pause = session
+                .prefetch_pending(&visible)
+                .then_some(PREFETCH_AFTER_PAUSE);
+            match next_message(&mut rx, pause) {
+                Some(Some(m)) => Some(m),
+                Some(None) => {
+                    // The input paused with a view to prepare: prepared at low priority (work
+                    // nobody waits on yet, see `priority`).
+                    let _busy = crate::alloc::busy();
+                    let _refining = crate::priority::refining();
+                    session.prefetch();
+                    continue;
+                }
+                None => break,
+            }
         };
-        let mut batch = vec![first];
+        // Lowered before the queue is drained: a command that moves a view from now on is
+        // one this thread has not taken yet.
+        supersede.flag.store(false, Ordering::SeqCst);
+        // Stopped for nothing new (the flag was raised for a command taken just before): the
+        // stopped view's draft is still the one on screen.
+        let mut draft_shown = retry && first.is_none();
+        let mut batch: Vec<ActorMsg> = first.into_iter().collect();
         while let Ok(m) = rx.try_recv() {
             batch.push(m);
         }
@@ -158,25 +214,29 @@ pub(super) fn run_actor(
         // Progressive frames: a draft at once where a view has one (the C-arm moved on a large
         // region), and the full frame only once no newer input waits (a drag still in flight
         // gets drafts only; the frame header marks them, see `frame`).
-        let drafted = match session.render_drafts(&visible) {
+        match session.render_drafts(&visible) {
             Ok(drafts) if !drafts.is_empty() => {
                 publish(&frames, &mut frame_seq, drafts);
+                draft_shown = true;
                 if !rx.is_empty() {
                     continue;
                 }
-                true
             }
-            Ok(_) => false,
-            Err(e) => {
-                tracing::error!("draft render failed: {e}");
-                false
-            }
-        };
+            Ok(_) => {}
+            Err(e) => tracing::error!("draft render failed: {e}"),
+        }
         // The full frame behind a draft on screen yields the cores to other sessions' first
-        // frames (see `priority`).
-        let _refining = drafted.then(crate::priority::refining);
-        match session.render_dirty(&visible) {
-            Ok(views) => publish(&frames, &mut frame_seq, views),
+        // frames (see `priority`), and stops when input that moves its view comes (see
+        // `interrupt`): the new view's draft is drawn instead.
+        let _refining = draft_shown.then(crate::priority::refining);
+        let _watching = draft_shown.then(|| crate::interrupt::watching(&supersede.flag));
+        match session.render_dirty_unless_superseded(&visible) {
+            Ok((views, was_stopped)) => {
+                if !(was_stopped && views.is_empty()) {
+                    publish(&frames, &mut frame_seq, views);
+                }
+                stopped = was_stopped;
+            }
             Err(e) => tracing::error!("render failed: {e}"),
         }
     }

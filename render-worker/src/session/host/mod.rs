@@ -34,7 +34,7 @@ use sim_core::hash::sha256_hex;
 
 mod actor;
 
-use actor::{ActorMsg, run_actor};
+use actor::{ActorMsg, Supersede, run_actor};
 pub use actor::{FrameSet, PREFETCH_AFTER_PAUSE, Reply};
 
 /// Worker settings.
@@ -139,6 +139,7 @@ pub struct SessionHandle {
     pub info: SessionInfo,
     tx: mpsc::UnboundedSender<ActorMsg>,
     frames: watch::Receiver<FrameSet>,
+    supersede: Supersede,
 }
 
 impl std::fmt::Debug for SessionHandle {
@@ -157,9 +158,15 @@ impl SessionHandle {
         reply: mpsc::UnboundedSender<Reply>,
     ) -> Result<(), CommandError> {
         let seq = env.seq;
+        let moves = self.supersede.moves_a_view(&env.command);
         self.tx
             .send(ActorMsg::Command { env, reply })
-            .map_err(|_| closed(seq))
+            .map_err(|_| closed(seq))?;
+        // Raised once the command waits: a refinement in flight then stops for it.
+        if moves {
+            self.supersede.raise();
+        }
+        Ok(())
     }
 
     /// Applies a command and waits for its acknowledgement.
@@ -687,10 +694,12 @@ impl SessionHost {
         let (tx, rx) = mpsc::unbounded_channel();
         let (ftx, frx) = watch::channel(FrameSet::default());
         let visible: BTreeSet<ViewId> = session.views().into_iter().collect();
+        let supersede = Supersede::of(&session);
         let name = format!("session-{}", &id[..8]);
+        let watched = supersede.clone();
         let spawned = std::thread::Builder::new()
             .name(name)
-            .spawn(move || run_actor(session, rx, ftx, visible));
+            .spawn(move || run_actor(session, rx, ftx, visible, watched));
         match spawned {
             Ok(t) => {
                 if let Ok(mut a) = self.inner.actors.lock() {
@@ -704,6 +713,7 @@ impl SessionHost {
             info,
             tx,
             frames: frx,
+            supersede,
         };
         if let Ok(mut s) = self.inner.sessions.lock() {
             s.insert(id, handle.clone());

@@ -21,6 +21,13 @@ pub enum ModalityError {
         /// The renderer's reason.
         message: String,
     },
+    /// Newer input made the render obsolete before it was done (see `crate::interrupt`): the
+    /// view stays dirty and nothing of the render is shown.
+    #[error("{modality} render superseded by newer input")]
+    Interrupted {
+        /// Modality name.
+        modality: &'static str,
+    },
     /// A snapshot's state for this modality does not parse.
     #[error("{modality} state: {message}")]
     State {

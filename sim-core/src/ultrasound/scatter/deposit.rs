@@ -78,7 +78,13 @@ pub fn lattice_bounds(
     }
 }
 
-/// Deposits every lattice scatterer within reach of the frame into `grid` (not yet convolved).
+/// Deposits every lattice scatterer within reach of the frame into `grid` (not yet convolved),
+/// asking `stop` before each row of lattice columns: once it says so, the rest is left out
+/// (the caller discards the grid).
+#[expect(
+    clippy::too_many_arguments,
+    reason = "one frame's deposit, called from `scan`"
+)]
 pub(crate) fn deposit_scatterers(
     grid: &mut IqGrid,
     geo: &ScanGeometry,
@@ -87,6 +93,7 @@ pub(crate) fn deposit_scatterers(
     medium: &dyn AcousticMedium,
     field: ScatterField,
     part: u64,
+    stop: &(dyn Fn() -> bool + Sync),
 ) {
     let ScatterField { cell_mm, seed } = field;
     let f = &geo.frame;
@@ -165,6 +172,9 @@ pub(crate) fn deposit_scatterers(
         // Two interleaved halves of the lattice (a fixed split, so the sum is deterministic).
         if ia.rem_euclid(2) as u64 != part {
             continue;
+        }
+        if stop() {
+            return;
         }
         // With the column along axis 0 or 1, `ib` is the last index the hash takes: its first
         // two levels depend on `ia` and `k` only, so they are computed once for the whole row.

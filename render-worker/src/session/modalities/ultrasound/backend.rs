@@ -5,6 +5,7 @@ use sim_core::ultrasound::{BModeFrame, ScanRequest, UltrasoundError};
 
 use super::medium::AcousticVolume;
 use crate::gpu::GpuContext;
+use crate::interrupt::Interrupt;
 use crate::ultrasound::{GpuUltrasound, UltrasoundGpuError};
 
 /// Why a B-mode renderer could not make a frame (the counterpart of the fluoroscopy seam's
@@ -17,6 +18,9 @@ pub enum UltrasoundRenderError {
     /// The GPU path failed (an invalid request, buffer limits, readback).
     #[error(transparent)]
     Gpu(#[from] UltrasoundGpuError),
+    /// Newer input made the frame obsolete before it was done (see `crate::interrupt`).
+    #[error("the frame was superseded by newer input")]
+    Interrupted,
 }
 
 /// A B-mode renderer kind on one device, shared by every session there.
@@ -71,7 +75,10 @@ impl UltrasoundRenderer for CpuUltrasoundBackend {
         req: &ScanRequest<'_>,
         _volume: &AcousticVolume,
     ) -> Result<BModeFrame, UltrasoundRenderError> {
-        Ok(sim_core::ultrasound::scan(req)?)
+        // Stopped between pieces of the deposit once newer input supersedes a watched frame.
+        let interrupt = Interrupt::of_this_thread();
+        sim_core::ultrasound::scan_unless(req, &|| interrupt.is_raised())?
+            .ok_or(UltrasoundRenderError::Interrupted)
     }
 }
 

@@ -296,9 +296,14 @@ impl UltrasoundModality {
             let renderer = self.renderer.get_or_insert_with(|| self.backend.renderer());
             renderer.scan(&req, &volume)
         }
-        .map_err(|e| ModalityError::Render {
-            modality: "ultrasound",
-            message: e.to_string(),
+        .map_err(|e| match e {
+            UltrasoundRenderError::Interrupted => ModalityError::Interrupted {
+                modality: "ultrasound",
+            },
+            e => ModalityError::Render {
+                modality: "ultrasound",
+                message: e.to_string(),
+            },
         })?;
         Ok(ViewImage {
             width: frame.width as u32,
@@ -432,11 +437,11 @@ pub static SPEC: ModalitySpec = ModalitySpec {
     label: "ultrasound",
     views: &[ViewId::ULTRASOUND, ViewId::PLACEMENT],
     commands: &[
-        CommandSpec::new("probe_select", Some(Engagement::ViewChanged)),
-        CommandSpec::new("probe_pose", Some(Engagement::ViewChanged)),
-        CommandSpec::new("probe_move", Some(Engagement::ViewChanged)),
-        CommandSpec::new("probe_drag", Some(Engagement::ViewChanged)),
-        CommandSpec::new("probe_settings", Some(Engagement::ViewChanged)),
+        CommandSpec::new("probe_select", Some(Engagement::ViewChanged)).superseding(),
+        CommandSpec::new("probe_pose", Some(Engagement::ViewChanged)).superseding(),
+        CommandSpec::new("probe_move", Some(Engagement::ViewChanged)).superseding(),
+        CommandSpec::new("probe_drag", Some(Engagement::ViewChanged)).superseding(),
+        CommandSpec::new("probe_settings", Some(Engagement::ViewChanged)).superseding(),
         CommandSpec::new("probe_freeze", None),
     ],
     constants: &[],

@@ -1,0 +1,99 @@
+//! Which renders newer input stops: a full frame that refines a draft already on a learner's
+//! screen is obsolete once the learner has moved the view again (the probe slid on), and a
+//! session then draws the new view's draft instead of finishing the old frame.
+//!
+//! A session's thread watches a flag with [`watching`] around such a render; the host raises
+//! the flag when a command that moves a view arrives (`CommandSpec::supersedes`). A renderer
+//! that can stop part-way takes [`Interrupt::of_this_thread`] (before it spawns helpers, which
+//! do not share the thread-local) and asks [`Interrupt::is_raised`] between pieces of its work;
+//! a render it gives up ends with the modality's `Interrupted` error and leaves its view dirty,
+//! so nothing half-done is shown or kept. Renders nobody has seen a draft of (a shot, a needle
+//! step, a draft itself) are never watched.
+
+use std::cell::RefCell;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+thread_local! {
+    static WATCHED: RefCell<Option<Arc<AtomicBool>>> = const { RefCell::new(None) };
+}
+
+/// Makes `flag` stop the renders this thread starts from now on, until the guard drops.
+pub fn watching(flag: &Arc<AtomicBool>) -> Watching {
+    Watching {
+        before: WATCHED.with(|w| w.replace(Some(Arc::clone(flag)))),
+    }
+}
+
+/// A thread's watch of a flag (see [`watching`]); the previous watch comes back on drop.
+#[must_use = "the watch lasts while the guard lives"]
+pub struct Watching {
+    before: Option<Arc<AtomicBool>>,
+}
+
+impl Drop for Watching {
+    fn drop(&mut self) {
+        let before = self.before.take();
+        WATCHED.with(|w| *w.borrow_mut() = before);
+    }
+}
+
+/// What may stop the render this thread is doing now: a flag, or nothing.
+#[derive(Debug, Clone, Default)]
+pub struct Interrupt {
+    flag: Option<Arc<AtomicBool>>,
+}
+
+impl Interrupt {
+    /// The flag this thread watches now (none outside [`watching`]).
+    pub fn of_this_thread() -> Interrupt {
+        Interrupt {
+            flag: WATCHED.with(|w| w.borrow().clone()),
+        }
+    }
+
+    /// Whether the render should stop: newer input has made it obsolete.
+    pub fn is_raised(&self) -> bool {
+        self.flag
+            .as_ref()
+            .is_some_and(|f| f.load(Ordering::Relaxed))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_watch_lasts_while_its_guard_lives_and_reaches_helpers_through_the_handle() {
+        let flag = Arc::new(AtomicBool::new(false));
+        assert!(!Interrupt::of_this_thread().is_raised());
+        {
+            let _w = watching(&flag);
+            let i = Interrupt::of_this_thread();
+            assert!(!i.is_raised());
+            flag.store(true, Ordering::Relaxed);
+            // A helper thread sees the flag through the handle taken before it was spawned,
+            // and nothing of its own.
+            let seen = std::thread::scope(|s| {
+                s.spawn(|| (i.is_raised(), Interrupt::of_this_thread().is_raised()))
+                    .join()
+                    .unwrap()
+            });
+            assert_eq!(seen, (true, false));
+            let other = Arc::new(AtomicBool::new(false));
+            {
+                let _nested = watching(&other);
+                assert!(!Interrupt::of_this_thread().is_raised(), "nested watch");
+            }
+            assert!(
+                Interrupt::of_this_thread().is_raised(),
+                "the outer watch is back"
+            );
+        }
+        assert!(
+            !Interrupt::of_this_thread().is_raised(),
+            "no watch after the guard"
+        );
+    }
+}
