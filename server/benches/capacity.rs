@@ -16,7 +16,8 @@
 //! Reported per number of learners at once: p50, p95 and p99 latency, frames never delivered,
 //! sessions the server did not open (refused, or no answer within 10 s),
 //! the first image of each new session (from its first shot), and the server's resident memory
-//! with those sessions live; then the largest row held at p99 < 150 ms with no frame lost (and
+//! with those sessions live, and the server's CPU time over the row (cores busy on average);
+//! then the largest row held at p99 < 150 ms with no frame lost (and
 //! the same with each live pose counted from the pulse that images it); then
 //! the same latencies by what the learner did (first shot, shot after a C-arm drag, shot after
 //! a needle step, pose while live), the live poses also counted from the pulse that images them
@@ -398,6 +399,22 @@ fn rss_mib(pid: u32) -> f64 {
         .map_or(f64::NAN, |kb| kb / 1024.0)
 }
 
+/// The server's CPU time so far (user and system, all its threads), seconds: fields 14 and 15
+/// of `/proc/<pid>/stat`, in clock ticks of `USER_HZ` (100 on Linux, which the kernel keeps
+/// fixed for user space).
+fn cpu_s(pid: u32) -> f64 {
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .ok()
+        .and_then(|s| {
+            // The command name may hold spaces: fields are counted after its closing ')'.
+            let rest = &s[s.rfind(')')? + 1..];
+            let f: Vec<&str> = rest.split_whitespace().collect();
+            let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+            Some(ticks / 100.0)
+        })
+        .unwrap_or(f64::NAN)
+}
+
 /// A learner's seed: distinct over rows and learners.
 fn k_row(row: usize, k: usize) -> u64 {
     (row * 1000 + k) as u64
@@ -566,9 +583,9 @@ fn main() {
     }
     println!();
     println!(
-        "| learners at once | images | p50 (ms) | p95 (ms) | p99 (ms) | drafted first | full frame p50 / p99 (ms) | never delivered | sessions not started | first image p50 / max (ms) | server RSS, sessions live (MiB) | the same 1.6 s later, at rest (MiB) |"
+        "| learners at once | images | p50 (ms) | p95 (ms) | p99 (ms) | drafted first | full frame p50 / p99 (ms) | never delivered | sessions not started | first image p50 / max (ms) | server RSS, sessions live (MiB) | the same 1.6 s later, at rest (MiB) | server CPU, cores busy |"
     );
-    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -594,11 +611,13 @@ fn main() {
             done: tokio::sync::Barrier::new(n + 1),
             release: tokio::sync::Barrier::new(n + 1),
         });
-        let (figures, rss) = rt.block_on(async {
+        let (cpu0, wall0) = (cpu_s(pid), Instant::now());
+        let (figures, rss, cores) = rt.block_on(async {
             let tasks: Vec<_> = (0..n)
                 .map(|k| tokio::spawn(run_learner(Arc::clone(&row), k_row(row_index, k))))
                 .collect();
             row.done.wait().await;
+            let cores = (cpu_s(pid) - cpu0) / wall0.elapsed().as_secs_f64();
             let a = addr.clone();
             let live = tokio::task::spawn_blocking(move || health(&a)["sessions"]["live"].clone())
                 .await
@@ -613,7 +632,7 @@ fn main() {
             for t in tasks {
                 all.push(t.await.expect("learner"));
             }
-            (all, rss)
+            (all, rss, cores)
         });
         let lost: usize = figures.iter().map(|f| f.lost).sum();
         let lat = sorted(figures.iter().flat_map(|f| f.latencies_ms.iter().copied()));
@@ -627,7 +646,7 @@ fn main() {
         let not_started: usize = figures.iter().map(|f| f.not_started).sum();
         let p99 = percentile_of_sorted(&lat, 99.0);
         println!(
-            "| {n} | {} | {:.0} | {:.0} | {p99:.0} | {drafted} | {:.0} / {:.0} | {lost} | {not_started} | {:.0} / {:.0} | {:.0} ({}) | {:.0} |",
+            "| {n} | {} | {:.0} | {:.0} | {p99:.0} | {drafted} | {:.0} / {:.0} | {lost} | {not_started} | {:.0} / {:.0} | {:.0} ({}) | {:.0} | {cores:.2} |",
             lat.len(),
             percentile_of_sorted(&lat, 50.0),
             percentile_of_sorted(&lat, 95.0),
