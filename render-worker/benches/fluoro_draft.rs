@@ -11,6 +11,9 @@
 //! noise: mean and 99th percentile of the absolute difference of 8 x 8 pixel block means, in grey
 //! levels (what a learner sees of a preview; pixel-level detail is what the full frame adds).
 //!
+//! Last, a live drag through a session host on the last of those phantoms: frames published,
+//! CPU time and the time from each pulse's tick to its draft, for a quick and a slow drag.
+//!
 //! `BENCH_QUICK=1`: 3 frames per row, 512 x 512 only, and the default phantom only if its
 //! assets are already built (its first build takes over a minute). Without it: 8 frames, 512 and
 //! 1024, the default phantom built if needed.
@@ -130,4 +133,127 @@ fn main() {
             );
         }
     }
+    if let Some((name, region)) = regions.last() {
+        live_drag(&ctx, name, region, if quick { 2.0 } else { 5.0 });
+    }
+}
+
+/// Live fluoroscopy while the C-arm is dragged, through a session host (its thread drafts each
+/// pulse's image of a moved C-arm, then refines it unless a move waits for the next pulse or
+/// comes during the refinement, see `render_worker::interrupt`): a pose every 40 ms (a quick
+/// drag) or 100 ms (a slow one), a tick per pulse at the default 7.5 pulses per second, on
+/// `region` at the default station. Reports the frames published, the process's CPU time
+/// (cores busy on average) and the time from each tick to the draft of its pulse.
+fn live_drag(ctx: &render_worker::gpu::GpuContext, name: &str, region: &Arc<Region>, run_s: f64) {
+    use render_worker::session::modalities::fluoro::{FluoroBackend, GpuFluoroBackend};
+    use render_worker::session::{Backends, Command, Envelope, SessionConfig, SessionHost, ViewId};
+    use std::time::Duration;
+    let stations = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/stations");
+    let file = sim_core::rubric::load_station_dir(&stations)
+        .expect("stations")
+        .into_iter()
+        .find(|f| f.station.id == "l4-l5-left-facet")
+        .expect("the default station");
+    let backend = Arc::new(GpuFluoroBackend::new(ctx.clone()));
+    backend.prepare(region).expect("prepare");
+    backend.wait_for_draft_scene(region).expect("draft scene");
+    let mut backends = Backends::gpu(ctx.clone());
+    backends.fluoro = backend;
+    let host = SessionHost::with_regions(
+        vec![(file.station, "bench".into())],
+        vec![Arc::clone(region)],
+        backends,
+        2,
+        SessionConfig::default(),
+    );
+    let rt = tokio::runtime::Runtime::new().expect("runtime");
+    println!();
+    println!("Live drag through a session host, {name}, {run_s} s per row:");
+    println!();
+    println!(
+        "| pose every (ms) | drafts | full frames | cores busy | tick to draft p50 / p95 (ms) |"
+    );
+    println!("|---:|---:|---:|---:|---:|");
+    for pose_ms in [40u64, 100] {
+        rt.block_on(async {
+            let h = host.create("l4-l5-left-facet").await.expect("session");
+            let mut seq = 0u64;
+            let mut send = |command: Command| {
+                seq += 1;
+                let (tx, _) = tokio::sync::mpsc::unbounded_channel();
+                h.send(Envelope { seq, command }, tx).expect("sent");
+            };
+            send(Command::Shot);
+            tokio::time::sleep(Duration::from_millis(1500)).await;
+            let mut frames = h.frames();
+            frames.borrow_and_update();
+            let (cpu0, t0) = (process_cpu_s(), Instant::now());
+            send(Command::Live { on: true });
+            let period = Duration::from_millis(133);
+            let (mut next_tick, mut next_pose) = (t0 + period, t0 + Duration::from_millis(20));
+            let (mut orbital, mut drafts, mut fulls, mut last) = (0.0, 0, 0, 0);
+            let (mut waits, mut tick_at) = (Vec::new(), None);
+            while t0.elapsed().as_secs_f64() < run_s {
+                let now = Instant::now();
+                if now >= next_tick {
+                    send(Command::Tick);
+                    tick_at = Some(now);
+                    next_tick += period;
+                }
+                if now >= next_pose {
+                    orbital += 0.4;
+                    send(Command::CarmPose {
+                        orbital_deg: orbital,
+                        angular_deg: 0.0,
+                        table_mm: [0.0; 3],
+                    });
+                    next_pose += Duration::from_millis(pose_ms);
+                }
+                let wake = next_tick.min(next_pose);
+                if tokio::time::timeout_at(wake.into(), frames.changed())
+                    .await
+                    .is_ok()
+                {
+                    let f = frames
+                        .borrow_and_update()
+                        .get(&ViewId::FLUOROSCOPY)
+                        .cloned();
+                    if let Some(f) = f.filter(|f| f.frame_seq != last) {
+                        last = f.frame_seq;
+                        if f.draft {
+                            drafts += 1;
+                            if let Some(t) = tick_at.take() {
+                                waits.push(t.elapsed().as_secs_f64() * 1e3);
+                            }
+                        } else {
+                            fulls += 1;
+                        }
+                    }
+                }
+            }
+            let cores = (process_cpu_s() - cpu0) / t0.elapsed().as_secs_f64();
+            send(Command::Live { on: false });
+            let (p50, p95) = if waits.is_empty() {
+                (f64::NAN, f64::NAN)
+            } else {
+                (percentile(&waits, 50.0), percentile(&waits, 95.0))
+            };
+            println!("| {pose_ms} | {drafts} | {fulls} | {cores:.2} | {p50:.0} / {p95:.0} |");
+            host.close(&h.info.id).expect("closed");
+        });
+    }
+    host.shutdown();
+}
+
+/// This process's CPU time so far (user and system), seconds: `/proc/self/stat` fields 14 and
+/// 15, in clock ticks of `USER_HZ` (100 on Linux).
+fn process_cpu_s() -> f64 {
+    std::fs::read_to_string("/proc/self/stat")
+        .ok()
+        .and_then(|s| {
+            let rest = &s[s.rfind(')')? + 1..];
+            let f: Vec<&str> = rest.split_whitespace().collect();
+            Some((f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?) / 100.0)
+        })
+        .unwrap_or(f64::NAN)
 }

@@ -25,6 +25,14 @@ pub fn watching(flag: &Arc<AtomicBool>) -> Watching {
     }
 }
 
+/// Lets nothing stop the renders this thread starts from now on, until the guard drops: for a
+/// render the watched input does not make obsolete (a modality knows which of its own).
+pub fn unwatched() -> Watching {
+    Watching {
+        before: WATCHED.with(|w| w.replace(None)),
+    }
+}
+
 /// A thread's watch of a flag (see [`watching`]); the previous watch comes back on drop.
 #[must_use = "the watch lasts while the guard lives"]
 pub struct Watching {
@@ -65,7 +73,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_watch_lasts_while_its_guard_lives_and_reaches_helpers_through_the_handle() {
+    fn a_watch_lasts_while_its_guard_lives_reaches_helpers_and_is_suspended_by_unwatched() {
         let flag = Arc::new(AtomicBool::new(false));
         assert!(!Interrupt::of_this_thread().is_raised());
         {
@@ -85,6 +93,10 @@ mod tests {
             {
                 let _nested = watching(&other);
                 assert!(!Interrupt::of_this_thread().is_raised(), "nested watch");
+            }
+            {
+                let _none = unwatched();
+                assert!(!Interrupt::of_this_thread().is_raised(), "unwatched");
             }
             assert!(
                 Interrupt::of_this_thread().is_raised(),

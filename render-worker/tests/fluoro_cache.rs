@@ -379,3 +379,68 @@ fn new_shots_reuse_the_detector_signal_and_equal_frames_from_scratch() {
     }
     assert_eq!(reused, 5);
 }
+
+/// A frame whose CPU geometric pass is stopped by newer input (the thread's watched flag
+/// raised, see `render_worker::interrupt`) ends with `Interrupted` and keeps nothing: the
+/// renderer's next frames, of the stopped view and of the one before, equal frames from
+/// scratch bit for bit. A frame whose geometry is kept needs no geometric pass and is not
+/// stopped.
+#[test]
+fn an_interrupted_frame_keeps_nothing_and_the_next_frames_equal_frames_from_scratch() {
+    use render_worker::fluoro::FluoroGpuError;
+    use render_worker::interrupt::watching;
+    use std::sync::Arc;
+    use std::sync::atomic::AtomicBool;
+    let Some(ctx) = context_for_tests() else {
+        return;
+    };
+    let (mut cached, mut scratch) = cached_and_scratch(&ctx);
+    if !cached.cpu_geometry() {
+        // A real GPU draws the geometric pass itself: nothing on the CPU to stop.
+        return;
+    }
+    let shaft = needle([-30.0, -60.0, 5.0], [2.0, -4.0, 1.0]);
+    cached.update_needle(&shaft);
+    scratch.update_needle(&shaft);
+    let s = RenderSettings {
+        energy: EnergyModel::Spectral { kvp: 80 },
+        supersample: 2,
+        ..RenderSettings::default()
+    };
+    let ap = small_ap();
+    let oblique = Projection {
+        orbital_deg: 20.0,
+        ..ap
+    };
+    let raised = Arc::new(AtomicBool::new(true));
+    frame(&mut cached, &ap, &s, None);
+    {
+        let _w = watching(&raised);
+        let stopped = cached.render_transmission_supersampled(&oblique, &s, None);
+        assert!(
+            matches!(stopped, Err(FluoroGpuError::Interrupted)),
+            "a new view's pass under a raised flag: {:?}",
+            stopped.err()
+        );
+    }
+    for p in [oblique, ap, oblique] {
+        let a = frame(&mut cached, &p, &s, None);
+        let b = frame(&mut scratch, &p, &s, None);
+        assert!(
+            a.transmission == b.transmission,
+            "{p:?} after a stopped frame"
+        );
+    }
+    let moved = needle([-28.0, -60.0, 5.0], [3.0, -4.0, 1.0]);
+    cached.update_needle(&moved);
+    scratch.update_needle(&moved);
+    let a = {
+        let _w = watching(&raised);
+        cached
+            .render_transmission_supersampled(&oblique, &s, None)
+            .expect("a needle step in the kept view is not stopped")
+    };
+    assert!(cached.last_timings().geometry_reused);
+    let b = frame(&mut scratch, &oblique, &s, None);
+    assert!(a.transmission == b.transmission);
+}

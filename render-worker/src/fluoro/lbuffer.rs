@@ -43,12 +43,12 @@ use super::anatomy::{
 };
 use super::pipelines::{Pipelines, Targets};
 use super::raster::{
-    ChunkBoxes, GeometrySums, MeshWeights, NeedleTriangles, Refused, SampleProjection, SampleRect,
+    ChunkBoxes, GeometrySums, MeshWeights, NeedleTriangles, NotDrawn, SampleProjection, SampleRect,
     projected_box, same_matrix,
 };
 use super::types::{
-    CANCELLOUS, CHANNELS, CHORD_CHANNELS, CORTICAL, Layout, NO_NEEDLE, Passes, PixelRect, SLOTS,
-    Vertex,
+    CANCELLOUS, CHANNELS, CHORD_CHANNELS, CORTICAL, FluoroGpuError, Layout, NO_NEEDLE, Passes,
+    PixelRect, SLOTS, Vertex,
 };
 use crate::gpu::GpuContext;
 
@@ -249,6 +249,8 @@ impl LBuffer {
     /// the image). Returns that box in region samples, clipped (`None` without a needle or off
     /// the image). `t` are the targets of `region` (sized for it); with `culling`, only the
     /// anatomy triangles that can reach the target or the needle's box are drawn into them.
+    /// `Interrupted` where newer input stopped the CPU's geometric pass (nothing is recorded
+    /// then that the frame needs).
     #[expect(clippy::too_many_arguments, reason = "one private recording step")]
     pub(super) fn encode(
         &mut self,
@@ -261,7 +263,7 @@ impl LBuffer {
         passes: Passes,
         region: PixelRect,
         culling: bool,
-    ) -> Option<[u32; 4]> {
+    ) -> Result<Option<[u32; 4]>, FluoroGpuError> {
         let ri = region.index();
         let size = region.size;
         debug_assert_eq!(t.size(), size, "targets sized for the region");
@@ -356,7 +358,7 @@ impl LBuffer {
         // into the same targets; what it refuses is drawn on the GPU below.
         let (geometry_on_cpu, needle_on_cpu) =
             if layout == Layout::Transmission && self.cpu_geometry {
-                self.cpu_passes(queue, t, projection, region, &w, passes, rect, needle_ref)
+                self.cpu_passes(queue, t, projection, region, &w, passes, rect, needle_ref)?
             } else {
                 (false, false)
             };
@@ -505,7 +507,9 @@ impl LBuffer {
                 draw_runs(&mut pass, pipeline, &bind, bufs, runs_or(list, all));
             }
         }
-        let needle = self.needle.as_ref()?;
+        let Some(needle) = self.needle.as_ref() else {
+            return Ok(None);
+        };
         if passes.needle {
             let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("fluoro needle"),
@@ -533,14 +537,15 @@ impl LBuffer {
                 draw_runs(&mut pass, &pipelines.displaced, &bind, bufs, runs);
             }
         }
-        rect
+        Ok(rect)
     }
 
     /// Draws on the CPU (`raster`) and uploads into `t`: the geometric pass (if
     /// `passes.geometry`) and, where the needle's box `rect` (samples of `region`) meets the
     /// target, the needle's and the displaced pass (if both are asked). `weights` are the
     /// meshes' uniforms (geometric, displaced, references). Returns whether each was drawn: what
-    /// the CPU refuses (a triangle at the source) or the anatomy lacks is left to the adapter.
+    /// the CPU refuses (a triangle at the source) or the anatomy lacks is left to the adapter;
+    /// `Interrupted` where newer input stopped the geometric pass (see `crate::interrupt`).
     #[expect(clippy::too_many_arguments, reason = "one private recording step")]
     fn cpu_passes(
         &mut self,
@@ -552,14 +557,14 @@ impl LBuffer {
         passes: Passes,
         rect: Option<[u32; 4]>,
         needle_ref: f64,
-    ) -> (bool, bool) {
+    ) -> Result<(bool, bool), FluoroGpuError> {
         let anatomy = Arc::clone(&self.anatomy);
         let Some(cpu) = anatomy.cpu.as_ref() else {
-            return (false, false);
+            return Ok((false, false));
         };
         let needle = rect.filter(|_| passes.needle && passes.displaced);
         if !passes.geometry && needle.is_none() {
-            return (false, false);
+            return Ok((false, false));
         }
         let m = projection.projection_matrix();
         if !self.cpu_boxes.as_ref().is_some_and(|b| b.under(&m)) {
@@ -605,6 +610,8 @@ impl LBuffer {
                 };
                 let draw =
                     |rect: &SampleRect| cpu.rasterise_rect(&mesh_weights, &p, boxes, rect, 0);
+                // The needle's supersampled box is a small part of a frame: never stopped.
+                let _unwatched = crate::interrupt::unwatched();
                 region_sums(&mut self.kept_region, &m, n, &target, &full, draw)
             };
             match sums {
@@ -626,7 +633,8 @@ impl LBuffer {
                     );
                     true
                 }
-                Err(Refused) => false,
+                Err(NotDrawn::Refused) => false,
+                Err(NotDrawn::Interrupted) => return Err(FluoroGpuError::Interrupted),
             }
         };
         let boxes = self.cpu_boxes.as_ref().expect("boxes");
@@ -654,12 +662,13 @@ impl LBuffer {
                         );
                         true
                     }
-                    Err(Refused) => false,
+                    Err(NotDrawn::Refused) => false,
+                    Err(NotDrawn::Interrupted) => return Err(FluoroGpuError::Interrupted),
                 }
             }
             _ => false,
         };
-        (geometry, needle_drawn)
+        Ok((geometry, needle_drawn))
     }
 
     /// The runs of the anatomy's index buffer (ranges of it, in drawing order) that hold the
@@ -724,8 +733,8 @@ fn region_sums(
     n: usize,
     target: &SampleRect,
     full: &SampleRect,
-    draw: impl FnOnce(&SampleRect) -> Result<GeometrySums, Refused>,
-) -> Result<GeometrySums, Refused> {
+    draw: impl FnOnce(&SampleRect) -> Result<GeometrySums, NotDrawn>,
+) -> Result<GeometrySums, NotDrawn> {
     let under_this_view = kept
         .as_ref()
         .filter(|k| k.per_px == n && same_matrix(&k.matrix, matrix));

@@ -274,7 +274,7 @@ impl GpuFluoroRenderer {
         let model = SpectralModel::new(*energy)?;
         self.timings = FrameTimings::default();
         let mut enc = self.encoder();
-        let full = self.begin_full(&mut enc, projection, &model, iodine);
+        let full = self.begin_full(&mut enc, projection, &model, iodine)?;
         let mut outs = self.submit_and_read(enc, std::slice::from_ref(&full.pending))?;
         let t = self.end_full(full, outs.remove(0), iodine);
         Ok(GpuTransmission {
@@ -365,7 +365,7 @@ impl GpuFluoroRenderer {
         self.timings.supersample_ms += started.elapsed().as_secs_f64() * 1e3;
         // The full image and the supersampled region in one submission and one wait.
         let mut enc = self.encoder();
-        let frame = self.begin_full(&mut enc, projection, &model, iodine);
+        let frame = self.begin_full(&mut enc, projection, &model, iodine)?;
         let mut pending = vec![frame.pending.clone()];
         if let Some(region) = sub {
             pending.push(self.encode_region(
@@ -376,7 +376,7 @@ impl GpuFluoroRenderer {
                 region,
                 Passes::ALL,
                 None,
-            ));
+            )?);
         }
         let mut outs = self.submit_and_read(enc, &pending)?.into_iter();
         let main = outs.next().expect("full image read back");
@@ -560,7 +560,8 @@ impl GpuFluoroRenderer {
         frame: impl FnOnce(&mut Self) -> Result<T, FluoroGpuError>,
     ) -> Result<T, FluoroGpuError> {
         let result = frame(self);
-        self.release_targets(result.is_ok());
+        // An interrupted frame stopped before anything was submitted: its targets are clean.
+        self.release_targets(matches!(result, Ok(_) | Err(FluoroGpuError::Interrupted)));
         result
     }
 
@@ -589,7 +590,7 @@ impl GpuFluoroRenderer {
         region: PixelRect,
         passes: Passes,
         previous: Option<Option<[u32; 4]>>,
-    ) -> Pending {
+    ) -> Result<Pending, FluoroGpuError> {
         let started = Instant::now();
         let ri = region.index();
         let size = region.size;
@@ -605,20 +606,20 @@ impl GpuFluoroRenderer {
             passes,
             region,
             self.culling,
-        );
+        )?;
         let rect = match previous {
             None => [0, 0, size[0], size[1]],
             Some(old) => match union_rect(old, needle_rect) {
                 Some(r) => r,
                 // No needle then or now: nothing to resolve.
                 None => {
-                    return Pending {
+                    return Ok(Pending {
                         ri,
                         rows: 0..0,
                         cols: 0..0,
                         bytes: 0,
                         needle_rect,
-                    };
+                    });
                 }
             },
         };
@@ -638,13 +639,13 @@ impl GpuFluoroRenderer {
             .encode(&self.ctx, &self.anatomy.pipelines, t, enc, &input);
         self.timings.resolved_samples += u64::from(rect[2]) * u64::from(rect[3]);
         self.timings.encode_ms += started.elapsed().as_secs_f64() * 1e3;
-        Pending {
+        Ok(Pending {
             ri,
             rows: rect[1]..rect[1] + rect[3],
             cols: rect[0]..rect[0] + rect[2],
             bytes,
             needle_rect,
-        }
+        })
     }
 
     /// Submits `enc` once, waits, and reads back every pending region.
@@ -664,7 +665,7 @@ impl GpuFluoroRenderer {
         projection: &Projection,
         model: &SpectralModel,
         iodine: Option<&IodineField>,
-    ) -> FullFrame {
+    ) -> Result<FullFrame, FluoroGpuError> {
         let full = PixelRect::full(projection);
         self.ensure_targets(0, full.size);
         let plan = self
@@ -679,12 +680,12 @@ impl GpuFluoroRenderer {
             full,
             plan.passes(),
             plan.previous_needle_rect(),
-        );
-        FullFrame {
+        )?;
+        Ok(FullFrame {
             pending,
             plan,
             width: full.size[0] as usize,
-        }
+        })
     }
 
     /// The full-image transmission from its read-back `out`, kept for the next frame.
@@ -739,7 +740,7 @@ impl GpuFluoroRenderer {
                 passes,
                 full,
                 self.culling,
-            );
+            )?;
             self.cache
                 .geometry_holds((*projection, Layout::Chords(pass)));
             self.ctx.queue.submit([enc.finish()]);

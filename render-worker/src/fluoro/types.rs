@@ -32,6 +32,10 @@ pub enum FluoroGpuError {
     /// The requested tube voltage has no committed spectrum.
     #[error(transparent)]
     UnknownKvp(#[from] UnknownKvp),
+    /// Newer input made the frame obsolete before its CPU pass was done (see
+    /// `crate::interrupt`): nothing of it is kept.
+    #[error("the frame was superseded by newer input")]
+    Interrupted,
 }
 
 /// A rectangle of the detector sampled `n x n` per pixel: sample `(i, j)` of it lies at

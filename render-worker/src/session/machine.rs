@@ -782,8 +782,12 @@ impl Session {
     /// next frame comes. A failure is logged and left to the render that needs it.
     pub fn prefetch(&mut self) {
         for m in &mut self.modalities {
-            if let Err(e) = m.prefetch(&self.world) {
-                tracing::warn!(modality = m.name(), "prefetch failed: {e}");
+            match m.prefetch(&self.world) {
+                Ok(()) => {}
+                Err(e @ ModalityError::Interrupted { .. }) => {
+                    tracing::debug!(modality = m.name(), "{e}");
+                }
+                Err(e) => tracing::warn!(modality = m.name(), "prefetch failed: {e}"),
             }
         }
     }

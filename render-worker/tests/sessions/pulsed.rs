@@ -5,7 +5,9 @@
 use render_worker::session::*;
 use serde_json::json;
 
-use super::support::{Driver, config, env, place, pose};
+use std::sync::Arc;
+
+use super::support::{Driver, config, drafting_backends, env, fluoro_only, place, pose};
 
 fn pulse_rate(pps: f64) -> Command {
     serde_json::from_value(json!({ "type": "pulse_rate", "pps": pps })).unwrap()
@@ -232,4 +234,71 @@ fn an_early_tick_is_held_for_the_pulse_a_waiting_change_is_due_at() {
             due + 2 * (due - 1000) - 3
         );
     }
+}
+
+/// A C-arm move stops only the fluoroscopy work it makes obsolete (see
+/// `render_worker::interrupt`; the flag raised as the session thread raises it for a
+/// `carm_pose`). A shot's full frame behind its draft is finished (the shot stays on screen
+/// with the beam off, whatever the C-arm does); a live image's full frame is stopped and its
+/// view stays dirty; once a move waits for the next pulse, the drafted live image is not
+/// refined at all (a live drag shows drafts); the pulse's new image is drafted and refined, and
+/// a replay of the log renders it bit for bit.
+#[test]
+fn a_carm_move_stops_the_refinement_of_a_live_image_but_not_of_a_shot() {
+    use render_worker::interrupt::watching;
+    use std::sync::atomic::AtomicBool;
+    let Some(ctx) = render_worker::gpu::context_for_tests() else {
+        return;
+    };
+    if !ctx.summary.is_software {
+        // A GPU draws the geometric pass itself: nothing on the CPU to stop.
+        return;
+    }
+    let mut e = env();
+    e.backends = drafting_backends(ctx);
+    let initial_env = e.clone();
+    let mut s = Session::new(e, config());
+    let initial = s.snapshot();
+    let raised = Arc::new(AtomicBool::new(true));
+    let mut seq = 0;
+    let mut at = |s: &mut Session, t: u64, command: Command| {
+        seq += 1;
+        s.apply(Envelope { seq, command }, t).unwrap();
+    };
+    let refine = |s: &mut Session| {
+        let _w = watching(&raised);
+        s.render_dirty_unless_superseded(&fluoro_only()).unwrap()
+    };
+    // A shot after a move: drafted, and its full frame is drawn under the raised flag.
+    at(&mut s, 100, pose(20.0, 5.0));
+    at(&mut s, 150, Command::Shot);
+    assert_eq!(s.render_drafts(&fluoro_only()).unwrap().len(), 1);
+    let (full, stopped) = refine(&mut s);
+    assert!(
+        !stopped && full.len() == 1 && !full[0].draft,
+        "a shot is refined"
+    );
+    // Live, the C-arm moved: the pulse's image is drafted, its refinement stopped.
+    at(&mut s, 200, Command::Live { on: true });
+    let _ = s.render_dirty(&fluoro_only()).unwrap();
+    at(&mut s, 250, pose(24.0, 5.0));
+    at(&mut s, 400, Command::Tick);
+    assert_eq!(s.render_drafts(&fluoro_only()).unwrap().len(), 1);
+    let (full, stopped) = refine(&mut s);
+    assert!(
+        stopped && full.is_empty(),
+        "a live image's refinement stops"
+    );
+    assert!(s.has_dirty(&fluoro_only()), "and its view stays dirty");
+    // A move waiting for the next pulse: the drafted image is not refined.
+    at(&mut s, 410, pose(28.0, 5.0));
+    assert!(!s.has_dirty(&fluoro_only()), "replaced at the next pulse");
+    // The next pulse images the move: drafted, then refined (nothing raised).
+    at(&mut s, 560, Command::Tick);
+    assert_eq!(s.render_drafts(&fluoro_only()).unwrap().len(), 1);
+    let full = s.render_dirty(&fluoro_only()).unwrap();
+    assert!(full.len() == 1 && !full[0].draft);
+    let mut r = Session::restore(initial_env, &initial, s.log()).unwrap();
+    let replayed = r.render_dirty(&fluoro_only()).unwrap();
+    assert!(replayed[0].image == full[0].image, "the replay renders it");
 }

@@ -2,12 +2,11 @@
 //! live) and how the GPU backend's session frames compare with the CPU reference's.
 
 use std::collections::BTreeSet;
-use std::sync::Arc;
 
 use render_worker::session::*;
 use sim_core::compare::{Compare, Tolerance, block_mean_diffs};
 
-use super::support::{Driver, config, env, fluoro_only, place, pose, script};
+use super::support::{Driver, config, drafting_backends, env, fluoro_only, place, pose, script};
 
 #[test]
 fn frames_are_rendered_only_on_exposure_and_only_for_visible_views() {
@@ -209,12 +208,7 @@ fn drafts_come_before_full_frames_after_a_carm_move_and_replay_exactly() {
     let Some(ctx) = render_worker::gpu::context_for_tests() else {
         return;
     };
-    let fluoro = GpuFluoroBackend::new(ctx).drafting_from(Some(0));
-    let region = Arc::new(render_worker::session::demo::demo_region());
-    fluoro
-        .wait_for_draft_scene(&region)
-        .expect("the demo region gets a draft scene");
-    let backends = Backends::new(Arc::new(fluoro), Backends::cpu(1).ultrasound);
+    let backends = drafting_backends(ctx);
     // Noiseless for the fidelity bound, with noise for exact replay of the noise too.
     for noise in [false, true] {
         let mut config = config();

@@ -35,6 +35,17 @@ pub(crate) fn env() -> SessionEnv {
     env_with(&[])
 }
 
+/// Backends with the GPU fluoroscopy renderer drafting on any region (drafts forced on the
+/// small demo region) on `ctx`, its draft scene of the demo region built.
+pub(crate) fn drafting_backends(ctx: render_worker::gpu::GpuContext) -> Backends {
+    use render_worker::session::modalities::fluoro::GpuFluoroBackend;
+    let fluoro = GpuFluoroBackend::new(ctx).drafting_from(Some(0));
+    fluoro
+        .wait_for_draft_scene(&Arc::new(demo_region()))
+        .expect("the demo region gets a draft scene");
+    Backends::new(Arc::new(fluoro), Backends::cpu(1).ultrasound)
+}
+
 pub(crate) fn fluoro_only() -> BTreeSet<ViewId> {
     [ViewId::FLUOROSCOPY].into()
 }

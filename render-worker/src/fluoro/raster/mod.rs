@@ -50,18 +50,24 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use rustc_hash::FxHashMap;
 
+use crate::interrupt::Interrupt;
 use crate::priority::Priority;
 use sim_core::fluoro::Scene;
 use sim_core::fluoro::nesting::{NestedMesh, soup_box};
 
 pub(super) use needle::NeedleTriangles;
 use span::{Frame, MIN_AXIAL_DEPTH_MM, Span, project, setup, setup_snapped};
-pub(super) use span::{Refused, SampleProjection, SampleRect};
+pub(super) use span::{NotDrawn, Refused, SampleProjection, SampleRect};
 
 /// Triangles per culling chunk of the CPU pass. Simulator choice: large enough that projecting
 /// the chunks' box corners (eight per chunk) stays a few percent of the pass, small enough that
 /// a band or the needle's box skips most of the anatomy.
 const CHUNK_TRIANGLES: usize = 64;
+
+/// Chunks between two looks at the render's interrupt flag (see `crate::interrupt`). Our
+/// choice: 256 chunks are 16k triangles, well under a millisecond of a band's work, while one
+/// relaxed load per 256 chunks costs nothing measurable.
+const INTERRUPT_CHUNKS: usize = 256;
 
 /// Most rows per band. Simulator choice: a band's f64 sums at 1024 samples across (40 bytes per
 /// sample, 5 MB) still mostly stay in cache, while a triangle is set up once per band its
@@ -343,7 +349,8 @@ impl CpuGeometry {
     /// a triangle that may reach the rectangle comes within [`MIN_AXIAL_DEPTH_MM`] of the
     /// source plane or projects too far away to snap. Each sample's sums do not depend on the
     /// rectangle: a rectangle cut from a larger one's sums ([`GeometrySums::crop`]) equals
-    /// its own, bit for bit.
+    /// its own, bit for bit. `Interrupted` once the flag this thread watches is raised (see
+    /// `crate::interrupt`; asked between chunks of triangles).
     pub(super) fn rasterise_rect(
         &self,
         weights: &[MeshWeights],
@@ -351,7 +358,7 @@ impl CpuGeometry {
         boxes: &ChunkBoxes,
         rect: &SampleRect,
         threads: usize,
-    ) -> Result<GeometrySums, Refused> {
+    ) -> Result<GeometrySums, NotDrawn> {
         let n = rect.len();
         let mut a = vec![0f32; 4 * n];
         let mut s = vec![0f32; n];
@@ -360,7 +367,7 @@ impl CpuGeometry {
             boxes,
             rect,
             (&mut a, Some(&mut s)),
-            threads,
+            (threads, &Interrupt::of_this_thread()),
             |band, span, mesh| {
                 let mw = &weights[mesh];
                 let g = mw.g.map(|x| span.sign() * f64::from(x));
@@ -378,16 +385,16 @@ impl CpuGeometry {
     /// Adds every anatomy triangle that can reach `rect` (in drawing order, culled with
     /// `boxes`) to bands of `rect`'s rows with `add(band, span, mesh)`, on `threads` threads,
     /// then writes the bands' four-channel sums (and one-channel sums, if asked) into `out`
-    /// (row-major over `rect`).
+    /// (row-major over `rect`); gives up once `interrupt` is raised.
     fn banded(
         &self,
         p: &SampleProjection,
         boxes: &ChunkBoxes,
         rect: &SampleRect,
         (out4, out1): (&mut [f32], Option<&mut [f32]>),
-        threads: usize,
+        (threads, interrupt): (usize, &Interrupt),
         add: impl Fn(&mut Band, &Span, usize) + Sync,
-    ) -> Result<(), Refused> {
+    ) -> Result<(), NotDrawn> {
         let frame = Frame::new(p)?;
         let w = rect.cols.len();
         let h = rect.rows.len();
@@ -395,6 +402,7 @@ impl CpuGeometry {
             return Ok(());
         }
         let refused = AtomicBool::new(false);
+        let interrupted = AtomicBool::new(false);
         // Bands of rows, at least one per thread (a needle's box is a few dozen rows), at most
         // `BAND_ROWS`; thread `k` takes bands `k`, `k + threads`, ...
         let threads = thread_count(threads).min(h);
@@ -411,6 +419,7 @@ impl CpuGeometry {
         std::thread::scope(|scope| {
             for mine in bands {
                 let (frame, refused, add) = (&frame, &refused, &add);
+                let interrupted = &interrupted;
                 scope.spawn(move || {
                     priority.enter();
                     let mut acc = Band::default();
@@ -422,14 +431,25 @@ impl CpuGeometry {
                             cols: rect.cols.clone(),
                             rows,
                         });
-                        if self
-                            .draw_band(frame, p, boxes, &mut acc, &mut snapped, add)
-                            .is_err()
-                        {
-                            refused.store(true, Ordering::Relaxed);
-                            return;
+                        match self.draw_band(
+                            frame,
+                            p,
+                            boxes,
+                            (&mut acc, &mut snapped),
+                            add,
+                            interrupt,
+                        ) {
+                            Ok(()) => {}
+                            Err(NotDrawn::Refused) => {
+                                refused.store(true, Ordering::Relaxed);
+                                return;
+                            }
+                            Err(NotDrawn::Interrupted) => {
+                                interrupted.store(true, Ordering::Relaxed);
+                                return;
+                            }
                         }
-                        if refused.load(Ordering::Relaxed) {
+                        if refused.load(Ordering::Relaxed) || interrupted.load(Ordering::Relaxed) {
                             return;
                         }
                         for (o, v) in a_band.iter_mut().zip(&acc.a) {
@@ -445,25 +465,32 @@ impl CpuGeometry {
             }
         });
         if refused.load(Ordering::Relaxed) {
-            return Err(Refused);
+            return Err(NotDrawn::Refused);
+        }
+        if interrupted.load(Ordering::Relaxed) {
+            return Err(NotDrawn::Interrupted);
         }
         Ok(())
     }
 
     /// Adds every anatomy triangle that can reach `acc`'s rectangle (in drawing order, culled
     /// with `boxes`) to it with `add(band, span, mesh)`, snapping each chunk's corners into
-    /// `snapped`; `Refused` as [`Frame::snap`].
+    /// `snapped`; `Refused` as [`Frame::snap`], `Interrupted` once `interrupt` is raised
+    /// (asked every [`INTERRUPT_CHUNKS`] chunks).
     fn draw_band(
         &self,
         frame: &Frame,
         p: &SampleProjection,
         boxes: &ChunkBoxes,
-        acc: &mut Band,
-        snapped: &mut [[i64; 2]],
+        (acc, snapped): (&mut Band, &mut [[i64; 2]]),
         add: &(impl Fn(&mut Band, &Span, usize) + Sync),
-    ) -> Result<(), Refused> {
+        interrupt: &Interrupt,
+    ) -> Result<(), NotDrawn> {
         let px = p.pixel_box(&acc.rect);
-        for (chunk, b) in self.chunks.iter().zip(&boxes.boxes) {
+        for (k, (chunk, b)) in self.chunks.iter().zip(&boxes.boxes).enumerate() {
+            if k % INTERRUPT_CHUNKS == 0 && interrupt.is_raised() {
+                return Err(NotDrawn::Interrupted);
+            }
             // One pixel of slack each side for the snapping (1/512 of a sample) and the boxes'
             // f32 rounding.
             let b = b.map(f64::from);

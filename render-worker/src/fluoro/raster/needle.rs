@@ -5,7 +5,8 @@
 //! leaving is the rasteriser's facing, as in the geometric pass, so the crossings of each
 //! closed mesh pair up on every sample.
 
-use super::{ChunkBoxes, CpuGeometry, Frame, Refused, SampleProjection, SampleRect, setup};
+use super::{ChunkBoxes, CpuGeometry, Frame, NotDrawn, SampleProjection, SampleRect, setup};
+use crate::interrupt::Interrupt;
 
 /// The needle as its passes read it.
 pub(crate) struct NeedleTriangles<'a> {
@@ -26,7 +27,8 @@ pub(crate) struct NeedleSums {
 impl CpuGeometry {
     /// The needle's and the displaced pass over `rect` (the needle's box of samples of `p`'s
     /// target): `displaced[m]` are drawn mesh `m`'s displaced weights; the anatomy is culled
-    /// with `boxes`, on `threads` threads (0: every core).
+    /// with `boxes`, on `threads` threads (0: every core). Never interrupted: a needle's box
+    /// is a small part of a frame.
     pub(crate) fn needle_passes(
         &self,
         needle: &NeedleTriangles<'_>,
@@ -35,7 +37,7 @@ impl CpuGeometry {
         boxes: &ChunkBoxes,
         rect: &SampleRect,
         threads: usize,
-    ) -> Result<NeedleSums, Refused> {
+    ) -> Result<NeedleSums, NotDrawn> {
         let frame = Frame::new(p)?;
         let n = rect.len();
         let at = |i: usize, j: usize| rect.index(i, j);
@@ -69,7 +71,7 @@ impl CpuGeometry {
             boxes,
             rect,
             (&mut d, None),
-            threads,
+            (threads, &Interrupt::default()),
             |band, span, mesh| {
                 let weights = displaced[mesh].map(|x| span.sign() * f64::from(x));
                 span.for_each(|i, j, depth| {

@@ -24,6 +24,22 @@ pub(super) const MIN_AXIAL_DEPTH_MM: f64 = 1.0;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Refused;
 
+/// Why a CPU pass drew no sums.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum NotDrawn {
+    /// [`Refused`]: the GPU pass draws the frame instead.
+    Refused,
+    /// Newer input made the frame obsolete before it was drawn (see `crate::interrupt`):
+    /// nothing draws it.
+    Interrupted,
+}
+
+impl From<Refused> for NotDrawn {
+    fn from(_: Refused) -> NotDrawn {
+        NotDrawn::Refused
+    }
+}
+
 /// A grid of samples: rows giving `(x w, y w, w)` of a point (sample coordinates `x, y`; `w`
 /// its axial depth, mm), and where its samples lie in the full image: sample coordinate `x` is
 /// pixel coordinate `origin_px[0] + x / per_px`.

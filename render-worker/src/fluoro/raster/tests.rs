@@ -144,7 +144,7 @@ fn one_mesh(
     rect: &SampleRect,
     weights: MeshWeights,
     threads: usize,
-) -> Result<GeometrySums, Refused> {
+) -> Result<GeometrySums, NotDrawn> {
     let cpu = scene_of(&[mesh]);
     let boxes = cpu.chunk_boxes(&pixel_matrix(p), threads);
     cpu.rasterise_rect(&[weights], p, &boxes, rect, threads)
@@ -313,7 +313,7 @@ fn a_triangle_behind_the_source_is_refused() {
     };
     assert_eq!(
         one_mesh(&mesh, &p, &whole(20, 20), weights, 2).err(),
-        Some(Refused)
+        Some(NotDrawn::Refused)
     );
 }
 

@@ -152,9 +152,12 @@ pub(super) fn run_actor(
                 Some(Some(m)) => Some(m),
                 Some(None) => {
                     // The input paused with a view to prepare: prepared at low priority (work
-                    // nobody waits on yet, see `priority`).
+                    // nobody waits on yet, see `priority`), and given up for input that moves
+                    // the view again (see `interrupt`; lowered first: nothing waits now).
                     let _busy = crate::alloc::busy();
                     let _refining = crate::priority::refining();
+                    supersede.flag.store(false, Ordering::SeqCst);
+                    let _watching = crate::interrupt::watching(&supersede.flag);
                     session.prefetch();
                     continue;
                 }

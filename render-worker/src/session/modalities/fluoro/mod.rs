@@ -391,9 +391,16 @@ impl FluoroModality {
 
 /// A renderer's failure as the modality's.
 fn render_failed(e: FluoroRenderError) -> ModalityError {
-    ModalityError::Render {
-        modality: "fluoroscopy",
-        message: e.to_string(),
+    match e {
+        FluoroRenderError::Gpu(crate::fluoro::FluoroGpuError::Interrupted) => {
+            ModalityError::Interrupted {
+                modality: "fluoroscopy",
+            }
+        }
+        e => ModalityError::Render {
+            modality: "fluoroscopy",
+            message: e.to_string(),
+        },
     }
 }
 
@@ -425,7 +432,7 @@ pub static SPEC: ModalitySpec = ModalitySpec {
     label: "fluoroscopy",
     views: &[ViewId::FLUOROSCOPY],
     commands: &[
-        CommandSpec::new("carm_pose", Some(Engagement::ViewChanged)),
+        CommandSpec::new("carm_pose", Some(Engagement::ViewChanged)).superseding(),
         CommandSpec::new("technique", Some(Engagement::ViewChanged)),
         CommandSpec::new("shot", Some(Engagement::ImageAcquired)),
         CommandSpec::new("live", Some(Engagement::ImageAcquired)),
@@ -436,7 +443,8 @@ pub static SPEC: ModalitySpec = ModalitySpec {
         CommandSpec::new(
             magnification::MAGNIFICATION_KIND,
             Some(Engagement::ViewChanged),
-        ),
+        )
+        .superseding(),
         CommandSpec::new(temporal::FILTER_KIND, None),
         CommandSpec::new(scatter::GRID_KIND, Some(Engagement::ViewChanged)),
     ],
@@ -698,7 +706,14 @@ impl Modality for FluoroModality {
 
     fn dirty_views(&self) -> Vec<ViewId> {
         let last = self.state.images.last().map(|i| i.index);
-        if last.is_some() && last != self.rendered {
+        // A live image whose draft is on screen and which the next pulse replaces with another
+        // view (a C-arm move waits for it) is not refined: a live drag shows drafts, as a drag
+        // with the beam off does, and the view the C-arm comes to rest at gets its full frame.
+        let replaced = self.state.live_since_ms.is_some()
+            && self.state.pulse_pending
+            && self.drafted == last
+            && self.displayed_projection() != Some(self.projection());
+        if last.is_some() && last != self.rendered && !replaced {
             vec![ViewId::FLUOROSCOPY]
         } else {
             Vec::new()
@@ -709,6 +724,14 @@ impl Modality for FluoroModality {
         let Some((image, _, iodine)) = self.displayed(world) else {
             return Ok(None);
         };
+        // Only a live image is made obsolete by a C-arm move (the next pulse images the move);
+        // a shot stays on screen whatever the C-arm does with the beam off, so its full frame
+        // is finished (see `crate::interrupt`).
+        let _unwatched = self
+            .state
+            .live_since_ms
+            .is_none()
+            .then(crate::interrupt::unwatched);
         let frame = self.render_raw(&image, iodine.as_deref(), world)?;
         let frame = self.temporal_chain(&image, frame, iodine, world)?;
         // Only now: a failed history render leaves the view dirty.
@@ -753,16 +776,22 @@ impl Modality for FluoroModality {
             return Ok(());
         }
         let (needle, projection) = (self.instruments(world), self.projection());
-        self.prefetched = Some(projection);
+        let before = self.prefetched.replace(projection);
         let settings = self.render_settings(self.state.kvp, self.state.ma, None, &projection, 0);
-        self.renderer(world)?
+        let done = self
+            .renderer(world)?
             .prefetch(
                 needle.as_ref(),
                 &projection,
                 &settings,
                 world.iodine.as_deref(),
             )
-            .map_err(render_failed)
+            .map_err(render_failed);
+        // A prefetch stopped by a C-arm move (see `crate::interrupt`) prepared nothing.
+        if let Err(ModalityError::Interrupted { .. }) = done {
+            self.prefetched = before;
+        }
+        done
     }
 
     /// The technique of the image on display and of the next pulse, as every fluoroscopy
