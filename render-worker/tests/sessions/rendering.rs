@@ -300,3 +300,52 @@ fn drafts_come_before_full_frames_after_a_carm_move_and_replay_exactly() {
     assert!(cpu.render_drafts(&fluoro_only()).unwrap().is_empty());
     assert!(cpu.replay_draft(ViewId::FLUOROSCOPY).unwrap().is_none());
 }
+
+/// The prefetch of a C-arm come to rest gives up when a move supersedes it (the flag the
+/// session thread watches raised, see `render_worker::interrupt`): nothing is prepared and the
+/// view is still pending; unwatched, the same prefetch prepares it.
+#[test]
+fn a_superseded_prefetch_prepares_nothing() {
+    use render_worker::interrupt::watching;
+    use std::sync::Arc;
+    use std::sync::atomic::AtomicBool;
+    let Some(ctx) = render_worker::gpu::context_for_tests() else {
+        return;
+    };
+    if !ctx.summary.is_software {
+        // A GPU draws the geometric pass itself: nothing on the CPU to stop.
+        return;
+    }
+    let mut e = env();
+    e.backends = drafting_backends(ctx);
+    let mut s = Session::new(e, config());
+    s.prefetch();
+    s.apply(
+        Envelope {
+            seq: 1,
+            command: Command::Shot,
+        },
+        100,
+    )
+    .unwrap();
+    s.render_dirty(&fluoro_only()).unwrap();
+    s.apply(
+        Envelope {
+            seq: 2,
+            command: pose(15.0, 0.0),
+        },
+        200,
+    )
+    .unwrap();
+    assert!(s.prefetch_pending(&fluoro_only()));
+    {
+        let _w = watching(&Arc::new(AtomicBool::new(true)));
+        s.prefetch();
+    }
+    assert!(
+        s.prefetch_pending(&fluoro_only()),
+        "a superseded prefetch prepared nothing"
+    );
+    s.prefetch();
+    assert!(!s.prefetch_pending(&fluoro_only()), "prepared unwatched");
+}
