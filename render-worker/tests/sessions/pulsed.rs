@@ -7,7 +7,7 @@ use serde_json::json;
 
 use std::sync::Arc;
 
-use super::support::{Driver, config, drafting_backends, env, fluoro_only, place, pose};
+use super::support::{Driver, config, env, fluoro_only, place, pose, stoppable_drafting_env};
 
 fn pulse_rate(pps: f64) -> Command {
     serde_json::from_value(json!({ "type": "pulse_rate", "pps": pps })).unwrap()
@@ -247,15 +247,9 @@ fn an_early_tick_is_held_for_the_pulse_a_waiting_change_is_due_at() {
 fn a_carm_move_stops_the_refinement_of_a_live_image_but_not_of_a_shot() {
     use render_worker::interrupt::watching;
     use std::sync::atomic::AtomicBool;
-    let Some(ctx) = render_worker::gpu::context_for_tests() else {
+    let Some(e) = stoppable_drafting_env() else {
         return;
     };
-    if !ctx.summary.is_software {
-        // A GPU draws the geometric pass itself: nothing on the CPU to stop.
-        return;
-    }
-    let mut e = env();
-    e.backends = drafting_backends(ctx);
     let initial_env = e.clone();
     let mut s = Session::new(e, config());
     let initial = s.snapshot();

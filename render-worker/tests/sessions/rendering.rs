@@ -6,7 +6,10 @@ use std::collections::BTreeSet;
 use render_worker::session::*;
 use sim_core::compare::{Compare, Tolerance, block_mean_diffs};
 
-use super::support::{Driver, config, drafting_backends, env, fluoro_only, place, pose, script};
+use super::support::{
+    Driver, config, drafting_backends, env, fluoro_only, place, pose, script,
+    stoppable_drafting_env,
+};
 
 #[test]
 fn frames_are_rendered_only_on_exposure_and_only_for_visible_views() {
@@ -309,15 +312,9 @@ fn a_superseded_prefetch_prepares_nothing() {
     use render_worker::interrupt::watching;
     use std::sync::Arc;
     use std::sync::atomic::AtomicBool;
-    let Some(ctx) = render_worker::gpu::context_for_tests() else {
+    let Some(e) = stoppable_drafting_env() else {
         return;
     };
-    if !ctx.summary.is_software {
-        // A GPU draws the geometric pass itself: nothing on the CPU to stop.
-        return;
-    }
-    let mut e = env();
-    e.backends = drafting_backends(ctx);
     let mut s = Session::new(e, config());
     s.prefetch();
     s.apply(

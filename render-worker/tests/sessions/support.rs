@@ -46,6 +46,19 @@ pub(crate) fn drafting_backends(ctx: render_worker::gpu::GpuContext) -> Backends
     Backends::new(Arc::new(fluoro), Backends::cpu(1).ultrasound)
 }
 
+/// The demo environment with [`drafting_backends`] on a software adapter, where the CPU draws
+/// the geometric pass and newer input can stop it (see `render_worker::interrupt`); `None`
+/// without an adapter, or on a GPU (it draws that pass itself: nothing on the CPU to stop).
+pub(crate) fn stoppable_drafting_env() -> Option<SessionEnv> {
+    let ctx = render_worker::gpu::context_for_tests()?;
+    if !ctx.summary.is_software {
+        return None;
+    }
+    let mut e = env();
+    e.backends = drafting_backends(ctx);
+    Some(e)
+}
+
 pub(crate) fn fluoro_only() -> BTreeSet<ViewId> {
     [ViewId::FLUOROSCOPY].into()
 }

@@ -78,6 +78,12 @@ impl Supersede {
     pub(super) fn raise(&self) {
         self.flag.store(true, Ordering::SeqCst);
     }
+
+    /// Marks nothing waiting: called by the session thread before it looks at its queue, so
+    /// that only commands sent from then on raise the flag.
+    fn lower(&self) {
+        self.flag.store(false, Ordering::SeqCst);
+    }
 }
 
 /// How long the input must pause before the session prefetches a view it may be asked for
@@ -138,35 +144,33 @@ pub(super) fn run_actor(
     let mut stopped = false;
     loop {
         let retry = std::mem::take(&mut stopped);
-        let first = if retry {
-            match rx.try_recv() {
-                Ok(m) => Some(m),
-                Err(mpsc::error::TryRecvError::Empty) => None,
-                Err(mpsc::error::TryRecvError::Disconnected) => break,
-            }
+        let pause = if retry {
+            Some(std::time::Duration::ZERO)
         } else {
-            let pause = session
+            session
                 .prefetch_pending(&visible)
-                .then_some(PREFETCH_AFTER_PAUSE);
-            match next_message(&mut rx, pause) {
-                Some(Some(m)) => Some(m),
-                Some(None) => {
-                    // The input paused with a view to prepare: prepared at low priority (work
-                    // nobody waits on yet, see `priority`), and given up for input that moves
-                    // the view again (see `interrupt`; lowered first: nothing waits now).
-                    let _busy = crate::alloc::busy();
-                    let _refining = crate::priority::refining();
-                    supersede.flag.store(false, Ordering::SeqCst);
-                    let _watching = crate::interrupt::watching(&supersede.flag);
-                    session.prefetch();
-                    continue;
-                }
-                None => break,
+                .then_some(PREFETCH_AFTER_PAUSE)
+        };
+        let first = match next_message(&mut rx, pause) {
+            Some(Some(m)) => Some(m),
+            // Nothing new since the stopped refinement: it is drawn again.
+            Some(None) if retry => None,
+            Some(None) => {
+                // The input paused with a view to prepare: prepared at low priority (work
+                // nobody waits on yet, see `priority`), and given up for input that moves
+                // the view again (see `interrupt`; lowered first: nothing waits now).
+                let _busy = crate::alloc::busy();
+                let _refining = crate::priority::refining();
+                supersede.lower();
+                let _watching = crate::interrupt::watching(&supersede.flag);
+                session.prefetch();
+                continue;
             }
+            None => break,
         };
         // Lowered before the queue is drained: a command that moves a view from now on is
         // one this thread has not taken yet.
-        supersede.flag.store(false, Ordering::SeqCst);
+        supersede.lower();
         // Stopped for nothing new (the flag was raised for a command taken just before): the
         // stopped view's draft is still the one on screen.
         let mut draft_shown = retry && first.is_none();
