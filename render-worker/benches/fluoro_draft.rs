@@ -154,7 +154,9 @@ fn live_drag(ctx: &render_worker::gpu::GpuContext, name: &str, region: &Arc<Regi
         .into_iter()
         .find(|f| f.station.id == "l4-l5-left-facet")
         .expect("the default station");
-    let backend = Arc::new(GpuFluoroBackend::new(ctx.clone()));
+    // Drafting for any region: sessions draft only regions of at least `DRAFT_MIN_TRIANGLES`
+    // (the default phantom), and quick mode on a fresh clone has only the 3.5 mm one.
+    let backend = Arc::new(GpuFluoroBackend::new(ctx.clone()).drafting_from(Some(0)));
     backend.prepare(region).expect("prepare");
     backend.wait_for_draft_scene(region).expect("draft scene");
     let mut backends = Backends::gpu(ctx.clone());
@@ -168,7 +170,14 @@ fn live_drag(ctx: &render_worker::gpu::GpuContext, name: &str, region: &Arc<Regi
     );
     let rt = tokio::runtime::Runtime::new().expect("runtime");
     println!();
-    println!("Live drag through a session host, {name}, {run_s} s per row:");
+    let forced = region.scene.triangle_count()
+        < render_worker::session::modalities::fluoro::draft::DRAFT_MIN_TRIANGLES;
+    let note = if forced {
+        " (drafted here; a session drafts only larger regions)"
+    } else {
+        ""
+    };
+    println!("Live drag through a session host, {name}{note}, {run_s} s per row:");
     println!();
     println!(
         "| pose every (ms) | drafts | full frames | cores busy | tick to draft p50 / p95 (ms) |"
