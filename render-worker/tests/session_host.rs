@@ -593,3 +593,51 @@ fn a_c_arm_come_to_rest_is_prefetched_once_and_a_drag_is_not() {
     h.close(&s.info.id).unwrap();
     h.shutdown();
 }
+
+/// A C-arm dragged under live fluoroscopy on a region without drafts (the demo region, the CPU
+/// renderer): every pulse that images a move is shown while the drag goes on, not only once it
+/// ends. Poses every 40 ms at 30 pulses per second, each imaged at once or at the next pulse;
+/// the frames published during the drag follow it, and the last pose is on screen after it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_live_drag_without_drafts_shows_its_pulses_while_it_goes_on() {
+    let host = host(2);
+    let h = host.create("demo-station").await.unwrap();
+    let (tx, _replies) = tokio::sync::mpsc::unbounded_channel();
+    let mut seq = 0;
+    let mut send = |command: Command| {
+        seq += 1;
+        h.send(Envelope { seq, command }, tx.clone()).unwrap();
+        seq
+    };
+    let rate: Command =
+        serde_json::from_value(serde_json::json!({ "type": "pulse_rate", "pps": 30.0 })).unwrap();
+    send(rate);
+    let on = send(Command::Live { on: true });
+    let mut frames = h.frames();
+    let mut shown = std::collections::BTreeSet::new();
+    let mut last = on;
+    for k in 0..25 {
+        tokio::time::sleep(std::time::Duration::from_millis(40)).await;
+        last = send(pose(2.0 * k as f64, 0.0));
+        let f = frames.borrow_and_update();
+        shown.extend(f.values().map(|f| f.input_seq).filter(|s| *s > on));
+    }
+    assert!(
+        shown.len() >= 5,
+        "frames of the drag shown while it went on: inputs {shown:?}"
+    );
+    let settled = tokio::time::timeout(std::time::Duration::from_secs(10), async {
+        loop {
+            if frames
+                .borrow_and_update()
+                .values()
+                .any(|f| f.input_seq == last)
+            {
+                return;
+            }
+            frames.changed().await.unwrap();
+        }
+    })
+    .await;
+    assert!(settled.is_ok(), "the last pose is shown once the drag ends");
+}

@@ -253,6 +253,11 @@ async fn bench_backend(name: &str, backends: Backends, counts: &[usize], run_for
             fps += f.frames as f64 / f.seconds.max(1e-9);
             all.extend(f.latencies_ms);
         }
+        // A row whose poses never showed measured nothing: the live path is broken, not slow.
+        assert!(
+            !all.is_empty(),
+            "{name}, {n} sessions: no pose was ever shown ({frames} frames in all)"
+        );
         let all = sorted(all);
         println!(
             "| {name} | {n} | {} | {frames} | {:.1} | {:.1} | {:.1} | {:.1} |",

@@ -296,3 +296,37 @@ fn a_carm_move_stops_the_refinement_of_a_live_image_but_not_of_a_shot() {
     let replayed = r.render_dirty(&fluoro_only()).unwrap();
     assert!(replayed[0].image == full[0].image, "the replay renders it");
 }
+
+/// A live image that no draft stands for on screen (a renderer without drafts, or a region too
+/// small to get a draft scene) is rendered in full even when the next C-arm move already waits
+/// for the pulse after it: only a drafted image may be skipped for the view that replaces it.
+/// Otherwise a learner who drags the C-arm under live fluoroscopy sees no image until the drag
+/// ends. The session thread's order: a pulse's image, its draft pass (which draws nothing
+/// here), the next move, then the full frames of the dirty views.
+#[test]
+fn a_live_image_without_a_draft_is_rendered_while_the_next_move_waits() {
+    let mut s = Session::new(env(), config());
+    let mut seq = 0;
+    let mut at = |s: &mut Session, t: u64, command: Command| {
+        seq += 1;
+        s.apply(Envelope { seq, command }, t).unwrap();
+    };
+    at(&mut s, 100, Command::Live { on: true });
+    assert_eq!(s.render_dirty(&fluoro_only()).unwrap().len(), 1);
+    for k in 1..=3u64 {
+        // 7.5 pulses per second: a move 20 ms into a pulse waits for the next one.
+        let pulse = 100 + 133 * k + 1;
+        at(&mut s, pulse - 113, pose(20.0 + k as f64, 5.0));
+        at(&mut s, pulse, Command::Tick);
+        assert!(
+            s.render_drafts(&fluoro_only()).unwrap().is_empty(),
+            "no draft"
+        );
+        at(&mut s, pulse + 10, pose(20.5 + k as f64, 5.0));
+        let frames = s.render_dirty(&fluoro_only()).unwrap();
+        assert!(
+            frames.len() == 1 && !frames[0].draft,
+            "pulse {k}: the new image is rendered, not skipped for the waiting move"
+        );
+    }
+}

@@ -576,7 +576,8 @@ impl Modality for FluoroModality {
                 use_,
             )
             .map_err(render_failed)?;
-        if use_ == DraftUse::Live {
+        // Only a draft that was drawn is on screen (a region without a draft scene gets none).
+        if use_ == DraftUse::Live && draft.is_some() {
             self.drafted = Some(image.index);
         }
         Ok(draft.map(Into::into))
