@@ -77,6 +77,7 @@ pub(super) fn decimate_family(
     fam: &Family,
     names: &[String],
     params: &DecimationParams,
+    neighbours: Option<Vec<Vec<u32>>>,
 ) -> (Vec<Vec<[u32; 3]>>, Vec<String>, String) {
     let n_mesh = fam.mesh_patches.len();
     let input: Vec<Vec<[u32; 3]>> = fam.patches.iter().map(|p| p.triangles.clone()).collect();
@@ -145,14 +146,18 @@ pub(super) fn decimate_family(
     }
     let owners_of_chunk = |c: u32| &fam.patches[chunk_patch[c as usize]].owners;
     let before: Vec<f64> = fam.mesh_volumes(&input, &fam.positions);
-    let neighbours = fam.neighbours();
     // Structures whose input surfaces already cross (a nested whole-solid mesh such as the
     // phantom's deep soft tissue, which later structures leave) are not laminar to begin with;
-    // decimation is only kept from making new crossings.
+    // decimation is only kept from making new crossings. The neighbour lists (given, or made
+    // on one core meanwhile) serve the back-offs' locks.
+    let (neighbours, crossing_before) = std::thread::scope(|s| {
+        let made = neighbours.is_none().then(|| s.spawn(|| fam.neighbours()));
+        let pairs = crossing_pairs(&chunks, &fam.positions, &vec![true; n_chunk], cell_mm, true);
+        let made = made.map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)));
+        (neighbours.or(made).expect("given or made"), pairs)
+    });
     let mut exempt: Vec<(u32, u32)> = Vec::new();
-    for ((ca, _), (cb, _)) in
-        crossing_pairs(&chunks, &fam.positions, &vec![true; n_chunk], cell_mm, true)
-    {
+    for ((ca, _), (cb, _)) in crossing_before {
         for &(m, _) in owners_of_chunk(ca) {
             for &(n, _) in owners_of_chunk(cb) {
                 if m != n {

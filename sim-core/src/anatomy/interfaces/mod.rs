@@ -146,6 +146,8 @@ pub fn mesh_family(
     let mut notes: Vec<Vec<String>> = vec![Vec::new(); items.len()];
     let mut region_notes = Vec::new();
     let input: Vec<Vec<[u32; 3]>> = fam.patches.iter().map(|p| p.triangles.clone()).collect();
+    // Neighbour lists of the welded patches (`Family::neighbours`), once a step has made them.
+    let mut family_neighbours: Option<Vec<Vec<u32>>> = None;
     let shared: Vec<usize> = (0..items.len())
         .map(|m| {
             fam.mesh_patches[m]
@@ -199,8 +201,11 @@ pub fn mesh_family(
         // whose surfaces meet as the masks' do. All before decimation, whose own crossing
         // checks then see the final positions.
         let fallback = fam.fallback.clone();
-        let (restored, passes) =
+        let (restored, passes, neighbours) =
             fall_back_where_crossing(&mut fam.positions, &input, &fallback, &[]);
+        // The welded patches' connectivity, which decimation needs again (1.2 s on one core
+        // for the default phantom's family): the patches keep their triangles until then.
+        family_neighbours = Some(neighbours);
         region_notes.push(format!(
             "level sets: {restored} of {} vertices interpolated where exact positions made surfaces cross ({passes} passes)",
             fam.positions.len()
@@ -220,7 +225,7 @@ pub fn mesh_family(
         // (at worst every vertex is back where extraction put it).
         let all = vec![true; fam.patches.len()];
         let cell_mm = 4.0 * mean_edge_mm(&input, &extracted_positions);
-        let neighbours = fam.neighbours();
+        let neighbours = family_neighbours.get_or_insert_with(|| fam.neighbours());
         let mut restored = 0usize;
         let mut passes = 0usize;
         loop {
@@ -230,7 +235,7 @@ pub fn mesh_family(
             }
             passes += 1;
             let crossing = crossing_corners(&cross, &input);
-            for v in crate::anatomy::smooth::grow_rings(crossing, &neighbours, 2) {
+            for v in crate::anatomy::smooth::grow_rings(crossing, neighbours, 2) {
                 let v = v as usize;
                 if fam.positions[v] != extracted_positions[v] {
                     fam.positions[v] = extracted_positions[v];
@@ -246,7 +251,8 @@ pub fn mesh_family(
     }
     let mut current = input;
     if let Some(dp) = decimation {
-        let (result, dnotes, summary) = decimate_family(&fam, &names, dp);
+        let (result, dnotes, summary) =
+            decimate_family(&fam, &names, dp, family_neighbours.take());
         for (m, n) in dnotes.into_iter().enumerate() {
             notes[m].push(n);
         }
@@ -286,7 +292,7 @@ pub fn mesh_family(
             // middle of the edge it split; see `fall_back_where_crossing`).
             let base = fam.positions.len() - parents.len();
             let fallback: Vec<[f64; 3]> = fam.positions[..base].to_vec();
-            let (restored, passes) =
+            let (restored, passes, _) =
                 fall_back_where_crossing(&mut fam.positions, &current, &fallback, &parents);
             region_notes.push(format!(
                 "level-set refinement: {restored} splits undone where surfaces crossed ({passes} passes)"
@@ -342,13 +348,13 @@ fn joined<T>(r: std::thread::Result<T>) -> T {
 /// ligamentum flavum lost 0.5 % more of its volume), triangles sharing a corner are compared
 /// too (a split beside a junction can fold over a neighbour's triangle at that corner), and a
 /// pair that crossed before the splits (the flat triangles) is not new and does not count.
-/// Returns the vertices moved and the passes.
+/// Returns the vertices moved, the passes, and the neighbour lists of `source`'s triangles.
 fn fall_back_where_crossing(
     positions: &mut [[f64; 3]],
     source: &[Vec<[u32; 3]>],
     fallback: &[[f64; 3]],
     parents: &[(u32, u32)],
-) -> (usize, usize) {
+) -> (usize, usize, Vec<Vec<u32>>) {
     let splits = !parents.is_empty();
     let rings = if splits { 0 } else { 1 };
     let all = vec![true; source.len()];
@@ -431,7 +437,7 @@ fn fall_back_where_crossing(
             break;
         }
     }
-    (restored, passes)
+    (restored, passes, neighbours)
 }
 
 /// What [`mesh_family`] gives: every mesh with its notes (input order), and notes on the family.
