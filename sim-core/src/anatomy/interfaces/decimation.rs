@@ -6,7 +6,7 @@ use rustc_hash::FxHashMap;
 use super::crossing::{crossing_pairs, lock_around_crossing, mean_edge_mm};
 use super::weld::Family;
 use crate::anatomy::decimate::{Closure, DecimationParams, acceptable, defective_vertices};
-use crate::par::par_map;
+use crate::par::{par_map, par_map_heaviest_first};
 
 /// Edge of the cubes that split patches into chunks for decimation, in mean input edge
 /// lengths (about 25 mm on a 1.5 mm grid). Smaller chunks lock more vertices along their
@@ -332,14 +332,33 @@ pub(super) fn decimate_family(
             }
         }
         let per_patch = patch_result(&result);
-        let mut next: Vec<usize> = (0..n_mesh)
-            .filter(|&m| {
-                let cs = fam.mesh_patches[m]
-                    .iter()
-                    .flat_map(|&(p, _)| &chunks_of_patch[p]);
-                let mut cs2 = cs.clone();
-                cs.clone().any(|&c| now[c])
-                    && !cs2.all(|&c| reverted[c])
+        // The meshes that changed are checked (the heaviest first, over the cores) while one
+        // more thread looks for crossings at the reverted chunks: on the default phantom's
+        // family the checks took 0.8 s on one core.
+        let (mut next, crossing_now) = std::thread::scope(|s| {
+            let crossing = s.spawn(|| crossing_pairs(&result, &fam.positions, &now, cell_mm, true));
+            let changed: Vec<bool> = (0..n_mesh)
+                .map(|m| {
+                    let mut cs = fam.mesh_patches[m]
+                        .iter()
+                        .flat_map(|&(p, _)| &chunks_of_patch[p]);
+                    cs.clone().any(|&c| now[c]) && !cs.all(|&c| reverted[c])
+                })
+                .collect();
+            let weights: Vec<usize> = (0..n_mesh)
+                .map(|m| {
+                    if changed[m] {
+                        fam.mesh_patches[m]
+                            .iter()
+                            .map(|&(p, _)| per_patch[p].len())
+                            .sum()
+                    } else {
+                        0
+                    }
+                })
+                .collect();
+            let fails = par_map_heaviest_first(&weights, &|m| {
+                changed[m]
                     && acceptable(
                         before[m],
                         &fam.assemble(m, &per_patch, &fam.positions),
@@ -347,9 +366,16 @@ pub(super) fn decimate_family(
                         Closure::Manifold,
                     )
                     .is_err()
-            })
-            .collect();
-        for ((ca, _), (cb, _)) in crossing_pairs(&result, &fam.positions, &now, cell_mm, true) {
+            });
+            let next: Vec<usize> = (0..n_mesh).filter(|&m| fails[m]).collect();
+            (
+                next,
+                crossing
+                    .join()
+                    .unwrap_or_else(|p| std::panic::resume_unwind(p)),
+            )
+        });
+        for ((ca, _), (cb, _)) in crossing_now {
             if !relevant(ca, cb) {
                 continue;
             }

@@ -251,8 +251,7 @@ pub fn mesh_family(
     }
     let mut current = input;
     if let Some(dp) = decimation {
-        let (result, dnotes, summary) =
-            decimate_family(&fam, &names, dp, family_neighbours.take());
+        let (result, dnotes, summary) = decimate_family(&fam, &names, dp, family_neighbours.take());
         for (m, n) in dnotes.into_iter().enumerate() {
             notes[m].push(n);
         }
