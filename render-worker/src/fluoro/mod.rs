@@ -105,9 +105,9 @@ pub struct GpuFluoroRenderer {
     targets: [Option<Targets>; 2],
     /// The full image's geometric L-buffer between frames (what the geometry cache refers to).
     kept_geometry: Option<GeometryTargets>,
-    /// Whether a frame of this renderer holds its turn at the pool (`TargetPool::enter`),
-    /// from its first target to `release_targets`.
-    admitted: bool,
+    /// The turn at the pool (`TargetPool::enter`) a frame of this renderer holds, from its
+    /// first target to `release_targets`.
+    admitted: Option<pipelines::Turn>,
     resolve: ResolvePass,
     cache: FrameCache,
     /// Bumped whenever the needle changes.
@@ -160,7 +160,7 @@ impl GpuFluoroRenderer {
             lbuffer: LBuffer::new(Arc::clone(&anatomy)),
             targets: [None, None],
             kept_geometry: None,
-            admitted: false,
+            admitted: None,
             resolve: ResolvePass::new(&ctx),
             cache: FrameCache::default(),
             needle_generation: 0,
@@ -508,15 +508,21 @@ impl Drop for GpuFluoroRenderer {
 impl GpuFluoroRenderer {
     /// Makes `targets[ri]` `size` samples for this frame. The full image's geometric L-buffer is
     /// the one kept from the last frame when its size matches (another drops what the caches
-    /// kept of it); everything else comes from the anatomy's pool.
-    fn ensure_targets(&mut self, ri: usize, size: [u32; 2]) {
+    /// kept of it); everything else comes from the anatomy's pool. `Interrupted` where newer
+    /// input made the frame obsolete while it waited for its turn (`TargetPool::enter`).
+    fn ensure_targets(&mut self, ri: usize, size: [u32; 2]) -> Result<(), FluoroGpuError> {
         if self.targets[ri].as_ref().is_some_and(|t| t.size() == size) {
-            return;
+            return Ok(());
         }
         self.release_target(ri, true);
-        if !self.admitted {
-            self.anatomy.pool.enter();
-            self.admitted = true;
+        if self.admitted.is_none() {
+            let refining =
+                crate::priority::Priority::of_this_thread() == crate::priority::Priority::Refining;
+            let turn = self
+                .anatomy
+                .pool
+                .enter(refining, &crate::interrupt::Interrupt::of_this_thread());
+            self.admitted = Some(turn.ok_or(FluoroGpuError::Interrupted)?);
         }
         let pool = &self.anatomy.pool;
         let device = &self.ctx.device;
@@ -534,6 +540,7 @@ impl GpuFluoroRenderer {
             geometry,
             frame: pool.take_frame(device, size),
         });
+        Ok(())
     }
 
     /// Ends a frame's hold on `targets[ri]`: the full image keeps its geometric L-buffer, the
@@ -571,8 +578,8 @@ impl GpuFluoroRenderer {
     /// whichever renderer took it.
     fn release_targets(&mut self, completed: bool) {
         (0..self.targets.len()).for_each(|ri| self.release_target(ri, completed));
-        if std::mem::take(&mut self.admitted) {
-            self.anatomy.pool.leave();
+        if let Some(turn) = self.admitted.take() {
+            self.anatomy.pool.leave(turn);
         }
     }
 
@@ -594,7 +601,7 @@ impl GpuFluoroRenderer {
         let started = Instant::now();
         let ri = region.index();
         let size = region.size;
-        self.ensure_targets(ri, size);
+        self.ensure_targets(ri, size)?;
         let t = self.targets[ri].as_ref().expect("targets");
         let needle_rect = self.lbuffer.encode(
             &self.ctx,
@@ -667,7 +674,7 @@ impl GpuFluoroRenderer {
         iodine: Option<&IodineField>,
     ) -> Result<FullFrame, FluoroGpuError> {
         let full = PixelRect::full(projection);
-        self.ensure_targets(0, full.size);
+        self.ensure_targets(0, full.size)?;
         let plan = self
             .cache
             .plan_full(self.caching, projection, model.model, iodine.is_some());
@@ -728,7 +735,7 @@ impl GpuFluoroRenderer {
                 needle: pass == 0,
                 ..Passes::ALL
             };
-            self.ensure_targets(0, full.size);
+            self.ensure_targets(0, full.size)?;
             let t = self.targets[0].as_ref().expect("targets");
             self.lbuffer.encode(
                 &self.ctx,

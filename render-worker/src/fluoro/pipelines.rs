@@ -6,6 +6,7 @@ use std::sync::PoisonError;
 
 use super::types::Vertex;
 use crate::gpu::GpuContext;
+use crate::interrupt::Interrupt;
 
 /// Every pipeline of the renderer, built once per device.
 pub(super) struct Pipelines {
@@ -75,20 +76,47 @@ pub(super) struct FrameTargets {
 #[derive(Default)]
 pub(super) struct TargetPool {
     free: std::sync::Mutex<FreeTargets>,
-    /// Frames holding targets now, admitted in arrival order (see [`IN_FLIGHT`]).
+    /// Frames holding targets now and waiting for them (see [`IN_FLIGHT`], [`TargetPool::enter`]).
     gate: std::sync::Mutex<Gate>,
     turn: std::sync::Condvar,
 }
 
-/// Tickets of the frames that asked for targets and of those that gave them back.
+/// Frames waiting for targets, and those holding them.
 #[derive(Default)]
 struct Gate {
+    /// Tickets given so far (arrival order).
     issued: u64,
+    /// Frames holding targets now, and how many of them are refinements.
+    holders: u64,
+    refining_holders: u64,
+    /// Waiting frames in admission order, as (class, ticket, refining): class 0 a frame
+    /// someone waits on (or a refinement that waited [`REFINING_PATIENCE`]), class 1 a
+    /// refinement.
+    waiting: std::collections::BTreeSet<(u8, u64, bool)>,
+    /// Frames that gave their targets back (every admitted frame does once).
     returned: u64,
 }
 
-/// Frames of one anatomy that hold targets at once; the next one waits, first come first
-/// served, until one ends. The device runs one queue's submissions in order (lavapipe: one
+/// A frame's turn at the targets ([`TargetPool::enter`]); give it back with
+/// [`TargetPool::leave`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[must_use = "every turn is given back with `TargetPool::leave`"]
+pub(super) struct Turn {
+    refining: bool,
+}
+
+/// How long a refinement (the full frame behind a draft already shown) lets frames someone waits
+/// on go first before it queues with them in arrival order. Simulator choice: a learner who
+/// stopped moving sees the full frame within about a second however busy the server is.
+pub(super) const REFINING_PATIENCE: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// How often a refinement waiting for targets looks whether newer input has made it obsolete
+/// (`crate::interrupt`): then it gives up its place. Simulator choice: the session thread's
+/// own poll during a pause (2 ms).
+const GATE_POLL: std::time::Duration = std::time::Duration::from_millis(2);
+
+/// Frames of one anatomy that hold targets at once; the next one waits until one ends (in
+/// the order [`TargetPool::enter`] gives: frames someone waits on before refinements). The device runs one queue's submissions in order (lavapipe: one
 /// after the other), so a frame admitted later would only wait in that queue, holding its
 /// targets (9 MB for a 512^2 image): in a capacity bench run with 16 learners the pool made 44
 /// full-image sets while frames queued behind each other. Two let one frame be recorded and read
@@ -141,23 +169,86 @@ impl TargetPool {
         drop(evicted);
     }
 
-    /// Waits for a frame's turn to hold targets (see [`IN_FLIGHT`]); every call is matched by
-    /// one [`TargetPool::leave`].
-    pub(super) fn enter(&self) {
+    /// Waits for a frame's turn to hold targets (see [`IN_FLIGHT`]); every turn is given back
+    /// with one [`TargetPool::leave`]. Frames someone waits on (shots, needle steps, drafts,
+    /// live pulses) go first, in arrival order; a `refining` frame (see
+    /// `crate::priority::refining`) goes after them until it has waited
+    /// [`REFINING_PATIENCE`], and at most `IN_FLIGHT - 1` refinements hold targets at once, so
+    /// a turn is always left for a frame someone waits on. A refinement's CPU pass runs at a
+    /// lower priority while it holds its turn (`crate::priority`); before, frames were admitted
+    /// first come first served and a needle step's shot could wait behind two refinements.
+    /// `None` where `interrupt` (the flag the frame's thread watches) was raised while it
+    /// waited: newer input made the frame obsolete, and it holds nothing.
+    pub(super) fn enter(&self, refining: bool, interrupt: &Interrupt) -> Option<Turn> {
+        self.enter_with_patience(refining, REFINING_PATIENCE, interrupt)
+    }
+
+    /// [`TargetPool::enter`] with a refinement's `patience` given.
+    fn enter_with_patience(
+        &self,
+        refining: bool,
+        patience: std::time::Duration,
+        interrupt: &Interrupt,
+    ) -> Option<Turn> {
+        let started = std::time::Instant::now();
         let mut gate = self.gate.lock().unwrap_or_else(PoisonError::into_inner);
         let ticket = gate.issued;
         gate.issued += 1;
-        while ticket >= gate.returned + IN_FLIGHT {
-            gate = self.turn.wait(gate).unwrap_or_else(PoisonError::into_inner);
+        let mut me = (u8::from(refining), ticket, refining);
+        gate.waiting.insert(me);
+        loop {
+            // The first waiting frame that fits goes in (a refinement waits while another
+            // holds targets; the frames behind it need not).
+            let fits = |g: &Gate, refining: bool| {
+                g.holders < IN_FLIGHT && (!refining || g.refining_holders < IN_FLIGHT - 1)
+            };
+            let next = gate.waiting.iter().find(|w| fits(&gate, w.2)).copied();
+            if next == Some(me) {
+                gate.waiting.remove(&me);
+                gate.holders += 1;
+                gate.refining_holders += u64::from(refining);
+                // The next in line may fit beside this one.
+                self.turn.notify_all();
+                return Some(Turn { refining });
+            }
+            if interrupt.is_raised() {
+                gate.waiting.remove(&me);
+                self.turn.notify_all();
+                return None;
+            }
+            if me.0 == 1 && started.elapsed() >= patience {
+                gate.waiting.remove(&me);
+                me.0 = 0;
+                gate.waiting.insert(me);
+                self.turn.notify_all();
+                continue;
+            }
+            gate = if refining {
+                // A refinement looks at its patience and at its interrupt now and then.
+                let left = patience.saturating_sub(started.elapsed());
+                let nap = if me.0 == 1 {
+                    left.min(GATE_POLL)
+                } else {
+                    GATE_POLL
+                };
+                self.turn
+                    .wait_timeout(gate, nap)
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .0
+            } else {
+                self.turn.wait(gate).unwrap_or_else(PoisonError::into_inner)
+            };
         }
     }
 
     /// A frame admitted by [`TargetPool::enter`] holds no targets any more.
-    pub(super) fn leave(&self) {
-        self.gate
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .returned += 1;
+    pub(super) fn leave(&self, turn: Turn) {
+        {
+            let mut gate = self.gate.lock().unwrap_or_else(PoisonError::into_inner);
+            gate.holders -= 1;
+            gate.refining_holders -= u64::from(turn.refining);
+            gate.returned += 1;
+        }
         self.turn.notify_all();
     }
 
@@ -520,25 +611,37 @@ mod tests {
         drop(g);
     }
 
-    /// However many frames ask at once, at most `IN_FLIGHT` hold targets, and every one gets
-    /// its turn.
+    /// However many frames ask at once (half of them refinements, some of which run out of
+    /// patience), at most `IN_FLIGHT` hold targets, at most `IN_FLIGHT - 1` of them
+    /// refinements, and every one gets its turn.
     #[test]
     fn at_most_in_flight_frames_hold_targets_at_once() {
         use std::sync::atomic::{AtomicU64, Ordering};
         let pool = std::sync::Arc::new(TargetPool::default());
-        let inside = std::sync::Arc::new(AtomicU64::new(0));
-        let most = std::sync::Arc::new(AtomicU64::new(0));
+        // Frames inside and refinements inside: now, and the most seen.
+        let counts: std::sync::Arc<[AtomicU64; 4]> = Default::default();
         let threads: Vec<_> = (0..8)
-            .map(|_| {
-                let (pool, inside, most) = (pool.clone(), inside.clone(), most.clone());
+            .map(|k| {
+                let (pool, counts) = (pool.clone(), counts.clone());
+                let refining = k % 2 == 1;
                 std::thread::spawn(move || {
                     for _ in 0..5 {
-                        pool.enter();
-                        let now = inside.fetch_add(1, Ordering::SeqCst) + 1;
-                        most.fetch_max(now, Ordering::SeqCst);
+                        let patience = std::time::Duration::from_millis(3);
+                        let turn = pool
+                            .enter_with_patience(refining, patience, &Interrupt::default())
+                            .expect("no interrupt");
+                        let now = counts[0].fetch_add(1, Ordering::SeqCst) + 1;
+                        counts[2].fetch_max(now, Ordering::SeqCst);
+                        if refining {
+                            let now = counts[1].fetch_add(1, Ordering::SeqCst) + 1;
+                            counts[3].fetch_max(now, Ordering::SeqCst);
+                        }
                         std::thread::sleep(std::time::Duration::from_millis(1));
-                        inside.fetch_sub(1, Ordering::SeqCst);
-                        pool.leave();
+                        counts[0].fetch_sub(1, Ordering::SeqCst);
+                        if refining {
+                            counts[1].fetch_sub(1, Ordering::SeqCst);
+                        }
+                        pool.leave(turn);
                     }
                 })
             })
@@ -546,8 +649,135 @@ mod tests {
         for t in threads {
             t.join().expect("frame thread");
         }
-        assert!((1..=IN_FLIGHT).contains(&most.load(Ordering::SeqCst)));
+        assert!((1..=IN_FLIGHT).contains(&counts[2].load(Ordering::SeqCst)));
+        assert!((1..IN_FLIGHT).contains(&counts[3].load(Ordering::SeqCst)));
         let gate = pool.gate.lock().expect("gate");
         assert_eq!((gate.issued, gate.returned), (40, 40));
+        assert_eq!((gate.holders, gate.refining_holders), (0, 0));
+    }
+
+    /// Waits (up to a minute) until the pool's waiting frames are `want` (class, refining).
+    fn await_waiting(pool: &TargetPool, want: &[(u8, bool)]) {
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+        loop {
+            let now: Vec<(u8, bool)> = {
+                let gate = pool.gate.lock().expect("gate");
+                gate.waiting.iter().map(|&(c, _, r)| (c, r)).collect()
+            };
+            if now == want {
+                return;
+            }
+            assert!(
+                std::time::Instant::now() < deadline,
+                "waiting {now:?}, not {want:?}"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+    }
+
+    /// A turn for a frame someone waits on, nothing watched.
+    fn turn_now(pool: &TargetPool) -> Turn {
+        pool.enter(false, &Interrupt::default())
+            .expect("no interrupt")
+    }
+
+    /// A frame (`refining` or not, with a refinement's `patience`) that asks for a turn on a
+    /// thread of its own and says `name` once it has it.
+    fn waiter(
+        pool: &std::sync::Arc<TargetPool>,
+        tx: &std::sync::mpsc::Sender<&'static str>,
+        (name, refining, patience): (&'static str, bool, std::time::Duration),
+    ) -> std::thread::JoinHandle<Turn> {
+        let (pool, tx) = (pool.clone(), tx.clone());
+        std::thread::spawn(move || {
+            let turn = pool
+                .enter_with_patience(refining, patience, &Interrupt::default())
+                .expect("no interrupt");
+            tx.send(name).expect("send");
+            turn
+        })
+    }
+
+    const HOUR: std::time::Duration = std::time::Duration::from_secs(3600);
+
+    /// A frame someone waits on (a shot, a needle step) goes in before a refinement that came
+    /// first, and a refinement never takes the last turn.
+    #[test]
+    fn frames_someone_waits_on_go_before_refinements_and_keep_a_turn() {
+        let pool = std::sync::Arc::new(TargetPool::default());
+        let (a, b) = (turn_now(&pool), turn_now(&pool));
+        let (tx, rx) = std::sync::mpsc::channel();
+        let refinement = waiter(&pool, &tx, ("refinement", true, HOUR));
+        await_waiting(&pool, &[(1, true)]);
+        let shot = waiter(&pool, &tx, ("shot", false, HOUR));
+        await_waiting(&pool, &[(0, false), (1, true)]);
+        pool.leave(a);
+        assert_eq!(rx.recv().expect("first in"), "shot");
+        let shot = shot.join().expect("shot thread");
+        pool.leave(b);
+        assert_eq!(rx.recv().expect("second in"), "refinement");
+        let refinement = refinement.join().expect("refinement thread");
+        // One refinement holds targets and one shot: a second refinement waits although a
+        // turn is free once the shot ends, and a shot behind it does not.
+        pool.leave(shot);
+        let second = waiter(&pool, &tx, ("second refinement", true, HOUR));
+        await_waiting(&pool, &[(1, true)]);
+        let late_shot = turn_now(&pool);
+        assert!(
+            rx.try_recv().is_err(),
+            "no second refinement beside the first"
+        );
+        pool.leave(late_shot);
+        pool.leave(refinement);
+        assert_eq!(rx.recv().expect("third in"), "second refinement");
+        pool.leave(second.join().expect("second refinement thread"));
+        let gate = pool.gate.lock().expect("gate");
+        assert_eq!((gate.holders, gate.issued, gate.returned), (0, 6, 6));
+    }
+
+    /// A refinement that has waited its patience queues with the other frames in arrival order:
+    /// a server kept busy by shots still shows it.
+    #[test]
+    fn a_refinement_that_waited_its_patience_goes_in_arrival_order() {
+        let pool = std::sync::Arc::new(TargetPool::default());
+        let (a, b) = (turn_now(&pool), turn_now(&pool));
+        let (tx, rx) = std::sync::mpsc::channel();
+        let patience = std::time::Duration::from_millis(20);
+        let refinement = waiter(&pool, &tx, ("refinement", true, patience));
+        // Once it has waited 20 ms it counts as a frame someone waits on, ahead of a later shot.
+        await_waiting(&pool, &[(0, true)]);
+        let shot = waiter(&pool, &tx, ("shot", false, HOUR));
+        await_waiting(&pool, &[(0, true), (0, false)]);
+        pool.leave(a);
+        assert_eq!(rx.recv().expect("first in"), "refinement");
+        pool.leave(b);
+        assert_eq!(rx.recv().expect("second in"), "shot");
+        pool.leave(refinement.join().expect("refinement thread"));
+        pool.leave(shot.join().expect("shot thread"));
+    }
+
+    /// A refinement waiting for targets gives its place up once newer input makes it obsolete
+    /// (the flag its thread watches), and the frames behind it go on.
+    #[test]
+    fn a_waiting_refinement_stops_when_its_input_is_superseded() {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let pool = std::sync::Arc::new(TargetPool::default());
+        let (a, b) = (turn_now(&pool), turn_now(&pool));
+        let flag = std::sync::Arc::new(AtomicBool::new(false));
+        let refinement = {
+            let (pool, flag) = (pool.clone(), flag.clone());
+            std::thread::spawn(move || {
+                let _watching = crate::interrupt::watching(&flag);
+                pool.enter_with_patience(true, HOUR, &Interrupt::of_this_thread())
+            })
+        };
+        await_waiting(&pool, &[(1, true)]);
+        flag.store(true, Ordering::SeqCst);
+        assert_eq!(refinement.join().expect("refinement thread"), None);
+        await_waiting(&pool, &[]);
+        pool.leave(a);
+        pool.leave(b);
+        let gate = pool.gate.lock().expect("gate");
+        assert_eq!((gate.holders, gate.issued, gate.returned), (0, 3, 2));
     }
 }
