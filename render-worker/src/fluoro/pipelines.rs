@@ -127,6 +127,13 @@ const GATE_POLL: std::time::Duration = std::time::Duration::from_millis(2);
 /// 4,340-5,674 ms. The limit trades some median for the tail and bounds memory under load.
 pub(super) const IN_FLIGHT: u64 = 2;
 
+// A refinement holds at most `IN_FLIGHT - 1` turns (`TargetPool::enter`): with one turn in all
+// none would ever be admitted.
+const _: () = assert!(
+    IN_FLIGHT >= 2,
+    "refinements need a turn besides the one kept"
+);
+
 #[derive(Default)]
 struct FreeTargets {
     geometry: Vec<GeometryTargets>,
