@@ -9,6 +9,12 @@
 //! a render it gives up ends with the modality's `Interrupted` error and leaves its view dirty,
 //! so nothing half-done is shown or kept. Renders nobody has seen a draft of (a shot, a needle
 //! step, a draft itself) are never watched.
+//!
+//! A second flag, watched with [`watching_input`], says that any command waits for the
+//! session: work not begun yet (a refinement or prefetch still waiting for its turn at the GPU
+//! targets) then gives up its low place in line, and the session takes the command first
+//! and renders what it needs at the priority of a frame someone waits on. Work under way is
+//! not stopped by it: the command needs that work anyway.
 
 use std::cell::RefCell;
 use std::sync::Arc;
@@ -16,12 +22,23 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 thread_local! {
     static WATCHED: RefCell<Option<Arc<AtomicBool>>> = const { RefCell::new(None) };
+    static INPUT: RefCell<Option<Arc<AtomicBool>>> = const { RefCell::new(None) };
 }
 
 /// Makes `flag` stop the renders this thread starts from now on, until the guard drops.
 pub fn watching(flag: &Arc<AtomicBool>) -> Watching {
     Watching {
-        before: WATCHED.with(|w| w.replace(Some(Arc::clone(flag)))),
+        watched: Some(WATCHED.with(|w| w.replace(Some(Arc::clone(flag))))),
+        input: None,
+    }
+}
+
+/// Makes `flag` say, until the guard drops, that a command waits for the session while this
+/// thread's renders wait for their turn (see [`Interrupt::input_waits`]).
+pub fn watching_input(flag: &Arc<AtomicBool>) -> Watching {
+    Watching {
+        watched: None,
+        input: Some(INPUT.with(|w| w.replace(Some(Arc::clone(flag))))),
     }
 }
 
@@ -29,20 +46,27 @@ pub fn watching(flag: &Arc<AtomicBool>) -> Watching {
 /// render the watched input does not make obsolete (a modality knows which of its own).
 pub fn unwatched() -> Watching {
     Watching {
-        before: WATCHED.with(|w| w.replace(None)),
+        watched: Some(WATCHED.with(|w| w.replace(None))),
+        input: Some(INPUT.with(|w| w.replace(None))),
     }
 }
 
-/// A thread's watch of a flag (see [`watching`]); the previous watch comes back on drop.
+/// A thread's watch of its flags (see [`watching`], [`watching_input`]); the flags it replaced
+/// come back on drop.
 #[must_use = "the watch lasts while the guard lives"]
 pub struct Watching {
-    before: Option<Arc<AtomicBool>>,
+    watched: Option<Option<Arc<AtomicBool>>>,
+    input: Option<Option<Arc<AtomicBool>>>,
 }
 
 impl Drop for Watching {
     fn drop(&mut self) {
-        let before = self.before.take();
-        WATCHED.with(|w| *w.borrow_mut() = before);
+        if let Some(before) = self.watched.take() {
+            WATCHED.with(|w| *w.borrow_mut() = before);
+        }
+        if let Some(before) = self.input.take() {
+            INPUT.with(|w| *w.borrow_mut() = before);
+        }
     }
 }
 
@@ -50,6 +74,7 @@ impl Drop for Watching {
 #[derive(Debug, Clone, Default)]
 pub struct Interrupt {
     flag: Option<Arc<AtomicBool>>,
+    input: Option<Arc<AtomicBool>>,
 }
 
 impl Interrupt {
@@ -57,12 +82,20 @@ impl Interrupt {
     pub fn of_this_thread() -> Interrupt {
         Interrupt {
             flag: WATCHED.with(|w| w.borrow().clone()),
+            input: INPUT.with(|w| w.borrow().clone()),
         }
     }
 
     /// Whether the render should stop: newer input has made it obsolete.
     pub fn is_raised(&self) -> bool {
         self.flag
+            .as_ref()
+            .is_some_and(|f| f.load(Ordering::Relaxed))
+    }
+
+    /// Whether any command waits for the session (see [`watching_input`]).
+    pub fn input_waits(&self) -> bool {
+        self.input
             .as_ref()
             .is_some_and(|f| f.load(Ordering::Relaxed))
     }
@@ -107,5 +140,29 @@ mod tests {
             !Interrupt::of_this_thread().is_raised(),
             "no watch after the guard"
         );
+    }
+
+    #[test]
+    fn the_input_flag_reaches_the_handle_and_unwatched_clears_both_flags() {
+        let input = Arc::new(AtomicBool::new(true));
+        let flag = Arc::new(AtomicBool::new(true));
+        assert!(!Interrupt::of_this_thread().input_waits());
+        {
+            let _w = watching(&flag);
+            let _i = watching_input(&input);
+            let i = Interrupt::of_this_thread();
+            assert!(i.is_raised() && i.input_waits());
+            {
+                let _none = unwatched();
+                let i = Interrupt::of_this_thread();
+                assert!(!i.is_raised() && !i.input_waits(), "unwatched");
+            }
+            let i = Interrupt::of_this_thread();
+            assert!(i.is_raised() && i.input_waits(), "both back");
+            input.store(false, Ordering::Relaxed);
+            assert!(!Interrupt::of_this_thread().input_waits());
+        }
+        let i = Interrupt::of_this_thread();
+        assert!(!i.is_raised() && !i.input_waits(), "both dropped");
     }
 }

@@ -184,8 +184,10 @@ impl TargetPool {
     /// a turn is always left for a frame someone waits on. A refinement's CPU pass runs at a
     /// lower priority while it holds its turn (`crate::priority`); before, frames were admitted
     /// first come first served and a needle step's shot could wait behind two refinements.
-    /// `None` where `interrupt` (the flag the frame's thread watches) was raised while it
-    /// waited: newer input made the frame obsolete, and it holds nothing.
+    /// `None` where `interrupt` (the flags the frame's thread watches) says, while it waits,
+    /// that newer input made the frame obsolete or that a command waits for its session (which
+    /// the session then takes first, rendering what it needs at the priority of a frame someone
+    /// waits on): it holds nothing.
     pub(super) fn enter(&self, refining: bool, interrupt: &Interrupt) -> Option<Turn> {
         self.enter_with_patience(refining, REFINING_PATIENCE, interrupt)
     }
@@ -218,7 +220,7 @@ impl TargetPool {
                 self.turn.notify_all();
                 return Some(Turn { refining });
             }
-            if interrupt.is_raised() {
+            if interrupt.is_raised() || interrupt.input_waits() {
                 gate.waiting.remove(&me);
                 self.turn.notify_all();
                 return None;
@@ -764,27 +766,34 @@ mod tests {
     }
 
     /// A refinement waiting for targets gives its place up once newer input makes it obsolete
-    /// (the flag its thread watches), and the frames behind it go on.
+    /// (the flag its thread watches), or once any command waits for its session (the input
+    /// flag), and the frames behind it go on.
     #[test]
-    fn a_waiting_refinement_stops_when_its_input_is_superseded() {
+    fn a_waiting_refinement_stops_when_its_input_is_superseded_or_a_command_waits() {
         use std::sync::atomic::{AtomicBool, Ordering};
-        let pool = std::sync::Arc::new(TargetPool::default());
-        let (a, b) = (turn_now(&pool), turn_now(&pool));
-        let flag = std::sync::Arc::new(AtomicBool::new(false));
-        let refinement = {
-            let (pool, flag) = (pool.clone(), flag.clone());
-            std::thread::spawn(move || {
-                let _watching = crate::interrupt::watching(&flag);
-                pool.enter_with_patience(true, HOUR, &Interrupt::of_this_thread())
-            })
-        };
-        await_waiting(&pool, &[(1, true)]);
-        flag.store(true, Ordering::SeqCst);
-        assert_eq!(refinement.join().expect("refinement thread"), None);
-        await_waiting(&pool, &[]);
-        pool.leave(a);
-        pool.leave(b);
-        let gate = pool.gate.lock().expect("gate");
-        assert_eq!((gate.holders, gate.issued, gate.returned), (0, 3, 2));
+        for input in [false, true] {
+            let pool = std::sync::Arc::new(TargetPool::default());
+            let (a, b) = (turn_now(&pool), turn_now(&pool));
+            let flag = std::sync::Arc::new(AtomicBool::new(false));
+            let refinement = {
+                let (pool, flag) = (pool.clone(), flag.clone());
+                std::thread::spawn(move || {
+                    let _watching = if input {
+                        crate::interrupt::watching_input(&flag)
+                    } else {
+                        crate::interrupt::watching(&flag)
+                    };
+                    pool.enter_with_patience(true, HOUR, &Interrupt::of_this_thread())
+                })
+            };
+            await_waiting(&pool, &[(1, true)]);
+            flag.store(true, Ordering::SeqCst);
+            assert_eq!(refinement.join().expect("refinement thread"), None);
+            await_waiting(&pool, &[]);
+            pool.leave(a);
+            pool.leave(b);
+            let gate = pool.gate.lock().expect("gate");
+            assert_eq!((gate.holders, gate.issued, gate.returned), (0, 3, 2));
+        }
     }
 }

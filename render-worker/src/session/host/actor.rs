@@ -51,6 +51,8 @@ pub(super) enum ActorMsg {
 pub(super) struct Supersede {
     kinds: Arc<BTreeSet<&'static str>>,
     flag: Arc<AtomicBool>,
+    /// Raised for every command sent (see `interrupt::watching_input`).
+    input: Arc<AtomicBool>,
 }
 
 impl Supersede {
@@ -66,6 +68,7 @@ impl Supersede {
         Supersede {
             kinds: Arc::new(kinds),
             flag: Arc::new(AtomicBool::new(false)),
+            input: Arc::new(AtomicBool::new(false)),
         }
     }
 
@@ -79,10 +82,16 @@ impl Supersede {
         self.flag.store(true, Ordering::SeqCst);
     }
 
+    /// Marks a command, whatever it does, as waiting.
+    pub(super) fn raise_input(&self) {
+        self.input.store(true, Ordering::SeqCst);
+    }
+
     /// Marks nothing waiting: called by the session thread before it looks at its queue, so
     /// that only commands sent from then on raise the flag.
     fn lower(&self) {
         self.flag.store(false, Ordering::SeqCst);
+        self.input.store(false, Ordering::SeqCst);
     }
 }
 
@@ -163,6 +172,7 @@ pub(super) fn run_actor(
                 let _refining = crate::priority::refining();
                 supersede.lower();
                 let _watching = crate::interrupt::watching(&supersede.flag);
+                let _input = crate::interrupt::watching_input(&supersede.input);
                 session.prefetch();
                 continue;
             }
@@ -237,6 +247,7 @@ pub(super) fn run_actor(
         // `interrupt`): the new view's draft is drawn instead.
         let _refining = draft_shown.then(crate::priority::refining);
         let _watching = draft_shown.then(|| crate::interrupt::watching(&supersede.flag));
+        let _input = draft_shown.then(|| crate::interrupt::watching_input(&supersede.input));
         match session.render_dirty_unless_superseded(&visible) {
             Ok((views, was_stopped)) => {
                 if !(was_stopped && views.is_empty()) {

@@ -162,7 +162,9 @@ impl SessionHandle {
         self.tx
             .send(ActorMsg::Command { env, reply })
             .map_err(|_| closed(seq))?;
-        // Raised once the command waits: a refinement in flight then stops for it.
+        // Raised once the command waits: a refinement in flight then stops for it, and one
+        // still waiting for its turn at the GPU targets gives its place up for any command.
+        self.supersede.raise_input();
         if moves {
             self.supersede.raise();
         }
