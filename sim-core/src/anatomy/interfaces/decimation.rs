@@ -4,6 +4,7 @@
 use rustc_hash::FxHashMap;
 
 use super::crossing::{crossing_pairs, lock_around_crossing, mean_edge_mm};
+use super::joined;
 use super::weld::Family;
 use crate::anatomy::decimate::{Closure, DecimationParams, acceptable, defective_vertices};
 use crate::par::{par_map, par_map_heaviest_first};
@@ -153,7 +154,7 @@ pub(super) fn decimate_family(
     let (neighbours, crossing_before) = std::thread::scope(|s| {
         let made = neighbours.is_none().then(|| s.spawn(|| fam.neighbours()));
         let pairs = crossing_pairs(&chunks, &fam.positions, &vec![true; n_chunk], cell_mm, true);
-        let made = made.map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)));
+        let made = made.map(|h| joined(h.join()));
         (neighbours.or(made).expect("given or made"), pairs)
     });
     let mut exempt: Vec<(u32, u32)> = Vec::new();
@@ -368,12 +369,7 @@ pub(super) fn decimate_family(
                     .is_err()
             });
             let next: Vec<usize> = (0..n_mesh).filter(|&m| fails[m]).collect();
-            (
-                next,
-                crossing
-                    .join()
-                    .unwrap_or_else(|p| std::panic::resume_unwind(p)),
-            )
+            (next, joined(crossing.join()))
         });
         for ((ca, _), (cb, _)) in crossing_now {
             if !relevant(ca, cb) {
