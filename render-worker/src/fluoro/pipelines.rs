@@ -97,6 +97,17 @@ struct Gate {
     returned: u64,
 }
 
+impl Gate {
+    /// The waiting frame that goes in next: the first in admission order for which a turn is
+    /// free (a refinement waits while another holds targets; the frames behind it need not).
+    fn first_that_fits(&self) -> Option<(u8, u64, bool)> {
+        let fits = |refining: bool| {
+            self.holders < IN_FLIGHT && (!refining || self.refining_holders < IN_FLIGHT - 1)
+        };
+        self.waiting.iter().find(|w| fits(w.2)).copied()
+    }
+}
+
 /// A frame's turn at the targets ([`TargetPool::enter`]); give it back with
 /// [`TargetPool::leave`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -116,8 +127,9 @@ pub(super) const REFINING_PATIENCE: std::time::Duration = std::time::Duration::f
 const GATE_POLL: std::time::Duration = std::time::Duration::from_millis(2);
 
 /// Frames of one anatomy that hold targets at once; the next one waits until one ends (in
-/// the order [`TargetPool::enter`] gives: frames someone waits on before refinements). The device runs one queue's submissions in order (lavapipe: one
-/// after the other), so a frame admitted later would only wait in that queue, holding its
+/// the order [`TargetPool::enter`] gives: frames someone waits on before refinements). The
+/// device runs one queue's submissions in order (lavapipe: one after the other), so a frame
+/// admitted later would only wait in that queue, holding its
 /// targets (9 MB for a 512^2 image): in a capacity bench run with 16 learners the pool made 44
 /// full-image sets while frames queued behind each other. Two let one frame be recorded and read
 /// back while another runs. Capacity bench, 16 learners, rows of 10 s: with the limit p50
@@ -206,13 +218,7 @@ impl TargetPool {
         let mut me = (u8::from(refining), ticket, refining);
         gate.waiting.insert(me);
         loop {
-            // The first waiting frame that fits goes in (a refinement waits while another
-            // holds targets; the frames behind it need not).
-            let fits = |g: &Gate, refining: bool| {
-                g.holders < IN_FLIGHT && (!refining || g.refining_holders < IN_FLIGHT - 1)
-            };
-            let next = gate.waiting.iter().find(|w| fits(&gate, w.2)).copied();
-            if next == Some(me) {
+            if gate.first_that_fits() == Some(me) {
                 gate.waiting.remove(&me);
                 gate.holders += 1;
                 gate.refining_holders += u64::from(refining);

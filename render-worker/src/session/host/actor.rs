@@ -87,6 +87,16 @@ impl Supersede {
         self.input.store(true, Ordering::SeqCst);
     }
 
+    /// This thread's watch of both flags around work nobody waits on yet (a refinement, a
+    /// prefetch): stopped by a command that moves its view (`interrupt::watching`), and out of
+    /// line for any command while it waits for its turn (`interrupt::watching_input`).
+    fn watched(&self) -> [crate::interrupt::Watching; 2] {
+        [
+            crate::interrupt::watching(&self.flag),
+            crate::interrupt::watching_input(&self.input),
+        ]
+    }
+
     /// Marks nothing waiting: called by the session thread before it looks at its queue, so
     /// that only commands sent from then on raise the flag.
     fn lower(&self) {
@@ -171,8 +181,7 @@ pub(super) fn run_actor(
                 let _busy = crate::alloc::busy();
                 let _refining = crate::priority::refining();
                 supersede.lower();
-                let _watching = crate::interrupt::watching(&supersede.flag);
-                let _input = crate::interrupt::watching_input(&supersede.input);
+                let _watching = supersede.watched();
                 session.prefetch();
                 continue;
             }
@@ -246,8 +255,7 @@ pub(super) fn run_actor(
         // frames (see `priority`), and stops when input that moves its view comes (see
         // `interrupt`): the new view's draft is drawn instead.
         let _refining = draft_shown.then(crate::priority::refining);
-        let _watching = draft_shown.then(|| crate::interrupt::watching(&supersede.flag));
-        let _input = draft_shown.then(|| crate::interrupt::watching_input(&supersede.input));
+        let _watching = draft_shown.then(|| supersede.watched());
         match session.render_dirty_unless_superseded(&visible) {
             Ok((views, was_stopped)) => {
                 if !(was_stopped && views.is_empty()) {
