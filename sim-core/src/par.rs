@@ -73,3 +73,8 @@ pub(crate) fn par_map_heaviest_first_told<T: Send>(
         .map(|r| r.expect("every index is taken once"))
         .collect()
 }
+
+/// A scoped helper thread's result, its panic passed on.
+pub(crate) fn joined<T>(r: std::thread::Result<T>) -> T {
+    r.unwrap_or_else(|p| std::panic::resume_unwind(p))
+}

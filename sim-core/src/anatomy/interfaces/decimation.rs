@@ -4,10 +4,9 @@
 use rustc_hash::FxHashMap;
 
 use super::crossing::{crossing_pairs, lock_around_crossing, mean_edge_mm};
-use super::joined;
 use super::weld::Family;
 use crate::anatomy::decimate::{Closure, DecimationParams, acceptable, defective_vertices};
-use crate::par::{par_map, par_map_heaviest_first};
+use crate::par::{joined, par_map, par_map_heaviest_first};
 
 /// Edge of the cubes that split patches into chunks for decimation, in mean input edge
 /// lengths (about 25 mm on a 1.5 mm grid). Smaller chunks lock more vertices along their

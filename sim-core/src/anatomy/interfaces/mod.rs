@@ -55,7 +55,7 @@ use super::error::AnatomyError;
 use super::level_set_mesh::LevelSetFn;
 use super::smooth::TaubinParams;
 use crate::mesh::TriMesh;
-use crate::par::par_map_heaviest_first;
+use crate::par::{joined, par_map_heaviest_first};
 use crossing::{LiveCrossings, crossing_pairs, mean_edge_mm};
 use decimation::decimate_family;
 use smoothing::smooth_family;
@@ -325,11 +325,6 @@ fn crossing_corners(cross: &[(TriangleRef, TriangleRef)], source: &[Vec<[u32; 3]
                 .chain(source[pb as usize][tb as usize])
         })
         .collect()
-}
-
-/// A scoped helper thread's result, its panic passed on.
-fn joined<T>(r: std::thread::Result<T>) -> T {
-    r.unwrap_or_else(|p| std::panic::resume_unwind(p))
 }
 
 /// The fall-back loop of [`mesh_family`] for level-set families: where triangles of two patches
